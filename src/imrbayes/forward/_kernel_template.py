@@ -1,0 +1,596 @@
+# The compiled forward kernel. This file is a *template*: imrbayes.forward._codegen writes one
+# copy per constitutive model with the line marked PLUGIN replaced by an import of that model's
+# compiled `stress`/`dissipation_q`, so that numba can cache every model's kernel on disk
+# (numba cannot cache a kernel that receives the stress function as an argument).
+#
+# Physics: shared/docs/forward-model.md (IMRv2, in our words). Everything here is dimensionless.
+# Time stepping: the additive Runge-Kutta pair ARK3(2)4L[2]SA of Kennedy & Carpenter (2003).
+# The stiff part is the diffusion of the bubble and medium fields, linear with its coefficients
+# frozen at the start of each step, so each step costs one tridiagonal factorisation per field
+# and three tridiagonal solves; everything else (radial dynamics, advection, wall coupling,
+# stresses) is explicit. Step size: embedded second-order error estimate, PI-free controller.
+import math
+
+import numpy as np
+from numba import njit
+
+from imrbayes.forward._layout import (
+    F_MASS, F_MEDIUM, F_MT, F_NAUX, F_NT, F_PDOT, F_RADIAL, F_THERMAL, FAIL_MAXSTEPS,
+    FAIL_NONFINITE, FAIL_RADIUS, FAIL_STEP, G_ALPHA_G, G_ALPHA_V, G_BETA_G, G_BETA_V, G_BR,
+    G_CHI, G_CSTAR, G_FOH, G_FOM, G_INV_WE, G_IOTA, G_KAPPA, G_KV0, G_LSTAR, G_LT, G_P8, G_PB0,
+    G_PV, G_REQ, G_RG, G_RV, G_T8, G_TAIT_B, G_TAIT_N, GR_D1C, GR_D1L, GR_D1U, GR_D2C, GR_D2L,
+    GR_D2U, GR_WALL, GR_Y, OK)
+from imrbayes.forward.constitutive.nhkv import stress as _stress, dissipation_q as _dissipation_q  # PLUGIN
+
+# ARK3(2)4L[2]SA coefficients (Kennedy & Carpenter 2003, Appl. Numer. Math. 44:139).
+_GAM = 1767732205903.0 / 4055673282236.0
+_AE = np.array([
+    [0.0, 0.0, 0.0, 0.0],
+    [1767732205903.0 / 2027836641118.0, 0.0, 0.0, 0.0],
+    [5535828885825.0 / 10492691773637.0, 788022342437.0 / 10882634858940.0, 0.0, 0.0],
+    [6485989280629.0 / 16251701735622.0, -4246266847089.0 / 9704473918619.0,
+     10755448449292.0 / 10357097424841.0, 0.0]])
+_AI = np.array([
+    [0.0, 0.0, 0.0, 0.0],
+    [_GAM, _GAM, 0.0, 0.0],
+    [2746238789719.0 / 10658868560708.0, -640167445237.0 / 6845629431997.0, _GAM, 0.0],
+    [1471266399579.0 / 7840856788654.0, -4482444167858.0 / 7529755066697.0,
+     11266239266428.0 / 11593286722821.0, _GAM]])
+_B = np.array([1471266399579.0 / 7840856788654.0, -4482444167858.0 / 7529755066697.0,
+               11266239266428.0 / 11593286722821.0, _GAM])
+_BHAT = np.array([2756255671327.0 / 12835298489170.0, -10771552573575.0 / 22201958757719.0,
+                  9247589265047.0 / 10645013368117.0, 2193209047091.0 / 5459859503100.0])
+_C = np.array([0.0, 2.0 * _GAM, 0.6, 1.0])
+
+
+@njit(cache=True)
+def _temperature(theta, alpha):
+    return (alpha - 1.0 + math.sqrt(1.0 + 2.0 * alpha * theta)) / alpha
+
+
+@njit(cache=True)
+def _psat_star(T, g):
+    return 1.17e11 * math.exp(-5200.0 / (T * g[G_T8])) / g[G_P8]
+
+
+@njit(cache=True)
+def _kv_wall(p, T, g):
+    return 1.0 / (1.0 + (g[G_RV] / g[G_RG]) * (p / _psat_star(T, g) - 1.0))
+
+
+@njit(cache=True)
+def _wall_residual(thw, p, th, kv, tm, g, grid, dxi, nt, mass, kv0):
+    """Heat-flux balance at the bubble wall (forward-model.md §4.4); returns (F, Tw)."""
+    chi = g[G_CHI]
+    if mass:
+        alpha = kv0 * g[G_ALPHA_V] + (1.0 - kv0) * g[G_ALPHA_G]
+    else:
+        alpha = g[G_ALPHA_G]
+    arg = 1.0 + 2.0 * alpha * thw
+    if arg < 0.0:
+        return np.nan, np.nan
+    Tw = (alpha - 1.0 + math.sqrt(arg)) / alpha
+    w0 = grid[GR_WALL, 0]
+    w1 = grid[GR_WALL, 1]
+    w2 = grid[GR_WALL, 2]
+    F = (2.0 * chi * g[G_IOTA] / dxi) * (-1.5 * Tw + 2.0 * tm[1] - 0.5 * tm[2]) \
+        + chi * (w0 * thw + w1 * th[nt - 2] + w2 * th[nt - 3])
+    if mass:
+        kvw = _kv_wall(p, Tw, g)
+        dkv = w0 * kvw + w1 * kv[nt - 2] + w2 * kv[nt - 3]
+        F += g[G_FOM] * g[G_LSTAR] * p / ((kvw * (g[G_RV] - g[G_RG]) + g[G_RG]) * Tw * (1.0 - kvw)) * dkv
+    return F, Tw
+
+
+@njit(cache=True)
+def _wall_root(guess, p, th, kv, tm, g, grid, dxi, nt, mass, kv0):
+    """Wall value of the auxiliary temperature variable: bracket, then Illinois regula falsi."""
+    if mass:
+        alpha = kv0 * g[G_ALPHA_V] + (1.0 - kv0) * g[G_ALPHA_G]
+    else:
+        alpha = g[G_ALPHA_G]
+    lo_dom = -0.5 / alpha + 1e-12
+    x0 = guess if (guess > lo_dom and math.isfinite(guess)) else 0.0
+    f0, _ = _wall_residual(x0, p, th, kv, tm, g, grid, dxi, nt, mass, kv0)
+    if not math.isfinite(f0):
+        x0 = 0.0
+        f0, _ = _wall_residual(x0, p, th, kv, tm, g, grid, dxi, nt, mass, kv0)
+        if not math.isfinite(f0):
+            return np.nan
+    if f0 == 0.0:
+        return x0
+    step = 1e-3 * max(1.0, abs(x0))
+    a = x0
+    fa = f0
+    b = x0
+    fb = f0
+    found = False
+    for _ in range(200):
+        b = a + step if f0 < 0.0 else a - step
+        if b < lo_dom:
+            b = lo_dom
+        fb, _ = _wall_residual(b, p, th, kv, tm, g, grid, dxi, nt, mass, kv0)
+        if math.isfinite(fb) and fb * f0 <= 0.0:
+            found = True
+            break
+        if b == lo_dom:
+            break
+        a = b
+        fa = fb if math.isfinite(fb) else fa
+        step *= 2.0
+    if not found:
+        return np.nan
+    # Illinois on [a, b] with fa*fb <= 0.
+    side = 0
+    for _ in range(100):
+        if fb == fa:
+            break
+        c = (a * fb - b * fa) / (fb - fa)
+        fc, _ = _wall_residual(c, p, th, kv, tm, g, grid, dxi, nt, mass, kv0)
+        if not math.isfinite(fc):
+            c = 0.5 * (a + b)
+            fc, _ = _wall_residual(c, p, th, kv, tm, g, grid, dxi, nt, mass, kv0)
+        if fc * fb > 0.0:
+            b = c
+            fb = fc
+            if side == -1:
+                fa *= 0.5
+            side = -1
+        else:
+            a = b
+            fa = fb
+            b = c
+            fb = fc
+            side = 1
+        if abs(b - a) <= 1e-14 * (1.0 + abs(b)) or fc == 0.0:
+            return c
+    return b
+
+
+@njit(cache=True)
+def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
+    """Right-hand side ``out = dy/dt`` for one member; fills ``coef`` with the diffusion
+    coefficients of the fields (multipliers of their second-difference operators).
+
+    ``y`` (n,): [R, Rdot, p_b, theta (nt), T_m (mt), k_v (nt), stress states]; ``g`` groups;
+    ``p`` dimensionless material parameters (p[0] = 1/Ca, p[1] = 1/Re, then model-specific);
+    ``work`` scratch (>= 4 nt + 2 mt + 2); work[0] carries the warm start of the wall root.
+    """
+    nt = flags[F_NT]
+    mt = flags[F_MT]
+    thermal = flags[F_THERMAL]
+    medium = flags[F_MEDIUM]
+    mass = flags[F_MASS]
+    naux = flags[F_NAUX]
+    i_th = 3
+    i_tm = i_th + nt * thermal
+    i_kv = i_tm + mt * medium
+    i_z = i_kv + nt * mass
+    for k in range(out.shape[0]):
+        out[k] = 0.0
+    R = y[0]
+    U = y[1]
+    kappa = g[G_KAPPA]
+    out[0] = U
+    Tw_bubble = 1.0
+    if thermal == 0:
+        pv = g[G_PV]
+        pb = (g[G_PB0] - pv) * R ** (-3.0 * kappa) + pv
+        if flags[F_PDOT] == 0:
+            pdot = -3.0 * kappa * pb * U / R       # IMRv2: total pressure, vapour included
+        else:
+            pdot = -3.0 * kappa * (pb - pv) * U / R  # exact rate of the algebraic pressure
+    else:
+        pb = y[2]
+        chi = g[G_CHI]
+        fom = g[G_FOM]
+        kv0 = g[G_KV0]
+        av = g[G_ALPHA_V]
+        ag = g[G_ALPHA_G]
+        bv = g[G_BETA_V]
+        bg = g[G_BETA_G]
+        rv = g[G_RV]
+        rg = g[G_RG]
+        th = work[1:1 + nt]
+        kv = work[1 + nt:1 + 2 * nt]
+        T = work[1 + 2 * nt:1 + 3 * nt]
+        for i in range(nt):
+            th[i] = y[i_th + i]
+            kv[i] = y[i_kv + i] if mass else kv0
+        if medium:
+            tm = work[1 + 4 * nt:1 + 4 * nt + mt]
+            for j in range(mt):
+                tm[j] = y[i_tm + j]
+            dxi = mgrid[0, 1] - mgrid[0, 0]
+            thw = _wall_root(work[0], pb, th, kv, tm, g, grid, dxi, nt, mass, kv[nt - 1])
+            work[0] = thw
+            th[nt - 1] = thw
+        for i in range(nt):
+            am = kv[i] * av + (1.0 - kv[i]) * ag
+            T[i] = _temperature(th[i], am)
+        Tw_bubble = T[nt - 1]
+        if mass:
+            kv[nt - 1] = _kv_wall(pb, T[nt - 1], g)
+        w0 = grid[GR_WALL, 0]
+        w1 = grid[GR_WALL, 1]
+        w2 = grid[GR_WALL, 2]
+        dth_w = w0 * th[nt - 1] + w1 * th[nt - 2] + w2 * th[nt - 3]
+        bracket = chi * (kappa - 1.0) / R * dth_w - kappa * pb * U
+        if mass:
+            dkv_w = w0 * kv[nt - 1] + w1 * kv[nt - 2] + w2 * kv[nt - 3]
+            rmix_w = kv[nt - 1] * rv + (1.0 - kv[nt - 1]) * rg
+            bracket += kappa * pb * fom * rv * dkv_w / (T[nt - 1] * R * rmix_w * (1.0 - kv[nt - 1]))
+        pdot = 3.0 / R * bracket
+        out[2] = pdot
+        ckap = (kappa - 1.0) / kappa
+        for i in range(nt - 1):
+            yi = grid[GR_Y, i]
+            if i == 0:
+                d1 = 0.0
+                d2 = grid[GR_D2C, 0] * th[0] + grid[GR_D2U, 0] * th[1]
+            else:
+                d1 = grid[GR_D1L, i] * th[i - 1] + grid[GR_D1C, i] * th[i] + grid[GR_D1U, i] * th[i + 1]
+                d2 = grid[GR_D2L, i] * th[i - 1] + grid[GR_D2C, i] * th[i] + grid[GR_D2U, i] * th[i + 1]
+            u = (chi * (kappa - 1.0) * d1 / R - yi * R * pdot / 3.0) / (kappa * pb)
+            K = kv[i] * (av * T[i] + bv) + (1.0 - kv[i]) * (ag * T[i] + bg)
+            cdiff = ckap * K * T[i] / pb * chi / (R * R)
+            rate = -(u - yi * U) * d1 / R + ckap * K * T[i] / pb * pdot + cdiff * d2
+            if mass:
+                if i == 0:
+                    k1 = 0.0
+                    k2 = grid[GR_D2C, 0] * kv[0] + grid[GR_D2U, 0] * kv[1]
+                else:
+                    k1 = grid[GR_D1L, i] * kv[i - 1] + grid[GR_D1C, i] * kv[i] + grid[GR_D1U, i] * kv[i + 1]
+                    k2 = grid[GR_D2L, i] * kv[i - 1] + grid[GR_D2C, i] * kv[i] + grid[GR_D2U, i] * kv[i + 1]
+                rmix = kv[i] * rv + (1.0 - kv[i]) * rg
+                gam = (rv - rg) * k1 / rmix
+                u += fom / R * gam
+                rate = -(u - yi * U) * d1 / R + ckap * K * T[i] / pb * pdot + cdiff * d2 \
+                    + fom / (R * R) * gam * d1
+                am = kv[i] * av + (1.0 - kv[i]) * ag
+                out[i_kv + i] = fom / (R * R) * (k2 - k1 * (d1 / (math.sqrt(1.0 + 2.0 * am * th[i]) * T[i]) + gam)) \
+                    - (u - yi * U) / R * k1
+                coef[nt + i] = fom / (R * R)
+            out[i_th + i] = rate
+            coef[i] = cdiff
+    # Constitutive stress integral S, its rate without the Rddot part, and J.
+    S, Sdot, J = _stress(R, U, y[i_z:i_z + naux], p, g[G_REQ], out[i_z:i_z + naux])
+    if medium:
+        foh = g[G_FOH]
+        lt = g[G_LT]
+        br = g[G_BR]
+        dxi = mgrid[0, 1] - mgrid[0, 0]
+        tm = work[1 + 4 * nt:1 + 4 * nt + mt]
+        tm[0] = Tw_bubble
+        rq3 = (g[G_REQ] / R) ** 3
+        for j in range(1, mt - 1):
+            xi = mgrid[0, j]
+            yj = mgrid[1, j]
+            dT = (tm[j + 1] - tm[j - 1]) / (2.0 * dxi)
+            d2T = (tm[j + 1] - 2.0 * tm[j] + tm[j - 1]) / (dxi * dxi)
+            adv = U * (1.0 - yj ** 3) / (2.0 * yj * yj) + foh / R * ((1.0 + xi) / (2.0 * lt) - 1.0 / yj)
+            cdm = foh / (R * R) * (1.0 + xi) ** 4 / (4.0 * lt * lt)
+            xj = (yj ** 3 - 1.0 + rq3) ** (1.0 / 3.0)
+            ur = U / R
+            phi = 12.0 * br * p[1] * ur * ur * yj ** -6 \
+                + 2.0 * br * p[0] * yj ** -3 * ur * (yj * yj / (xj * xj) - xj ** 4 / yj ** 4) \
+                * _dissipation_q(xj, yj, p)
+            out[i_tm + j] = (1.0 + xi) ** 2 / (lt * R) * adv * dT + cdm * d2T + phi
+            coef[2 * nt + j] = cdm
+    # Radial equation.
+    W = g[G_INV_WE]
+    radial = flags[F_RADIAL]
+    if radial == 1:
+        out[1] = (pb - 1.0 - W / R + S - 1.5 * U * U) / R
+    elif radial == 2:
+        c = g[G_CSTAR]
+        num = (1.0 + U / c) * (pb - 1.0 - W / R + S) + R / c * (pdot + W * U / (R * R) + Sdot) \
+            - 1.5 * (1.0 - U / (3.0 * c)) * U * U
+        out[1] = num / ((1.0 - U / c) * R + J / c)
+    else:
+        n = g[G_TAIT_N]
+        bt = g[G_TAIT_B]
+        sig = 1.0 + bt
+        nu = (n - 1.0) / n
+        pw = pb - W / R + bt + S
+        hb = sig / nu * ((pw / sig) ** nu - 1.0)
+        hh = (sig / pw) ** (1.0 / n)
+        if radial == 3:
+            c = g[G_CSTAR]
+        else:
+            c = math.sqrt(n * pw / (pw / sig) ** (1.0 / n))
+        num = (1.0 + U / c) * hb + R / c * hh * (pdot + W * U / (R * R) + Sdot) \
+            - 1.5 * (1.0 - U / (3.0 * c)) * U * U
+        out[1] = num / ((1.0 - U / c) * R + J * hh / c)
+
+
+@njit(cache=True)
+def _blocks(flags):
+    """(offset, length, coef offset) of each implicit field block; length 0 when absent."""
+    nt = flags[F_NT]
+    mt = flags[F_MT]
+    thermal = flags[F_THERMAL]
+    medium = flags[F_MEDIUM]
+    mass = flags[F_MASS]
+    i_tm = 3 + nt * thermal
+    i_kv = i_tm + mt * medium
+    out = np.zeros((3, 3), dtype=np.int64)
+    if thermal:
+        out[0, 0] = 3
+        out[0, 1] = nt - 1          # unknowns 0..nt-2 (the wall row is not evolved)
+        out[0, 2] = 0
+    if mass:
+        out[1, 0] = i_kv
+        out[1, 1] = nt - 1
+        out[1, 2] = nt
+    if medium:
+        out[2, 0] = i_tm + 1        # interior nodes 1..mt-2
+        out[2, 1] = mt - 2
+        out[2, 2] = 2 * nt + 1
+    return out
+
+
+@njit(cache=True)
+def _build_tridiag(coef, blocks, grid, mgrid, lo, di, up):
+    """Tridiagonal diffusion operator A (frozen coefficients) for each block, in place."""
+    for b in range(3):
+        off = blocks[b, 0]
+        m = blocks[b, 1]
+        co = blocks[b, 2]
+        if m == 0:
+            continue
+        if b < 2:
+            for k in range(m):
+                c = coef[co + k]
+                lo[off + k] = c * grid[GR_D2L, k] if k > 0 else 0.0
+                di[off + k] = c * grid[GR_D2C, k]
+                up[off + k] = c * grid[GR_D2U, k] if k < m - 1 else 0.0
+        else:
+            dxi = mgrid[0, 1] - mgrid[0, 0]
+            for k in range(m):
+                c = coef[co + k] / (dxi * dxi)
+                lo[off + k] = c if k > 0 else 0.0
+                di[off + k] = -2.0 * c
+                up[off + k] = c if k < m - 1 else 0.0
+
+
+@njit(cache=True)
+def _apply_tridiag(blocks, lo, di, up, x, out):
+    for k in range(out.shape[0]):
+        out[k] = 0.0
+    for b in range(3):
+        off = blocks[b, 0]
+        m = blocks[b, 1]
+        for k in range(m):
+            s = di[off + k] * x[off + k]
+            if k > 0:
+                s += lo[off + k] * x[off + k - 1]
+            if k < m - 1:
+                s += up[off + k] * x[off + k + 1]
+            out[off + k] = s
+
+
+@njit(cache=True)
+def _factor(blocks, lo, di, up, hg, cp, dp):
+    """Thomas factorisation of (I - hg*A): stores the modified super-diagonal and pivots."""
+    for b in range(3):
+        off = blocks[b, 0]
+        m = blocks[b, 1]
+        for k in range(m):
+            a = -hg * lo[off + k]
+            d = 1.0 - hg * di[off + k]
+            c = -hg * up[off + k]
+            if k == 0:
+                piv = d
+            else:
+                piv = d - a * cp[off + k - 1]
+            dp[off + k] = piv
+            cp[off + k] = c / piv
+
+
+@njit(cache=True)
+def _solve(blocks, lo, hg, cp, dp, rhs_vec, x):
+    """x = (I - hg*A)^-1 rhs on the block unknowns; other components x = rhs."""
+    for k in range(rhs_vec.shape[0]):
+        x[k] = rhs_vec[k]
+    for b in range(3):
+        off = blocks[b, 0]
+        m = blocks[b, 1]
+        if m == 0:
+            continue
+        x[off] = rhs_vec[off] / dp[off]
+        for k in range(1, m):
+            a = -hg * lo[off + k]
+            x[off + k] = (rhs_vec[off + k] - a * x[off + k - 1]) / dp[off + k]
+        for k in range(m - 2, -1, -1):
+            x[off + k] -= cp[off + k] * x[off + k + 1]
+
+
+@njit(cache=True)
+def _piece(t, breaks):
+    k = 0
+    while k < breaks.shape[0] and t >= breaks[k]:
+        k += 1
+    return k
+
+
+@njit(cache=True)
+def _hermite5(t, t0, t1, r0, v0, a0, r1, v1, a1):
+    """Quintic Hermite interpolant of R from R, Rdot, Rddot at both ends of a step."""
+    h = t1 - t0
+    s = (t - t0) / h
+    s2 = s * s
+    s3 = s2 * s
+    s4 = s3 * s
+    s5 = s4 * s
+    h00 = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
+    h10 = s - 6.0 * s3 + 8.0 * s4 - 3.0 * s5
+    h20 = 0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5
+    h01 = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
+    h11 = -4.0 * s3 + 7.0 * s4 - 3.0 * s5
+    h21 = 0.5 * s3 - s4 + 0.5 * s5
+    return h00 * r0 + h10 * h * v0 + h20 * h * h * a0 + h01 * r1 + h11 * h * v1 + h21 * h * h * a1
+
+
+@njit(cache=True)
+def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
+                     rtol, atol, h_init, max_steps, r_out):
+    """Advance one member's state ``y`` (in place) from t0 to t1; R at ``t_eval`` -> r_out.
+
+    Returns (status, number of accepted steps). ``ptab`` (n_pieces, n_p): parameters per time
+    piece; ``breaks`` (n_pieces-1,): piece boundaries in t*. The step never crosses a boundary.
+    """
+    n = y.shape[0]
+    nt = flags[F_NT]
+    mt = flags[F_MT]
+    blocks = _blocks(flags)
+    work = np.zeros(4 * nt + 2 * mt + 2)
+    coef = np.zeros(2 * nt + mt + 1)
+    coef_new = np.zeros(2 * nt + mt + 1)
+    F = np.zeros((4, n))
+    FI = np.zeros((4, n))
+    Y = np.zeros(n)
+    rhs_vec = np.zeros(n)
+    ynew = np.zeros(n)
+    fnew = np.zeros(n)
+    lo = np.zeros(n)
+    di = np.zeros(n)
+    up = np.zeros(n)
+    cp = np.zeros(n)
+    dp = np.zeros(n)
+    neval = t_eval.shape[0]
+    k_eval = 0
+    while k_eval < neval and t_eval[k_eval] < t0 - 1e-12:
+        r_out[k_eval] = np.nan
+        k_eval += 1
+    while k_eval < neval and t_eval[k_eval] <= t0 + 1e-12:
+        r_out[k_eval] = y[0]
+        k_eval += 1
+    t = t0
+    piece = _piece(t + 1e-14, breaks)
+    rhs(t, y, g, ptab[piece], flags, grid, mgrid, F[0], coef, work)
+    h = h_init
+    if h <= 0.0:
+        h = 1e-4
+    nsteps = 0
+    status = OK
+    while t < t1 - 1e-14 * max(1.0, abs(t1)):
+        if nsteps >= max_steps:
+            status = FAIL_MAXSTEPS
+            break
+        t_stop = t1
+        if piece < breaks.shape[0] and breaks[piece] < t_stop:
+            t_stop = breaks[piece]
+        if h < 1e-13:
+            status = FAIL_STEP
+            break
+        last = False
+        if t + h >= t_stop - 1e-14:
+            h = t_stop - t
+            last = True
+        pr = ptab[piece]
+        hg = h * _GAM
+        _build_tridiag(coef, blocks, grid, mgrid, lo, di, up)
+        _factor(blocks, lo, di, up, hg, cp, dp)
+        _apply_tridiag(blocks, lo, di, up, y, FI[0])
+        ok = True
+        for s in range(1, 4):
+            for k in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += _AE[s, j] * (F[j, k] - FI[j, k]) + _AI[s, j] * FI[j, k]
+                rhs_vec[k] = y[k] + h * acc
+            _solve(blocks, lo, hg, cp, dp, rhs_vec, Y)
+            for k in range(n):
+                FI[s, k] = (Y[k] - rhs_vec[k]) / hg
+            if not (Y[0] > 0.0) or not math.isfinite(Y[1]):
+                ok = False
+                break
+            rhs(t + _C[s] * h, Y, g, pr, flags, grid, mgrid, F[s], coef_new, work)
+        err = 0.0
+        if ok:
+            for k in range(n):
+                acc = 0.0
+                eacc = 0.0
+                for j in range(4):
+                    acc += _B[j] * F[j, k]
+                    eacc += (_B[j] - _BHAT[j]) * F[j, k]
+                ynew[k] = y[k] + h * acc
+                sc = atol + rtol * max(abs(y[k]), abs(ynew[k]))
+                e = h * eacc / sc
+                err += e * e
+            err = math.sqrt(err / n)
+            if not math.isfinite(err) or not (ynew[0] > 0.0):
+                ok = False
+        if not ok:
+            h *= 0.25
+            continue
+        if err > 1.0:
+            h *= max(0.2, 0.9 * err ** (-1.0 / 3.0))
+            continue
+        t_new = t_stop if last else t + h
+        rhs(t_new, ynew, g, pr, flags, grid, mgrid, fnew, coef_new, work)
+        bad = False
+        for k in range(n):
+            if not math.isfinite(fnew[k]):
+                bad = True
+        if bad:
+            h *= 0.25
+            continue
+        # Dense output of R on (t, t_new].
+        while k_eval < neval and t_eval[k_eval] <= t_new + 1e-12:
+            if t_eval[k_eval] >= t_new - 1e-12:
+                r_out[k_eval] = ynew[0]
+            else:
+                r_out[k_eval] = _hermite5(t_eval[k_eval], t, t_new, y[0], y[1], F[0, 1],
+                                          ynew[0], ynew[1], fnew[1])
+            k_eval += 1
+        for k in range(n):
+            y[k] = ynew[k]
+            F[0, k] = fnew[k]
+        for k in range(coef.shape[0]):
+            coef[k] = coef_new[k]
+        t = t_new
+        nsteps += 1
+        if last and piece < breaks.shape[0] and t >= breaks[piece] - 1e-14:
+            piece += 1
+        fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** (-1.0 / 3.0)))
+        h *= fac
+    if status != OK:
+        for k in range(k_eval, neval):
+            r_out[k] = np.nan
+    if status == OK:
+        for k in range(n):
+            if not math.isfinite(y[k]):
+                status = FAIL_NONFINITE
+        if not (y[0] > 0.0):
+            status = FAIL_RADIUS
+    return status, nsteps
+
+
+@njit(cache=True)
+def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                    rtol, atol, h_init, max_steps):
+    """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps).
+
+    ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters.
+    """
+    N = Y0.shape[0]
+    Y = Y0.copy()
+    R = np.full((N, t_eval.shape[0]), np.nan)
+    status = np.zeros(N, dtype=np.int64)
+    nsteps = np.zeros(N, dtype=np.int64)
+    for m in range(N):
+        ym = Y[m]
+        finite = True
+        for k in range(ym.shape[0]):
+            if not math.isfinite(ym[k]):
+                finite = False
+        if not finite or not (ym[0] > 0.0):
+            status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
+            continue
+        st, ns = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
+                                  rtol, atol, h_init, max_steps, R[m])
+        status[m] = st
+        nsteps[m] = ns
+    return Y, R, status, nsteps

@@ -1,0 +1,262 @@
+"""The forward model: propagate ensembles of bubble states with ensembles of parameters.
+
+Methods (smoothers, samplers) see only this API: make initial states at Rmax, propagate N states
+with N parameter sets from t0* to t1*, read R* on a grid, hand the end states on. Times are
+dimensionless (t* = t / tc, tc = Rmax/sqrt(p8/rho)); radii are R* = R/Rmax; parameters are SI.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from imrbayes.errors import ForwardModelError, InputError
+from imrbayes.forward import _layout as L
+from imrbayes.forward._codegen import kernel_module
+from imrbayes.forward.constants import Physics, group_matrix, nondimensional_groups
+from imrbayes.forward.constitutive import ConstitutiveModel, get_model
+from imrbayes.forward.options import RADIAL, ForwardOptions, bubble_grid, medium_grid
+
+__all__ = ["ForwardModel", "BatchState", "Propagation"]
+
+
+@dataclass
+class BatchState:
+    """The full evolved states of N bubbles at one time.
+
+    y : (N, n_state) dimensionless state [R, Rdot, p_b, theta (nt), T_m (mt), k_v (nt), stress states]
+        (each field present only when its physics is on; :meth:`ForwardModel.layout` names them).
+    t_star : the common dimensionless time of the states.
+    rmax_m, req_m : (N,) maximum and equilibrium radius of each bubble [m] (they set its groups).
+    """
+
+    y: np.ndarray
+    t_star: float
+    rmax_m: np.ndarray
+    req_m: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return self.y.shape[0]
+
+    @property
+    def R(self) -> np.ndarray:
+        """(N,) R* = R/Rmax."""
+        return self.y[:, 0]
+
+    @property
+    def Rdot(self) -> np.ndarray:
+        """(N,) dR*/dt*."""
+        return self.y[:, 1]
+
+    def take(self, index) -> "BatchState":
+        """A new state holding members ``index`` (an int array or boolean mask), copied."""
+        index = np.asarray(index)
+        return BatchState(self.y[index].copy(), self.t_star, self.rmax_m[index].copy(), self.req_m[index].copy())
+
+    def copy(self) -> "BatchState":
+        return BatchState(self.y.copy(), self.t_star, self.rmax_m.copy(), self.req_m.copy())
+
+
+@dataclass
+class Propagation:
+    """Result of one ensemble propagation.
+
+    t_star : (m,) output times; R_star : (N, m) R/Rmax there (NaN after a failure);
+    end : the states at t1; status : (N,) 0 = ok, else a code in :data:`STATUS_TEXT`;
+    n_steps : (N,) accepted integrator steps.
+    """
+
+    t_star: np.ndarray
+    R_star: np.ndarray
+    end: BatchState
+    status: np.ndarray
+    n_steps: np.ndarray
+    status_text: dict = field(default_factory=lambda: dict(L.STATUS_TEXT))
+
+    @property
+    def failed(self) -> np.ndarray:
+        """(N,) True where the member's solve failed (R <= 0, step collapse, NaN, too many steps)."""
+        return self.status != L.OK
+
+    def failure_summary(self) -> dict:
+        codes, counts = np.unique(self.status[self.failed], return_counts=True)
+        return {self.status_text[int(c)]: int(k) for c, k in zip(codes, counts)}
+
+
+class ForwardModel:
+    """Keller-Miksis bubble dynamics with IMR's bubble contents and a constitutive model.
+
+    Parameters
+    ----------
+    constitutive : str or ConstitutiveModel
+        A registered model name (``nhkv``, ``qkv``, ``zener``, ...; see ``available_models()``).
+    options : ForwardOptions or dict, optional
+        Physics and discretisation (default: KM, thermal bubble, vapour, mass transfer, cold
+        medium, grid-converged scheme).
+    physics : Physics, optional
+        Physical constants (SI); ``physics_overrides`` (a dict) modifies the defaults instead.
+    """
+
+    def __init__(self, constitutive="nhkv", options=None, physics: Physics | None = None,
+                 physics_overrides: dict | None = None):
+        self.constitutive: ConstitutiveModel = (constitutive if isinstance(constitutive, ConstitutiveModel)
+                                                else get_model(constitutive))
+        if options is None:
+            options = ForwardOptions()
+        elif isinstance(options, dict):
+            options = ForwardOptions.from_dict(options)
+        self.options: ForwardOptions = options
+        if physics is None:
+            physics = Physics.from_overrides(physics_overrides)
+        self.physics: Physics = physics
+        o = options
+        self.nt, self.mt = o.resolution
+        thermal = o.thermal
+        medium = o.medium == "warm"
+        mass = o.mass_transfer
+        self._flags = np.array([RADIAL[o.radial], int(thermal), int(medium), int(o.vapor), int(mass),
+                                0 if o.pdot_mode == "imrv2" else 1, self.nt, self.mt,
+                                self.constitutive.n_aux], dtype=np.int64)
+        self._grid_y, self._grid = bubble_grid(self.nt, o.grid_stretch)
+        self._mgrid = medium_grid(self.mt, physics.medium_stretch)
+        sizes = [("R", 1), ("Rdot", 1), ("pb", 1), ("theta", self.nt if thermal else 0),
+                 ("Tm", self.mt if medium else 0), ("kv", self.nt if mass else 0),
+                 ("stress", self.constitutive.n_aux)]
+        self._slices, start = {}, 0
+        for name, size in sizes:
+            self._slices[name] = slice(start, start + size)
+            start += size
+        self.n_state = start
+        self._kernel = None
+
+    # ------------------------------------------------------------------ description
+    def __repr__(self):
+        return f"ForwardModel({self.constitutive.name!r}, {self.options})"
+
+    def layout(self) -> dict:
+        """Name -> slice of the state vector (empty slices for absent physics)."""
+        return dict(self._slices)
+
+    @property
+    def grid_y(self) -> np.ndarray:
+        """(nt,) bubble grid r/R."""
+        return self._grid_y.copy()
+
+    def describe(self) -> dict:
+        """JSON-able record of everything that defines this forward model."""
+        return {"constitutive": self.constitutive.name, "parameters": list(self.constitutive.param_names),
+                "options": self.options.to_dict(), "physics": self.physics.to_dict(), "n_state": self.n_state}
+
+    @property
+    def kernel(self):
+        if self._kernel is None:
+            self._kernel = kernel_module(self.constitutive.module)
+        return self._kernel
+
+    # ------------------------------------------------------------------ set-up
+    def groups(self, rmax_m, req_m) -> dict:
+        """Dimensionless groups (constants.nondimensional_groups) for these bubbles."""
+        return nondimensional_groups(self.physics, rmax_m, req_m, thermal=self.options.thermal,
+                                     vapor=self.options.vapor)
+
+    def initial_state(self, rmax_m, req_m, n: int | None = None) -> BatchState:
+        """States at the maximum radius: R* = 1, at rest, equilibrium contents, zero extra stress.
+
+        ``rmax_m``, ``req_m`` [m]: scalars or (N,) arrays; ``n`` repeats scalars N times.
+        """
+        rmax = np.atleast_1d(np.asarray(rmax_m, dtype=float))
+        req = np.atleast_1d(np.asarray(req_m, dtype=float))
+        size = max(rmax.size, req.size, n or 1)
+        rmax = np.broadcast_to(rmax, (size,)).copy()
+        req = np.broadcast_to(req, (size,)).copy()
+        if not (np.all(np.isfinite(rmax)) and np.all(rmax > 0) and np.all(np.isfinite(req)) and np.all(req > 0)):
+            raise InputError("initial state", "Rmax and Req must be finite and positive")
+        if np.any(req >= rmax):
+            raise InputError("initial state", "Req must be smaller than Rmax (the bubble starts at its maximum)")
+        g = self.groups(rmax, req)
+        y = np.zeros((size, self.n_state))
+        y[:, 0] = 1.0
+        y[:, 2] = g["pb0"]
+        y[:, self._slices["theta"]] = 0.0
+        y[:, self._slices["Tm"]] = 1.0
+        y[:, self._slices["kv"]] = np.asarray(g["kv0"])[:, None] if np.ndim(g["kv0"]) else g["kv0"]
+        return BatchState(y, 0.0, rmax, req)
+
+    def _parameter_table(self, params, n, rmax_m, source="parameters"):
+        """SI params -> (N, n_pieces, n_p) dimensionless table."""
+        arr = np.asarray(params, dtype=float) if not isinstance(params, dict) else None
+        if arr is not None and arr.ndim == 3:
+            table = arr
+        else:
+            table = self.constitutive.param_array(params, n=n, source=source)[:, None, :]
+        if table.shape[0] == 1 and n > 1:
+            table = np.repeat(table, n, axis=0)
+        if table.shape[0] != n:
+            raise InputError(source, f"got {table.shape[0]} parameter sets for {n} states")
+        if not np.all(np.isfinite(table)):
+            raise InputError(source, "parameters must be finite")
+        ph = self.physics
+        nd = self.constitutive.nondimensionalise(table, rho=ph.rho, p8=ph.p8, uc=ph.velocity_scale,
+                                                 rmax_m=np.asarray(rmax_m)[:, None])
+        return np.ascontiguousarray(nd)
+
+    # ------------------------------------------------------------------ propagation
+    def propagate(self, state: BatchState, params, t_end: float, t_eval=None, *, breaks_star=None,
+                  h_init: float = 0.0, max_steps: int = 200_000) -> Propagation:
+        """Propagate N states with N parameter sets from ``state.t_star`` to ``t_end``.
+
+        params : dict name -> scalar or (N,) array [SI], or an (N, n_params) array, or an
+            (N, n_pieces, n_params) array of piecewise-constant-in-time parameters whose pieces
+            change at ``breaks_star`` ((n_pieces-1,) increasing t*).
+        t_eval : (m,) output times in [t0, t_end] (default: t_end only).
+        Members whose solve fails are flagged in ``status`` (NaN output after the failure);
+        they never stop the batch.
+        """
+        n = state.n
+        t0 = float(state.t_star)
+        t_end = float(t_end)
+        if not t_end >= t0:
+            raise InputError("t_end", f"end time {t_end} is before the start time {t0}")
+        t_eval = np.atleast_1d(np.asarray([t_end] if t_eval is None else t_eval, dtype=float))
+        if t_eval.size and (np.any(np.diff(t_eval) < 0) or t_eval[0] < t0 - 1e-12 or t_eval[-1] > t_end + 1e-12):
+            raise InputError("t_eval", "output times must be increasing and inside [t0, t_end]")
+        breaks = np.ascontiguousarray(np.asarray([] if breaks_star is None else breaks_star, dtype=float))
+        P = self._parameter_table(params, n, state.rmax_m)
+        if P.shape[1] != breaks.size + 1:
+            raise InputError("parameters", f"{P.shape[1]} parameter pieces need {P.shape[1] - 1} break times, "
+                             f"got {breaks.size}")
+        if state.y.shape[1] != self.n_state:
+            raise ForwardModelError(f"state has {state.y.shape[1]} entries, this model needs {self.n_state}")
+        G = group_matrix(self.groups(state.rmax_m, state.req_m), n)
+        o = self.options
+        Y, R, status, nsteps = self.kernel.integrate_batch(
+            np.ascontiguousarray(state.y, dtype=float), t0, t_end, t_eval, G, P, breaks, self._flags,
+            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps))
+        end = BatchState(Y, t_end, state.rmax_m.copy(), state.req_m.copy())
+        return Propagation(t_eval, R, end, status, nsteps)
+
+    def simulate(self, params, rmax_m, req_m, t_star, **kwargs) -> Propagation:
+        """Propagate from the maximum radius (t* = 0) and return R* on ``t_star``."""
+        t_star = np.asarray(t_star, dtype=float)
+        n = None
+        if not isinstance(params, dict):
+            arr = np.asarray(params, dtype=float)
+            n = arr.shape[0] if arr.ndim >= 2 else 1
+        else:
+            n = max([np.size(v) for v in params.values()] + [1])
+        state = self.initial_state(rmax_m, req_m, n=n)
+        return self.propagate(state, params, float(t_star[-1]), t_star, **kwargs)
+
+    def simulate_radius(self, params: dict, rmax_m: float, req_m: float, t_star) -> np.ndarray:
+        """R* on ``t_star`` for one bubble; raises ForwardModelError if the solve fails."""
+        out = self.simulate(params, rmax_m, req_m, t_star)
+        if out.failed[0]:
+            raise ForwardModelError(f"forward solve failed: {out.status_text[int(out.status[0])]} "
+                                    f"(params {params}, Rmax {rmax_m} m, Req {req_m} m)")
+        return out.R_star[0]
+
+    def with_options(self, **changes) -> "ForwardModel":
+        """A copy with some options changed."""
+        return ForwardModel(self.constitutive, replace(self.options, **changes), self.physics)
