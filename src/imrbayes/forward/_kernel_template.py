@@ -4,11 +4,11 @@
 # (numba cannot cache a kernel that receives the stress function as an argument).
 #
 # Physics: shared/docs/forward-model.md (IMRv2, in our words). Everything here is dimensionless.
-# Time stepping: the additive Runge-Kutta pair ARK3(2)4L[2]SA of Kennedy & Carpenter (2003).
+# Time stepping: an additive Runge-Kutta pair (tableaux.py; ARK5(4)8L[2]SA by default).
 # The stiff part is the diffusion of the bubble and medium fields, linear with its coefficients
 # frozen at the start of each step, so each step costs one tridiagonal factorisation per field
-# and three tridiagonal solves; everything else (radial dynamics, advection, wall coupling,
-# stresses) is explicit. Step size: embedded second-order error estimate, PI-free controller.
+# and one tridiagonal solve per implicit stage; everything else (radial dynamics, advection, wall coupling,
+# stresses) is explicit. Step size from the embedded error estimate.
 import math
 
 import numpy as np
@@ -21,27 +21,6 @@ from imrbayes.forward._layout import (
     G_PV, G_REQ, G_RG, G_RV, G_T8, G_TAIT_B, G_TAIT_N, GR_D1C, GR_D1L, GR_D1U, GR_D2C, GR_D2L,
     GR_D2U, GR_WALL, GR_Y, OK)
 from imrbayes.forward.constitutive.nhkv import stress as _stress, dissipation_q as _dissipation_q  # PLUGIN
-
-# ARK3(2)4L[2]SA coefficients (Kennedy & Carpenter 2003, Appl. Numer. Math. 44:139).
-_GAM = 1767732205903.0 / 4055673282236.0
-_AE = np.array([
-    [0.0, 0.0, 0.0, 0.0],
-    [1767732205903.0 / 2027836641118.0, 0.0, 0.0, 0.0],
-    [5535828885825.0 / 10492691773637.0, 788022342437.0 / 10882634858940.0, 0.0, 0.0],
-    [6485989280629.0 / 16251701735622.0, -4246266847089.0 / 9704473918619.0,
-     10755448449292.0 / 10357097424841.0, 0.0]])
-_AI = np.array([
-    [0.0, 0.0, 0.0, 0.0],
-    [_GAM, _GAM, 0.0, 0.0],
-    [2746238789719.0 / 10658868560708.0, -640167445237.0 / 6845629431997.0, _GAM, 0.0],
-    [1471266399579.0 / 7840856788654.0, -4482444167858.0 / 7529755066697.0,
-     11266239266428.0 / 11593286722821.0, _GAM]])
-_B = np.array([1471266399579.0 / 7840856788654.0, -4482444167858.0 / 7529755066697.0,
-               11266239266428.0 / 11593286722821.0, _GAM])
-_BHAT = np.array([2756255671327.0 / 12835298489170.0, -10771552573575.0 / 22201958757719.0,
-                  9247589265047.0 / 10645013368117.0, 2193209047091.0 / 5459859503100.0])
-_C = np.array([0.0, 2.0 * _GAM, 0.6, 1.0])
-
 
 @njit(cache=True)
 def _temperature(theta, alpha):
@@ -433,22 +412,106 @@ def _hermite5(t, t0, t1, r0, v0, a0, r1, v1, a1):
 
 
 @njit(cache=True)
-def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
-                     rtol, atol, h_init, max_steps, r_out):
-    """Advance one member's state ``y`` (in place) from t0 to t1; R at ``t_eval`` -> r_out.
+def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_tmp,
+              blocks, di, lo, up, W):
+    """Finite-difference Jacobian columns of the coupling variables ``cols`` minus the frozen
+    tridiagonal part: W[q] = J[:, cols[q]] - T[:, cols[q]].
 
-    Returns (status, number of accepted steps). ``ptab`` (n_pieces, n_p): parameters per time
-    piece; ``breaks`` (n_pieces-1,): piece boundaries in t*. The step never crosses a boundary.
+    These columns carry the stiff feedback that the tridiagonal diffusion operator misses: the
+    bubble pressure rate depends on the wall gradients of temperature and vapour (weights ~1/dy
+    at the wall) and every field rate depends on the pressure rate.
     """
     n = y.shape[0]
+    for q in range(cols.shape[0]):
+        j = cols[q]
+        for k in range(n):
+            scratch[k] = y[k]
+        d = 1.5e-8 * max(abs(y[j]), 1e-3)
+        scratch[j] = y[j] + d
+        d = scratch[j] - y[j]
+        rhs(t, scratch, g, pr, flags, grid, mgrid, fp, coef_tmp, work)
+        for k in range(n):
+            W[q, k] = (fp[k] - f0[k]) / d
+        for b in range(3):
+            off = blocks[b, 0]
+            m = blocks[b, 1]
+            if off <= j < off + m:
+                kk = j - off
+                W[q, j] -= di[j]
+                if kk > 0:
+                    W[q, j - 1] -= up[j - 1]
+                if kk < m - 1:
+                    W[q, j + 1] -= lo[j + 1]
+
+
+@njit(cache=True)
+def _lu_small(K, piv):
+    """In-place LU with partial pivoting of a small dense matrix; False if singular."""
+    r = K.shape[0]
+    for c in range(r):
+        p = c
+        big = abs(K[c, c])
+        for i in range(c + 1, r):
+            if abs(K[i, c]) > big:
+                big = abs(K[i, c])
+                p = i
+        if big == 0.0 or not math.isfinite(big):
+            return False
+        piv[c] = p
+        if p != c:
+            for k in range(r):
+                tmp = K[c, k]
+                K[c, k] = K[p, k]
+                K[p, k] = tmp
+        for i in range(c + 1, r):
+            K[i, c] /= K[c, c]
+            for k in range(c + 1, r):
+                K[i, k] -= K[i, c] * K[c, k]
+    return True
+
+
+@njit(cache=True)
+def _lu_solve_small(K, piv, b):
+    r = K.shape[0]
+    for c in range(r):
+        p = piv[c]
+        if p != c:
+            tmp = b[c]
+            b[c] = b[p]
+            b[p] = tmp
+    for i in range(r):
+        for k in range(i):
+            b[i] -= K[i, k] * b[k]
+    for i in range(r - 1, -1, -1):
+        for k in range(i + 1, r):
+            b[i] -= K[i, k] * b[k]
+        b[i] /= K[i, i]
+
+
+@njit(cache=True)
+def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
+                     rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols):
+    """Advance one member's state ``y`` (in place) from t0 to t1; R at ``t_eval`` -> r_out.
+
+    Returns (status, accepted steps, rejected steps). ``ptab`` (n_pieces, n_p): parameters per time
+    piece; ``breaks`` (n_pieces-1,): piece boundaries in t*. The step never crosses a boundary.
+    The Runge-Kutta pair is (AE, AI, B, BH, C): explicit and diagonally implicit tables sharing
+    B, C, with diagonal ``gamma`` (0 for a purely explicit method); ``order`` sets the step exponent.
+    The implicit operator is the frozen tridiagonal diffusion plus the Jacobian columns of the
+    coupling variables ``cols`` (a low-rank correction solved by the Woodbury identity).
+    """
+    n = y.shape[0]
+    ns = B.shape[0]
+    implicit = gamma > 0.0
+    expo = -1.0 / order
     nt = flags[F_NT]
     mt = flags[F_MT]
     blocks = _blocks(flags)
     work = np.zeros(4 * nt + 2 * mt + 2)
     coef = np.zeros(2 * nt + mt + 1)
     coef_new = np.zeros(2 * nt + mt + 1)
-    F = np.zeros((4, n))
-    FI = np.zeros((4, n))
+    F = np.zeros((ns, n))
+    FI = np.zeros((ns, n))
     Y = np.zeros(n)
     rhs_vec = np.zeros(n)
     ynew = np.zeros(n)
@@ -458,6 +521,14 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
     up = np.zeros(n)
     cp = np.zeros(n)
     dp = np.zeros(n)
+    r = cols.shape[0] if implicit else 0
+    Wc = np.zeros((r, n))
+    Z = np.zeros((r, n))
+    K = np.zeros((r, r))
+    piv = np.zeros(r, dtype=np.int64)
+    sv = np.zeros(r)
+    scratch = np.zeros(n)
+    fp = np.zeros(n)
     neval = t_eval.shape[0]
     k_eval = 0
     while k_eval < neval and t_eval[k_eval] < t0 - 1e-12:
@@ -473,6 +544,8 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
     if h <= 0.0:
         h = 1e-4
     nsteps = 0
+    nrej = 0
+    jac_age = -1
     status = OK
     while t < t1 - 1e-14 * max(1.0, abs(t1)):
         if nsteps >= max_steps:
@@ -489,32 +562,61 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
             h = t_stop - t
             last = True
         pr = ptab[piece]
-        hg = h * _GAM
-        _build_tridiag(coef, blocks, grid, mgrid, lo, di, up)
-        _factor(blocks, lo, di, up, hg, cp, dp)
-        _apply_tridiag(blocks, lo, di, up, y, FI[0])
+        hg = h * gamma
+        if implicit:
+            _build_tridiag(coef, blocks, grid, mgrid, lo, di, up)
+            _factor(blocks, lo, di, up, hg, cp, dp)
+            _apply_tridiag(blocks, lo, di, up, y, FI[0])
+            if r > 0:
+                # The coupling columns are refreshed every few steps and after a rejection; any
+                # frozen operator keeps the scheme consistent, it only has to hold the stiffness.
+                if jac_age >= 4 or jac_age < 0:
+                    _coupling(t, y, F[0], cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_new,
+                              blocks, di, lo, up, Wc)
+                    jac_age = 0
+                for q in range(r):
+                    _solve(blocks, lo, hg, cp, dp, Wc[q], Z[q])
+                    for k in range(n):
+                        FI[0, k] += Wc[q, k] * y[cols[q]]
+                for a in range(r):
+                    for q in range(r):
+                        K[a, q] = (1.0 if a == q else 0.0) - hg * Z[q, cols[a]]
+                if not _lu_small(K, piv):
+                    h *= 0.25
+                    continue
         ok = True
-        for s in range(1, 4):
+        for s in range(1, ns):
             for k in range(n):
                 acc = 0.0
                 for j in range(s):
-                    acc += _AE[s, j] * (F[j, k] - FI[j, k]) + _AI[s, j] * FI[j, k]
+                    acc += AE[s, j] * (F[j, k] - FI[j, k]) + AI[s, j] * FI[j, k]
                 rhs_vec[k] = y[k] + h * acc
-            _solve(blocks, lo, hg, cp, dp, rhs_vec, Y)
-            for k in range(n):
-                FI[s, k] = (Y[k] - rhs_vec[k]) / hg
+            if implicit:
+                _solve(blocks, lo, hg, cp, dp, rhs_vec, Y)
+                if r > 0:
+                    for a in range(r):
+                        sv[a] = Y[cols[a]]
+                    _lu_solve_small(K, piv, sv)
+                    for q in range(r):
+                        for k in range(n):
+                            Y[k] += hg * Z[q, k] * sv[q]
+                for k in range(n):
+                    FI[s, k] = (Y[k] - rhs_vec[k]) / hg
+            else:
+                for k in range(n):
+                    Y[k] = rhs_vec[k]
             if not (Y[0] > 0.0) or not math.isfinite(Y[1]):
                 ok = False
                 break
-            rhs(t + _C[s] * h, Y, g, pr, flags, grid, mgrid, F[s], coef_new, work)
+            rhs(t + C[s] * h, Y, g, pr, flags, grid, mgrid, F[s], coef_new, work)
         err = 0.0
         if ok:
             for k in range(n):
                 acc = 0.0
                 eacc = 0.0
-                for j in range(4):
-                    acc += _B[j] * F[j, k]
-                    eacc += (_B[j] - _BHAT[j]) * F[j, k]
+                for j in range(ns):
+                    acc += B[j] * F[j, k]
+                    eacc += (B[j] - BH[j]) * F[j, k]
                 ynew[k] = y[k] + h * acc
                 sc = atol + rtol * max(abs(y[k]), abs(ynew[k]))
                 e = h * eacc / sc
@@ -524,9 +626,13 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                 ok = False
         if not ok:
             h *= 0.25
+            jac_age = -1
+            nrej += 1
             continue
         if err > 1.0:
-            h *= max(0.2, 0.9 * err ** (-1.0 / 3.0))
+            h *= max(0.2, 0.9 * err ** expo)
+            jac_age = -1
+            nrej += 1
             continue
         t_new = t_stop if last else t + h
         rhs(t_new, ynew, g, pr, flags, grid, mgrid, fnew, coef_new, work)
@@ -536,6 +642,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                 bad = True
         if bad:
             h *= 0.25
+            nrej += 1
             continue
         # Dense output of R on (t, t_new].
         while k_eval < neval and t_eval[k_eval] <= t_new + 1e-12:
@@ -552,9 +659,10 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
             coef[k] = coef_new[k]
         t = t_new
         nsteps += 1
+        jac_age += 1
         if last and piece < breaks.shape[0] and t >= breaks[piece] - 1e-14:
             piece += 1
-        fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** (-1.0 / 3.0)))
+        fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** expo))
         h *= fac
     if status != OK:
         for k in range(k_eval, neval):
@@ -565,13 +673,13 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                 status = FAIL_NONFINITE
         if not (y[0] > 0.0):
             status = FAIL_RADIUS
-    return status, nsteps
+    return status, nsteps, nrej
 
 
 @njit(cache=True)
 def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                    rtol, atol, h_init, max_steps):
-    """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps).
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols):
+    """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps, nrejected).
 
     ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters.
     """
@@ -580,6 +688,7 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
     R = np.full((N, t_eval.shape[0]), np.nan)
     status = np.zeros(N, dtype=np.int64)
     nsteps = np.zeros(N, dtype=np.int64)
+    nrej = np.zeros(N, dtype=np.int64)
     for m in range(N):
         ym = Y[m]
         finite = True
@@ -589,8 +698,9 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
         if not finite or not (ym[0] > 0.0):
             status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
             continue
-        st, ns = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
-                                  rtol, atol, h_init, max_steps, R[m])
+        st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
+                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols)
         status[m] = st
         nsteps[m] = ns
-    return Y, R, status, nsteps
+        nrej[m] = nr
+    return Y, R, status, nsteps, nrej

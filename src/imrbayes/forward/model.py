@@ -17,6 +17,7 @@ from imrbayes.forward._codegen import kernel_module
 from imrbayes.forward.constants import Physics, group_matrix, nondimensional_groups
 from imrbayes.forward.constitutive import ConstitutiveModel, get_model
 from imrbayes.forward.options import RADIAL, ForwardOptions, bubble_grid, medium_grid
+from imrbayes.forward.tableaux import TABLEAUX
 
 __all__ = ["ForwardModel", "BatchState", "Propagation"]
 
@@ -65,7 +66,7 @@ class Propagation:
 
     t_star : (m,) output times; R_star : (N, m) R/Rmax there (NaN after a failure);
     end : the states at t1; status : (N,) 0 = ok, else a code in :data:`STATUS_TEXT`;
-    n_steps : (N,) accepted integrator steps.
+    n_steps, n_rejected : (N,) accepted and rejected integrator steps.
     """
 
     t_star: np.ndarray
@@ -73,6 +74,7 @@ class Propagation:
     end: BatchState
     status: np.ndarray
     n_steps: np.ndarray
+    n_rejected: np.ndarray
     status_text: dict = field(default_factory=lambda: dict(L.STATUS_TEXT))
 
     @property
@@ -129,7 +131,22 @@ class ForwardModel:
             self._slices[name] = slice(start, start + size)
             start += size
         self.n_state = start
+        # Coupling variables whose Jacobian columns join the implicit operator (see kernel).
+        cols = [1]
+        if thermal:
+            th = self._slices["theta"].start
+            cols += [2, th + self.nt - 2, th + self.nt - 3]
+        if mass:
+            kv = self._slices["kv"].start
+            cols += [kv + self.nt - 2, kv + self.nt - 3]
+        if medium:
+            tm = self._slices["Tm"].start
+            cols += [tm + 1, tm + 2]
+        self._cols = np.array(cols, dtype=np.int64)
         self._kernel = None
+        tab = TABLEAUX[o.method]()
+        self._tableau = (tab["AE"], tab["AI"], tab["b"], tab["bhat"], tab["c"], float(tab["gamma"]),
+                         float(tab["order"]))
 
     # ------------------------------------------------------------------ description
     def __repr__(self):
@@ -231,11 +248,11 @@ class ForwardModel:
             raise ForwardModelError(f"state has {state.y.shape[1]} entries, this model needs {self.n_state}")
         G = group_matrix(self.groups(state.rmax_m, state.req_m), n)
         o = self.options
-        Y, R, status, nsteps = self.kernel.integrate_batch(
+        Y, R, status, nsteps, nrej = self.kernel.integrate_batch(
             np.ascontiguousarray(state.y, dtype=float), t0, t_end, t_eval, G, P, breaks, self._flags,
-            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps))
+            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols)
         end = BatchState(Y, t_end, state.rmax_m.copy(), state.req_m.copy())
-        return Propagation(t_eval, R, end, status, nsteps)
+        return Propagation(t_eval, R, end, status, nsteps, nrej)
 
     def simulate(self, params, rmax_m, req_m, t_star, **kwargs) -> Propagation:
         """Propagate from the maximum radius (t* = 0) and return R* on ``t_star``."""

@@ -14,8 +14,8 @@ SCHEMES = ("converged", "imrv2-fd")
 
 # Default resolution per scheme: (nt, mt). The converged scheme clusters points at the wall
 # (see bubble_grid); its resolution was chosen by the refinement study in tests/test_forward_convergence.py.
-DEFAULT_RESOLUTION = {"imrv2-fd": (25, 25), "converged": (48, 48)}
-DEFAULT_STRETCH = 1.8
+DEFAULT_RESOLUTION = {"imrv2-fd": (25, 25), "converged": (64, 64)}
+DEFAULT_STRETCH = 1.5
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,9 @@ class ForwardOptions:
     polytropic_pdot : ``consistent`` (exact rate of the polytropic pressure) or ``imrv2`` (IMRv2's
         rate computed from the total pressure, vapour included); None picks ``imrv2`` for the
         ``imrv2-fd`` scheme and ``consistent`` otherwise.
-    rtol, atol : integrator tolerances.
+    rtol, atol : integrator tolerances (per component: atol + rtol |y|).
+    integrator : ``ark548`` (5th-order implicit-explicit; default with a thermal bubble), ``ark324``
+        (3rd order), or ``dopri5`` (explicit; default for the polytropic bubble, which is not stiff).
     """
 
     radial: str = "km"
@@ -47,8 +49,9 @@ class ForwardOptions:
     mt: int | None = None
     stretch: float | None = None
     polytropic_pdot: str | None = None
-    rtol: float = 1e-7
-    atol: float = 1e-9
+    rtol: float = 1e-6
+    atol: float = 1e-8
+    integrator: str | None = None
 
     def __post_init__(self):
         src = "forward options"
@@ -71,6 +74,8 @@ class ForwardOptions:
             v = getattr(self, name)
             if v is not None and (int(v) != v or v < 5):
                 raise InputError(src, f"{name} must be an integer >= 5, got {v!r}")
+        if self.integrator not in (None, "ark548", "ark324", "dopri5"):
+            raise InputError(src, f"integrator must be ark548, ark324 or dopri5, got {self.integrator!r}")
         if not (0 < self.rtol < 1 and 0 < self.atol < 1):
             raise InputError(src, "rtol and atol must lie in (0, 1)")
 
@@ -93,7 +98,15 @@ class ForwardOptions:
         d["nt"], d["mt"] = self.resolution
         d["stretch"] = self.grid_stretch
         d["polytropic_pdot"] = self.pdot_mode
+        d["integrator"] = self.method
         return d
+
+    @property
+    def method(self) -> str:
+        """The time integrator actually used."""
+        if self.integrator:
+            return self.integrator
+        return "ark548" if self.thermal else "dopri5"
 
     @property
     def resolution(self) -> tuple:
