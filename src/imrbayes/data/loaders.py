@@ -1,0 +1,183 @@
+"""Load a dataset from what a user points at (interfaces.md §1).
+
+:func:`load_dataset` accepts
+
+* a dataset directory: ``meta.json`` (required) and one ``*.csv`` per experiment (``t_s,R_m``);
+* a single experiment CSV (``t_s,R_m``) or a long CSV (``experiment,t_s,R_m``); a ``meta.json``
+  next to the file is used when present;
+* a MATLAB ``.mat`` file in one of the layouts of :mod:`imrbayes.data.matfile`;
+* the path of a dataset's ``meta.json`` (= its directory).
+
+Files are only read, never written. Every problem raises :class:`~imrbayes.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from imrbayes.data.checks import check_record
+from imrbayes.data.csvio import format_lines, read_table
+from imrbayes.data.matfile import LAYOUTS, read_mat
+from imrbayes.data.meta import Meta, read_meta
+from imrbayes.data.records import Dataset, Experiment
+from imrbayes.errors import InputError
+
+__all__ = ["load_dataset", "load_experiment_csv", "load_long_csv", "load_mat", "load_directory"]
+
+
+def _apply_meta(exp: Experiment, meta: Meta) -> Experiment:
+    entry = meta.entry(exp.name)
+    if entry:
+        exp.info = {**exp.info, **entry}
+        if entry.get("Req_m") is not None:
+            exp.req_m = float(entry["Req_m"])
+            exp.req_sd_m = None if entry.get("Req_sd_m") is None else float(entry["Req_sd_m"])
+            exp.req_source = "meta.json"
+    return exp
+
+
+def _dropped_warning(dropped, path, label="") -> list:
+    if not dropped:
+        return []
+    return [f"{path}: {label}dropped {len(dropped)} row(s) with a missing or NaN value "
+            f"(line {format_lines(dropped)})"]
+
+
+def _single(path: Path, table, name: str | None = None) -> Experiment:
+    t, R = table.columns["t_s"], table.columns["R_m"]
+    check_record(t, R, path, table.lines)
+    return Experiment(name or path.stem, t, R, str(path), warnings=_dropped_warning(table.dropped_lines, path))
+
+
+def _long(path: Path, table) -> list:
+    labels = table.labels
+    exps = []
+    for name in dict.fromkeys(labels):
+        rows = [i for i, lab in enumerate(labels) if lab == name]
+        t = table.columns["t_s"][rows]
+        R = table.columns["R_m"][rows]
+        check_record(t, R, path, table.lines[rows], label=f"experiment {name!r}: ")
+        exps.append(Experiment(name, t, R, str(path)))
+    if not exps:
+        raise InputError(path, "has no valid data rows (every row had a missing value)")
+    exps[0].warnings.extend(_dropped_warning(table.dropped_lines, path))
+    return exps
+
+
+def load_experiment_csv(path, name: str | None = None) -> Experiment:
+    """One experiment from a ``t_s,R_m`` CSV (checked; NaN rows dropped with a warning)."""
+    path = Path(path)
+    table = read_table(path)
+    if table.labels is not None:
+        raise InputError(path, "is a long CSV (experiment,t_s,R_m); expected one experiment (t_s,R_m)")
+    return _single(path, table, name)
+
+
+def load_long_csv(path) -> list:
+    """Experiments of a long CSV (``experiment,t_s,R_m``), in order of first appearance."""
+    path = Path(path)
+    table = read_table(path)
+    if table.labels is None:
+        raise InputError(path, "has no 'experiment' column; expected experiment,t_s,R_m")
+    return _long(path, table)
+
+
+def load_mat(path) -> tuple:
+    """``(layout, experiments)`` from an IMR .mat file, each experiment checked like a CSV."""
+    path = Path(path)
+    layout, exps = read_mat(path)
+    for e in exps:
+        check_record(e.t_s, e.R_m, path, label=f"{layout} layout, experiment {e.name!r}: ")
+    return layout, exps
+
+
+def _sibling_meta(path: Path) -> Meta:
+    meta_path = path.parent / "meta.json"
+    if meta_path.is_file():
+        return read_meta(meta_path)
+    return Meta()
+
+
+def _dataset(name, path, fmt, exps, meta: Meta, notes) -> Dataset:
+    exps = [_apply_meta(e, meta) for e in exps]
+    warnings = list(meta.warnings) if meta.path else []
+    known = {e.name for e in exps}
+    stray = [k for k in meta.experiments if k not in known]
+    if stray and fmt == "directory":
+        warnings.append(f"meta.json describes experiment(s) with no CSV: {', '.join(sorted(stray))}")
+    for e in exps:
+        warnings.extend(e.warnings)
+    if meta.path:
+        notes.append(f"metadata from {meta.path}")
+    else:
+        notes.append("no meta.json: material unknown, default physics and forward options")
+    return Dataset(name=name, path=str(path), format=fmt, experiments=exps, material=meta.material,
+                   meta=meta.raw, physics=meta.physics, forward=meta.forward, meta_path=meta.path,
+                   warnings=warnings, notes=notes)
+
+
+def load_directory(path) -> Dataset:
+    """A dataset directory: ``meta.json`` plus one ``*.csv`` per experiment (sorted by name)."""
+    path = Path(path)
+    csvs = sorted(p for p in path.iterdir() if p.suffix.lower() == ".csv" and p.is_file())
+    meta_path = path / "meta.json"
+    if not csvs:
+        others = sorted(p.name for p in path.iterdir() if p.suffix.lower() == ".mat")
+        hint = f" (found .mat file(s) {', '.join(others[:4])}: pass a .mat file itself)" if others else ""
+        raise InputError(path, f"no experiment .csv files in this directory{hint}")
+    if not meta_path.is_file():
+        raise InputError(path, "has no meta.json; a dataset directory needs one, at least "
+                               '{"material": "..."} (interfaces.md §1)')
+    meta = read_meta(meta_path)
+    exps = [load_experiment_csv(p) for p in csvs]
+    return _dataset(path.name, path, "directory", exps, meta, [f"{len(exps)} experiment CSV file(s)"])
+
+
+def load_dataset(path, camera: str | None = None) -> Dataset:
+    """Load whatever ``path`` is (see module docstring); ``camera`` keeps one view of dual-camera data.
+
+    Raises
+    ------
+    InputError
+        On any problem, naming the file at fault.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "no such file or directory")
+    if path.is_file() and path.name == "meta.json":
+        path = path.parent
+    if path.is_dir():
+        ds = load_directory(path)
+    else:
+        suffix = path.suffix.lower()
+        if suffix == ".csv":
+            table = read_table(path)
+            meta = _sibling_meta(path)
+            if table.labels is not None:
+                ds = _dataset(path.stem, path, "long-csv", _long(path, table), meta, ["long CSV"])
+            else:
+                ds = _dataset(path.stem, path, "csv", [_single(path, table)], meta, ["single CSV"])
+        elif suffix == ".mat":
+            layout, exps = load_mat(path)
+            note = f".mat layout {layout!r} found: {LAYOUTS[layout]}; converted to SI"
+            ds = _dataset(path.stem, path, f"mat:{layout}", exps, Meta(), [note])
+        else:
+            raise InputError(path, f"unrecognised file type {suffix or '(no extension)'!r}; expected a dataset "
+                                   "directory, a .csv or a .mat file")
+    if camera is not None:
+        cams = sorted({e.camera for e in ds.experiments if e.camera})
+        ds = ds.select(camera=camera)
+        if not ds.experiments:
+            raise InputError(path, f"no experiment from camera {camera!r}; cameras found: "
+                                   f"{', '.join(cams) or 'none'}")
+        ds.notes.append(f"kept camera view {camera!r} only ({len(ds.experiments)} experiments)")
+    _note_camera_pairs(ds)
+    return ds
+
+
+def _note_camera_pairs(ds: Dataset) -> None:
+    cams = {e.camera for e in ds.experiments if e.camera}
+    if len(cams) > 1:
+        ds.warnings.append(f"experiments are views of the same bubbles from {len(cams)} cameras "
+                           f"({', '.join(sorted(cams))}); they are not independent experiments "
+                           f"(use --camera to keep one view)")

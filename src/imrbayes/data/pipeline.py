@@ -1,0 +1,284 @@
+"""Dataset -> arrays every inference method consumes (interfaces.md §1 "Preprocessing").
+
+:func:`preprocess_dataset` runs the steps of :mod:`imrbayes.data.preprocess` on every experiment,
+puts all experiments on one common grid (the shortest record sets its length) and estimates P_k
+(:mod:`imrbayes.data.noise`). The returned :class:`Preprocessed` carries the arrays and a record of
+every choice (``choices``), ready to be written to a run's output with :meth:`Preprocessed.to_dict`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from imrbayes.data import preprocess as pp
+from imrbayes.data.noise import P_FLOOR_ABS, P_FLOOR_REL, noise_variance
+from imrbayes.data.records import Dataset
+from imrbayes.errors import InputError
+
+__all__ = ["ExperimentSummary", "Preprocessed", "preprocess_dataset"]
+
+
+@dataclass
+class ExperimentSummary:
+    """What preprocessing found for one experiment (SI units; ``*_star`` dimensionless).
+
+    ``t0_s``: time of the maximum in the file's clock; ``tc_s``: Rmax/sqrt(p8/rho);
+    ``t_collapse_s``: first collapse measured from the maximum; ``t_last_star``: end of the record.
+    ``req_sd_m`` is NaN when Req was given without an uncertainty.
+    """
+
+    name: str
+    source: str
+    n_samples: int
+    rmax_m: float
+    rmax_sample_m: float
+    rmax_method: str
+    t0_s: float
+    tc_s: float
+    req_m: float
+    req_sd_m: float
+    req_se_m: float
+    req_source: str
+    t_collapse_s: float
+    t_collapse_star: float
+    r_collapse_star: float
+    collapse_method: str
+    t_last_star: float
+    n_steps_available: int
+    warnings: list = field(default_factory=list)
+
+    @property
+    def ratio(self) -> float:
+        """Rmax/Req."""
+        return self.rmax_m / self.req_m
+
+    @property
+    def ratio_sd(self) -> float:
+        """Uncertainty of Rmax/Req propagated from ``req_sd_m`` (NaN if unknown)."""
+        return self.ratio * self.req_sd_m / self.req_m
+
+    def to_dict(self) -> dict:
+        d = {k: _json(v) for k, v in self.__dict__.items()}
+        d["rmax_over_req"] = _json(self.ratio)
+        d["rmax_over_req_sd"] = _json(self.ratio_sd)
+        return d
+
+
+def _json(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, np.ndarray):
+        return [_json(float(x)) for x in v]
+    if isinstance(v, (np.floating, np.integer)):
+        return _json(v.item())
+    return v
+
+
+@dataclass
+class Preprocessed:
+    """Arrays on the common grid, plus what was done.
+
+    Attributes
+    ----------
+    t_star : ndarray (n,)
+        Grid k dt*, k = 0..n-1.
+    R_star : ndarray (n_exp, n)
+        Resampled R/Rmax per experiment.
+    P : ndarray (n,)
+        Measurement-noise variance per step (in R*^2).
+    rmax_m, req_m, req_sd_m, t_collapse_star : ndarray (n_exp,)
+        Per-experiment Rmax [m], Req [m], its sd [m] (NaN if unknown), first-collapse time t*.
+    experiments : list of ExperimentSummary
+    choices : dict
+        Every setting used and the rule behind it.
+    warnings : list of str
+    dataset : Dataset
+        The input (not modified).
+    """
+
+    t_star: np.ndarray
+    R_star: np.ndarray
+    P: np.ndarray
+    rmax_m: np.ndarray
+    req_m: np.ndarray
+    req_sd_m: np.ndarray
+    t_collapse_star: np.ndarray
+    experiments: list
+    choices: dict
+    warnings: list
+    dataset: Dataset
+
+    @property
+    def names(self) -> list:
+        return [e.name for e in self.experiments]
+
+    @property
+    def n_steps(self) -> int:
+        return int(self.t_star.size - 1)
+
+    def to_dict(self, arrays: bool = True) -> dict:
+        """JSON-able record (what ``dataset.json`` holds)."""
+        ds = self.dataset
+        out = {
+            "dataset": {"name": ds.name, "path": ds.path, "format": ds.format, "material": ds.material,
+                        "meta_path": ds.meta_path, "physics": ds.physics, "forward": ds.forward,
+                        "notes": ds.notes, "meta": ds.meta},
+            "n_experiments": len(self.experiments),
+            "choices": self.choices,
+            "experiments": [e.to_dict() for e in self.experiments],
+            "summary": summarise(self.experiments),
+            "warnings": self.warnings,
+        }
+        if arrays:
+            out["grid"] = {"t_star": _json(self.t_star), "P": _json(self.P),
+                           "R_star": {e.name: _json(self.R_star[i]) for i, e in enumerate(self.experiments)}}
+        return out
+
+
+def summarise(experiments) -> dict:
+    """Mean and sd (ddof=1; NaN for one experiment) of Rmax [µm], Req [µm], Rmax/Req, t_c*."""
+    cols = {"rmax_um": [e.rmax_m * 1e6 for e in experiments], "req_um": [e.req_m * 1e6 for e in experiments],
+            "rmax_over_req": [e.ratio for e in experiments],
+            "t_collapse_star": [e.t_collapse_star for e in experiments]}
+    out = {}
+    for k, v in cols.items():
+        a = np.asarray(v, dtype=float)
+        out[k] = {"mean": _json(float(a.mean())), "sd": _json(float(a.std(ddof=1)) if a.size > 1 else math.nan),
+                  "min": _json(float(a.min())), "max": _json(float(a.max()))}
+    return out
+
+
+def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 120, *,
+                       rmax_method: str = "parabola", collapse_method: str = "parabola",
+                       interp: str = "linear", n_tail: int = 20, rebound_frac: float = 0.05,
+                       noise: str = "auto", rho: float | None = None, p8: float | None = None,
+                       p_floor_abs: float = P_FLOOR_ABS, p_floor_rel: float = P_FLOOR_REL) -> Preprocessed:
+    """Align, nondimensionalise and resample every experiment; estimate P_k.
+
+    Parameters
+    ----------
+    dataset : Dataset
+    dt_star : float
+        Grid step in t* (default 0.025).
+    n_steps : int
+        Steps wanted (default 120 -> 121 samples); fewer when the shortest record ends earlier,
+        with a warning naming it.
+    rmax_method, collapse_method : ``"parabola"`` (default) or ``"sample"``
+        Sub-frame refinement of the maximum and of the first collapse (see preprocess.py).
+    interp : ``"linear"`` (default) or ``"pchip"``
+    n_tail : int
+        Samples averaged for Req when meta.json does not give it (default 20).
+    rebound_frac : float
+        Rise above the running minimum, as a fraction of Rmax, that marks the first rebound.
+    noise : ``"auto"``, ``"sample"`` or ``"paper"``
+        P_k from the across-experiment variance (``auto`` with >= 2 experiments), or from the
+        verification noise model (``auto`` with one experiment).
+    rho, p8 : float, optional
+        Density [kg/m^3] and far-field pressure [Pa]; default meta.json ``physics`` or 1064, 101325.
+
+    Raises
+    ------
+    InputError
+        A record too short to reach its first collapse, an empty dataset, bad settings.
+    """
+    if not dataset.experiments:
+        raise InputError(dataset.path, "holds no experiments")
+    if not (dt_star > 0 and math.isfinite(dt_star)):
+        raise InputError("--dt-star", f"must be a positive number, got {dt_star}")
+    if int(n_steps) < 1:
+        raise InputError("--n-steps", f"must be at least 1, got {n_steps}")
+    if noise not in ("auto", "sample", "paper"):
+        raise InputError("noise", f"must be auto, sample or paper, got {noise!r}")
+    rho = dataset.rho if rho is None else float(rho)
+    p8 = dataset.p8 if p8 is None else float(p8)
+    summaries, records = [], []
+    warnings = list(dataset.warnings)
+    for exp in dataset.experiments:
+        s, (ts, Rs) = _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star)
+        summaries.append(s)
+        records.append((ts, Rs))
+        warnings.extend(f"{exp.name}: {w}" for w in s.warnings)
+    n_avail = [s.n_steps_available for s in summaries]
+    n_use = min(int(n_steps), min(n_avail))
+    if n_use < 1:
+        worst = summaries[int(np.argmin(n_avail))]
+        raise InputError(worst.source, f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.3g}, "
+                                       f"before one grid step dt* = {dt_star}")
+    if n_use < int(n_steps):
+        worst = summaries[int(np.argmin(n_avail))]
+        warnings.append(f"grid truncated to {n_use} steps (t* <= {n_use * dt_star:.4g}) instead of {n_steps}: "
+                        f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.4g}")
+    R_star = np.empty((len(records), n_use + 1))
+    for i, (ts, Rs) in enumerate(records):
+        grid, values, _ = pp.resample(ts, Rs, dt_star, n_use, method=interp)
+        R_star[i] = values
+    t_star = np.arange(n_use + 1) * dt_star
+    if noise == "sample" and len(records) < 2:
+        raise InputError(dataset.path, "noise='sample' needs at least two experiments")
+    P, pinfo = noise_variance(t_star, R_star, p_floor_abs, p_floor_rel, method=noise)
+    if pinfo["method"] == "paper-noise-model" and noise == "auto":
+        warnings.append("one experiment: P_k from the methods.md §5 noise model, not from data")
+    elif len(records) == 2 and noise != "paper":
+        warnings.append("P_k from only two experiments is a very rough estimate")
+    choices = {
+        "rho_kg_m3": rho, "p8_Pa": p8, "time_scale": "t_c = Rmax / sqrt(p8/rho) per experiment",
+        "dt_star": float(dt_star), "n_steps_requested": int(n_steps), "n_steps": n_use,
+        "rmax_method": rmax_method, "collapse_method": collapse_method, "rebound_frac": rebound_frac,
+        "req": f"meta.json/file value when given, else mean of the last {n_tail} samples after the first "
+               f"collapse (sd of those samples as uncertainty)",
+        "n_tail": int(n_tail), "interpolation": interp,
+        "resample_anchor": "the point (t*=0, R*=1) at the refined maximum plus the samples at t* > 0",
+        "noise": pinfo,
+    }
+    return Preprocessed(t_star=t_star, R_star=R_star, P=P,
+                        rmax_m=np.array([s.rmax_m for s in summaries]),
+                        req_m=np.array([s.req_m for s in summaries]),
+                        req_sd_m=np.array([s.req_sd_m for s in summaries]),
+                        t_collapse_star=np.array([s.t_collapse_star for s in summaries]),
+                        experiments=summaries, choices=choices, warnings=warnings, dataset=dataset)
+
+
+def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star):
+    t, R = exp.t_s, exp.R_m
+    warnings = []
+    mx = pp.locate_rmax(t, R, rmax_method)
+    if mx.index == R.size - 1:
+        raise InputError(exp.source, f"experiment {exp.name!r}: the largest radius is the last sample; "
+                                     f"the record ends before the first collapse")
+    if mx.index == 0:
+        warnings.append("the largest radius is the first sample: the growth phase is missing, so the "
+                        "maximum may lie before the record starts")
+    try:
+        col = pp.first_collapse(t, R, mx.index, collapse_method, rebound_frac)
+    except pp.RecordTooShort as exc:
+        raise InputError(exp.source, f"experiment {exp.name!r}: {exc}")
+    tc = pp.time_scale_s(mx.rmax_m, rho, p8)
+    if exp.req_m is not None:
+        req, req_sd, req_se, req_src = exp.req_m, (math.nan if exp.req_sd_m is None else exp.req_sd_m), \
+            math.nan, exp.req_source or "given"
+    else:
+        est = pp.estimate_req(R, col.index, n_tail)
+        req, req_sd, req_se = est.req_m, est.sd_m, est.se_m
+        req_src = f"mean of last {est.n} samples"
+        if est.warning:
+            warnings.append(est.warning)
+    if not req < mx.rmax_m:
+        raise InputError(exp.source, f"experiment {exp.name!r}: Req = {req:g} m is not below Rmax = "
+                                     f"{mx.rmax_m:g} m")
+    ratio = mx.rmax_m / req
+    if not 2.0 <= ratio <= 20.0:
+        warnings.append(f"Rmax/Req = {ratio:.3g} is outside the usual IMR range 2-20")
+    ts, Rs = pp.nondimensionalise(t, R, mx.t_s, mx.rmax_m, tc)
+    t_last = float(ts[-1])
+    n_avail = int(math.floor(t_last / dt_star + 1e-9))
+    summary = ExperimentSummary(
+        name=exp.name, source=exp.source, n_samples=exp.n_samples, rmax_m=mx.rmax_m,
+        rmax_sample_m=mx.rmax_sample_m, rmax_method=mx.method, t0_s=mx.t_s, tc_s=tc, req_m=req,
+        req_sd_m=req_sd, req_se_m=req_se, req_source=req_src, t_collapse_s=col.t_s - mx.t_s,
+        t_collapse_star=(col.t_s - mx.t_s) / tc, r_collapse_star=col.r_m / mx.rmax_m,
+        collapse_method=col.method, t_last_star=t_last, n_steps_available=n_avail,
+        warnings=warnings)
+    return summary, (ts, Rs)
