@@ -22,22 +22,22 @@ from imrbayes.forward._layout import (
     GR_D2U, GR_WALL, GR_Y, OK)
 from imrbayes.forward.constitutive.nhkv import stress as _stress, dissipation_q as _dissipation_q  # PLUGIN
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _temperature(theta, alpha):
     return (alpha - 1.0 + math.sqrt(1.0 + 2.0 * alpha * theta)) / alpha
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _psat_star(T, g):
     return 1.17e11 * math.exp(-5200.0 / (T * g[G_T8])) / g[G_P8]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _kv_wall(p, T, g):
     return 1.0 / (1.0 + (g[G_RV] / g[G_RG]) * (p / _psat_star(T, g) - 1.0))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _wall_residual(thw, p, th, kv, tm, g, grid, dxi, nt, mass, kv0):
     """Heat-flux balance at the bubble wall (forward-model.md §4.4); returns (F, Tw)."""
     chi = g[G_CHI]
@@ -61,7 +61,7 @@ def _wall_residual(thw, p, th, kv, tm, g, grid, dxi, nt, mass, kv0):
     return F, Tw
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _wall_root(guess, p, th, kv, tm, g, grid, dxi, nt, mass, kv0):
     """Wall value of the auxiliary temperature variable: bracket, then Illinois regula falsi."""
     if mass:
@@ -126,7 +126,7 @@ def _wall_root(guess, p, th, kv, tm, g, grid, dxi, nt, mass, kv0):
     return b
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
     """Right-hand side ``out = dy/dt`` for one member; fills ``coef`` with the diffusion
     coefficients of the fields (multipliers of their second-difference operators).
@@ -283,7 +283,7 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
         out[1] = num / ((1.0 - U / c) * R + J * hh / c)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _blocks(flags):
     """(offset, length, coef offset) of each implicit field block; length 0 when absent."""
     nt = flags[F_NT]
@@ -309,7 +309,7 @@ def _blocks(flags):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _build_tridiag(coef, blocks, grid, mgrid, lo, di, up):
     """Tridiagonal diffusion operator A (frozen coefficients) for each block, in place."""
     for b in range(3):
@@ -333,7 +333,7 @@ def _build_tridiag(coef, blocks, grid, mgrid, lo, di, up):
                 up[off + k] = c if k < m - 1 else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _apply_tridiag(blocks, lo, di, up, x, out):
     for k in range(out.shape[0]):
         out[k] = 0.0
@@ -349,7 +349,7 @@ def _apply_tridiag(blocks, lo, di, up, x, out):
             out[off + k] = s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _factor(blocks, lo, di, up, hg, cp, dp):
     """Thomas factorisation of (I - hg*A): stores the modified super-diagonal and pivots."""
     for b in range(3):
@@ -367,7 +367,7 @@ def _factor(blocks, lo, di, up, hg, cp, dp):
             cp[off + k] = c / piv
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve(blocks, lo, hg, cp, dp, rhs_vec, x):
     """x = (I - hg*A)^-1 rhs on the block unknowns; other components x = rhs."""
     for k in range(rhs_vec.shape[0]):
@@ -385,7 +385,7 @@ def _solve(blocks, lo, hg, cp, dp, rhs_vec, x):
             x[off + k] -= cp[off + k] * x[off + k + 1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _piece(t, breaks):
     k = 0
     while k < breaks.shape[0] and t >= breaks[k]:
@@ -393,7 +393,7 @@ def _piece(t, breaks):
     return k
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _hermite5(t, t0, t1, r0, v0, a0, r1, v1, a1):
     """Quintic Hermite interpolant of R from R, Rdot, Rddot at both ends of a step."""
     h = t1 - t0
@@ -411,7 +411,7 @@ def _hermite5(t, t0, t1, r0, v0, a0, r1, v1, a1):
     return h00 * r0 + h10 * h * v0 + h20 * h * h * a0 + h01 * r1 + h11 * h * v1 + h21 * h * h * a1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_tmp,
               blocks, di, lo, up, W):
     """Finite-difference Jacobian columns of the coupling variables ``cols`` minus the frozen
@@ -429,7 +429,9 @@ def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef
         d = 1.5e-8 * max(abs(y[j]), 1e-3)
         scratch[j] = y[j] + d
         d = scratch[j] - y[j]
+        w0 = work[0]
         rhs(t, scratch, g, pr, flags, grid, mgrid, fp, coef_tmp, work)
+        work[0] = w0
         for k in range(n):
             W[q, k] = (fp[k] - f0[k]) / d
         for b in range(3):
@@ -444,7 +446,7 @@ def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef
                     W[q, j + 1] -= lo[j + 1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lu_small(K, piv):
     """In-place LU with partial pivoting of a small dense matrix; False if singular."""
     r = K.shape[0]
@@ -470,7 +472,7 @@ def _lu_small(K, piv):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lu_solve_small(K, piv, b):
     r = K.shape[0]
     for c in range(r):
@@ -488,7 +490,7 @@ def _lu_solve_small(K, piv, b):
         b[i] /= K[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                      rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols):
     """Advance one member's state ``y`` (in place) from t0 to t1; R at ``t_eval`` -> r_out.
@@ -543,8 +545,13 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
     h = h_init
     if h <= 0.0:
         h = 1e-4
+    # The warm-medium wall root is warm-started from the last accepted state's root, never from a
+    # trial state, so that a wild trial stage cannot move the search onto another branch.
+    root_acc = work[0]
     nsteps = 0
     nrej = 0
+    consecutive_rej = 0
+    cols_off = 0          # accepted steps left with the coupling columns switched off
     jac_age = -1
     status = OK
     while t < t1 - 1e-14 * max(1.0, abs(t1)):
@@ -567,7 +574,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
             _build_tridiag(coef, blocks, grid, mgrid, lo, di, up)
             _factor(blocks, lo, di, up, hg, cp, dp)
             _apply_tridiag(blocks, lo, di, up, y, FI[0])
-            if r > 0:
+            if r > 0 and cols_off == 0:
                 # The coupling columns are refreshed every few steps and after a rejection; any
                 # frozen operator keeps the scheme consistent, it only has to hold the stiffness.
                 if jac_age >= 4 or jac_age < 0:
@@ -582,7 +589,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                     for q in range(r):
                         K[a, q] = (1.0 if a == q else 0.0) - hg * Z[q, cols[a]]
                 if not _lu_small(K, piv):
-                    h *= 0.25
+                    cols_off = 50
                     continue
         ok = True
         for s in range(1, ns):
@@ -593,7 +600,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                 rhs_vec[k] = y[k] + h * acc
             if implicit:
                 _solve(blocks, lo, hg, cp, dp, rhs_vec, Y)
-                if r > 0:
+                if r > 0 and cols_off == 0:
                     for a in range(r):
                         sv[a] = Y[cols[a]]
                     _lu_solve_small(K, piv, sv)
@@ -608,6 +615,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
             if not (Y[0] > 0.0) or not math.isfinite(Y[1]):
                 ok = False
                 break
+            work[0] = root_acc
             rhs(t + C[s] * h, Y, g, pr, flags, grid, mgrid, F[s], coef_new, work)
         err = 0.0
         if ok:
@@ -624,17 +632,20 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
             err = math.sqrt(err / n)
             if not math.isfinite(err) or not (ynew[0] > 0.0):
                 ok = False
-        if not ok:
-            h *= 0.25
+        if not ok or err > 1.0:
+            h *= 0.25 if not ok else max(0.2, 0.9 * err ** expo)
             jac_age = -1
             nrej += 1
-            continue
-        if err > 1.0:
-            h *= max(0.2, 0.9 * err ** expo)
-            jac_age = -1
-            nrej += 1
+            consecutive_rej += 1
+            # A linearisation that fails repeatedly (an unstable or non-smooth coupling, e.g.
+            # the warm-medium wall root near collapse) is dropped for a while: the plain
+            # tridiagonal splitting is always consistent, only less stable.
+            if consecutive_rej >= 8 and r > 0 and cols_off == 0:
+                cols_off = 50
+                consecutive_rej = 0
             continue
         t_new = t_stop if last else t + h
+        work[0] = root_acc
         rhs(t_new, ynew, g, pr, flags, grid, mgrid, fnew, coef_new, work)
         bad = False
         for k in range(n):
@@ -658,8 +669,14 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
         for k in range(coef.shape[0]):
             coef[k] = coef_new[k]
         t = t_new
+        root_acc = work[0]
         nsteps += 1
         jac_age += 1
+        consecutive_rej = 0
+        if cols_off > 0:
+            cols_off -= 1
+            if cols_off == 0:
+                jac_age = -1
         if last and piece < breaks.shape[0] and t >= breaks[piece] - 1e-14:
             piece += 1
         fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** expo))
@@ -676,7 +693,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
     return status, nsteps, nrej
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
                     rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols):
     """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps, nrejected).

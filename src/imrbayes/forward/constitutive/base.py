@@ -3,7 +3,7 @@
 A constitutive model is one small module that defines
 
 * ``N_AUX`` - the number of auxiliary stress states it integrates;
-* ``stress(R, Rdot, z, p, req, zdot) -> (S, Sdot, J)`` - a numba ``@njit(cache=True)`` function
+* ``stress(R, Rdot, z, p, req, zdot) -> (S, Sdot, J)`` - a numba ``@njit(cache=True, error_model="numpy")`` function
   giving the dimensionless stress integral S (forward-model.md §5), its time derivative *without*
   the term proportional to Rddot, and the coefficient J of that term; it writes the rates of its
   auxiliary states into ``zdot``. ``p`` is the dimensionless parameter vector from

@@ -8,12 +8,12 @@ from imrbayes.forward.constitutive.base import ConstitutiveModel
 N_AUX = 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def stress(R, Rdot, z, p, req, zdot):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dissipation_q(x, y, p):
     return 0.0
 

@@ -14,7 +14,7 @@ from imrbayes.forward.constitutive.nhkv import _nondim
 N_AUX = 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def stress(R, Rdot, z, p, req, zdot):
     rs3 = (req / R) ** 3
     ur = Rdot / R
@@ -23,7 +23,7 @@ def stress(R, Rdot, z, p, req, zdot):
     return S, Sdot, 4.0 * p[1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dissipation_q(x, y, p):
     return 1.0
 

@@ -8,7 +8,7 @@ from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter, inv
 N_AUX = 0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def stress(R, Rdot, z, p, req, zdot):
     rs = req / R
     ur = Rdot / R
@@ -17,7 +17,7 @@ def stress(R, Rdot, z, p, req, zdot):
     return S, Sdot, 4.0 * p[1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dissipation_q(x, y, p):
     return 1.0
 

@@ -12,7 +12,7 @@ from imrbayes.forward.constitutive.maxwell import _nondim
 N_AUX = 2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def stress(R, Rdot, z, p, req, zdot):
     de = p[2]
     lam = p[3]
@@ -26,7 +26,7 @@ def stress(R, Rdot, z, p, req, zdot):
     return S, Sdot, 4.0 * lam * p[1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dissipation_q(x, y, p):
     return 1.0
 

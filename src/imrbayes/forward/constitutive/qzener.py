@@ -11,7 +11,7 @@ from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter, inv
 N_AUX = 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def stress(R, Rdot, z, p, req, zdot):
     rs = req / R
     de = p[2]
@@ -26,7 +26,7 @@ def stress(R, Rdot, z, p, req, zdot):
     return S, Sdot, 4.0 * p[1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dissipation_q(x, y, p):
     return 1.0 + p[4] * (x ** 4 / y ** 4 + 2.0 * y * y / (x * x) - 3.0)
 

@@ -14,12 +14,12 @@ from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter, inv
 N_AUX = 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def equilibrium_stress(R, rs, p):
     return -R ** 3 * 0.5 * p[0] * (5.0 - rs ** 4 - 4.0 * rs)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def stress(R, Rdot, z, p, req, zdot):
     rs = req / R
     de = p[2]
@@ -32,7 +32,7 @@ def stress(R, Rdot, z, p, req, zdot):
     return S, Sdot, 4.0 * p[1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dissipation_q(x, y, p):
     return 1.0
 
