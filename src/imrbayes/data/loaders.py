@@ -119,10 +119,14 @@ def _dataset(name, path, fmt, exps, meta: Meta, notes) -> Dataset:
 def load_directory(path) -> Dataset:
     """A dataset directory: ``meta.json`` plus one ``*.csv`` per experiment (sorted by name)."""
     path = Path(path)
-    csvs = sorted(p for p in path.iterdir() if p.suffix.lower() == ".csv" and p.is_file())
+    try:
+        entries = sorted(path.iterdir())
+    except OSError as exc:
+        raise InputError(path, f"cannot list the directory: {exc.strerror or exc}")
+    csvs = [p for p in entries if p.suffix.lower() == ".csv" and p.is_file()]
     meta_path = path / "meta.json"
     if not csvs:
-        others = sorted(p.name for p in path.iterdir() if p.suffix.lower() == ".mat")
+        others = [p.name for p in entries if p.suffix.lower() == ".mat"]
         hint = f" (found .mat file(s) {', '.join(others[:4])}: pass a .mat file itself)" if others else ""
         raise InputError(path, f"no experiment .csv files in this directory{hint}")
     if not meta_path.is_file():

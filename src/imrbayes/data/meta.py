@@ -65,7 +65,10 @@ def _stem(name: str) -> str:
 def _positive(value, where: str, path) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(path, f"{where} must be a number, got {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:
+        raise InputError(path, f"{where} is too large")
     if not math.isfinite(value) or value <= 0.0:
         raise InputError(path, f"{where} must be finite and positive, got {value!r}")
     return value
@@ -118,6 +121,11 @@ def parse_meta(raw, path=None) -> Meta:
 
 
 def _nonneg(value, where, path) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise InputError(path, f"{where} must be a finite number >= 0, got {value!r}")
+    try:
+        ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(float(value)) \
+            and value >= 0
+    except OverflowError:
+        ok = False
+    if not ok:
+        raise InputError(path, f"{where} must be a finite number >= 0, got {str(value)[:30]}")
     return float(value)

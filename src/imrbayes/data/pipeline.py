@@ -271,6 +271,10 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
     ratio = mx.rmax_m / req
     if not 2.0 <= ratio <= 20.0:
         warnings.append(f"Rmax/Req = {ratio:.3g} is outside the usual IMR range 2-20")
+    tcol = (col.t_s - mx.t_s) / tc
+    if not 0.5 <= tcol <= 1.5:
+        warnings.append(f"first-collapse time t* = {tcol:.3g} is far from the Rayleigh collapse time 0.915; "
+                        f"check the time units and the record")
     ts, Rs = pp.nondimensionalise(t, R, mx.t_s, mx.rmax_m, tc)
     t_last = float(ts[-1])
     n_avail = int(math.floor(t_last / dt_star + 1e-9))
