@@ -59,6 +59,9 @@ class Physics:
                 "GAM": "tait_b", "nstate": "tait_n", "Km": "k_medium", "Cp": "cp_medium",
                 "D0": "d_vapour", "L_heat": "latent_heat"}
 
+    # Constants that may be switched off (an ideal, tension-free interface).
+    _MAY_BE_ZERO = ("surface_tension",)
+
     @classmethod
     def from_overrides(cls, overrides: dict | None = None, source: str = "physics") -> "Physics":
         """Defaults with ``overrides`` (a dict of field names or IMRv2 aliases -> SI values)."""
@@ -72,7 +75,7 @@ class Physics:
                 value = float(value)
             except (TypeError, ValueError):
                 raise InputError(source, f"physical constant {key!r} must be a number, got {value!r}")
-            if not math.isfinite(value) or value <= 0.0:
+            if not math.isfinite(value) or value < 0.0 or (value == 0.0 and name not in cls._MAY_BE_ZERO):
                 raise InputError(source, f"physical constant {key!r} must be finite and positive, got {value}")
             kwargs[name] = value
         return cls(**kwargs)

@@ -192,8 +192,8 @@ class ForwardModel:
         req = np.broadcast_to(req, (size,)).copy()
         if not (np.all(np.isfinite(rmax)) and np.all(rmax > 0) and np.all(np.isfinite(req)) and np.all(req > 0)):
             raise InputError("initial state", "Rmax and Req must be finite and positive")
-        if np.any(req >= rmax):
-            raise InputError("initial state", "Req must be smaller than Rmax (the bubble starts at its maximum)")
+        if np.any(req > rmax):
+            raise InputError("initial state", "Req must not exceed Rmax (the bubble starts at its maximum)")
         g = self.groups(rmax, req)
         y = np.zeros((size, self.n_state))
         y[:, 0] = 1.0
