@@ -184,24 +184,33 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
             thw = _wall_root(work[0], pb, th, kv, tm, g, grid, dxi, nt, mass, kv[nt - 1])
             work[0] = thw
             th[nt - 1] = thw
+        sq = work[1 + 3 * nt:1 + 4 * nt]       # sqrt(1 + 2 alpha_m theta), reused below
         for i in range(nt):
             am = kv[i] * av + (1.0 - kv[i]) * ag
-            T[i] = _temperature(th[i], am)
+            sq[i] = math.sqrt(1.0 + 2.0 * am * th[i])
+            T[i] = (am - 1.0 + sq[i]) / am
         Tw_bubble = T[nt - 1]
         if mass:
             kv[nt - 1] = _kv_wall(pb, T[nt - 1], g)
         w0 = grid[GR_WALL, 0]
         w1 = grid[GR_WALL, 1]
         w2 = grid[GR_WALL, 2]
+        inv_r = 1.0 / R
+        inv_r2 = inv_r * inv_r
+        inv_pb = 1.0 / pb
         dth_w = w0 * th[nt - 1] + w1 * th[nt - 2] + w2 * th[nt - 3]
-        bracket = chi * (kappa - 1.0) / R * dth_w - kappa * pb * U
+        bracket = chi * (kappa - 1.0) * inv_r * dth_w - kappa * pb * U
         if mass:
             dkv_w = w0 * kv[nt - 1] + w1 * kv[nt - 2] + w2 * kv[nt - 3]
             rmix_w = kv[nt - 1] * rv + (1.0 - kv[nt - 1]) * rg
             bracket += kappa * pb * fom * rv * dkv_w / (T[nt - 1] * R * rmix_w * (1.0 - kv[nt - 1]))
-        pdot = 3.0 / R * bracket
+        pdot = 3.0 * inv_r * bracket
         out[2] = pdot
         ckap = (kappa - 1.0) / kappa
+        c_u1 = chi * (kappa - 1.0) * inv_r / (kappa * pb)      # u = c_u1 * theta' - y * c_u2 (+ mass part)
+        c_u2 = R * pdot / (3.0 * kappa * pb)
+        c_fom = fom * inv_r2
+        c_chi = chi * inv_r2
         for i in range(nt - 1):
             yi = grid[GR_Y, i]
             if i == 0:
@@ -210,27 +219,27 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
             else:
                 d1 = grid[GR_D1L, i] * th[i - 1] + grid[GR_D1C, i] * th[i] + grid[GR_D1U, i] * th[i + 1]
                 d2 = grid[GR_D2L, i] * th[i - 1] + grid[GR_D2C, i] * th[i] + grid[GR_D2U, i] * th[i + 1]
-            u = (chi * (kappa - 1.0) * d1 / R - yi * R * pdot / 3.0) / (kappa * pb)
-            K = kv[i] * (av * T[i] + bv) + (1.0 - kv[i]) * (ag * T[i] + bg)
-            cdiff = ckap * K * T[i] / pb * chi / (R * R)
-            rate = -(u - yi * U) * d1 / R + ckap * K * T[i] / pb * pdot + cdiff * d2
+            u = c_u1 * d1 - yi * c_u2
+            Ti = T[i]
+            kvi = kv[i]
+            K = kvi * (av * Ti + bv) + (1.0 - kvi) * (ag * Ti + bg)
+            ckt = ckap * K * Ti * inv_pb
+            cdiff = ckt * c_chi
             if mass:
                 if i == 0:
                     k1 = 0.0
                     k2 = grid[GR_D2C, 0] * kv[0] + grid[GR_D2U, 0] * kv[1]
                 else:
-                    k1 = grid[GR_D1L, i] * kv[i - 1] + grid[GR_D1C, i] * kv[i] + grid[GR_D1U, i] * kv[i + 1]
-                    k2 = grid[GR_D2L, i] * kv[i - 1] + grid[GR_D2C, i] * kv[i] + grid[GR_D2U, i] * kv[i + 1]
-                rmix = kv[i] * rv + (1.0 - kv[i]) * rg
-                gam = (rv - rg) * k1 / rmix
-                u += fom / R * gam
-                rate = -(u - yi * U) * d1 / R + ckap * K * T[i] / pb * pdot + cdiff * d2 \
-                    + fom / (R * R) * gam * d1
-                am = kv[i] * av + (1.0 - kv[i]) * ag
-                out[i_kv + i] = fom / (R * R) * (k2 - k1 * (d1 / (math.sqrt(1.0 + 2.0 * am * th[i]) * T[i]) + gam)) \
-                    - (u - yi * U) / R * k1
-                coef[nt + i] = fom / (R * R)
-            out[i_th + i] = rate
+                    k1 = grid[GR_D1L, i] * kv[i - 1] + grid[GR_D1C, i] * kvi + grid[GR_D1U, i] * kv[i + 1]
+                    k2 = grid[GR_D2L, i] * kv[i - 1] + grid[GR_D2C, i] * kvi + grid[GR_D2U, i] * kv[i + 1]
+                gam = (rv - rg) * k1 / (kvi * rv + (1.0 - kvi) * rg)
+                u += fom * inv_r * gam
+                adv = (u - yi * U) * inv_r
+                out[i_th + i] = -adv * d1 + ckt * pdot + cdiff * d2 + c_fom * gam * d1
+                out[i_kv + i] = c_fom * (k2 - k1 * (d1 / (sq[i] * Ti) + gam)) - adv * k1
+                coef[nt + i] = c_fom
+            else:
+                out[i_th + i] = -(u - yi * U) * inv_r * d1 + ckt * pdot + cdiff * d2
             coef[i] = cdiff
     # Constitutive stress integral S, its rate without the Rddot part, and J.
     S, Sdot, J = _stress(R, U, y[i_z:i_z + naux], p, g[G_REQ], out[i_z:i_z + naux])
