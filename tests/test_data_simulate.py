@@ -103,6 +103,7 @@ def test_simulate_roundtrip_through_loader(fake, tmp_path):
     np.testing.assert_allclose(pre.req_m, 263e-6 / 7.58, rtol=1e-12)
     np.testing.assert_allclose(pre.t_collapse_star, 0.9, atol=1e-3)
     np.testing.assert_allclose(pre.R_star[0], curve(pre.t_star, q=1 / 7.58), atol=1e-12)
+    assert not any("growth phase" in w for w in pre.warnings)  # meta.json says synthetic
 
 
 def test_simulate_is_seeded_and_batch_draws_follow_documented_order(fake, tmp_path):

@@ -197,7 +197,8 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
     summaries, records = [], []
     warnings = list(dataset.warnings)
     for exp in dataset.experiments:
-        s, (ts, Rs) = _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star)
+        s, (ts, Rs) = _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star,
+                           synthetic=dataset.meta.get("synthetic") is True)
         summaries.append(s)
         records.append((ts, Rs))
         warnings.extend(f"{exp.name}: {w}" for w in s.warnings)
@@ -241,14 +242,14 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
                         experiments=summaries, choices=choices, warnings=warnings, dataset=dataset)
 
 
-def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star):
+def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star, synthetic=False):
     t, R = exp.t_s, exp.R_m
     warnings = []
     mx = pp.locate_rmax(t, R, rmax_method)
     if mx.index == R.size - 1:
         raise InputError(exp.source, f"experiment {exp.name!r}: the largest radius is the last sample; "
                                      f"the record ends before the first collapse")
-    if mx.index == 0:
+    if mx.index == 0 and not synthetic:
         warnings.append("the largest radius is the first sample: the growth phase is missing, so the "
                         "maximum may lie before the record starts")
     try:
