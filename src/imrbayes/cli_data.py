@@ -101,7 +101,7 @@ def _print_table(pre, out: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- inspect
-@main.command("inspect")
+@main.command("inspect", short_help="Load and preprocess a dataset; report Rmax, Req, Rmax/Req, t_c*.")
 @click.argument("data", type=click.Path(path_type=Path))
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Output folder (default: a new folder under ./imrbayes-runs/).")
@@ -175,7 +175,7 @@ def _key_values(items, option: str, numeric: bool) -> dict:
     return out
 
 
-@main.command("simulate")
+@main.command("simulate", short_help="Write a synthetic dataset from the forward model (with truth.json).")
 @click.option("--model", required=True, help="Constitutive model (e.g. nhkv); see the error for the list.")
 @click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
               help="Material parameter in SI units (G [Pa], mu [Pa s], ...); repeat for each parameter.")
