@@ -501,7 +501,7 @@ def _lu_solve_small(K, piv, b):
 
 @njit(cache=True, error_model="numpy")
 def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
-                     rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols):
+                     rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols, field_weight):
     """Advance one member's state ``y`` (in place) from t0 to t1; R at ``t_eval`` -> r_out.
 
     Returns (status, accepted steps, rejected steps). ``ptab`` (n_pieces, n_p): parameters per time
@@ -637,6 +637,8 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                 ynew[k] = y[k] + h * acc
                 sc = atol + rtol * max(abs(y[k]), abs(ynew[k]))
                 e = h * eacc / sc
+                if k >= 3:
+                    e *= field_weight
                 err += e * e
             err = math.sqrt(err / n)
             if not math.isfinite(err) or not (ynew[0] > 0.0):
@@ -704,7 +706,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
 
 @njit(cache=True, error_model="numpy")
 def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols):
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight):
     """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps, nrejected).
 
     ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters.
@@ -725,7 +727,7 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
             status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
             continue
         st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
-                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols)
+                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols, field_weight)
         status[m] = st
         nsteps[m] = ns
         nrej[m] = nr

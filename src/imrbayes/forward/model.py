@@ -146,6 +146,7 @@ class ForwardModel:
             cols = []
         self._cols = np.array(cols, dtype=np.int64)
         self._kernel = None
+        self.field_weight = 1.0
         tab = TABLEAUX[o.method]()
         self._tableau = (tab["AE"], tab["AI"], tab["b"], tab["bhat"], tab["c"], float(tab["gamma"]),
                          float(tab["order"]))
@@ -252,7 +253,7 @@ class ForwardModel:
         o = self.options
         Y, R, status, nsteps, nrej = self.kernel.integrate_batch(
             np.ascontiguousarray(state.y, dtype=float), t0, t_end, t_eval, G, P, breaks, self._flags,
-            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols)
+            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols, float(self.field_weight))
         end = BatchState(Y, t_end, state.rmax_m.copy(), state.req_m.copy())
         return Propagation(t_eval, R, end, status, nsteps, nrej)
 
