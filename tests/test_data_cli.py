@@ -250,3 +250,26 @@ def test_single_experiment_csv_path(tmp_path):
     res = run("inspect", tmp_path / "one.csv", "--out", tmp_path / "o", "--json")
     assert res.exit_code == 0
     assert "noise model" in res.stderr and "no meta" not in res.stderr
+
+
+def test_options_from_toml_config_and_command_line_wins(tmp_path):
+    """Every option can come from --config FILE.toml; the command line overrides it."""
+    from click.testing import CliRunner
+
+    from imrbayes.cli import main
+
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[simulate]\nmodel = "nhkv"\nparam = ["G=4e3", "mu=0.05"]\nn-exp = 2\nnoise = "none"\n'
+                   'forward = ["bubble=polytropic"]\nt-end = 1.0\n')
+    out = tmp_path / "d"
+    res = CliRunner().invoke(main, ["simulate", "--config", str(cfg), "--n-exp", "3", "--out", str(out), "--quiet"])
+    assert res.exit_code == 0, res.output
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["parameters"] == {"G": 4000.0, "mu": 0.05}
+    assert truth["n_experiments"] == 3
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[simulate]\nbogus = 1\n")
+    res = CliRunner().invoke(main, ["simulate", "--config", str(bad)])
+    assert res.exit_code == 2 and "unknown option 'bogus'" in res.output
+    res = CliRunner().invoke(main, ["simulate", "--config", str(tmp_path / "missing.toml")])
+    assert res.exit_code == 2 and "config file not found" in res.output

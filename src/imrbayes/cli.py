@@ -37,6 +37,48 @@ class _Group(click.Group):
             ctx.exit(1)
 
 
+def _load_config(ctx, param, value):
+    """``--config FILE.toml``: its keys (option names, dashes or underscores) become the command's
+    defaults, so every option can come from the file and the command line still wins. A table
+    named after the command (``[fit]``, ``[simulate]``) is read in preference to the top level."""
+    if value is None:
+        return None
+    import tomllib
+    from pathlib import Path
+
+    path = Path(value)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, "config file not found")
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"not valid TOML: {exc}")
+    section = data.get(ctx.info_name, data)
+    if not isinstance(section, dict):
+        raise InputError(path, f"[{ctx.info_name}] must be a table")
+    known = {}
+    for prm in ctx.command.params:  # option spellings (--n-exp, n_exp) -> parameter name
+        known[prm.name] = prm.name
+        for opt in getattr(prm, "opts", []):
+            known[opt.lstrip("-").replace("-", "_")] = prm.name
+    defaults = {}
+    for key, val in section.items():
+        if isinstance(val, dict):
+            continue  # another command's table
+        name = known.get(key.replace("-", "_"))
+        if name is None:
+            raise InputError(path, f"unknown option {key!r} for 'imrbayes {ctx.info_name}'")
+        defaults[name] = list(val) if isinstance(val, (list, tuple)) else val
+    ctx.default_map = {**(ctx.default_map or {}), **defaults}
+    return value
+
+
+def config_option(f):
+    """Decorator adding ``--config FILE.toml`` (processed before every other option)."""
+    return click.option("--config", type=click.Path(dir_okay=False), callback=_load_config, is_eager=True,
+                        expose_value=False, help="TOML file of option values; the command line wins.")(f)
+
+
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="imrbayes")
 def main():

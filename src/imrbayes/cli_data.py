@@ -12,7 +12,7 @@ import click
 import numpy as np
 
 from imrbayes import __version__
-from imrbayes.cli import main
+from imrbayes.cli import config_option, main
 from imrbayes.errors import InputError
 
 
@@ -123,6 +123,7 @@ def _print_table(pre, out: Path) -> None:
 @click.option("--noise", type=click.Choice(["auto", "sample", "paper"]), default="auto", show_default=True,
               help="P_k: sample variance across experiments, or the methods.md §5 noise model.")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors (and --json output).")
+@config_option
 def inspect_cmd(data, out, as_json, dt_star, n_steps, camera, rmax_method, collapse_method, interp, n_tail,
                 noise, quiet):
     """Load DATA (dataset folder, .csv or .mat), preprocess it and report Rmax, Req, Rmax/Req and the
@@ -200,6 +201,7 @@ def _key_values(items, option: str, numeric: bool) -> dict:
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Dataset folder to create (default: a new folder under ./imrbayes-runs/).")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
+@config_option
 def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physics, t_end, dt_star, frame_s,
                  material, out, quiet):
     """Write a synthetic dataset (interfaces.md §1 format) from the forward model, with truth.json."""
@@ -226,7 +228,7 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
     phys = _key_values(physics, "--physics", numeric=True)
     models = list(fwd.available_models())
     try:
-        fm = fwd.ForwardModel(model, options=fwd.ForwardOptions.from_dict(fopts), physics_overrides=phys or None)
+        fm = fwd.ForwardModel(model, options=fwd.ForwardOptions.from_dict(fopts, source="--forward"), physics_overrides=phys or None)
     except InputError as exc:
         if model not in models and exc.source in (None, "--model", "model"):
             raise InputError("--model", f"unknown model {model!r}; available: {', '.join(models)}")

@@ -16,6 +16,9 @@ SCHEMES = ("converged", "imrv2-fd")
 # (see bubble_grid); its resolution was chosen by the refinement study in tests/test_forward_convergence.py.
 DEFAULT_RESOLUTION = {"imrv2-fd": (25, 25), "converged": (64, 64)}
 DEFAULT_STRETCH = 1.5
+# (rtol, atol) per integrator, chosen so that R has <= 1e-4 pointwise relative error against a
+# tight solve on the LIC benchmark batch (benchmarks/forward.py, row d).
+DEFAULT_TOLERANCES = {"ark548": (1e-6, 1e-8), "ark324": (1e-7, 1e-9), "dopri5": (1e-7, 1e-9)}
 
 
 @dataclass(frozen=True)
@@ -34,7 +37,8 @@ class ForwardOptions:
     polytropic_pdot : ``consistent`` (exact rate of the polytropic pressure) or ``imrv2`` (IMRv2's
         rate computed from the total pressure, vapour included); None picks ``imrv2`` for the
         ``imrv2-fd`` scheme and ``consistent`` otherwise.
-    rtol, atol : integrator tolerances (per component: atol + rtol |y|).
+    rtol, atol : integrator tolerances (per component: atol + rtol |y|); None: the integrator's
+        default (DEFAULT_TOLERANCES).
     integrator : ``ark548`` (5th-order implicit-explicit; default with a thermal bubble), ``ark324``
         (3rd order), or ``dopri5`` (explicit; default for the polytropic bubble, which is not stiff).
     """
@@ -49,8 +53,8 @@ class ForwardOptions:
     mt: int | None = None
     stretch: float | None = None
     polytropic_pdot: str | None = None
-    rtol: float = 1e-6
-    atol: float = 1e-8
+    rtol: float | None = None
+    atol: float | None = None
     integrator: str | None = None
 
     def __post_init__(self):
@@ -76,6 +80,10 @@ class ForwardOptions:
                 raise InputError(src, f"{name} must be an integer >= 5, got {v!r}")
         if self.integrator not in (None, "ark548", "ark324", "dopri5"):
             raise InputError(src, f"integrator must be ark548, ark324 or dopri5, got {self.integrator!r}")
+        if self.rtol is None:
+            object.__setattr__(self, "rtol", DEFAULT_TOLERANCES[self.method][0])
+        if self.atol is None:
+            object.__setattr__(self, "atol", DEFAULT_TOLERANCES[self.method][1])
         if not (0 < self.rtol < 1 and 0 < self.atol < 1):
             raise InputError(src, "rtol and atol must lie in (0, 1)")
 
