@@ -165,7 +165,7 @@ def test_simulate_numeric_noise_and_frame_rate(fake, tmp_path):
     ([*BASE, "--noise", "loud"], "--noise", "expected paper, none or a number"),
     ([*BASE, "--n-exp", "0"], "--n-exp", "at least 1"),
     ([*BASE, "--frame-s", "2"], "--frame-s", "frame interval in seconds"),
-    ([*BASE, "--forward", "bad=1"], "forward options", "unknown forward option"),
+    ([*BASE, "--forward", "bad=1"], "--forward", "unknown forward option"),
 ])
 def test_simulate_bad_input(fake, tmp_path, args, where, problem):
     res = sim(*args, "--out", tmp_path / "o")
