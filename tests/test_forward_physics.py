@@ -79,6 +79,9 @@ def test_batch_equals_members_and_failures_are_contained():
     G = np.array([3e3, 7.29e3, 1.5e4])
     mu = np.array([0.05, 0.088, 0.2])
     batch = fm.simulate({"G": G, "mu": mu}, LIC["rmax_m"], LIC["req_m"], t)
+    serial = ForwardModel("nhkv", options=ForwardOptions(scheme="imrv2-fd"), parallel=False)
+    np.testing.assert_array_equal(serial.simulate({"G": G, "mu": mu}, LIC["rmax_m"], LIC["req_m"], t).R_star,
+                                  batch.R_star)
     for i in range(3):
         single = fm.simulate({"G": G[i], "mu": mu[i]}, LIC["rmax_m"], LIC["req_m"], t)
         np.testing.assert_array_equal(batch.R_star[i], single.R_star[0])

@@ -12,7 +12,7 @@
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from imrbayes.forward._layout import (
     F_MASS, F_MEDIUM, F_MT, F_NAUX, F_NT, F_PDOT, F_RADIAL, F_THERMAL, FAIL_MAXSTEPS,
@@ -718,6 +718,36 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
     nsteps = np.zeros(N, dtype=np.int64)
     nrej = np.zeros(N, dtype=np.int64)
     for m in range(N):
+        ym = Y[m]
+        finite = True
+        for k in range(ym.shape[0]):
+            if not math.isfinite(ym[k]):
+                finite = False
+        if not finite or not (ym[0] > 0.0):
+            status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
+            continue
+        st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
+                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols, field_weight)
+        status[m] = st
+        nsteps[m] = ns
+        nrej[m] = nr
+    return Y, R, status, nsteps, nrej
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight):
+    """As integrate_batch, members spread over threads (numba prange).
+
+    ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters.
+    """
+    N = Y0.shape[0]
+    Y = Y0.copy()
+    R = np.full((N, t_eval.shape[0]), np.nan)
+    status = np.zeros(N, dtype=np.int64)
+    nsteps = np.zeros(N, dtype=np.int64)
+    nrej = np.zeros(N, dtype=np.int64)
+    for m in prange(N):
         ym = Y[m]
         finite = True
         for k in range(ym.shape[0]):

@@ -99,10 +99,13 @@ class ForwardModel:
         medium, grid-converged scheme).
     physics : Physics, optional
         Physical constants (SI); ``physics_overrides`` (a dict) modifies the defaults instead.
+    parallel : bool
+        Spread the members of a batch over numba threads (default True; results are identical
+        to the serial loop, member by member). ``NUMBA_NUM_THREADS`` caps the threads.
     """
 
     def __init__(self, constitutive="nhkv", options=None, physics: Physics | None = None,
-                 physics_overrides: dict | None = None):
+                 physics_overrides: dict | None = None, parallel: bool = True):
         self.constitutive: ConstitutiveModel = (constitutive if isinstance(constitutive, ConstitutiveModel)
                                                 else get_model(constitutive))
         if options is None:
@@ -146,6 +149,7 @@ class ForwardModel:
             cols = []
         self._cols = np.array(cols, dtype=np.int64)
         self._kernel = None
+        self.parallel = bool(parallel)
         self.field_weight = 1.0
         tab = TABLEAUX[o.method]()
         self._tableau = (tab["AE"], tab["AI"], tab["b"], tab["bhat"], tab["c"], float(tab["gamma"]),
@@ -251,7 +255,8 @@ class ForwardModel:
             raise ForwardModelError(f"state has {state.y.shape[1]} entries, this model needs {self.n_state}")
         G = group_matrix(self.groups(state.rmax_m, state.req_m), n)
         o = self.options
-        Y, R, status, nsteps, nrej = self.kernel.integrate_batch(
+        integrate = self.kernel.integrate_batch_parallel if (self.parallel and n > 1) else self.kernel.integrate_batch
+        Y, R, status, nsteps, nrej = integrate(
             np.ascontiguousarray(state.y, dtype=float), t0, t_end, t_eval, G, P, breaks, self._flags,
             self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols, float(self.field_weight))
         end = BatchState(Y, t_end, state.rmax_m.copy(), state.req_m.copy())
@@ -279,4 +284,4 @@ class ForwardModel:
 
     def with_options(self, **changes) -> "ForwardModel":
         """A copy with some options changed."""
-        return ForwardModel(self.constitutive, replace(self.options, **changes), self.physics)
+        return ForwardModel(self.constitutive, replace(self.options, **changes), self.physics, parallel=self.parallel)
