@@ -501,7 +501,7 @@ def _lu_solve_small(K, piv, b):
 
 @njit(cache=True, error_model="numpy")
 def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
-                     rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols, field_weight):
+                     rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err):
     """Advance one member's state ``y`` (in place) from t0 to t1; R at ``t_eval`` -> r_out.
 
     Returns (status, accepted steps, rejected steps). ``ptab`` (n_pieces, n_p): parameters per time
@@ -635,8 +635,23 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                     acc += B[j] * F[j, k]
                     eacc += (B[j] - BH[j]) * F[j, k]
                 ynew[k] = y[k] + h * acc
+                rhs_vec[k] = h * eacc
+            if implicit and filter_err:
+                # Shampine's filter: (I - h gamma A)^-1 applied to the error estimate keeps the
+                # damped stiff components (wall cells) from rejecting steps they cannot spoil.
+                _solve(blocks, lo, hg, cp, dp, rhs_vec, Y)
+                if r > 0 and cols_off == 0:
+                    for a in range(r):
+                        sv[a] = Y[cols[a]]
+                    _lu_solve_small(K, piv, sv)
+                    for q in range(r):
+                        for k in range(n):
+                            Y[k] += hg * Z[q, k] * sv[q]
+                for k in range(n):
+                    rhs_vec[k] = Y[k]
+            for k in range(n):
                 sc = atol + rtol * max(abs(y[k]), abs(ynew[k]))
-                e = h * eacc / sc
+                e = rhs_vec[k] / sc
                 if k >= 3:
                     e *= field_weight
                 err += e * e
@@ -706,7 +721,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
 
 @njit(cache=True, error_model="numpy")
 def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight):
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err):
     """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps, nrejected).
 
     ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters.
@@ -727,7 +742,7 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
             status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
             continue
         st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
-                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols, field_weight)
+                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err)
         status[m] = st
         nsteps[m] = ns
         nrej[m] = nr
@@ -736,7 +751,7 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
 
 @njit(cache=True, error_model="numpy", parallel=True)
 def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight):
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err):
     """As integrate_batch, members spread over threads (numba prange).
 
     ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters.
@@ -757,7 +772,7 @@ def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgri
             status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
             continue
         st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
-                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols, field_weight)
+                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err)
         status[m] = st
         nsteps[m] = ns
         nrej[m] = nr
