@@ -1,0 +1,233 @@
+"""Ensemble-space Gauss–Newton analysis (methods.md §3; Bocquet & Sakov 2014), for many
+independent groups (experiments) at once.
+
+For one group with prior ensemble E0 (N members x d, internal coordinates), mean xbar and
+normalised anomalies A = (E0 - xbar)/sqrt(N-1) (N x d), the control variable is w (N,):
+x = xbar + A^T w. With Yhat_k^(i) the model output of member i at observation k,
+ybar_k its ensemble mean and Y'_k = (Yhat_k^(i) - ybar_k)/sqrt(N-1) (normalised anomalies),
+
+    J(w) = 1/2 sum_k c_k ||y_k - ybar_k - Y'_k w||^2 / P_k + 1/2 w^T w,
+    grad = w - sum_k Y'_k^T (c_k/P_k) (y_k - ybar_k),    H = I + sum_k Y'_k^T (c_k/P_k) Y'_k,
+    w <- w - H^-1 grad,
+
+where c_k is the observation weight (En4D-Var: 1/N_t; MIEnKS: beta_jk/L). methods.md writes H and
+grad with (N_En - 1) I and (N_En - 1) w: that is the same algorithm written for *unnormalised*
+anomalies (w_unnorm = w/sqrt(N-1)); every iterate and the posterior are identical. Each iteration
+evaluates the ensemble shifted to the current w, E = E0 + (A^T w) 1^T, in one batch. After
+``n_iter`` iterations the posterior is N(xbar + A^T w, A^T H^-1 A) and its ensemble is
+xbar + A^T w + sqrt(N-1) H^-1/2 A (symmetric square root: the mean is kept).
+
+The output anomalies Y' are taken from a linear regression of the outputs on the ensemble
+anomalies (:func:`linearise`), and by default the ensemble is rescaled to the current posterior
+spread at every iteration (the transform variant: E = xbar + A^T w + sqrt(N-1) H^-1/2 A, with Y'
+mapped back to w by the same transform). The regression equals the raw anomalies whenever the ensemble anomalies have
+full rank N - 1 and removes the nonlinear remainder otherwise (parameter-only ensembles, N > d + 1).
+
+Failed members: at w = 0 (the prior ensemble) they are redrawn from the Gaussian of the valid
+members and re-run (counted). Members that fail later get the regression prediction of their
+output (counted). A group with fewer than ``min_valid`` valid members
+stops iterating (flagged).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["GNResult", "gauss_newton", "linearise"]
+
+
+@dataclass
+class GNResult:
+    """Posterior of every group. Shapes: G groups, N members, d state size, m observations.
+
+    mean (G, d); anoms (G, N, d) normalised posterior anomalies (cov = anoms^T anoms);
+    cov (G, d, d); ensemble (G, N, d) the posterior ensemble; prior_anoms (G, N, d) the normalised
+    prior anomalies (after any redraw); prior_ensemble (G, N, d); w (G, N); cost (G, n_iter) J at
+    each evaluated iterate; n_failed (G, n_iter) failed members per iteration; n_redrawn (G,);
+    stopped (G,) True where a group stopped early; yhat_mean (G, m) ensemble-mean output at the
+    best evaluated iterate; n_backtracked (G,) rejected iterates.
+    """
+
+    mean: np.ndarray
+    anoms: np.ndarray
+    cov: np.ndarray
+    ensemble: np.ndarray
+    prior_anoms: np.ndarray
+    prior_ensemble: np.ndarray
+    w: np.ndarray
+    cost: np.ndarray
+    n_failed: np.ndarray
+    n_redrawn: np.ndarray
+    stopped: np.ndarray
+    yhat_mean: np.ndarray
+    n_backtracked: np.ndarray | None = None
+
+
+def linearise(A, Yhat, ok, sq, rcond: float = 1e-9, A_out=None):
+    """Output mean and anomalies ``(ybar (m,), Y' (N, m))`` by linear regression on the ensemble.
+
+    The valid members' outputs are regressed on their (column-scaled) anomalies A (N, d):
+    Y'_i = A_i B with B the minimum-norm least-squares fit, ybar the fitted output at the ensemble
+    centre. With every member valid and rank(A) = N - 1 (state-augmented ensembles) this is exactly
+    the raw anomaly (Yhat_i - mean)/sqrt(N-1). When rank(A) = d < N - 1 (a parameter-only ensemble)
+    it drops the part of the output anomalies that no linear function of the parameters explains:
+    that part, from nonlinearity alone, otherwise drives w along directions that do not move the
+    parameters (the prior term grew without bound in our tests) and shrinks the posterior spread
+    spuriously. Failed members get the regression prediction (never a NaN).
+    ``A_out``: return the sensitivities for these anomalies instead (the transform variant
+    regresses on the evaluated ensemble T A and needs Y' for A).
+    """
+    A_out = A if A_out is None else A_out
+    Av = A[ok]
+    Yv = Yhat[ok]
+    scale = np.sqrt(np.mean(A * A, axis=0))
+    scale = np.where(scale > 0, scale, 1.0)
+    Xs = Av / scale
+    xm = Xs.mean(axis=0)
+    ym = Yv.mean(axis=0)
+    B, *_ = np.linalg.lstsq(Xs - xm, (Yv - ym) / sq, rcond=rcond)
+    Yp = (A_out / scale) @ B
+    ybar = ym - sq * (xm @ B)
+    return ybar, Yp
+
+
+def _sqrt_inv(H):
+    """H^-1 and H^-1/2 of SPD matrices (..., N, N) by eigen-decomposition."""
+    lam, V = np.linalg.eigh(H)
+    lam = np.maximum(lam, 1e-12)
+    Hi = (V / lam[..., None, :]) @ np.swapaxes(V, -1, -2)
+    Hs = (V / np.sqrt(lam)[..., None, :]) @ np.swapaxes(V, -1, -2)
+    return Hi, Hs
+
+
+def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw: int = 5,
+                 min_valid: int | None = None, project: bool = True, transform: bool = True,
+                 backtrack: bool = True) -> GNResult:
+    """Run the ensemble Gauss–Newton analysis for G groups at once.
+
+    Parameters
+    ----------
+    E0 : (G, N, d) prior ensembles (internal coordinates).
+    evaluate : callable(groups (M,) int, E (M, d)) -> (Yhat (M, m), failed (M,) bool)
+        Runs the forward model for M members (rows of E) of the given groups; one batch call.
+    y : (G, m) observations; weight : (G, m) or (m,) c_k / P_k (>= 0).
+    n_iter : Gauss–Newton iterations (forward batches).
+    rng : numpy Generator for redraws of failed prior members.
+    min_valid : fewest valid members to keep iterating (default max(2, N // 2)).
+    project : use the regression linearisation of :func:`linearise` (default) instead of the raw
+        output anomalies.
+    transform : the transform variant of Bocquet & Sakov (2014): iteration i evaluates
+        xbar + A^T w + sqrt(N-1) T A with T = H^-1/2 of the previous iteration, so the ensemble
+        shrinks to the posterior's size and the linearisation is taken at that scale (default);
+        False evaluates the prior ensemble shifted by A^T w (the literal form of methods.md).
+    backtrack : when an iterate's cost exceeds the best so far, the next evaluation is halfway
+        back towards the best iterate (no extra forward runs); the posterior is always the
+        Gauss–Newton update from the best evaluated iterate.
+    """
+    E0 = np.array(E0, dtype=np.float64)
+    G, N, d = E0.shape
+    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
+    m = y.shape[1]
+    Wt = np.broadcast_to(np.asarray(weight, dtype=np.float64), (G, m))
+    rng = np.random.default_rng(0) if rng is None else rng
+    min_valid = min_valid or max(2, N // 2)
+    sq = np.sqrt(N - 1.0)
+    gidx = np.repeat(np.arange(G), N)
+
+    # --- iteration 0 on the prior ensemble, with redraws of failed members
+    Yhat, failed = evaluate(gidx, E0.reshape(G * N, d))
+    Yhat = Yhat.reshape(G, N, m).copy()
+    failed = failed.reshape(G, N).copy()
+    n_redrawn = np.zeros(G, dtype=int)
+    for _ in range(max_redraw):
+        if not failed.any():
+            break
+        rows = []
+        for g in np.flatnonzero(failed.any(axis=1)):
+            ok = ~failed[g]
+            if ok.sum() < 2:
+                continue
+            xv = E0[g, ok]
+            mu = xv.mean(axis=0)
+            Av = (xv - mu) / np.sqrt(ok.sum() - 1.0)
+            bad = np.flatnonzero(failed[g])
+            E0[g, bad] = mu + rng.standard_normal((bad.size, ok.sum())) @ Av
+            n_redrawn[g] += bad.size
+            rows.extend((g, i) for i in bad)
+        if not rows:
+            break
+        gs, ii = np.array(rows).T
+        Yn, fn = evaluate(gs, E0[gs, ii])
+        Yhat[gs, ii] = Yn
+        failed[gs, ii] = fn
+
+    xbar = E0.mean(axis=1)                                  # (G, d)
+    A = (E0 - xbar[:, None, :]) / sq                        # (G, N, d)
+    w = np.zeros((G, N))
+    cost = np.full((G, n_iter), np.nan)
+    nfail = np.zeros((G, n_iter), dtype=int)
+    stopped = np.zeros(G, dtype=bool)
+    active = np.ones(G, dtype=bool)
+    H = np.broadcast_to(np.eye(N), (G, N, N)).copy()
+    T = H.copy()
+    best = np.full(G, np.inf)
+    w_best = np.zeros((G, N))
+    w_upd = np.zeros((G, N))
+    n_back = np.zeros(G, dtype=int)
+    ybar_last = np.full((G, m), np.nan)
+    for it in range(n_iter):
+        if it > 0:
+            act = np.flatnonzero(active)
+            if act.size == 0:
+                break
+            shift = np.einsum("gnd,gn->gd", A[act], w[act])     # A^T w
+            if transform:                                       # xbar + A^T w + sqrt(N-1) T A
+                E = (xbar[act] + shift)[:, None, :] + sq * (T[act] @ A[act])
+            else:
+                E = E0[act] + shift[:, None, :]
+            Yn, fn = evaluate(np.repeat(act, N), E.reshape(act.size * N, d))
+            Yhat[act] = Yn.reshape(act.size, N, m)
+            failed[act] = fn.reshape(act.size, N)
+        for g in np.flatnonzero(active):
+            ok = ~failed[g] & np.all(np.isfinite(Yhat[g]), axis=1)
+            nfail[g, it] = N - ok.sum()
+            if ok.sum() < min_valid:
+                stopped[g] = True
+                active[g] = False
+                continue
+            At = T[g] @ A[g] if transform else A[g]             # anomalies of the evaluated ensemble
+            if project:
+                ybar, Yp = linearise(At, Yhat[g], ok, sq, A_out=A[g])
+            else:
+                ybar = Yhat[g, ok].mean(axis=0)
+                Yp = np.where(ok[:, None], Yhat[g] - ybar, 0.0) / sq   # (N, m)
+                if transform:
+                    Yp = np.linalg.solve(T[g], Yp)
+            d_in = y[g] - ybar
+            c = 0.5 * np.sum(Wt[g] * d_in**2) + 0.5 * w[g] @ w[g]
+            cost[g, it] = c
+            if backtrack and it > 0 and not c <= best[g] * (1.0 + 1e-9):
+                # the step increased the cost: go back halfway towards the best iterate
+                w[g] = w_best[g] + 0.5 * (w[g] - w_best[g])
+                n_back[g] += 1
+                continue
+            best[g] = c
+            w_best[g] = w[g]
+            grad = w[g] - Yp @ (Wt[g] * d_in)
+            Hg = np.eye(N) + (Yp * Wt[g]) @ Yp.T
+            H[g] = Hg
+            w[g] = w[g] - np.linalg.solve(Hg, grad)
+            w_upd[g] = w[g]
+            if transform:
+                T[g] = _sqrt_inv(Hg)[1]
+            ybar_last[g] = ybar
+    w = w_upd
+    Hi, Hs = _sqrt_inv(H)
+    mean = xbar + np.einsum("gnd,gn->gd", A, w)
+    anoms = Hs @ A                                          # (G, N, d)
+    cov = np.einsum("gnd,gne->gde", A, Hi @ A)
+    ens = mean[:, None, :] + sq * anoms
+    return GNResult(mean, anoms, 0.5 * (cov + np.swapaxes(cov, 1, 2)), ens, A, E0, w, cost, nfail,
+                    n_redrawn, stopped, ybar_last, n_back)

@@ -1,0 +1,104 @@
+"""The common result of every method (what ``imrbayes fit`` writes) and small shared helpers."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from imrbayes.ensemble.gaussian import marginal_summary
+
+__all__ = ["FitResult", "gaussian_estimate", "si_covariance", "rmse", "loglik_pointwise"]
+
+
+@dataclass
+class FitResult:
+    """What a method found.
+
+    Attributes
+    ----------
+    method, model : str
+    param_names : tuple of str
+    estimate : dict name -> {"mean", "sd", "hdi95", ...} in SI units (interfaces.md §3)
+    mean_internal, cov_internal : (n_p,), (n_p, n_p) Gaussian in the internal coordinates
+        (log for positive parameters), or None for methods without one.
+    fitted : (n_exp, n) fitted R* on the observation grid (NaN where not fitted)
+    fit_mask : (n_exp, n) bool, the samples the method fitted
+    rmse : root-mean-square of fitted - measured R* over the fitted samples
+    n_fit_samples : number of (experiment, sample) pairs fitted
+    per_experiment : list of dicts (name, estimate or optimum, ...)
+    windows, time_resolved : lists for ``mienks`` (interfaces.md §3), else None
+    details : method settings, diagnostics, failure counts (JSON-able)
+    posterior : dict var -> array (chain, draw, ...) for posterior.nc; ``posterior_dims`` its dims
+    log_likelihood : dict var -> array (chain, draw, experiment, time) or None
+    extra_groups : dict group -> {var: array}; ``extra_dims`` dims of those variables
+    coords : coordinates for posterior.nc
+    runtime_s : wall time of the method [s]
+    warnings : list of str
+    """
+
+    method: str
+    model: str
+    param_names: tuple
+    estimate: dict
+    fitted: np.ndarray
+    fit_mask: np.ndarray
+    mean_internal: np.ndarray | None = None
+    cov_internal: np.ndarray | None = None
+    per_experiment: list = field(default_factory=list)
+    windows: list | None = None
+    time_resolved: list | None = None
+    details: dict = field(default_factory=dict)
+    posterior: dict = field(default_factory=dict)
+    posterior_dims: dict = field(default_factory=dict)
+    log_likelihood: dict | None = None
+    extra_groups: dict = field(default_factory=dict)
+    extra_dims: dict = field(default_factory=dict)
+    coords: dict = field(default_factory=dict)
+    runtime_s: float = float("nan")
+    warnings: list = field(default_factory=list)
+
+    @property
+    def rmse(self) -> float:
+        return float(self.details.get("rmse", float("nan")))
+
+    @property
+    def n_fit_samples(self) -> int:
+        return int(np.count_nonzero(self.fit_mask))
+
+
+def gaussian_estimate(space, mean, cov) -> dict:
+    """SI summaries of the marginals of N(mean, cov) in internal coordinates (see ParamSpace)."""
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return {n: marginal_summary(mean[i], sd[i], bool(space.positive[i])) for i, n in enumerate(space.names)}
+
+
+def si_covariance(space, mean, cov) -> np.ndarray:
+    """SI covariance of theta when z = (log-)theta ~ N(mean, cov) (log-normal moments for log axes)."""
+    mean, cov = np.asarray(mean, dtype=np.float64), np.asarray(cov, dtype=np.float64)
+    n = mean.size
+    out = np.empty((n, n))
+    lg = space.positive
+    E = np.where(lg, np.exp(mean + 0.5 * np.diag(cov)), mean)
+    for i in range(n):
+        for j in range(n):
+            if lg[i] and lg[j]:
+                out[i, j] = E[i] * E[j] * math.expm1(cov[i, j])
+            elif lg[i] or lg[j]:
+                k = i if lg[i] else j
+                out[i, j] = E[k] * cov[i, j]        # Cov(exp(a), b) = E[exp a] Cov(a, b) for a Gaussian pair
+            else:
+                out[i, j] = cov[i, j]
+    return out
+
+
+def rmse(fitted, measured, mask) -> float:
+    r = (np.asarray(fitted) - np.asarray(measured))[mask]
+    r = r[np.isfinite(r)]
+    return float(np.sqrt(np.mean(r * r))) if r.size else float("nan")
+
+
+def loglik_pointwise(Yhat, y, P):
+    """Gaussian log-likelihood per sample: -1/2 [log(2 pi P_k) + (y - Yhat)^2 / P_k] (broadcasts)."""
+    return -0.5 * (np.log(2.0 * np.pi * P) + (y - Yhat) ** 2 / P)

@@ -1,0 +1,119 @@
+"""Gaussian algebra against hand-computed linear-Gaussian cases (exact answers known)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from imrbayes.ensemble.gaussian import draw, fuse, marginal_summary, precision_weighted, rtps, rtps_factors
+from imrbayes.ensemble.problem import ParamSpace
+from imrbayes.forward import get_model
+
+
+def _posterior(m0, S0, H, R, y):
+    """Exact linear-Gaussian posterior of theta given y = H theta + e, e ~ N(0, R)."""
+    P = np.linalg.inv(np.linalg.inv(S0) + H.T @ np.linalg.solve(R, H))
+    return P @ (np.linalg.solve(S0, m0) + H.T @ np.linalg.solve(R, y)), P
+
+
+def test_fusion_equals_joint_posterior():
+    rng = np.random.default_rng(3)
+    m0 = np.array([1.0, -0.5])
+    S0 = np.array([[2.0, 0.3], [0.3, 0.5]])
+    means, covs, Hs, Rs, ys = [], [], [], [], []
+    for n in range(4):
+        H = rng.normal(size=(3, 2))
+        R = np.diag(rng.uniform(0.1, 1.0, 3))
+        y = rng.normal(size=3)
+        m, P = _posterior(m0, S0, H, R, y)
+        means.append(m), covs.append(P), Hs.append(H), Rs.append(R), ys.append(y)
+    # the joint posterior given every experiment (shared prior, independent noise)
+    from scipy.linalg import block_diag
+    mj, Pj = _posterior(m0, S0, np.vstack(Hs), block_diag(*Rs), np.concatenate(ys))
+    f = fuse(np.array(means), np.array(covs), m0, S0)
+    assert f.c == 1.0 and f.pd and not f.notes
+    np.testing.assert_allclose(f.mean, mj, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(f.cov, Pj, rtol=1e-10, atol=1e-12)
+
+
+def test_fusion_single_experiment_is_identity():
+    m, P = np.array([0.2, 0.1]), np.array([[0.3, 0.05], [0.05, 0.2]])
+    f = fuse(m[None], P[None], np.zeros(2), np.eye(2))
+    np.testing.assert_allclose(f.mean, m)
+    np.testing.assert_allclose(f.cov, P)
+
+
+def test_fusion_guard_reports_non_positive_definite():
+    # three "posteriors" wider than the prior: sum S_n^-1 - 2 S0^-1 = 3 * 0.5 - 2 < 0
+    S0 = np.eye(2)
+    covs = np.stack([2.0 * np.eye(2)] * 3)
+    f = fuse(np.zeros((3, 2)), covs, np.zeros(2), S0)
+    assert not f.pd and f.c < 1.0 and f.notes
+    assert np.all(np.linalg.eigvalsh(f.cov) > 0)
+    # c is the largest value keeping the precision positive: 1.5 - 2c > 0 -> c < 0.75
+    assert f.c == pytest.approx(0.75, rel=1e-4)
+
+
+def test_rtps_hand_computed_and_keeps_correlation():
+    rng = np.random.default_rng(0)
+    prior = rng.normal(size=(200, 2)) * [2.0, 0.5]
+    C = np.array([[1.0, 0.8], [0.8, 1.0]])
+    post = rng.normal(size=(200, 2)) @ np.linalg.cholesky(C).T * [0.2, 0.1]
+    post -= post.mean(axis=0)
+    prior -= prior.mean(axis=0)
+    a = 0.7
+    out = rtps(prior, post, a)
+    sp, sa = prior.std(axis=0), post.std(axis=0)
+    np.testing.assert_allclose(out.std(axis=0), sa + a * (sp - sa), rtol=1e-12)
+    np.testing.assert_allclose(np.corrcoef(out.T), np.corrcoef(post.T), atol=1e-12)
+    # a = 0 leaves the posterior alone, a = 1 restores the prior spread
+    np.testing.assert_allclose(rtps(prior, post, 0.0), post)
+    np.testing.assert_allclose(rtps(prior, post, 1.0).std(axis=0), sp)
+    # a component without posterior spread is left alone (no division by zero)
+    f = rtps_factors(prior, np.column_stack([post[:, 0], np.zeros(200)]), a)
+    assert f[1] == 1.0
+
+
+def test_precision_weighted_does_not_overcount():
+    m, P = np.array([1.0, 2.0]), np.array([[0.5, 0.1], [0.1, 0.3]])
+    mean, cov = precision_weighted(np.stack([m] * 5), np.stack([P] * 5))
+    np.testing.assert_allclose(mean, m)
+    np.testing.assert_allclose(cov, P)
+    # two windows, hand-computed 1-D case: precision (1/1 + 1/4)/2, mean weighted 1:1/4
+    mean, cov = precision_weighted(np.array([[0.0], [5.0]]), np.array([[[1.0]], [[4.0]]]))
+    assert cov[0, 0] == pytest.approx(1.0 / ((1.0 + 0.25) / 2))
+    assert mean[0] == pytest.approx((0.0 * 1.0 + 5.0 * 0.25) / 1.25)
+
+
+def test_draw_exact_moments():
+    rng = np.random.default_rng(1)
+    mean, cov = np.array([1.0, -2.0]), np.array([[0.4, -0.1], [-0.1, 0.2]])
+    x = draw(rng, mean, cov, 48)
+    np.testing.assert_allclose(x.mean(axis=0), mean, atol=1e-12)
+    np.testing.assert_allclose(np.cov(x, rowvar=False), cov, atol=1e-12)
+
+
+def test_lognormal_summary():
+    m, s = math.log(7000.0), 0.2
+    out = marginal_summary(m, s, log=True)
+    assert out["mean"] == pytest.approx(math.exp(m + s * s / 2))
+    assert out["sd"] == pytest.approx(out["mean"] * math.sqrt(math.expm1(s * s)))
+    lo, hi = out["hdi95"]
+    mass = stats.norm.cdf((math.log(hi) - m) / s) - stats.norm.cdf((math.log(lo) - m) / s)
+    assert mass == pytest.approx(0.95, abs=1e-6)
+    eti = np.exp(m + s * stats.norm.ppf([0.025, 0.975]))
+    assert hi - lo < eti[1] - eti[0]
+    g = marginal_summary(1.0, 0.5, log=False)
+    assert g["hdi95"] == pytest.approx([1.0 - 1.959964 * 0.5, 1.0 + 1.959964 * 0.5], rel=1e-6)
+
+
+def test_paper_prior_moment_matched():
+    sp = ParamSpace.for_model(get_model("nhkv"))
+    assert sp.names == ("G", "mu") and sp.positive.all()
+    for i, (mean, sd) in enumerate([(6e3, 2.8e3), (0.209, 0.088)]):
+        m, v = sp.prior_mean[i], sp.prior_cov[i, i]
+        assert math.exp(m + v / 2) == pytest.approx(mean)
+        assert math.exp(m + v / 2) * math.sqrt(math.expm1(v)) == pytest.approx(sd)
+    assert sp.prior_cov[0, 1] == 0.0
+    np.testing.assert_allclose(sp.to_si(sp.to_internal([7.29e3, 0.088])), [7.29e3, 0.088])
