@@ -1,0 +1,270 @@
+"""Standard IMR: least squares on a (G, mu) grid (methods.md §1).
+
+Cost, with every experiment simulated with its own Rmax and Req,
+
+    J(theta) = (1/N_exp) sum_n J_n(theta),   J_n = sum_{k in window_n} c_k (Y_nk(theta) - y_nk)^2,
+
+c_k = 1 (``weighting="none"``, methods.md) or 1/P_k (``"P"``); the window is samples 1..K_n
+(sample 0 is R* = 1 for every curve) with K_n from ``window``: ``"all"``, ``"t:T"`` (t* <= T) or
+``"collapse:k"`` (through the k-th collapse, the k-th local minimum of experiment n's measured
+curve with prominence >= ``collapse_prominence``).
+
+Grid: G in [G_min, G_max], mu in [mu_min, mu_max], n_G x n_mu points (paper: [0, 25] kPa x
+[0, 0.5] Pa s, 120 x 74). Other parameters of the model are held at their defaults.
+
+Reported: the overall optimum (grid argmin; ``refine`` adds a sub-grid optimum from a quadratic
+fit to the 3 x 3 neighbourhood), the optimum of every J_n, the landscape, and a 95 % confidence
+region built as follows (Beale 1960, "F on the cost"). With n = sum_n K_n residuals and p = 2
+parameters, the noise scale is estimated from the residuals at the optimum, s^2 = N_exp J_min/(n-p),
+and the region is
+
+    J(theta) <= J_min (1 + p/(n - p) F_{p, n-p}(0.95)).
+
+The matching pseudo-posterior on the grid, p(theta) ∝ exp(-(n - p) J(theta) / (2 J_min)), gives the
+reported sd and 95 % HDI (its 95 % HPD region is the contour above for large n); when it is
+narrower than one grid cell, the Laplace approximation of the same pseudo-posterior at the refined
+optimum (the quadratic fit's Hessian) is used instead (``details["uncertainty_from"]``). Caveat: it treats
+the residuals as independent; residuals of one R(t) curve are correlated in time, so the region is
+optimistic. ``estimate[*]["mean"]`` is the optimum (standard IMR's point estimate); the
+pseudo-posterior mean is ``posterior_mean``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy import signal, stats
+
+from imrbayes.ensemble.result import FitResult, rmse
+from imrbayes.ensemble.runner import Runner
+from imrbayes.errors import InputError
+
+__all__ = ["IMRSettings", "fit_imr", "fit_indices", "collapse_indices", "confidence_level"]
+
+
+@dataclass
+class IMRSettings:
+    """Grid, window and cost weighting of standard IMR (see module doc). SI units."""
+
+    G_min: float = 0.0
+    G_max: float = 25e3
+    mu_min: float = 0.0
+    mu_max: float = 0.5
+    n_G: int = 120
+    n_mu: int = 74
+    window: str = "all"
+    weighting: str = "none"
+    level: float = 0.95
+    refine: bool = True
+    collapse_prominence: float = 0.05
+    n_draws: int = 1000
+
+    def check(self):
+        if self.n_G < 3 or self.n_mu < 3:
+            raise InputError("grid", "needs at least 3 points per axis")
+        if not (self.G_max > self.G_min >= 0 and self.mu_max > self.mu_min >= 0):
+            raise InputError("grid", "needs 0 <= G_min < G_max and 0 <= mu_min < mu_max")
+        if self.weighting not in ("none", "P"):
+            raise InputError("weighting", f"must be 'none' or 'P', got {self.weighting!r}")
+        if not 0 < self.level < 1:
+            raise InputError("level", f"must lie in (0, 1), got {self.level}")
+
+
+def collapse_indices(y, prominence: float = 0.05) -> np.ndarray:
+    """Sample indices of the collapses (local minima with the given prominence in R*) of one curve."""
+    idx, _ = signal.find_peaks(-np.asarray(y, dtype=float), prominence=prominence)
+    return idx
+
+
+def fit_indices(obs, window: str, prominence: float = 0.05) -> np.ndarray:
+    """Last fitted sample K_n (n_exp,) for ``window`` = all | t:T | collapse:k."""
+    w = str(window).strip().lower()
+    n = obs.n_samples
+    if w == "all":
+        return np.full(obs.n_exp, n - 1)
+    kind, _, val = w.partition(":")
+    if kind == "t":
+        try:
+            T = float(val)
+        except ValueError:
+            raise InputError("window", f"expected t:T with T a number of t* units, got {window!r}")
+        K = int(np.searchsorted(obs.t_star, T + 1e-9, side="right") - 1)
+        if K < 2:
+            raise InputError("window", f"t* <= {T} holds fewer than two samples")
+        return np.full(obs.n_exp, K)
+    if kind == "collapse":
+        try:
+            k = int(val)
+        except ValueError:
+            raise InputError("window", f"expected collapse:k with k = 1, 2, ..., got {window!r}")
+        if k < 1:
+            raise InputError("window", f"collapse number must be >= 1, got {k}")
+        out = np.empty(obs.n_exp, dtype=int)
+        for e in range(obs.n_exp):
+            idx = collapse_indices(obs.R_star[e], prominence)
+            if idx.size < k:
+                raise InputError("window", f"experiment {obs.names[e]!r} shows {idx.size} collapse(s) on the "
+                                           f"grid, fewer than {k}")
+            out[e] = idx[k - 1]
+        return out
+    raise InputError("window", f"expected all, t:T or collapse:k, got {window!r}")
+
+
+def confidence_level(J_min: float, n: int, p: int, level: float = 0.95) -> float:
+    """Cost level of the region J <= J_min (1 + p/(n-p) F_{p,n-p}(level)) (NaN if n <= p)."""
+    if n <= p:
+        return float("nan")
+    return float(J_min * (1.0 + p / (n - p) * stats.f.ppf(level, p, n - p)))
+
+
+def _quadratic_refine(J, Gg, mg, i, j):
+    """Sub-grid minimum of a quadratic fitted to the 3 x 3 neighbourhood (None if not convex/interior)."""
+    if not (0 < i < J.shape[0] - 1 and 0 < j < J.shape[1] - 1):
+        return None
+    sub = J[i - 1:i + 2, j - 1:j + 2]
+    if not np.all(np.isfinite(sub)):
+        return None
+    dG, dm = Gg[1] - Gg[0], mg[1] - mg[0]
+    u, v = np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], indexing="ij")
+    X = np.column_stack([np.ones(9), u.ravel(), v.ravel(), u.ravel() ** 2, u.ravel() * v.ravel(), v.ravel() ** 2])
+    c, *_ = np.linalg.lstsq(X, sub.ravel(), rcond=None)
+    Hq = np.array([[2 * c[3], c[4]], [c[4], 2 * c[5]]])
+    if np.any(np.linalg.eigvalsh(Hq) <= 0):
+        return None
+    d = -np.linalg.solve(Hq, c[1:3])
+    if np.any(np.abs(d) > 1.0):
+        return None
+    scale = np.array([dG, dm])
+    Hsi = Hq / np.outer(scale, scale)
+    return np.array([Gg[i] + d[0] * dG, mg[j] + d[1] * dm]), float(c[0] + 0.5 * c[1:3] @ d), Hsi
+
+
+def _grid_summary(J, Jmin, n, p, Gg, mg, opt):
+    lp = -0.5 * (n - p) * J / Jmin if (n > p and Jmin > 0) else np.where(J <= np.nanmin(J), 0.0, -np.inf)
+    lp = np.where(np.isfinite(lp), lp, -np.inf)
+    w = np.exp(lp - lp.max())
+    w /= w.sum()
+    out = {}
+    for ax, (name, grid) in enumerate((("G", Gg), ("mu", mg))):
+        marg = w.sum(axis=1 - ax)
+        mean = float(np.sum(marg * grid))
+        sd = float(np.sqrt(np.sum(marg * (grid - mean) ** 2)))
+        order = np.argsort(marg)[::-1]
+        k = int(np.searchsorted(np.cumsum(marg[order]), 0.95)) + 1
+        sel = grid[order[:k]]
+        h = 0.5 * (grid[1] - grid[0])
+        out[name] = {"mean": float(opt[ax]), "sd": sd,
+                     "hdi95": [float(max(grid[0], sel.min() - h)), float(min(grid[-1], sel.max() + h))],
+                     "posterior_mean": mean}
+    return out, w
+
+
+def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, runner: Runner | None = None,
+            progress=None) -> FitResult:
+    """Grid search of (G, mu); see module doc. ``progress(n)`` is called per forward chunk."""
+    s = settings or IMRSettings()
+    s.check()
+    t0 = time.perf_counter()
+    names = tuple(space.names)
+    if "G" not in names or "mu" not in names:
+        raise InputError("--method imr", f"the IMR grid is over G and mu; model parameters are {list(names)}")
+    runner = runner or Runner(fm)
+    Kn = fit_indices(obs, s.window, s.collapse_prominence)
+    Kmax = int(Kn.max())
+    t_eval = obs.t_star[:Kmax + 1]
+    Gg = np.linspace(s.G_min, s.G_max, s.n_G)
+    mg = np.linspace(s.mu_min, s.mu_max, s.n_mu)
+    GG, MM = np.meshgrid(Gg, mg, indexing="ij")
+    n_pts = GG.size
+    defaults = fm.constitutive.defaults
+    theta = np.empty((n_pts, len(names)))
+    for i, nm in enumerate(names):
+        theta[:, i] = GG.ravel() if nm == "G" else (MM.ravel() if nm == "mu" else defaults[nm])
+    mask = np.zeros((obs.n_exp, obs.n_samples), dtype=bool)
+    for e, K in enumerate(Kn):
+        mask[e, 1:K + 1] = True
+    cw = np.ones(obs.n_samples) if s.weighting == "none" else 1.0 / obs.P
+    Jn = np.empty((obs.n_exp, n_pts))
+    n_failed = 0
+    for e in range(obs.n_exp):                         # one batch per experiment keeps memory at n_pts x K
+        out = runner.simulate(theta, np.full(n_pts, obs.rmax_m[e]), np.full(n_pts, obs.req_m[e]), t_eval)
+        r = out.R_star[:, 1:Kn[e] + 1] - obs.R_star[e, 1:Kn[e] + 1]
+        j = np.sum(cw[1:Kn[e] + 1] * r * r, axis=1)
+        bad = out.failed | ~np.isfinite(j)
+        n_failed += int(bad.sum())
+        Jn[e] = np.where(bad, np.inf, j)
+        if progress is not None:
+            progress(e + 1)
+    Jn = Jn.reshape(obs.n_exp, s.n_G, s.n_mu)
+    J = Jn.mean(axis=0)
+    if not np.any(np.isfinite(J)):
+        raise RuntimeError("every grid point failed in the forward model")
+    i, j = np.unravel_index(np.argmin(J), J.shape)
+    opt = np.array([Gg[i], mg[j]])
+    Jmin = float(J[i, j])
+    ref = _quadratic_refine(J, Gg, mg, i, j) if s.refine else None
+    refined = ref[0] if ref is not None else opt
+    n_res, p = int(Kn.sum()), 2
+    level_J = confidence_level(Jmin, n_res, p, s.level)
+    est, pmf = _grid_summary(J, Jmin, n_res, p, Gg, mg, refined)
+    laplace = None
+    if ref is not None and n_res > p and Jmin > 0:
+        # -log p = (n - p) J / (2 Jmin)  ->  precision = (n - p) Hess(J) / (2 Jmin)
+        cov = np.linalg.inv((n_res - p) * ref[2] / (2.0 * Jmin))
+        laplace = {"cov": cov.tolist(), "sd": np.sqrt(np.diag(cov)).tolist()}
+    per = []
+    for e in range(obs.n_exp):
+        ie, je = np.unravel_index(np.argmin(Jn[e]), Jn[e].shape)
+        r_e = _quadratic_refine(Jn[e], Gg, mg, ie, je) if s.refine else None
+        o = r_e[0] if r_e is not None else np.array([Gg[ie], mg[je]])
+        per.append({"name": obs.names[e], "optimum": {"G": float(o[0]), "mu": float(o[1])},
+                    "grid_optimum": {"G": float(Gg[ie]), "mu": float(mg[je])}, "J_min": float(Jn[e, ie, je]),
+                    "last_sample": int(Kn[e]), "t_end_star": float(obs.t_star[Kn[e]])})
+    # fitted curves at the (refined) optimum
+    th = np.tile(theta[i * s.n_mu + j], (obs.n_exp, 1))
+    th[:, names.index("G")] = refined[0]
+    th[:, names.index("mu")] = refined[1]
+    fo = runner.simulate(th, obs.rmax_m, obs.req_m, obs.t_star)
+    fitted = np.where(mask, fo.R_star, np.nan)
+    fitted[:, 0] = fo.R_star[:, 0]
+    rng = np.random.default_rng(seed)
+    spacing = np.array([Gg[1] - Gg[0], mg[1] - mg[0]])
+    resolved = all(est[nm]["sd"] >= spacing[a] for a, nm in enumerate(("G", "mu")))
+    use_laplace = laplace is not None and not resolved
+    if use_laplace:
+        # the pseudo-posterior is narrower than a grid cell: use the local quadratic (Laplace)
+        sd = laplace["sd"]
+        for a, nm in enumerate(("G", "mu")):
+            est[nm]["sd_grid"], est[nm]["hdi95_grid"] = est[nm]["sd"], est[nm]["hdi95"]
+            est[nm]["sd"] = float(sd[a])
+            est[nm]["hdi95"] = [float(refined[a] - 1.959964 * sd[a]), float(refined[a] + 1.959964 * sd[a])]
+        dr = rng.multivariate_normal(refined, np.array(laplace["cov"]), size=s.n_draws)
+        dG_draw, dm_draw = dr[:, 0], dr[:, 1]
+    else:
+        idx = rng.choice(pmf.size, size=s.n_draws, p=pmf.ravel())
+        ii, jj = np.unravel_index(idx, pmf.shape)
+        dG_draw = np.clip(Gg[ii] + (rng.random(s.n_draws) - 0.5) * spacing[0], Gg[0], Gg[-1])
+        dm_draw = np.clip(mg[jj] + (rng.random(s.n_draws) - 0.5) * spacing[1], mg[0], mg[-1])
+    dG, dm = spacing
+    details = {"settings": asdict(s), "grid": {"G": [float(Gg[0]), float(Gg[-1]), s.n_G, float(dG)],
+                                              "mu": [float(mg[0]), float(mg[-1]), s.n_mu, float(dm)]},
+               "grid_optimum": {"G": float(opt[0]), "mu": float(opt[1])},
+               "optimum": {"G": float(refined[0]), "mu": float(refined[1])}, "refined": ref is not None,
+               "J_min": Jmin, "confidence": {"level": s.level, "J_level": level_J, "n_residuals": n_res, "p": p,
+                                             "rule": "J <= J_min (1 + p/(n-p) F_{p,n-p}(level)) (Beale; residuals "
+                                                     "treated as independent, so optimistic)"},
+               "laplace": laplace, "uncertainty_from": "laplace" if use_laplace else "grid",
+               "n_grid_points": n_pts, "member_runs": runner.n_member_runs,
+               "failed_grid_runs": n_failed, "window": s.window, "last_sample": Kn.tolist(),
+               "rmse": rmse(fitted, obs.R_star, mask)}
+    return FitResult(
+        method="imr", model=fm.constitutive.name, param_names=names, estimate=est, fitted=fitted, fit_mask=mask,
+        per_experiment=per, details=details,
+        posterior={"G": dG_draw[None], "mu": dm_draw[None]},
+        extra_groups={"landscape": {"J": J, "J_experiment": Jn}},
+        extra_dims={"J": ["G_grid", "mu_grid"], "J_experiment": ["experiment", "G_grid", "mu_grid"]},
+        coords={"G_grid": Gg, "mu_grid": mg, "experiment": list(obs.names)},
+        runtime_s=time.perf_counter() - t0)

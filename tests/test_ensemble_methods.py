@@ -1,0 +1,106 @@
+"""Recovery of known parameters from noise-free synthetic data (polytropic forward model)."""
+
+import numpy as np
+import pytest
+
+from _ens_synth import TRUTH, observations, space
+from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, Runner, fit_en4dvar, fit_imr,
+                               fit_mienks)
+from imrbayes.ensemble.imr import collapse_indices, fit_indices
+from imrbayes.errors import InputError
+
+
+def test_imr_optimum_within_one_grid_cell():
+    fm, obs = observations()
+    # a grid that does not hold the truth on a node: dG = 200 Pa, dmu = 0.004 Pa s
+    s = IMRSettings(G_min=5.13e3, G_max=9.93e3, n_G=25, mu_min=0.0612, mu_max=0.1212, n_mu=16)
+    res = fit_imr(fm, obs, space(fm), s)
+    dG, dm = 200.0, 0.004
+    grid = res.details["grid_optimum"]
+    assert abs(grid["G"] - TRUTH["G"]) <= dG and abs(grid["mu"] - TRUTH["mu"]) <= dm
+    opt = res.details["optimum"]                                  # sub-grid quadratic refinement
+    assert abs(opt["G"] - TRUTH["G"]) < 0.5 * dG and abs(opt["mu"] - TRUTH["mu"]) < 0.5 * dm
+    for p in res.per_experiment:
+        assert abs(p["grid_optimum"]["G"] - TRUTH["G"]) <= dG
+        assert abs(p["grid_optimum"]["mu"] - TRUTH["mu"]) <= dm
+    J = res.extra_groups["landscape"]["J"]
+    assert J.shape == (25, 16) and np.nanmin(J) == pytest.approx(res.details["J_min"])
+    assert res.details["confidence"]["J_level"] > res.details["J_min"]
+    assert res.rmse < 1e-3
+    assert res.posterior["G"].shape == (1, s.n_draws)
+
+
+def test_imr_windows():
+    fm, obs = observations(n_exp=2)
+    K1 = fit_indices(obs, "collapse:1")
+    K2 = fit_indices(obs, "collapse:2")
+    assert np.all(K2 > K1)
+    # the first collapse of the noise-free curves is near t* = 0.9-1.0
+    assert np.all((obs.t_star[K1] > 0.8) & (obs.t_star[K1] < 1.1))
+    assert fit_indices(obs, "t:1.5").tolist() == [60, 60]
+    assert fit_indices(obs, "all").tolist() == [120, 120]
+    assert collapse_indices(obs.R_star[0]).size >= 2
+    for bad in ("collapse:9", "t:x", "first", "collapse:0"):
+        with pytest.raises(InputError):
+            fit_indices(obs, bad)
+
+
+def test_en4dvar_recovers_truth():
+    fm, obs = observations()
+    res = fit_en4dvar(fm, obs, space(fm), En4DVarSettings(n_draws=8), seed=0)
+    for name in ("G", "mu"):
+        est = res.estimate[name]
+        assert est["mean"] == pytest.approx(TRUTH[name], rel=0.03)
+        lo, hi = est["hdi95"]
+        assert lo < TRUTH[name] < hi
+        for p in res.per_experiment:
+            assert p["estimate"][name]["mean"] == pytest.approx(TRUTH[name], rel=0.03)
+    assert res.details["fusion"]["prior_correction_factor"] == 1.0
+    assert res.rmse < 2e-3
+    assert res.log_likelihood["R"].shape == (1, 8, 5, 120)
+    assert res.details["failed_member_runs"] == 0
+    # same seed, same answer
+    res2 = fit_en4dvar(fm, obs, space(fm), En4DVarSettings(n_draws=8), seed=0)
+    assert res2.estimate == res.estimate
+
+
+def test_en4dvar_fit_window():
+    fm, obs = observations(n_exp=2)
+    res = fit_en4dvar(fm, obs, space(fm), En4DVarSettings(n_ens=16, n_runs=1, t_end=1.0, n_draws=0, loglik=False))
+    assert res.details["n_fit_steps"] == 40
+    assert res.fit_mask[:, 41:].sum() == 0 and np.all(np.isnan(res.fitted[:, 41:]))
+
+
+def test_mienks_short_record():
+    fm, obs = observations(n_exp=3, n_steps=60)
+    s = MIEnKSSettings(n_ens=24, L=20, h=10, n_draws=50)
+    res = fit_mienks(fm, obs, space(fm), s, seed=1)
+    assert len(res.windows) == 5 == res.details["n_windows"]
+    assert [w["samples"] for w in res.windows][-1] == [40, 59]
+    # every window holds the truth in its 95% interval and stays near it (noise-free data, perfect
+    # model); the windows before the first collapse (t* < 0.9) carry little information on G
+    for w in res.windows:
+        for name in ("G", "mu"):
+            lo, hi = w[name]["hdi95"]
+            assert lo < TRUTH[name] < hi, (w["index"], name, w[name])
+    for w in res.windows[2:]:
+        assert w["G"]["mean"] == pytest.approx(TRUTH["G"], rel=0.15)
+        assert w["mu"]["mean"] == pytest.approx(TRUTH["mu"], rel=0.05)
+    assert res.estimate["G"]["mean"] == pytest.approx(TRUTH["G"], rel=0.15)
+    assert res.estimate["mu"]["mean"] == pytest.approx(TRUTH["mu"], rel=0.05)
+    assert len(res.time_resolved) == 60                       # samples 0..59 lie in some window
+    assert res.posterior["G"].shape == (1, 50, 5)
+    assert res.rmse < 5e-3
+    assert np.all(np.isfinite(res.fitted[:, :60]))
+
+
+def test_runner_chunks_match_single_call():
+    fm, obs = observations(n_exp=2, n_steps=40)
+    rng = np.random.default_rng(0)
+    th = np.column_stack([rng.uniform(2e3, 12e3, 10), rng.uniform(0.03, 0.3, 10)])
+    rm, rq = np.repeat(obs.rmax_m, 5), np.repeat(obs.req_m, 5)
+    a = Runner(fm).simulate(th, rm, rq, obs.t_star).R_star
+    done = []
+    b = Runner(fm, chunk=3, progress=done.append).simulate(th, rm, rq, obs.t_star).R_star
+    np.testing.assert_array_equal(a, b)
+    assert done == [3, 3, 3, 1]
