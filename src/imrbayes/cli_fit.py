@@ -1,0 +1,261 @@
+"""``imrbayes fit`` (interfaces.md §2): one inference method on one dataset.
+
+Writes ``summary.json``, ``posterior.nc`` and ``figures/*.png`` under ``--out``. Every option can
+come from ``--config FILE.toml`` (the command line wins). As for every command, a ``[fit]`` table
+is read in preference to the top level; its keys are the option names (``method``, ``model``,
+``out``, ``seed``, ``workers``, ``quiet``, ``camera``, ``dt_star``, ``n_steps``, ``noise``, ``set``
+as a list of ``"KEY=VALUE"``), plus tables ``forward`` (forward-model options; a list of
+``"KEY=VALUE"`` also works), ``prior`` (``G = [6e3, 2.8e3]``: mean and sd, SI) and ``imr``,
+``pimr``, ``en4dvar``, ``mienks`` (method settings, as ``--set``), e.g. ``[fit.en4dvar]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import click
+
+from imrbayes import __version__
+from imrbayes.cli import main
+from imrbayes.errors import InputError
+
+METHOD_NAMES = ("imr", "pimr", "en4dvar", "mienks")
+
+
+def _kv(items, option) -> dict:
+    out = {}
+    for item in items:
+        key, sep, value = str(item).partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise InputError(option, f"expected KEY=VALUE, got {item!r}")
+        out[key.strip().replace("-", "_")] = value.strip()
+    return out
+
+
+def _coerce(cls, name, value, source):
+    """A setting value (string from the command line or a TOML value) as the field's type."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    if name not in fields:
+        raise InputError(source, f"unknown setting {name!r}; known: {', '.join(sorted(fields))}")
+    typ = str(fields[name].type)
+    if not isinstance(value, str):
+        if "bool" in typ and not isinstance(value, bool):
+            raise InputError(source, f"{name} must be true or false, got {value!r}")
+        if "int" in typ and "float" not in typ and not (isinstance(value, int) and not isinstance(value, bool)):
+            raise InputError(source, f"{name} must be an integer, got {value!r}")
+        if "float" in typ and isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = float(value)
+            if not math.isfinite(value):
+                raise InputError(source, f"{name} must be finite, got {value!r}")
+        return value
+    v = value.strip()
+    if "None" in typ and v.lower() in ("none", "null", ""):
+        return None
+    try:
+        if "bool" in typ:
+            low = v.lower()
+            if low not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                raise ValueError
+            return low in ("true", "1", "yes", "on")
+        if "int" in typ and "float" not in typ:
+            f = float(v)
+            if f != int(f):
+                raise ValueError
+            return int(f)
+        if "float" in typ:
+            f = float(v)
+            if not math.isfinite(f):
+                raise ValueError
+            return f
+    except ValueError:
+        raise InputError(source, f"{name} must be a {typ.replace(' | None', '')}, got {value!r}")
+    return v
+
+
+def _settings(cls, table: dict, cli: dict):
+    kwargs = {}
+    for k, v in (table or {}).items():
+        kwargs[k.replace("-", "_")] = _coerce(cls, k.replace("-", "_"), v, "--config")
+    for k, v in cli.items():
+        kwargs[k] = _coerce(cls, k, v, "--set")
+    return cls(**kwargs)
+
+
+def _prior(table: dict, cli: dict) -> dict:
+    out = {}
+    for k, v in (table or {}).items():
+        if not (isinstance(v, (list, tuple)) and len(v) == 2):
+            raise InputError("--config", f"prior.{k} must be [mean, sd], got {v!r}")
+        out[k] = (float(v[0]), float(v[1]))
+    for k, v in cli.items():
+        parts = v.split(":")
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            out[k] = (float(parts[0]), float(parts[1]))
+        except ValueError:
+            raise InputError("--prior", f"expected NAME=MEAN:SD (SI units), got {k}={v}")
+    return out
+
+
+def _load_config(path) -> dict:
+    """The ``[fit]`` table of a TOML file (or its top level), with the method tables
+    (``[fit.en4dvar]`` or top-level ``[en4dvar]``) merged in."""
+    if path is None:
+        return {}
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise InputError(p, "config file not found")
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(p, f"not valid TOML: {exc}")
+    section = data.get("fit", data)
+    if not isinstance(section, dict):
+        raise InputError(p, "[fit] must be a table")
+    cfg = {k.replace("-", "_"): v for k, v in section.items()}
+    for name in METHOD_NAMES + ("forward", "prior"):
+        if name not in cfg and isinstance(data.get(name), dict):
+            cfg[name] = data[name]
+    known = {"method", "model", "out", "seed", "workers", "quiet", "camera", "dt_star", "n_steps", "noise",
+             "forward", "prior", "set", *METHOD_NAMES}
+    unknown = {k for k, v in cfg.items() if k not in known and not (section is data and isinstance(v, dict))}
+    if unknown:
+        raise InputError(p, f"unknown option(s) {sorted(unknown)} for 'imrbayes fit'; known: {sorted(known)}")
+    for name in ("forward", "prior", *METHOD_NAMES):
+        v = cfg.get(name)
+        if name == "forward" and isinstance(v, (list, tuple)):
+            cfg[name] = _kv(v, "--config forward")
+        elif v is not None and not isinstance(v, dict):
+            raise InputError(p, f"{name} must be a table")
+    return cfg
+
+
+def _total_runs(method, s, n_exp, n_steps):
+    if method == "imr":
+        return s.n_G * s.n_mu * n_exp + n_exp
+    if method == "pimr":
+        return n_exp
+    if method == "en4dvar":
+        return s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
+    from imrbayes.ensemble.windows import n_windows
+    return n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
+
+
+@main.command("fit")
+@click.argument("data", type=click.Path(path_type=Path))
+@click.option("--method", type=click.Choice(METHOD_NAMES), default=None,
+              help="Inference method: imr (grid least squares), pimr (collapse-time closed form), en4dvar "
+                   "(ensemble 4D-Var, constant parameters), mienks (sliding-window smoother, time-resolved).")
+@click.option("--model", default=None, help="Constitutive model [default: nhkv].")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="Output folder (default: a new folder under ./imrbayes-runs/).")
+@click.option("--seed", type=int, default=None, help="Seed of every random draw [default: 0].")
+@click.option("--config", "config", type=click.Path(path_type=Path), default=None,
+              help="TOML file with any of these options and [forward], [prior], [<method>] tables.")
+@click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
+              help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
+                   "scheme=imrv2-fd, nt=25, radial=km, ...); repeatable.")
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+              help="Method setting (en4dvar: n_ens, n_iter, n_runs, rtps, t_end [t*]; mienks: L, h [samples], "
+                   "n_ens, n_iter, rtps; imr: n_G, n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, "
+                   "weighting=none|P; pimr: kappa); repeatable.")
+@click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",
+              help="Prior mean and sd in SI units (G [Pa], mu [Pa s]) [default: G=6e3:2.8e3, mu=0.209:0.088].")
+@click.option("--workers", type=int, default=None, help="Worker processes for the forward runs [default: 1].")
+@click.option("--camera", default=None, help="Keep one camera view of multi-camera data.")
+@click.option("--dt-star", type=float, default=None, help="Grid step in t* [-] [default: 0.025].")
+@click.option("--n-steps", type=int, default=None, help="Grid steps [-] [default: 120].")
+@click.option("--noise", type=click.Choice(["auto", "sample", "paper"]), default=None,
+              help="P_k: across-experiment sample variance (auto with >= 2 experiments) or the §5 noise model.")
+@click.option("--quiet", is_flag=True, default=None, help="Print nothing but errors.")
+def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, workers, camera, dt_star, n_steps,
+            noise, quiet):
+    """Fit a constitutive model to DATA (dataset folder, .csv or .mat) with one inference method.
+
+    Writes summary.json (estimate: SI units, G [Pa], mu [Pa s]; times as t*), posterior.nc (ArviZ)
+    and figures/*.png.
+    """
+    t_start = time.perf_counter()
+    cfg = _load_config(config)
+
+    def pick(name, value, default):
+        return value if value is not None else cfg.get(name, default)
+
+    method = pick("method", method, None)
+    if method is None:
+        raise InputError("--method", f"choose one of {', '.join(METHOD_NAMES)}")
+    if method not in METHOD_NAMES:
+        raise InputError("--method", f"unknown method {method!r}; choose one of {', '.join(METHOD_NAMES)}")
+    model = pick("model", model, "nhkv")
+    seed = int(pick("seed", seed, 0))
+    workers = int(pick("workers", workers, 1))
+    if workers < 1:
+        raise InputError("--workers", f"must be at least 1, got {workers}")
+    quiet = bool(pick("quiet", quiet, False))
+    camera = pick("camera", camera, None)
+    dt_star = float(pick("dt_star", dt_star, 0.025))
+    n_steps = int(pick("n_steps", n_steps, 120))
+    noise = pick("noise", noise, "auto")
+    out = pick("out", out, None)
+
+    from imrbayes.cli_data import _prepare_out
+    from imrbayes.data import load_dataset, preprocess_dataset
+    from imrbayes.ensemble import METHODS, Observations, ParamSpace, Runner
+    from imrbayes.ensemble import figures as figs
+    from imrbayes.ensemble.output import posterior_tree, summary_dict, write_summary
+    from imrbayes.forward import ForwardModel, ForwardOptions
+
+    fit_fn, settings_cls = METHODS[method]
+    s = _settings(settings_cls, cfg.get(method, {}), {**_kv(cfg.get("set", []), "--config set"),
+                                                       **_kv(settings, "--set")})
+    prior = _prior(cfg.get("prior", {}), _kv(priors, "--prior"))
+    ds = load_dataset(data, camera=camera)
+    pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, noise=noise)
+    fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **_kv(forward, "--forward")}
+    fm = ForwardModel(model, options=ForwardOptions.from_dict(fopts, source="forward options"),
+                      physics_overrides=ds.physics or None)
+    obs = Observations.from_preprocessed(pre)
+    space = ParamSpace.for_model(fm.constitutive, prior)
+    out = _prepare_out(Path(out) if out is not None else None, f"fit-{method}", ds.name, protect=Path(data))
+    show = (not quiet) and sys.stderr.isatty()
+    bar = None
+    if show:
+        from tqdm import tqdm
+        bar = tqdm(total=_total_runs(method, s, obs.n_exp, obs.n_samples - 1), unit="run",
+                   desc=f"{method} forward runs", file=sys.stderr, dynamic_ncols=True)
+    runner = Runner(fm, workers=workers, progress=(bar.update if bar is not None else None))
+    try:
+        res = fit_fn(fm, obs, space, s, seed=seed, runner=runner)
+    finally:
+        runner.close()
+        if bar is not None:
+            bar.close()
+    summary = summary_dict(res, obs, seed=seed, extra={
+        "forward": fm.describe(), "prior": space.describe(), "preprocessing": pre.to_dict(arrays=False),
+        "data": str(data), "warnings_preprocessing": list(pre.warnings),
+        "command": {"name": "fit", "method": method, "model": model, "seed": seed, "workers": workers,
+                    "config": str(config) if config else None, "imrbayes_version": __version__},
+        "total_runtime_s": time.perf_counter() - t_start})
+    write_summary(out / "summary.json", summary)
+    posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
+    fdir = out / "figures"
+    written = [figs.fit_figure(obs, res, fdir / "fit.png")]
+    if method in ("imr", "pimr"):
+        written.append(figs.landscape_figure(res, fdir / "landscape.png"))
+    if method == "en4dvar":
+        written.append(figs.experiments_figure(res, fdir / "experiments.png"))
+    if method == "mienks":
+        written.append(figs.time_resolved_figure(res, fdir / "parameters.png"))
+    if not quiet:
+        est = ", ".join(f"{n} = {e['mean']:.4g} ± {e['sd']:.2g}" for n, e in res.estimate.items())
+        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {est}; rmse {res.rmse:.4g}; "
+                   f"{res.runtime_s:.1f} s")
+        click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'} and {len(written)} figure(s)")
+        for w in list(pre.warnings) + list(res.warnings):
+            click.echo(f"imrbayes: warning: {w}", err=True)

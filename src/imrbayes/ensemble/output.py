@@ -1,0 +1,90 @@
+"""Writing a fit: ``summary.json`` (interfaces.md §3) and ``posterior.nc`` (ArviZ DataTree)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["jsonable", "summary_dict", "posterior_tree", "write_summary", "write_posterior"]
+
+
+def jsonable(obj):
+    """Plain JSON types; non-finite floats -> None."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    return obj
+
+
+def summary_dict(result, obs, *, seed: int, extra: dict | None = None) -> dict:
+    """The summary.json object: the stable keys of interfaces.md §3 plus method details."""
+    out = {"method": result.method, "model": result.model, "parameters": list(result.param_names), "seed": int(seed),
+           "n_experiments": int(obs.n_exp), "runtime_s": float(result.runtime_s), "estimate": result.estimate,
+           "fit": {"rmse": result.rmse, "n_samples": result.n_fit_samples,
+                   "rmse_definition": "sqrt(mean((fitted R* - measured R*)^2)) over the fitted (experiment, sample) pairs"}}
+    if result.windows is not None:
+        out["windows"] = result.windows
+    if result.time_resolved is not None:
+        out["time_resolved"] = result.time_resolved
+    out["per_experiment"] = result.per_experiment
+    out["details"] = result.details
+    out["warnings"] = list(result.warnings)
+    if extra:
+        out.update(extra)
+    return jsonable(out)
+
+
+def write_summary(path, summary: dict) -> Path:
+    path = Path(path)
+    path.write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
+    return path
+
+
+def posterior_tree(result, obs):
+    """ArviZ DataTree: ``posterior`` (chain, draw[, window]), ``observed_data`` R (experiment, time),
+    ``log_likelihood`` R (chain, draw, experiment, time) where the method gives one, plus the
+    method's extra groups (``landscape``, ``time_resolved``) as plain datasets."""
+    import arviz as az
+    import xarray as xr
+
+    coords = {k: (v[1] if isinstance(v, tuple) else v) for k, v in result.coords.items()
+              if not isinstance(v, tuple)}
+    coords.setdefault("experiment", list(obs.names))
+    data = {"posterior": dict(result.posterior), "observed_data": {"R_obs": obs.R_star}}
+    dims = dict(result.posterior_dims)
+    dims["R_obs"] = ["experiment", "t_obs"]
+    coords["t_obs"] = obs.t_star
+    if result.log_likelihood is not None:
+        data["log_likelihood"] = dict(result.log_likelihood)
+    used = set()
+    for v in dims.values():
+        used.update(v)
+    dt = az.from_dict(data, dims=dims, coords={k: v for k, v in coords.items() if k in used},
+                      attrs={"/": {"method": result.method, "model": result.model, "inference_library": "imrbayes"}})
+    for group, variables in result.extra_groups.items():
+        ds = xr.Dataset({k: (result.extra_dims.get(k, [f"{k}_dim_{i}" for i in range(np.ndim(v))]), np.asarray(v))
+                         for k, v in variables.items()})
+        for dim in ds.dims:
+            if dim in result.coords and not isinstance(result.coords[dim], tuple):
+                ds = ds.assign_coords({dim: np.asarray(result.coords[dim])})
+        dt[group] = xr.DataTree(ds)
+    return dt
+
+
+def write_posterior(path, result, obs) -> Path:
+    path = Path(path)
+    posterior_tree(result, obs).to_netcdf(path)
+    return path

@@ -1,0 +1,118 @@
+"""``imrbayes fit``: every method end to end on a small synthetic dataset; outputs and errors."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from _ens_synth import RATIO, RMAX, TRUTH, model
+from imrbayes.cli import main
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """Three noise-free polytropic bubbles as CSV files (t_s, R_m) with a meta.json."""
+    d = tmp_path_factory.mktemp("synthetic")
+    fm = model("polytropic")
+    t = np.arange(-4, 135) * 0.025
+    rmax, req = RMAX[:3], RMAX[:3] / RATIO[:3]
+    out = fm.simulate({"G": np.full(3, TRUTH["G"]), "mu": np.full(3, TRUTH["mu"])}, rmax, req, np.abs(t[4:]))
+    meta = {"material": "synthetic nhkv", "forward": {"bubble": "polytropic"}, "experiments": {}}
+    tc = rmax / np.sqrt(101325.0 / 1064.0)
+    for i in range(3):
+        R = np.concatenate([out.R_star[i, 4:0:-1], out.R_star[i]]) * rmax[i]   # mirrored growth frames
+        name = f"exp_{i + 1:03d}.csv"
+        with open(d / name, "w") as fh:
+            fh.write("t_s,R_m\n")
+            for a, b in zip(t * tc[i] + 1e-5, R):
+                fh.write(f"{float(a)!r},{float(b)!r}\n")
+        meta["experiments"][name] = {"Req_m": float(req[i])}
+    (d / "meta.json").write_text(json.dumps(meta))
+    return d
+
+
+def _fit(args, expect=0):
+    res = CliRunner().invoke(main, ["fit", *map(str, args)])
+    assert res.exit_code == expect, res.output
+    return res
+
+
+@pytest.mark.parametrize("method,sets", [
+    ("imr", ["n_G=31", "n_mu=21", "G_max=15e3", "mu_max=0.2"]),
+    ("pimr", ["n_G=40", "n_mu=30"]),
+    ("en4dvar", ["n_ens=16", "n_runs=2", "n_iter=3", "n_draws=6"]),
+    ("mienks", ["n_ens=16", "n_iter=3", "L=40", "h=20", "n_draws=20"]),
+])
+def test_fit_every_method(dataset, tmp_path, method, sets):
+    import arviz as az
+
+    out = tmp_path / method
+    args = [dataset, "--method", method, "--model", "nhkv", "--out", out, "--seed", 3]
+    for s in sets:
+        args += ["--set", s]
+    res = _fit(args)
+    assert "%|" not in res.output                          # no progress bar off a terminal
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("method", "model", "parameters", "seed", "n_experiments", "runtime_s", "estimate", "fit"):
+        assert key in summary
+    assert summary["method"] == method and summary["seed"] == 3 and summary["n_experiments"] == 3
+    assert summary["parameters"] == ["G", "mu"]
+    for p in ("G", "mu"):
+        e = summary["estimate"][p]
+        assert set(e) >= {"mean", "sd", "hdi95"} and len(e["hdi95"]) == 2
+    assert summary["forward"]["options"]["bubble"] == "polytropic"      # meta.json's forward block
+    assert summary["fit"]["n_samples"] > 0
+    if method in ("imr", "en4dvar"):
+        assert summary["estimate"]["G"]["mean"] == pytest.approx(TRUTH["G"], rel=0.1)
+        assert summary["estimate"]["mu"]["mean"] == pytest.approx(TRUTH["mu"], rel=0.1)
+    if method == "mienks":
+        assert len(summary["windows"]) == 5
+        w = summary["windows"][0]
+        assert set(w) >= {"index", "t_star", "G", "mu", "cov"} and np.shape(w["cov"]) == (2, 2)
+        assert summary["time_resolved"][0]["t_star"] == 0.0 and "G" in summary["time_resolved"][0]
+    dt = az.from_netcdf(out / "posterior.nc")
+    assert {"posterior", "observed_data"} <= set(dt.children)
+    s = az.summary(dt, kind="stats", round_to="none")
+    assert np.all(np.isfinite(s["mean"]))
+    if method == "en4dvar":
+        assert "log_likelihood" in dt.children
+        assert dict(dt["log_likelihood"].sizes) == {"chain": 1, "draw": 6, "experiment": 3, "time": 120}
+    figs = {p.name for p in (out / "figures").iterdir()}
+    assert "fit.png" in figs
+    assert {"imr": "landscape.png", "pimr": "landscape.png", "en4dvar": "experiments.png",
+            "mienks": "parameters.png"}[method] in figs
+
+
+def test_config_file_and_command_line_precedence(dataset, tmp_path):
+    cfg = tmp_path / "run.toml"
+    cfg.write_text('[fit]\nmethod = "imr"\nseed = 5\nquiet = true\n[fit.imr]\nn_G = 9\nn_mu = 7\n'
+                   '[fit.forward]\nbubble = "polytropic"\n')
+    out = tmp_path / "o"
+    res = _fit([dataset, "--config", cfg, "--out", out, "--seed", 7, "--set", "n_mu=8"])
+    assert res.output == ""
+    s = json.loads((out / "summary.json").read_text())
+    assert s["seed"] == 7
+    assert s["details"]["settings"]["n_G"] == 9 and s["details"]["settings"]["n_mu"] == 8
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--method", "imr", "--set", "n_ens=3"], "unknown setting"),
+    (["--method", "en4dvar", "--set", "n_ens=x"], "n_ens"),
+    (["--method", "en4dvar", "--set", "rtps=2"], "rtps"),
+    (["--method", "mienks", "--set", "L=500"], "window length"),
+    (["--method", "imr", "--forward", "bubble=steam"], "bubble"),
+    (["--method", "imr", "--prior", "G=6e3"], "--prior"),
+    (["--method", "imr", "--model", "nosuchmodel"], "nosuchmodel"),
+    (["--method", "imr", "--set", "window=collapse:7"], "collapse"),
+    ([], "--method"),
+])
+def test_bad_input_exit_2(dataset, tmp_path, args, needle):
+    res = CliRunner().invoke(main, ["fit", str(dataset), "--out", str(tmp_path / "x"), *args])
+    assert res.exit_code == 2, res.output
+    assert needle in res.output and "Traceback" not in res.output
+
+
+def test_missing_data_exit_2(tmp_path):
+    res = CliRunner().invoke(main, ["fit", str(tmp_path / "nope"), "--method", "imr"])
+    assert res.exit_code == 2 and "Traceback" not in res.output
