@@ -35,10 +35,11 @@ def kernel_module(module_name: str):
     if module_name in _LOADED:
         return _LOADED[module_name]
     plugin = importlib.import_module(module_name)
-    sources = [_TEMPLATE.read_text(), inspect.getsource(plugin),
-               Path(__file__).with_name("_layout.py").read_text()]
-    for fn in (plugin.stress, plugin.dissipation_q):
-        sources.append(inspect.getsource(sys.modules[fn.py_func.__module__]))
+    # numba does not notice edits of the modules a cached function calls into, so the file name
+    # hashes the template, the layout and every constitutive module (models import each other).
+    here = Path(__file__).parent
+    sources = [_TEMPLATE.read_text(), inspect.getsource(plugin), (here / "_layout.py").read_text()]
+    sources += [f.read_text() for f in sorted((here / "constitutive").glob("*.py"))]
     line = f"from {module_name} import stress as _stress, dissipation_q as _dissipation_q  # PLUGIN"
     src, count = re.subn(r"^from .*# PLUGIN$", line, sources[0], flags=re.M)
     if count != 1:

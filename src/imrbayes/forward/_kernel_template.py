@@ -720,6 +720,26 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
 
 
 @njit(cache=True, error_model="numpy")
+def _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err):
+    """Integrate member m of a batch in place (shared by the serial and threaded drivers)."""
+    ym = Y[m]
+    finite = True
+    for k in range(ym.shape[0]):
+        if not math.isfinite(ym[k]):
+            finite = False
+    if not finite or not (ym[0] > 0.0):
+        status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
+        return
+    st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
+                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols,
+                                  field_weight, filter_err)
+    status[m] = st
+    nsteps[m] = ns
+    nrej[m] = nr
+
+
+@njit(cache=True, error_model="numpy")
 def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
                     rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err):
     """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps, nrejected).
@@ -733,29 +753,16 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
     nsteps = np.zeros(N, dtype=np.int64)
     nrej = np.zeros(N, dtype=np.int64)
     for m in range(N):
-        ym = Y[m]
-        finite = True
-        for k in range(ym.shape[0]):
-            if not math.isfinite(ym[k]):
-                finite = False
-        if not finite or not (ym[0] > 0.0):
-            status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
-            continue
-        st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
-                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err)
-        status[m] = st
-        nsteps[m] = ns
-        nrej[m] = nr
+        _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                        rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err)
     return Y, R, status, nsteps, nrej
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
 def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err):
-    """As integrate_batch, members spread over threads (numba prange).
-
-    ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters.
-    """
+                             rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight,
+                             filter_err):
+    """As integrate_batch, with the members spread over numba threads (prange)."""
     N = Y0.shape[0]
     Y = Y0.copy()
     R = np.full((N, t_eval.shape[0]), np.nan)
@@ -763,17 +770,6 @@ def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgri
     nsteps = np.zeros(N, dtype=np.int64)
     nrej = np.zeros(N, dtype=np.int64)
     for m in prange(N):
-        ym = Y[m]
-        finite = True
-        for k in range(ym.shape[0]):
-            if not math.isfinite(ym[k]):
-                finite = False
-        if not finite or not (ym[0] > 0.0):
-            status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
-            continue
-        st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
-                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err)
-        status[m] = st
-        nsteps[m] = ns
-        nrej[m] = nr
+        _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                        rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err)
     return Y, R, status, nsteps, nrej

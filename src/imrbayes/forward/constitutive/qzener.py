@@ -7,6 +7,7 @@ import numpy as np
 from numba import njit
 
 from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter, inv_re
+from imrbayes.forward.constitutive.zener import relax
 
 N_AUX = 1
 
@@ -14,16 +15,10 @@ N_AUX = 1
 @njit(cache=True, error_model="numpy")
 def stress(R, Rdot, z, p, req, zdot):
     rs = req / R
-    de = p[2]
-    lam = p[3]
     a = p[4]
     ze = R ** 3 * ((3.0 * a - 1.0) * 0.5 * p[0] * (5.0 - rs ** 4 - 4.0 * rs)
                    + 2.0 * a * p[0] * (0.675 + 0.125 * rs ** 8 + 0.2 * rs ** 5 + rs * rs - 2.0 / rs))
-    zdot[0] = -(z[0] - ze) / de + 4.0 * (lam - 1.0) * p[1] / de * R * R * Rdot
-    ur = Rdot / R
-    S = z[0] / R ** 3 - 4.0 * lam * p[1] * ur
-    Sdot = zdot[0] / R ** 3 - 3.0 * Rdot / R ** 4 * z[0] + 4.0 * lam * p[1] * ur * ur
-    return S, Sdot, 4.0 * p[1]
+    return relax(R, Rdot, z, ze, p, zdot)
 
 
 @njit(cache=True, error_model="numpy")

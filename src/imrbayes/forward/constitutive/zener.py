@@ -20,16 +20,21 @@ def equilibrium_stress(R, rs, p):
 
 
 @njit(cache=True, error_model="numpy")
-def stress(R, Rdot, z, p, req, zdot):
-    rs = req / R
+def relax(R, Rdot, z, ze, p, zdot):
+    """Linear Maxwell-type relaxation of Z1 towards the elastic equilibrium ``ze`` (shared by the
+    Zener-type models): returns (S, Sdot, J) and writes dZ1/dt."""
     de = p[2]
     lam = p[3]
-    ze = equilibrium_stress(R, rs, p)
     zdot[0] = -(z[0] - ze) / de + 4.0 * (lam - 1.0) * p[1] / de * R * R * Rdot
     ur = Rdot / R
     S = z[0] / R ** 3 - 4.0 * lam * p[1] * ur
     Sdot = zdot[0] / R ** 3 - 3.0 * Rdot / R ** 4 * z[0] + 4.0 * lam * p[1] * ur * ur
     return S, Sdot, 4.0 * p[1]
+
+
+@njit(cache=True, error_model="numpy")
+def stress(R, Rdot, z, p, req, zdot):
+    return relax(R, Rdot, z, equilibrium_stress(R, req / R, p), p, zdot)
 
 
 @njit(cache=True, error_model="numpy")
