@@ -145,8 +145,14 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
     i_tm = i_th + nt * thermal
     i_kv = i_tm + mt * medium
     i_z = i_kv + nt * mass
-    for k in range(out.shape[0]):
-        out[k] = 0.0
+    # Only the frozen wall/far-field rows are never written below.
+    if thermal:
+        out[i_th + nt - 1] = 0.0
+        if mass:
+            out[i_kv + nt - 1] = 0.0
+        if medium:
+            out[i_tm] = 0.0
+            out[i_tm + mt - 1] = 0.0
     R = y[0]
     U = y[1]
     kappa = g[G_KAPPA]

@@ -11,9 +11,10 @@ N_AUX = 0
 @njit(cache=True, error_model="numpy")
 def stress(R, Rdot, z, p, req, zdot):
     rs = req / R
+    rs4 = rs * rs * rs * rs
     ur = Rdot / R
-    S = -4.0 * p[1] * ur - 0.5 * p[0] * (5.0 - 4.0 * rs - rs ** 4)
-    Sdot = -2.0 * p[0] * ur * (rs + rs ** 4) + 4.0 * p[1] * ur * ur
+    S = -4.0 * p[1] * ur - 0.5 * p[0] * (5.0 - 4.0 * rs - rs4)
+    Sdot = -2.0 * p[0] * ur * (rs + rs4) + 4.0 * p[1] * ur * ur
     return S, Sdot, 4.0 * p[1]
 
 
