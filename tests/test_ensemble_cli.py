@@ -116,3 +116,21 @@ def test_bad_input_exit_2(dataset, tmp_path, args, needle):
 def test_missing_data_exit_2(tmp_path):
     res = CliRunner().invoke(main, ["fit", str(tmp_path / "nope"), "--method", "imr"])
     assert res.exit_code == 2 and "Traceback" not in res.output
+
+
+def test_validate_quick_cases(tmp_path):
+    out = tmp_path / "val"
+    res = CliRunner().invoke(main, ["validate", "--suite", "quick", "--case", "fusion-linear-gaussian",
+                                    "--case", "imr-recovery", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    rep = json.loads((out / "validation.json").read_text())
+    assert rep["passed"] and [c["name"] for c in rep["cases"]] == ["fusion-linear-gaussian", "imr-recovery"]
+    assert (out / "figures" / "imr_landscape.png").exists()
+    bad = CliRunner().invoke(main, ["validate", "--case", "nope", "--out", str(tmp_path / "v2")])
+    assert bad.exit_code == 2 and "unknown case" in bad.output
+
+
+@pytest.mark.slow
+def test_validate_quick_suite(tmp_path):
+    res = CliRunner().invoke(main, ["validate", "--suite", "quick", "--out", str(tmp_path / "val")])
+    assert res.exit_code == 0, res.output

@@ -1,0 +1,180 @@
+"""The validation cases. Each returns ``{"passed", "metrics", "criteria", "figures"}``.
+
+Verification data (methods.md §5): Rmax = 263 µm, Rmax/Req = 7.58, NHKV with G0 = 7.29 kPa,
+mu0 = 0.088 Pa s, five experiments with independent Gaussian noise of sd
+sigma(t*) = |R* - 1|/20 + (1 - exp(-t*/10))/30 on R*, sampled at dt* = 0.025 up to t* = 3; P_k is
+the across-experiment sample variance (with the data layer's floors), as ``imrbayes fit`` uses.
+
+Suites: ``quick`` runs with the polytropic bubble (about a minute on two cores); ``full`` uses the
+IMRv2 thermal bubble (``scheme=imrv2-fd``) and the paper's IMR grid (tens of minutes).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from imrbayes.data.noise import noise_variance, paper_sigma
+from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, Observations, ParamSpace, Runner,
+                               fit_en4dvar, fit_imr, fit_mienks)
+from imrbayes.ensemble import figures as figs
+from imrbayes.ensemble.gaussian import fuse
+from imrbayes.ensemble.pimr import collapse_time
+from imrbayes.forward import ForwardModel
+
+__all__ = ["CASES", "SUITES", "run_suite", "verification_data"]
+
+TRUTH = {"G": 7.29e3, "mu": 0.088}
+RMAX, RATIO, N_EXP = 263e-6, 7.58, 5
+FORWARD = {"quick": {"bubble": "polytropic"}, "full": {"scheme": "imrv2-fd"}}
+
+
+def verification_data(fm, seed: int = 0, noise: bool = True, n_steps: int = 120):
+    """The §5 data set as :class:`Observations` (noise from ``default_rng(seed)``)."""
+    t = np.arange(n_steps + 1) * 0.025
+    rmax = np.full(N_EXP, RMAX)
+    req = rmax / RATIO
+    out = fm.simulate({"G": np.full(N_EXP, TRUTH["G"]), "mu": np.full(N_EXP, TRUTH["mu"])}, rmax, req, t)
+    if out.failed.any():
+        raise RuntimeError("the forward model failed on the verification case")
+    Y = out.R_star
+    if noise:
+        rng = np.random.default_rng(seed)
+        Y = Y + paper_sigma(t, Y) * rng.standard_normal(Y.shape)
+        Y[:, 0] = 1.0                    # every record is aligned on its maximum (R* = 1 at t* = 0)
+    P, _ = noise_variance(t, Y) if noise else (np.full(t.size, 4e-6), None)
+    return Observations(t, Y, P, rmax, req, names=[f"exp_{i + 1:03d}" for i in range(N_EXP)])
+
+
+def _within(est, name):
+    lo, hi = est[name]["hdi95"]
+    return bool(lo <= TRUTH[name] <= hi)
+
+
+def case_en4dvar(suite, fm, out, seed):
+    obs = verification_data(fm, seed)
+    s = En4DVarSettings(n_draws=0, loglik=False)
+    res = fit_en4dvar(fm, obs, ParamSpace.for_model(fm.constitutive), s, seed=seed)
+    rel = {n: res.estimate[n]["mean"] / TRUTH[n] - 1.0 for n in TRUTH}
+    ok = all(_within(res.estimate, n) for n in TRUTH) and all(abs(v) < 0.15 for v in rel.values())
+    f = [str(figs.experiments_figure(res, out / "en4dvar_experiments.png"))]
+    return {"passed": ok, "criteria": "truth inside the fused 95% HDI of G and mu, and |mean/truth - 1| < 15%",
+            "metrics": {"estimate": res.estimate, "relative_error": rel, "rmse": res.rmse, "runtime_s": res.runtime_s},
+            "figures": f}
+
+
+def case_mienks(suite, fm, out, seed):
+    obs = verification_data(fm, seed)
+    res = fit_mienks(fm, obs, ParamSpace.for_model(fm.constitutive), MIEnKSSettings(n_draws=0), seed=seed)
+    inside = {n: [_within(w, n) for w in res.windows] for n in TRUTH}
+    # no spurious trend: every window agrees with the aggregate within 2 of its own sd
+    dev = {n: [abs(w[n]["mean"] - res.estimate[n]["mean"]) / w[n]["sd"] for w in res.windows] for n in TRUTH}
+    ok = all(all(v) for v in inside.values()) and all(max(v) < 2.0 for v in dev.values())
+    f = [str(figs.time_resolved_figure(res, out / "mienks_parameters.png"))]
+    return {"passed": ok,
+            "criteria": "truth inside every window's 95% HDI (G and mu), and every window mean within 2 sd of "
+                        "the aggregate (no spurious time dependence)",
+            "metrics": {"estimate": res.estimate, "n_windows": len(res.windows),
+                        "windows_containing_truth": {n: int(sum(v)) for n, v in inside.items()},
+                        "max_window_deviation_sd": {n: float(max(v)) for n, v in dev.items()},
+                        "window_means": {n: [w[n]["mean"] for w in res.windows] for n in TRUTH},
+                        "window_sds": {n: [w[n]["sd"] for w in res.windows] for n in TRUTH},
+                        "failed_members": res.details["failed_members"], "rmse": res.rmse,
+                        "runtime_s": res.runtime_s},
+            "figures": f}
+
+
+def case_imr(suite, fm, out, seed):
+    obs = verification_data(fm, seed, noise=False)
+    if suite == "full":
+        s = IMRSettings()                                    # the paper's 120 x 74 grid
+    else:
+        s = IMRSettings(G_min=5.13e3, G_max=9.93e3, n_G=25, mu_min=0.0612, mu_max=0.1212, n_mu=16)
+    res = fit_imr(fm, obs, ParamSpace.for_model(fm.constitutive), s, seed=seed)
+    g = res.details["grid"]
+    err = {"G": abs(res.details["grid_optimum"]["G"] - TRUTH["G"]) / g["G"][3],
+           "mu": abs(res.details["grid_optimum"]["mu"] - TRUTH["mu"]) / g["mu"][3]}
+    f = [str(figs.landscape_figure(res, out / "imr_landscape.png"))]
+    return {"passed": all(v <= 1.0 for v in err.values()),
+            "criteria": "noise-free data: the grid optimum within one grid cell of the truth",
+            "metrics": {"optimum": res.details["optimum"], "grid_optimum": res.details["grid_optimum"],
+                        "error_in_cells": err, "runtime_s": res.runtime_s}, "figures": f}
+
+
+def case_pimr(suite, fm, out, seed):
+    rng = np.random.default_rng(seed)
+    n = 60 if suite == "quick" else 200
+    G, mu = rng.uniform(0.4e3, 11.6e3, n), rng.uniform(0.033, 0.385, n)
+    rmax, ratio = rng.uniform(250e-6, 400e-6, n), rng.uniform(6.8, 8.4, n)
+    dt = 0.002
+    t = np.arange(0.0, 1.6, dt)
+    o = fm.simulate({"G": G, "mu": mu}, rmax, rmax / ratio, t)
+    sim = np.full(n, np.nan)
+    for i, r in enumerate(o.R_star):
+        k = np.flatnonzero((r[1:-1] <= r[:-2]) & (r[1:-1] <= r[2:]))
+        if o.failed[i] or k.size == 0:
+            continue
+        k = k[0] + 1
+        den = r[k - 1] - 2 * r[k] + r[k + 1]
+        sim[i] = t[k] + (0.5 * (r[k - 1] - r[k + 1]) / den * dt if den > 0 else 0.0)
+    pred = collapse_time(fm, G, mu, rmax, rmax / ratio)
+    err = np.abs(pred - sim) / sim
+    tol = 0.02 if fm.options.bubble == "polytropic" else 0.03
+    return {"passed": bool(np.all(np.isfinite(err)) and err.max() < tol),
+            "criteria": f"closed-form first-collapse time within {tol:.0%} of the simulated one over the prior range",
+            "metrics": {"n": n, "max_relative_error": float(np.nanmax(err)), "mean_relative_error": float(np.nanmean(err)),
+                        "mean_signed_error": float(np.nanmean((pred - sim) / sim))}, "figures": []}
+
+
+def case_fusion(suite, fm, out, seed):
+    rng = np.random.default_rng(seed)
+    m0, S0 = np.zeros(2), np.diag([0.2, 0.16])
+    Ls, bs = [], []
+    means, covs = [], []
+    for _ in range(5):
+        H = rng.normal(size=(4, 2))
+        Rinv = np.diag(1.0 / rng.uniform(0.1, 1.0, 4))
+        y = rng.normal(size=4)
+        L = H.T @ Rinv @ H
+        b = H.T @ Rinv @ y
+        C = np.linalg.inv(np.linalg.inv(S0) + L)
+        means.append(C @ (np.linalg.solve(S0, m0) + b)), covs.append(C)
+        Ls.append(L), bs.append(b)
+    Cj = np.linalg.inv(np.linalg.inv(S0) + sum(Ls))
+    mj = Cj @ (np.linalg.solve(S0, m0) + sum(bs))
+    f = fuse(np.array(means), np.array(covs), m0, S0)
+    e = float(max(np.abs(f.mean - mj).max(), np.abs(f.cov - Cj).max()))
+    return {"passed": e < 1e-10, "criteria": "prior-corrected product of 5 linear-Gaussian posteriors equals the joint "
+                                             "posterior to 1e-10", "metrics": {"max_abs_error": e}, "figures": []}
+
+
+CASES = {"fusion-linear-gaussian": case_fusion, "pimr-collapse-time": case_pimr, "imr-recovery": case_imr,
+         "en4dvar-verification": case_en4dvar, "mienks-verification": case_mienks}
+SUITES = {"quick": list(CASES), "full": list(CASES)}
+
+
+def run_suite(suite: str, out: Path, seed: int = 0, cases=None, forward: dict | None = None, progress=None) -> dict:
+    """Run the suite's cases; figures go to ``out/figures``. Returns the validation.json object."""
+    out = Path(out)
+    fdir = out / "figures"
+    fdir.mkdir(parents=True, exist_ok=True)
+    opts = {**FORWARD[suite], **(forward or {})}
+    fm = ForwardModel("nhkv", options=opts)
+    rows = []
+    t_all = time.perf_counter()
+    for name in cases or SUITES[suite]:
+        t0 = time.perf_counter()
+        try:
+            r = CASES[name](suite, fm, fdir, seed)
+        except Exception as exc:  # a crashing case is a failed case, reported
+            r = {"passed": False, "criteria": "", "metrics": {}, "figures": [], "error": f"{type(exc).__name__}: {exc}"}
+        r = {"name": name, **r, "runtime_s": time.perf_counter() - t0}
+        rows.append(r)
+        if progress is not None:
+            progress(r)
+    return {"suite": suite, "seed": seed, "forward": fm.describe(), "truth": TRUTH,
+            "verification_case": {"rmax_m": RMAX, "rmax_over_req": RATIO, "n_experiments": N_EXP,
+                                  "noise": "sd |R*-1|/20 + (1-exp(-t*/10))/30, independent per sample"},
+            "cases": rows, "passed": all(r["passed"] for r in rows), "runtime_s": time.perf_counter() - t_all}
