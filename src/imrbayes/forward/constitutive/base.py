@@ -36,6 +36,8 @@ REGISTRY = {
     "maxwell": "imrbayes.forward.constitutive.maxwell",
     "qzener": "imrbayes.forward.constitutive.qzener",
     "oldroyd-b": "imrbayes.forward.constitutive.oldroydb",
+    "fung": "imrbayes.forward.constitutive.fung",
+    "carreau": "imrbayes.forward.constitutive.carreau",
 }
 ALIASES = {"sls": "zener", "ucm": "oldroyd-b", "oldroydb": "oldroyd-b", "inviscid": "none"}
 
