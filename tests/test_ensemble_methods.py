@@ -66,7 +66,7 @@ def test_en4dvar_recovers_truth():
 
 def test_en4dvar_fit_window():
     fm, obs = observations(n_exp=2)
-    res = fit_en4dvar(fm, obs, space(fm), En4DVarSettings(n_ens=16, n_runs=1, t_end=1.0, n_draws=0, loglik=False))
+    res = fit_en4dvar(fm, obs, space(fm), En4DVarSettings(n_ens=16, n_runs=1, t_end=1.0, n_draws=1, loglik=False))
     assert res.details["n_fit_steps"] == 40
     assert res.fit_mask[:, 41:].sum() == 0 and np.all(np.isnan(res.fitted[:, 41:]))
 

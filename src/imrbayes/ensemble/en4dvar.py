@@ -12,7 +12,8 @@ Per experiment n (all experiments in one forward batch per iteration):
 4. repeat from 1 for N_runs cycles.
 
 The last cycle's (un-inflated) posterior N(m_n, S_n) of each experiment is fused with the prior
-N(m0, S0) by the prior-corrected product rule (:func:`imrbayes.ensemble.gaussian.fuse`; the guard
+N(m0, S0) by the prior-corrected product rule (which assumes each posterior is the prior times that
+experiment's likelihood; after the restarts this holds only approximately, as in the paper) (:func:`imrbayes.ensemble.gaussian.fuse`; the guard
 against a non-positive-definite precision is reported in ``details["fusion"]``).
 
 Positive parameters live in log space throughout, so nothing is clipped; the reported SI
@@ -61,6 +62,8 @@ class En4DVarSettings:
             raise InputError("n_iter/n_runs", "must be at least 1")
         if not 0.0 <= self.rtps <= 1.0:
             raise InputError("rtps", f"the RTPS factor must lie in [0, 1], got {self.rtps}")
+        if self.n_draws < 1:
+            raise InputError("n_draws", f"needs at least one posterior draw, got {self.n_draws}")
 
 
 def fit_window(obs, K: int):

@@ -258,10 +258,11 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
                                                      "treated as independent, so optimistic)"},
                "laplace": laplace, "uncertainty_from": "laplace" if use_laplace else "grid",
                "n_grid_points": n_pts, "member_runs": runner.n_member_runs,
-               "failed_grid_runs": n_failed, "window": s.window, "last_sample": Kn.tolist(),
+               "failed_grid_runs": n_failed, "window": s.window,
+               "fixed_parameters": {nm: defaults[nm] for nm in names if nm not in ("G", "mu")}, "last_sample": Kn.tolist(),
                "rmse": rmse(fitted, obs.R_star, mask)}
     return FitResult(
-        method="imr", model=fm.constitutive.name, param_names=names, estimate=est, fitted=fitted, fit_mask=mask,
+        method="imr", model=fm.constitutive.name, param_names=("G", "mu"), estimate=est, fitted=fitted, fit_mask=mask,
         per_experiment=per, details=details,
         posterior={"G": dG_draw[None], "mu": dm_draw[None]},
         extra_groups={"landscape": {"J": J, "J_experiment": Jn}},

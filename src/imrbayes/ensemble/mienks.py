@@ -76,6 +76,8 @@ class MIEnKSSettings:
             raise InputError("n_iter", "must be at least 1")
         if not 0.0 <= self.rtps <= 1.0:
             raise InputError("rtps", f"the RTPS factor must lie in [0, 1], got {self.rtps}")
+        if self.n_draws < 1:
+            raise InputError("n_draws", f"needs at least one posterior draw per window, got {self.n_draws}")
         if self.fusion not in ("chain", "prior"):
             raise InputError("fusion", f"must be 'chain' or 'prior', got {self.fusion!r}")
         if self.obs_weight not in ("mean", "mda"):

@@ -55,7 +55,7 @@ def _within(est, name):
 
 def case_en4dvar(suite, fm, out, seed):
     obs = verification_data(fm, seed)
-    s = En4DVarSettings(n_draws=0, loglik=False)
+    s = En4DVarSettings(n_draws=1, loglik=False)
     res = fit_en4dvar(fm, obs, ParamSpace.for_model(fm.constitutive), s, seed=seed)
     rel = {n: res.estimate[n]["mean"] / TRUTH[n] - 1.0 for n in TRUTH}
     ok = all(_within(res.estimate, n) for n in TRUTH) and all(abs(v) < 0.15 for v in rel.values())
@@ -67,7 +67,7 @@ def case_en4dvar(suite, fm, out, seed):
 
 def case_mienks(suite, fm, out, seed):
     obs = verification_data(fm, seed)
-    res = fit_mienks(fm, obs, ParamSpace.for_model(fm.constitutive), MIEnKSSettings(n_draws=0), seed=seed)
+    res = fit_mienks(fm, obs, ParamSpace.for_model(fm.constitutive), MIEnKSSettings(n_draws=1), seed=seed)
     inside = {n: [_within(w, n) for w in res.windows] for n in TRUTH}
     # no spurious trend: every window agrees with the aggregate within 2 of its own sd
     dev = {n: [abs(w[n]["mean"] - res.estimate[n]["mean"]) / w[n]["sd"] for w in res.windows] for n in TRUTH}
