@@ -1,0 +1,416 @@
+"""Log-posterior of constant parameters over one fitting window, batched for emcee.
+
+Target density
+--------------
+The sampled coordinates are the *internal* parameters z (d,): ``z_i = log(theta_i / 1 SI unit)``
+for positive parameters (``Parameter.positive``; G [Pa] and mu [Pa s] for NHKV), ``z_i = theta_i``
+otherwise -- the same coordinates as :class:`imrbayes.ensemble.ParamSpace`. With N_exp experiments
+started from given states q_n at t0 (the bubble at its maximum, or a smoother's handed-off state)
+and the forward prediction R_nk(z) = R*(t_k; q_n, theta(z)),
+
+    log p(z | y) = -1/2 sum_n sum_k c_nk (y_nk - R_nk(z))^2 / P_k  +  log p0(z)  + const,
+
+* ``P_k`` [R*^2]: the measurement-noise variance per sample (``Preprocessed.P``);
+* ``c_nk`` >= 0: the observation weight. ``c = 1`` is the plain Gaussian likelihood. The ensemble
+  methods temper it, and a sampler that is compared with them must use the same weight:
+  En4D-Var averages over the N_t fitted samples, ``c_k = 1/N_t`` (methods.md §3);
+  MIEnKS-MDA window j uses ``c_k = beta_jk / L`` (MDA coefficient over window length, §4).
+  A weight c is the same as a Gaussian likelihood with variance ``P_k / c_k``; samples with
+  ``c = 0`` or at the start time t0 (where R* is the given state and does not depend on z) are not
+  used;
+* ``p0``: a Gaussian prior N(m0, S0) (:class:`GaussianPrior`). ``scale="internal"`` (default, the
+  convention of ``ParamSpace``: the paper's SI mean/sd are turned into a log-normal by moment
+  matching) states it on z, so no Jacobian is needed. ``scale="natural"`` states it on theta
+  (truncated to theta > 0 for positive parameters); sampling z = log theta then adds the Jacobian
+  ``log |d theta / d z| = sum_{positive i} z_i``;
+* the prior is truncated to a box of ``box_sd`` prior standard deviations around m0 (default 10):
+  outside it the log-density is -inf. This keeps walkers away from absurd parameters, where the
+  stiff forward solve would take very long; the box holds all the posterior mass of any sensible
+  problem (the prior density there is below e^-50 of its peak) -- check ``box_sd`` if the data pull
+  a parameter that far from the prior.
+
+A forward solve that fails (``Propagation.failed``) or gives a non-finite radius makes the
+log-density ``-inf``, never NaN (emcee raises on NaN).
+
+Batching: :meth:`WindowTarget.log_prob` takes ``(n, d)`` and runs all n x N_exp members in one
+``propagate`` call (emcee ``vectorize=True`` hands half the walkers per call).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from imrbayes.errors import InputError
+from imrbayes.forward import BatchState
+
+__all__ = ["GaussianPrior", "WindowTarget", "fitting_window_target", "window_target_from_ensemble",
+           "loglik_pointwise"]
+
+
+def _sym(a):
+    a = np.asarray(a, dtype=np.float64)
+    return 0.5 * (a + np.swapaxes(a, -1, -2))
+
+
+@dataclass
+class GaussianPrior:
+    """Gaussian prior N(mean, cov) of the parameters, on the internal or the natural scale.
+
+    Attributes
+    ----------
+    mean : (d,), cov : (d, d)
+        Prior moments: of z (``scale="internal"``) or of theta in SI units (``scale="natural"``).
+    positive : (d,) bool
+        Parameters sampled as z = log(theta).
+    names : tuple of str
+        Parameter names (SI), e.g. ``("G", "mu")``.
+    scale : ``"internal"`` | ``"natural"``
+        Where the Gaussian is stated (see the module docstring; ``natural`` adds the Jacobian).
+    box_sd : float
+        Half-width of the support box in prior standard deviations of z (for ``natural``, of
+        the log-normal with the same moments); ``inf`` for no box.
+    """
+
+    mean: np.ndarray
+    cov: np.ndarray
+    positive: np.ndarray
+    names: tuple = ()
+    scale: str = "internal"
+    box_sd: float = 10.0
+    _prec: np.ndarray = field(init=False, repr=False)
+    _logdet: float = field(init=False, repr=False)
+    lower: np.ndarray = field(init=False, repr=False)
+    upper: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        self.mean = np.atleast_1d(np.asarray(self.mean, dtype=np.float64))
+        d = self.mean.size
+        self.cov = _sym(np.asarray(self.cov, dtype=np.float64).reshape(d, d))
+        self.positive = np.broadcast_to(np.asarray(self.positive, dtype=bool), (d,)).copy()
+        self.names = tuple(self.names) or tuple(f"theta{i}" for i in range(d))
+        if len(self.names) != d:
+            raise InputError("prior", f"{len(self.names)} names for {d} parameters")
+        if self.scale not in ("internal", "natural"):
+            raise InputError("prior", f"scale must be 'internal' or 'natural', got {self.scale!r}")
+        try:
+            L = np.linalg.cholesky(self.cov)
+        except np.linalg.LinAlgError:
+            raise InputError("prior", "the prior covariance must be symmetric positive definite")
+        self._prec = np.linalg.inv(self.cov)
+        self._logdet = 2.0 * float(np.sum(np.log(np.diag(L))))
+        m, s = self.mean.copy(), np.sqrt(np.diag(self.cov))
+        if self.scale == "natural":
+            if np.any(self.positive & (self.mean <= 0)):
+                raise InputError("prior", "positive parameters need a positive prior mean")
+            s2 = np.log1p(np.square(s / np.where(self.positive, self.mean, 1.0)))
+            m = np.where(self.positive, np.log(np.where(self.positive, self.mean, 1.0)) - 0.5 * s2, m)
+            s = np.where(self.positive, np.sqrt(s2), s)
+        self.lower = m - self.box_sd * s
+        self.upper = m + self.box_sd * s
+
+    @classmethod
+    def from_space(cls, space, box_sd: float = 10.0) -> "GaussianPrior":
+        """The prior of an :class:`imrbayes.ensemble.ParamSpace` (stated on z: ``internal``)."""
+        return cls(space.prior_mean, space.prior_cov, space.positive, tuple(space.names), "internal", box_sd)
+
+    @property
+    def ndim(self) -> int:
+        return self.mean.size
+
+    def to_si(self, Z):
+        """(..., d) internal z -> theta [SI]."""
+        Z = np.asarray(Z, dtype=np.float64)
+        with np.errstate(over="ignore"):
+            return np.where(self.positive, np.exp(np.where(self.positive, Z, 0.0)), Z)
+
+    def to_internal(self, theta):
+        """(..., d) theta [SI] -> internal z."""
+        theta = np.asarray(theta, dtype=np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.positive, np.log(np.where(self.positive, theta, 1.0)), theta)
+
+    def log_prob(self, Z) -> np.ndarray:
+        """(n, d) z -> (n,) log prior density of z (normalised, up to the box truncation); -inf
+        outside the box or where z is not finite."""
+        Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
+        d = self.ndim
+        out = np.full(Z.shape[0], -np.inf)
+        ok = np.all(np.isfinite(Z), axis=1) & np.all((Z >= self.lower) & (Z <= self.upper), axis=1)
+        if not ok.any():
+            return out
+        z = Z[ok]
+        x = z if self.scale == "internal" else self.to_si(z)
+        r = x - self.mean
+        lp = -0.5 * np.einsum("ni,ij,nj->n", r, self._prec, r) - 0.5 * (d * np.log(2 * np.pi) + self._logdet)
+        if self.scale == "natural":
+            lp = lp + np.sum(np.where(self.positive, z, 0.0), axis=1)          # Jacobian of theta = exp(z)
+        out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
+        return out
+
+    def describe(self) -> dict:
+        return {"names": list(self.names), "mean": self.mean.tolist(), "cov": self.cov.tolist(),
+                "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)}, "scale": self.scale,
+                "box_sd": float(self.box_sd), "box_lower": self.lower.tolist(), "box_upper": self.upper.tolist(),
+                "rule": ("Gaussian on z (log for positive parameters); no Jacobian" if self.scale == "internal" else
+                         "Gaussian on theta [SI], sampled in z = log(theta) with the Jacobian sum(z_positive)")}
+
+
+def loglik_pointwise(R, y, P, weight):
+    """Pointwise log-likelihood, Gaussian with variance P/c: ``-1/2 [c (y - R)^2 / P + log(2 pi P / c)]``.
+
+    All arguments broadcast (``R`` typically (n, N_exp, m)). Its sum over the used samples is the
+    likelihood term of the target plus a constant; the normalisation makes it a proper density of
+    y (what ``arviz.loo`` needs).
+    """
+    return -0.5 * (weight * (y - R) ** 2 / P + np.log(2.0 * np.pi * P / weight))
+
+
+class WindowTarget:
+    """Log-posterior of constant parameters over one window (see the module docstring).
+
+    Parameters
+    ----------
+    model : ForwardModel or imrbayes.ensemble.Runner
+        Anything with ``propagate(state, params (N, d) SI, t_end, t_eval) -> Propagation``.
+    start : BatchState
+        One state per experiment (N_exp members) at the window start t0 = ``start.t_star``.
+    t_eval : (m,)
+        Window samples t* (>= t0, increasing).
+    y : (N_exp, m)
+        Observed R* at ``t_eval``.
+    P : (m,) or (N_exp, m)
+        Noise variance [R*^2], > 0.
+    prior : GaussianPrior
+    weight : scalar, (m,) or (N_exp, m)
+        Observation weight c (see module docstring): 1, 1/N_t (En4D-Var) or beta_jk/L (MIEnKS-MDA).
+    names : list of str, optional
+        Experiment names (for the ``experiment`` coordinate).
+    """
+
+    def __init__(self, model, start: BatchState, t_eval, y, P, prior: GaussianPrior, weight=1.0,
+                 names=None, description: dict | None = None):
+        self.model = model
+        self.start = start.copy()
+        self.t0 = float(start.t_star)
+        self.t_eval = np.atleast_1d(np.asarray(t_eval, dtype=np.float64))
+        n_exp, m = start.n, self.t_eval.size
+        self.y = np.asarray(y, dtype=np.float64).reshape(n_exp, m)
+        self.P = np.broadcast_to(np.asarray(P, dtype=np.float64), (n_exp, m)).copy()
+        self.weight = np.broadcast_to(np.asarray(weight, dtype=np.float64), (n_exp, m)).copy()
+        self.prior = prior
+        self.names = list(names) if names is not None else [f"exp_{i + 1:03d}" for i in range(n_exp)]
+        self.description = dict(description or {})
+        if m < 1 or np.any(np.diff(self.t_eval) <= 0) or self.t_eval[0] < self.t0 - 1e-12:
+            raise InputError("window", "t_eval must be increasing and start at or after the window start")
+        if not (np.all(np.isfinite(self.P)) and np.all(self.P > 0)):
+            raise InputError("window", "noise variances P_k must be finite and positive")
+        if not (np.all(np.isfinite(self.weight)) and np.all(self.weight >= 0)):
+            raise InputError("window", "observation weights must be finite and >= 0")
+        if len(self.names) != n_exp:
+            raise InputError("window", f"{len(self.names)} names for {n_exp} experiments")
+        # samples used: positive weight, after t0 (R*(t0) is the given state, independent of z)
+        self.use_time = (self.t_eval > self.t0 + 1e-12) & np.any(self.weight > 0, axis=0)
+        self.use = (self.weight > 0) & self.use_time[None, :]
+        if not self.use.any():
+            raise InputError("window", "no observation with a positive weight after the window start")
+        if not np.all(np.isfinite(self.y[self.use])):
+            raise InputError("window", "observations must be finite where they are used")
+        self.n_evals = 0          # parameter sets evaluated
+        self.n_failed = 0         # of which the forward solve failed
+
+    # ------------------------------------------------------------------ description
+    @property
+    def ndim(self) -> int:
+        return self.prior.ndim
+
+    @property
+    def n_exp(self) -> int:
+        return self.start.n
+
+    @property
+    def param_names(self) -> tuple:
+        return self.prior.names
+
+    @property
+    def internal_names(self) -> list:
+        """Names of the sampled coordinates: ``log_G`` for a positive ``G``, else the name."""
+        return [f"log_{n}" if p else n for n, p in zip(self.prior.names, self.prior.positive)]
+
+    @property
+    def t_used(self) -> np.ndarray:
+        """(m_used,) t* of the samples that enter the likelihood."""
+        return self.t_eval[self.use_time]
+
+    def describe(self) -> dict:
+        return {"t0_star": self.t0, "t_star": [float(self.t_eval[0]), float(self.t_eval[-1])],
+                "n_samples": int(self.t_eval.size), "n_used": int(self.use.sum()), "n_experiments": self.n_exp,
+                "prior": self.prior.describe(), "internal_names": self.internal_names,
+                "density": "-1/2 sum_n sum_k c_nk (y_nk - R_nk(z))^2 / P_k + log p0(z)",
+                "weight_min": float(self.weight[self.use].min()), "weight_max": float(self.weight[self.use].max()),
+                **self.description}
+
+    # ------------------------------------------------------------------ evaluation
+    def predict(self, Z):
+        """Forward prediction for n parameter sets in one batch.
+
+        Z : (n, d) internal coordinates.
+        Returns ``R`` (n, N_exp, m) R* at ``t_eval`` (NaN where failed) and ``failed`` (n,) bool:
+        any experiment's solve failed or gave a non-finite radius on a used sample.
+        """
+        Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
+        n, ne, m = Z.shape[0], self.n_exp, self.t_eval.size
+        R = np.full((n, ne, m), np.nan)
+        theta = self.prior.to_si(Z)
+        ok = np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(Z), axis=1)
+        failed = ~ok
+        idx = np.flatnonzero(ok)
+        if idx.size:
+            s = self.start
+            st = BatchState(np.tile(s.y, (idx.size, 1)), self.t0, np.tile(s.rmax_m, idx.size),
+                            np.tile(s.req_m, idx.size))
+            params = np.repeat(theta[idx], ne, axis=0)                     # member = i * N_exp + e
+            out = self.model.propagate(st, params, float(self.t_eval[-1]), self.t_eval)
+            Ri = np.asarray(out.R_star, dtype=np.float64).reshape(idx.size, ne, m)
+            bad = np.asarray(out.failed).reshape(idx.size, ne).any(axis=1)
+            bad |= ~np.all(np.isfinite(np.where(self.use[None], Ri, 0.0)), axis=(1, 2))
+            R[idx] = Ri
+            failed[idx] = bad
+        self.n_evals += n
+        self.n_failed += int(failed.sum())
+        return R, failed
+
+    def log_likelihood(self, Z) -> np.ndarray:
+        """(n, d) -> (n,) ``-1/2 sum c (y - R)^2 / P`` over the used samples; -inf where a solve failed."""
+        R, failed = self.predict(Z)
+        r2 = np.where(self.use[None], self.weight * (self.y - R) ** 2 / self.P, 0.0)
+        ll = -0.5 * np.sum(r2, axis=(1, 2))
+        return np.where(failed | ~np.isfinite(ll), -np.inf, ll)
+
+    def log_prob(self, Z) -> np.ndarray:
+        """(n, d) internal coordinates -> (n,) log-posterior (unnormalised); -inf, never NaN, where
+        the prior is zero or a forward solve failed. Only parameter sets inside the prior's support
+        are simulated."""
+        Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
+        out = self.prior.log_prob(Z)
+        ok = np.isfinite(out)
+        if ok.any():
+            out[ok] = out[ok] + self.log_likelihood(Z[ok])
+        out[~np.isfinite(out)] = -np.inf
+        return out
+
+    __call__ = log_prob
+
+    def pointwise(self, Z, chunk: int = 4096) -> np.ndarray:
+        """(n, d) -> (n, N_exp, m_used) pointwise log-likelihood (:func:`loglik_pointwise`) on the used
+        time samples (``t_used``); experiments with weight 0 at a used time, and failed solves, get
+        a very low finite value (-1e300) so that ArviZ can still read the array."""
+        Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
+        cols = self.use_time
+        out = np.empty((Z.shape[0], self.n_exp, int(cols.sum())))
+        per = max(1, chunk // self.n_exp)
+        for a in range(0, Z.shape[0], per):
+            R, failed = self.predict(Z[a:a + per])
+            w = self.weight[:, cols]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                lp = loglik_pointwise(R[:, :, cols], self.y[:, cols], self.P[:, cols], w)
+            lp = np.where((w > 0)[None] & ~failed[:, None, None] & np.isfinite(lp), lp, -1e300)
+            out[a:a + per] = lp
+        return out
+
+
+def fitting_window_target(model, obs, prior: GaussianPrior, t_end: float | None = None,
+                          weight="en4dvar") -> WindowTarget:
+    """Constant parameters over [0, t_end] from the radius maximum (the En4D-Var / IMR window).
+
+    Parameters
+    ----------
+    model : ForwardModel or Runner
+    obs : imrbayes.ensemble.Observations or imrbayes.data.Preprocessed
+        Anything with ``t_star`` (n,), ``R_star`` (N_exp, n), ``P`` (n,), ``rmax_m``, ``req_m`` (N_exp,).
+    prior : GaussianPrior (e.g. ``GaussianPrior.from_space(ParamSpace.for_model(fm.constitutive))``)
+    t_end : last fitted t* (None: the whole record).
+    weight : ``"en4dvar"`` (c = 1/K over the K fitted samples 1..K, methods.md §3; the density the
+        fused En4D-Var posterior approximates), ``"plain"`` (c = 1) or an array (K,) / (N_exp, K).
+    """
+    fm = getattr(model, "fm", model)
+    t = np.asarray(obs.t_star, dtype=np.float64)
+    K = t.size - 1 if t_end is None else int(np.searchsorted(t, float(t_end) + 1e-9, side="right") - 1)
+    if K < 1:
+        raise InputError("t_end", f"the window t* <= {t_end} holds no sample after the maximum")
+    if isinstance(weight, str):
+        if weight not in ("en4dvar", "plain"):
+            raise InputError("weight", f"must be 'en4dvar', 'plain' or an array, got {weight!r}")
+        c = 1.0 / K if weight == "en4dvar" else 1.0
+        rule = "1/N_t (En4D-Var averaging)" if weight == "en4dvar" else "1 (plain likelihood)"
+    else:
+        c, rule = np.asarray(weight, dtype=np.float64), "given"
+    start = fm.initial_state(obs.rmax_m, obs.req_m)
+    names = list(getattr(obs, "names", []) or [])
+    return WindowTarget(model, start, t[1:K + 1], np.asarray(obs.R_star)[:, 1:K + 1], np.asarray(obs.P)[1:K + 1],
+                        prior, c, names or None,
+                        description={"kind": "fitting window from the maximum", "samples": [1, K], "weight_rule": rule})
+
+
+def window_target_from_ensemble(model, ensemble: BatchState, t_eval, y, P, prior: GaussianPrior, mda_weight=1.0,
+                                L: int | None = None, n_exp: int | None = None, groups=None, names=None,
+                                index: int | None = None) -> WindowTarget:
+    """The density that the MIEnKS-MDA Gauss–Newton analysis of one window approximates.
+
+    Window j starts at t0 = ``ensemble.t_star`` with the smoother's handed-off ensemble (the prior
+    ensemble of the window's analysis: every member's full evolved state). Its parameter target is
+
+        log p_j(z) = -1/2 sum_n sum_k (beta_jk / L) (y_nk - R_nk(q_n, z))^2 / P_k + log N(z; m_j, C_j)
+
+    with (m_j, C_j) the Gaussian prior of the window's parameters (for ``fusion="chain"`` in
+    ``fit_mienks``: the previous window's fused posterior after RTPS; window 0: the prior).
+
+    **State uncertainty** is represented, to start with, by the ensemble's *mean state*: q_n is the
+    average of experiment n's members' states (R, Rdot, p_b, stresses, fields). The smoother's
+    analysis also updates the state and carries state-parameter correlations; this target
+    conditions on the mean state instead, so it is the exact posterior of the parameters only
+    when the handed-off state spread is negligible (as it is at window 0, where every member starts
+    at the same state at the maximum). A wide state spread makes the MCMC posterior narrower than
+    the smoother's; compare the two knowing this.
+
+    Parameters
+    ----------
+    model : ForwardModel or Runner
+    ensemble : BatchState
+        N_exp x N_En members at the window start, grouped by experiment: member ``n * N_En + i`` is
+        member i of experiment n (the order of ``fit_mienks``), unless ``groups`` says otherwise.
+    t_eval : (m,) the window's samples t* (the first may equal t0; it is then not used).
+    y : (N_exp, m) observed R*; P : (m,) noise variance.
+    prior : GaussianPrior  -- (m_j, C_j) on the internal parameters.
+    mda_weight : scalar or (m,) beta_jk; L : window length (samples) for the 1/L average
+        (default: m). The weight is ``beta_jk / L``.
+    n_exp : number of experiments (default: ``len(y)``); groups : (N_exp N_En,) experiment of each member.
+    """
+    y = np.atleast_2d(np.asarray(y, dtype=np.float64))
+    n_exp = int(n_exp or y.shape[0])
+    t_eval = np.atleast_1d(np.asarray(t_eval, dtype=np.float64))
+    L = int(L or t_eval.size)
+    if groups is None:
+        if ensemble.n % n_exp:
+            raise InputError("ensemble", f"{ensemble.n} members do not split into {n_exp} experiments")
+        groups = np.repeat(np.arange(n_exp), ensemble.n // n_exp)
+    groups = np.asarray(groups, dtype=int)
+    if groups.shape != (ensemble.n,) or set(np.unique(groups)) != set(range(n_exp)):
+        raise InputError("ensemble", "groups must give an experiment 0..N_exp-1 for every member")
+    ys, rmax, req, spread = [], [], [], []
+    for g in range(n_exp):
+        sel = groups == g
+        ys.append(ensemble.y[sel].mean(axis=0))
+        rmax.append(ensemble.rmax_m[sel][0])
+        req.append(ensemble.req_m[sel][0])
+        spread.append(float(ensemble.y[sel, 0].std()))
+        if np.ptp(ensemble.rmax_m[sel]) > 0 or np.ptp(ensemble.req_m[sel]) > 0:
+            raise InputError("ensemble", f"experiment {g}: members disagree on Rmax/Req")
+    start = BatchState(np.array(ys), float(ensemble.t_star), np.array(rmax), np.array(req))
+    beta = np.broadcast_to(np.asarray(mda_weight, dtype=np.float64), t_eval.shape)
+    desc = {"kind": "MIEnKS-MDA window", "state": "mean of each experiment's handed-off ensemble",
+            "weight_rule": f"beta_jk / L, L = {L}", "L": L, "R_spread_at_start": spread}
+    if index is not None:
+        desc["index"] = int(index)
+    return WindowTarget(model, start, t_eval, y, P, prior, beta / L, names, description=desc)
