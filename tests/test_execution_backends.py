@@ -1,0 +1,172 @@
+"""Execution backends: one interface, bit-identical results whatever the backend or worker count,
+contained failures, clean shutdown; seeding from (run seed, unit id) that no process salt changes."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from _exec_helpers import same
+from imrbayes.errors import InputError
+from imrbayes.execution import (DaskExecutor, InProcessExecutor, ProcessPoolExecutor, Unit, make_executor,
+                                normalize_units, run_units, safe_name, unit_id, unit_rng)
+from imrbayes.execution.toy import toy_bubble, toy_units
+
+SEED = 11
+UNITS = toy_units(6, windows=2, steps=600)
+
+
+@pytest.fixture(scope="module")
+def dask_local():
+    """One LocalCluster (2 workers x 1 thread) for the whole module: start-up takes seconds."""
+    ex = DaskExecutor("local", n_workers=2, threads_per_worker=1)
+    yield ex
+    ex.close()
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return run_units(UNITS, toy_bubble, seed=SEED, progress=False)
+
+
+# ----------------------------------------------------------------------------------------- seeding
+
+def test_unit_rng_is_fixed_by_seed_and_id():
+    # Golden values: changing them breaks the resumability of stored runs (bump SEEDING_SCHEME).
+    assert unit_rng(0, "exp=000/window=000").integers(0, 2**32, size=3).tolist() == [1982966354, 1607394214, 2444372978]
+    assert unit_rng(7, "exp=003/window=07").integers(0, 2**32, size=3).tolist() == [3994474509, 1936201145, 1469914999]
+    a = unit_rng(1, "exp=001").random(4)
+    assert np.array_equal(a, unit_rng(1, "exp=001").random(4))
+    assert not np.array_equal(a, unit_rng(2, "exp=001").random(4))
+    assert not np.array_equal(a, unit_rng(1, "exp=002").random(4))
+
+
+def test_unit_rng_ignores_python_hash_salt():
+    code = "from imrbayes.execution import unit_rng; print(unit_rng(5, 'exp=004/window=02').random().hex())"
+    outs = set()
+    for salt in ("1", "2", "random"):
+        env = {**os.environ, "PYTHONHASHSEED": salt}
+        outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                check=True).stdout.strip())
+    assert outs == {unit_rng(5, "exp=004/window=02").random().hex()}
+
+
+def test_unit_ids_and_safe_names():
+    assert unit_id(exp=3, window=7) == "exp=003/window=007"
+    assert unit_id(exp=3, model="nhkv") == "exp=003/model=nhkv"
+    ids = ["exp=003/window=07", "exp=003%2Fwindow=07", "a b", "a~b", "ü", ".", "..", "x" * 300, "x" * 301]
+    names = [safe_name(i) for i in ids]
+    assert len(set(names)) == len(ids)
+    assert safe_name("exp=003/window=07") == "exp=003%2Fwindow=07"
+    assert all("/" not in n and len(n) <= 120 for n in names)
+    with pytest.raises(ValueError, match="duplicate"):
+        normalize_units([Unit("a"), {"unit_id": "a"}])
+    with pytest.raises(ValueError, match="unit_id"):
+        normalize_units([{"data": 1}])
+    with pytest.raises(ValueError, match="non-negative"):
+        unit_rng(-1, "a")
+
+
+# ------------------------------------------------------------------------------- bit-identical runs
+
+def test_in_process_results_are_in_input_order(reference):
+    assert list(reference.results) == [u.unit_id for u in UNITS]
+    assert reference.n_computed == len(UNITS) and reference.ok
+
+
+@pytest.mark.parametrize("workers", [2, 3])
+def test_process_pool_is_bit_identical(reference, workers):
+    with make_executor(workers=workers) as ex:
+        assert isinstance(ex, ProcessPoolExecutor) and ex.n_workers == workers
+        report = run_units(UNITS, toy_bubble, seed=SEED, executor=ex, progress=False)
+        pids = {o.worker.rsplit(":", 1)[1] for o in ex.map(toy_bubble, UNITS, seed=SEED)}
+    same(report.results, reference.results)
+    assert str(os.getpid()) not in pids and 1 <= len(pids) <= workers
+    assert set(report.unit_seconds) == {u.unit_id for u in UNITS}
+
+
+def test_local_dask_cluster_is_bit_identical(reference, dask_local):
+    assert dask_local.n_workers == 2 and dask_local.describe()["backend"] == "dask"
+    report = run_units(UNITS, toy_bubble, seed=SEED, executor=dask_local, progress=False)
+    same(report.results, reference.results)
+    # the same executor serves a second map (e.g. the next window), in a shuffled order
+    again = run_units(UNITS[::-1], toy_bubble, seed=SEED, executor=dask_local, progress=False)
+    same(dict(reversed(list(again.results.items()))), reference.results)
+
+
+def test_seed_changes_results(reference):
+    other = run_units(UNITS[:2], toy_bubble, seed=SEED + 1, progress=False)
+    assert not np.array_equal(other.results[UNITS[0].unit_id]["draws"], reference.results[UNITS[0].unit_id]["draws"])
+
+
+# ------------------------------------------------------------------------------------------ failures
+
+def _with_failures():
+    units = toy_units(5, steps=200, fail={"exp=001/window=000", "exp=003/window=000"})
+    return units, {"exp=001/window=000", "exp=003/window=000"}
+
+
+@pytest.mark.parametrize("backend", ["in-process", "pool", "dask"])
+def test_failures_are_contained(backend, dask_local):
+    units, bad = _with_failures()
+    if backend == "in-process":
+        ex = InProcessExecutor()
+    elif backend == "pool":
+        ex = ProcessPoolExecutor(2)
+    else:
+        ex = dask_local
+    try:
+        report = run_units(units, toy_bubble, seed=0, executor=ex, progress=False)
+    finally:
+        if ex is not dask_local:
+            ex.close()
+    assert set(report.failures) == bad and report.n_failed == 2 and not report.ok
+    assert set(report.results) == {u.unit_id for u in units} - bad
+    fail = report.failures["exp=001/window=000"]
+    assert fail.error == "ValueError: toy failure in exp=001/window=000"
+    assert "Traceback" in fail.traceback and fail.worker
+    assert "5 units: 5 computed, 0 from checkpoints, 2 failed (exp=001/window=000: ValueError" in report.summary()
+    with pytest.raises(RuntimeError, match="2 failed"):
+        report.raise_if_failed()
+
+
+def test_pool_survives_an_early_stop_and_is_reused():
+    with ProcessPoolExecutor(2) as ex:
+        units = toy_units(8, steps=200, sleep=0.05)
+        it = ex.map(toy_bubble, units, seed=0)
+        first = next(it)
+        it.close()  # abandons the rest: the pool is stopped and restarted on the next map
+        assert first.ok
+        outs = list(ex.map(toy_bubble, units, seed=0))
+    assert sorted(o.unit_id for o in outs) == sorted(u.unit_id for u in units)
+
+
+# --------------------------------------------------------------------------------------- the factory
+
+def test_make_executor_choices():
+    assert isinstance(make_executor(), InProcessExecutor)
+    assert isinstance(make_executor(workers=1), InProcessExecutor)
+    with make_executor(workers=2) as ex:
+        assert isinstance(ex, ProcessPoolExecutor)
+    for bad in (0, -1, "2", 1.5, True):
+        with pytest.raises(InputError, match="--workers"):
+            make_executor(workers=bad)
+    with pytest.raises(InputError, match="--scheduler"):
+        make_executor(scheduler="  ")
+
+
+def test_unreachable_scheduler_is_an_input_error():
+    with pytest.raises(InputError, match="cannot connect to a Dask scheduler at 'tcp://127.0.0.1:9'"):
+        DaskExecutor("tcp://127.0.0.1:9", connect_timeout=0.5)
+
+
+def test_dask_executor_on_an_existing_client(dask_local, reference):
+    ex = DaskExecutor(client=dask_local.client)
+    report = run_units(UNITS[:3], toy_bubble, seed=SEED, executor=ex, progress=False)
+    ex.close()  # does not close a client it was given
+    assert dask_local.client.status == "running"
+    same(report.results, {k: reference.results[k] for k in report.results})
