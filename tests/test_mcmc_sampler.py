@@ -46,6 +46,10 @@ def test_gaussian_toy_posterior_and_datatree():
     ess_tau = run.n_walkers * (run.n_steps - run.burn) / run.tau.mean() * 4
     assert 0.5 < s.loc["x0", "ess_bulk"] / ess_tau < 2.0
     json.loads(dt.attrs["diagnostics_json"])
+    # end to end: the exact Gaussian agrees with this MCMC run
+    from imrbayes.mcmc.compare import compare_window
+    e = compare_window(MEAN, COV, dt, ["x0", "x1"], [False, False], diagnostics=d)
+    assert e["agree"] is True, e["notes"]
 
 
 def test_seeded_and_lockstep_identical_to_sequential():

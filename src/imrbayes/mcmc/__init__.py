@@ -1,0 +1,23 @@
+"""MCMC reference posteriors for the ensemble methods (issue 5).
+
+* :mod:`~imrbayes.mcmc.target` -- the log-posterior of constant parameters over a window
+  (Gaussian likelihood with the methods' observation weights, Gaussian prior on log parameters),
+  batched for emcee's ``vectorize=True``;
+* :mod:`~imrbayes.mcmc.sampler` -- independent seeded emcee ensembles with an HDF5 backend
+  (resumable), autocorrelation diagnostics, an ArviZ DataTree with the pointwise log-likelihood;
+* :mod:`~imrbayes.mcmc.compare` -- ensemble Gaussian vs MCMC per window (``compare.json``).
+
+>>> prior = GaussianPrior.from_space(space)                       # ParamSpace of imrbayes.ensemble
+>>> target = fitting_window_target(fm, obs, prior, weight="en4dvar")
+>>> run = run_mcmc(target, fused_mean, fused_cov, MCMCSettings(), seed=0, backend="mcmc.h5", name="window_00")
+>>> dt = run.to_datatree(target)                                   # posterior, log_likelihood, observed_data
+>>> entry = compare_window(fused_mean, fused_cov, dt, space.names, space.positive, diagnostics=run.diagnostics())
+"""
+
+from imrbayes.mcmc.compare import THRESHOLDS, compare_window, compare_windows, gaussian_kl, gaussian_w2
+from imrbayes.mcmc.sampler import MCMCRun, MCMCSettings, run_mcmc
+from imrbayes.mcmc.target import GaussianPrior, WindowTarget, fitting_window_target, window_target_from_ensemble
+
+__all__ = ["GaussianPrior", "WindowTarget", "fitting_window_target", "window_target_from_ensemble",
+           "MCMCSettings", "MCMCRun", "run_mcmc", "THRESHOLDS", "compare_window", "compare_windows",
+           "gaussian_kl", "gaussian_w2"]
