@@ -592,7 +592,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
             if r > 0 and cols_off == 0:
                 # The coupling columns are refreshed every few steps and after a rejection; any
                 # frozen operator keeps the scheme consistent, it only has to hold the stiffness.
-                if jac_age >= 4 or jac_age < 0:
+                if jac_age >= 8 or jac_age < 0:
                     _coupling(t, y, F[0], cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_new,
                               blocks, di, lo, up, Wc)
                     jac_age = 0
@@ -609,10 +609,19 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
         ok = True
         for s in range(1, ns):
             for k in range(n):
-                acc = 0.0
-                for j in range(s):
-                    acc += AE[s, j] * (F[j, k] - FI[j, k]) + AI[s, j] * FI[j, k]
-                rhs_vec[k] = y[k] + h * acc
+                rhs_vec[k] = y[k]
+            # Column-wise accumulation (contiguous inner loops; zero coefficients skipped).
+            for j in range(s):
+                ae = h * AE[s, j]
+                ai = h * (AI[s, j] - AE[s, j])
+                if ae != 0.0:
+                    Fj = F[j]
+                    for k in range(n):
+                        rhs_vec[k] += ae * Fj[k]
+                if implicit and ai != 0.0:
+                    FIj = FI[j]
+                    for k in range(n):
+                        rhs_vec[k] += ai * FIj[k]
             if implicit:
                 _solve(blocks, lo, hg, cp, dp, rhs_vec, Y)
                 if r > 0 and cols_off == 0:
@@ -635,13 +644,15 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
         err = 0.0
         if ok:
             for k in range(n):
-                acc = 0.0
-                eacc = 0.0
-                for j in range(ns):
-                    acc += B[j] * F[j, k]
-                    eacc += (B[j] - BH[j]) * F[j, k]
-                ynew[k] = y[k] + h * acc
-                rhs_vec[k] = h * eacc
+                ynew[k] = y[k]
+                rhs_vec[k] = 0.0
+            for j in range(ns):
+                bj = h * B[j]
+                ej = h * (B[j] - BH[j])
+                Fj = F[j]
+                for k in range(n):
+                    ynew[k] += bj * Fj[k]
+                    rhs_vec[k] += ej * Fj[k]
             if implicit and filter_err:
                 # Shampine's filter: (I - h gamma A)^-1 applied to the error estimate keeps the
                 # damped stiff components (wall cells) from rejecting steps they cannot spoil.
@@ -666,7 +677,8 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                 ok = False
         if not ok or err > 1.0:
             h *= 0.25 if not ok else max(0.2, 0.9 * err ** expo)
-            jac_age = -1
+            if not ok:
+                jac_age = -1
             nrej += 1
             consecutive_rej += 1
             # A linearisation that fails repeatedly (an unstable or non-smooth coupling, e.g.
