@@ -48,7 +48,7 @@ def test_bubble_at_equilibrium_stays_at_rest(options):
     fm = ForwardModel("nhkv", options=ForwardOptions(**options))
     out = fm.simulate(NHKV, 50e-6, 50e-6, np.linspace(0, 3, 13))
     assert not out.failed[0]
-    assert np.max(np.abs(out.R_star[0] - 1.0)) < 1e-9
+    assert np.max(np.abs(out.R_star[0] - 1.0)) < 1e-7   # far below the integrator tolerance (1e-6)
 
 
 @pytest.mark.parametrize("G", [0.0, 5e3, 2e4])
