@@ -58,9 +58,11 @@ def test_unit_rng_ignores_python_hash_salt():
 def test_unit_ids_and_safe_names():
     assert unit_id(exp=3, window=7) == "exp=003/window=007"
     assert unit_id(exp=3, model="nhkv") == "exp=003/model=nhkv"
-    ids = ["exp=003/window=07", "exp=003%2Fwindow=07", "a b", "a~b", "ü", ".", "..", "x" * 300, "x" * 301]
+    ids = ["exp=003/window=07", "exp=003%2Fwindow=07", "a b", "a~b", "ü", ".", "..", "x" * 300, "x" * 301,
+           "model=NHKV", "model=nhkv", "%41", "A"]
     names = [safe_name(i) for i in ids]
-    assert len(set(names)) == len(ids)
+    assert len({n.lower() for n in names}) == len(ids)  # distinct even on case-insensitive file systems
+    assert safe_name("model=NHKV") == "model=%4E%48%4B%56"
     assert safe_name("exp=003/window=07") == "exp=003%2Fwindow=07"
     assert all("/" not in n and len(n) <= 120 for n in names)
     with pytest.raises(ValueError, match="duplicate"):
@@ -170,3 +172,12 @@ def test_dask_executor_on_an_existing_client(dask_local, reference):
     ex.close()  # does not close a client it was given
     assert dask_local.client.status == "running"
     same(report.results, {k: reference.results[k] for k in report.results})
+
+
+def test_scheduler_address_connects_to_a_running_cluster(dask_local, reference):
+    address = dask_local.client.scheduler.address          # what `dask scheduler` would print
+    with make_executor(scheduler=address, workers=7) as ex:  # workers is ignored for a remote cluster
+        assert isinstance(ex, DaskExecutor) and ex.describe()["address"] == address and ex.n_workers == 2
+        report = run_units(UNITS, toy_bubble, seed=SEED, executor=ex, progress=False)
+    same(report.results, reference.results)
+    assert dask_local.client.status == "running"  # closing our client leaves the cluster up

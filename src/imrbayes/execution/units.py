@@ -17,7 +17,6 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass, field
 from typing import Any, Iterable
-from urllib.parse import quote
 
 import numpy as np
 
@@ -113,12 +112,17 @@ def unit_rng(seed: int, uid: str) -> np.random.Generator:
 _MAX_NAME = 120
 
 
+_SAFE = frozenset("abcdefghijklmnopqrstuvwxyz0123456789_.-=")
+
+
 def safe_name(uid: str) -> str:
-    """A file-name stem for a unit id: percent-encoding of everything outside ``[A-Za-z0-9_.=-]``
-    (``/`` becomes ``%2F``), reversible and so one-to-one; ids whose encoding is longer than 120
-    characters keep an 80-character prefix plus ``~`` and 16 hex digits of SHA-256 (``~`` never occurs
-    in an encoded id). The id is also stored inside the file and checked when it is read."""
-    name = quote(_check_id(uid), safe="=").replace("~", "%7E")
+    """A file-name stem for a unit id: lower-case letters, digits and ``_.-=`` are kept, every other
+    byte of its UTF-8 is percent-encoded (``/`` -> ``%2F``, ``A`` -> ``%41``). One-to-one, even on
+    case-insensitive file systems (upper case occurs only as hex digits after ``%``). Ids whose
+    encoding is longer than 120 characters keep an 80-character prefix plus ``~`` and 16 hex digits of
+    SHA-256 (``~`` never occurs in an encoding). The id is also stored inside the file and checked
+    when it is read."""
+    name = "".join(ch if ch in _SAFE else "".join(f"%{b:02X}" for b in ch.encode("utf-8")) for ch in _check_id(uid))
     if len(name) > _MAX_NAME:
         name = name[:80] + "~" + hashlib.sha256(uid.encode("utf-8")).hexdigest()[:16]
     return name
