@@ -117,3 +117,36 @@ def test_paper_prior_moment_matched():
         assert math.exp(m + v / 2) * math.sqrt(math.expm1(v)) == pytest.approx(sd)
     assert sp.prior_cov[0, 1] == 0.0
     np.testing.assert_allclose(sp.to_si(sp.to_internal([7.29e3, 0.088])), [7.29e3, 0.088])
+
+
+def test_fuse_likelihoods_exact_with_other_priors():
+    """Posteriors computed from different priors (restarts, windows): dividing each by its own
+    prior and multiplying the likelihoods into the shared prior gives the joint posterior."""
+    from imrbayes.ensemble.gaussian import fuse_likelihoods
+
+    rng = np.random.default_rng(5)
+    m0, S0 = np.array([0.3, -0.2]), np.array([[1.5, 0.2], [0.2, 0.7]])
+    post_m, post_c, q_m, q_c, Ls, bs = [], [], [], [], [], []
+    for _ in range(4):
+        H = rng.normal(size=(3, 2))
+        Rinv = np.diag(1.0 / rng.uniform(0.2, 1.0, 3))
+        y = rng.normal(size=3)
+        L, b = H.T @ Rinv @ H, H.T @ Rinv @ y
+        A = rng.normal(size=(2, 2))
+        Q = A @ A.T + 0.3 * np.eye(2)                    # this experiment's own prior
+        q = rng.normal(size=2)
+        C = np.linalg.inv(np.linalg.inv(Q) + L)
+        post_m.append(C @ (np.linalg.solve(Q, q) + b)), post_c.append(C), q_m.append(q), q_c.append(Q)
+        Ls.append(L), bs.append(b)
+    Cj = np.linalg.inv(np.linalg.inv(S0) + sum(Ls))
+    mj = Cj @ (np.linalg.solve(S0, m0) + sum(bs))
+    f = fuse_likelihoods(np.array(post_m), np.array(post_c), np.array(q_m), np.array(q_c), m0, S0)
+    np.testing.assert_allclose(f.mean, mj, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(f.cov, Cj, rtol=1e-9, atol=1e-12)
+    # with the shared prior as every experiment's prior it is the prior-corrected product rule
+    shared = [np.linalg.inv(np.linalg.inv(S0) + L) for L in Ls]
+    sm = [C @ (np.linalg.solve(S0, m0) + b) for C, b in zip(shared, bs)]
+    f1 = fuse_likelihoods(np.array(sm), np.array(shared), np.tile(m0, (4, 1)), np.stack([S0] * 4), m0, S0)
+    f2 = fuse(np.array(sm), np.array(shared), m0, S0)
+    np.testing.assert_allclose(f1.mean, f2.mean, rtol=1e-9)
+    np.testing.assert_allclose(f1.cov, f2.cov, rtol=1e-9)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, stats
 
-__all__ = ["Fusion", "fuse", "rtps", "rtps_factors", "precision_weighted", "draw", "marginal_summary",
+__all__ = ["Fusion", "fuse", "fuse_likelihoods", "rtps", "rtps_factors", "precision_weighted", "draw", "marginal_summary",
            "sym", "is_pd"]
 
 
@@ -89,6 +89,43 @@ def fuse(means, covs, prior_mean, prior_cov, margin: float = 1e-6) -> Fusion:
     cov = sym(np.linalg.inv(Lam))
     mean = cov @ (b - c * b0)
     return Fusion(mean, cov, c, bool(ok or N == 1), notes)
+
+
+def fuse_likelihoods(post_m, post_c, prior_m, prior_c, chain_m, chain_c) -> Fusion:
+    """Fuse experiments through their likelihoods: posterior / the prior each was computed from.
+
+    post_m (N, n), post_c (N, n, n): each experiment's posterior; prior_m, prior_c: the prior that
+    experiment's analysis started from (its ensemble's moments); chain_m (n,), chain_c (n, n): the
+    shared prior of the fused result. Each likelihood is Lambda_n = S_n^-1 - Q_n^-1,
+    eta_n = S_n^-1 m_n - Q_n^-1 q_n (PSD by construction for the ensemble Gauss–Newton, as H >= I;
+    clipped to PSD against round-off, reported), and
+
+        Sigma^-1 = C^-1 + sum_n Lambda_n,   mu = Sigma (C^-1 c + sum_n eta_n).
+
+    When every experiment started from the shared prior (Q_n = C, q_n = c) this is exactly the
+    prior-corrected product rule of :func:`fuse` (methods.md §3). It differs when the analyses
+    started from other priors: En4D-Var's restarts (the last cycle's prior is the inflated
+    previous posterior) and MIEnKS windows (each experiment's own inflated chain); there the
+    original prior divided out N - 1 times is not what the posteriors contain.
+    """
+    N, d = post_m.shape
+    C_inv = np.linalg.inv(sym(chain_c))
+    Lam = C_inv.copy()
+    eta = C_inv @ chain_m
+    clipped = 0
+    for n in range(N):
+        Si = np.linalg.inv(sym(post_c[n]))
+        Qi = np.linalg.inv(sym(prior_c[n]))
+        lam, V = np.linalg.eigh(sym(Si - Qi))
+        clipped += int(np.sum(lam < 0))
+        Ln = (V * np.maximum(lam, 0.0)) @ V.T
+        Lam += Ln
+        # information of the clipped likelihood: Ln times the likelihood's own centre
+        eta += Si @ post_m[n] - Qi @ prior_m[n] if not np.any(lam < 0) else Ln @ np.linalg.lstsq(
+            sym(Si - Qi), Si @ post_m[n] - Qi @ prior_m[n], rcond=None)[0]
+    cov = sym(np.linalg.inv(sym(Lam)))
+    notes = [f"{clipped} negative eigenvalue(s) of window likelihoods clipped to 0"] if clipped else []
+    return Fusion(cov @ eta, cov, 1.0, clipped == 0, notes)
 
 
 def rtps_factors(prior_anom, post_anom, a: float, tiny: float = 1e-12):

@@ -11,7 +11,7 @@ parameters: log G, log mu)] is carried through the windows:
    1/(2L) sum_k beta_jk ||y_k - <Y_k> - Y'_k w||^2_{P_k} + 1/2 w^T w with the MDA coefficients
    beta_jk = 1/|I(k)| (every sample's weights over the windows sum to one);
 3. the experiments' parameter posteriors (the z-block of each augmented posterior) are fused
-   -> N(mu_j, Sigma_j). Default (``fusion="chain"``, :func:`chain_fuse`): the product rule with
+   -> N(mu_j, Sigma_j). Default (``fusion="chain"``, :func:`imrbayes.ensemble.gaussian.fuse_likelihoods`): the product rule with
    the window's prior, i.e. every experiment's window likelihood (its posterior divided by its own
    window prior) times the fused chain's prior. ``fusion="prior"`` applies methods.md §3's rule
    with the original prior N(m0, S0) in every window. The two agree without RTPS; with RTPS each
@@ -38,7 +38,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from imrbayes.ensemble.gaussian import Fusion, draw, fuse, precision_weighted, rtps_factors, sym
+from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, precision_weighted, rtps_factors
 from imrbayes.ensemble.gn import gauss_newton
 from imrbayes.ensemble.result import FitResult, gaussian_estimate, rmse, si_covariance
 from imrbayes.ensemble.runner import Runner
@@ -54,7 +54,7 @@ class MIEnKSSettings:
     """MIEnKS-MDA settings (paper values by default): members, Gauss–Newton iterations, window
     length L and shift h [samples], RTPS factor, whether RTPS also acts on the state, redraw
     rounds for failed members, draws per window written to posterior.nc, transform variant, and
-    the window fusion: ``chain`` (default, :func:`chain_fuse`) or ``prior`` (methods.md's rule with
+    the window fusion: ``chain`` (default, :func:`imrbayes.ensemble.gaussian.fuse_likelihoods`) or ``prior`` (methods.md's rule with
     the original prior, :func:`imrbayes.ensemble.gaussian.fuse`)."""
 
     n_ens: int = 48
@@ -100,39 +100,6 @@ def _redraw_failed(E, bad, rng):
         E[g, idx] = mu + rng.standard_normal((idx.size, ok.sum())) @ A
         n += idx.size
     return n
-
-
-def chain_fuse(post_m, post_c, prior_m, prior_c, chain_m, chain_c) -> Fusion:
-    """Window fusion with the window's own priors (``fusion="chain"``).
-
-    Each experiment's window likelihood in parameter space is its posterior divided by its window
-    prior, Lambda_n = S_n^-1 - Q_n^-1, eta_n = S_n^-1 m_n - Q_n^-1 q_n (Q_n, q_n: the parameter
-    moments of the window's prior ensemble; Lambda_n is PSD by construction, as H >= I, and is
-    clipped to PSD against round-off). The fused window posterior is the fused chain's prior times
-    every experiment's likelihood: Sigma_j^-1 = C^-1 + sum_n Lambda_n, mu_j = Sigma_j (C^-1 c + sum_n eta_n),
-    where (c, C) is the previous window's fused posterior after the same RTPS relaxation (window 0:
-    the prior). If the experiments shared their window priors this is exactly the prior-corrected
-    product rule of methods.md §3 with that shared prior; without RTPS it equals the product rule
-    with the original prior.
-    """
-    N, d = post_m.shape
-    C_inv = np.linalg.inv(sym(chain_c))
-    Lam = C_inv.copy()
-    eta = C_inv @ chain_m
-    clipped = 0
-    for n in range(N):
-        Si = np.linalg.inv(sym(post_c[n]))
-        Qi = np.linalg.inv(sym(prior_c[n]))
-        lam, V = np.linalg.eigh(sym(Si - Qi))
-        clipped += int(np.sum(lam < 0))
-        Ln = (V * np.maximum(lam, 0.0)) @ V.T
-        Lam += Ln
-        # information of the clipped likelihood: Ln times the likelihood's own centre
-        eta += Si @ post_m[n] - Qi @ prior_m[n] if not np.any(lam < 0) else Ln @ np.linalg.lstsq(
-            sym(Si - Qi), Si @ post_m[n] - Qi @ prior_m[n], rcond=None)[0]
-    cov = sym(np.linalg.inv(sym(Lam)))
-    notes = [f"{clipped} negative eigenvalue(s) of window likelihoods clipped to 0"] if clipped else []
-    return Fusion(cov @ eta, cov, 1.0, clipped == 0, notes)
 
 
 def rtps_cov(prior_c, post_c, a):
@@ -191,7 +158,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         else:
             qa = res.prior_anoms[:, :, ns:]
             qm = res.prior_ensemble[:, :, ns:].mean(axis=1)
-            fus = chain_fuse(pm, pc, qm, np.einsum("gnd,gne->gde", qa, qa), chain_m, chain_c)
+            fus = fuse_likelihoods(pm, pc, qm, np.einsum("gnd,gne->gde", qa, qa), chain_m, chain_c)
             chain_m = fus.mean
             chain_c = rtps_cov(chain_c, fus.cov, s.rtps)
         win_mean.append(fus.mean)
