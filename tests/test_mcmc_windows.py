@@ -1,0 +1,84 @@
+"""MCMC of MIEnKS-MDA windows: chained priors, reconstructed start states, mcmc.nc layout and
+compare.json from the run files."""
+
+import json
+
+import arviz as az
+import numpy as np
+import pytest
+import xarray as xr
+
+from _mcmc_synth import observations
+from imrbayes.ensemble import MIEnKSSettings, Observations, ParamSpace, fit_mienks
+from imrbayes.ensemble.output import summary_dict
+from imrbayes.mcmc import MCMCSettings
+from imrbayes.mcmc.windows import (chain_priors, compare_from_tree, mienks_window_specs, sample_windows,
+                                   window_seed, write_compare, write_mcmc)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    fm, o = observations(n_exp=2, n_steps=40, noise=0.01, seed=2)
+    obs = Observations(o.t_star, o.R_star, o.P, o.rmax_m, o.req_m)
+    space = ParamSpace.for_model(fm.constitutive)
+    res = fit_mienks(fm, obs, space, MIEnKSSettings(n_ens=12, n_iter=3, L=15, h=5, n_draws=5), seed=0)
+    return fm, obs, space, res
+
+
+def test_window_specs(fitted):
+    fm, obs, space, res = fitted
+    s = res.details["settings"]
+    specs = mienks_window_specs(fm, obs, space, res.windows, s)
+    assert [sp.index for sp in specs] == list(range(len(res.windows))) == list(range(6))
+    # window 0: the state at the maximum, the parameter prior, weights beta/L
+    sp0 = specs[0]
+    np.testing.assert_array_equal(sp0.target.start.y, fm.initial_state(obs.rmax_m, obs.req_m).y)
+    np.testing.assert_allclose(sp0.prior_mean, space.prior_mean)
+    assert sp0.target.weight[0, 0] == pytest.approx(1.0 / 15)            # sample 0: only window 0 holds it
+    assert sp0.target.weight[0, 5] == pytest.approx(0.5 / 15)            # sample 5: windows 0 and 1
+    # chained priors: window j+1's prior mean is window j's fused mean; sds relaxed towards the prior
+    for j in range(1, 6):
+        np.testing.assert_allclose(specs[j].prior_mean, res.windows[j - 1]["mean_internal"])
+        post_sd = np.sqrt(np.diag(res.windows[j - 1]["cov_internal"]))
+        assert np.all(np.sqrt(np.diag(specs[j].prior_cov)) >= post_sd - 1e-15)
+    pr = chain_priors(res.windows, space.prior_mean, space.prior_cov, 0.7, "prior")
+    assert all(np.allclose(m, space.prior_mean) for m, _ in pr)
+    # window 1 starts from experiment n's window-0 mean propagated over [0, t_5]
+    z = np.array([p["mean_internal"] for p in res.windows[0]["per_experiment"]])
+    out = fm.propagate(fm.initial_state(obs.rmax_m, obs.req_m), np.exp(z), obs.t_star[5])
+    np.testing.assert_allclose(specs[1].target.start.y, out.end.y)
+    assert specs[1].target.t0 == pytest.approx(obs.t_star[5]) and specs[1].state_source == "reconstructed"
+    assert window_seed(0, 1) != window_seed(0, 2) and window_seed(0, 1) == window_seed(0, 1)
+
+
+def test_sample_windows_write_and_compare_from_files(fitted, tmp_path):
+    fm, obs, space, res = fitted
+    specs = mienks_window_specs(fm, obs, space, res.windows, res.details["settings"], indices=[0, 3])
+    out = sample_windows(specs, MCMCSettings(n_walkers=6, n_steps=60), seed=1, backend=tmp_path / "mcmc.h5",
+                         progress=False)
+    assert [r.spec.index for r in out] == [0, 3]
+    path = write_mcmc(tmp_path / "mcmc.nc", out)
+    tree = xr.open_datatree(path)
+    assert {"window_00", "window_03", "posterior", "sample_stats"} <= set(tree.children)
+    assert tree["posterior"]["G"].dims == ("chain", "draw", "window")
+    assert tree["posterior"]["window"].values.tolist() == [0, 3]
+    ll = tree["window_03/log_likelihood"]["R"]
+    assert ll.dims == ("chain", "draw", "experiment", "time") and ll.shape[2] == 2
+    assert tree["window_03/observed_data"]["time"].values[0] > specs[1].t_star[0]     # R*(t0) not used
+    s = az.summary(tree, var_names=["G"], round_to="none")
+    assert list(s.index) == ["G[0]", "G[3]"]
+    # compare.json from the run directory's files gives the entries computed in memory
+    summ = json.loads(json.dumps(summary_dict(res, obs, seed=0)))
+    back = compare_from_tree(summ, tree)
+    assert [w["index"] for w in back["windows"]] == [0, 3]
+    for w, r in zip(back["windows"], out):
+        assert w["kl_sym"] == pytest.approx(r.entry["kl_sym"], rel=1e-9)
+        assert w["mcmc"]["sampler"]["n_steps"] == 60
+    data = write_compare(tmp_path / "compare.json", out)
+    assert json.loads((tmp_path / "compare.json").read_text()) == data
+    assert data["overall"]["n_windows"] == 2
+    # rerunning with the same HDF5 file resumes: nothing left to run, the same chains
+    again = sample_windows(specs, MCMCSettings(n_walkers=6, n_steps=60), seed=1, backend=tmp_path / "mcmc.h5",
+                           progress=False)
+    assert all(r.run.steps_run == [0] * 4 for r in again)
+    np.testing.assert_array_equal(again[1].run.chain, out[1].run.chain)
