@@ -77,6 +77,14 @@ def test_sample_windows_write_and_compare_from_files(fitted, tmp_path):
     data = write_compare(tmp_path / "compare.json", out)
     assert json.loads((tmp_path / "compare.json").read_text()) == data
     assert data["overall"]["n_windows"] == 2
+    # figures: forest over windows, KL/W2 against t*, pair plots with both posteriors
+    from imrbayes.mcmc.figures import comparison_figures
+    figs = comparison_figures(data, tmp_path / "figures", tree, obs.t_star, obs.R_star, pairs="all")
+    assert [p.rsplit("/", 1)[1] for p in figs] == ["mcmc_forest.png", "mcmc_divergence.png",
+                                                   "mcmc_pair_window_00.png", "mcmc_pair_window_03.png"]
+    for p in figs:
+        with open(p, "rb") as fh:
+            assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
     # rerunning with the same HDF5 file resumes: nothing left to run, the same chains
     again = sample_windows(specs, MCMCSettings(n_walkers=6, n_steps=60), seed=1, backend=tmp_path / "mcmc.h5",
                            progress=False)

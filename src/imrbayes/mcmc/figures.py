@@ -1,0 +1,215 @@
+"""Figures of the ensemble-vs-MCMC comparison (matplotlib object API on the Agg canvas; no pyplot).
+
+* :func:`forest_figure` -- per parameter, every window's ensemble Gaussian and MCMC posterior
+  (median and 95 % interval, SI units) against the window's time span;
+* :func:`divergence_figure` -- KL (Gaussian, symmetrised, and sample-based) and W2 per window
+  against t*, with the agreement thresholds, under the measured R*(t*);
+* :func:`pair_figure` -- one window: MCMC draws in the log parameters with the ensemble Gaussian's
+  and the MCMC Gaussian's 1- and 2-sd ellipses, and both marginals.
+
+Inputs are ``compare.json`` window entries (:func:`imrbayes.mcmc.compare.compare_window`) and, for
+the MCMC quantiles and draws, the ``mcmc.nc`` tree (:func:`imrbayes.mcmc.windows.mcmc_tree`) or a
+window's own tree.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+__all__ = ["forest_figure", "divergence_figure", "pair_figure", "comparison_figures"]
+
+_SCALE = {"G": (1e-3, "G [kPa]"), "mu": (1.0, r"$\mu$ [Pa s]")}
+_ENS, _MC = "tab:blue", "tab:red"
+
+
+def _figure(w, h):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(w, h), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path):
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def _label(name):
+    return _SCALE.get(name, (1.0, name))
+
+
+def _window_node(tree, index):
+    if tree is None:
+        return None
+    key = f"window_{int(index):02d}"
+    return tree[key] if key in tree.children else (tree if "posterior" in tree.children else None)
+
+
+def _mcmc_draws(node, var):
+    return np.asarray(node["posterior"][var].values, float).ravel()
+
+
+def forest_figure(entries, path, tree=None, prob: float = 0.95):
+    """Per parameter: ensemble (blue) and MCMC (red) median and ``prob`` interval of every window,
+    plotted against the window's time span (a horizontal bar marks [t_start, t_end])."""
+    entries = list(entries)
+    names = entries[0]["parameters"]
+    fig = _figure(4.2 * len(names), 3.6)
+    axes = np.atleast_1d(fig.subplots(1, len(names), squeeze=False)).ravel()
+    q = stats.norm.ppf(0.5 + prob / 2)
+    for ax, name in zip(axes, names):
+        sc, lab = _label(name)
+        i = names.index(name)
+        iname = entries[0]["internal"][i]
+        log = iname != name
+        for k, e in enumerate(entries):
+            ts = e["t_star"] or [e["index"], e["index"] + 1]
+            tc = 0.5 * (ts[0] + ts[1])
+            m, s = e["ensemble"]["mean_internal"][iname], e["ensemble"]["sd_internal"][iname]
+            lo, med, hi = m - q * s, m, m + q * s
+            if log:
+                lo, med, hi = math.exp(lo), math.exp(med), math.exp(hi)
+            dx = 0.006 * (entries[-1]["t_star"][1] if entries[-1]["t_star"] else len(entries))
+            ax.plot([tc - dx] * 2, [lo * sc, hi * sc], color=_ENS, lw=2, alpha=0.8)
+            ax.plot(tc - dx, med * sc, "o", color=_ENS, ms=4, label="ensemble" if k == 0 else None)
+            node = _window_node(tree, e["index"])
+            if node is not None:
+                x = _mcmc_draws(node, name)
+                lo, med, hi = np.quantile(x, [0.5 - prob / 2, 0.5, 0.5 + prob / 2])
+            else:
+                m, s = e["mcmc"]["mean_internal"][iname], e["mcmc"]["sd_internal"][iname]
+                lo, med, hi = (np.exp([m - q * s, m, m + q * s]) if log else (m - q * s, m, m + q * s))
+            ax.plot([tc + dx] * 2, [lo * sc, hi * sc], color=_MC, lw=2, alpha=0.8)
+            ax.plot(tc + dx, med * sc, "s", color=_MC, ms=4, label="MCMC" if k == 0 else None)
+            ax.plot(ts, [med * sc] * 2, color=_MC, lw=0.6, alpha=0.4)
+            if e.get("agree") is False:
+                ax.plot(tc, hi * sc, "v", color="k", ms=4)
+        ax.set_xlabel("t* (window)")
+        ax.set_ylabel(lab)
+        if log:
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, title=f"median, {int(prob * 100)}% interval ($\\blacktriangledown$: disagree)",
+                   title_fontsize=7)
+    return _save(fig, path)
+
+
+def divergence_figure(entries, path, t_star=None, R_star=None):
+    """KL and W2 per window against t* (each window drawn over its span, a dot at its centre),
+    threshold lines dashed; the measured R*(t*) (every experiment, grey) on top when given."""
+    from imrbayes.mcmc.compare import THRESHOLDS
+
+    entries = list(entries)
+    top = t_star is not None and R_star is not None
+    fig = _figure(7.0, 6.2 if top else 4.4)
+    axes = fig.subplots(3 if top else 2, 1, sharex=True)
+    if top:
+        ax = axes[0]
+        for r in np.atleast_2d(R_star):
+            ax.plot(t_star, r, "-", lw=0.7, color="0.5", alpha=0.6)
+        ax.set_ylabel("R*")
+        ax.grid(alpha=0.3)
+        axes = axes[1:]
+    spans = [e["t_star"] or [e["index"], e["index"] + 1] for e in entries]
+    tc = [0.5 * (a + b) for a, b in spans]
+    for key, col, lab in (("kl_sym", "tab:purple", "Gaussian KL (symm.)"), ("kl_sample", "tab:orange", "sample KL")):
+        v = [e[key] for e in entries]
+        axes[0].plot(tc, v, "o-", color=col, ms=3.5, lw=1, label=lab)
+    axes[0].axhline(THRESHOLDS["kl_sym"], ls="--", color="k", lw=0.8)
+    axes[0].set_ylabel("KL [nats]")
+    axes[0].set_yscale("symlog", linthresh=1e-2)
+    axes[0].legend(fontsize=8)
+    w2 = [e["w2"] for e in entries]
+    axes[1].plot(tc, w2, "o-", color="tab:green", ms=3.5, lw=1)
+    for (a, b), v in zip(spans, w2):
+        axes[1].plot([a, b], [v, v], color="tab:green", lw=0.5, alpha=0.4)
+    axes[1].axhline(THRESHOLDS["w2"], ls="--", color="k", lw=0.8)
+    axes[1].set_ylabel("W2 [posterior sd]")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        for e, t in zip(entries, tc):
+            if e.get("agree") is None:
+                ax.axvline(t, color="0.8", lw=4, zorder=0)
+    axes[-1].set_xlabel("t* (window centre; grey: MCMC undecided)")
+    return _save(fig, path)
+
+
+def _ellipse(ax, m, S, k, **kw):
+    lam, V = np.linalg.eigh(0.5 * (S + S.T))
+    a = np.linspace(0, 2 * np.pi, 120)
+    pts = m[:, None] + V @ (np.sqrt(np.maximum(lam, 0))[:, None] * k * np.vstack([np.cos(a), np.sin(a)]))
+    ax.plot(pts[0], pts[1], **kw)
+
+
+def pair_figure(entry, node, path, max_points: int = 3000):
+    """One window: MCMC draws of the internal parameters (dots) with the 1- and 2-sd ellipses of the
+    ensemble Gaussian (blue) and of the MCMC draws' Gaussian (red, dashed); marginals on the diagonal."""
+    names = entry["internal"]
+    d = len(names)
+    x = np.stack([_mcmc_draws(node, v) for v in names], axis=1)
+    if x.shape[0] > max_points:
+        x = x[np.linspace(0, x.shape[0] - 1, max_points).round().astype(int)]
+    mE = np.array([entry["ensemble"]["mean_internal"][v] for v in names])
+    SE = np.asarray(entry["ensemble"]["cov_internal"], float)
+    mM = np.array([entry["mcmc"]["mean_internal"][v] for v in names])
+    SM = np.asarray(entry["mcmc"]["cov_internal"], float)
+    fig = _figure(2.6 * d + 0.6, 2.6 * d + 0.4)
+    axes = fig.subplots(d, d, squeeze=False)
+    for i in range(d):
+        for j in range(d):
+            ax = axes[i, j]
+            if j > i:
+                ax.set_visible(False)
+                continue
+            if i == j:
+                ax.hist(x[:, i], bins=40, density=True, color=_MC, alpha=0.35)
+                g = np.linspace(x[:, i].min(), x[:, i].max(), 200)
+                ax.plot(g, stats.norm.pdf(g, mE[i], math.sqrt(SE[i, i])), color=_ENS, lw=1.5)
+                ax.plot(g, stats.norm.pdf(g, mM[i], math.sqrt(SM[i, i])), color=_MC, lw=1, ls="--")
+                ax.set_yticks([])
+            else:
+                ax.plot(x[:, j], x[:, i], ".", ms=1.2, color=_MC, alpha=0.25, rasterized=True)
+                for k in (1, 2):
+                    _ellipse(ax, mE[[j, i]], SE[np.ix_([j, i], [j, i])], k, color=_ENS, lw=1.4)
+                    _ellipse(ax, mM[[j, i]], SM[np.ix_([j, i], [j, i])], k, color=_MC, lw=1, ls="--")
+            if i == d - 1:
+                ax.set_xlabel(names[j])
+            if j == 0 and i > 0:
+                ax.set_ylabel(names[i])
+            ax.grid(alpha=0.25)
+    ts = entry.get("t_star")
+    span = f", t* {ts[0]:.3g}-{ts[1]:.3g}" if ts else ""
+    verdict = {True: "agree", False: "disagree", None: "undecided"}[entry.get("agree")]
+    fig.suptitle(f"window {entry['index']}{span}: {verdict} (KL {entry['kl_sym']:.2g}, sample KL "
+                 f"{entry['kl_sample']:.2g}, W2 {entry['w2']:.2g} sd)\nblue: ensemble Gaussian; red: MCMC",
+                 fontsize=8)
+    return _save(fig, path)
+
+
+def comparison_figures(compare: dict, out_dir, tree=None, t_star=None, R_star=None, pairs="worst") -> list:
+    """The standard set under ``out_dir``: ``mcmc_forest.png``, ``mcmc_divergence.png`` and pair plots
+    (``pairs``: ``"worst"`` -- the window with the largest sample KL --, ``"all"`` or a list of indices)."""
+    out_dir = Path(out_dir)
+    entries = compare["windows"]
+    paths = [forest_figure(entries, out_dir / "mcmc_forest.png", tree),
+             divergence_figure(entries, out_dir / "mcmc_divergence.png", t_star, R_star)]
+    if tree is not None and entries:
+        if pairs == "worst":
+            pick = [max(entries, key=lambda e: e["kl_sample"])["index"]]
+        elif pairs == "all":
+            pick = [e["index"] for e in entries]
+        else:
+            pick = list(pairs)
+        for e in entries:
+            node = _window_node(tree, e["index"])
+            if e["index"] in pick and node is not None:
+                paths.append(pair_figure(e, node, out_dir / f"mcmc_pair_window_{e['index']:02d}.png"))
+    return [str(p) for p in paths]
