@@ -18,7 +18,7 @@ DEFAULT_RESOLUTION = {"imrv2-fd": (25, 25), "converged": (64, 64)}
 DEFAULT_STRETCH = 1.5
 # (rtol, atol) per integrator, chosen so that R has <= 1e-4 pointwise relative error against a
 # tight solve on the LIC benchmark batch (benchmarks/forward.py, row d).
-DEFAULT_TOLERANCES = {"ark548": (1e-6, 1e-8), "ark324": (1e-7, 1e-9), "dopri5": (1e-7, 1e-9)}
+DEFAULT_TOLERANCES = {"ark548": (3e-6, 3e-8), "ark324": (1e-7, 1e-9), "dopri5": (1e-7, 1e-9)}
 
 
 @dataclass(frozen=True)
