@@ -88,7 +88,7 @@ def landscape_figure(result, path):
     cs = ax.contourf(Gg, mg, Z.T, levels=30, cmap="viridis")
     fig.colorbar(cs, ax=ax, label=lab)
     if lvl is not None and np.nanmin(Z) < lvl < np.nanmax(Z):
-        ax.contour(Gg, mg, Z.T, levels=[lvl], colors="w", linewidths=1.5)
+        ax.contour(Gg, mg, Z.T, levels=[lvl], colors="w", linewidths=1.5, linestyles="solid")
         ax.plot([], [], "w-", label="95% region")
     for i, p in enumerate(result.per_experiment):
         if "optimum" in p:
