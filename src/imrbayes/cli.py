@@ -89,7 +89,7 @@ def _register_commands():
     # Command modules register themselves on `main`; importing them here keeps cli.py small.
     import importlib
 
-    for name in ("cli_data", "cli_fit"):
+    for name in ("cli_data", "cli_fit", "cli_diagnose"):
         try:
             importlib.import_module(f"imrbayes.{name}")
         except ModuleNotFoundError as exc:  # a command module not written yet

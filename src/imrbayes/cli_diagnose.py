@@ -1,0 +1,128 @@
+"""``imrbayes diagnose DATA`` (interfaces.md §2-3): is a constant-parameter NHKV adequate for DATA,
+and if not, which mechanism explains it and what does the extended model gain on unseen data.
+
+Writes ``diagnosis.json``, a self-contained ``report.html`` and ``figures/*.png`` under ``--out``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from imrbayes import __version__
+from imrbayes.cli import config_option, main
+from imrbayes.errors import InputError
+
+
+@main.command("diagnose")
+@config_option
+@click.argument("data", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="Output folder (default: a new folder under ./imrbayes-runs/).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the bootstrap and every draw.")
+@click.option("--quick", is_flag=True, default=False,
+              help="Exploration: 19 bootstrap replicates, MAP baseline (no En4D-Var), fewer draws.")
+@click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
+              help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
+                   "scheme=imrv2-fd, ...); repeatable.")
+@click.option("--n-bootstrap", type=int, default=None,
+              help="Bootstrap replicates of the constant-parameter check [-] [default: 39; --quick 19].")
+@click.option("--candidates", default=None,
+              help="Comma-separated candidate models (qkv, fung, zener, carreau, damage) [default: "
+                   "qkv,zener,carreau,damage].")
+@click.option("--no-loeo", is_flag=True, default=False, help="Skip leave-one-experiment-out (N_exp extra fits per model).")
+@click.option("--experiments", default=None,
+              help="Use only these experiments (comma-separated 1-based indices, e.g. 1,2,3).")
+@click.option("--camera", default=None, help="Keep one camera view of multi-camera data.")
+@click.option("--dt-star", type=float, default=0.025, show_default=True, help="Grid step in t* [-].")
+@click.option("--n-steps", type=int, default=120, show_default=True, help="Grid steps [-].")
+@click.option("--quiet", is_flag=True, default=False, help="Print nothing but errors.")
+def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_loeo, experiments, camera, dt_star,
+                 n_steps, quiet):
+    """Diagnose DATA: baseline NHKV fit and misfit by phase (t* = dimensionless time), a bootstrap-
+    calibrated constant-parameter check, candidate mechanisms (strain-stiffening, viscoelastic-
+    relaxation, rate-dependent-viscosity, damage-softening) ranked by held-out prediction, and the gain
+    of the extended model (RMSE in R* = R/Rmax, ELPD in nats). SI units for all parameters."""
+    t_start = time.perf_counter()
+    from imrbayes.cli_data import _prepare_out
+    from imrbayes.cli_fit import _kv
+    from imrbayes.data import load_dataset, preprocess_dataset
+    from imrbayes.diagnosis import CANDIDATES, DiagnoseSettings, diagnose
+    from imrbayes.diagnosis.figures import write_figures
+    from imrbayes.diagnosis.models import _SPECS
+    from imrbayes.diagnosis.report import write_report
+    from imrbayes.ensemble import Observations
+    from imrbayes.ensemble.output import jsonable
+    from imrbayes.forward import ForwardOptions
+    from imrbayes.forward.constants import Physics
+
+    kw = {}
+    if n_bootstrap is not None:
+        if n_bootstrap < 1:
+            raise InputError("--n-bootstrap", f"must be at least 1, got {n_bootstrap}")
+        kw["n_bootstrap"] = int(n_bootstrap)
+    if candidates:
+        keys = tuple(c.strip() for c in candidates.split(",") if c.strip())
+        bad = [k for k in keys if k not in _SPECS or k == "nhkv"]
+        if bad or not keys:
+            raise InputError("--candidates", f"unknown candidate(s) {bad}; known: qkv, fung, zener, carreau, damage")
+        kw["candidates"] = keys
+    else:
+        kw["candidates"] = CANDIDATES
+    if no_loeo:
+        kw["loeo"] = False
+    s = DiagnoseSettings.quick(**kw) if quick else DiagnoseSettings(**kw)
+    ds = load_dataset(data, camera=camera)
+    pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps)
+    obs = Observations.from_preprocessed(pre)
+    if experiments:
+        try:
+            idx = [int(x) - 1 for x in experiments.split(",") if x.strip()]
+        except ValueError:
+            raise InputError("--experiments", f"expected comma-separated integers, got {experiments!r}")
+        if not idx or min(idx) < 0 or max(idx) >= obs.n_exp:
+            raise InputError("--experiments", f"indices must lie in 1..{obs.n_exp}")
+        obs = obs.take(idx)
+        if obs.n_exp >= 2:
+            from imrbayes.data.noise import noise_variance
+            obs.P = noise_variance(obs.t_star, obs.R_star)[0]
+    fopts = {**(ds.forward or {}), **_kv(forward, "--forward")}
+    options = ForwardOptions.from_dict(fopts, source="forward options")
+    physics = Physics.from_overrides(ds.physics or None)
+    out = _prepare_out(Path(out) if out is not None else None, "diagnose", ds.name, protect=Path(data))
+    show = (not quiet) and sys.stderr.isatty()
+    bar = None
+    if show:
+        from tqdm import tqdm
+        bar = tqdm(total=1 + s.n_bootstrap + 2 * len(s.candidates) + 1, unit="step", desc="diagnose",
+                   file=sys.stderr, dynamic_ncols=True)
+    try:
+        d = diagnose(obs, options, physics, s, seed=seed, progress=(bar.update if bar is not None else None),
+                     log=(bar.set_postfix_str if bar is not None else None))
+    finally:
+        if bar is not None:
+            bar.close()
+    res = d.result
+    res["data"] = str(data)
+    res["experiments"] = list(obs.names)
+    res["forward"] = options.to_dict()
+    res["preprocessing"] = pre.to_dict(arrays=False)
+    res["command"] = {"name": "diagnose", "seed": seed, "quick": bool(quick), "imrbayes_version": __version__}
+    res["total_runtime_s"] = time.perf_counter() - t_start
+    figs = write_figures(d, out / "figures")
+    (out / "diagnosis.json").write_text(json.dumps(jsonable(res), indent=1) + "\n")
+    write_report(res, figs, out / "report.html", title=f"imrbayes diagnose: {ds.name}")
+    if not quiet:
+        chk = res["constant_parameter_check"]
+        g = res.get("gain") or {}
+        click.echo(f"constant-parameter check: {chk['verdict']} (p = {chk['evidence']['p_value']:.3f}); "
+                   f"cause: {res['cause']}; extended model: {res['extended_model']}")
+        if g:
+            click.echo(f"held-out RMSE ({g.get('candidate')}, {g.get('heldout_scheme')}): baseline "
+                       f"{g['heldout_rmse_baseline']:.4g} -> {g['heldout_rmse_extended']:.4g}; ELPD diff "
+                       f"{g['elpd_diff']:.1f} ± {g['elpd_se']:.1f}")
+        click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")

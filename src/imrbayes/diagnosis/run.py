@@ -1,0 +1,176 @@
+"""``diagnose``: baseline fit and phase misfit, calibrated constant-parameter check, candidate
+mechanisms ranked by held-out prediction, and the gain of the extended model (interfaces.md §3).
+
+Decision rule (documented in docs/diagnosis.md):
+* the verdict comes from the bootstrap check alone (:mod:`imrbayes.diagnosis.check`);
+* every candidate gets a held-out score = mean over the held-out schemes run (forecast of the 3rd
+  collapse from a fit to the 2nd; leave-one-experiment-out) of the relative RMSE reduction against
+  the baseline; candidates are ranked by it (ELPD difference as tie-break);
+* ``cause`` = ``none`` if the verdict is ``adequate``; otherwise the mechanism of the top-ranked
+  candidate if its score is > 0, else ``unexplained``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from imrbayes.diagnosis.check import bootstrap_check, statistics
+from imrbayes.diagnosis.heldout import elpd_compare, forecast, loeo, loglik_draws, paired
+from imrbayes.diagnosis.lsq import predict
+from imrbayes.diagnosis.models import CANDIDATES, make_candidate
+from imrbayes.diagnosis.phases import phases_of
+
+__all__ = ["DiagnoseSettings", "diagnose"]
+
+
+@dataclass
+class DiagnoseSettings:
+    """n_bootstrap: synthetic replicates of the check (>= 19 for a 5 % test); candidates: keys of
+    :data:`imrbayes.diagnosis.models.CANDIDATES` (and ``fung``); baseline_method: ``en4dvar`` (also
+    runs En4D-Var on the baseline and reports it) or ``map``; loeo: run leave-one-experiment-out;
+    n_draws: Laplace draws for the ELPD; alpha: level of the check; en4dvar_*: its settings."""
+
+    n_bootstrap: int = 39
+    candidates: tuple = CANDIDATES
+    baseline_method: str = "en4dvar"
+    loeo: bool = True
+    n_draws: int = 100
+    alpha: float = 0.05
+    en4dvar_n_ens: int = 48
+    en4dvar_n_runs: int = 3
+    max_collapses: int = 3
+
+    @classmethod
+    def quick(cls, **kw):
+        return cls(**{"n_bootstrap": 19, "baseline_method": "map", "n_draws": 60, **kw})
+
+
+@dataclass
+class Diagnosis:
+    result: dict
+    obs: object
+    phases: object
+    curves: dict = field(default_factory=dict)      # key -> (n_exp, n) fitted R*
+    stats: dict = field(default_factory=dict)
+
+
+def _phase_misfit(obs, phases, fitted):
+    out = []
+    for info, m in zip(phases.to_list(), phases.masks()):
+        r = (obs.R_star[:, m] - fitted[:, m])
+        out.append({**info, "rmse": float(np.sqrt(np.nanmean(r ** 2))),
+                    "chi2_norm": float(np.nanmean(r ** 2 / obs.P[None, m])), "n_samples": int(m.sum() * obs.n_exp)})
+    return out
+
+
+def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = None, seed: int = 0,
+             prior: dict | None = None, progress=None, log=None) -> Diagnosis:
+    """Run the whole diagnosis on ``obs`` (Observations) with forward ``options`` (ForwardOptions)."""
+    s = settings or DiagnoseSettings()
+    t0 = time.perf_counter()
+    say = log or (lambda msg: None)
+    tick = progress or (lambda n=1: None)
+    phases = phases_of(obs, s.max_collapses)
+    base = make_candidate("nhkv", options, physics, prior)
+    say("baseline fits (whole record, to the 1st and 2nd collapse)")
+    observed = statistics(base, obs, phases)
+    full = observed["fits"]["all"]
+    tick(1)
+    baseline = {"model": "nhkv", "method": "map", "estimate": base.estimate(full.z, full.cov),
+                "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2))),
+                "chi2_norm": observed["misfit"],
+                "misfit_by_phase": _phase_misfit(obs, phases, full.fitted),
+                "estimate_note": "MAP of all experiments jointly with a Laplace posterior (optimistic widths)"}
+    if s.baseline_method == "en4dvar":
+        say("baseline En4D-Var")
+        from imrbayes.ensemble import En4DVarSettings, ParamSpace, fit_en4dvar
+        sp = ParamSpace.for_model(base.fm.constitutive, prior)
+        en = fit_en4dvar(base.fm, obs, sp, En4DVarSettings(n_ens=s.en4dvar_n_ens, n_runs=s.en4dvar_n_runs,
+                                                           loglik=False, n_draws=1), seed=seed)
+        baseline.update({"method": "en4dvar", "estimate": en.estimate, "rmse_en4dvar": en.rmse,
+                         "estimate_map": baseline["estimate"]})
+    say(f"constant-parameter check ({s.n_bootstrap} bootstrap replicates)")
+    check = bootstrap_check(base, obs, phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
+                            progress=tick)
+    # candidates
+    fits = {"nhkv": full}
+    cands = {"nhkv": base}
+    for key in s.candidates:
+        c = make_candidate(key, options, physics, prior)
+        extra = np.concatenate([full.z, c.prior_mean[2:]])
+        say(f"candidate {key}")
+        from imrbayes.diagnosis.lsq import fit_map
+        fits[key] = fit_map(c, obs, minima=phases.minima, extra_starts=[extra])
+        cands[key] = c
+        tick(1)
+    held = {}
+    for key, c in cands.items():
+        say(f"held-out predictions: {key}")
+        h = {"forecast": forecast(c, obs, phases, fits[key])}
+        if s.loeo:
+            h["loeo"] = loeo(c, obs, phases, fits[key])
+        held[key] = h
+        tick(1)
+    lls = {k: loglik_draws(c, obs, phases, fits[k], s.n_draws, seed + 7) for k, c in cands.items()}
+    elpd = elpd_compare(lls, "nhkv")
+    schemes = [k for k in ("forecast", "loeo") if k in held["nhkv"] and np.isfinite(held["nhkv"][k]["rmse"])]
+    candidates = []
+    for key in s.candidates:
+        c, f = cands[key], fits[key]
+        rel = {k: 1.0 - held[key][k]["rmse"] / held["nhkv"][k]["rmse"] for k in schemes}
+        score = float(np.mean(list(rel.values()))) if rel else float("nan")
+        candidates.append({
+            "model": key if key != "damage" else "nhkv-piecewise", "key": key, "mechanism": c.mechanism,
+            "forward_model": c.forward_name, "estimate": c.estimate(f.z, f.cov),
+            "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2))),
+            "chi2_norm": f.chi2 / f.n_data,
+            "misfit_by_phase": _phase_misfit(obs, phases, f.fitted),
+            "heldout_rmse": held[key][schemes[0]]["rmse"] if schemes else float("nan"),
+            "heldout_scheme": schemes[0] if schemes else None,
+            "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held["nhkv"][k]["per_experiment"],
+                                                                          held[key][k]["per_experiment"])}
+                        for k in held[key]},
+            "relative_reduction": rel, "score": score,
+            "elpd_diff": elpd[key]["elpd_diff"], "elpd_se": elpd[key]["elpd_se"],
+            "elpd": elpd[key], "converged": bool(f.converged)})
+    candidates.sort(key=lambda d: (-(d["score"] if np.isfinite(d["score"]) else -np.inf), -d["elpd_diff"]))
+    for i, d in enumerate(candidates):
+        d["rank"] = i + 1
+    top = candidates[0] if candidates else None
+    if check["verdict"] == "adequate":
+        cause, ext = "none", None
+    elif top is not None and top["score"] > 0:
+        cause, ext = top["mechanism"], top["model"]
+    else:
+        cause, ext = "unexplained", None
+    gain = {}
+    if top is not None:
+        sch = top["heldout_scheme"]
+        gain = {"candidate": top["model"], "heldout_scheme": held["nhkv"][sch]["scheme"] if sch else None,
+                "heldout_rmse_baseline": held["nhkv"][sch]["rmse"] if sch else float("nan"),
+                "heldout_rmse_extended": top["heldout_rmse"],
+                "relative_reduction": top["relative_reduction"].get(sch, float("nan")) if sch else float("nan"),
+                "paired_difference": top["heldout"][sch]["paired_vs_baseline"] if sch else None,
+                "by_scheme": {k: {"scheme": held["nhkv"][k]["scheme"], "baseline": held["nhkv"][k]["rmse"],
+                                  "extended": held[top["key"]][k]["rmse"],
+                                  "relative_reduction": top["relative_reduction"][k],
+                                  "paired_vs_baseline": top["heldout"][k]["paired_vs_baseline"]} for k in schemes},
+                "elpd_diff": top["elpd_diff"], "elpd_se": top["elpd_se"],
+                "elpd_scheme": ("PSIS-LOO (az.loo) of the Laplace posterior of the whole-record fit, leaving out one "
+                                + ("experiment (log-likelihood summed over time)" if elpd["nhkv"].get("level") == "experiment"
+                                   else "sample (PSIS failed at the experiment level)")
+                                + "; elpd_diff = extended - baseline, elpd_se from az.compare")}
+    baseline["heldout"] = held["nhkv"]
+    baseline["elpd"] = elpd["nhkv"]
+    result = {"baseline": baseline, "constant_parameter_check": check, "candidates": candidates,
+              "cause": cause, "extended_model": ext, "gain": gain,
+              "phases": phases.to_list(),
+              "minima_t_star": phases.minima_t().tolist(),
+              "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": seed,
+              "runtime_s": time.perf_counter() - t0}
+    curves = {k: predict(cands[k], fits[k].z[None], obs, np.arange(obs.n_exp), phases.minima,
+                         obs.n_samples - 1)[0] for k in cands}
+    return Diagnosis(result, obs, phases, curves, observed)

@@ -1,0 +1,36 @@
+"""`imrbayes diagnose` end to end on a small synthetic dataset (polytropic, few replicates)."""
+
+import json
+
+from click.testing import CliRunner
+
+from imrbayes.cli import main
+
+
+def test_diagnose_cli_writes_contract(tmp_path):
+    data = tmp_path / "gel"
+    r = CliRunner().invoke(main, ["simulate", "--model", "nhkv", "--param", "G=6e3", "--param", "mu=0.08",
+                                  "--rmax", "300e-6:20e-6", "--ratio", "7.5:0.3", "--n-exp", "3", "--noise", "paper",
+                                  "--seed", "1", "--forward", "bubble=polytropic", "--out", str(data)])
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "run"
+    r = CliRunner().invoke(main, ["diagnose", str(data), "--out", str(out), "--quick", "--n-bootstrap", "2",
+                                  "--candidates", "qkv", "--no-loeo", "--forward", "bubble=polytropic"])
+    assert r.exit_code == 0, r.output
+    d = json.loads((out / "diagnosis.json").read_text())
+    for key in ("baseline", "constant_parameter_check", "candidates", "cause", "extended_model", "gain"):
+        assert key in d
+    assert d["baseline"]["model"] == "nhkv" and d["baseline"]["misfit_by_phase"]
+    assert d["constant_parameter_check"]["verdict"] in ("adequate", "inadequate")
+    assert d["candidates"][0]["mechanism"] == "strain-stiffening"
+    for k in ("heldout_rmse", "elpd_diff", "elpd_se", "estimate"):
+        assert k in d["candidates"][0]
+    html = (out / "report.html").read_text()
+    assert "data:image/png;base64," in html
+    assert (out / "figures" / "residuals.png").exists()
+
+
+def test_diagnose_bad_input(tmp_path):
+    r = CliRunner().invoke(main, ["diagnose", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2
+    assert "error" in r.output
