@@ -104,3 +104,27 @@ def test_runner_chunks_match_single_call():
     b = Runner(fm, chunk=3, progress=done.append).simulate(th, rm, rq, obs.t_star).R_star
     np.testing.assert_array_equal(a, b)
     assert done == [3, 3, 3, 1]
+
+
+def test_mienks_rejects_analysis_when_handoff_fails():
+    """Every analysed member of one experiment fails its hand-off: that window's analysis is
+    rejected for it (prior ensemble handed on, reported) and the run goes on."""
+    fm, obs = observations(n_exp=2, n_steps=60)
+
+    class Flaky(Runner):
+        hit = 0
+
+        def propagate(self, state, params, t_end, t_eval=None):
+            out = super().propagate(state, params, t_end, t_eval)
+            if np.size(t_eval) == 6 and state.t_star == 0.25 and state.n == 32 and not Flaky.hit:
+                Flaky.hit = 1
+                out.status[16:] = 3
+                out.R_star[16:] = np.nan
+            return out
+
+    res = fit_mienks(fm, obs, space(fm), MIEnKSSettings(n_ens=16, L=20, h=5, n_draws=5), seed=0, runner=Flaky(fm))
+    assert Flaky.hit == 1
+    assert [w["analysis_rejected"] for w in res.windows][2] == ["exp_002"]
+    assert sum(len(w["analysis_rejected"]) for w in res.windows) == 1
+    assert any("analysis rejected" in w for w in res.warnings)
+    assert np.isfinite(res.estimate["G"]["mean"])

@@ -24,6 +24,8 @@ parameters: log G, log mu)] is carried through the windows:
    evolved state (R, Rdot, p_b, stress and thermal/vapour fields) and its parameters form window
    j+1's prior ensemble. Members whose propagation failed (or whose analysed state is not
    physical: R <= 0, non-finite) are redrawn from the Gaussian of the valid members (counted).
+   If fewer than a quarter of an experiment's members survive, its analysis is rejected for that
+   window: the window's prior ensemble is handed on instead (reported in ``analysis_rejected``).
 
 Time-resolved estimate: normalised precision weighting of the windows holding each sample;
 aggregate estimate: the same over all windows with equal weights. The fitted curve is the
@@ -184,11 +186,41 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             failed[ok] = out.failed | ~np.all(np.isfinite(out.end.y), axis=1)
         Rseg = Rseg.reshape(G, N, -1)
         failed = failed.reshape(G, N)
+        Ynew = Ynew.reshape(G, N, ns)
+        Ea = Ea.copy()
+        rejected = []
+        weak = np.flatnonzero((~failed).sum(axis=1) < max(2, N // 4))
+        if weak.size:
+            # too few analysed members of these experiments survived: keep their window prior
+            # ensemble instead (analysis rejected for this window, reported), propagated the same way
+            Ep = res.prior_ensemble[weak].reshape(-1, ns + d)
+            gp = np.repeat(weak, N)
+            okp = np.all(np.isfinite(Ep), axis=1) & (Ep[:, 0] > 0)
+            Rp = np.full((Ep.shape[0], a2 - a + 1), np.nan)
+            Yp = Ep[:, :ns].copy()
+            fp = ~okp
+            if okp.any():
+                st = BatchState(Ep[okp, :ns].copy(), t[a], obs.rmax_m[gp[okp]], obs.req_m[gp[okp]])
+                o2 = runner.propagate(st, space.to_si(Ep[okp, ns:]), t[a2], t[a:a2 + 1])
+                Rp[okp], Yp[okp] = o2.R_star, o2.end.y
+                fp[okp] = o2.failed | ~np.all(np.isfinite(o2.end.y), axis=1)
+            fp = fp.reshape(weak.size, N)
+            for i, g in enumerate(weak):
+                if (~fp[i]).sum() < 2:
+                    raise RuntimeError(f"experiment {obs.names[g]!r}: fewer than two ensemble members survived "
+                                       f"window {j} (t* {t[a]:.3g}-{t[b]:.3g}), with and without the analysis")
+                Rseg[g] = Rp.reshape(weak.size, N, -1)[i]
+                Ynew[g] = Yp.reshape(weak.size, N, ns)[i]
+                Ea[g] = res.prior_ensemble[g]
+                failed[g] = fp[i]
+                rejected.append(obs.names[g])
+            warnings.append(f"window {j}: analysis rejected for {', '.join(rejected)} (too few analysed members "
+                            f"survived the hand-off; the window's prior ensemble was handed on)")
         with np.errstate(invalid="ignore"):
             seg = np.nanmean(np.where(failed[:, :, None], np.nan, Rseg), axis=1)
         stop = a2 + 1 if last else a2
         fitted[:, a:stop] = seg[:, :stop - a]
-        E = np.concatenate([Ynew.reshape(G, N, ns), Ea[:, :, ns:]], axis=2)
+        E = np.concatenate([Ynew, Ea[:, :, ns:]], axis=2)
         n_fail = int(failed.sum())
         n_red = _redraw_failed(E, failed, rng) if (n_fail and not last) else 0
         total_redraw += n_red + int(res.n_redrawn.sum())
@@ -202,6 +234,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                         "fusion": fus.to_dict(), "n_failed_iterations": res.n_failed.sum(axis=0).tolist(),
                         "n_redrawn_prior": int(res.n_redrawn.sum()), "n_failed_handoff": n_fail,
                         "n_redrawn_handoff": n_red, "stopped_experiments": int(res.stopped.sum()),
+                        "analysis_rejected": rejected,
                         "cost": np.nanmean(res.cost, axis=0).tolist(),
                         "per_experiment": [{"name": obs.names[g], "mean_internal": pm[g].tolist(),
                                             "sd_internal": np.sqrt(np.diag(pc[g])).tolist()} for g in range(G)]})
