@@ -25,19 +25,18 @@ from imrbayes.data.noise import noise_variance
 from imrbayes.diagnosis.lsq import fit_map, predict
 from imrbayes.ensemble import Observations
 
-__all__ = ["statistics", "bootstrap_check"]
+__all__ = ["statistics", "bootstrap_check", "window_drift"]
 
 STATS = ("drift", "misfit", "phase_misfit")
 
 
-def statistics(base, obs, phases, starts=None) -> dict:
-    """Window fits and the three statistics of ``obs`` under the baseline candidate ``base``."""
+def window_drift(cand, obs, phases, full) -> tuple:
+    """Largest squared Mahalanobis distance between the (log G, log mu) of the whole-record fit
+    ``full`` and fits of ``cand`` to the 1st and 2nd collapse; returns (drift, fits)."""
     K1, K2 = phases.collapse_index(1), phases.collapse_index(2)
-    fits = {}
-    full = fit_map(base, obs, minima=phases.minima, starts=starts)
-    fits["all"] = full
+    fits = {"all": full}
     for name, K in (("collapse-1", K1), ("collapse-2", K2)):
-        fits[name] = fit_map(base, obs, K=K, minima=phases.minima, starts=[full.z])
+        fits[name] = fit_map(cand, obs, K=K, minima=phases.minima, starts=[full.z])
     keys = list(fits)
     drift = 0.0
     for i in range(len(keys)):
@@ -49,6 +48,13 @@ def statistics(base, obs, phases, starts=None) -> dict:
                 drift = max(drift, float(dz @ np.linalg.solve(C, dz)))
             except np.linalg.LinAlgError:
                 pass
+    return drift, fits
+
+
+def statistics(base, obs, phases, starts=None) -> dict:
+    """Window fits and the three statistics of ``obs`` under the baseline candidate ``base``."""
+    full = fit_map(base, obs, minima=phases.minima, starts=starts)
+    drift, fits = window_drift(base, obs, phases, full)
     r2 = (obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2 / obs.P[None, 1:]
     per_phase = []
     for m in phases.masks():

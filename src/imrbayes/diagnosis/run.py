@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from imrbayes.diagnosis.check import bootstrap_check, statistics
+from imrbayes.diagnosis.check import bootstrap_check, statistics, window_drift
 from imrbayes.diagnosis.heldout import elpd_compare, forecast, loeo, loglik_draws, paired
 from imrbayes.diagnosis.lsq import predict
 from imrbayes.diagnosis.models import CANDIDATES, make_candidate
@@ -140,6 +140,17 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     for i, d in enumerate(candidates):
         d["rank"] = i + 1
     top = candidates[0] if candidates else None
+    if top is not None:   # does the top candidate remove the baseline's drift and phase misfit?
+        say(f"window drift of {top['key']}")
+        dr, wf = window_drift(cands[top["key"]], obs, phases, fits[top["key"]])
+        top["removes_baseline_symptoms"] = {
+            "drift_baseline": observed["drift"], "drift_extended": dr,
+            "drift_note": "largest squared Mahalanobis distance of (log G, log mu) between fits to the 1st, 2nd "
+                          "collapse and the whole record (same statistic as the check, not recalibrated)",
+            "window_estimates_extended": {k: dict(zip(top["estimate"], cands[top["key"]].to_si(f.z).tolist()))
+                                          for k, f in wf.items()},
+            "phase_chi2_baseline": [p["chi2_norm"] for p in baseline["misfit_by_phase"]],
+            "phase_chi2_extended": [p["chi2_norm"] for p in top["misfit_by_phase"]]}
     if check["verdict"] == "adequate":
         cause, ext = "none", None
     elif top is not None and top["score"] > 0:
