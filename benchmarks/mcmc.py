@@ -1,0 +1,128 @@
+"""emcee benchmark: one MIEnKS-MDA window of the methods.md §5 verification case.
+
+Window j (default 0) of L = 35 samples shifted by h = 5 (the paper's windows) over the 5 noisy
+experiments, weights beta_jk / L, the paper prior on (log G, log mu), each experiment started from
+its true state at t*_{jh} (the truth propagated from the maximum: the state an ideal hand-off would
+give). ``n_chains`` independent ensembles of ``n_walkers`` walkers, ``n_steps`` steps each, started
+from the prior; all ensembles' walkers x experiments share one forward batch per emcee half-step.
+
+For each forward setting: wall time, log-prob evaluations, forward member-runs and the time per
+member-run, steps per second, emcee's autocorrelation time tau and n_steps / tau (rule: >= 50),
+max R-hat, min bulk/tail ESS (one chain per ensemble), ESS per second, acceptance, and the posterior
+of G and mu against the truth. ``--json FILE`` writes the rows. The brief's default (32 walkers x
+2000 steps x 4 ensembles x 5 experiments = 1.28 M member-runs) takes hours with the thermal bubble
+on a laptop: use ``--steps``/``--chains`` to scale it down; the table's ``proj_default_h`` column
+gives the projected time of the default run from the measured cost per member-run.
+
+Usage: python benchmarks/mcmc.py [--forward converged imrv2-fd polytropic] [--walkers 32] [--steps 2000]
+                                 [--chains 4] [--window 0] [--seed 0] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from imrbayes.ensemble import ParamSpace
+from imrbayes.ensemble.output import jsonable
+from imrbayes.ensemble.windows import mda_weights, window_spans
+from imrbayes.forward import ForwardModel
+from imrbayes.mcmc import GaussianPrior, MCMCSettings, WindowTarget, run_mcmc
+from imrbayes.validation.suite import TRUTH, verification_data
+
+FORWARD = {"converged": {}, "imrv2-fd": {"scheme": "imrv2-fd"}, "polytropic": {"bubble": "polytropic"}}
+DEFAULT_RUNS = 32 * 2000 * 4 * 5          # member-runs of the default benchmark (5 experiments)
+
+
+def window_target(fm, obs, j: int, L: int = 35, h: int = 5):
+    """Window j's target with the experiments' true states at its start (see module doc)."""
+    n_steps = obs.t_star.size - 1
+    a, b = window_spans(n_steps, L, h)[j]
+    beta = mda_weights(n_steps, L, h)[j, a:b + 1]
+    st = fm.initial_state(obs.rmax_m, obs.req_m)
+    if a > 0:
+        ne = obs.rmax_m.size
+        out = fm.propagate(st, {"G": np.full(ne, TRUTH["G"]), "mu": np.full(ne, TRUTH["mu"])}, float(obs.t_star[a]))
+        st = out.end
+    space = ParamSpace.for_model(fm.constitutive)
+    prior = GaussianPrior.from_space(space)
+    tg = WindowTarget(fm, st, obs.t_star[a:b + 1], obs.R_star[:, a:b + 1], obs.P[a:b + 1], prior, beta / L,
+                      list(obs.names), description={"kind": "verification window", "index": int(j), "L": L, "h": h,
+                                                    "state": "truth propagated to the window start"})
+    return tg, (float(obs.t_star[a]), float(obs.t_star[b]))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--forward", nargs="+", default=["converged", "imrv2-fd"], choices=list(FORWARD))
+    ap.add_argument("--walkers", type=int, default=32)
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--chains", type=int, default=4)
+    ap.add_argument("--window", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--sequential", action="store_true", help="run the ensembles one by one (no shared batches)")
+    ap.add_argument("--hdf5", default=None, help="HDF5 file for the chains (default: a temporary file)")
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args()
+    import arviz as az
+
+    rows = []
+    print(f"{'forward':<11} {'wall [s]':>9} {'evals':>8} {'ms/run':>7} {'steps/s':>8} {'tau':>6} {'n/tau':>6} "
+          f"{'R-hat':>6} {'ESS':>6} {'ESS/s':>7} {'acc':>5} {'G [kPa]':>15} {'mu [Pa s]':>17} {'proj_default_h':>14}")
+    tmp = tempfile.TemporaryDirectory()
+    for fkey in args.forward:
+        fm = ForwardModel("nhkv", options=FORWARD[fkey])
+        fm.simulate({"G": [7e3, 7e3], "mu": [0.1, 0.1]}, 263e-6, 263e-6 / 7.58, [0.0, 0.1])   # compile/load
+        obs = verification_data(fm, args.seed)
+        tg, span = window_target(fm, obs, args.window)
+        s = MCMCSettings(n_walkers=args.walkers, n_steps=args.steps, n_chains=args.chains,
+                         lockstep=not args.sequential)
+        h5 = Path(args.hdf5) if args.hdf5 else Path(tmp.name) / f"{fkey}.h5"
+        t0 = time.perf_counter()
+        run = run_mcmc(tg, settings=s, seed=args.seed, backend=h5, name=f"{fkey}/window_{args.window:02d}",
+                       resume=False)
+        wall = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        dt = run.to_datatree(tg)
+        ll_wall = time.perf_counter() - t1
+        summ = az.summary(dt, var_names=["log_G", "log_mu", "G", "mu"], ci_prob=0.95, round_to="none")
+        runs = run.n_evals * tg.n_exp
+        ms = 1e3 * wall / max(1, runs)
+        ess = float(summ.loc[["log_G", "log_mu"], "ess_bulk"].min())
+        inside = {n: bool(summ.loc[n, "eti95_lb"] <= TRUTH[n] <= summ.loc[n, "eti95_ub"]) for n in TRUTH}
+        row = {"forward": fkey, "options": fm.options.to_dict(), "window": args.window, "t_star": span,
+               "walkers": args.walkers, "steps": args.steps, "chains": args.chains, "n_experiments": tg.n_exp,
+               "wall_s": wall, "loglik_recompute_s": ll_wall, "evals": run.n_evals, "member_runs": runs,
+               "failed_evals": tg.n_failed, "ms_per_member_run": ms, "steps_per_s": args.steps * args.chains / wall,
+               "tau_max": run.tau_max, "n_steps_over_tau": args.steps / run.tau_max, "tau_ok": bool(np.all(run.tau_ok)),
+               "rhat_max": float(summ.loc[["log_G", "log_mu"], "r_hat"].max()), "ess_bulk_min": ess,
+               "ess_tail_min": float(summ.loc[["log_G", "log_mu"], "ess_tail"].min()), "ess_per_s": ess / wall,
+               "acceptance": float(run.acceptance.mean()), "burn": run.burn, "thin": run.thin,
+               "posterior": {n: {"mean": float(summ.loc[n, "mean"]), "sd": float(summ.loc[n, "sd"]),
+                                 "eti95": [float(summ.loc[n, "eti95_lb"]), float(summ.loc[n, "eti95_ub"])]}
+                             for n in TRUTH},
+               "truth_inside_eti95": inside, "projected_default_h": DEFAULT_RUNS * ms / 3.6e6}
+        rows.append(row)
+        p = row["posterior"]
+        print(f"{fkey:<11} {wall:9.1f} {run.n_evals:8d} {ms:7.3f} {row['steps_per_s']:8.1f} {run.tau_max:6.1f} "
+              f"{row['n_steps_over_tau']:6.1f} {row['rhat_max']:6.3f} {ess:6.0f} {row['ess_per_s']:7.2f} "
+              f"{row['acceptance']:5.2f} {p['G']['mean'] / 1e3:7.3f}±{p['G']['sd'] / 1e3:6.3f} "
+              f"{p['mu']['mean']:8.4f}±{p['mu']['sd']:7.4f} {row['projected_default_h']:14.2f}", flush=True)
+    meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
+            "case": "methods.md §5 verification, 5 experiments, paper noise; MIEnKS window (L=35, h=5), weights "
+                    "beta/L, paper prior, true start state", "truth": TRUTH, "seed": args.seed,
+            "lockstep": not args.sequential}
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(jsonable({"meta": meta, "rows": rows}), fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
