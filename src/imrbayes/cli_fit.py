@@ -157,14 +157,16 @@ def _total_runs(method, s, n_exp, n_steps):
               help="Output folder (default: a new folder under ./imrbayes-runs/).")
 @click.option("--seed", type=int, default=None, help="Seed of every random draw [default: 0].")
 @click.option("--config", "config", type=click.Path(path_type=Path), default=None,
-              help="TOML file with any of these options and [forward], [prior], [<method>] tables.")
+              help="TOML file: a [fit] table (or the top level) with any of these options, and "
+                   "[fit.forward], [fit.prior], [fit.<method>] tables; the command line wins.")
 @click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
               help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
                    "scheme=imrv2-fd, nt=25, radial=km, ...); repeatable.")
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
-              help="Method setting (en4dvar: n_ens, n_iter, n_runs, rtps, t_end [t*]; mienks: L, h [samples], "
-                   "n_ens, n_iter, rtps; imr: n_G, n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, "
-                   "weighting=none|P; pimr: kappa); repeatable.")
+              help="Method setting (en4dvar: n_ens, n_iter, n_runs, rtps, t_end [t*], fusion=likelihood|prior; "
+                   "mienks: L, h [samples], n_ens, n_iter, rtps, obs_weight=mean|mda, fusion=chain|prior; imr: n_G, "
+                   "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
+                   "repeatable.")
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",
               help="Prior mean and sd in SI units (G [Pa], mu [Pa s]) [default: G=6e3:2.8e3, mu=0.209:0.088].")
 @click.option("--workers", type=int, default=None, help="Worker processes for the forward runs [default: 1].")
