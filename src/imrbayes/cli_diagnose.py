@@ -94,6 +94,10 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     options = ForwardOptions.from_dict(fopts, source="forward options")
     physics = Physics.from_overrides(ds.physics or None)
     out = _prepare_out(Path(out) if out is not None else None, "diagnose", ds.name, protect=Path(data))
+    if options.bubble == "thermal" and not quiet:
+        click.echo("imrbayes: warning: the thermal bubble model costs ~0.02-0.2 s per member solve; a diagnosis "
+                   "needs O(1e5) solves. For exploration use --quick, --forward bubble=polytropic (or "
+                   "scheme=imrv2-fd), --experiments and --no-loeo.", err=True)
     show = (not quiet) and sys.stderr.isatty()
     bar = None
     if show:

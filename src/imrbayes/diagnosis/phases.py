@@ -21,7 +21,7 @@ PHASE_NAMES = ("first-collapse", "second-collapse", "third-collapse", "fourth-co
 def find_minima(R, prominence: float = 0.1, min_sep: int = 6) -> np.ndarray:
     """Sample indices of the collapses (local minima) of one resampled curve: minima of the
     3-point running mean with the given prominence, later minima at least 0.4 x (first-collapse
-    index) apart, each moved to the lowest raw sample within +-1."""
+    index) apart, each moved to the lowest raw sample within +-3."""
     R = np.asarray(R, dtype=float)
     Rs = np.convolve(np.pad(R, 1, mode="edge"), np.ones(3) / 3, mode="valid")
     first, _ = find_peaks(-Rs, prominence=prominence, distance=min_sep)
@@ -31,7 +31,7 @@ def find_minima(R, prominence: float = 0.1, min_sep: int = 6) -> np.ndarray:
     idx, _ = find_peaks(-Rs, prominence=prominence, distance=sep)
     out = []
     for i in idx:
-        a, b = max(0, i - 1), min(R.size, i + 2)
+        a, b = max(0, i - 3), min(R.size, i + 4)
         out.append(a + int(np.argmin(R[a:b])))
     return np.array(out, dtype=int)
 

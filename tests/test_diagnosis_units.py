@@ -1,0 +1,69 @@
+"""Pieces of the diagnosis: phases from minima, candidate nesting, LM fit, ELPD comparison."""
+
+import numpy as np
+
+from imrbayes.diagnosis.heldout import elpd_compare
+from imrbayes.diagnosis.lsq import fit_map, predict
+from imrbayes.diagnosis.models import make_candidate
+from imrbayes.diagnosis.phases import phases_of
+from imrbayes.ensemble import Observations
+from imrbayes.forward import ForwardOptions
+
+OPTS = ForwardOptions(bubble="polytropic")
+T = np.arange(121) * 0.025
+RMAX = np.array([280e-6, 300e-6, 320e-6])
+REQ = RMAX / np.array([7.2, 7.5, 7.8])
+
+
+def _obs(R, P=1e-4):
+    return Observations(T, R, np.full(T.size, P), RMAX, REQ)
+
+
+def test_phases_follow_the_collapses():
+    base = make_candidate("nhkv", OPTS)
+    z = np.log([6e3, 0.05])
+    R = predict(base, z[None], _obs(np.ones((3, T.size))), np.arange(3), None, 120)[0]
+    ph = phases_of(_obs(R))
+    for i in range(3):
+        k = int(np.argmin(R[i, :45]))   # first collapse near t* = 0.9
+        assert abs(ph.minima[i, 0] - k) <= 1
+    assert ph.names[0] == "first-collapse" and len(ph.bounds) == len(ph.names) + 1
+    assert ph.minima[0, 1] > ph.minima[0, 0]
+
+
+def test_candidates_nest_nhkv():
+    base = make_candidate("nhkv", OPTS)
+    z = np.log([6e3, 0.08])
+    obs = _obs(np.ones((3, T.size)))
+    R0 = predict(base, z[None], obs, np.arange(3), None, 120)[0]
+    minima = np.array([[35, 55, 70]] * 3)
+    checks = {"qkv": [0.0], "carreau": [np.log(1e-12), 0.0], "damage": [0.0, 0.0]}
+    for key, extra in checks.items():
+        c = make_candidate(key, OPTS)
+        R = predict(c, np.concatenate([z, extra])[None], obs, np.arange(3), minima, 120)[0]
+        assert np.max(np.abs(R - R0)) < 2e-3, key
+    # zener (lambda2 = 0) tends to NHKV as lambda1 -> 0 (slowly; stiff for small lambda1)
+    c = make_candidate("zener", OPTS)
+    err = [np.max(np.abs(predict(c, np.concatenate([z, [np.log(l1)]])[None], obs, np.arange(3), None, 120)[0] - R0))
+           for l1 in (1e-6, 1e-7)]
+    assert err[1] < err[0]
+
+
+def test_map_fit_recovers_nhkv():
+    base = make_candidate("nhkv", OPTS)
+    z = np.log([7e3, 0.09])
+    R = predict(base, z[None], _obs(np.ones((3, T.size))), np.arange(3), None, 120)[0]
+    rng = np.random.default_rng(0)
+    obs = _obs(R + 0.005 * rng.standard_normal(R.shape), P=0.005 ** 2)
+    f = fit_map(base, obs)
+    assert np.all(np.abs(f.z - z) < 0.1), np.exp(f.z)
+    assert 0.5 < f.chi2 / f.n_data < 1.5
+
+
+def test_elpd_compare_prefers_the_better_model():
+    rng = np.random.default_rng(1)
+    good = -0.5 * rng.standard_normal((200, 5, 40)) ** 2
+    bad = good - 2.0 + 0.1 * rng.standard_normal((200, 5, 40))
+    out = elpd_compare({"nhkv": bad, "qkv": good})
+    assert out["qkv"]["elpd_diff"] > 0 and out["qkv"]["elpd_se"] >= 0
+    assert out["nhkv"]["elpd_diff"] == 0.0
