@@ -5,7 +5,11 @@
   batched for emcee's ``vectorize=True``;
 * :mod:`~imrbayes.mcmc.sampler` -- independent seeded emcee ensembles with an HDF5 backend
   (resumable), autocorrelation diagnostics, an ArviZ DataTree with the pointwise log-likelihood;
-* :mod:`~imrbayes.mcmc.compare` -- ensemble Gaussian vs MCMC per window (``compare.json``).
+* :mod:`~imrbayes.mcmc.compare` -- ensemble Gaussian vs MCMC per window (``compare.json``);
+* :mod:`~imrbayes.mcmc.windows` -- every MIEnKS-MDA window: targets, sampling, ``mcmc.nc``;
+* :mod:`~imrbayes.mcmc.figures` -- forest, KL/W2 against t*, pair plots.
+
+Design, agreement rule and numbers: ``docs/mcmc.md``.
 
 >>> prior = GaussianPrior.from_space(space)                       # ParamSpace of imrbayes.ensemble
 >>> target = fitting_window_target(fm, obs, prior, weight="en4dvar")
@@ -17,7 +21,10 @@
 from imrbayes.mcmc.compare import THRESHOLDS, compare_window, compare_windows, gaussian_kl, gaussian_w2
 from imrbayes.mcmc.sampler import MCMCRun, MCMCSettings, run_mcmc
 from imrbayes.mcmc.target import GaussianPrior, WindowTarget, fitting_window_target, window_target_from_ensemble
+from imrbayes.mcmc.windows import (compare_from_tree, mcmc_tree, mienks_window_specs, sample_windows, write_compare,
+                                   write_mcmc)
 
 __all__ = ["GaussianPrior", "WindowTarget", "fitting_window_target", "window_target_from_ensemble",
            "MCMCSettings", "MCMCRun", "run_mcmc", "THRESHOLDS", "compare_window", "compare_windows",
-           "gaussian_kl", "gaussian_w2"]
+           "gaussian_kl", "gaussian_w2", "mienks_window_specs", "sample_windows", "mcmc_tree", "write_mcmc",
+           "write_compare", "compare_from_tree"]
