@@ -41,6 +41,8 @@ def test_window_specs(fitted):
         np.testing.assert_allclose(specs[j].prior_mean, res.windows[j - 1]["mean_internal"])
         post_sd = np.sqrt(np.diag(res.windows[j - 1]["cov_internal"]))
         assert np.all(np.sqrt(np.diag(specs[j].prior_cov)) >= post_sd - 1e-15)
+    mda = mienks_window_specs(fm, obs, space, res.windows, {**s, "obs_weight": "mda"}, indices=[0])
+    assert mda[0].target.weight[0, 5] == pytest.approx(0.5)              # obs_weight="mda": beta only
     pr = chain_priors(res.windows, space.prior_mean, space.prior_cov, 0.7, "prior")
     assert all(np.allclose(m, space.prior_mean) for m, _ in pr)
     # window 1 starts from experiment n's window-0 mean propagated over [0, t_5]

@@ -384,7 +384,7 @@ def window_target_from_ensemble(model, ensemble: BatchState, t_eval, y, P, prior
     y : (N_exp, m) observed R*; P : (m,) noise variance.
     prior : GaussianPrior  -- (m_j, C_j) on the internal parameters.
     mda_weight : scalar or (m,) beta_jk; L : window length (samples) for the 1/L average
-        (default: m). The weight is ``beta_jk / L``.
+        (default: m; 1 for fit_mienks' ``obs_weight="mda"``). The weight is ``beta_jk / L``.
     n_exp : number of experiments (default: ``len(y)``); groups : (N_exp N_En,) experiment of each member.
     """
     y = np.atleast_2d(np.asarray(y, dtype=np.float64))

@@ -11,7 +11,8 @@ compare with:
   (correlations kept), chained from the parameter prior at window 0 --
   ``m_{j+1} = mu_j``, ``C_{j+1} = rtps_cov(C_j, Sigma_j, a)``; with ``fusion="prior"`` the
   parameter prior in every window;
-* **observation weight** beta_jk / L (:func:`imrbayes.ensemble.windows.mda_weights`);
+* **observation weight** beta_jk / L (:func:`imrbayes.ensemble.windows.mda_weights`;
+  ``obs_weight="mean"``, fit_mienks' default), or beta_jk (``obs_weight="mda"``);
 * **start state** of each experiment at t*_{jh}: the smoother's handed-off ensemble mean when it
   is given (``start_states``). ``fit_mienks`` does not expose it yet; until it does, the state is
   *reconstructed* by propagating each experiment from its maximum with piecewise-constant
@@ -116,7 +117,7 @@ def mienks_window_specs(fm, obs, space, windows, settings: dict, *, start_states
     space : ParamSpace (names, positive, prior_mean, prior_cov);
     windows : list of window dicts (``FitResult.windows`` / ``summary.json["windows"]``) with
         ``index``, ``t_star``, ``samples``, ``mean_internal``, ``cov_internal``, ``per_experiment``;
-    settings : the fit's MIEnKS settings (``L``, ``h``, ``rtps``, ``fusion``);
+    settings : the fit's MIEnKS settings (``L``, ``h``, ``rtps``, ``fusion``, ``obs_weight``);
     start_states : optional list (one per window) of the smoother's handed-off ensembles
         (BatchState of N_exp x N_En members, experiment-major) -- used instead of the reconstruction;
     indices : windows to build (default all); model : ForwardModel or Runner for the targets (default fm).
@@ -125,6 +126,10 @@ def mienks_window_specs(fm, obs, space, windows, settings: dict, *, start_states
 
     L, h = int(settings["L"]), int(settings["h"])
     rtps, fusion = float(settings.get("rtps", 0.7)), settings.get("fusion", "chain")
+    obs_weight = settings.get("obs_weight", "mean")
+    if obs_weight not in ("mean", "mda"):
+        raise InputError("obs_weight", f"must be 'mean' or 'mda', got {obs_weight!r}")
+    average = L if obs_weight == "mean" else 1          # weight beta_jk / average
     n_steps = obs.t_star.size - 1
     beta = mda_weights(n_steps, L, h)
     if len(windows) != beta.shape[0]:
@@ -141,7 +146,7 @@ def mienks_window_specs(fm, obs, space, windows, settings: dict, *, start_states
         prior = GaussianPrior(m, C, positive, tuple(space.names), "internal", box_sd)
         ens = recon[j] if start_states is None else start_states[j]
         tg = window_target_from_ensemble(model or fm, ens, obs.t_star[a:b + 1], obs.R_star[:, a:b + 1],
-                                         obs.P[a:b + 1], prior, mda_weight=beta[j, a:b + 1], L=L,
+                                         obs.P[a:b + 1], prior, mda_weight=beta[j, a:b + 1], L=average,
                                          n_exp=obs.R_star.shape[0], names=list(obs.names), index=j)
         src = "reconstructed" if start_states is None else "handed-off ensemble mean"
         tg.description["state"] = src
