@@ -6,8 +6,10 @@ Decision rule (documented in docs/diagnosis.md):
 * every candidate gets a held-out score = mean over the held-out schemes run (forecast of the 3rd
   collapse from a fit to the 2nd; leave-one-experiment-out) of the relative RMSE reduction against
   the baseline; candidates are ranked by it (ELPD difference as tie-break);
+* a candidate whose fitted extension contradicts its mechanism (damage with both retention
+  factors >= 1, strain-stiffening with alpha <= 0) is ranked after the others (``consistent``);
 * ``cause`` = ``none`` if the verdict is ``adequate``; otherwise the mechanism of the top-ranked
-  candidate if its score is > 0, else ``unexplained``.
+  candidate if it is consistent and its score is > 0, else ``unexplained``.
 """
 
 from __future__ import annotations
@@ -64,6 +66,19 @@ def _phase_misfit(obs, phases, fitted):
         out.append({**info, "rmse": float(np.sqrt(np.nanmean(r ** 2))),
                     "chi2_norm": float(np.nanmean(r ** 2 / obs.P[None, m])), "n_samples": int(m.sum() * obs.n_exp)})
     return out
+
+
+def _consistent(c) -> tuple:
+    """Does the fitted extension point the way its mechanism says? (damage: some retention factor
+    < 1; strain-stiffening: alpha > 0). Other candidates: always."""
+    e = c["estimate"]
+    if c["key"] == "damage":
+        ok = e["a_G"]["median"] < 1.0 or e["a_mu"]["median"] < 1.0
+        return ok, "" if ok else "fitted a_G, a_mu >= 1: stiffening across collapses, not damage"
+    if c["key"] in ("qkv", "fung"):
+        ok = e["alpha"]["median"] > 0.0
+        return ok, "" if ok else "fitted alpha <= 0: strain softening, not stiffening"
+    return True, ""
 
 
 def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = None, seed: int = 0,
@@ -136,7 +151,10 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
             "relative_reduction": rel, "score": score,
             "elpd_diff": elpd[key]["elpd_diff"], "elpd_se": elpd[key]["elpd_se"],
             "elpd": elpd[key], "converged": bool(f.converged)})
-    candidates.sort(key=lambda d: (-(d["score"] if np.isfinite(d["score"]) else -np.inf), -d["elpd_diff"]))
+    for d in candidates:
+        d["consistent"], d["consistency_note"] = _consistent(d)
+    candidates.sort(key=lambda d: (not d["consistent"], -(d["score"] if np.isfinite(d["score"]) else -np.inf),
+                                   -d["elpd_diff"]))
     for i, d in enumerate(candidates):
         d["rank"] = i + 1
     top = candidates[0] if candidates else None
@@ -153,7 +171,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
             "phase_chi2_extended": [p["chi2_norm"] for p in top["misfit_by_phase"]]}
     if check["verdict"] == "adequate":
         cause, ext = "none", None
-    elif top is not None and top["score"] > 0:
+    elif top is not None and top["score"] > 0 and top["consistent"]:
         cause, ext = top["mechanism"], top["model"]
     else:
         cause, ext = "unexplained", None
