@@ -22,28 +22,8 @@ from scipy import stats
 
 __all__ = ["forest_figure", "divergence_figure", "pair_figure", "comparison_figures"]
 
-_SCALE = {"G": (1e-3, "G [kPa]"), "mu": (1.0, r"$\mu$ [Pa s]")}
+from imrbayes.ensemble.figures import _figure, _label, _save  # one set of figure helpers
 _ENS, _MC = "tab:blue", "tab:red"
-
-
-def _figure(w, h):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(w, h), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _save(fig, path):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    return path
-
-
-def _label(name):
-    return _SCALE.get(name, (1.0, name))
 
 
 def _window_node(tree, index):
