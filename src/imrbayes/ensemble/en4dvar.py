@@ -36,8 +36,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, rtps
-from imrbayes.ensemble.gn import gauss_newton
+from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods
 from imrbayes.ensemble.result import FitResult, gaussian_estimate, loglik_pointwise, rmse, si_covariance
 from imrbayes.ensemble.runner import Runner
 from imrbayes.errors import InputError
@@ -95,75 +94,118 @@ def last_index(obs, t_end) -> int:
 
 
 def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: int = 0,
-                runner: Runner | None = None, progress=None) -> FitResult:
+                runner: Runner | None = None, progress=None, execution=None) -> FitResult:
     """Fit constant parameters to every experiment and fuse (see module doc).
 
-    fm : ForwardModel; obs : Observations; space : ParamSpace; seed: numpy default_rng seed.
+    fm : ForwardModel; obs : Observations; space : ParamSpace; seed: the run seed (each experiment
+    draws from its own stream, from the seed and its unit id). Units
+    (:mod:`imrbayes.ensemble.units`): one per experiment (``exp=003``: every cycle), then one per
+    experiment after the fusion (``post/exp=003``: fitted curves, draws' log-likelihood);
+    ``execution`` says where they run and are checkpointed (default: this process, with ``runner``).
+    An experiment whose unit fails is left out of the fusion (counted, reported in
+    ``details["failed_units"]`` and the warnings).
     Returns a :class:`FitResult` with per-experiment posteriors in ``per_experiment``.
     """
+    from imrbayes.ensemble.units import Execution, en4dvar_post_unit, en4dvar_unit, fm_spec, register_runner
+    from imrbayes.execution import Unit, unit_id
+
     s = settings or En4DVarSettings()
     s.check()
     t0 = time.perf_counter()
+    ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
-    rng = np.random.default_rng(seed)
+    spec, token = fm_spec(fm), register_runner(runner)
+    rng = np.random.default_rng(seed)                   # the fused posterior's draws (units have their own)
     K = last_index(obs, s.t_end)
     t_eval = obs.t_star[:K + 1]
     y, weight = fit_window(obs, K)
-    n_exp, N, d = obs.n_exp, s.n_ens, space.n
-
-    def evaluate(groups, Z):
-        params = space.to_si(Z)
-        out = runner.simulate(params, obs.rmax_m[groups], obs.req_m[groups], t_eval)
-        return out.R_star[:, 1:], out.failed | ~np.all(np.isfinite(out.R_star), axis=1)
-
-    mean = np.broadcast_to(space.prior_mean, (n_exp, d)).copy()
-    cov = np.broadcast_to(space.prior_cov, (n_exp, d, d)).copy()
+    n_exp, d = obs.n_exp, space.n
+    base = {"spec": spec, "runner": token, "space": space, "settings": s, "t_eval": t_eval}
+    rep = ex.run([Unit(unit_id(exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
+                                        "y": y[n], "weight": weight})
+                  for n in range(n_exp)], en4dvar_unit, seed, desc="en4dvar experiments")
+    warnings = []
+    failed_units = []
+    ok = []
+    for n in range(n_exp):
+        uid = unit_id(exp=n)
+        if uid in rep.results:
+            ok.append(n)
+        else:
+            err = rep.failures[uid].error
+            failed_units.append({"unit": uid, "experiment": obs.names[n], "error": err})
+            warnings.append(f"experiment {obs.names[n]!r} failed ({err}); left out of the fusion")
+    if not ok:
+        raise RuntimeError(f"every experiment failed (e.g. {failed_units[0]['error']})")
+    R = [rep.results[unit_id(exp=n)] for n in ok]
+    member_runs = sum(int(r["member_runs"]) for r in R)
+    failed_runs = sum(int(r["failed_member_runs"]) for r in R)
     cycles = []
-    res = None
-    for r in range(s.n_runs):
-        E0 = np.stack([draw(rng, mean[n], cov[n], N, exact=s.exact_moments) for n in range(n_exp)])
-        res = gauss_newton(E0, evaluate, y, weight, n_iter=s.n_iter, rng=rng)
-        infl = rtps(res.prior_anoms, res.anoms, s.rtps)
-        mean = res.mean.copy()
-        cov = np.einsum("gnd,gne->gde", infl, infl)
-        cycles.append({"cycle": r + 1, "cost": res.cost.tolist(), "n_failed": res.n_failed.tolist(),
-                       "n_redrawn": res.n_redrawn.tolist(), "stopped": res.stopped.tolist()})
+    for c in range(s.n_runs):
+        cyc = [r["cycles"][c] for r in R]
+        cycles.append({"cycle": c + 1, "cost": [np.asarray(x["cost"]).tolist() for x in cyc],
+                       "n_failed": [np.asarray(x["n_failed"]).tolist() for x in cyc],
+                       "n_redrawn": [int(x["n_redrawn"]) for x in cyc], "stopped": [bool(x["stopped"]) for x in cyc],
+                       "experiments": [obs.names[n] for n in ok]})
         if progress is not None:
-            progress(r + 1)
-    post_mean, post_cov = res.mean, res.cov
+            progress(c + 1)
+    post_mean = np.stack([r["mean"] for r in R])
+    post_cov = np.stack([r["cov"] for r in R])
     if s.fusion == "prior":
         fus = fuse(post_mean, post_cov, space.prior_mean, space.prior_cov)
     else:
-        qa = res.prior_anoms
-        fus = fuse_likelihoods(post_mean, post_cov, res.prior_ensemble.mean(axis=1),
-                               np.einsum("gnd,gne->gde", qa, qa), space.prior_mean, space.prior_cov)
-    warnings = []
+        fus = fuse_likelihoods(post_mean, post_cov, np.stack([r["prior_mean"] for r in R]),
+                               np.stack([r["prior_cov"] for r in R]), space.prior_mean, space.prior_cov)
     if fus.notes:
         warnings.extend(fus.notes)
-    if np.any(res.stopped):
-        warnings.append(f"{int(res.stopped.sum())} experiment(s) stopped early: too many failed members")
-    # fitted curves at the fused median (exp of the fused mean) and at each experiment's own mean
-    pts = np.vstack([np.repeat(space.to_si(fus.mean)[None, :], n_exp, axis=0), space.to_si(post_mean)])
-    out = runner.simulate(pts, np.tile(obs.rmax_m, 2), np.tile(obs.req_m, 2), t_eval)
-    fitted = np.full_like(obs.R_star, np.nan)
-    fitted[:, :K + 1] = out.R_star[:n_exp]
-    own = np.full_like(obs.R_star, np.nan)
-    own[:, :K + 1] = out.R_star[n_exp:]
-    mask = np.zeros(obs.R_star.shape, dtype=bool)
-    mask[:, 1:K + 1] = True
-    per = []
-    for n in range(n_exp):
-        per.append({"name": obs.names[n], "estimate": gaussian_estimate(space, post_mean[n], post_cov[n]),
-                    "mean_internal": post_mean[n].tolist(), "cov_internal": post_cov[n].tolist(),
-                    "rmse_own": rmse(own[n], obs.R_star[n], mask[n])})
-    # posterior draws (1 chain) of the fused Gaussian, with their pointwise log-likelihood
+    n_stopped = sum(bool(r["stopped"]) for r in R)
+    if n_stopped:
+        warnings.append(f"{n_stopped} experiment(s) stopped early: too many failed members")
+    # posterior draws (1 chain) of the fused Gaussian
     Zd = draw(rng, fus.mean, fus.cov, s.n_draws, exact=False)
     post = {nm: space.to_si(Zd)[None, :, i] for i, nm in enumerate(space.names)}
+    want_ll = s.loglik and s.n_draws > 0
+    # after the fusion, per experiment: R* at the fused median, at its own mean, at every draw
+    fused_si = space.to_si(fus.mean)[None, :]
+    post_units = []
+    for i, n in enumerate(ok):
+        pts = [fused_si, space.to_si(post_mean[i])[None, :]] + ([space.to_si(Zd)] if want_ll else [])
+        post_units.append(Unit(unit_id(post="fit", exp=n), {"spec": spec, "runner": token, "t_eval": t_eval,
+                                                             "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
+                                                             "points": np.vstack(pts)}))
+    prep = ex.run(post_units, en4dvar_post_unit, seed, desc="en4dvar fitted curves")
+    fitted = np.full_like(obs.R_star, np.nan)
+    own = np.full_like(obs.R_star, np.nan)
+    Yd = np.full((s.n_draws, n_exp, K), np.nan)
+    for n in ok:
+        uid = unit_id(post="fit", exp=n)
+        if uid not in prep.results:
+            err = prep.failures[uid].error
+            failed_units.append({"unit": uid, "experiment": obs.names[n], "error": err})
+            warnings.append(f"experiment {obs.names[n]!r}: fitted curves failed ({err})")
+            continue
+        r = prep.results[uid]
+        member_runs += int(r["member_runs"])
+        failed_runs += int(r["failed_member_runs"])
+        fitted[n, :K + 1] = r["R_star"][0]
+        own[n, :K + 1] = r["R_star"][1]
+        if want_ll:
+            Yd[:, n] = r["R_star"][2:, 1:]
+    mask = np.zeros(obs.R_star.shape, dtype=bool)
+    mask[:, 1:K + 1] = True
+    mask[[n for n in range(n_exp) if not np.isfinite(fitted[n, 1:K + 1]).any()]] = False
+    per = []
+    for n in range(n_exp):
+        if n not in ok:
+            per.append({"name": obs.names[n], "failed": True,
+                        "error": next(f["error"] for f in failed_units if f["experiment"] == obs.names[n])})
+            continue
+        i = ok.index(n)
+        per.append({"name": obs.names[n], "estimate": gaussian_estimate(space, post_mean[i], post_cov[i]),
+                    "mean_internal": post_mean[i].tolist(), "cov_internal": post_cov[i].tolist(),
+                    "rmse_own": rmse(own[n], obs.R_star[n], mask[n]) if mask[n].any() else float("nan")})
     ll = None
-    if s.loglik and s.n_draws > 0:
-        th = np.repeat(space.to_si(Zd), n_exp, axis=0)
-        o = runner.simulate(th, np.tile(obs.rmax_m, s.n_draws), np.tile(obs.req_m, s.n_draws), t_eval)
-        Yd = o.R_star[:, 1:].reshape(s.n_draws, n_exp, K)
+    if want_ll:
         lp = loglik_pointwise(Yd, y[None], obs.P[1:K + 1])
         ll = {"R": np.where(np.isfinite(lp), lp, -1e300)[None]}
     details = {"settings": asdict(s), "n_fit_steps": K, "t_end_star": float(obs.t_star[K]),
@@ -171,7 +213,8 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
                "fused_mean_internal": fus.mean.tolist(), "fused_cov_internal": fus.cov.tolist(),
                "fused_cov_si": si_covariance(space, fus.mean, fus.cov).tolist(),
                "parameter_space": space.describe(),
-               "member_runs": runner.n_member_runs, "failed_member_runs": runner.n_failed,
+               "member_runs": member_runs, "failed_member_runs": failed_runs,
+               "failed_units": failed_units, "experiments_used": [obs.names[n] for n in ok],
                "gauss_newton": "normalised anomalies: H = I + (1/N_t) sum Y'^T P^-1 Y', grad = w - ...; identical "
                                "iterates to methods.md's (N_En - 1) form with unnormalised anomalies",
                "fitted_curve": "forward run at the fused posterior median exp(mean of log parameters)"}

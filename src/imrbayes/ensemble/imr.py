@@ -163,15 +163,25 @@ def _grid_summary(J, Jmin, n, p, Gg, mg, opt):
 
 
 def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, runner: Runner | None = None,
-            progress=None) -> FitResult:
-    """Grid search of (G, mu); see module doc. ``progress(n)`` is called per forward chunk."""
+            progress=None, execution=None) -> FitResult:
+    """Grid search of (G, mu); see module doc. ``progress(n)`` is called after experiment n.
+
+    Units (:mod:`imrbayes.ensemble.units`): one per experiment (``exp=003``: its cost on the whole
+    grid); ``execution`` says where they run and are checkpointed (default: this process, with
+    ``runner``). An experiment whose unit fails is left out of the cost (counted, reported in
+    ``details["failed_units"]`` and the warnings)."""
+    from imrbayes.ensemble.units import Execution, fm_spec, imr_unit, register_runner
+    from imrbayes.execution import Unit, unit_id
+
     s = settings or IMRSettings()
     s.check()
     t0 = time.perf_counter()
     names = tuple(space.names)
     if "G" not in names or "mu" not in names:
         raise InputError("--method imr", f"the IMR grid is over G and mu; model parameters are {list(names)}")
+    ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
+    spec, token = fm_spec(fm), register_runner(runner)
     Kn = fit_indices(obs, s.window, s.collapse_prominence)
     Kmax = int(Kn.max())
     t_eval = obs.t_star[:Kmax + 1]
@@ -187,19 +197,30 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
     for e, K in enumerate(Kn):
         mask[e, 1:K + 1] = True
     cw = np.ones(obs.n_samples) if s.weighting == "none" else 1.0 / obs.P
-    Jn = np.empty((obs.n_exp, n_pts))
-    n_failed = 0
-    for e in range(obs.n_exp):                         # one batch per experiment keeps memory at n_pts x K
-        out = runner.simulate(theta, np.full(n_pts, obs.rmax_m[e]), np.full(n_pts, obs.req_m[e]), t_eval)
-        r = out.R_star[:, 1:Kn[e] + 1] - obs.R_star[e, 1:Kn[e] + 1]
-        j = np.sum(cw[1:Kn[e] + 1] * r * r, axis=1)
-        bad = out.failed | ~np.isfinite(j)
-        n_failed += int(bad.sum())
-        Jn[e] = np.where(bad, np.inf, j)
+    units = [Unit(unit_id(exp=e), {"spec": spec, "runner": token, "theta": theta, "rmax": float(obs.rmax_m[e]),
+                                   "req": float(obs.req_m[e]), "t_eval": t_eval, "K": int(Kn[e]), "y": obs.R_star[e],
+                                   "cw": cw}) for e in range(obs.n_exp)]
+    rep = ex.run(units, imr_unit, seed, desc="imr experiments")
+    Jn = np.full((obs.n_exp, n_pts), np.nan)
+    n_failed, member_runs, warnings, failed_units = 0, 0, [], []
+    for e in range(obs.n_exp):
+        uid = unit_id(exp=e)
+        if uid not in rep.results:
+            err = rep.failures[uid].error
+            failed_units.append({"unit": uid, "experiment": obs.names[e], "error": err})
+            warnings.append(f"experiment {obs.names[e]!r} failed ({err}); left out of the cost")
+            continue
+        r = rep.results[uid]
+        Jn[e] = r["J"]
+        n_failed += int(r["n_failed"])
+        member_runs += int(r["member_runs"])
         if progress is not None:
             progress(e + 1)
+    ok = [e for e in range(obs.n_exp) if unit_id(exp=e) in rep.results]
+    if not ok:
+        raise RuntimeError(f"every experiment failed (e.g. {failed_units[0]['error']})")
     Jn = Jn.reshape(obs.n_exp, s.n_G, s.n_mu)
-    J = Jn.mean(axis=0)
+    J = Jn[ok].mean(axis=0)
     if not np.any(np.isfinite(J)):
         raise RuntimeError("every grid point failed in the forward model")
     i, j = np.unravel_index(np.argmin(J), J.shape)
@@ -207,7 +228,7 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
     Jmin = float(J[i, j])
     ref = _quadratic_refine(J, Gg, mg, i, j) if s.refine else None
     refined = ref[0] if ref is not None else opt
-    n_res, p = int(Kn.sum()), 2
+    n_res, p = int(Kn[ok].sum()), 2
     level_J = confidence_level(Jmin, n_res, p, s.level)
     est, pmf = _grid_summary(J, Jmin, n_res, p, Gg, mg, refined)
     laplace = None
@@ -217,6 +238,11 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
         laplace = {"cov": cov.tolist(), "sd": np.sqrt(np.diag(cov)).tolist()}
     per = []
     for e in range(obs.n_exp):
+        if e not in ok:
+            per.append({"name": obs.names[e], "failed": True,
+                        "error": next(f["error"] for f in failed_units if f["experiment"] == obs.names[e])})
+            mask[e] = False
+            continue
         ie, je = np.unravel_index(np.argmin(Jn[e]), Jn[e].shape)
         r_e = _quadratic_refine(Jn[e], Gg, mg, ie, je) if s.refine else None
         o = r_e[0] if r_e is not None else np.array([Gg[ie], mg[je]])
@@ -257,7 +283,8 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
                                              "rule": "J <= J_min (1 + p/(n-p) F_{p,n-p}(level)) (Beale; residuals "
                                                      "treated as independent, so optimistic)"},
                "laplace": laplace, "uncertainty_from": "laplace" if use_laplace else "grid",
-               "n_grid_points": n_pts, "member_runs": runner.n_member_runs,
+               "n_grid_points": n_pts, "member_runs": member_runs + th.shape[0],
+               "failed_units": failed_units, "experiments_used": [obs.names[e] for e in ok],
                "failed_grid_runs": n_failed, "window": s.window,
                "fixed_parameters": {nm: defaults[nm] for nm in names if nm not in ("G", "mu")}, "last_sample": Kn.tolist(),
                "rmse": rmse(fitted, obs.R_star, mask)}
@@ -268,4 +295,4 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
         extra_groups={"landscape": {"J": J, "J_experiment": Jn}},
         extra_dims={"J": ["G_grid", "mu_grid"], "J_experiment": ["experiment", "G_grid", "mu_grid"]},
         coords={"G_grid": Gg, "mu_grid": mg, "experiment": list(obs.names)},
-        runtime_s=time.perf_counter() - t0)
+        runtime_s=time.perf_counter() - t0, warnings=warnings)

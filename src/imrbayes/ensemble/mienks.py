@@ -36,6 +36,7 @@ the whole last window).
 from __future__ import annotations
 
 import time
+import warnings as _warnings
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -46,7 +47,6 @@ from imrbayes.ensemble.result import FitResult, gaussian_estimate, rmse, si_cova
 from imrbayes.ensemble.runner import Runner
 from imrbayes.ensemble.windows import mda_weights, n_windows, time_resolved, window_spans
 from imrbayes.errors import InputError
-from imrbayes.forward import BatchState
 
 __all__ = ["MIEnKSSettings", "fit_mienks"]
 
@@ -112,132 +112,110 @@ def rtps_cov(prior_c, post_c, a):
 
 
 def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int = 0,
-               runner: Runner | None = None, progress=None) -> FitResult:
-    """Run MIEnKS-MDA over every window (see module doc); ``progress(j)`` after window j."""
+               runner: Runner | None = None, progress=None, execution=None) -> FitResult:
+    """Run MIEnKS-MDA over every window (see module doc); ``progress(j)`` after window j.
+
+    Units (:mod:`imrbayes.ensemble.units`): one per window and experiment (``window=004/exp=003``,
+    its own random stream), windows in order, the experiments of a window independent; each unit's
+    result holds the experiment's hand-off ensemble. ``execution``
+    (:class:`~imrbayes.ensemble.units.Execution`) says where they run and are checkpointed (default:
+    this process, with ``runner``). An experiment whose unit fails is left out of this and every
+    later window (counted, reported in ``details["failed_units"]`` and the warnings)."""
+    from imrbayes.ensemble.units import Execution, fm_spec, mienks_unit, register_runner
+    from imrbayes.execution import Unit, unit_id
+
     s = settings or MIEnKSSettings()
     n_steps = obs.n_samples - 1
     s.check(n_steps)
     t0c = time.perf_counter()
+    ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
-    rng = np.random.default_rng(seed)
+    spec, token = fm_spec(fm), register_runner(runner)
+    rng = np.random.default_rng(seed)                   # the posterior draws at the end (units have their own)
     spans = window_spans(n_steps, s.L, s.h)
     beta = mda_weights(n_steps, s.L, s.h)
     nw = spans.shape[0]
     G, N, d = obs.n_exp, s.n_ens, space.n
-    st0 = fm.initial_state(np.repeat(obs.rmax_m, N), np.repeat(obs.req_m, N))
-    ns = st0.y.shape[1]
-    E = np.empty((G, N, ns + d))
-    E[:, :, :ns] = st0.y.reshape(G, N, ns)
-    for g in range(G):
-        E[g, :, ns:] = draw(rng, space.prior_mean, space.prior_cov, N)
+    ns = None
     t = obs.t_star
     fitted = np.full(obs.R_star.shape, np.nan)
     win_mean, win_cov, windows, total_redraw, total_fail = [], [], [], 0, 0
     chain_m, chain_c = space.prior_mean.copy(), space.prior_cov.copy()
     warnings = []
+    alive = list(range(G))
+    handoff = {g: None for g in range(G)}             # each experiment's ensemble entering the next window
+    failed_units, member_runs, failed_runs = [], 0, 0
     for j, (a, b) in enumerate(spans):
-        t_eval = t[a:b + 1]
-
-        def evaluate(groups, Z, t0=t[a], t1=t[b], t_eval=t_eval):
-            Z = np.asarray(Z, dtype=np.float64)
-            ok = np.all(np.isfinite(Z), axis=1) & (Z[:, 0] > 0)
-            Y = np.full((Z.shape[0], t_eval.size), np.nan)
-            failed = ~ok
-            if ok.any():
-                st = BatchState(Z[ok, :ns].copy(), t0, obs.rmax_m[groups[ok]], obs.req_m[groups[ok]])
-                out = runner.propagate(st, space.to_si(Z[ok, ns:]), t1, t_eval)
-                Y[ok] = out.R_star
-                failed[ok] = out.failed | ~np.all(np.isfinite(out.R_star), axis=1)
-            return Y, failed
-
-        y = obs.R_star[:, a:b + 1]
+        last = j == nw - 1
+        a2 = b if last else a + s.h
         weight = beta[j, a:b + 1] / ((s.L if s.obs_weight == "mean" else 1.0) * obs.P[a:b + 1])
-        res = gauss_newton(E, evaluate, y, weight, n_iter=s.n_iter, rng=rng, max_redraw=s.max_redraw,
-                           transform=s.transform)
-        pm, pc = res.mean[:, ns:], res.cov[:, ns:, ns:]
+        units = [Unit(unit_id(window=j, exp=g),
+                      {"spec": spec, "runner": token, "space": space, "settings": s, "t": t, "a": int(a),
+                       "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
+                       "req": float(obs.req_m[g]), "y": obs.R_star[g, a:b + 1], "weight": weight, "E": handoff[g]})
+                 for g in alive]
+        rep = ex.run(units, mienks_unit, seed, desc=f"mienks window {j + 1}/{nw}")
+        ok, lost = [], []
+        for g in alive:
+            uid = unit_id(window=j, exp=g)
+            if uid in rep.results:
+                ok.append(g)
+            else:
+                err = rep.failures[uid].error
+                lost.append(obs.names[g])
+                failed_units.append({"unit": uid, "experiment": obs.names[g], "window": j, "error": err})
+                warnings.append(f"window {j}: experiment {obs.names[g]!r} failed ({err}); left out from this "
+                                f"window on")
+        if not ok:
+            raise RuntimeError(f"window {j}: every experiment failed (e.g. {failed_units[-1]['error']})")
+        alive = ok
+        R = [rep.results[unit_id(window=j, exp=g)] for g in ok]
+        ns = int(R[0]["state_size"])
+        pm, pc = np.stack([r["pm"] for r in R]), np.stack([r["pc"] for r in R])
         if s.fusion == "prior":
             fus = fuse(pm, pc, space.prior_mean, space.prior_cov)
         else:
-            qa = res.prior_anoms[:, :, ns:]
-            qm = res.prior_ensemble[:, :, ns:].mean(axis=1)
-            fus = fuse_likelihoods(pm, pc, qm, np.einsum("gnd,gne->gde", qa, qa), chain_m, chain_c)
+            fus = fuse_likelihoods(pm, pc, np.stack([r["qm"] for r in R]), np.stack([r["qc"] for r in R]),
+                                   chain_m, chain_c)
             chain_m = fus.mean
             chain_c = rtps_cov(chain_c, fus.cov, s.rtps)
         win_mean.append(fus.mean)
         win_cov.append(fus.cov)
-        # RTPS on the parameters (and the state if asked), then hand-off
-        f = rtps_factors(res.prior_anoms, res.anoms, s.rtps)
-        if not s.rtps_state:
-            f[:, :ns] = 1.0
-        Ea = res.mean[:, None, :] + np.sqrt(N - 1.0) * res.anoms * f[:, None, :]
-        last = j == nw - 1
-        a2 = b if last else a + s.h
-        flat = Ea.reshape(G * N, ns + d)
-        ok = np.all(np.isfinite(flat), axis=1) & (flat[:, 0] > 0)
-        Rseg = np.full((G * N, a2 - a + 1), np.nan)
-        Ynew = flat[:, :ns].copy()
-        failed = ~ok
-        if ok.any():
-            groups = np.repeat(np.arange(G), N)
-            st = BatchState(flat[ok, :ns].copy(), t[a], obs.rmax_m[groups[ok]], obs.req_m[groups[ok]])
-            out = runner.propagate(st, space.to_si(flat[ok, ns:]), t[a2], t[a:a2 + 1])
-            Rseg[ok] = out.R_star
-            Ynew[ok] = out.end.y
-            failed[ok] = out.failed | ~np.all(np.isfinite(out.end.y), axis=1)
-        Rseg = Rseg.reshape(G, N, -1)
-        failed = failed.reshape(G, N)
-        Ynew = Ynew.reshape(G, N, ns)
-        Ea = Ea.copy()
+        stop = a2 + 1 if last else a2
         rejected = []
-        weak = np.flatnonzero((~failed).sum(axis=1) < max(2, N // 4))
-        if weak.size:
-            # too few analysed members of these experiments survived: keep their window prior
-            # ensemble instead (analysis rejected for this window, reported), propagated the same way
-            Ep = res.prior_ensemble[weak].reshape(-1, ns + d)
-            gp = np.repeat(weak, N)
-            okp = np.all(np.isfinite(Ep), axis=1) & (Ep[:, 0] > 0)
-            Rp = np.full((Ep.shape[0], a2 - a + 1), np.nan)
-            Yp = Ep[:, :ns].copy()
-            fp = ~okp
-            if okp.any():
-                st = BatchState(Ep[okp, :ns].copy(), t[a], obs.rmax_m[gp[okp]], obs.req_m[gp[okp]])
-                o2 = runner.propagate(st, space.to_si(Ep[okp, ns:]), t[a2], t[a:a2 + 1])
-                Rp[okp], Yp[okp] = o2.R_star, o2.end.y
-                fp[okp] = o2.failed | ~np.all(np.isfinite(o2.end.y), axis=1)
-            fp = fp.reshape(weak.size, N)
-            for i, g in enumerate(weak):
-                if (~fp[i]).sum() < 2:
-                    raise RuntimeError(f"experiment {obs.names[g]!r}: fewer than two ensemble members survived "
-                                       f"window {j} (t* {t[a]:.3g}-{t[b]:.3g}), with and without the analysis")
-                Rseg[g] = Rp.reshape(weak.size, N, -1)[i]
-                Ynew[g] = Yp.reshape(weak.size, N, ns)[i]
-                Ea[g] = res.prior_ensemble[g]
-                failed[g] = fp[i]
+        for g, r in zip(ok, R):
+            fitted[g, a:stop] = r["seg"][:stop - a]
+            handoff[g] = r["E"]
+            if r["rejected"]:
                 rejected.append(obs.names[g])
+            member_runs += int(r["member_runs"])
+            failed_runs += int(r["failed_member_runs"])
+        if rejected:
             warnings.append(f"window {j}: analysis rejected for {', '.join(rejected)} (too few analysed members "
                             f"survived the hand-off; the window's prior ensemble was handed on)")
-        with np.errstate(invalid="ignore"):
-            seg = np.nanmean(np.where(failed[:, :, None], np.nan, Rseg), axis=1)
-        stop = a2 + 1 if last else a2
-        fitted[:, a:stop] = seg[:, :stop - a]
-        E = np.concatenate([Ynew, Ea[:, :, ns:]], axis=2)
-        n_fail = int(failed.sum())
-        n_red = _redraw_failed(E, failed, rng) if (n_fail and not last) else 0
-        total_redraw += n_red + int(res.n_redrawn.sum())
-        total_fail += n_fail + int(res.n_failed.sum())
+        n_failed_iter = np.sum([r["n_failed_iter"] for r in R], axis=0)
+        n_fail = sum(int(r["n_failed_handoff"]) for r in R)
+        n_red = sum(int(r["n_redrawn_handoff"]) for r in R)
+        n_red_prior = sum(int(r["n_redrawn_prior"]) for r in R)
+        total_redraw += n_red + n_red_prior
+        total_fail += n_fail + int(n_failed_iter.sum())
         if fus.notes:
             warnings.append(f"window {j}: " + "; ".join(fus.notes))
+        with np.errstate(invalid="ignore"), _warnings.catch_warnings():
+            _warnings.simplefilter("ignore", RuntimeWarning)
+            cost = np.nanmean(np.stack([r["cost"] for r in R]), axis=0)
         windows.append({"index": j, "t_star": [float(t[a]), float(t[b])], "samples": [int(a), int(b)],
                         **gaussian_estimate(space, fus.mean, fus.cov),
                         "cov": si_covariance(space, fus.mean, fus.cov).tolist(),
                         "mean_internal": fus.mean.tolist(), "cov_internal": fus.cov.tolist(),
-                        "fusion": fus.to_dict(), "n_failed_iterations": res.n_failed.sum(axis=0).tolist(),
-                        "n_redrawn_prior": int(res.n_redrawn.sum()), "n_failed_handoff": n_fail,
-                        "n_redrawn_handoff": n_red, "stopped_experiments": int(res.stopped.sum()),
-                        "analysis_rejected": rejected,
-                        "cost": np.nanmean(res.cost, axis=0).tolist(),
-                        "per_experiment": [{"name": obs.names[g], "mean_internal": pm[g].tolist(),
-                                            "sd_internal": np.sqrt(np.diag(pc[g])).tolist()} for g in range(G)]})
+                        "fusion": fus.to_dict(), "n_failed_iterations": n_failed_iter.tolist(),
+                        "n_redrawn_prior": n_red_prior, "n_failed_handoff": n_fail,
+                        "n_redrawn_handoff": n_red, "stopped_experiments": sum(bool(r["stopped"]) for r in R),
+                        "analysis_rejected": rejected, "failed_experiments": lost,
+                        "cost": cost.tolist(),
+                        "per_experiment": [{"name": obs.names[g], "mean_internal": pm[i].tolist(),
+                                            "sd_internal": np.sqrt(np.diag(pc[i])).tolist()}
+                                           for i, g in enumerate(ok)]})
         if progress is not None:
             progress(j + 1)
     win_mean, win_cov = np.array(win_mean), np.array(win_cov)
@@ -258,7 +236,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         tr_group[f"{nm}_sd"] = np.array([x[nm]["sd"] for x in tr])
         tr_group[f"{nm}_hdi95"] = np.array([x[nm]["hdi95"] for x in tr])
     details = {"settings": asdict(s), "n_windows": nw, "spans": spans.tolist(),
-               "member_runs": runner.n_member_runs, "failed_member_runs": runner.n_failed,
+               "member_runs": member_runs, "failed_member_runs": failed_runs,
+               "failed_units": failed_units, "experiments_used": [obs.names[g] for g in alive],
                "failed_members": total_fail, "redrawn_members": total_redraw, "state_size": ns,
                "aggregate_mean_internal": agg_m.tolist(), "aggregate_cov_internal": agg_c.tolist(),
                "parameter_space": space.describe(), "rmse": rmse(fitted, obs.R_star, mask),
