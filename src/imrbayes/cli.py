@@ -27,7 +27,11 @@ class _Group(click.Group):
                 raise
             click.echo(f"imrbayes: error: {exc}", err=True)
             ctx.exit(2)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
+            signum = getattr(exc, "signum", None)   # execution.RunInterrupted: SIGTERM/SIGINT during units
+            if signum is not None:
+                click.echo(f"imrbayes: {exc}; finished units are saved, continue with --resume", err=True)
+                ctx.exit(128 + int(signum))
             click.echo("imrbayes: interrupted", err=True)
             ctx.exit(130)
         except Exception as exc:  # one line, never a traceback

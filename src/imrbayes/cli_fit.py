@@ -22,6 +22,7 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import main
+from imrbayes.cli_exec import check_options, data_fingerprint, echo_execution, execution_options, open_execution
 from imrbayes.errors import InputError
 
 METHOD_NAMES = ("imr", "pimr", "en4dvar", "mienks")
@@ -122,7 +123,7 @@ def _load_config(path) -> dict:
     for name in METHOD_NAMES + ("forward", "prior"):
         if name not in cfg and isinstance(data.get(name), dict):
             cfg[name] = data[name]
-    known = {"method", "model", "out", "seed", "workers", "quiet", "camera", "dt_star", "n_steps", "noise",
+    known = {"method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "dt_star", "n_steps", "noise",
              "forward", "prior", "set", *METHOD_NAMES}
     unknown = {k for k, v in cfg.items() if k not in known and not (section is data and isinstance(v, dict))}
     if unknown:
@@ -169,7 +170,10 @@ def _total_runs(method, s, n_exp, n_steps):
                    "repeatable.")
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",
               help="Prior mean and sd in SI units (G [Pa], mu [Pa s]) [default: G=6e3:2.8e3, mu=0.209:0.088].")
-@click.option("--workers", type=int, default=None, help="Worker processes for the forward runs [default: 1].")
+@click.option("--workers", type=int, default=None,
+              help="Worker processes for the units (imr, en4dvar: experiments; mienks: the experiments of each "
+                   "window) [default: 1: in this process].")
+@execution_options(with_workers=False)
 @click.option("--camera", default=None, help="Keep one camera view of multi-camera data.")
 @click.option("--dt-star", type=float, default=None, help="Grid step in t* [-] [default: 0.025].")
 @click.option("--n-steps", type=int, default=None, help="Grid steps [-] [default: 120].")
@@ -177,7 +181,7 @@ def _total_runs(method, s, n_exp, n_steps):
               help="P_k: across-experiment sample variance (auto with >= 2 experiments) or the §5 noise model.")
 @click.option("--quiet", is_flag=True, default=None, help="Print nothing but errors.")
 def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, workers, camera, dt_star, n_steps,
-            noise, quiet):
+            noise, quiet, scheduler, resume, retry_failed):
     """Fit a constitutive model to DATA (dataset folder, .csv or .mat) with one inference method.
 
     Writes summary.json (estimate: SI units, G [Pa], mu [Pa s]; times as t*), posterior.nc (ArviZ)
@@ -195,10 +199,14 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     if method not in METHOD_NAMES:
         raise InputError("--method", f"unknown method {method!r}; choose one of {', '.join(METHOD_NAMES)}")
     model = pick("model", model, "nhkv")
-    seed = int(pick("seed", seed, 0))
-    workers = int(pick("workers", workers, 1))
-    if workers < 1:
-        raise InputError("--workers", f"must be at least 1, got {workers}")
+    seed = pick("seed", seed, 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise InputError("--seed", f"must be a non-negative integer, got {seed!r}")
+    workers = pick("workers", workers, 1)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InputError("--workers", f"must be a positive integer, got {workers!r}")
+    scheduler = pick("scheduler", scheduler, None)
+    check_options(workers, scheduler, resume, retry_failed)
     quiet = bool(pick("quiet", quiet, False))
     camera = pick("camera", camera, None)
     dt_star = float(pick("dt_star", dt_star, 0.025))
@@ -218,31 +226,37 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
                                                        **_kv(settings, "--set")})
     prior = _prior(cfg.get("prior", {}), _kv(priors, "--prior"))
     ds = load_dataset(data, camera=camera)
-    pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, noise=noise)
+    pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, noise=noise, skip_failed=True)
     fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **_kv(forward, "--forward")}
     fm = ForwardModel(model, options=ForwardOptions.from_dict(fopts, source="forward options"),
                       physics_overrides=ds.physics or None)
     obs = Observations.from_preprocessed(pre)
     space = ParamSpace.for_model(fm.constitutive, prior)
     out = _prepare_out(Path(out) if out is not None else None, f"fit-{method}", ds.name, protect=Path(data))
-    show = (not quiet) and sys.stderr.isatty()
-    bar = None
-    if show:
-        from tqdm import tqdm
-        bar = tqdm(total=_total_runs(method, s, obs.n_exp, obs.n_samples - 1), unit="run",
-                   desc=f"{method} forward runs", file=sys.stderr, dynamic_ncols=True)
-    runner = Runner(fm, workers=workers, progress=(bar.update if bar is not None else None))
-    try:
-        res = fit_fn(fm, obs, space, s, seed=seed, runner=runner)
-    finally:
-        runner.close()
-        if bar is not None:
-            bar.close()
+    # everything that determines the numbers (and nothing that does not: workers, scheduler, --out, --quiet)
+    run_config = {"command": "fit", "method": method, "model": model, "seed": seed,
+                  "settings": dataclasses.asdict(s), "prior": space.describe(), "forward": fm.describe(),
+                  "preprocessing": {"dt_star": dt_star, "n_steps": n_steps, "noise": noise, "camera": camera},
+                  "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, obs.t_collapse_star,
+                                           names=obs.names),
+                  "skipped_experiments": [x["name"] for x in pre.skipped]}
+    runner = Runner(fm)
+    with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
+                        retry_failed=retry_failed, quiet=quiet) as execution:
+        res = fit_fn(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
+        exec_summary = execution.summary()
+    exec_summary["skipped_experiments"] = list(pre.skipped)
     summary = summary_dict(res, obs, seed=seed, extra={
         "forward": fm.describe(), "prior": space.describe(), "preprocessing": pre.to_dict(arrays=False),
         "data": str(data), "warnings_preprocessing": list(pre.warnings),
         "command": {"name": "fit", "method": method, "model": model, "seed": seed, "workers": workers,
+                    "scheduler": scheduler, "resume": bool(resume),
                     "config": str(config) if config else None, "imrbayes_version": __version__},
+        "execution": exec_summary,
+        "failures": {"skipped_experiments": list(pre.skipped),
+                     "failed_units": res.details.get("failed_units", []),
+                     "failed_member_runs": res.details.get("failed_member_runs", res.details.get("failed_grid_runs")),
+                     "redrawn_members": res.details.get("redrawn_members")},
         "total_runtime_s": time.perf_counter() - t_start})
     write_summary(out / "summary.json", summary)
     posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
@@ -261,6 +275,10 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
         click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'} and {len(written)} figure(s)")
         for w in list(pre.warnings) + list(res.warnings):
             click.echo(f"imrbayes: warning: {w}", err=True)
+    echo_execution(exec_summary, quiet)
+    if pre.skipped:
+        click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
+                   + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)
 
 
 @main.command("validate")

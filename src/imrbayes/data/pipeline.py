@@ -110,6 +110,7 @@ class Preprocessed:
     choices: dict
     warnings: list
     dataset: Dataset
+    skipped: list = field(default_factory=list)
 
     @property
     def names(self) -> list:
@@ -131,6 +132,7 @@ class Preprocessed:
             "experiments": [e.to_dict() for e in self.experiments],
             "summary": summarise(self.experiments),
             "warnings": self.warnings,
+            "skipped": self.skipped,
         }
         if arrays:
             out["grid"] = {"t_star": _json(self.t_star), "P": _json(self.P),
@@ -155,7 +157,8 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
                        rmax_method: str = "parabola", collapse_method: str = "parabola",
                        interp: str = "linear", n_tail: int = 20, rebound_frac: float = 0.05,
                        noise: str = "auto", rho: float | None = None, p8: float | None = None,
-                       p_floor_abs: float = P_FLOOR_ABS, p_floor_rel: float = P_FLOOR_REL) -> Preprocessed:
+                       p_floor_abs: float = P_FLOOR_ABS, p_floor_rel: float = P_FLOOR_REL,
+                       skip_failed: bool = False) -> Preprocessed:
     """Align, nondimensionalise and resample every experiment; estimate P_k.
 
     Parameters
@@ -178,6 +181,12 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         verification noise model (``auto`` with one experiment).
     rho, p8 : float, optional
         Density [kg/m^3] and far-field pressure [Pa]; default meta.json ``physics`` or 1064, 101325.
+    skip_failed : bool
+        An experiment whose preprocessing fails (record ends before its first collapse or before
+        one grid step, Req >= Rmax, anything else that raises) is left out, listed in
+        ``skipped`` (name, source, one-line error) and in the warnings, instead of stopping the
+        whole dataset; only when every experiment fails is it an error. Default False: the first
+        failure raises.
 
     Raises
     ------
@@ -196,12 +205,27 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
     p8 = dataset.p8 if p8 is None else float(p8)
     summaries, records = [], []
     warnings = list(dataset.warnings)
+    skipped = []
     for exp in dataset.experiments:
-        s, (ts, Rs) = _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star,
-                           synthetic=dataset.meta.get("synthetic") is True)
+        try:
+            s, (ts, Rs) = _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star,
+                               synthetic=dataset.meta.get("synthetic") is True)
+            if skip_failed and s.n_steps_available < 1:
+                raise InputError(exp.source, f"experiment {exp.name!r} ends at t* = {s.t_last_star:.3g}, "
+                                             f"before one grid step dt* = {dt_star}")
+        except Exception as exc:
+            if not skip_failed:
+                raise
+            msg = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+            skipped.append({"name": exp.name, "source": str(exp.source), "error": msg.splitlines()[0] if msg else ""})
+            warnings.append(f"experiment {exp.name!r} left out: preprocessing failed ({skipped[-1]['error']})")
+            continue
         summaries.append(s)
         records.append((ts, Rs))
         warnings.extend(f"{exp.name}: {w}" for w in s.warnings)
+    if not summaries:
+        raise InputError(dataset.path, f"preprocessing failed for every experiment ({len(skipped)}; first: "
+                                       f"{skipped[0]['error']})")
     n_avail = [s.n_steps_available for s in summaries]
     n_use = min(int(n_steps), min(n_avail))
     if n_use < 1:
@@ -239,7 +263,8 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
                         req_m=np.array([s.req_m for s in summaries]),
                         req_sd_m=np.array([s.req_sd_m for s in summaries]),
                         t_collapse_star=np.array([s.t_collapse_star for s in summaries]),
-                        experiments=summaries, choices=choices, warnings=warnings, dataset=dataset)
+                        experiments=summaries, choices=choices, warnings=warnings, dataset=dataset,
+                        skipped=skipped)
 
 
 def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star, synthetic=False):

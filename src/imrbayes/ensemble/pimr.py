@@ -133,8 +133,11 @@ def _cost(tc_meas, tc_pred):
 
 
 def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0, runner=None,
-             progress=None) -> FitResult:
-    """Fit (G, mu) to the measured first-collapse times ``obs.t_collapse_star`` (n_exp,)."""
+             progress=None, execution=None) -> FitResult:
+    """Fit (G, mu) to the measured first-collapse times ``obs.t_collapse_star`` (n_exp,).
+
+    Closed form on a grid, in this process: no units (``execution`` is accepted and unused; the run
+    directory still records the configuration)."""
     s = settings or PIMRSettings()
     t0 = time.perf_counter()
     names = space.names

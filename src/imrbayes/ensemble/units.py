@@ -23,6 +23,7 @@ caller's own model (or runner) is used.
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -63,8 +64,18 @@ def register_runner(runner) -> str:
 
 
 def runner_for(data: dict):
-    """The runner of a unit: the caller's (same process) or a fresh one on the rebuilt model."""
+    """The runner of a unit: the caller's (same process) or a fresh one on the rebuilt model.
+
+    ``IMRBAYES_UNIT_DELAY_S`` (seconds, a testing aid: makes every unit slow enough to interrupt
+    a small run part-way) delays each unit; it never changes a result."""
     from imrbayes.ensemble.runner import Runner
+
+    delay = os.environ.get("IMRBAYES_UNIT_DELAY_S")
+    if delay:
+        try:
+            time.sleep(max(0.0, float(delay)))
+        except ValueError:
+            pass
 
     r = _RUNNERS.get(data.get("runner"))
     return r if r is not None else Runner(_fm(data["spec"]))
