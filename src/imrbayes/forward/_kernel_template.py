@@ -271,31 +271,184 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
                 * _dissipation_q(xj, yj, p)
             out[i_tm + j] = (1.0 + xi) ** 2 / (lt * R) * adv * dT + cdm * d2T + phi
             coef[2 * nt + j] = cdm
-    # Radial equation.
+    out[1] = _rddot(R, U, pb, pdot, S, Sdot, J, g, flags[F_RADIAL])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rddot(R, U, pb, pdot, S, Sdot, J, g, radial):
+    """Wall acceleration from the radial equation (1 RP, 2 KM in pressure, 3/4 enthalpy forms)."""
     W = g[G_INV_WE]
-    radial = flags[F_RADIAL]
     if radial == 1:
-        out[1] = (pb - 1.0 - W / R + S - 1.5 * U * U) / R
-    elif radial == 2:
+        return (pb - 1.0 - W / R + S - 1.5 * U * U) / R
+    if radial == 2:
         c = g[G_CSTAR]
         num = (1.0 + U / c) * (pb - 1.0 - W / R + S) + R / c * (pdot + W * U / (R * R) + Sdot) \
             - 1.5 * (1.0 - U / (3.0 * c)) * U * U
-        out[1] = num / ((1.0 - U / c) * R + J / c)
+        return num / ((1.0 - U / c) * R + J / c)
+    n = g[G_TAIT_N]
+    bt = g[G_TAIT_B]
+    sig = 1.0 + bt
+    nu = (n - 1.0) / n
+    pw = pb - W / R + bt + S
+    hb = sig / nu * ((pw / sig) ** nu - 1.0)
+    hh = (sig / pw) ** (1.0 / n)
+    if radial == 3:
+        c = g[G_CSTAR]
     else:
-        n = g[G_TAIT_N]
-        bt = g[G_TAIT_B]
-        sig = 1.0 + bt
-        nu = (n - 1.0) / n
-        pw = pb - W / R + bt + S
-        hb = sig / nu * ((pw / sig) ** nu - 1.0)
-        hh = (sig / pw) ** (1.0 / n)
-        if radial == 3:
-            c = g[G_CSTAR]
+        c = math.sqrt(n * pw / (pw / sig) ** (1.0 / n))
+    num = (1.0 + U / c) * hb + R / c * hh * (pdot + W * U / (R * R) + Sdot) \
+        - 1.5 * (1.0 - U / (3.0 * c)) * U * U
+    return num / ((1.0 - U / c) * R + J * hh / c)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rhs_gas(y, g, p, flags, out):
+    """``out = dy/dt`` for the polytropic bubble (no fields): rhs() with thermal = 0, lean enough
+    for the explicit integrator, whose cost is a few RHS evaluations per step."""
+    R = y[0]
+    U = y[1]
+    kappa = g[G_KAPPA]
+    pv = g[G_PV]
+    pb = (g[G_PB0] - pv) * R ** (-3.0 * kappa) + pv
+    if flags[F_PDOT] == 0:
+        pdot = -3.0 * kappa * pb * U / R       # IMRv2: total pressure, vapour included
+    else:
+        pdot = -3.0 * kappa * (pb - pv) * U / R  # exact rate of the algebraic pressure
+    naux = flags[F_NAUX]
+    S, Sdot, J = _stress(R, U, y[3:3 + naux], p, g[G_REQ], out[3:3 + naux])
+    out[0] = U
+    out[2] = 0.0
+    out[1] = _rddot(R, U, pb, pdot, S, Sdot, J, g, flags[F_RADIAL])
+
+
+@njit(cache=True, error_model="numpy")
+def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, atol, h_init, max_steps, r_out,
+                              A, B, BH, C, order):
+    """integrate_member() for the polytropic bubble with an explicit pair (AI = 0): same step
+    control, dense output and status codes, without the implicit machinery, and with the last
+    stage reused as the next step's first when the pair is FSAL (Dormand-Prince)."""
+    n = y.shape[0]
+    ns = B.shape[0]
+    expo = -1.0 / order
+    fsal = C[ns - 1] == 1.0
+    for j in range(ns):
+        if A[ns - 1, j] != B[j]:
+            fsal = False
+    F = np.zeros((ns, n))
+    Y = np.zeros(n)
+    ynew = np.zeros(n)
+    fnew = np.zeros(n)
+    neval = t_eval.shape[0]
+    k_eval = 0
+    while k_eval < neval and t_eval[k_eval] < t0 - 1e-12:
+        r_out[k_eval] = np.nan
+        k_eval += 1
+    while k_eval < neval and t_eval[k_eval] <= t0 + 1e-12:
+        r_out[k_eval] = y[0]
+        k_eval += 1
+    t = t0
+    piece = _piece(t + 1e-14, breaks)
+    _rhs_gas(y, g, ptab[piece], flags, F[0])
+    h = h_init if h_init > 0.0 else 1e-4
+    nsteps = 0
+    nrej = 0
+    status = OK
+    # Gustafsson's predictive step control on top of the standard one (as in Hairer's RADAU5):
+    # when the step must shrink step after step (the approach to a collapse) it anticipates the
+    # trend instead of overshooting and rejecting every other step.
+    h_acc = -1.0
+    err_acc = 1.0
+    while t < t1 - 1e-14 * max(1.0, abs(t1)):
+        if nsteps >= max_steps:
+            status = FAIL_MAXSTEPS
+            break
+        t_stop = t1
+        if piece < breaks.shape[0] and breaks[piece] < t_stop:
+            t_stop = breaks[piece]
+        if h < 1e-13:
+            status = FAIL_STEP
+            break
+        last = False
+        if t + h >= t_stop - 1e-14:
+            h = t_stop - t
+            last = True
+        pr = ptab[piece]
+        ok = True
+        for s in range(1, ns):
+            for k in range(n):
+                acc = y[k]
+                for j in range(s):
+                    acc += h * A[s, j] * F[j, k]
+                Y[k] = acc
+            if not (Y[0] > 0.0) or not math.isfinite(Y[1]):
+                ok = False
+                break
+            _rhs_gas(Y, g, pr, flags, F[s])
+        err = 0.0
+        if ok:
+            for k in range(n):
+                yn = y[k]
+                e = 0.0
+                for j in range(ns):
+                    yn += h * B[j] * F[j, k]
+                    e += h * (B[j] - BH[j]) * F[j, k]
+                ynew[k] = yn
+                sc = atol + rtol * max(abs(y[k]), abs(yn))
+                err += (e / sc) ** 2
+            err = math.sqrt(err / n)
+            if not math.isfinite(err) or not (ynew[0] > 0.0):
+                ok = False
+        if not ok or err > 1.0:
+            h *= 0.25 if not ok else max(0.2, 0.9 * err ** expo)
+            nrej += 1
+            continue
+        t_new = t_stop if last else t + h
+        if fsal:
+            for k in range(n):
+                fnew[k] = F[ns - 1, k]
         else:
-            c = math.sqrt(n * pw / (pw / sig) ** (1.0 / n))
-        num = (1.0 + U / c) * hb + R / c * hh * (pdot + W * U / (R * R) + Sdot) \
-            - 1.5 * (1.0 - U / (3.0 * c)) * U * U
-        out[1] = num / ((1.0 - U / c) * R + J * hh / c)
+            _rhs_gas(ynew, g, pr, flags, fnew)
+        bad = False
+        for k in range(n):
+            if not math.isfinite(fnew[k]):
+                bad = True
+        if bad:
+            h *= 0.25
+            nrej += 1
+            continue
+        while k_eval < neval and t_eval[k_eval] <= t_new + 1e-12:
+            if t_eval[k_eval] >= t_new - 1e-12:
+                r_out[k_eval] = ynew[0]
+            else:
+                r_out[k_eval] = _hermite5(t_eval[k_eval], t, t_new, y[0], y[1], F[0, 1],
+                                          ynew[0], ynew[1], fnew[1])
+            k_eval += 1
+        for k in range(n):
+            y[k] = ynew[k]
+            F[0, k] = fnew[k]
+        t = t_new
+        nsteps += 1
+        if last and piece < breaks.shape[0] and t >= breaks[piece] - 1e-14:
+            # New parameters from here: the dense output above used the left limit.
+            piece += 1
+            _rhs_gas(y, g, ptab[piece], flags, F[0])
+        fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** expo))
+        if not last:
+            if h_acc > 0.0 and err > 0.0:
+                fac = min(fac, max(0.2, min(5.0, 0.9 * (h / h_acc) * (err * err / err_acc) ** expo)))
+            h_acc = h
+            err_acc = max(1e-2, err)
+        h *= fac
+    if status != OK:
+        for k in range(k_eval, neval):
+            r_out[k] = np.nan
+    if status == OK:
+        for k in range(n):
+            if not math.isfinite(y[k]):
+                status = FAIL_NONFINITE
+        if not (y[0] > 0.0):
+            status = FAIL_RADIUS
+    return status, nsteps, nrej
 
 
 @njit(cache=True, error_model="numpy")
@@ -758,9 +911,13 @@ def _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks,
     if not finite or not (ym[0] > 0.0):
         status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
         return
-    st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
-                                  rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols,
-                                  field_weight, filter_err)
+    if flags[F_THERMAL] == 0 and gamma == 0.0:
+        st, ns, nr = integrate_member_explicit(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, rtol, atol,
+                                               h_init, max_steps, R[m], AE, B, BH, C, order)
+    else:
+        st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
+                                      rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols,
+                                      field_weight, filter_err)
     status[m] = st
     nsteps[m] = ns
     nrej[m] = nr

@@ -167,5 +167,5 @@ def group_matrix(groups: dict, n: int) -> np.ndarray:
     """Stack ``groups`` into the kernel's ``(n, len(GROUP_NAMES))`` float64 array."""
     out = np.empty((n, len(GROUP_NAMES)))
     for j, name in enumerate(GROUP_NAMES):
-        out[:, j] = np.broadcast_to(np.asarray(groups[name], dtype=float), (n,))
+        out[:, j] = groups[name]      # scalar or (n,): plain assignment broadcasts
     return out

@@ -18,7 +18,8 @@ DEFAULT_RESOLUTION = {"imrv2-fd": (25, 25), "converged": (64, 64)}
 DEFAULT_STRETCH = 1.5
 # (rtol, atol) per integrator, chosen so that R has <= 1e-4 pointwise relative error against a
 # tight solve on the LIC benchmark batch (benchmarks/forward.py, row d).
-DEFAULT_TOLERANCES = {"ark548": (3e-6, 3e-8), "ark324": (1e-7, 1e-9), "dopri5": (1e-7, 1e-9)}
+DEFAULT_TOLERANCES = {"ark548": (3e-6, 3e-8), "ark324": (1e-7, 1e-9), "dopri5": (1e-7, 1e-9),
+                      "dop853": (3e-6, 3e-8)}
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,8 @@ class ForwardOptions:
     rtol, atol : integrator tolerances (per component: atol + rtol |y|); None: the integrator's
         default (DEFAULT_TOLERANCES).
     integrator : ``ark548`` (5th-order implicit-explicit; default with a thermal bubble), ``ark324``
-        (3rd order), or ``dopri5`` (explicit; default for the polytropic bubble, which is not stiff).
+        (3rd order), ``dop853`` (explicit 8th order; default for the polytropic bubble, which is not
+        stiff) or ``dopri5`` (explicit 5th order).
     """
 
     radial: str = "km"
@@ -78,8 +80,11 @@ class ForwardOptions:
             v = getattr(self, name)
             if v is not None and (int(v) != v or v < 5):
                 raise InputError(src, f"{name} must be an integer >= 5, got {v!r}")
-        if self.integrator not in (None, "ark548", "ark324", "dopri5"):
-            raise InputError(src, f"integrator must be ark548, ark324 or dopri5, got {self.integrator!r}")
+        if self.integrator not in (None, "ark548", "ark324", "dopri5", "dop853"):
+            raise InputError(src, f"integrator must be ark548, ark324, dopri5 or dop853, got {self.integrator!r}")
+        if self.integrator in ("dopri5", "dop853") and self.thermal:
+            raise InputError(src, f"integrator {self.integrator} is explicit: it needs bubble=polytropic "
+                                  "(the thermal bubble's diffusion is stiff; use ark548)")
         # IMRv2's coarse uniform grid amplifies integration error more through the collapses
         # (3e-6 gave 9e-4 and 1e-6 gave 6e-4 in R on the benchmark batch), so it gets a tighter ARK tolerance.
         tol = (2e-7, 2e-9) if (self.scheme == "imrv2-fd" and self.method == "ark548") else DEFAULT_TOLERANCES[self.method]
@@ -117,7 +122,7 @@ class ForwardOptions:
         """The time integrator actually used."""
         if self.integrator:
             return self.integrator
-        return "ark548" if self.thermal else "dopri5"
+        return "ark548" if self.thermal else "dop853"
 
     @property
     def resolution(self) -> tuple:

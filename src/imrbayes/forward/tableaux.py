@@ -89,4 +89,23 @@ def dopri5():
     return dict(AE=AE, AI=np.zeros((7, 7)), b=b, bhat=bhat, c=c, gamma=0.0, order=5)
 
 
-TABLEAUX = {"ark324": ark324, "ark548": ark548, "dopri5": dopri5}
+def dop853():
+    """Dormand-Prince 8(5,3), explicit, with scipy's coefficients (Hairer's DOP853), written as a
+    13-stage first-same-as-last pair: stage 13 is f(y_new) (row A[12] = b), and b - bhat is the
+    5th-order error estimate E5 (Hairer's combined 5/3 estimate is not used)."""
+    from scipy.integrate._ivp import dop853_coefficients as d
+
+    ns = d.N_STAGES + 1
+    AE = np.zeros((ns, ns))
+    AE[:d.N_STAGES, :d.N_STAGES] = d.A[:d.N_STAGES, :d.N_STAGES]
+    b = np.zeros(ns)
+    b[:d.N_STAGES] = d.B
+    AE[d.N_STAGES, :] = b
+    c = np.zeros(ns)
+    c[:d.N_STAGES] = d.C[:d.N_STAGES]
+    c[d.N_STAGES] = 1.0
+    bhat = b - d.E5
+    return dict(AE=AE, AI=np.zeros((ns, ns)), b=b, bhat=bhat, c=c, gamma=0.0, order=8)
+
+
+TABLEAUX = {"ark324": ark324, "ark548": ark548, "dopri5": dopri5, "dop853": dop853}
