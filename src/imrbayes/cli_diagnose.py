@@ -15,6 +15,7 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
+from imrbayes.cli_exec import check_options, data_fingerprint, echo_execution, execution_options, open_execution
 from imrbayes.errors import InputError
 
 
@@ -41,8 +42,9 @@ from imrbayes.errors import InputError
 @click.option("--dt-star", type=float, default=0.025, show_default=True, help="Grid step in t* [-].")
 @click.option("--n-steps", type=int, default=120, show_default=True, help="Grid steps [-].")
 @click.option("--quiet", is_flag=True, default=False, help="Print nothing but errors.")
+@execution_options(with_workers=True)
 def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_loeo, experiments, camera, dt_star,
-                 n_steps, quiet):
+                 n_steps, quiet, workers, scheduler, resume, retry_failed):
     """Diagnose DATA: baseline NHKV fit and misfit by phase (t* = dimensionless time), a bootstrap-
     calibrated constant-parameter check, candidate mechanisms (strain-stiffening, viscoelastic-
     relaxation, rate-dependent-viscosity, damage-softening) ranked by held-out prediction, and the gain
@@ -60,6 +62,9 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     from imrbayes.forward import ForwardOptions
     from imrbayes.forward.constants import Physics
 
+    check_options(workers, scheduler, resume, retry_failed)
+    if seed < 0:
+        raise InputError("--seed", f"must be a non-negative integer, got {seed}")
     kw = {}
     if n_bootstrap is not None:
         if n_bootstrap < 1:
@@ -77,7 +82,7 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         kw["loeo"] = False
     s = DiagnoseSettings.quick(**kw) if quick else DiagnoseSettings(**kw)
     ds = load_dataset(data, camera=camera)
-    pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps)
+    pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, skip_failed=True)
     obs = Observations.from_preprocessed(pre)
     if experiments:
         try:
@@ -104,18 +109,31 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         from tqdm import tqdm
         bar = tqdm(total=1 + s.n_bootstrap + 2 * len(s.candidates) + 1, unit="step", desc="diagnose",
                    file=sys.stderr, dynamic_ncols=True)
+    from dataclasses import asdict
+
+    run_config = {"command": "diagnose", "seed": seed, "settings": {**asdict(s), "candidates": list(s.candidates)},
+                  "forward": options.to_dict(), "physics": physics.to_dict(),
+                  "preprocessing": {"dt_star": dt_star, "n_steps": n_steps, "camera": camera,
+                                    "experiments": experiments},
+                  "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, names=obs.names)}
     try:
-        d = diagnose(obs, options, physics, s, seed=seed, progress=(bar.update if bar is not None else None),
-                     log=(bar.set_postfix_str if bar is not None else None))
+        with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
+                            retry_failed=retry_failed, quiet=True) as execution:
+            d = diagnose(obs, options, physics, s, seed=seed, progress=(bar.update if bar is not None else None),
+                         log=(bar.set_postfix_str if bar is not None else None), execution=execution)
+            exec_summary = execution.summary()
     finally:
         if bar is not None:
             bar.close()
+    exec_summary["skipped_experiments"] = list(pre.skipped)
     res = d.result
     res["data"] = str(data)
     res["experiments"] = list(obs.names)
     res["forward"] = options.to_dict()
     res["preprocessing"] = pre.to_dict(arrays=False)
     res["command"] = {"name": "diagnose", "seed": seed, "quick": bool(quick), "imrbayes_version": __version__}
+    res["execution"] = exec_summary
+    res["failures"] = {"skipped_experiments": list(pre.skipped), "failed_units": res.get("failed_units", [])}
     res["total_runtime_s"] = time.perf_counter() - t_start
     figs = write_figures(d, out / "figures")
     (out / "diagnosis.json").write_text(json.dumps(jsonable(res), indent=1) + "\n")
@@ -130,3 +148,7 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
                        f"{g['heldout_rmse_baseline']:.4g} -> {g['heldout_rmse_extended']:.4g}; ELPD diff "
                        f"{g['elpd_diff']:.1f} ± {g['elpd_se']:.1f}")
         click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")
+    echo_execution(exec_summary, quiet)
+    if pre.skipped:
+        click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
+                   + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)

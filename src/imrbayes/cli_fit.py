@@ -292,7 +292,8 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
 @click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
               help="Forward-model option overriding the suite's (bubble=polytropic, scheme=imrv2-fd, ...).")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
-def validate_cmd(suite, cases, out, seed, forward, quiet):
+@execution_options(with_workers=True)
+def validate_cmd(suite, cases, out, seed, forward, quiet, workers, scheduler, resume, retry_failed):
     """Synthetic validation: the methods.md §5 verification case (G0 = 7.29 kPa, mu0 = 0.088 Pa s,
     Rmax = 263 µm, Rmax/Req = 7.58, five noisy experiments) for En4D-Var and MIEnKS-MDA, IMR and
     pIMR recovery checks, and the fusion rule. Writes validation.json and figures; exit status 1 if
@@ -306,6 +307,13 @@ def validate_cmd(suite, cases, out, seed, forward, quiet):
     unknown = [c for c in cases if c not in CASES]
     if unknown:
         raise InputError("--case", f"unknown case(s) {unknown}; known: {', '.join(CASES)}")
+    check_options(workers, scheduler, resume, retry_failed)
+    if seed < 0:
+        raise InputError("--seed", f"must be a non-negative integer, got {seed}")
+    fwd = _kv(forward, "--forward")
+    from imrbayes.forward import ForwardOptions
+    from imrbayes.validation.suite import FORWARD
+    ForwardOptions.from_dict({**FORWARD[suite], **fwd}, source="--forward")   # bad options: exit 2 here
     out = _prepare_out(Path(out) if out is not None else None, "validate", suite)
 
     def show(row):
@@ -313,11 +321,17 @@ def validate_cmd(suite, cases, out, seed, forward, quiet):
             status = "PASS" if row["passed"] else "FAIL"
             click.echo(f"{status}  {row['name']:<24} {row['runtime_s']:7.1f} s  {row.get('error') or row['criteria']}")
 
-    report = run_suite(suite, out, seed=seed, cases=list(cases) or None, forward=_kv(forward, "--forward"),
-                       progress=show)
+    run_config = {"command": "validate", "suite": suite, "cases": list(dict.fromkeys(cases)) or None, "seed": seed,
+                  "forward": fwd}
+    with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
+                        retry_failed=retry_failed, quiet=quiet) as execution:
+        report = run_suite(suite, out, seed=seed, cases=list(dict.fromkeys(cases)) or None, forward=fwd,
+                           progress=show, execution=execution)
+        report["execution"] = execution.summary()
     (out / "validation.json").write_text(json.dumps(jsonable(report), indent=1) + "\n")
     if not quiet:
         n_ok = sum(r["passed"] for r in report["cases"])
         click.echo(f"{n_ok}/{len(report['cases'])} passed in {report['runtime_s']:.0f} s; wrote {out / 'validation.json'}")
+    echo_execution(report["execution"], quiet, what="cases")
     if not report["passed"]:
         raise click.exceptions.Exit(1)

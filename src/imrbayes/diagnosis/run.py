@@ -81,10 +81,48 @@ def _consistent(c) -> tuple:
     return True, ""
 
 
+def candidate_unit(unit, rng) -> dict:
+    """Unit ``candidate=<key>``: the MAP + Laplace fit of one candidate to the whole record."""
+    from dataclasses import asdict as _asdict
+
+    from imrbayes.diagnosis.lsq import fit_map
+
+    d = unit.data
+    c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
+    extra = np.concatenate([d["z_base"], c.prior_mean[2:]])
+    return _asdict(fit_map(c, d["obs"], minima=d["phases"].minima, extra_starts=[extra]))
+
+
+def heldout_unit(unit, rng) -> dict:
+    """Unit ``heldout=<key>``: the held-out fits of one model (forecast; leave-one-experiment-out)."""
+    from imrbayes.diagnosis.lsq import MapFit
+
+    d = unit.data
+    c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
+    fit = MapFit(**d["fit"])
+    h = {"forecast": forecast(c, d["obs"], d["phases"], fit)}
+    if d["loeo"]:
+        h["loeo"] = loeo(c, d["obs"], d["phases"], fit)
+    return h
+
+
 def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = None, seed: int = 0,
-             prior: dict | None = None, progress=None, log=None) -> Diagnosis:
-    """Run the whole diagnosis on ``obs`` (Observations) with forward ``options`` (ForwardOptions)."""
+             prior: dict | None = None, progress=None, log=None, execution=None) -> Diagnosis:
+    """Run the whole diagnosis on ``obs`` (Observations) with forward ``options`` (ForwardOptions).
+
+    The candidate fits (units ``candidate=<key>``) and the held-out fits of every model (units
+    ``heldout=<key>``) run through the execution layer: ``execution``
+    (:class:`imrbayes.ensemble.units.Execution`) says where, and checkpoints them (default: this
+    process). A candidate whose unit fails is left out of the ranking (reported in
+    ``failed_units``); the baseline's own held-out fit must succeed."""
+    from dataclasses import asdict as _asdict
+
+    from imrbayes.diagnosis.lsq import MapFit
+    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Unit
+
     s = settings or DiagnoseSettings()
+    ex = execution or Execution(progress=False)
     t0 = time.perf_counter()
     say = log or (lambda msg: None)
     tick = progress or (lambda n=1: None)
@@ -113,27 +151,34 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     # candidates
     fits = {"nhkv": full}
     cands = {"nhkv": base}
+    common = {"options": options, "physics": physics, "prior": prior, "obs": obs, "phases": phases}
+    say(f"candidates {', '.join(s.candidates)}")
+    rep = ex.run([Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z}) for key in s.candidates],
+                 candidate_unit, seed, desc="diagnose candidates")
+    failed_units = [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
     for key in s.candidates:
-        c = make_candidate(key, options, physics, prior)
-        extra = np.concatenate([full.z, c.prior_mean[2:]])
-        say(f"candidate {key}")
-        from imrbayes.diagnosis.lsq import fit_map
-        fits[key] = fit_map(c, obs, minima=phases.minima, extra_starts=[extra])
-        cands[key] = c
+        if f"candidate={key}" in rep.results:
+            fits[key] = MapFit(**rep.results[f"candidate={key}"])
+            cands[key] = make_candidate(key, options, physics, prior)
         tick(1)
-    held = {}
-    for key, c in cands.items():
-        say(f"held-out predictions: {key}")
-        h = {"forecast": forecast(c, obs, phases, fits[key])}
-        if s.loeo:
-            h["loeo"] = loeo(c, obs, phases, fits[key])
-        held[key] = h
+    say("held-out predictions")
+    rep = ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "loeo": s.loeo})
+                  for key in cands], heldout_unit, seed, desc="diagnose held-out fits")
+    failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
+    if "heldout=nhkv" not in rep.results:
+        raise RuntimeError(f"the baseline's held-out fits failed ({rep.failures['heldout=nhkv'].error})")
+    held = {key: rep.results[f"heldout={key}"] for key in cands if f"heldout={key}" in rep.results}
+    for key in list(cands):
+        if key not in held:
+            cands.pop(key)
+            fits.pop(key)
         tick(1)
+    kept = [k for k in s.candidates if k in cands]
     lls = {k: loglik_draws(c, obs, phases, fits[k], s.n_draws, seed + 7) for k, c in cands.items()}
     elpd = elpd_compare(lls, "nhkv")
     schemes = [k for k in ("forecast", "loeo") if k in held["nhkv"] and np.isfinite(held["nhkv"][k]["rmse"])]
     candidates = []
-    for key in s.candidates:
+    for key in kept:
         c, f = cands[key], fits[key]
         rel = {k: 1.0 - held[key][k]["rmse"] / held["nhkv"][k]["rmse"] for k in schemes}
         score = float(np.mean(list(rel.values()))) if rel else float("nan")
@@ -199,6 +244,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
               "phases": phases.to_list(),
               "minima_t_star": phases.minima_t().tolist(),
               "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": seed,
+              "failed_units": failed_units,
               "runtime_s": time.perf_counter() - t0}
     curves = {k: predict(cands[k], fits[k].z[None], obs, np.arange(obs.n_exp), phases.minima,
                          obs.n_samples - 1)[0] for k in cands}

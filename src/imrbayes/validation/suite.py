@@ -155,22 +155,48 @@ CASES = {"fusion-linear-gaussian": case_fusion, "pimr-collapse-time": case_pimr,
 SUITES = {"quick": list(CASES), "full": list(CASES)}
 
 
-def run_suite(suite: str, out: Path, seed: int = 0, cases=None, forward: dict | None = None, progress=None) -> dict:
-    """Run the suite's cases; figures go to ``out/figures``. Returns the validation.json object."""
+def case_unit(unit, rng) -> dict:
+    """Unit ``case=<name>``: one validation case (its figures go to the run's ``figures``). A case
+    that raises is a failed case (reported in its row), as before."""
+    import json
+
+    from imrbayes.ensemble.output import jsonable
+
+    d = unit.data
+    fm = ForwardModel("nhkv", options=d["forward"])
+    t0 = time.perf_counter()
+    try:
+        r = CASES[d["name"]](d["suite"], fm, Path(d["figures"]), d["seed"])
+    except Exception as exc:  # a crashing case is a failed case, reported
+        r = {"passed": False, "criteria": "", "metrics": {}, "figures": [], "error": f"{type(exc).__name__}: {exc}"}
+    r = {"name": d["name"], **r, "runtime_s": time.perf_counter() - t0}
+    return json.loads(json.dumps(jsonable(r), default=str))
+
+
+def run_suite(suite: str, out: Path, seed: int = 0, cases=None, forward: dict | None = None, progress=None,
+              execution=None) -> dict:
+    """Run the suite's cases (units ``case=<name>``: ``execution`` says where, and checkpoints them;
+    default: this process); figures go to ``out/figures``. Returns the validation.json object."""
+    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Unit
+
     out = Path(out)
     fdir = out / "figures"
     fdir.mkdir(parents=True, exist_ok=True)
     opts = {**FORWARD[suite], **(forward or {})}
     fm = ForwardModel("nhkv", options=opts)
-    rows = []
+    ex = execution or Execution(progress=False)
+    names = list(cases or SUITES[suite])
     t_all = time.perf_counter()
-    for name in cases or SUITES[suite]:
-        t0 = time.perf_counter()
-        try:
-            r = CASES[name](suite, fm, fdir, seed)
-        except Exception as exc:  # a crashing case is a failed case, reported
-            r = {"passed": False, "criteria": "", "metrics": {}, "figures": [], "error": f"{type(exc).__name__}: {exc}"}
-        r = {"name": name, **r, "runtime_s": time.perf_counter() - t0}
+    rep = ex.run([Unit(f"case={name}", {"suite": suite, "name": name, "forward": opts, "figures": str(fdir),
+                                        "seed": seed}) for name in names], case_unit, seed, desc="validation cases")
+    rows = []
+    for name in names:
+        r = rep.results.get(f"case={name}")
+        if r is None:
+            f = rep.failures[f"case={name}"]
+            r = {"name": name, "passed": False, "criteria": "", "metrics": {}, "figures": [],
+                 "error": f"unit failed: {f.error}", "runtime_s": float("nan")}
         rows.append(r)
         if progress is not None:
             progress(r)
