@@ -1,0 +1,66 @@
+"""``imrbayes diagnose`` (units: candidate fits, held-out fits) and ``imrbayes validate`` (units:
+cases) on the execution layer: same numbers after a resume on a process pool, refusals, run.json."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from imrbayes.cli import main
+
+
+def _strip(obj, drop=("runtime_s", "total_runtime_s", "command", "execution", "figures")):
+    """The computed numbers only (timings, paths and execution counts removed), recursively."""
+    if isinstance(obj, dict):
+        return {k: _strip(v, drop) for k, v in obj.items() if k not in drop}
+    if isinstance(obj, list):
+        return [_strip(v, drop) for v in obj]
+    return obj
+
+
+def _run(*args, expect=0):
+    res = CliRunner().invoke(main, [str(a) for a in args])
+    assert res.exit_code == expect, res.output
+    return res
+
+
+@pytest.fixture(scope="module")
+def gel(tmp_path_factory):
+    d = tmp_path_factory.mktemp("gel") / "data"
+    _run("simulate", "--model", "nhkv", "--param", "G=6e3", "--param", "mu=0.08", "--rmax", "300e-6:20e-6",
+         "--ratio", "7.5:0.3", "--n-exp", "3", "--noise", "paper", "--seed", "1", "--forward", "bubble=polytropic",
+         "--out", d, "--quiet")
+    return d
+
+
+def test_diagnose_resume_on_two_processes_gives_the_same_diagnosis(gel, tmp_path):
+    out = tmp_path / "run"
+    args = ["diagnose", gel, "--out", out, "--quick", "--n-bootstrap", "2", "--candidates", "qkv", "--no-loeo",
+            "--forward", "bubble=polytropic", "--quiet"]
+    _run(*args)
+    ref = json.loads((out / "diagnosis.json").read_text())
+    assert ref["execution"]["n_units"] == 3 and ref["failed_units"] == []
+    assert json.loads((out / "run.json").read_text())["config"]["command"] == "diagnose"
+    (out / "units" / "candidate=qkv.npz").unlink()                  # as if killed before it finished
+    _run(*args, "--resume", "--workers", "2")
+    again = json.loads((out / "diagnosis.json").read_text())
+    assert (again["execution"]["n_computed"], again["execution"]["n_resumed"]) == (1, 2)
+    assert _strip(again) == _strip(ref)
+    res = _run(*args[:-1], "--resume", "--seed", "3", expect=2)     # another configuration: refused
+    assert "cannot resume" in res.output and len(res.output.strip().splitlines()) == 1
+
+
+def test_validate_cases_are_units(tmp_path):
+    cases = ["--case", "fusion-linear-gaussian", "--case", "pimr-collapse-time"]
+    _run("validate", *cases, "--out", tmp_path / "a", "--quiet")
+    res = _run("validate", *cases, "--out", tmp_path / "b", "--workers", "2")
+    assert "2 cases: 2 computed, 0 from checkpoints, 0 failed" in res.output
+    a = json.loads((tmp_path / "a" / "validation.json").read_text())
+    b = json.loads((tmp_path / "b" / "validation.json").read_text())
+    assert _strip(a) == _strip(b) and a["passed"]
+    res = _run("validate", *cases, "--out", tmp_path / "a", "--resume")
+    assert "0 computed, 2 from checkpoints" in res.output
+    res = _run("validate", "--case", "imr-recovery", "--out", tmp_path / "a", "--resume", expect=2)
+    assert "cannot resume" in res.output
