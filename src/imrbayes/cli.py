@@ -20,6 +20,11 @@ class _Group(click.Group):
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
+        except click.UsageError as exc:  # a bad option value: one line naming it, exit status 2
+            if os.environ.get("IMRBAYES_DEBUG"):
+                raise
+            click.echo(f"imrbayes: error: {' '.join(exc.format_message().split())}", err=True)
+            ctx.exit(2)
         except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
             raise
         except InputError as exc:

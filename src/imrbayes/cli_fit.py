@@ -73,7 +73,7 @@ def _coerce(cls, name, value, source):
             if not math.isfinite(f):
                 raise ValueError
             return f
-    except ValueError:
+    except (ValueError, OverflowError):
         raise InputError(source, f"{name} must be a {typ.replace(' | None', '')}, got {value!r}")
     return v
 
