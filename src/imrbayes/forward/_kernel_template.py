@@ -519,7 +519,8 @@ def _apply_tridiag(blocks, lo, di, up, x, out):
 
 @njit(cache=True, error_model="numpy")
 def _factor(blocks, lo, di, up, hg, cp, dp):
-    """Thomas factorisation of (I - hg*A): stores the modified super-diagonal and pivots."""
+    """Thomas factorisation of (I - hg*A): per unknown, the modified super-diagonal (cp) and the
+    inverse pivot (dp), so that a solve costs no division."""
     for b in range(3):
         off = blocks[b, 0]
         m = blocks[b, 1]
@@ -531,26 +532,71 @@ def _factor(blocks, lo, di, up, hg, cp, dp):
                 piv = d
             else:
                 piv = d - a * cp[off + k - 1]
-            dp[off + k] = piv
-            cp[off + k] = c / piv
+            inv = 1.0 / piv
+            dp[off + k] = inv
+            cp[off + k] = c * inv
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _solve(blocks, lo, hg, cp, dp, rhs_vec, x):
+    """x = (I - hg*A)^-1 rhs on the block unknowns; other components x = rhs.
+
+    The forward sweep is a chain of dependent operations, so its cost is latency: when the
+    temperature and vapour blocks have the same length (the thermal bubble with mass transfer)
+    they are swept together, two independent chains per iteration."""
+    for k in range(rhs_vec.shape[0]):
+        x[k] = rhs_vec[k]
+    b0 = 0
+    if blocks[0, 1] > 0 and blocks[0, 1] == blocks[1, 1]:
+        o0 = blocks[0, 0]
+        o1 = blocks[1, 0]
+        m = blocks[0, 1]
+        x[o0] = rhs_vec[o0] * dp[o0]
+        x[o1] = rhs_vec[o1] * dp[o1]
+        for k in range(1, m):
+            x[o0 + k] = (rhs_vec[o0 + k] + hg * lo[o0 + k] * x[o0 + k - 1]) * dp[o0 + k]
+            x[o1 + k] = (rhs_vec[o1 + k] + hg * lo[o1 + k] * x[o1 + k - 1]) * dp[o1 + k]
+        for k in range(m - 2, -1, -1):
+            x[o0 + k] -= cp[o0 + k] * x[o0 + k + 1]
+            x[o1 + k] -= cp[o1 + k] * x[o1 + k + 1]
+        b0 = 2
+    for b in range(b0, 3):
+        off = blocks[b, 0]
+        m = blocks[b, 1]
+        if m == 0:
+            continue
+        x[off] = rhs_vec[off] * dp[off]
+        for k in range(1, m):
+            x[off + k] = (rhs_vec[off + k] + hg * lo[off + k] * x[off + k - 1]) * dp[off + k]
+        for k in range(m - 2, -1, -1):
+            x[off + k] -= cp[off + k] * x[off + k + 1]
 
 
 @njit(cache=True, error_model="numpy")
-def _solve(blocks, lo, hg, cp, dp, rhs_vec, x):
-    """x = (I - hg*A)^-1 rhs on the block unknowns; other components x = rhs."""
-    for k in range(rhs_vec.shape[0]):
-        x[k] = rhs_vec[k]
+def _solve_many(blocks, lo, hg, cp, dp, R, X):
+    """X[q] = (I - hg*A)^-1 R[q] for every row q: the rows' sweeps are interleaved (independent
+    dependency chains), which hides the latency that dominates one sweep."""
+    r = R.shape[0]
+    n = R.shape[1]
+    for q in range(r):
+        for k in range(n):
+            X[q, k] = R[q, k]
     for b in range(3):
         off = blocks[b, 0]
         m = blocks[b, 1]
         if m == 0:
             continue
-        x[off] = rhs_vec[off] / dp[off]
+        for q in range(r):
+            X[q, off] = R[q, off] * dp[off]
         for k in range(1, m):
-            a = -hg * lo[off + k]
-            x[off + k] = (rhs_vec[off + k] - a * x[off + k - 1]) / dp[off + k]
+            a = hg * lo[off + k]
+            d = dp[off + k]
+            for q in range(r):
+                X[q, off + k] = (R[q, off + k] + a * X[q, off + k - 1]) * d
         for k in range(m - 2, -1, -1):
-            x[off + k] -= cp[off + k] * x[off + k + 1]
+            c = cp[off + k]
+            for q in range(r):
+                X[q, off + k] -= c * X[q, off + k + 1]
 
 
 @njit(cache=True, error_model="numpy")
@@ -749,8 +795,8 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                     _coupling(t, y, F[0], cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_new,
                               blocks, di, lo, up, Wc)
                     jac_age = 0
+                _solve_many(blocks, lo, hg, cp, dp, Wc, Z)
                 for q in range(r):
-                    _solve(blocks, lo, hg, cp, dp, Wc[q], Z[q])
                     for k in range(n):
                         # Z decays geometrically away from the wall: flush what would become
                         # subnormal numbers, whose arithmetic is ~100x slower on x86.
