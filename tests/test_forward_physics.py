@@ -127,6 +127,28 @@ def test_piecewise_parameters_equal_handoff_between_constant_segments():
     assert np.max(np.abs(constant.R_star[0] - piecewise.R_star[0])) > 1e-2  # the pieces matter
 
 
+@pytest.mark.parametrize("bubble", ["polytropic", "thermal"])
+def test_per_member_break_times_equal_one_call_per_member(bubble):
+    """(N, n_breaks) break times: each member switches parameters at its own times, exactly as
+    if it were propagated alone with those breaks (bubbles collapse at different times)."""
+    scheme = "imrv2-fd" if bubble == "thermal" else "converged"
+    fm = ForwardModel("nhkv", options=ForwardOptions(bubble=bubble, scheme=scheme, rtol=1e-9, atol=1e-11))
+    t = np.arange(121) * 0.025
+    table = np.array([[[9e3, 0.12], [5e3, 0.07]], [[8e3, 0.10], [4e3, 0.05]], [[7e3, 0.09], [6e3, 0.08]]])
+    breaks = np.array([[0.9], [1.2], [2.05]])
+    batch = fm.simulate(table, LIC["rmax_m"], LIC["req_m"], t, breaks_star=breaks)
+    assert not batch.failed.any()
+    for m in range(3):
+        alone = fm.simulate(table[m:m + 1], LIC["rmax_m"], LIC["req_m"], t, breaks_star=breaks[m])
+        np.testing.assert_array_equal(alone.R_star[0], batch.R_star[m])
+    shared = fm.simulate(table, LIC["rmax_m"], LIC["req_m"], t, breaks_star=[0.9])
+    assert np.max(np.abs(shared.R_star[2] - batch.R_star[2])) > 1e-3     # the member's own breaks matter
+    with pytest.raises(InputError):
+        fm.simulate(table, LIC["rmax_m"], LIC["req_m"], t, breaks_star=np.zeros((2, 1)))
+    with pytest.raises(InputError):
+        fm.simulate(table[:, [0, 1, 1]], LIC["rmax_m"], LIC["req_m"], t, breaks_star=[[1.0, 0.5]] * 3)
+
+
 def test_bad_inputs_are_refused():
     fm = ForwardModel("nhkv", options=ForwardOptions(bubble="polytropic"))
     with pytest.raises(InputError):

@@ -958,10 +958,10 @@ def _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks,
         status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
         return
     if flags[F_THERMAL] == 0 and gamma == 0.0:
-        st, ns, nr = integrate_member_explicit(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, rtol, atol,
+        st, ns, nr = integrate_member_explicit(ym, t0, t1, t_eval, G[m], P[m], breaks[m], flags, rtol, atol,
                                                h_init, max_steps, R[m], AE, B, BH, C, order)
     else:
-        st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks, flags, grid, mgrid,
+        st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks[m], flags, grid, mgrid,
                                       rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols,
                                       field_weight, filter_err)
     status[m] = st
@@ -974,7 +974,8 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
                     rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err):
     """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps, nrejected).
 
-    ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters.
+    ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters, whose pieces
+    change at the member's ``breaks`` (N, n_pieces - 1) in t*.
     """
     N = Y0.shape[0]
     Y = Y0.copy()

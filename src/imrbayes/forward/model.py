@@ -234,7 +234,8 @@ class ForwardModel:
 
         params : dict name -> scalar or (N,) array [SI], or an (N, n_params) array, or an
             (N, n_pieces, n_params) array of piecewise-constant-in-time parameters whose pieces
-            change at ``breaks_star`` ((n_pieces-1,) increasing t*).
+            change at ``breaks_star``: (n_pieces-1,) increasing t*, the same for every member, or
+            (N, n_pieces-1), one row per member (e.g. each bubble's own collapse times).
         t_eval : (m,) output times in [t0, t_end] (default: t_end only).
         Members whose solve fails are flagged in ``status`` (NaN output after the failure);
         they never stop the batch.
@@ -247,11 +248,17 @@ class ForwardModel:
         t_eval = np.atleast_1d(np.asarray([t_end] if t_eval is None else t_eval, dtype=float))
         if t_eval.size and (np.any(np.diff(t_eval) < 0) or t_eval[0] < t0 - 1e-12 or t_eval[-1] > t_end + 1e-12):
             raise InputError("t_eval", "output times must be increasing and inside [t0, t_end]")
-        breaks = np.ascontiguousarray(np.asarray([] if breaks_star is None else breaks_star, dtype=float))
+        breaks = np.atleast_1d(np.asarray([] if breaks_star is None else breaks_star, dtype=float))
+        if breaks.ndim > 2 or (breaks.ndim == 2 and breaks.shape[0] != n):
+            raise InputError("breaks_star", f"expected (n_breaks,) or ({n}, n_breaks) break times, got shape "
+                             f"{breaks.shape}")
+        breaks = np.ascontiguousarray(np.broadcast_to(breaks, (n, breaks.shape[-1])))
+        if not np.all(np.isfinite(breaks)) or np.any(np.diff(breaks, axis=1) <= 0):
+            raise InputError("breaks_star", "break times must be finite and strictly increasing")
         P = self._parameter_table(params, n, state.rmax_m)
-        if P.shape[1] != breaks.size + 1:
+        if P.shape[1] != breaks.shape[1] + 1:
             raise InputError("parameters", f"{P.shape[1]} parameter pieces need {P.shape[1] - 1} break times, "
-                             f"got {breaks.size}")
+                             f"got {breaks.shape[1]}")
         if state.y.shape[1] != self.n_state:
             raise ForwardModelError(f"state has {state.y.shape[1]} entries, this model needs {self.n_state}")
         G = group_matrix(self.groups(state.rmax_m, state.req_m), n)
