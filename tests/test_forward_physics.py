@@ -184,3 +184,19 @@ def test_runge_kutta_tableaux_satisfy_order_conditions(name):
     for value, expected in conds:
         assert abs(value - expected) < 1e-13
     assert abs(T["bhat"].sum() - 1) < 1e-13 and abs(T["bhat"] @ c - 0.5) < 1e-13
+
+
+@pytest.mark.parametrize("options", [{}, {"bubble": "polytropic"}, {"medium": "warm", "scheme": "imrv2-fd"}])
+def test_state_is_valid_accepts_evolved_states_and_flags_unphysical_ones(options):
+    fm = ForwardModel("nhkv", options=ForwardOptions(**options))
+    start = fm.initial_state(LIC["rmax_m"], LIC["req_m"], n=4)
+    end = fm.propagate(start, NHKV, 1.0).end
+    assert fm.state_is_valid(start).all() and fm.state_is_valid(end).all()
+    y = end.y.copy()
+    y[0, 0] = -0.01                                     # negative radius
+    y[1, 1] = np.nan
+    if fm.options.thermal:
+        y[2, 2] = -0.5                                  # negative bubble pressure
+        y[3, fm.layout()["kv"].start if fm.options.mass_transfer else fm.layout()["theta"].start] = (
+            1.5 if fm.options.mass_transfer else -1e6)  # vapour fraction > 1 / temperature < 0
+    assert fm.state_is_valid(y).tolist() == [False, False] + [not fm.options.thermal] * 2

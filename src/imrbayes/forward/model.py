@@ -169,6 +169,27 @@ class ForwardModel:
         """(nt,) bubble grid r/R."""
         return self._grid_y.copy()
 
+    def state_is_valid(self, state) -> np.ndarray:
+        """(N,) True where a state (BatchState or (N, n_state) array) can be propagated: every
+        entry finite, R* > 0, bubble pressure > 0 (thermal bubble), vapour mass fraction in
+        [0, 1], bubble temperature variable inside the domain of its inverse
+        (1 + 2 alpha theta > 0) and medium temperature > 0. An ensemble analysis that updates the
+        state can leave it; the smoother checks before handing such a state on."""
+        y = np.atleast_2d(np.asarray(state.y if isinstance(state, BatchState) else state, dtype=float))
+        if y.shape[1] != self.n_state:
+            raise ForwardModelError(f"state has {y.shape[1]} entries, this model needs {self.n_state}")
+        ok = np.all(np.isfinite(y), axis=1) & (y[:, 0] > 0)
+        if self.options.thermal:
+            ok &= y[:, 2] > 0
+            g = self.groups(1.0, 0.5)          # alpha_g, alpha_v do not depend on the bubble size
+            kv = y[:, self._slices["kv"]] if self.options.mass_transfer else np.full((y.shape[0], 1), float(g["kv0"]))
+            ok &= np.all((kv >= 0) & (kv <= 1), axis=1)
+            am = kv * g["alpha_v"] + (1 - kv) * g["alpha_g"]
+            ok &= np.all(1 + 2 * am * y[:, self._slices["theta"]] > 0, axis=1)
+            if self.options.medium == "warm":
+                ok &= np.all(y[:, self._slices["Tm"]] > 0, axis=1)
+        return ok
+
     def describe(self) -> dict:
         """JSON-able record of everything that defines this forward model."""
         return {"constitutive": self.constitutive.name, "parameters": list(self.constitutive.param_names),
