@@ -301,7 +301,7 @@ def _rddot(R, U, pb, pdot, S, Sdot, J, g, radial):
     return num / ((1.0 - U / c) * R + J * hh / c)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _rhs_gas(y, g, p, flags, out):
     """``out = dy/dt`` for the polytropic bubble (no fields): rhs() with thermal = 0, lean enough
     for the explicit integrator, whose cost is a few RHS evaluations per step."""
@@ -321,7 +321,7 @@ def _rhs_gas(y, g, p, flags, out):
     out[1] = _rddot(R, U, pb, pdot, S, Sdot, J, g, flags[F_RADIAL])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, atol, h_init, max_steps, r_out,
                               A, B, BH, C, order):
     """integrate_member() for the polytropic bubble with an explicit pair (AI = 0): same step
