@@ -75,8 +75,9 @@ def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=Fa
     from imrbayes.execution import RunStore, make_executor
 
     workers, scheduler, resume, retry_failed = check_options(workers, scheduler, resume, retry_failed)
-    with RunStore.open(out, jsonable(config), resume=resume) as store, \
-            make_executor(workers, scheduler) as ex:
+    # the executor first: an unreachable --scheduler must not leave a new run directory behind
+    with make_executor(workers, scheduler) as ex, \
+            RunStore.open(out, jsonable(config), resume=resume) as store:
         yield Execution(store=store, executor=ex, retry_failed=retry_failed, progress=False if quiet else None)
 
 
