@@ -126,7 +126,7 @@ def _wall_root(guess, p, th, kv, tm, g, grid, dxi, nt, mass, kv0):
     return b
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
     """Right-hand side ``out = dy/dt`` for one member; fills ``coef`` with the diffusion
     coefficients of the fields (multipliers of their second-difference operators).
@@ -477,7 +477,7 @@ def _blocks(flags):
     return out
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _build_tridiag(coef, blocks, grid, mgrid, lo, di, up):
     """Tridiagonal diffusion operator A (frozen coefficients) for each block, in place."""
     for b in range(3):
@@ -501,7 +501,7 @@ def _build_tridiag(coef, blocks, grid, mgrid, lo, di, up):
                 up[off + k] = c if k < m - 1 else 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _apply_tridiag(blocks, lo, di, up, x, out):
     for k in range(out.shape[0]):
         out[k] = 0.0
@@ -517,7 +517,7 @@ def _apply_tridiag(blocks, lo, di, up, x, out):
             out[off + k] = s
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _factor(blocks, lo, di, up, hg, cp, dp):
     """Thomas factorisation of (I - hg*A): per unknown, the modified super-diagonal (cp) and the
     inverse pivot (dp), so that a solve costs no division."""
@@ -537,7 +537,7 @@ def _factor(blocks, lo, di, up, hg, cp, dp):
             cp[off + k] = c * inv
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _solve(blocks, lo, hg, cp, dp, rhs_vec, x):
     """x = (I - hg*A)^-1 rhs on the block unknowns; other components x = rhs.
 
@@ -572,7 +572,7 @@ def _solve(blocks, lo, hg, cp, dp, rhs_vec, x):
             x[off + k] -= cp[off + k] * x[off + k + 1]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _solve_many(blocks, lo, hg, cp, dp, R, X):
     """X[q] = (I - hg*A)^-1 R[q] for every row q: the rows' sweeps are interleaved (independent
     dependency chains), which hides the latency that dominates one sweep."""
@@ -625,7 +625,7 @@ def _hermite5(t, t0, t1, r0, v0, a0, r1, v1, a1):
     return h00 * r0 + h10 * h * v0 + h20 * h * h * a0 + h01 * r1 + h11 * h * v1 + h21 * h * h * a1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_tmp,
               blocks, di, lo, up, W):
     """Finite-difference Jacobian columns of the coupling variables ``cols`` minus the frozen
@@ -704,7 +704,7 @@ def _lu_solve_small(K, piv, b):
         b[i] /= K[i, i]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                      rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err):
     """Advance one member's state ``y`` (in place) from t0 to t1; R at ``t_eval`` -> r_out.
