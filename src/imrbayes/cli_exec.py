@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import sys
 
 import click
 import numpy as np
@@ -78,7 +79,23 @@ def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=Fa
     # the executor first: an unreachable --scheduler must not leave a new run directory behind
     with make_executor(workers, scheduler) as ex, \
             RunStore.open(out, jsonable(config), resume=resume) as store:
-        yield Execution(store=store, executor=ex, retry_failed=retry_failed, progress=False if quiet else None)
+        bar = None
+        if not quiet and _isatty(sys.stderr):
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=0, unit="unit", file=sys.stderr, dynamic_ncols=True)
+        try:
+            yield Execution(store=store, executor=ex, retry_failed=retry_failed, progress=False, bar=bar)
+        finally:
+            if bar is not None:
+                bar.close()
+
+
+def _isatty(stream) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
 
 
 def echo_execution(summary: dict, quiet: bool, what: str = "units") -> None:

@@ -87,7 +87,8 @@ class Execution:
 
     store: :class:`~imrbayes.execution.RunStore` or None; executor: an
     :class:`~imrbayes.execution.Executor` or None (in-process); retry_failed: rerun units that failed
-    in a stored run; progress: as :func:`~imrbayes.execution.run_units` (None: a bar on a terminal).
+    in a stored run; progress: as :func:`~imrbayes.execution.run_units` (None: a bar per batch on a
+    terminal); bar: a tqdm bar that every batch advances instead (``progress`` is then ignored).
     """
 
     store: Any = None
@@ -95,10 +96,23 @@ class Execution:
     retry_failed: bool = False
     progress: Any = None
     reports: list = field(default_factory=list)
+    bar: Any = None
 
     def run(self, units, fn, seed: int, desc: str):
+        units = list(units)
+        progress = self.progress
+        if self.bar is not None:     # one bar over every batch (MIEnKS: a batch per window)
+            bar, last = self.bar, [None]
+            bar.total = (bar.total or 0) + len(units)
+            bar.set_description(desc, refresh=False)
+
+            def progress(done, total):
+                bar.update(1 if last[0] is None else done - last[0])
+                last[0] = done
         rep = run_units(units, fn, seed=seed, store=self.store, executor=self.executor,
-                        retry_failed=self.retry_failed, progress=self.progress, desc=desc)
+                        retry_failed=self.retry_failed, progress=progress, desc=desc)
+        if self.bar is not None:
+            self.bar.update(rep.n_resumed)
         self.reports.append((desc, rep))
         return rep
 
