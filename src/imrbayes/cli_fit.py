@@ -3,7 +3,7 @@
 Writes ``summary.json``, ``posterior.nc`` and ``figures/*.png`` under ``--out``. Every option can
 come from ``--config FILE.toml`` (the command line wins). As for every command, a ``[fit]`` table
 is read in preference to the top level; its keys are the option names (``method``, ``model``,
-``out``, ``seed``, ``workers``, ``quiet``, ``camera``, ``dt_star``, ``n_steps``, ``noise``, ``set``
+``out``, ``seed``, ``workers``, ``scheduler``, ``quiet``, ``camera``, ``dt_star``, ``n_steps``, ``noise``, ``set``
 as a list of ``"KEY=VALUE"``), plus tables ``forward`` (forward-model options; a list of
 ``"KEY=VALUE"`` also works), ``prior`` (``G = [6e3, 2.8e3]``: mean and sd, SI) and ``imr``,
 ``pimr``, ``en4dvar``, ``mienks`` (method settings, as ``--set``), e.g. ``[fit.en4dvar]``.
