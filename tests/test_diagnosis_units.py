@@ -67,3 +67,21 @@ def test_elpd_compare_prefers_the_better_model():
     out = elpd_compare({"nhkv": bad, "qkv": good})
     assert out["qkv"]["elpd_diff"] > 0 and out["qkv"]["elpd_se"] >= 0
     assert out["nhkv"]["elpd_diff"] == 0.0
+
+
+def test_damage_batch_equals_one_call_per_experiment():
+    """Per-member break times: one batch (experiments with different numbers of collapses in the
+    window, padded) gives the same curves as one forward call per experiment with its own breaks."""
+    c = make_candidate("damage", OPTS)
+    rng = np.random.default_rng(3)
+    Z = np.column_stack([np.log(rng.uniform(3e3, 1.2e4, 4)), np.log(rng.uniform(0.03, 0.15, 4)),
+                         np.log(rng.uniform(0.4, 1.0, 4)), np.log(rng.uniform(0.5, 1.0, 4))])
+    obs = _obs(np.ones((3, T.size)))
+    minima = np.array([[35, 55, 70], [36, 57, 130], [34, 118, 125]])   # 3, 2, 1 breaks before K = 100
+    K = 100
+    R = predict(c, Z, obs, np.arange(3), minima, K)
+    for e in range(3):
+        br = [float(T[m]) for m in minima[e] if 0 < m < K]
+        o = c.fm.simulate(c.forward_params(Z, n_pieces=len(br) + 1), RMAX[e], REQ[e], T[:K + 1], breaks_star=br)
+        assert np.all(np.isfinite(R[:, e]))
+        assert np.max(np.abs(R[:, e] - o.R_star)) < 1e-9, e

@@ -37,12 +37,20 @@ def predict(cand, z, obs, idx, minima, K: int) -> np.ndarray:
         R = np.where(o.failed[:, None], np.nan, o.R_star)
         out[:] = R.reshape(M, E, K + 1)
         return out
-    for j, e in enumerate(idx):
-        br = [float(obs.t_star[m]) for m in minima[e] if 0 < m < K]
-        P = cand.forward_params(z, n_pieces=len(br) + 1)
-        with np.errstate(all="ignore"):
-            o = fm.simulate(P, obs.rmax_m[e], obs.req_m[e], t, breaks_star=br, max_steps=MAX_STEPS)
-        out[:, j] = np.where(o.failed[:, None], np.nan, o.R_star)
+    # damage: each experiment breaks at its own collapses -> one batch with per-member break times
+    # (breaks_star (M*E, n_breaks)); experiments with fewer collapses inside the window are padded
+    # with breaks after the last output time, where the extra pieces never act.
+    brs = [[float(obs.t_star[m]) for m in minima[e] if 0 < m < K] for e in idx]
+    nb = max(len(b) for b in brs)
+    t_end = float(t[-1])
+    B = np.array([b + [t_end + 1.0 + i for i in range(nb - len(b))] for b in brs], dtype=float).reshape(E, nb)
+    P = np.repeat(cand.forward_params(z, n_pieces=nb + 1), E, axis=0)   # member m*E + e
+    rmax = np.tile(obs.rmax_m[idx], M)
+    req = np.tile(obs.req_m[idx], M)
+    with np.errstate(all="ignore"):
+        o = fm.simulate(P, rmax, req, t, breaks_star=np.tile(B, (M, 1)), max_steps=MAX_STEPS)
+    R = np.where(o.failed[:, None], np.nan, o.R_star)
+    out[:] = R.reshape(M, E, K + 1)
     return out
 
 
