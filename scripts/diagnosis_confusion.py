@@ -39,7 +39,11 @@ def one(args):
             "top": g.get("candidate"), "heldout_rmse_baseline": g.get("heldout_rmse_baseline"),
             "heldout_rmse_extended": g.get("heldout_rmse_extended"),
             "relative_reduction": g.get("relative_reduction"), "elpd_diff": g.get("elpd_diff"),
-            "elpd_se": g.get("elpd_se"), "runtime_s": time.perf_counter() - t0}
+            "elpd_se": g.get("elpd_se"),
+            "statistics": {k: {"observed": v["observed"], "p_value": v["p_value"],
+                               "bootstrap_q05_q50_q95": v["bootstrap_q05_q50_q95"]}
+                           for k, v in r["constant_parameter_check"]["evidence"]["statistics"].items()},
+            "runtime_s": time.perf_counter() - t0}
 
 
 def table(rows) -> str:

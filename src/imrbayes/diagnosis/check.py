@@ -6,7 +6,13 @@ Statistics of one dataset under the baseline (constant-parameter NHKV):
   fits to the 1st collapse, to the 2nd collapse and to the whole record (covariances of the two
   Laplace posteriors added);
 * ``misfit``: the normalised chi-square (mean of r^2/P_k) of the whole-record fit;
-* ``phase_misfit``: the largest normalised chi-square of one phase of that fit.
+* ``phase_misfit``: the largest normalised chi-square of one phase of that fit;
+* ``mienks_drift`` (when MIEnKS settings are given): the drift of the MIEnKS-MDA window estimates
+  G(t), mu(t): weighted least-squares slopes of the fused window means of log G and log mu against
+  the window centre t*, each divided by its standard error (window variances as weights), squared
+  and summed. The windows overlap and are chained, so these standard errors are not the slopes'
+  true ones (and the chain's walk from the prior is a drift of its own): the bootstrap, which runs
+  the same smoother on constant-parameter replicates, is what makes the number comparable.
 
 None of them has a known null distribution (residuals are correlated in time, P_k is estimated),
 so each is calibrated by a parametric bootstrap: B synthetic datasets of the same design (same
@@ -14,7 +20,7 @@ Rmax, Req, number of experiments, independent Gaussian noise whose variance plus
 baseline curves across experiments reproduces P_k at every sample) generated from
 the baseline fit, processed exactly as the data (P_k re-estimated as the across-experiment sample
 variance, the same fits). p-values are (1 + #{T_b >= T}) / (B + 1); the combined p-value is the
-bootstrap calibration of the smallest of the three (so no Bonferroni factor is needed).
+bootstrap calibration of the smallest of them (so no Bonferroni factor is needed).
 """
 
 from __future__ import annotations
@@ -25,9 +31,34 @@ from imrbayes.data.noise import noise_variance
 from imrbayes.diagnosis.lsq import fit_map, predict
 from imrbayes.ensemble import Observations
 
-__all__ = ["statistics", "bootstrap_check", "window_drift"]
+__all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift"]
 
 STATS = ("drift", "misfit", "phase_misfit")
+
+
+def mienks_drift(base, obs, settings, seed: int = 0) -> tuple:
+    """MIEnKS-MDA of the baseline over the whole record; returns (statistic, details) with the
+    slopes of log G and log mu per unit t* and their standard errors (see module doc)."""
+    from imrbayes.ensemble import ParamSpace
+    from imrbayes.ensemble.mienks import fit_mienks
+
+    sp = ParamSpace.for_model(base.fm.constitutive)
+    with np.errstate(all="ignore"):
+        r = fit_mienks(base.fm, obs, sp, settings, seed=seed)
+    m = np.array([w["mean_internal"] for w in r.windows])[:, :2]
+    v = np.array([np.diag(w["cov_internal"]) for w in r.windows])[:, :2]
+    tc = np.array([0.5 * (w["t_star"][0] + w["t_star"][1]) for w in r.windows])
+    slope, se = np.zeros(2), np.zeros(2)
+    for i in range(2):
+        w = 1.0 / np.maximum(v[:, i], 1e-12)
+        tb = np.sum(w * tc) / w.sum()
+        sxx = np.sum(w * (tc - tb) ** 2)
+        slope[i] = np.sum(w * (tc - tb) * (m[:, i] - np.sum(w * m[:, i]) / w.sum())) / sxx
+        se[i] = 1.0 / np.sqrt(sxx)
+    T = float(np.sum((slope / se) ** 2))
+    return T, {"slope_log_G": float(slope[0]), "slope_log_mu": float(slope[1]), "se_log_G": float(se[0]),
+               "se_log_mu": float(se[1]), "t_star_windows": tc.tolist(),
+               "G_windows": np.exp(m[:, 0]).tolist(), "mu_windows": np.exp(m[:, 1]).tolist()}
 
 
 def window_drift(cand, obs, phases, full) -> tuple:
@@ -51,8 +82,9 @@ def window_drift(cand, obs, phases, full) -> tuple:
     return drift, fits
 
 
-def statistics(base, obs, phases, starts=None) -> dict:
-    """Window fits and the three statistics of ``obs`` under the baseline candidate ``base``."""
+def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0) -> dict:
+    """Window fits and the statistics of ``obs`` under the baseline candidate ``base`` (with
+    ``mienks``, an :class:`~imrbayes.ensemble.mienks.MIEnKSSettings`, also ``mienks_drift``)."""
     full = fit_map(base, obs, minima=phases.minima, starts=starts)
     drift, fits = window_drift(base, obs, phases, full)
     r2 = (obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2 / obs.P[None, 1:]
@@ -60,18 +92,29 @@ def statistics(base, obs, phases, starts=None) -> dict:
     for m in phases.masks():
         mm = m[1:]
         per_phase.append(float(np.nanmean(r2[:, mm])) if mm.any() else float("nan"))
-    return {"fits": fits, "drift": drift, "misfit": float(np.nanmean(r2)),
-            "phase_misfit": float(np.nanmax(per_phase)), "phase_chi2": per_phase}
+    out = {"fits": fits, "drift": drift, "misfit": float(np.nanmean(r2)),
+           "phase_misfit": float(np.nanmax(per_phase)), "phase_chi2": per_phase}
+    if mienks is not None:
+        try:
+            T, det = mienks_drift(base, obs, mienks, seed=seed)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError):   # smoother lost every member: no statistic
+            T, det = float("nan"), {}
+        if np.isfinite(T):
+            out["mienks_drift"], out["mienks"] = T, det
+    return out
 
 
 def _pvals(T, Tb):
     Tb = np.asarray(Tb, dtype=float)
+    Tb = np.where(np.isfinite(Tb), Tb, np.inf)      # a replicate without the statistic counts against rejection
     return (1.0 + np.sum(Tb >= T)) / (Tb.size + 1.0)
 
 
 def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 0, alpha: float = 0.05,
-                    progress=None) -> dict:
-    """Verdict ``adequate``/``inadequate`` with the evidence (see module doc)."""
+                    progress=None, mienks=None) -> dict:
+    """Verdict ``adequate``/``inadequate`` with the evidence (see module doc); ``mienks``: the
+    MIEnKS settings the observed ``mienks_drift`` was computed with (None: not used)."""
+    stats = STATS + (("mienks_drift",) if mienks is not None and "mienks_drift" in observed else ())
     rng = np.random.default_rng(seed)
     z0 = observed["fits"]["all"].z
     R0 = predict(base, z0[None], obs, np.arange(obs.n_exp), phases.minima, obs.n_samples - 1)[0]
@@ -80,31 +123,32 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     # replicates' re-estimated P_k match the data's
     spread = np.var(R0, axis=0, ddof=1) if obs.n_exp >= 2 else np.zeros_like(obs.P)
     sd = np.sqrt(np.maximum(obs.P - spread, 0.25 * obs.P))
-    boot = {k: [] for k in STATS}
+    boot = {k: [] for k in stats}
     for b in range(B):
         Y = R0 + sd[None, :] * rng.standard_normal(R0.shape)
         Y[:, 0] = 1.0
         Y = np.maximum(Y, 1e-3)
         P, _ = noise_variance(obs.t_star, Y) if obs.n_exp >= 2 else (obs.P, None)
         ob = Observations(obs.t_star, Y, P, obs.rmax_m, obs.req_m, obs.t_collapse_star, list(obs.names))
-        st = statistics(base, ob, phases, starts=[z0])
-        for k in STATS:
-            boot[k].append(st[k])
+        st = statistics(base, ob, phases, starts=[z0], mienks=mienks if "mienks_drift" in stats else None,
+                        seed=seed + 1000 + b)
+        for k in stats:
+            boot[k].append(st.get(k, float("nan")))
         if progress is not None:
             progress(1)
-    p = {k: float(_pvals(observed[k], boot[k])) for k in STATS}
+    p = {k: float(_pvals(observed[k], boot[k])) for k in stats}
     # calibrate min-p: p-values of every bootstrap replicate against the others
-    bmat = np.array([boot[k] for k in STATS])            # (3, B)
+    bmat = np.array([boot[k] for k in stats])            # (n_stats, B)
     pb = np.array([[(1.0 + np.sum(np.delete(bmat[i], j) >= bmat[i, j])) / B for j in range(B)]
-                   for i in range(len(STATS))])
+                   for i in range(len(stats))])
     minp_b = pb.min(axis=0)
     minp = min(p.values())
     p_comb = float((1.0 + np.sum(minp_b <= minp)) / (B + 1.0))
     ev = {"n_bootstrap": B, "alpha": alpha, "p_value": p_comb,
-          "rule": "inadequate when the bootstrap-calibrated smallest p-value of (drift, misfit, phase_misfit) "
+          "rule": f"inadequate when the bootstrap-calibrated smallest p-value of ({', '.join(stats)}) "
                   "is <= alpha",
           "statistics": {}}
-    for k in STATS:
+    for k in stats:
         q = np.quantile(boot[k], [0.05, 0.5, 0.95]).tolist()
         ev["statistics"][k] = {"observed": float(observed[k]), "bootstrap_q05_q50_q95": q, "p_value": p[k],
                                "bootstrap": [float(v) for v in boot[k]]}
@@ -116,4 +160,7 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
             "t_star_end": float(obs.t_star[f.K]),
             **{n: {"median": float(th[i]), "sd_log": float(sd_[i])} for i, n in enumerate(base.names)}}
     ev["phase_chi2"] = observed["phase_chi2"]
+    if "mienks" in observed:
+        ev["mienks_windows"] = {**observed["mienks"], "settings": {"n_ens": mienks.n_ens, "n_iter": mienks.n_iter,
+                                                                   "L": mienks.L, "h": mienks.h}}
     return {"verdict": "inadequate" if p_comb <= alpha else "adequate", "evidence": ev}

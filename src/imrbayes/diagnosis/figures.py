@@ -47,11 +47,24 @@ def check_figure(d, path):
     plt = _plt()
     ev = d.result["constant_parameter_check"]["evidence"]
     st = ev["statistics"]
-    fig, ax = plt.subplots(1, len(st) + 1, figsize=(13, 3.2))
+    mw = ev.get("mienks_windows") or {}
+    n_extra = 2 if mw.get("t_star_windows") else 1
+    fig, ax = plt.subplots(1, len(st) + n_extra, figsize=(3.2 * (len(st) + n_extra), 3.2))
     for a, (k, v) in zip(ax, st.items()):
-        a.hist(v["bootstrap"], bins=12, color="0.7")
+        b = np.asarray(v["bootstrap"], dtype=float)
+        a.hist(b[np.isfinite(b)], bins=12, color="0.7")
         a.axvline(v["observed"], color="C3", lw=2)
         a.set_title(f"{k}: p = {v['p_value']:.3f}", fontsize=9)
+    if n_extra == 2:
+        a = ax[-2]
+        tw = mw["t_star_windows"]
+        a.plot(tw, mw["G_windows"], "o-", color="C0", ms=3)
+        a.set_ylabel("G [Pa]", color="C0")
+        a2 = a.twinx()
+        a2.plot(tw, mw["mu_windows"], "s-", color="C1", ms=3)
+        a2.set_ylabel("mu [Pa s]", color="C1")
+        a.set_xlabel("window centre t*")
+        a.set_title("MIEnKS-MDA G(t), mu(t)", fontsize=9)
     we = ev["window_estimates"]
     names = list(we)
     for j, p in enumerate(("G", "mu")):

@@ -44,6 +44,9 @@ class DiagnoseSettings:
     en4dvar_n_ens: int = 48
     en4dvar_n_runs: int = 3
     max_collapses: int = 3
+    mienks_drift: bool = True       # MIEnKS-MDA G(t), mu(t) slope statistic in the check
+    mienks_n_ens: int = 16
+    mienks_n_iter: int = 2
 
     @classmethod
     def quick(cls, **kw):
@@ -129,7 +132,15 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     phases = phases_of(obs, s.max_collapses)
     base = make_candidate("nhkv", options, physics, prior)
     say("baseline fits (whole record, to the 1st and 2nd collapse)")
-    observed = statistics(base, obs, phases)
+    mk = None
+    if s.mienks_drift:
+        from imrbayes.ensemble.mienks import MIEnKSSettings
+        mk = MIEnKSSettings(n_ens=s.mienks_n_ens, n_iter=s.mienks_n_iter, n_draws=1)
+        try:
+            mk.check(obs.n_samples - 1)
+        except Exception:
+            mk = None
+    observed = statistics(base, obs, phases, mienks=mk, seed=seed)
     full = observed["fits"]["all"]
     tick(1)
     baseline = {"model": "nhkv", "method": "map", "estimate": base.estimate(full.z, full.cov),
@@ -147,7 +158,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                          "estimate_map": baseline["estimate"]})
     say(f"constant-parameter check ({s.n_bootstrap} bootstrap replicates)")
     check = bootstrap_check(base, obs, phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
-                            progress=tick)
+                            progress=tick, mienks=mk)
     # candidates
     fits = {"nhkv": full}
     cands = {"nhkv": base}
