@@ -85,3 +85,17 @@ def test_damage_batch_equals_one_call_per_experiment():
         o = c.fm.simulate(c.forward_params(Z, n_pieces=len(br) + 1), RMAX[e], REQ[e], T[:K + 1], breaks_star=br)
         assert np.all(np.isfinite(R[:, e]))
         assert np.max(np.abs(R[:, e] - o.R_star)) < 1e-9, e
+
+
+def test_consistency_rule_rejects_extensions_that_point_the_wrong_way():
+    from imrbayes.diagnosis.run import _consistent
+
+    def cand(key, **medians):
+        return {"key": key, "estimate": {k: {"median": v} for k, v in medians.items()}}
+
+    assert _consistent(cand("carreau", n=0.6, lambda_c=1e-5))[0]
+    assert not _consistent(cand("carreau", n=3.7, lambda_c=1e-5))[0]      # shear thickening
+    assert _consistent(cand("qkv", alpha=0.3))[0] and not _consistent(cand("qkv", alpha=-0.1))[0]
+    assert _consistent(cand("damage", a_G=0.8, a_mu=1.2))[0]
+    assert not _consistent(cand("damage", a_G=1.1, a_mu=1.3))[0]
+    assert _consistent(cand("zener", lambda1=1e-6))[0]

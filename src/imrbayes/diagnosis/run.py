@@ -7,7 +7,7 @@ Decision rule (documented in docs/diagnosis.md):
   collapse from a fit to the 2nd; leave-one-experiment-out) of the relative RMSE reduction against
   the baseline; candidates are ranked by it (ELPD difference as tie-break);
 * a candidate whose fitted extension contradicts its mechanism (damage with both retention
-  factors >= 1, strain-stiffening with alpha <= 0) is ranked after the others (``consistent``);
+  factors >= 1, strain-stiffening with alpha <= 0, Carreau with n >= 1) is ranked after the others (``consistent``);
 * ``cause`` = ``none`` if the verdict is ``adequate``; otherwise the mechanism of the top-ranked
   candidate if it is consistent and its score is > 0, else ``unexplained``.
 """
@@ -73,7 +73,8 @@ def _phase_misfit(obs, phases, fitted):
 
 def _consistent(c) -> tuple:
     """Does the fitted extension point the way its mechanism says? (damage: some retention factor
-    < 1; strain-stiffening: alpha > 0). Other candidates: always."""
+    < 1; strain-stiffening: alpha > 0; rate-dependent viscosity: shear thinning, Carreau n < 1).
+    Other candidates: always."""
     e = c["estimate"]
     if c["key"] == "damage":
         ok = e["a_G"]["median"] < 1.0 or e["a_mu"]["median"] < 1.0
@@ -81,6 +82,9 @@ def _consistent(c) -> tuple:
     if c["key"] in ("qkv", "fung"):
         ok = e["alpha"]["median"] > 0.0
         return ok, "" if ok else "fitted alpha <= 0: strain softening, not stiffening"
+    if c["key"] == "carreau":
+        ok = e["n"]["median"] < 1.0
+        return ok, "" if ok else "fitted Carreau n >= 1: shear thickening, not the shear thinning of the mechanism"
     return True, ""
 
 
