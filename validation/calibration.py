@@ -1,0 +1,105 @@
+"""Calibration of the 95 % intervals over many seeds (issue: inference, item 6).
+
+The cheaper case: the methods.md §5 verification design (5 experiments, Rmax 263 µm,
+Rmax/Req 7.58, G0 = 7.29 kPa, mu0 = 0.088 Pa s, the paper's noise) with the polytropic bubble,
+paper method settings. For every seed a fresh noisy data set is drawn and fitted by En4D-Var,
+MIEnKS-MDA and IMR (40 x 25 grid); we count how often each 95 % interval holds the truth: the
+MIEnKS aggregate and every window, En4D-Var, and IMR's region (its G and mu extents). Coverage is
+reported with a 95 % Wilson interval. Windows of one data set are not independent, so the
+per-window coverage's interval is too narrow; the per-seed fraction is reported beside it.
+
+Usage: python validation/calibration.py [--seeds 20] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, ParamSpace, fit_en4dvar, fit_imr,
+                               fit_mienks)
+from imrbayes.forward import ForwardModel
+from imrbayes.validation.suite import TRUTH, verification_data
+
+
+def wilson(k: int, n: int, z: float = 1.959964) -> tuple:
+    """95 % Wilson score interval of a binomial proportion k/n."""
+    if n == 0:
+        return (float("nan"), float("nan"))
+    p = k / n
+    den = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / den
+    h = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (float(c - h), float(c + h))
+
+
+def covers(est: dict, name: str) -> bool:
+    lo, hi = est[name]["hdi95"]
+    return bool(lo <= TRUTH[name] <= hi)
+
+
+def one_seed(fm, space, seed: int) -> dict:
+    obs = verification_data(fm, seed)
+    row = {"seed": seed}
+    en = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False), seed=seed)
+    row["en4dvar"] = {n: covers(en.estimate, n) for n in TRUTH}
+    mi = fit_mienks(fm, obs, space, MIEnKSSettings(), seed=seed)
+    row["mienks"] = {n: covers(mi.estimate, n) for n in TRUTH}
+    row["mienks_windows"] = {n: [covers(w, n) for w in mi.windows] for n in TRUTH}
+    im = fit_imr(fm, obs, space, IMRSettings(n_G=40, n_mu=25), seed=seed)
+    row["imr"] = {n: covers(im.estimate, n) for n in TRUTH}
+    row["estimates"] = {m: {n: r.estimate[n]["mean"] for n in TRUTH} for m, r in
+                        (("en4dvar", en), ("mienks", mi), ("imr", im))}
+    return row
+
+
+def summarise(rows: list) -> dict:
+    out = {}
+    for method in ("en4dvar", "mienks", "imr"):
+        for n in TRUTH:
+            k = sum(r[method][n] for r in rows)
+            out[f"{method}:{n}"] = {"covered": k, "n": len(rows), "coverage": k / len(rows),
+                                    "wilson95": wilson(k, len(rows))}
+    for n in TRUTH:
+        flags = [c for r in rows for c in r["mienks_windows"][n]]
+        per_seed = [float(np.mean(r["mienks_windows"][n])) for r in rows]
+        out[f"mienks_windows:{n}"] = {"covered": int(sum(flags)), "n": len(flags), "coverage": float(np.mean(flags)),
+                                      "wilson95": wilson(int(sum(flags)), len(flags)),
+                                      "per_seed_min": min(per_seed), "per_seed_median": float(np.median(per_seed)),
+                                      "seeds_with_at_least_90pct": int(sum(p >= 0.9 for p in per_seed))}
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--first-seed", type=int, default=100, help="seeds first-seed .. first-seed + seeds - 1")
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+    fm = ForwardModel("nhkv", options={"bubble": "polytropic"})
+    space = ParamSpace.for_model(fm.constitutive)
+    rows, t0 = [], time.perf_counter()
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
+        rows.append(one_seed(fm, space, seed))
+        print(f"seed {seed}: " + " ".join(f"{m}:{''.join('y' if rows[-1][m][n] else 'n' for n in TRUTH)}"
+                                           for m in ("en4dvar", "mienks", "imr"))
+              + f" windows G {np.mean(rows[-1]['mienks_windows']['G']):.2f} mu {np.mean(rows[-1]['mienks_windows']['mu']):.2f}",
+              flush=True)
+    summary = summarise(rows)
+    print(f"\n{'interval':<22} {'covered':>8} {'coverage':>9} {'95 % (Wilson)':>16}")
+    for key, v in summary.items():
+        print(f"{key:<22} {v['covered']:>4}/{v['n']:<4} {v['coverage']:9.3f}   [{v['wilson95'][0]:.3f}, {v['wilson95'][1]:.3f}]")
+    result = {"case": "methods.md §5 design, polytropic bubble, paper noise and settings, IMR 40 x 25 grid",
+              "truth": TRUTH, "seeds": [r["seed"] for r in rows], "runtime_s": time.perf_counter() - t0,
+              "summary": summary, "rows": rows}
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(result, fh, indent=1)
+    return result
+
+
+if __name__ == "__main__":
+    main()
