@@ -89,5 +89,5 @@ class GaussianTarget:
         return -0.5 * np.einsum("ni,ij,nj->n", r, self.prec, r)
 
 
-class Interrupted(Exception):
+class Interrupted(BaseException):
     pass

@@ -143,3 +143,31 @@ def test_en4dvar_fused_gaussian_matches_mcmc_on_verification_case():
     s = az.summary(dt, var_names=["G", "mu"], ci_prob=0.95, round_to="none")
     for n in ("G", "mu"):
         assert s.loc[n, "eti95_lb"] < TRUTH[n] < s.loc[n, "eti95_ub"]
+
+
+class _FailingTarget(GaussianTarget):
+    """Raises ValueError on the log-prob calls in ``bad`` (1-based call numbers)."""
+
+    def __init__(self, bad):
+        super().__init__(MEAN, COV)
+        self.bad = set(bad)
+
+    def log_prob(self, Z):
+        if self.n_calls + 1 in self.bad:
+            self.n_calls += 1
+            raise ValueError("solver exploded")
+        return super().log_prob(Z)
+
+
+def test_a_failed_ensemble_is_contained_and_reported():
+    # one by one: call 1 starts every ensemble, then 2 calls per step; call 170 falls in ensemble 1
+    run = run_mcmc(_FailingTarget({170}), MEAN, COV, _toy(80, lockstep=False), seed=1)
+    assert run.n_chains == 3 and list(run.failed_chains) == [1]
+    assert "solver exploded" in run.failed_chains[1]
+    assert run.diagnostics()["failed_chains"] == {"1": run.failed_chains[1]}
+    ref = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _toy(80, lockstep=False), seed=1)
+    np.testing.assert_array_equal(run.chain, ref.chain[[0, 2, 3]])      # the others are untouched
+    assert run.to_datatree()["posterior"].sizes["chain"] == 3
+    # when the shared batch fails every ensemble fails: a clear error, not a silent empty result
+    with pytest.raises(RuntimeError, match="4 of 4 ensembles failed"):
+        run_mcmc(_FailingTarget(range(30, 10_000)), MEAN, COV, _toy(80, lockstep=True), seed=1)

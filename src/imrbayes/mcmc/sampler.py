@@ -191,6 +191,8 @@ class MCMCRun:
     steps_run : list of int               steps each ensemble ran in this call (0 if complete)
     backend : dict or None                {"path", "name"} of the HDF5 file
     settings : dict
+    failed_chains : dict                  ensemble index (of the requested ones) -> error, for
+                                          ensembles that raised and were left out (contained)
     """
 
     names: tuple
@@ -208,6 +210,7 @@ class MCMCRun:
     steps_run: list
     backend: dict | None = None
     settings: dict = field(default_factory=dict)
+    failed_chains: dict = field(default_factory=dict)
 
     @property
     def n_chains(self) -> int:
@@ -256,6 +259,7 @@ class MCMCRun:
                 "tau_rule": rule, "tau_ok": [bool(v) for v in self.tau_ok], "all_tau_ok": bool(np.all(self.tau_ok)),
                 "acceptance": self.acceptance.tolist(), "seeds": list(self.seeds), "runtime_s": self.runtime_s,
                 "n_evals": self.n_evals, "steps_run": list(self.steps_run), "backend": self.backend,
+                "failed_chains": {str(k): v for k, v in self.failed_chains.items()},
                 "chain_definition": "one chain = one independent emcee ensemble; draws walker-major"}
 
     def to_datatree(self, target=None, loglik: bool = True):
@@ -407,16 +411,25 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             if batcher is not None:
                 batcher.leave()
 
+    # A failed ensemble (an exception in emcee or in its part of the evaluation) is contained: it
+    # is left out, recorded in ``failed_chains``, and the others go on. KeyboardInterrupt and the
+    # like still stop everything.
+    failed = {}
     try:
         if batcher is None:
             for c in range(C):
-                run_one(c)
+                try:
+                    run_one(c)
+                except Exception as exc:                        # noqa: BLE001
+                    failed[c] = f"{type(exc).__name__}: {exc}"
         else:
             errors = []
 
             def worker(c):
                 try:
                     run_one(c)
+                except Exception as exc:                        # noqa: BLE001
+                    failed[c] = f"{type(exc).__name__}: {exc}"
                 except BaseException as exc:                    # noqa: BLE001
                     errors.append(exc)
                     batcher.abort(exc)
@@ -440,6 +453,14 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             bar.close()
 
     # ----- collect, diagnose
+    alive = [c for c in range(C) if c not in failed]
+    if len(alive) < 2:
+        raise RuntimeError(f"emcee: {len(failed)} of {C} ensembles failed, fewer than the 2 that R-hat needs; "
+                           f"first error: {next(iter(failed.values()))}")
+    backends = [backends[c] for c in alive]
+    seeds = [seeds[c] for c in alive]
+    remaining = [remaining[c] for c in alive]
+    C = len(alive)
     chain = np.stack([be.get_chain() for be in backends])            # (C, n, W, d)
     logp = np.stack([be.get_log_prob() for be in backends])          # (C, n, W)
     n = chain.shape[1]
@@ -455,5 +476,6 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                    tau=tau, burn=burn, thin=thin, seeds=seeds, runtime_s=time.perf_counter() - t0,
                    n_evals=int(getattr(target, "n_evals", 0)) - evals0, steps_run=remaining,
                    backend=None if backend is None else {"path": str(backend), "name": name},
+                   failed_chains=dict(sorted(failed.items())),
                    settings={**asdict(s), "seed": int(seed), "start_mean": start_mean.tolist(),
                              "start_cov": start_cov.tolist()})
