@@ -98,7 +98,7 @@ def _register_commands():
     # Command modules register themselves on `main`; importing them here keeps cli.py small.
     import importlib
 
-    for name in ("cli_data", "cli_fit", "cli_diagnose"):
+    for name in ("cli_data", "cli_fit", "cli_diagnose", "cli_mcmc", "cli_report"):
         try:
             importlib.import_module(f"imrbayes.{name}")
         except ModuleNotFoundError as exc:  # a command module not written yet
