@@ -92,3 +92,25 @@ def test_sample_windows_write_and_compare_from_files(fitted, tmp_path):
                            progress=False)
     assert all(r.run.steps_run == [0] * 4 for r in again)
     np.testing.assert_array_equal(again[1].run.chain, out[1].run.chain)
+
+
+def test_specs_from_the_smoothers_handed_off_states(fitted):
+    """fit_mienks exposes each window's entering mean state; the specs start from it (not a
+    reconstruction), and an experiment with a NaN state is left out of that window's target."""
+    fm, obs, space, res = fitted
+    states = res.window_start_states
+    assert len(states) == len(res.windows)
+    np.testing.assert_array_equal(states[0], fm.initial_state(obs.rmax_m, obs.req_m).y)
+    specs = mienks_window_specs(fm, obs, space, res.windows, res.details["settings"], start_states=states)
+    recon = mienks_window_specs(fm, obs, space, res.windows, res.details["settings"])
+    for j, (sp, rc) in enumerate(zip(specs, recon)):
+        assert sp.state_source == "handed-off ensemble mean"
+        np.testing.assert_array_equal(sp.target.start.y, states[j])
+        assert sp.target.t0 == pytest.approx(obs.t_star[res.windows[j]["samples"][0]])
+        # the ensemble mean and the reconstruction from per-experiment means describe the same bubble
+        np.testing.assert_allclose(sp.target.start.R, rc.target.start.R, rtol=0.05)
+    cut = [s.copy() for s in states]
+    cut[2][0] = np.nan
+    sp2 = mienks_window_specs(fm, obs, space, res.windows, res.details["settings"], start_states=cut,
+                              indices=[2])[0]
+    assert sp2.target.start.n == obs.R_star.shape[0] - 1 and sp2.target.y.shape[0] == obs.R_star.shape[0] - 1

@@ -28,7 +28,9 @@ parameters: log G, log mu)] is carried through the windows:
    window: the window's prior ensemble is handed on instead (reported in ``analysis_rejected``).
 
 Time-resolved estimate: normalised precision weighting of the windows holding each sample;
-aggregate estimate: the same over all windows with equal weights. The fitted curve is the
+aggregate estimate: the same over all windows with equal weights. ``FitResult.window_start_states``
+holds each window's entering mean state per experiment (what the MCMC window targets start from).
+The fitted curve is the
 ensemble-mean R* of the handed-off posterior ensembles (samples s_j .. s_j + h - 1 of every window,
 the whole last window).
 """
@@ -145,8 +147,16 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     alive = list(range(G))
     handoff = {g: None for g in range(G)}             # each experiment's ensemble entering the next window
     failed_units, member_runs, failed_runs = [], 0, 0
+    start_means = []                                  # (G, ns) mean state entering each window (MCMC targets)
     for j, (a, b) in enumerate(spans):
         last = j == nw - 1
+        if j == 0:
+            start_means.append(np.array(fm.initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64))
+        else:
+            q = np.full((G, ns), np.nan)
+            for g in alive:
+                q[g] = np.asarray(handoff[g], dtype=np.float64)[:, :ns].mean(axis=0)
+            start_means.append(q)
         a2 = b if last else a + s.h
         weight = beta[j, a:b + 1] / ((s.L if s.obs_weight == "mean" else 1.0) * obs.P[a:b + 1])
         units = [Unit(unit_id(window=j, exp=g),
@@ -253,4 +263,4 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                     **{f"{nm}_hdi95": ["time", "bound"] for nm in space.names}},
         coords={"window": np.arange(nw), "time": t[kk], "bound": ["lower", "upper"],
                 "window_start": ("window", t[spans[:, 0]])},
-        runtime_s=time.perf_counter() - t0c, warnings=warnings)
+        runtime_s=time.perf_counter() - t0c, warnings=warnings, window_start_states=start_means)

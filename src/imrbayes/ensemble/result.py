@@ -36,6 +36,9 @@ class FitResult:
     coords : coordinates for posterior.nc
     runtime_s : wall time of the method [s]
     warnings : list of str
+    window_start_states : ``mienks`` only, not written to summary.json: per window a (n_exp, n_state)
+        array, the mean of each experiment's ensemble state entering the window (dimensionless
+        forward-model state; NaN rows for experiments left out), at the window's first sample
     """
 
     method: str
@@ -58,6 +61,7 @@ class FitResult:
     coords: dict = field(default_factory=dict)
     runtime_s: float = float("nan")
     warnings: list = field(default_factory=list)
+    window_start_states: list | None = None
 
     @property
     def rmse(self) -> float:

@@ -14,7 +14,8 @@ compare with:
 * **observation weight** beta_jk / L (:func:`imrbayes.ensemble.windows.mda_weights`;
   ``obs_weight="mean"``, fit_mienks' default), or beta_jk (``obs_weight="mda"``);
 * **start state** of each experiment at t*_{jh}: the smoother's handed-off ensemble mean when it
-  is given (``start_states``). ``fit_mienks`` does not expose it yet; until it does, the state is
+  is given (``start_states``; ``fit_mienks`` exposes it as ``FitResult.window_start_states``, and
+  ``imrbayes fit --mcmc`` uses it). Without it (e.g. from a summary.json alone) the state is
   *reconstructed* by propagating each experiment from its maximum with piecewise-constant
   parameters: experiment n's posterior mean of window k (``per_experiment[n]["mean_internal"]``)
   over [t*_{kh}, t*_{(k+1)h}] -- the interval over which the smoother hands that window's
@@ -119,7 +120,9 @@ def mienks_window_specs(fm, obs, space, windows, settings: dict, *, start_states
         ``index``, ``t_star``, ``samples``, ``mean_internal``, ``cov_internal``, ``per_experiment``;
     settings : the fit's MIEnKS settings (``L``, ``h``, ``rtps``, ``fusion``, ``obs_weight``);
     start_states : optional list (one per window) of the smoother's handed-off ensembles
-        (BatchState of N_exp x N_En members, experiment-major) -- used instead of the reconstruction;
+        (BatchState of N_exp x N_En members, experiment-major) or of their mean states ((N_exp,
+        n_state) arrays, ``FitResult.window_start_states``; experiments with a NaN row are left out of
+        that window) -- used instead of the reconstruction;
     indices : windows to build (default all); model : ForwardModel or Runner for the targets (default fm).
     """
     from imrbayes.ensemble.windows import mda_weights
@@ -144,10 +147,21 @@ def mienks_window_specs(fm, obs, space, windows, settings: dict, *, start_states
         a, b = (int(w["samples"][0]), int(w["samples"][1])) if "samples" in w else (j * h, j * h + L - 1)
         m, C = priors[j]
         prior = GaussianPrior(m, C, positive, tuple(space.names), "internal", box_sd)
-        ens = recon[j] if start_states is None else start_states[j]
-        tg = window_target_from_ensemble(model or fm, ens, obs.t_star[a:b + 1], obs.R_star[:, a:b + 1],
+        rows = np.arange(obs.R_star.shape[0])
+        if start_states is None:
+            ens = recon[j]
+        elif isinstance(start_states[j], BatchState):
+            ens = start_states[j]
+        else:                   # (N_exp, n_state) mean states (FitResult.window_start_states); NaN rows: left out
+            q = np.asarray(start_states[j], dtype=np.float64)
+            rows = np.flatnonzero(np.all(np.isfinite(q), axis=1))
+            if rows.size == 0:
+                raise InputError("start_states", f"window {j}: no experiment has a valid start state")
+            ens = BatchState(q[rows].copy(), float(obs.t_star[a]), np.asarray(obs.rmax_m, float)[rows],
+                             np.asarray(obs.req_m, float)[rows])
+        tg = window_target_from_ensemble(model or fm, ens, obs.t_star[a:b + 1], obs.R_star[rows, a:b + 1],
                                          obs.P[a:b + 1], prior, mda_weight=beta[j, a:b + 1], L=average,
-                                         n_exp=obs.R_star.shape[0], names=list(obs.names), index=j)
+                                         n_exp=rows.size, names=[obs.names[i] for i in rows], index=j)
         src = "reconstructed" if start_states is None else "handed-off ensemble mean"
         tg.description["state"] = src
         specs.append(WindowSpec(j, (float(obs.t_star[a]), float(obs.t_star[b])), tg,
