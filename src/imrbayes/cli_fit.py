@@ -6,7 +6,12 @@ is read in preference to the top level; its keys are the option names (``method`
 ``out``, ``seed``, ``workers``, ``scheduler``, ``quiet``, ``camera``, ``dt_star``, ``n_steps``, ``noise``, ``set``
 as a list of ``"KEY=VALUE"``), plus tables ``forward`` (forward-model options; a list of
 ``"KEY=VALUE"`` also works), ``prior`` (``G = [6e3, 2.8e3]``: mean and sd, SI) and ``imr``,
-``pimr``, ``en4dvar``, ``mienks`` (method settings, as ``--set``), e.g. ``[fit.en4dvar]``.
+``pimr``, ``en4dvar``, ``mienks`` (method settings, as ``--set``), e.g. ``[fit.en4dvar]``, and
+``mcmc`` (``true``, or a table of MCMC settings as ``--mcmc-set`` plus ``windows``).
+
+``--mcmc`` (methods ``mienks`` and ``en4dvar``) then samples every window's posterior with emcee
+(:mod:`imrbayes.mcmc.fit`: one execution unit per window) and writes ``mcmc.nc``, ``compare.json``
+and ``figures/mcmc_*.png``.
 """
 
 from __future__ import annotations
@@ -124,10 +129,14 @@ def _load_config(path) -> dict:
         if name not in cfg and isinstance(data.get(name), dict):
             cfg[name] = data[name]
     known = {"method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "dt_star", "n_steps", "noise",
-             "forward", "prior", "set", *METHOD_NAMES}
+             "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES}
     unknown = {k for k, v in cfg.items() if k not in known and not (section is data and isinstance(v, dict))}
     if unknown:
         raise InputError(p, f"unknown option(s) {sorted(unknown)} for 'imrbayes fit'; known: {sorted(known)}")
+    if isinstance(cfg.get("mcmc"), dict):        # [fit.mcmc] table: MCMC on, with these settings
+        cfg["mcmc_table"], cfg["mcmc"] = cfg.pop("mcmc"), True
+    if "mcmc" in cfg and not isinstance(cfg["mcmc"], bool):
+        raise InputError(p, "mcmc must be true/false or a table of MCMC settings")
     for name in ("forward", "prior", *METHOD_NAMES):
         v = cfg.get(name)
         if name == "forward" and isinstance(v, (list, tuple)):
@@ -179,9 +188,18 @@ def _total_runs(method, s, n_exp, n_steps):
 @click.option("--n-steps", type=int, default=None, help="Grid steps [-] [default: 120].")
 @click.option("--noise", type=click.Choice(["auto", "sample", "paper"]), default=None,
               help="P_k: across-experiment sample variance (auto with >= 2 experiments) or the §5 noise model.")
+@click.option("--mcmc", is_flag=True, default=None,
+              help="Also sample every window's posterior with emcee and compare it with the ensemble's Gaussian "
+                   "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures.")
+@click.option("--mcmc-set", "mcmc_settings", multiple=True, metavar="KEY=VALUE",
+              help="emcee setting: n_walkers, n_steps, n_chains (independent ensembles), burn, thin, max_draws, "
+                   "init_scale, tau_rule, lockstep, loglik [default: 32 walkers x 2000 steps x 4 ensembles]; "
+                   "repeatable.")
+@click.option("--mcmc-windows", default=None, metavar="all|J,K,...",
+              help="Windows to sample with --mcmc (indices from 0) [default: all].")
 @click.option("--quiet", is_flag=True, default=None, help="Print nothing but errors.")
 def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, workers, camera, dt_star, n_steps,
-            noise, quiet, scheduler, resume, retry_failed):
+            noise, mcmc, mcmc_settings, mcmc_windows, quiet, scheduler, resume, retry_failed):
     """Fit a constitutive model to DATA (dataset folder, .csv or .mat) with one inference method.
 
     Writes summary.json (estimate: SI units, G [Pa], mu [Pa s]; times as t*), posterior.nc (ArviZ)
@@ -213,18 +231,28 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     n_steps = int(pick("n_steps", n_steps, 120))
     noise = pick("noise", noise, "auto")
     out = pick("out", out, None)
+    mcmc = bool(pick("mcmc", mcmc, False))
+    mcmc_cfg = dict(cfg.get("mcmc_table") or {})
+    mcmc_windows = _window_list(pick("mcmc_windows", mcmc_windows, mcmc_cfg.pop("windows", None)))
+    if (mcmc_settings or mcmc_windows is not None) and not mcmc:
+        raise InputError("--mcmc-set" if mcmc_settings else "--mcmc-windows", "needs --mcmc")
+    if mcmc and method not in ("mienks", "en4dvar"):
+        raise InputError("--mcmc", f"needs --method mienks or en4dvar (a Gaussian posterior to check), got {method}")
 
     from imrbayes.cli_data import _prepare_out
     from imrbayes.data import load_dataset, preprocess_dataset
     from imrbayes.ensemble import METHODS, Observations, ParamSpace, Runner
-    from imrbayes.ensemble import figures as figs
-    from imrbayes.ensemble.output import posterior_tree, summary_dict, write_summary
     from imrbayes.forward import ForwardModel, ForwardOptions
 
     fit_fn, settings_cls = METHODS[method]
     s = _settings(settings_cls, cfg.get(method, {}), {**_kv(cfg.get("set", []), "--config set"),
                                                        **_kv(settings, "--set")})
     prior = _prior(cfg.get("prior", {}), _kv(priors, "--prior"))
+    mcmc_s = None
+    if mcmc:
+        from imrbayes.mcmc import MCMCSettings
+        mcmc_s = _settings(MCMCSettings, mcmc_cfg, {**_kv(cfg.get("mcmc_set", []), "--config mcmc_set"),
+                                                    **_kv(mcmc_settings, "--mcmc-set")})
     ds = load_dataset(data, camera=camera)
     pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, noise=noise, skip_failed=True)
     fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **_kv(forward, "--forward")}
@@ -232,6 +260,8 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
                       physics_overrides=ds.physics or None)
     obs = Observations.from_preprocessed(pre)
     space = ParamSpace.for_model(fm.constitutive, prior)
+    if mcmc_s is not None:
+        mcmc_s.check(space.n)                  # before the fit: a bad walker count must not cost a fit
     out = _prepare_out(Path(out) if out is not None else None, f"fit-{method}", ds.name, protect=Path(data))
     # everything that determines the numbers (and nothing that does not: workers, scheduler, --out, --quiet)
     run_config = {"command": "fit", "method": method, "model": model, "seed": seed,
@@ -240,12 +270,75 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
                   "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, obs.t_collapse_star,
                                            names=obs.names),
                   "skipped_experiments": [x["name"] for x in pre.skipped]}
+    if mcmc:
+        run_config["mcmc"] = {"settings": dataclasses.asdict(mcmc_s), "windows": mcmc_windows}
     runner = Runner(fm)
+    compare = None
     with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
                         retry_failed=retry_failed, quiet=quiet) as execution:
         res = fit_fn(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
+        if mcmc:
+            # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
+            _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
+                       data, execution.summary(), t_start, quiet=True)
+            if not quiet:
+                click.echo(f"{method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
+            from imrbayes.mcmc.fit import run_fit_mcmc
+            compare = run_fit_mcmc(fm, obs, space, res, out, mcmc_s, seed, execution=execution, runner=runner,
+                                   windows=mcmc_windows)
         exec_summary = execution.summary()
+    written = _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
+                         data, exec_summary, t_start, quiet=quiet, compare=compare)
+    if not quiet:
+        est = ", ".join(f"{n} = {e['mean']:.4g} ± {e['sd']:.2g}" for n, e in res.estimate.items())
+        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {est}; rmse {res.rmse:.4g}; "
+                   f"{res.runtime_s:.1f} s")
+        extra = ", mcmc.nc, compare.json" if compare is not None else ""
+        click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}{extra} and {len(written)} figure(s)")
+        if compare is not None:
+            click.echo(_compare_line(compare))
+        for w in list(pre.warnings) + list(res.warnings):
+            click.echo(f"imrbayes: warning: {w}", err=True)
+    if compare is not None:
+        for f in compare["overall"].get("failed_windows", []):
+            click.echo(f"imrbayes: warning: MCMC of window {f['window']} failed: {f['error']}", err=True)
+    echo_execution(exec_summary, quiet)
+    if pre.skipped:
+        click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
+                   + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)
+
+
+def _window_list(value):
+    """``--mcmc-windows``: None/"all" -> None (every window), "0,3,5" or [0, 3] -> [0, 3, 5]."""
+    if value is None or (isinstance(value, str) and value.strip().lower() == "all"):
+        return None
+    items = value if isinstance(value, (list, tuple)) else str(value).split(",")
+    try:
+        out = [int(str(v).strip()) for v in items if str(v).strip()]
+    except ValueError:
+        raise InputError("--mcmc-windows", f"expected 'all' or window indices such as 0,3,5, got {value!r}")
+    if not out or min(out) < 0:
+        raise InputError("--mcmc-windows", f"expected 'all' or non-negative window indices, got {value!r}")
+    return sorted(set(out))
+
+
+def _compare_line(compare: dict) -> str:
+    o = compare["overall"]
+    worst = f"; worst window {o['worst_window']} (sample KL {o['max_kl_sample']:.3g} nats)" \
+        if o.get("worst_window") is not None and o.get("max_kl_sample") is not None else ""
+    return (f"ensemble vs MCMC: {o['n_agree']} window(s) agree, {o['n_disagree']} disagree, {o['n_undecided']} "
+            f"undecided (chains not converged){worst}; see compare.json")
+
+
+def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config, data,
+               exec_summary, t_start, quiet, compare=None) -> list:
+    """summary.json, posterior.nc and the method's figures; returns the figure paths."""
+    from imrbayes.ensemble import figures as figs
+    from imrbayes.ensemble.output import posterior_tree, summary_dict, write_summary
     exec_summary["skipped_experiments"] = list(pre.skipped)
+    mcmc_part = {}
+    if compare is not None:
+        mcmc_part = {"mcmc": {"files": ["mcmc.nc", "compare.json"], "overall": compare["overall"]}}
     summary = summary_dict(res, obs, seed=seed, extra={
         "forward": fm.describe(), "prior": space.describe(), "preprocessing": pre.to_dict(arrays=False),
         "data": str(data), "warnings_preprocessing": list(pre.warnings),
@@ -257,7 +350,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
                      "failed_units": res.details.get("failed_units", []),
                      "failed_member_runs": res.details.get("failed_member_runs", res.details.get("failed_grid_runs")),
                      "redrawn_members": res.details.get("redrawn_members")},
-        "total_runtime_s": time.perf_counter() - t_start})
+        "total_runtime_s": time.perf_counter() - t_start, **mcmc_part})
     write_summary(out / "summary.json", summary)
     posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
     fdir = out / "figures"
@@ -268,17 +361,9 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
         written.append(figs.experiments_figure(res, fdir / "experiments.png"))
     if method == "mienks":
         written.append(figs.time_resolved_figure(res, fdir / "parameters.png"))
-    if not quiet:
-        est = ", ".join(f"{n} = {e['mean']:.4g} ± {e['sd']:.2g}" for n, e in res.estimate.items())
-        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {est}; rmse {res.rmse:.4g}; "
-                   f"{res.runtime_s:.1f} s")
-        click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'} and {len(written)} figure(s)")
-        for w in list(pre.warnings) + list(res.warnings):
-            click.echo(f"imrbayes: warning: {w}", err=True)
-    echo_execution(exec_summary, quiet)
-    if pre.skipped:
-        click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
-                   + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)
+    if compare is not None:
+        written += list(compare.get("figures", []))
+    return written
 
 
 @main.command("validate")

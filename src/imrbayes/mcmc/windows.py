@@ -262,21 +262,32 @@ def write_compare(path, results_or_entries) -> dict:
 
 
 def compare_from_tree(summary: dict, tree) -> dict:
-    """``compare.json`` from a run directory's files: ``summary.json`` (windows with
-    ``mean_internal``/``cov_internal``) and the ``mcmc.nc`` tree (``window_XX`` nodes); what
+    """``compare.json`` from a run directory's files: the ``mcmc.nc`` tree (``window_XX`` nodes) and
+    the ensemble Gaussians -- stored with each node (``ensemble_json``, written by ``fit --mcmc``) or
+    else taken from ``summary.json``'s windows (``mean_internal``/``cov_internal``); what
     ``imrbayes compare RUN_DIR`` needs. Windows without an MCMC node are skipped."""
     names = list(summary["parameters"])
     space = summary.get("details", {}).get("parameter_space", {})
     log_space = space.get("log_space", {n: True for n in names})
     positive = np.array([bool(log_space.get(n, True)) for n in names])
+    from_summary = {int(w["index"]): w for w in summary.get("windows") or []}
+    nodes = {}
+    for key in tree.children:
+        if key.startswith("window_"):
+            try:
+                nodes[int(key.split("_", 1)[1])] = key
+            except ValueError:
+                continue
     entries = []
-    for w in summary.get("windows", []):
-        key = f"window_{int(w['index']):02d}"
-        if key not in tree.children:
+    for j in sorted(nodes):
+        node = tree[nodes[j]]
+        ens = json.loads(node.attrs.get("ensemble_json", "null")) or from_summary.get(j)
+        if ens is None:
             continue
-        node = tree[key]
         diag = json.loads(node.attrs.get("diagnostics_json", "null"))
-        entries.append(compare_window(w["mean_internal"], w["cov_internal"], node, names, positive,
-                                      index=int(w["index"]), t_star=w.get("t_star"), diagnostics=diag,
-                                      seed=int(w["index"])))
+        e = compare_window(ens["mean_internal"], ens["cov_internal"], node, names, positive, index=j,
+                           t_star=ens.get("t_star"), diagnostics=diag, seed=j)
+        if ens.get("state_source"):
+            e["state_source"] = ens["state_source"]
+        entries.append(e)
     return compare_windows(entries)

@@ -1,0 +1,206 @@
+"""MCMC of a finished fit, window by window, as execution units: what ``imrbayes fit --mcmc`` runs.
+
+:func:`fit_window_specs` turns a :class:`~imrbayes.ensemble.result.FitResult` into the densities
+its Gaussians approximate:
+
+* ``mienks``: every window j (:func:`imrbayes.mcmc.windows.mienks_window_specs`) -- chained prior,
+  MDA weights beta_jk / L, each experiment started from the smoother's **handed-off ensemble mean
+  state** (``FitResult.window_start_states``), compared with the window's fused Gaussian;
+* ``en4dvar``: the fitting window from the maximum to ``t_end`` with En4D-Var's 1/N_t weights and
+  the parameter prior (:func:`imrbayes.mcmc.target.fitting_window_target`), compared with the fused
+  En4D-Var Gaussian (one "window", index 0).
+
+:func:`run_fit_mcmc` samples each window as one unit of the execution layer
+(:mod:`imrbayes.execution`; id ``mcmc=004``): windows are independent given the fit, so they run in
+parallel with ``--workers``/``--scheduler``; a finished window is checkpointed (its ArviZ tree in
+``mcmc_chains/window_004.nc``, its compare entry in the unit store) and an interrupted window
+resumes from its HDF5 file (``mcmc_chains/window_004.h5``). A window whose sampling fails is left
+out, counted and named in ``compare.json["overall"]["failed_windows"]``; the others are written.
+Seeds: window j uses :func:`imrbayes.mcmc.windows.window_seed` (run seed, j) whatever the backend.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from imrbayes.errors import InputError
+from imrbayes.forward import BatchState
+from imrbayes.mcmc.compare import compare_window
+from imrbayes.mcmc.sampler import MCMCSettings, run_mcmc
+from imrbayes.mcmc.target import GaussianPrior, WindowTarget, fitting_window_target
+from imrbayes.mcmc.windows import (WindowMCMC, WindowSpec, mienks_window_specs, mcmc_tree, window_seed,
+                                   write_compare)
+
+__all__ = ["fit_window_specs", "mcmc_window_unit", "run_fit_mcmc", "MCMC_METHODS"]
+
+#: methods whose result is a Gaussian posterior the MCMC can check
+MCMC_METHODS = ("mienks", "en4dvar")
+
+
+def fit_window_specs(fm, obs, space, res, *, runner=None, windows=None, box_sd: float = 10.0) -> list:
+    """[WindowSpec] the targets of ``res`` (module docstring); ``windows``: indices (default all)."""
+    if res.method == "mienks":
+        n = len(res.windows)
+        idx = list(range(n)) if windows is None else sorted(set(int(j) for j in windows))
+        bad = [j for j in idx if not 0 <= j < n]
+        if bad:
+            raise InputError("--mcmc-windows", f"window(s) {bad} do not exist; this fit has windows 0-{n - 1}")
+        return mienks_window_specs(fm, obs, space, res.windows, res.details["settings"],
+                                   start_states=res.window_start_states, indices=idx, box_sd=box_sd,
+                                   model=runner or fm)
+    if res.method == "en4dvar":
+        if windows is not None and set(int(j) for j in windows) != {0}:
+            raise InputError("--mcmc-windows", "an En4D-Var fit has one window (0)")
+        t_end = res.details["settings"].get("t_end")
+        prior = GaussianPrior.from_space(space, box_sd)
+        tg = fitting_window_target(runner or fm, obs, prior, t_end=t_end, weight="en4dvar")
+        tg.description["state"] = "maximum radius (exact)"
+        return [WindowSpec(0, (float(obs.t_star[0]), float(tg.t_eval[-1])), tg, np.asarray(res.mean_internal, float),
+                           np.asarray(res.cov_internal, float), space.prior_mean, space.prior_cov,
+                           "maximum radius (exact)")]
+    raise InputError("--mcmc", f"needs --method {' or '.join(MCMC_METHODS)} (a Gaussian posterior to check), "
+                               f"got {res.method!r}")
+
+
+def _target_data(tg: WindowTarget) -> dict:
+    """What a worker needs to rebuild ``tg`` on its own forward model (plain arrays)."""
+    p = tg.prior
+    return {"y0": tg.start.y, "t0": tg.t0, "rmax": tg.start.rmax_m, "req": tg.start.req_m, "t_eval": tg.t_eval,
+            "y": tg.y, "P": tg.P, "weight": tg.weight, "names": list(tg.names),
+            "description": {k: v for k, v in tg.description.items() if isinstance(v, (str, int, float, list))},
+            "prior": {"mean": p.mean, "cov": p.cov, "positive": np.asarray(p.positive, bool), "names": list(p.names),
+                      "scale": p.scale, "box_sd": float(p.box_sd)}}
+
+
+def _rebuild_target(d: dict, model) -> WindowTarget:
+    p = d["prior"]
+    prior = GaussianPrior(np.asarray(p["mean"]), np.asarray(p["cov"]), np.asarray(p["positive"], bool),
+                          tuple(p["names"]), p["scale"], float(p["box_sd"]))
+    start = BatchState(np.array(d["y0"], dtype=np.float64), float(d["t0"]), np.asarray(d["rmax"], float),
+                       np.asarray(d["req"], float))
+    return WindowTarget(model, start, d["t_eval"], d["y"], d["P"], prior, d["weight"], d["names"],
+                        description=d["description"])
+
+
+def _atomic_netcdf(tree, path: Path) -> None:
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    tree.to_netcdf(tmp)
+    os.replace(tmp, path)
+
+
+def mcmc_window_unit(unit, rng) -> dict:
+    """One window: emcee (:func:`run_mcmc`), its ArviZ tree written to ``node_path``, its compare
+    entry returned. ``rng`` is not used: the window's seed is ``window_seed(seed, index)``."""
+    from imrbayes.ensemble.units import runner_for
+
+    d = unit.data
+    target = _rebuild_target(d["target"], runner_for(d))
+    settings = MCMCSettings(**d["settings"])
+    j = int(d["index"])
+    run = run_mcmc(target, d["start_mean"], d["start_cov"], settings, seed=window_seed(int(d["seed"]), j),
+                   backend=d["backend"], name=f"window_{j:02d}", progress=d["progress"])
+    tree = run.to_datatree(target, loglik=settings.loglik)
+    tree.attrs["ensemble_json"] = _json({"mean_internal": d["ens_mean"], "cov_internal": d["ens_cov"],
+                                         "t_star": list(d["t_star"]), "state_source": d["state_source"]})
+    entry = compare_window(d["ens_mean"], d["ens_cov"], tree, list(target.prior.names), target.prior.positive,
+                           index=j, t_star=d["t_star"], diagnostics=run.diagnostics(), seed=j)
+    entry["state_source"] = d["state_source"]
+    entry["runtime_s"] = float(run.runtime_s)
+    entry["n_evals"] = int(run.n_evals)
+    path = Path(d["node_path"])
+    _atomic_netcdf(tree, path)
+    return {"entry": _plain(entry), "node_path": str(path)}
+
+
+def _json(obj) -> str:
+    import json
+
+    from imrbayes.ensemble.output import jsonable
+    return json.dumps(jsonable(obj))
+
+
+def _plain(obj):
+    """compare entries as plain JSON types (the unit store keeps exact floats)."""
+    import json
+
+    from imrbayes.ensemble.output import jsonable
+    return json.loads(json.dumps(jsonable(obj)))
+
+
+def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None, seed: int = 0, *, execution=None,
+                 runner=None, windows=None, start: str = "ensemble", progress=None, figures: bool = True) -> dict:
+    """Sample the windows of fit ``res`` and write ``out/mcmc.nc``, ``out/compare.json`` and the
+    comparison figures (``out/figures/mcmc_*.png``). Returns the compare dict.
+
+    settings : MCMCSettings (default: 4 ensembles x 32 walkers x 2000 steps);
+    execution : :class:`imrbayes.ensemble.units.Execution` (default: this process, no checkpoints);
+    windows : indices to sample (default all); start : ``"ensemble"`` (walkers start from the
+    window's ensemble Gaussian) or ``"prior"``; progress : emcee progress bars (None: on a terminal,
+    in this process only).
+    """
+    import xarray as xr
+
+    from imrbayes.ensemble.units import Execution, fm_spec, register_runner
+    from imrbayes.execution import Unit, unit_id
+
+    s = settings or MCMCSettings()
+    s.check(space.n)
+    if start not in ("ensemble", "prior"):
+        raise InputError("start", f"must be 'ensemble' or 'prior', got {start!r}")
+    out = Path(out)
+    chains = out / "mcmc_chains"
+    chains.mkdir(parents=True, exist_ok=True)
+    specs = fit_window_specs(fm, obs, space, res, runner=runner, windows=windows)
+    ex = execution or Execution(progress=False)
+    spec, token = fm_spec(fm), register_runner(runner or fm)
+    local = ex.executor is None or type(ex.executor).__name__ == "InProcessExecutor"
+    units = []
+    for sp in specs:
+        m, C = (sp.ens_mean, sp.ens_cov) if start == "ensemble" else (sp.prior_mean, sp.prior_cov)
+        units.append(Unit(unit_id(mcmc=sp.index), {
+            "spec": spec, "runner": token, "target": _target_data(sp.target), "settings": asdict(s),
+            "index": sp.index, "t_star": list(sp.t_star), "seed": int(seed), "start_mean": m, "start_cov": C,
+            "ens_mean": sp.ens_mean, "ens_cov": sp.ens_cov, "state_source": sp.state_source,
+            "backend": str(chains / f"window_{sp.index:03d}.h5"),
+            "node_path": str(chains / f"window_{sp.index:03d}.nc"),
+            "progress": progress if local else False}))
+    rep = ex.run(units, mcmc_window_unit, seed, desc=f"mcmc of {len(units)} window(s)")
+    results, failed = [], []
+    for sp in specs:
+        uid = unit_id(mcmc=sp.index)
+        if uid in rep.results:
+            r = rep.results[uid]
+            p = Path(r["node_path"])
+            if not p.is_file():              # a checkpoint from another machine's run directory
+                p = chains / p.name
+            with xr.open_datatree(p) as dt:
+                tree = dt.load()
+            results.append(WindowMCMC(sp, None, tree, r["entry"]))
+        else:
+            failed.append({"window": sp.index, "t_star": list(sp.t_star), "error": rep.failures[uid].error})
+    if not results:
+        raise RuntimeError(f"MCMC failed in every window (e.g. window {failed[0]['window']}: {failed[0]['error']})")
+    write_mcmc_tree(out / "mcmc.nc", results, {"method": res.method, "model": res.model, "seed": int(seed),
+                                               "mcmc_settings_json": _json(asdict(s)), "start": start})
+    compare = write_compare(out / "compare.json", results)
+    if failed:
+        compare["overall"]["failed_windows"] = failed
+        import json
+        (out / "compare.json").write_text(json.dumps(_plain(compare), indent=1, allow_nan=False) + "\n")
+    if figures:
+        from imrbayes.mcmc.figures import comparison_figures
+        with xr.open_datatree(out / "mcmc.nc") as tree:
+            compare["figures"] = comparison_figures(compare, out / "figures", tree, obs.t_star,
+                                                    np.nanmean(obs.R_star, axis=0))
+    return compare
+
+
+def write_mcmc_tree(path, results, attrs: dict) -> Path:
+    """``mcmc.nc`` (:func:`imrbayes.mcmc.windows.mcmc_tree`) written atomically."""
+    path = Path(path)
+    _atomic_netcdf(mcmc_tree(results, attrs), path)
+    return path
