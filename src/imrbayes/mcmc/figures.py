@@ -106,6 +106,9 @@ def divergence_figure(entries, path, t_star=None, R_star=None):
     axes[0].axhline(THRESHOLDS["kl_sym"], ls="--", color="k", lw=0.8)
     axes[0].set_ylabel("KL [nats]")
     axes[0].set_yscale("symlog", linthresh=1e-2)
+    top_kl = max([THRESHOLDS["kl_sym"]] + [float(e[k]) for e in entries for k in ("kl_sym", "kl_sample")
+                                           if e.get(k) is not None and np.isfinite(e[k])])
+    axes[0].set_ylim(0.0, 2.0 * top_kl)           # KL >= 0: no negative half of the symlog axis
     axes[0].legend(fontsize=8)
     w2 = [e["w2"] for e in entries]
     axes[1].plot(tc, w2, "o-", color="tab:green", ms=3.5, lw=1)
@@ -118,7 +121,13 @@ def divergence_figure(entries, path, t_star=None, R_star=None):
         for e, t in zip(entries, tc):
             if e.get("agree") is None:
                 ax.axvline(t, color="0.8", lw=4, zorder=0)
-    axes[-1].set_xlabel("t* (window centre; grey: MCMC undecided)")
+            elif e.get("agree") is False:
+                ax.axvline(t, color="tab:red", lw=4, alpha=0.25, zorder=0)
+    if top:
+        for e, (a, b) in zip(entries, spans):
+            if e.get("agree") is False:
+                fig.axes[0].axvspan(a, b, color="tab:red", alpha=0.08, lw=0)
+    axes[-1].set_xlabel("t* (window centre; red: ensemble and MCMC disagree; grey: MCMC undecided)")
     return _save(fig, path)
 
 
