@@ -146,3 +146,26 @@ def test_validate_second_truth_case(tmp_path):
     res = CliRunner().invoke(main, ["validate", "--suite", "quick", "--case", "second-truth",
                                     "--out", str(tmp_path / "val")])
     assert res.exit_code == 0, res.output
+
+
+def test_validate_mcmc_layer_can_fail(tmp_path):
+    """The constructed non-Gaussian window (a curved ridge around the first collapse) is flagged
+    against even its own moment-matched Gaussian (suite case ``mcmc-non-gaussian``)."""
+    out = tmp_path / "val"
+    res = CliRunner().invoke(main, ["validate", "--suite", "quick", "--case", "mcmc-non-gaussian", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    m = json.loads((out / "validation.json").read_text())["cases"][0]["metrics"]
+    assert m["agree"] is False and m["converged"] and abs(m["kl_sym"]) < 1e-9
+    assert m["kl_sample"] > 0.1 and m["negentropy"]["estimate"] > m["negentropy"]["null_q99"]
+    assert (out / "figures" / "mcmc_non_gaussian_pair.png").exists()
+
+
+@pytest.mark.slow
+def test_validate_mcmc_agreement_case(tmp_path):
+    """Verification case: MIEnKS window Gaussians agree with MCMC wherever the window is decided and
+    well identified (suite case ``mcmc-agreement``; about 5 minutes)."""
+    out = tmp_path / "val"
+    res = CliRunner().invoke(main, ["validate", "--suite", "quick", "--case", "mcmc-agreement", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    m = json.loads((out / "validation.json").read_text())["cases"][0]["metrics"]
+    assert m["n_checked"] >= 3
