@@ -23,7 +23,10 @@ parameters: log G, log mu)] is carried through the windows:
 5. **hand-off**: the posterior ensemble is propagated from t*_{s_j} to t*_{s_j + h}; its full
    evolved state (R, Rdot, p_b, stress and thermal/vapour fields) and its parameters form window
    j+1's prior ensemble. Members whose propagation failed (or whose analysed state is not
-   physical: R <= 0, non-finite) are redrawn from the Gaussian of the valid members (counted).
+   physical, :meth:`ForwardModel.state_is_valid`: R* <= 0, p_b <= 0, vapour fraction outside
+   [0, 1], non-finite) are redrawn from the Gaussian of the valid members (counted; per window,
+   ``handoff_failures`` says how many analysed members per experiment had an unphysical state
+   and how many failed in all).
    If fewer than a quarter of an experiment's members survive, its analysis is rejected for that
    window: the window's prior ensemble is handed on instead (reported in ``analysis_rejected``).
 
@@ -221,6 +224,9 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                         "fusion": fus.to_dict(), "n_failed_iterations": n_failed_iter.tolist(),
                         "n_redrawn_prior": n_red_prior, "n_failed_handoff": n_fail,
                         "n_redrawn_handoff": n_red, "stopped_experiments": sum(bool(r["stopped"]) for r in R),
+                        "handoff_failures": {obs.names[g]: {"analysed_invalid_state": int(r.get("n_invalid_analysed", 0)),
+                                                            "analysed_failed": int(r.get("n_failed_analysed", 0))}
+                                             for g, r in zip(ok, R) if r.get("n_failed_analysed", 0)},
                         "analysis_rejected": rejected, "failed_experiments": lost,
                         "cost": cost.tolist(),
                         "per_experiment": [{"name": obs.names[g], "mean_internal": pm[i].tolist(),

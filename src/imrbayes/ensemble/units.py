@@ -230,8 +230,10 @@ def mienks_unit(unit: Unit, rng) -> dict:
     t_eval = t[a:b + 1]
 
     def propagate(Z, t0, t1, t_ev):
-        """R* (M, len(t_ev)), end state (M, ns), failed (M,) of members Z (M, ns + d)."""
-        ok = np.all(np.isfinite(Z), axis=1) & (Z[:, 0] > 0)
+        """R* (M, len(t_ev)), end state (M, ns), failed (M,) of members Z (M, ns + d). A member whose
+        state is not physical (ForwardModel.state_is_valid: R* <= 0, p_b <= 0, vapour fraction
+        outside [0, 1], ...) or whose parameters are not finite is failed without a solve."""
+        ok = np.all(np.isfinite(Z[:, ns:]), axis=1) & runner.fm.state_is_valid(Z[:, :ns])
         R = np.full((Z.shape[0], len(t_ev)), np.nan)
         Y = Z[:, :ns].copy()
         failed = ~ok
@@ -253,7 +255,9 @@ def mienks_unit(unit: Unit, rng) -> dict:
     if not s.rtps_state:
         f[:ns] = 1.0
     Ea = res.mean[0][None, :] + np.sqrt(N - 1.0) * res.anoms[0] * f[None, :]
+    n_invalid = int((~runner.fm.state_is_valid(Ea[:, :ns])).sum())   # analysed states that are not physical
     Rseg, Ynew, failed = propagate(Ea, t[a], t[a2], t[a:a2 + 1])
+    n_failed_analysed = int(failed.sum())
     rejected = False
     if (~failed).sum() < max(2, N // 4):
         # too few analysed members survived the hand-off: hand on the window's prior ensemble
@@ -275,4 +279,5 @@ def mienks_unit(unit: Unit, rng) -> dict:
             "qm": res.prior_ensemble[0, :, ns:].mean(axis=0), "qc": qa.T @ qa,
             "n_failed_iter": res.n_failed[0], "n_redrawn_prior": int(res.n_redrawn[0]), "n_failed_handoff": n_fail,
             "n_redrawn_handoff": int(n_red), "stopped": bool(res.stopped[0]), "rejected": rejected,
+            "n_invalid_analysed": n_invalid, "n_failed_analysed": n_failed_analysed,
             "cost": res.cost[0], "state_size": int(ns), **_counts(runner, before)}
