@@ -2,18 +2,13 @@
 
 from __future__ import annotations
 
-import base64
 import html
 from pathlib import Path
 
+from imrbayes.html import embed_png
+from imrbayes.html import fmt as _f
+
 __all__ = ["write_report"]
-
-
-def _f(x, fmt=".4g"):
-    try:
-        return format(float(x), fmt)
-    except (TypeError, ValueError):
-        return html.escape(str(x))
 
 
 def write_report(result: dict, figures: list, path, title: str = "imrbayes diagnose") -> Path:
@@ -37,10 +32,7 @@ def write_report(result: dict, figures: list, path, title: str = "imrbayes diagn
     gains = "".join(f"<li>{html.escape(v['scheme'])}: baseline {_f(v['baseline'])}, extended {_f(v['extended'])} "
                     f"({_f(v['relative_reduction'], '+.1%')}; paired difference {_f(v['paired_vs_baseline']['mean_diff'])} "
                     f"± {_f(v['paired_vs_baseline']['se'])} SE)</li>" for v in g.get("by_scheme", {}).values())
-    imgs = []
-    for p in figures:
-        b64 = base64.b64encode(Path(p).read_bytes()).decode()
-        imgs.append(f"<h3>{html.escape(Path(p).stem)}</h3><img src='data:image/png;base64,{b64}' style='max-width:100%'>")
+    imgs = [f"<h3>{html.escape(Path(p).stem)}</h3>{embed_png(p)}" for p in figures]
     doc = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}} td,th{{border:1px solid #ccc;padding:3px 6px}}
 table{{border-collapse:collapse;font-size:13px}}</style></head><body>

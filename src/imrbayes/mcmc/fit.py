@@ -98,6 +98,7 @@ def mcmc_window_unit(unit, rng) -> dict:
     from imrbayes.ensemble.units import runner_for
 
     d = unit.data
+    notes = _check_backend(Path(d["backend"]))
     target = _rebuild_target(d["target"], runner_for(d))
     settings = MCMCSettings(**d["settings"])
     j = int(d["index"])
@@ -111,9 +112,30 @@ def mcmc_window_unit(unit, rng) -> dict:
     entry["state_source"] = d["state_source"]
     entry["runtime_s"] = float(run.runtime_s)
     entry["n_evals"] = int(run.n_evals)
+    if notes:
+        entry["notes"] = entry["notes"] + "; " + notes
     path = Path(d["node_path"])
     _atomic_netcdf(tree, path)
     return {"entry": _plain(entry), "node_path": str(path)}
+
+
+def _check_backend(path: Path) -> str:
+    """An HDF5 chain file left unreadable (a kill mid-write) is moved aside, so the window starts
+    afresh instead of failing; returns a note saying so ("" when the file is fine or absent)."""
+    if not path.exists():
+        return ""
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            for g in f.values():
+                for c in g.values():
+                    c.attrs.get("iteration")
+        return ""
+    except Exception as exc:  # noqa: BLE001 - any HDF5 error means the file cannot be resumed
+        bad = path.with_name(path.name + ".corrupt")
+        os.replace(path, bad)
+        return f"chain file {path.name} was unreadable ({type(exc).__name__}); moved to {bad.name}, window restarted"
 
 
 def _json(obj) -> str:
