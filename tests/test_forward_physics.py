@@ -200,3 +200,10 @@ def test_state_is_valid_accepts_evolved_states_and_flags_unphysical_ones(options
         y[3, fm.layout()["kv"].start if fm.options.mass_transfer else fm.layout()["theta"].start] = (
             1.5 if fm.options.mass_transfer else -1e6)  # vapour fraction > 1 / temperature < 0
     assert fm.state_is_valid(y).tolist() == [False, False] + [not fm.options.thermal] * 2
+    why = fm.state_problems(y)                          # each state fails the check it was built to fail
+    assert why["radius"].tolist() == [True, False, False, False]
+    assert why["non_finite"].tolist() == [False, True, False, False]
+    if fm.options.thermal:
+        assert why["pressure"].tolist() == [False, False, True, False]
+        key = "vapour_fraction" if fm.options.mass_transfer else "temperature"
+        assert why[key].tolist() == [False, False, False, True]

@@ -225,7 +225,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                         "n_redrawn_prior": n_red_prior, "n_failed_handoff": n_fail,
                         "n_redrawn_handoff": n_red, "stopped_experiments": sum(bool(r["stopped"]) for r in R),
                         "handoff_failures": {obs.names[g]: {"analysed_invalid_state": int(r.get("n_invalid_analysed", 0)),
-                                                            "analysed_failed": int(r.get("n_failed_analysed", 0))}
+                                                            "analysed_failed": int(r.get("n_failed_analysed", 0)),
+                                                            "invalid_why": dict(r.get("invalid_why", {}))}
                                              for g, r in zip(ok, R) if r.get("n_failed_analysed", 0)},
                         "analysis_rejected": rejected, "failed_experiments": lost,
                         "cost": cost.tolist(),

@@ -255,7 +255,9 @@ def mienks_unit(unit: Unit, rng) -> dict:
     if not s.rtps_state:
         f[:ns] = 1.0
     Ea = res.mean[0][None, :] + np.sqrt(N - 1.0) * res.anoms[0] * f[None, :]
-    n_invalid = int((~runner.fm.state_is_valid(Ea[:, :ns])).sum())   # analysed states that are not physical
+    problems = runner.fm.state_problems(Ea[:, :ns])                   # analysed states that are not physical
+    n_invalid = int(np.any(np.stack(list(problems.values())), axis=0).sum())
+    invalid_why = {k: int(v.sum()) for k, v in problems.items() if v.any()}
     Rseg, Ynew, failed = propagate(Ea, t[a], t[a2], t[a:a2 + 1])
     n_failed_analysed = int(failed.sum())
     rejected = False
@@ -279,5 +281,5 @@ def mienks_unit(unit: Unit, rng) -> dict:
             "qm": res.prior_ensemble[0, :, ns:].mean(axis=0), "qc": qa.T @ qa,
             "n_failed_iter": res.n_failed[0], "n_redrawn_prior": int(res.n_redrawn[0]), "n_failed_handoff": n_fail,
             "n_redrawn_handoff": int(n_red), "stopped": bool(res.stopped[0]), "rejected": rejected,
-            "n_invalid_analysed": n_invalid, "n_failed_analysed": n_failed_analysed,
+            "n_invalid_analysed": n_invalid, "n_failed_analysed": n_failed_analysed, "invalid_why": invalid_why,
             "cost": res.cost[0], "state_size": int(ns), **_counts(runner, before)}

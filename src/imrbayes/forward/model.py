@@ -175,20 +175,27 @@ class ForwardModel:
         [0, 1], bubble temperature variable inside the domain of its inverse
         (1 + 2 alpha theta > 0) and medium temperature > 0. An ensemble analysis that updates the
         state can leave it; the smoother checks before handing such a state on."""
+        return ~np.any(np.stack(list(self.state_problems(state).values())), axis=0)
+
+    def state_problems(self, state) -> dict:
+        """{check: (N,) True where the state fails it} for the checks of :meth:`state_is_valid`:
+        ``non_finite``, ``radius`` (R* <= 0), ``pressure`` (p_b <= 0), ``vapour_fraction`` (outside
+        [0, 1]), ``temperature`` (1 + 2 alpha theta <= 0), ``medium_temperature`` (warm medium)."""
         y = np.atleast_2d(np.asarray(state.y if isinstance(state, BatchState) else state, dtype=float))
         if y.shape[1] != self.n_state:
             raise ForwardModelError(f"state has {y.shape[1]} entries, this model needs {self.n_state}")
-        ok = np.all(np.isfinite(y), axis=1) & (y[:, 0] > 0)
-        if self.options.thermal:
-            ok &= y[:, 2] > 0
-            g = self.groups(1.0, 0.5)          # alpha_g, alpha_v do not depend on the bubble size
-            kv = y[:, self._slices["kv"]] if self.options.mass_transfer else np.full((y.shape[0], 1), float(g["kv0"]))
-            ok &= np.all((kv >= 0) & (kv <= 1), axis=1)
-            am = kv * g["alpha_v"] + (1 - kv) * g["alpha_g"]
-            ok &= np.all(1 + 2 * am * y[:, self._slices["theta"]] > 0, axis=1)
-            if self.options.medium == "warm":
-                ok &= np.all(y[:, self._slices["Tm"]] > 0, axis=1)
-        return ok
+        with np.errstate(invalid="ignore"):
+            out = {"non_finite": ~np.all(np.isfinite(y), axis=1), "radius": ~(y[:, 0] > 0)}
+            if self.options.thermal:
+                out["pressure"] = ~(y[:, 2] > 0)
+                g = self.groups(1.0, 0.5)          # alpha_g, alpha_v do not depend on the bubble size
+                kv = y[:, self._slices["kv"]] if self.options.mass_transfer else np.full((y.shape[0], 1), float(g["kv0"]))
+                out["vapour_fraction"] = ~np.all((kv >= 0) & (kv <= 1), axis=1)
+                am = kv * g["alpha_v"] + (1 - kv) * g["alpha_g"]
+                out["temperature"] = ~np.all(1 + 2 * am * y[:, self._slices["theta"]] > 0, axis=1)
+                if self.options.medium == "warm":
+                    out["medium_temperature"] = ~np.all(y[:, self._slices["Tm"]] > 0, axis=1)
+        return out
 
     def describe(self) -> dict:
         """JSON-able record of everything that defines this forward model."""
