@@ -1,0 +1,784 @@
+"""``report.html`` of a run directory (``imrbayes report RUN_DIR``, interfaces.md §2).
+
+One self-contained HTML file (inline style, figures as base64 PNG, no external links) holding
+
+* the dataset (path, experiments with Rmax [µm], Req [µm], Rmax/Req, first-collapse t*), the
+  preprocessing choices, forward model, prior, method settings, seed, version, runtime, warnings
+  and failed or skipped units;
+* the estimate (SI units) and, for MIEnKS-MDA, the per-window table;
+* ArviZ summary tables (``az.summary(..., round_to="none")``, 95 % HDI) of ``posterior.nc`` and,
+  when the fit ran with ``--mcmc``, of every window of ``mcmc.nc``; displayed rounded, the raw
+  value of every number in the cell's tooltip (``title``);
+* the ensemble-vs-MCMC comparison of ``compare.json`` per window and a plain-language list of the
+  flagged windows (disagreeing and undecided ones, with the reason);
+* every ``figures/*.png``, with a caption.
+
+Parts that are absent (no ``mcmc.nc``/``compare.json`` for a fit without ``--mcmc``, no figures)
+are said to be absent. Unreadable files raise :class:`~imrbayes.errors.InputError` naming the file.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import warnings
+from pathlib import Path
+
+from imrbayes import __version__
+from imrbayes.errors import InputError
+from imrbayes.html import PNG_MAGIC, embed_png, esc, num, page, table
+
+__all__ = ["load_run", "write_run_report", "flagged_windows", "window_phase"]
+
+# Thresholds used when compare.json does not carry its own (imrbayes.mcmc.compare.THRESHOLDS).
+_DEFAULT_THRESHOLDS = {"kl_sym": 0.1, "w2": 0.5, "kl_sample": 0.1, "rhat": 1.01, "ess_bulk": 400.0, "tau_rule": 50.0}
+_CI_PROB = 0.95
+_METHOD_NAMES = {"imr": "standard IMR (grid least squares)", "pimr": "pIMR (collapse-time closed form)",
+                 "en4dvar": "ensemble 4D-Var (En4D-Var)", "mienks": "MIEnKS-MDA (sliding-window smoother)"}
+
+
+# ----------------------------------------------------------------------------------------- loading
+def _read_json(path: Path, required: bool):
+    if not path.exists():
+        if required:
+            raise InputError(path, "not found (is this a run directory written by 'imrbayes fit'?)")
+        return None
+    if not path.is_file():
+        raise InputError(path, "not a file")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"not valid JSON ({' '.join(str(exc).split())})")
+    except OSError as exc:
+        raise InputError(path, f"cannot be read ({exc.strerror or exc})")
+    if not isinstance(data, dict):
+        raise InputError(path, f"expected a JSON object, got {type(data).__name__}")
+    return data
+
+
+def _open_tree(path: Path):
+    import xarray as xr
+
+    if not path.exists():
+        return None
+    if not path.is_file():
+        raise InputError(path, "not a file")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with xr.open_datatree(path) as dt:
+                return dt.load()
+    except Exception as exc:  # netCDF/HDF5 errors come in many types
+        msg = " ".join(str(exc).split())[:160]
+        raise InputError(path, f"cannot be read as netCDF ({type(exc).__name__}: {msg})")
+
+
+def load_run(run_dir) -> dict:
+    """Read and check a run directory; returns its parts (``None`` for absent optional files).
+
+    Raises InputError (naming the file) for a missing directory, a missing or invalid
+    ``summary.json``, or an unreadable ``posterior.nc``, ``mcmc.nc`` or ``compare.json``.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.exists():
+        raise InputError(run_dir, "run directory not found")
+    if not run_dir.is_dir():
+        raise InputError(run_dir, "not a directory (expected a run directory written by 'imrbayes fit')")
+    sp = run_dir / "summary.json"
+    summary = _read_json(sp, required=True)
+    missing = [k for k in ("method", "parameters", "estimate") if k not in summary]
+    if missing:
+        raise InputError(sp, f"has no {', '.join(repr(k) for k in missing)} (not written by 'imrbayes fit')")
+    if not isinstance(summary["parameters"], list) or not isinstance(summary["estimate"], dict):
+        raise InputError(sp, "'parameters' must be a list and 'estimate' an object")
+    for key in ("windows", "time_resolved"):
+        if summary.get(key) is not None and not isinstance(summary[key], list):
+            raise InputError(sp, f"'{key}' must be a list")
+
+    post = _open_tree(run_dir / "posterior.nc")
+    if post is not None and "posterior" not in post.children:
+        raise InputError(run_dir / "posterior.nc", "has no 'posterior' group (not written by 'imrbayes fit')")
+    mcmc = _open_tree(run_dir / "mcmc.nc")
+    if mcmc is not None and not any(k.startswith("window_") for k in mcmc.children) \
+            and "posterior" not in mcmc.children:
+        raise InputError(run_dir / "mcmc.nc", "holds neither window_XX groups nor a 'posterior' group "
+                                              "(not written by 'imrbayes fit --mcmc')")
+    cp = run_dir / "compare.json"
+    compare = _read_json(cp, required=False)
+    if compare is not None:
+        wins = compare.get("windows")
+        if not isinstance(wins, list) or not all(isinstance(w, dict) and "index" in w for w in wins):
+            raise InputError(cp, "has no 'windows' list of entries with an 'index' "
+                                 "(not written by 'imrbayes compare' or 'fit --mcmc')")
+        if not isinstance(compare.get("overall", {}), dict):
+            raise InputError(cp, "'overall' must be an object")
+    fdir = run_dir / "figures"
+    figures = sorted(fdir.glob("*.png")) if fdir.is_dir() else []
+    return {"run_dir": run_dir, "summary": summary, "posterior": post, "mcmc": mcmc, "compare": compare,
+            "figures": figures}
+
+
+# --------------------------------------------------------------------------------------- helpers
+def _units(summary) -> dict:
+    out = {"G": "Pa", "mu": "Pa s"}
+    try:
+        from imrbayes.forward.constitutive.base import get_model
+        out.update({p.name: p.unit for p in get_model(summary.get("model", "")).parameters})
+    except Exception:  # unknown model name in an old run: the default units
+        pass
+    return out
+
+
+def _raw(x) -> str:
+    """The exact value for a tooltip."""
+    try:
+        return repr(float(x))
+    except (TypeError, ValueError):
+        return esc(x)
+
+
+def _ncell(x, spec=".5g", cls=None):
+    c = f" {cls}" if cls else ""
+    return (num(x, spec), f"class='n{c}' title='{_raw(x)}'")
+
+
+def _fnum(x, default=math.nan) -> float:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return default
+    return v
+
+
+def _span(ts, spec=".3g") -> str:
+    if not ts or len(ts) != 2:
+        return "–"
+    return f"{num(ts[0], spec)}–{num(ts[1], spec)}"
+
+
+def _kv_list(d: dict, skip=()) -> str:
+    if not d:
+        return "<i>none</i>"
+    items = []
+    for k, v in d.items():
+        if k in skip:
+            continue
+        if isinstance(v, float):
+            v = num(v, ".6g")
+        elif isinstance(v, (dict, list)):
+            v = esc(json.dumps(v))
+        else:
+            v = esc(v)
+        items.append(f"<code>{esc(k)}</code>&nbsp;=&nbsp;{v}")
+    return ", ".join(items) if items else "<i>none</i>"
+
+
+def _collapse_time(summary) -> float:
+    pre = summary.get("preprocessing") or {}
+    s = (pre.get("summary") or {}).get("t_collapse_star") or {}
+    tc = _fnum(s.get("mean"))
+    if math.isfinite(tc):
+        return tc
+    vals = [_fnum(e.get("t_collapse_star")) for e in pre.get("experiments") or [] if isinstance(e, dict)]
+    vals = [v for v in vals if math.isfinite(v)]
+    return sum(vals) / len(vals) if vals else math.nan
+
+
+def window_phase(t_star, tc: float, tol: float = 0.05) -> str:
+    """Where a window lies relative to the mean first-collapse time ``tc`` (t*), in words."""
+    if not t_star or len(t_star) != 2 or not math.isfinite(tc):
+        return ""
+    a, b = float(t_star[0]), float(t_star[1])
+    if b < tc - tol:
+        return "before the first collapse"
+    if a > tc + tol:
+        return "after the first collapse"
+    return "around the first collapse"
+
+
+# ---------------------------------------------------------------------------- flagged windows
+def _thresholds(compare) -> dict:
+    return {**_DEFAULT_THRESHOLDS, **((compare.get("overall") or {}).get("thresholds") or {})}
+
+
+def _entry_diag(e) -> dict:
+    m = e.get("mcmc") or {}
+    rh = [_fnum(v) for v in (m.get("rhat") or {}).values()]
+    es = [_fnum(v) for v in (m.get("ess_bulk") or {}).values()]
+    sampler = m.get("sampler") or {}
+    return {"rhat": max(rh) if rh else math.nan, "ess": min(es) if es else math.nan,
+            "n_over_tau": _fnum(sampler.get("n_steps_over_tau")), "tau_ok": sampler.get("all_tau_ok"),
+            "n_chains": m.get("n_chains"), "n_steps": sampler.get("n_steps"), "n_draws": m.get("n_draws")}
+
+
+def _shape_words(e) -> str | None:
+    neg = e.get("negentropy") or {}
+    mar = e.get("mardia") or {}
+    parts = []
+    if _fnum(mar.get("skew_p"), 1.0) < 1e-3:
+        parts.append("skewed")
+    kz = _fnum(mar.get("kurt_z"), 0.0)
+    if _fnum(mar.get("kurt_p"), 1.0) < 1e-3:
+        parts.append("heavy-tailed" if kz > 0 else "light-tailed")
+    non_gauss = _fnum(neg.get("estimate"), 0.0)
+    curved = _fnum(neg.get("raw"), -1.0) > _fnum(neg.get("null_q99"), math.inf)
+    if not parts and (curved or non_gauss > 0.05):
+        parts.append("non-Gaussian (curved)")
+    if not parts:
+        return None
+    return (f"the MCMC posterior is {' and '.join(parts)} (negentropy {num(non_gauss, '.2g')} nats, "
+            f"Mardia skewness p = {num(mar.get('skew_p'), '.2g')}, kurtosis z = {num(mar.get('kurt_z'), '.2f')})")
+
+
+def _moment_words(e) -> list:
+    out = []
+    shift = {k: _fnum(v) for k, v in (e.get("mean_shift_sd") or {}).items()}
+    shift = {k: v for k, v in shift.items() if math.isfinite(v)}
+    if shift:
+        k = max(shift, key=lambda n: abs(shift[n]))
+        if abs(shift[k]) >= 0.25:
+            out.append(f"the ensemble mean of {k} lies {num(abs(shift[k]), '.2g')} MCMC posterior sd "
+                       f"{'above' if shift[k] > 0 else 'below'} the MCMC mean")
+    ratio = {k: _fnum(v) for k, v in (e.get("sd_ratio") or {}).items()}
+    ratio = {k: v for k, v in ratio.items() if math.isfinite(v) and v > 0}
+    if ratio:
+        k = max(ratio, key=lambda n: abs(math.log(ratio[n])))
+        if abs(math.log(ratio[k])) >= math.log(1.25):
+            out.append(f"the ensemble sd of {k} is {num(ratio[k], '.2g')}× the MCMC sd "
+                       f"({'too narrow' if ratio[k] < 1 else 'too wide'})")
+    return out
+
+
+def _criteria_words(e, th) -> list:
+    crit = e.get("criteria") or {}
+    neg = _fnum((e.get("negentropy") or {}).get("estimate"), 0.0)
+    out = []
+    kl_sym, w2, kls = _fnum(e.get("kl_sym")), _fnum(e.get("w2")), _fnum(e.get("kl_sample"))
+    if crit.get("kl_sym") is False or (not crit and kl_sym > th["kl_sym"]):
+        out.append(f"symmetric KL {num(kl_sym, '.2g')} nats > {num(th['kl_sym'], 'g')}")
+    if crit.get("w2") is False or (not crit and w2 > th["w2"]):
+        out.append(f"W2 {num(w2, '.2g')} posterior sd > {num(th['w2'], 'g')}")
+    if crit.get("kl_sample") is False or (not crit and kls > th["kl_sample"]):
+        out.append(f"sample KL {num(kls, '.2g')} nats > {num(th['kl_sample'], 'g')} "
+                   f"(Gaussian part {num(e.get('kl_gauss'), '.2g')}, non-Gaussian part {num(neg, '.2g')})")
+    return out
+
+
+def _longer(d, th) -> str:
+    """A suggested ``n_steps`` that would meet the tau rule and the bulk-ESS threshold (ESS and
+    chain length in tau both grow about linearly with the steps)."""
+    n = _fnum(d["n_steps"])
+    if not math.isfinite(n) or n <= 0:
+        return "n_steps=…"
+    f = 1.0
+    if math.isfinite(d["n_over_tau"]) and d["n_over_tau"] > 0:
+        f = max(f, th["tau_rule"] / d["n_over_tau"])
+    if math.isfinite(d["ess"]) and d["ess"] > 0:
+        f = max(f, th["ess_bulk"] / d["ess"])
+    return f"n_steps={int(math.ceil(1.2 * f * n / 100.0) * 100)}"
+
+
+def flagged_windows(compare: dict, summary: dict | None = None) -> list:
+    """Plain-language lines (plain text, not HTML) for every window whose ``agree`` is not true
+    (disagreeing: which criterion failed and how; undecided: why the MCMC is not trusted), for
+    windows whose MCMC failed and for windows that were not sampled; ``[]`` when all agree."""
+    if not compare:
+        return []
+    summary = summary or {}
+    th = _thresholds(compare)
+    tc = _collapse_time(summary)
+    tc_txt = f" (mean first collapse t* ≈ {num(tc, '.3g')})" if math.isfinite(tc) else ""
+    lines = []
+    for e in sorted(compare.get("windows") or [], key=lambda w: w.get("index", 0)):
+        agree = e.get("agree")
+        if agree is True:
+            continue
+        ts = e.get("t_star")
+        phase = window_phase(ts, tc)
+        where = f"t* {_span(ts)}" + (f", {phase}{tc_txt}" if phase else "")
+        head = f"Window {e.get('index')} ({where})"
+        if agree is False:
+            why = _criteria_words(e, th)
+            what = [w for w in (_shape_words(e),) if w] + _moment_words(e)
+            text = (f"{head}: disagrees — {'; '.join(what + why) if (what or why) else e.get('notes', '')}; "
+                    "the Gaussian ensemble approximation is not adequate here.")
+        else:
+            d = _entry_diag(e)
+            why = []
+            if not (e.get("mcmc") or {}).get("rhat") and (d["n_chains"] or 0) < 2:
+                why.append("only one chain, so R-hat cannot be computed")
+            if math.isfinite(d["rhat"]) and d["rhat"] > th["rhat"]:
+                why.append(f"max R-hat {num(d['rhat'], '.4f')} > {num(th['rhat'], 'g')}")
+            if math.isfinite(d["ess"]) and d["ess"] < th["ess_bulk"]:
+                why.append(f"min bulk ESS {num(d['ess'], '.0f')} < {num(th['ess_bulk'], 'g')}")
+            if d["tau_ok"] is False:
+                why.append(f"chains only {num(d['n_over_tau'], '.3g')} autocorrelation times long "
+                           f"(< {num(th['tau_rule'], 'g')} τ)")
+            if not why:
+                why.append(e.get("notes") or "the MCMC run does not meet the convergence criteria")
+            prov = _criteria_words(e, th)
+            prov_txt = (f" Provisional metrics (not to be trusted yet): {'; '.join(prov)}." if prov else
+                        " The provisional metrics are within the agreement thresholds.")
+            steps = f" than {d['n_steps']} steps" if d["n_steps"] else ""
+            text = (f"{head}: undecided — the MCMC reference is not trustworthy: {'; '.join(why)}. "
+                    f"Sample longer{steps} (e.g. --mcmc-set {_longer(d, th)}) and rerun.{prov_txt}")
+        lines.append(text)
+    overall = compare.get("overall") or {}
+    for f in overall.get("failed_windows") or []:
+        if isinstance(f, dict):
+            lines.append(f"Window {f.get('window')} (t* {_span(f.get('t_star'))}): the MCMC failed "
+                         f"({f.get('error', 'unknown error')}); no comparison.")
+    sampled = {w.get("index") for w in compare.get("windows") or []}
+    failed = {f.get("window") for f in overall.get("failed_windows") or [] if isinstance(f, dict)}
+    rest = [w.get("index") for w in summary.get("windows") or []
+            if isinstance(w, dict) and w.get("index") not in sampled | failed]
+    if rest and sampled:
+        lines.append(f"Not sampled by MCMC (no comparison): window{'s' if len(rest) > 1 else ''} "
+                     f"{', '.join(str(i) for i in rest)}.")
+    return lines
+
+
+# ----------------------------------------------------------------------------------- sections
+def _section_contents(run) -> str:
+    rd = run["run_dir"]
+    s = run["summary"]
+    ran_mcmc = "mcmc" in s
+    rows = [("summary.json", "<span class='ok'>present</span>", "run summary (dataset, settings, estimate)")]
+    rows.append(("posterior.nc", "<span class='ok'>present</span>" if run["posterior"] is not None else
+                 "<span class='absent'>absent</span>", "ArviZ posterior of the fit"))
+    if run["mcmc"] is not None:
+        st = "<span class='ok'>present</span>"
+    elif ran_mcmc:
+        st = "<span class='absent'>absent, although summary.json records an MCMC run</span>"
+    else:
+        st = "<span class='absent'>absent</span> (the fit ran without <code>--mcmc</code>)"
+    rows.append(("mcmc.nc", st, "MCMC reference posteriors per window"))
+    if run["compare"] is not None:
+        st = "<span class='ok'>present</span>"
+    elif run["mcmc"] is not None:
+        st = "<span class='absent'>absent</span> (run <code>imrbayes compare RUN_DIR</code>)"
+    else:
+        st = "<span class='absent'>absent</span>"
+    rows.append(("compare.json", st, "ensemble Gaussian vs MCMC, per window"))
+    rows.append(("figures/*.png", f"{len(run['figures'])} file(s)" if run["figures"] else
+                 "<span class='absent'>absent</span>", "figures (embedded below)"))
+    out = table(["file", "status", "content"], [(f"<code>{esc(a)}</code>", b, esc(c)) for a, b, c in rows])
+    if run["mcmc"] is None and run["compare"] is None:
+        out += ("<p class='absent'>The MCMC comparison is absent: this run directory has no mcmc.nc and no "
+                "compare.json (rerun <code>imrbayes fit ... --method mienks --mcmc</code> to add it).</p>")
+    return f"<h2 id='contents'>Run directory</h2><p><code>{esc(rd)}</code></p>{out}"
+
+
+def _section_dataset(s) -> str:
+    pre = s.get("preprocessing") or {}
+    ds = pre.get("dataset") or {}
+    meta = ds.get("meta") or {}
+    head = [f"<b>Data:</b> <code>{esc(s.get('data', ds.get('path', '–')))}</code>"]
+    if ds.get("format"):
+        head.append(f"format {esc(ds['format'])}")
+    if ds.get("material") or meta.get("material"):
+        head.append(f"material: {esc(ds.get('material') or meta.get('material'))}")
+    if meta.get("temperature_C") is not None:
+        head.append(f"temperature {num(meta['temperature_C'], '.3g')} °C")
+    if meta.get("description"):
+        head.append(f"description: {esc(meta['description'])}")
+    n_exp = s.get("n_experiments", pre.get("n_experiments"))
+    head.append(f"{esc(n_exp)} experiment(s) used")
+    rows = []
+    for e in pre.get("experiments") or []:
+        if not isinstance(e, dict):
+            continue
+        rmax, req = _fnum(e.get("rmax_m")), _fnum(e.get("req_m"))
+        rows.append((esc(e.get("name", "?")), f"<code>{esc(e.get('source', ''))}</code>",
+                     _ncell(rmax * 1e6, ".4g"), _ncell(req * 1e6, ".4g"), esc(e.get("req_source", "")),
+                     _ncell(e.get("rmax_over_req"), ".4g"), _ncell(e.get("t_collapse_star"), ".4g"),
+                     _ncell(e.get("n_samples"), ".0f"), _ncell(e.get("n_steps_available"), ".0f"),
+                     esc("; ".join(e.get("warnings") or [])) or "–"))
+    out = "<h2 id='dataset'>Dataset</h2><p>" + "; ".join(head) + "</p>"
+    if rows:
+        out += table(["experiment", "file", "Rmax [µm]", "Req [µm]", "Req from", "Rmax/Req [-]",
+                      "first collapse t* [-]", "samples", "grid steps available", "warnings"], rows)
+        summ = pre.get("summary") or {}
+        srows = []
+        for key, lab in (("rmax_um", "Rmax [µm]"), ("req_um", "Req [µm]"), ("rmax_over_req", "Rmax/Req [-]"),
+                         ("t_collapse_star", "first collapse t* [-]")):
+            v = summ.get(key)
+            if isinstance(v, dict):
+                srows.append((lab, _ncell(v.get("mean"), ".4g"), _ncell(v.get("sd"), ".3g"),
+                              _ncell(v.get("min"), ".4g"), _ncell(v.get("max"), ".4g")))
+        if srows:
+            out += table(["across experiments", "mean", "sd", "min", "max"], srows)
+    else:
+        out += "<p class='absent'>summary.json lists no per-experiment preprocessing results.</p>"
+    skipped = pre.get("skipped") or (s.get("failures") or {}).get("skipped_experiments") or []
+    if skipped:
+        out += f"<p><b>Experiments left out by preprocessing:</b> {esc(json.dumps(skipped))}</p>"
+    choices = pre.get("choices") or {}
+    if choices:
+        out += f"<h3>Preprocessing</h3><p>{_kv_list(choices)}</p>"
+    return out
+
+
+def _section_config(s) -> str:
+    cmd = s.get("command") or {}
+    fwd = s.get("forward") or {}
+    prior = s.get("prior") or (s.get("details") or {}).get("parameter_space") or {}
+    units = _units(s)
+    method = s.get("method", "?")
+    rows = [("method", f"{esc(method)} — {esc(_METHOD_NAMES.get(method, ''))}"),
+            ("constitutive model", esc(s.get("model", fwd.get("constitutive", "?")))),
+            ("parameters", esc(", ".join(f"{p} [{units.get(p, '?')}]" for p in s.get("parameters", [])))),
+            ("seed", esc(s.get("seed", cmd.get("seed", "–")))),
+            ("imrbayes version", esc(cmd.get("imrbayes_version", "–"))),
+            ("command", "<code>imrbayes fit " + esc(s.get("data", "DATA")) + " " +
+             esc(" ".join(f"--{k.replace('_', '-')} {v}" for k, v in cmd.items()
+                          if k not in ("name", "imrbayes_version", "resume") and v is not None)) +
+             (" --resume" if cmd.get("resume") else "") + "</code>"),
+            ("runtime", f"method {num(s.get('runtime_s'), '.3g')} s; whole command "
+                        f"{num(s.get('total_runtime_s'), '.3g')} s")]
+    ex = s.get("execution") or {}
+    if ex:
+        exe = ex.get("executor") or {}
+        rows.append(("execution", f"{esc(ex.get('n_units', '–'))} unit(s): {esc(ex.get('n_computed', '–'))} computed, "
+                                  f"{esc(ex.get('n_resumed', '–'))} from checkpoints, {esc(ex.get('n_failed', '–'))} "
+                                  f"failed; backend {esc(exe.get('backend', '–'))}, workers {esc(exe.get('workers', '–'))}"))
+    if fwd:
+        rows.append(("forward model", f"{esc(fwd.get('constitutive', ''))}; {_kv_list(fwd.get('options') or {})}"))
+        rows.append(("physical constants", _kv_list(fwd.get("physics") or {})))
+    settings = (s.get("details") or {}).get("settings")
+    if settings:
+        rows.append(("method settings", _kv_list(settings)))
+    out = "<h2 id='config'>Run configuration</h2>" + table(["", ""], rows)
+    psi = prior.get("prior_si") or {}
+    if psi:
+        ls = prior.get("log_space") or {}
+        prow = [(esc(k), esc(units.get(k, "?")), _ncell(v.get("mean")), _ncell(v.get("sd")),
+                 "log-normal" if ls.get(k, True) else "Gaussian") for k, v in psi.items() if isinstance(v, dict)]
+        out += "<h3>Prior</h3>" + table(["parameter", "unit", "mean", "sd", "distribution"], prow)
+        if prior.get("prior_rule"):
+            out += f"<p class='note'>{esc(prior['prior_rule'])}</p>"
+    return out
+
+
+def _section_warnings(s, compare) -> str:
+    warn = []
+    for w in list(s.get("warnings") or []) + list(s.get("warnings_preprocessing") or []) + \
+            list((s.get("preprocessing") or {}).get("warnings") or []):
+        if w not in warn:
+            warn.append(w)
+    for e in (s.get("preprocessing") or {}).get("experiments") or []:
+        for w in (e.get("warnings") or []) if isinstance(e, dict) else []:
+            item = f"{e.get('name')}: {w}"
+            if item not in warn:
+                warn.append(item)
+    fail = s.get("failures") or {}
+    items = []
+    if fail.get("skipped_experiments"):
+        items.append(f"experiments left out (preprocessing failed): {esc(json.dumps(fail['skipped_experiments']))}")
+    for u in fail.get("failed_units") or []:
+        items.append(f"failed unit: {esc(json.dumps(u) if not isinstance(u, str) else u)}")
+    ex_failed = (s.get("execution") or {}).get("failed") or []
+    for u in ex_failed:
+        t = esc(json.dumps(u) if not isinstance(u, str) else u)
+        if not any(t in i for i in items):
+            items.append(f"failed execution unit: {t}")
+    for key, lab in (("failed_member_runs", "failed forward runs of ensemble members / grid points"),
+                     ("redrawn_members", "ensemble members redrawn")):
+        v = fail.get(key)
+        if v:
+            items.append(f"{lab}: {esc(v)}")
+    for f in ((compare or {}).get("overall") or {}).get("failed_windows") or []:
+        items.append(f"MCMC failed in window {esc(f.get('window') if isinstance(f, dict) else f)}: "
+                     f"{esc(f.get('error', '') if isinstance(f, dict) else '')}")
+    out = "<h2 id='warnings'>Warnings and failures</h2>"
+    out += ("<ul>" + "".join(f"<li>{esc(w)}</li>" for w in warn) + "</ul>") if warn else "<p>No warnings.</p>"
+    out += ("<p><b>Failed or skipped units:</b></p><ul>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
+            if items else "<p>No failed or skipped units.</p>")
+    return out
+
+
+def _section_estimate(s) -> str:
+    units = _units(s)
+    rows = []
+    for p in s.get("parameters", []):
+        e = s["estimate"].get(p) or {}
+        hdi = e.get("hdi95") or [None, None]
+        rows.append((esc(p), esc(units.get(p, "?")), _ncell(e.get("mean")), _ncell(e.get("sd"), ".3g"),
+                     _ncell(e.get("median")), _ncell(hdi[0]), _ncell(hdi[1])))
+    out = "<h2 id='estimate'>Estimate (SI units)</h2>"
+    if s.get("method") == "mienks":
+        out += "<p>Precision-weighted aggregate over the whole record (all windows).</p>"
+    out += table(["parameter", "unit", "mean", "sd", "median", "95 % HDI lower", "95 % HDI upper"], rows)
+    if any((s["estimate"].get(p) or {}).get("sd") is None for p in s.get("parameters", [])):
+        det = s.get("details") or {}
+        why = det.get("uncertainty") or det.get("note")
+        out += ("<p class='note'>– : not available from this method"
+                + (f" ({esc(why if isinstance(why, str) else json.dumps(why))})" if why else "") + ".</p>")
+    fit = s.get("fit") or {}
+    if fit:
+        out += (f"<p>Fit: RMSE {num(fit.get('rmse'), '.4g')} in R* over {esc(fit.get('n_samples', '–'))} "
+                f"samples <span class='note'>({esc(fit.get('rmse_definition', ''))})</span></p>")
+    return out
+
+
+def _section_windows(s) -> str:
+    wins = [w for w in s.get("windows") or [] if isinstance(w, dict)]
+    if not wins:
+        return ""
+    units = _units(s)
+    params = s.get("parameters", [])
+    tc = _collapse_time(s)
+    heads = ["window", "t* span [-]", "phase"]
+    for p in params:
+        heads += [f"{esc(p)} mean [{esc(units.get(p, '?'))}]", f"{esc(p)} sd [{esc(units.get(p, '?'))}]"]
+    heads += ["failed experiments"]
+    rows = []
+    for w in wins:
+        r = [esc(w.get("index")), _span(w.get("t_star"), ".4g"), esc(window_phase(w.get("t_star"), tc) or "–")]
+        for p in params:
+            r += [_ncell((w.get(p) or {}).get("mean")), _ncell((w.get(p) or {}).get("sd"), ".3g")]
+        fe = w.get("failed_experiments") or []
+        r.append(esc(", ".join(map(str, fe))) if fe else "–")
+        rows.append(r)
+    n_tr = len(s.get("time_resolved") or [])
+    return (f"<h2 id='windows'>Windows ({len(wins)})</h2><p>Per-window posterior (mean, sd; SI units). "
+            f"The time-resolved estimate has {n_tr} points (see the parameters figure).</p>" + table(heads, rows))
+
+
+_AZ_COLS = [("mean", ".5g"), ("sd", ".3g"), ("hdi95_lb", ".5g"), ("hdi95_ub", ".5g"), ("ess_bulk", ".0f"),
+            ("ess_tail", ".0f"), ("r_hat", ".4f"), ("mcse_mean", ".3g"), ("mcse_sd", ".3g")]
+
+
+def _az_summary(tree, var_names=None):
+    """``az.summary`` with a 95 % HDI and raw numbers; (DataFrame, None) or (None, error text)."""
+    import arviz as az
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            kw = {"var_names": var_names} if var_names else {}
+            return az.summary(tree, round_to="none", ci_kind="hdi", ci_prob=_CI_PROB, **kw), None
+    except Exception as exc:  # a tree ArviZ cannot summarise: reported, not fatal
+        return None, f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
+
+
+def _az_table(df, th=None) -> str:
+    cols = [(c, f) for c, f in _AZ_COLS if c in df.columns]
+    cols += [(c, ".4g") for c in df.columns if c not in {k for k, _ in cols}]
+    rows = []
+    for name, rec in df.iterrows():
+        r = [f"<code>{esc(name)}</code>"]
+        for c, f in cols:
+            v = rec[c]
+            cls = None
+            if th is not None:
+                fv = _fnum(v)
+                if c == "r_hat" and math.isfinite(fv):
+                    cls = "bad" if fv > th["rhat"] else "ok"
+                if c == "ess_bulk" and math.isfinite(fv):
+                    cls = "bad" if fv < th["ess_bulk"] else "ok"
+            r.append(_ncell(v, f, cls))
+        rows.append(r)
+    return table(["variable"] + [c for c, _ in cols], rows)
+
+
+def _section_posterior(run) -> str:
+    out = "<h2 id='posterior'>ArviZ summary of posterior.nc</h2>"
+    tree = run["posterior"]
+    if tree is None:
+        return out + "<p class='absent'>posterior.nc is absent from this run directory.</p>"
+    df, err = _az_summary(tree)
+    if df is None:
+        return out + f"<p class='absent'>ArviZ could not summarise posterior.nc ({esc(err)}).</p>"
+    post = tree["posterior"]
+    n_chain = post.sizes.get("chain", 1)
+    n_draw = post.sizes.get("draw", 0)
+    out += (f"<p><code>az.summary(tree, round_to=\"none\", ci_kind=\"hdi\", ci_prob={_CI_PROB})</code>; "
+            f"{n_chain} chain(s) × {n_draw} draws. Numbers are shown rounded; hover a cell for its raw value.")
+    if "window" in post.dims:
+        out += " Rows <code>G[j]</code> etc. are window j."
+    if n_chain < 2:
+        out += (" These are independent draws from the method's posterior approximation (one chain), not a "
+                "Markov chain: r_hat is undefined (–) and ESS and MCSE treat the draws as one sequence.")
+    return out + "</p>" + _az_table(df)
+
+
+def _section_mcmc(run) -> str:
+    out = "<h2 id='mcmc'>MCMC reference posteriors (mcmc.nc)</h2>"
+    tree = run["mcmc"]
+    if tree is None:
+        return out + ("<p class='absent'>Absent: this run directory has no mcmc.nc (the fit ran without "
+                      "<code>--mcmc</code>).</p>")
+    th = _thresholds(run["compare"] or {})
+    try:
+        settings = json.loads(tree.attrs.get("mcmc_settings_json", "null")) or {}
+    except (TypeError, ValueError):
+        settings = {}
+    if settings:
+        out += f"<p>emcee settings: {_kv_list(settings)}.</p>"
+    out += (f"<p>Per window, <code>az.summary(round_to=\"none\", ci_kind=\"hdi\", ci_prob={_CI_PROB})</code>; "
+            f"one chain = one independent emcee ensemble. Shaded: r_hat &gt; {num(th['rhat'], 'g')} or "
+            f"ess_bulk &lt; {num(th['ess_bulk'], 'g')} (red), within the thresholds (green).</p>")
+    keys = sorted(k for k in tree.children if k.startswith("window_"))
+    span = {}
+    for e in (run["compare"] or {}).get("windows") or []:
+        span[e.get("index")] = e.get("t_star")
+    if not keys:   # a single-window tree (posterior at the top)
+        keys = [None]
+    for k in keys:
+        node = tree if k is None else tree[k]
+        idx = None
+        if k is not None:
+            try:
+                idx = int(k.split("_", 1)[1])
+            except ValueError:
+                idx = k
+        ts = span.get(idx)
+        if ts is None:
+            try:
+                ts = (json.loads(node.attrs.get("ensemble_json", "null")) or {}).get("t_star")
+            except (TypeError, ValueError, AttributeError):
+                ts = None
+        title = f"Window {esc(idx)}" if k is not None else "Posterior"
+        out += f"<h3>{title}" + (f" (t* {_span(ts)})" if ts else "") + "</h3>"
+        if "posterior" not in node.children:
+            out += "<p class='absent'>no posterior group in this node.</p>"
+            continue
+        try:
+            diag = json.loads(node.attrs.get("diagnostics_json", "null")) or {}
+        except (TypeError, ValueError):
+            diag = {}
+        if diag:
+            acc = diag.get("acceptance") or []
+            acc = [a for a in (acc if isinstance(acc, list) else [acc]) if isinstance(a, (int, float))]
+            out += (f"<p class='note'>{esc(diag.get('n_chains', '–'))} ensembles × {esc(diag.get('n_walkers', '–'))} "
+                    f"walkers × {esc(diag.get('n_steps', '–'))} steps; burn {esc(diag.get('burn', '–'))}, thin "
+                    f"{esc(diag.get('thin', '–'))}; max τ {num(diag.get('tau_max'), '.3g')} steps, n_steps/τ "
+                    f"{num(diag.get('n_steps_over_tau'), '.3g')} (rule ≥ {num(diag.get('tau_rule', th['tau_rule']), 'g')})"
+                    + (f"; mean acceptance {num(sum(acc) / len(acc), '.2f')}" if acc else "") + "</p>")
+        df, err = _az_summary(node)
+        out += _az_table(df, th) if df is not None else f"<p class='absent'>ArviZ summary failed: {esc(err)}</p>"
+    return out
+
+
+def _section_compare(run) -> str:
+    out = "<h2 id='compare'>Ensemble Gaussian vs MCMC (compare.json)</h2>"
+    compare = run["compare"]
+    if compare is None:
+        why = ("run <code>imrbayes compare RUN_DIR</code> to compute it from mcmc.nc" if run["mcmc"] is not None
+               else "the fit ran without <code>--mcmc</code>")
+        return out + f"<p class='absent'>The MCMC comparison is absent: no compare.json ({why}).</p>"
+    th = _thresholds(compare)
+    ov = compare.get("overall") or {}
+    out += (f"<p>{esc(ov.get('n_windows', len(compare.get('windows') or [])))} window(s): {esc(ov.get('n_agree', '–'))} "
+            f"agree, {esc(ov.get('n_disagree', '–'))} disagree, {esc(ov.get('n_undecided', '–'))} undecided.</p>")
+    if ov.get("agree_rule"):
+        out += f"<p class='note'>Rule: {esc(ov['agree_rule'])}. {esc(ov.get('coordinates', ''))}</p>"
+    rows = []
+    tc = _collapse_time(run["summary"])
+    for e in sorted(compare.get("windows") or [], key=lambda w: w.get("index", 0)):
+        d = _entry_diag(e)
+        a = e.get("agree")
+        lab, cls = ("yes", "ok") if a is True else (("no", "bad") if a is False else ("undecided", "undecided"))
+        bad = lambda v, t: "bad" if _fnum(v) > t else None   # noqa: E731
+        rows.append((esc(e.get("index")), _span(e.get("t_star"), ".4g"), esc(window_phase(e.get("t_star"), tc) or "–"),
+                     _ncell(e.get("kl_gauss"), ".3g"), _ncell(e.get("kl_gauss_reverse"), ".3g"),
+                     _ncell(e.get("kl_sym"), ".3g", bad(e.get("kl_sym"), th["kl_sym"])),
+                     _ncell(e.get("w2"), ".3g", bad(e.get("w2"), th["w2"])),
+                     _ncell(e.get("kl_sample"), ".3g", bad(e.get("kl_sample"), th["kl_sample"])),
+                     _ncell(d["rhat"], ".4f", bad(d["rhat"], th["rhat"])),
+                     _ncell(d["ess"], ".0f", "bad" if _fnum(d["ess"], math.inf) < th["ess_bulk"] else None),
+                     _ncell(d["n_over_tau"], ".3g", "bad" if d["tau_ok"] is False else None),
+                     (lab, f"class='{cls}'"), esc(e.get("state_source", "–"))))
+    out += table(["window", "t* span [-]", "phase", "KL(MCMC‖ens) [nats]", "KL(ens‖MCMC) [nats]",
+                  f"KL sym [nats] (≤ {num(th['kl_sym'], 'g')})", f"W2 [sd] (≤ {num(th['w2'], 'g')})",
+                  f"sample KL [nats] (≤ {num(th['kl_sample'], 'g')})", f"max R-hat (≤ {num(th['rhat'], 'g')})",
+                  f"min ESS bulk (≥ {num(th['ess_bulk'], 'g')})", f"n_steps/τ (≥ {num(th['tau_rule'], 'g')})",
+                  "agree", "start state"], rows)
+    notes = [(e.get("index"), e.get("notes")) for e in compare.get("windows") or [] if e.get("notes")]
+    if notes:
+        out += ("<details><summary>notes per window (compare.json)</summary><ul>"
+                + "".join(f"<li>window {esc(i)}: {esc(n)}</li>" for i, n in notes) + "</ul></details>")
+    return out
+
+
+def _section_flagged(run) -> str:
+    out = "<h2 id='flagged'>Flagged windows</h2>"
+    if run["compare"] is None:
+        return out + "<p class='absent'>Absent: no compare.json, so no window could be checked against MCMC.</p>"
+    lines = flagged_windows(run["compare"], run["summary"])
+    if not lines:
+        return out + "<p>None: in every sampled window the ensemble Gaussian agrees with its MCMC posterior.</p>"
+    return out + "<ul class='flagged'>" + "".join(f"<li>{esc(ln)}</li>" for ln in lines) + "</ul>"
+
+
+_CAPTIONS = {
+    "fit.png": "Measured R*(t*) (dots) and the fitted curve per experiment; samples outside the fit are shaded.",
+    "landscape.png": "Cost landscape over the parameters (grid of the IMR/pIMR method) with the optimum.",
+    "parameters.png": "Time-resolved parameters: per-window posterior means with 95 % bands against t*.",
+    "experiments.png": "Per-experiment posterior mean ± 2 sd and the fused estimate.",
+    "radius.png": "Preprocessed radius records R*(t*).",
+    "mcmc_forest.png": "Per window: ensemble Gaussian (blue) and MCMC (red) median and 95 % interval against the "
+                       "window's t* span; ▼ marks a disagreeing window.",
+    "mcmc_divergence.png": "KL (Gaussian, symmetrised, and sample-based) and W2 per window against t*, with the "
+                           "agreement thresholds, under the measured R*(t*).",
+}
+
+
+def _caption(p: Path) -> str:
+    if p.name in _CAPTIONS:
+        return _CAPTIONS[p.name]
+    if p.name.startswith("mcmc_pair_window_"):
+        w = p.stem.rsplit("_", 1)[-1]
+        return (f"Window {esc(w.lstrip('0') or '0')}: MCMC draws in the log parameters with the 1- and 2-sd "
+                "ellipses of the ensemble Gaussian and of the MCMC draws' Gaussian, and both marginals.")
+    return esc(p.stem.replace("_", " "))
+
+
+def _section_figures(run) -> str:
+    out = "<h2 id='figures'>Figures</h2>"
+    if not run["figures"]:
+        return out + "<p class='absent'>No figures: figures/*.png is absent.</p>"
+    parts, bad = [], []
+    for p in run["figures"]:
+        try:
+            with open(p, "rb") as fh:
+                ok = fh.read(8) == PNG_MAGIC
+        except OSError:
+            ok = False
+        if not ok:
+            bad.append(p.name)
+            continue
+        parts.append(embed_png(p, caption=f"<code>figures/{esc(p.name)}</code>: {_caption(p)}", title=p.stem))
+    if bad:
+        out += f"<p class='absent'>Not embedded (not a readable PNG file): {esc(', '.join(bad))}</p>"
+    return out + "".join(parts)
+
+
+def write_run_report(run_dir, path=None) -> Path:
+    """Write the HTML report of ``run_dir`` to ``path`` (default ``run_dir/report.html``); returns it."""
+    run = load_run(run_dir)
+    s = run["summary"]
+    path = Path(path) if path is not None else run["run_dir"] / "report.html"
+    title = f"imrbayes report: {s.get('method', '?')} fit ({s.get('model', '?')}) of {s.get('data', '?')}"
+    toc = [("contents", "Run directory"), ("dataset", "Dataset"), ("config", "Run configuration"),
+           ("warnings", "Warnings and failures"), ("estimate", "Estimate")]
+    if s.get("windows"):
+        toc.append(("windows", "Windows"))
+    toc += [("posterior", "ArviZ summary"), ("mcmc", "MCMC"), ("compare", "Comparison"),
+            ("flagged", "Flagged windows"), ("figures", "Figures")]
+    nav = " · ".join(f"<a href='#{a}'>{esc(b)}</a>" for a, b in toc)
+    now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    body = "\n".join([
+        f"<h1>{esc(title)}</h1><p class='note'>{nav}</p>",
+        _section_contents(run), _section_dataset(s), _section_config(s), _section_warnings(s, run["compare"]),
+        _section_estimate(s), _section_windows(s), _section_posterior(run), _section_mcmc(run),
+        _section_compare(run), _section_flagged(run), _section_figures(run),
+        f"<p class='note'>Written {now} by imrbayes {esc(__version__)} (<code>imrbayes report</code>).</p>"])
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(page(title, body), encoding="utf-8")
+    except OSError as exc:
+        raise InputError(path, f"cannot be written ({exc.strerror or exc})")
+    return path
