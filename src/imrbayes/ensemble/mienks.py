@@ -62,7 +62,9 @@ class MIEnKSSettings:
     length L and shift h [samples], RTPS factor, whether RTPS also acts on the state, redraw
     rounds for failed members, draws per window written to posterior.nc, transform variant, and
     the window fusion: ``chain`` (default, :func:`imrbayes.ensemble.gaussian.fuse_likelihoods`) or ``prior`` (methods.md's rule with
-    the original prior, :func:`imrbayes.ensemble.gaussian.fuse`)."""
+    the original prior, :func:`imrbayes.ensemble.gaussian.fuse`). ``log_pressure``: the analysis updates
+    log p_b rather than p_b (positive by construction; near a collapse the members' p_b spans orders
+    of magnitude and a linear update made most of them negative -- docs/ensemble-methods.md)."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -75,6 +77,7 @@ class MIEnKSSettings:
     transform: bool = True
     fusion: str = "chain"
     obs_weight: str = "mean"
+    log_pressure: bool = True
 
     def check(self, n_steps: int):
         if self.n_ens < 3:

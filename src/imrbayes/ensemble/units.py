@@ -228,11 +228,32 @@ def mienks_unit(unit: Unit, rng) -> dict:
     E = np.array(E, dtype=np.float64)
     ns = E.shape[1] - dp
     t_eval = t[a:b + 1]
+    # The analysis sees log p_b instead of p_b (``log_pressure``): near a collapse the members' p_b
+    # spans orders of magnitude, and a linear update of p_b itself drives most of them negative.
+    ipb = runner.fm.layout()["pb"].start if getattr(s, "log_pressure", False) else None
+
+    def to_analysis(Z):
+        Z = np.array(Z, dtype=np.float64)
+        if ipb is not None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                Z[:, ipb] = np.log(Z[:, ipb])
+        return Z
+
+    def from_analysis(Z):
+        Z = np.array(Z, dtype=np.float64)
+        if ipb is not None:
+            with np.errstate(over="ignore"):
+                Z[:, ipb] = np.exp(Z[:, ipb])
+        return Z
+
+    E = to_analysis(E)
 
     def propagate(Z, t0, t1, t_ev):
-        """R* (M, len(t_ev)), end state (M, ns), failed (M,) of members Z (M, ns + d). A member whose
-        state is not physical (ForwardModel.state_is_valid: R* <= 0, p_b <= 0, vapour fraction
-        outside [0, 1], ...) or whose parameters are not finite is failed without a solve."""
+        """R* (M, len(t_ev)), end state (M, ns, physical), failed (M,) of members Z (M, ns + d, analysis
+        coordinates). A member whose state is not physical (ForwardModel.state_is_valid: R* <= 0,
+        p_b <= 0, vapour fraction outside [0, 1], ...) or whose parameters are not finite is failed
+        without a solve."""
+        Z = from_analysis(Z)
         ok = np.all(np.isfinite(Z[:, ns:]), axis=1) & runner.fm.state_is_valid(Z[:, :ns])
         R = np.full((Z.shape[0], len(t_ev)), np.nan)
         Y = Z[:, :ns].copy()
@@ -255,7 +276,7 @@ def mienks_unit(unit: Unit, rng) -> dict:
     if not s.rtps_state:
         f[:ns] = 1.0
     Ea = res.mean[0][None, :] + np.sqrt(N - 1.0) * res.anoms[0] * f[None, :]
-    problems = runner.fm.state_problems(Ea[:, :ns])                   # analysed states that are not physical
+    problems = runner.fm.state_problems(from_analysis(Ea)[:, :ns])     # analysed states that are not physical
     n_invalid = int(np.any(np.stack(list(problems.values())), axis=0).sum())
     invalid_why = {k: int(v.sum()) for k, v in problems.items() if v.any()}
     Rseg, Ynew, failed = propagate(Ea, t[a], t[a2], t[a:a2 + 1])
@@ -273,9 +294,10 @@ def mienks_unit(unit: Unit, rng) -> dict:
         rejected = True
     with np.errstate(invalid="ignore"):
         seg = np.nanmean(np.where(failed[:, None], np.nan, Rseg), axis=0)
-    E_next = np.concatenate([Ynew, Ea[:, ns:]], axis=1)
+    E_next = to_analysis(np.concatenate([Ynew, Ea[:, ns:]], axis=1))
     n_fail = int(failed.sum())
     n_red = _redraw_failed(E_next[None], failed[None], rng) if (n_fail and not last) else 0
+    E_next = from_analysis(E_next)                  # handed on as physical states
     qa = res.prior_anoms[0, :, ns:]
     return {"E": None if last else E_next, "seg": seg, "pm": res.mean[0, ns:], "pc": res.cov[0, ns:, ns:],
             "qm": res.prior_ensemble[0, :, ns:].mean(axis=0), "qc": qa.T @ qa,
