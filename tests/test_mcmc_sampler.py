@@ -168,6 +168,10 @@ def test_a_failed_ensemble_is_contained_and_reported():
     ref = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _toy(80, lockstep=False), seed=1)
     np.testing.assert_array_equal(run.chain, ref.chain[[0, 2, 3]])      # the others are untouched
     assert run.to_datatree()["posterior"].sizes["chain"] == 3
+    from imrbayes.mcmc.compare import compare_window       # compare.json names the failure in its notes
+    e = compare_window(MEAN, COV, run.to_datatree(), list(run.names), run.positive, diagnostics=run.diagnostics())
+    assert e["mcmc"]["sampler"]["failed_chains"] == {"1": run.failed_chains[1]}
+    assert "1 emcee ensemble(s) failed and were left out (ensemble 1: " in e["notes"]
     # when the shared batch fails every ensemble fails: a clear error, not a silent empty result
     with pytest.raises(RuntimeError, match="4 of 4 ensembles failed"):
         run_mcmc(_FailingTarget(range(30, 10_000)), MEAN, COV, _toy(80, lockstep=True), seed=1)

@@ -302,6 +302,10 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     if compare is not None:
         for f in compare["overall"].get("failed_windows", []):
             click.echo(f"imrbayes: warning: MCMC of window {f['window']} failed: {f['error']}", err=True)
+        for e in compare["windows"]:
+            for c, err in ((e.get("mcmc") or {}).get("sampler") or {}).get("failed_chains", {}).items():
+                click.echo(f"imrbayes: warning: MCMC window {e['index']}: emcee ensemble {c} failed and was left "
+                           f"out: {err}", err=True)
     echo_execution(exec_summary, quiet)
     if pre.skipped:
         click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "

@@ -355,6 +355,11 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
             converged = False
             notes.append(f"chains shorter than {diagnostics.get('tau_rule', 50):g} tau "
                          f"(n_steps/tau = {diagnostics.get('n_steps_over_tau', float('nan')):.1f})")
+        failed = diagnostics.get("failed_chains") or {}
+        if failed:
+            first = next(iter(failed.items()))
+            notes.append(f"{len(failed)} emcee ensemble(s) failed and were left out (ensemble {first[0]}: "
+                         f"{first[1]}); the diagnostics use the other {C}")
     mcmc_block.update({"n_chains": int(C), "n_draws": int(C * D), "converged": bool(converged)})
 
     # Gaussian metrics
