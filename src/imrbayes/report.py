@@ -70,7 +70,10 @@ def _open_tree(path: Path):
             with xr.open_datatree(path) as dt:
                 return dt.load()
     except Exception as exc:  # netCDF/HDF5 errors come in many types
-        msg = " ".join(str(exc).split())[:160]
+        msg = " ".join(str(exc).split())
+        if "did not find a match" in msg:            # xarray: no backend recognises the bytes
+            raise InputError(path, "cannot be read as netCDF (not a netCDF4/HDF5 file)")
+        msg = msg if len(msg) <= 160 else msg[:159] + "…"
         raise InputError(path, f"cannot be read as netCDF ({type(exc).__name__}: {msg})")
 
 
@@ -440,9 +443,10 @@ def _section_config(s) -> str:
     ex = s.get("execution") or {}
     if ex:
         exe = ex.get("executor") or {}
-        rows.append(("execution", f"{esc(ex.get('n_units', '–'))} unit(s): {esc(ex.get('n_computed', '–'))} computed, "
-                                  f"{esc(ex.get('n_resumed', '–'))} from checkpoints, {esc(ex.get('n_failed', '–'))} "
-                                  f"failed; backend {esc(exe.get('backend', '–'))}, workers {esc(exe.get('workers', '–'))}"))
+        g = lambda d, k: esc(d.get(k, "–"))   # noqa: E731
+        rows.append(("execution", f"{g(ex, 'n_units')} unit(s): {g(ex, 'n_computed')} computed, "
+                                  f"{g(ex, 'n_resumed')} from checkpoints, {g(ex, 'n_failed')} failed; "
+                                  f"backend {g(exe, 'backend')}, workers {g(exe, 'workers')}"))
     if fwd:
         rows.append(("forward model", f"{esc(fwd.get('constitutive', ''))}; {_kv_list(fwd.get('options') or {})}"))
         rows.append(("physical constants", _kv_list(fwd.get("physics") or {})))
@@ -652,10 +656,11 @@ def _section_mcmc(run) -> str:
         if diag:
             acc = diag.get("acceptance") or []
             acc = [a for a in (acc if isinstance(acc, list) else [acc]) if isinstance(a, (int, float))]
-            out += (f"<p class='note'>{esc(diag.get('n_chains', '–'))} ensembles × {esc(diag.get('n_walkers', '–'))} "
-                    f"walkers × {esc(diag.get('n_steps', '–'))} steps; burn {esc(diag.get('burn', '–'))}, thin "
-                    f"{esc(diag.get('thin', '–'))}; max τ {num(diag.get('tau_max'), '.3g')} steps, n_steps/τ "
-                    f"{num(diag.get('n_steps_over_tau'), '.3g')} (rule ≥ {num(diag.get('tau_rule', th['tau_rule']), 'g')})"
+            g = lambda k: esc(diag.get(k, "–"))   # noqa: E731
+            rule = num(diag.get("tau_rule", th["tau_rule"]), "g")
+            out += (f"<p class='note'>{g('n_chains')} ensembles × {g('n_walkers')} walkers × {g('n_steps')} steps; "
+                    f"burn {g('burn')}, thin {g('thin')}; max τ {num(diag.get('tau_max'), '.3g')} steps, n_steps/τ "
+                    f"{num(diag.get('n_steps_over_tau'), '.3g')} (rule ≥ {rule})"
                     + (f"; mean acceptance {num(sum(acc) / len(acc), '.2f')}" if acc else "") + "</p>")
         df, err = _az_summary(node)
         out += _az_table(df, th) if df is not None else f"<p class='absent'>ArviZ summary failed: {esc(err)}</p>"
@@ -671,8 +676,9 @@ def _section_compare(run) -> str:
         return out + f"<p class='absent'>The MCMC comparison is absent: no compare.json ({why}).</p>"
     th = _thresholds(compare)
     ov = compare.get("overall") or {}
-    out += (f"<p>{esc(ov.get('n_windows', len(compare.get('windows') or [])))} window(s): {esc(ov.get('n_agree', '–'))} "
-            f"agree, {esc(ov.get('n_disagree', '–'))} disagree, {esc(ov.get('n_undecided', '–'))} undecided.</p>")
+    n_win = ov.get("n_windows", len(compare.get("windows") or []))
+    out += (f"<p>{esc(n_win)} window(s): {esc(ov.get('n_agree', '–'))} agree, {esc(ov.get('n_disagree', '–'))} "
+            f"disagree, {esc(ov.get('n_undecided', '–'))} undecided.</p>")
     if ov.get("agree_rule"):
         out += f"<p class='note'>Rule: {esc(ov['agree_rule'])}. {esc(ov.get('coordinates', ''))}</p>"
     rows = []
@@ -682,7 +688,8 @@ def _section_compare(run) -> str:
         a = e.get("agree")
         lab, cls = ("yes", "ok") if a is True else (("no", "bad") if a is False else ("undecided", "undecided"))
         bad = lambda v, t: "bad" if _fnum(v) > t else None   # noqa: E731
-        rows.append((esc(e.get("index")), _span(e.get("t_star"), ".4g"), esc(window_phase(e.get("t_star"), tc) or "–"),
+        phase = esc(window_phase(e.get("t_star"), tc) or "–")
+        rows.append((esc(e.get("index")), _span(e.get("t_star"), ".4g"), phase,
                      _ncell(e.get("kl_gauss"), ".3g"), _ncell(e.get("kl_gauss_reverse"), ".3g"),
                      _ncell(e.get("kl_sym"), ".3g", bad(e.get("kl_sym"), th["kl_sym"])),
                      _ncell(e.get("w2"), ".3g", bad(e.get("w2"), th["w2"])),
