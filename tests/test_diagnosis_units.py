@@ -84,7 +84,9 @@ def test_damage_batch_equals_one_call_per_experiment():
         br = [float(T[m]) for m in minima[e] if 0 < m < K]
         o = c.fm.simulate(c.forward_params(Z, n_pieces=len(br) + 1), RMAX[e], REQ[e], T[:K + 1], breaks_star=br)
         assert np.all(np.isfinite(R[:, e]))
-        assert np.max(np.abs(R[:, e] - o.R_star)) < 1e-9, e
+        # the batch runs the parallel kernel, one member the serial one: compiled separately (fast-math
+        # contraction may differ), so agreement is to round-off grown over ~150 steps, not bit for bit
+        assert np.max(np.abs(R[:, e] - o.R_star)) < 1e-8, e
 
 
 def test_consistency_rule_rejects_extensions_that_point_the_wrong_way():
