@@ -197,6 +197,8 @@ def window_phase(t_star, tc: float, tol: float = 0.05) -> str:
         return "before the first collapse"
     if a > tc + tol:
         return "after the first collapse"
+    if b > 2.0 * tc:
+        return "from before the first collapse through the rebounds after it"
     return "around the first collapse"
 
 
@@ -303,7 +305,10 @@ def flagged_windows(compare: dict, summary: dict | None = None) -> list:
         head = f"Window {e.get('index')} ({where})"
         if agree is False:
             why = _criteria_words(e, th)
-            what = [w for w in (_shape_words(e),) if w] + _moment_words(e)
+            shape, moments = [w for w in (_shape_words(e),) if w], _moment_words(e)
+            # lead with what dominates KL(MCMC || ensemble): location/scale (Gaussian part) or shape
+            neg = _fnum((e.get("negentropy") or {}).get("estimate"), 0.0)
+            what = shape + moments if neg > _fnum(e.get("kl_gauss"), 0.0) else moments + shape
             text = (f"{head}: disagrees — {'; '.join(what + why) if (what or why) else e.get('notes', '')}; "
                     "the Gaussian ensemble approximation is not adequate here.")
         else:
