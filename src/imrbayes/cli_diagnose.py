@@ -119,8 +119,14 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     try:
         with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
                             retry_failed=retry_failed, quiet=True) as execution:
+            t_stage = time.perf_counter()
+
+            def stage(msg):             # off a terminal (logs, batch jobs): one line per stage, with the time
+                click.echo(f"imrbayes: diagnose [{time.perf_counter() - t_stage:6.0f} s] {msg}", err=True)
+
+            log = bar.set_postfix_str if bar is not None else (None if quiet else stage)
             d = diagnose(obs, options, physics, s, seed=seed, progress=(bar.update if bar is not None else None),
-                         log=(bar.set_postfix_str if bar is not None else None), execution=execution)
+                         log=log, execution=execution)
             exec_summary = execution.summary()
     finally:
         if bar is not None:
