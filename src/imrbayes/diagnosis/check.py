@@ -110,12 +110,40 @@ def _pvals(T, Tb):
     return (1.0 + np.sum(Tb >= T)) / (Tb.size + 1.0)
 
 
+def bootstrap_unit(unit, rng) -> dict:
+    """Unit ``bootstrap=007``: one replicate -- a synthetic dataset of the data's design from the
+    baseline curves ``R0`` with noise sd ``sd`` (drawn from the unit's own ``rng``), processed as the
+    data; returns its statistics. The baseline candidate is rebuilt from (options, physics, prior)."""
+    from imrbayes.diagnosis.models import make_candidate
+
+    d = unit.data
+    obs = d["obs"]
+    base = make_candidate("nhkv", d["options"], d["physics"], d["prior"])
+    R0, sd = d["R0"], d["sd"]
+    Y = R0 + sd[None, :] * rng.standard_normal(R0.shape)
+    Y[:, 0] = 1.0
+    Y = np.maximum(Y, 1e-3)
+    P, _ = noise_variance(obs.t_star, Y) if obs.n_exp >= 2 else (obs.P, None)
+    ob = Observations(obs.t_star, Y, P, obs.rmax_m, obs.req_m, obs.t_collapse_star, list(obs.names))
+    st = statistics(base, ob, d["phases"], starts=[d["z0"]], mienks=d["mienks"], seed=int(d["seed"]))
+    return {k: float(st.get(k, float("nan"))) for k in d["stats"]}
+
+
 def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 0, alpha: float = 0.05,
-                    progress=None, mienks=None) -> dict:
+                    progress=None, mienks=None, execution=None, build: dict | None = None) -> dict:
     """Verdict ``adequate``/``inadequate`` with the evidence (see module doc); ``mienks``: the
-    MIEnKS settings the observed ``mienks_drift`` was computed with (None: not used)."""
+    MIEnKS settings the observed ``mienks_drift`` was computed with (None: not used).
+
+    The B replicates are units of the execution layer (``bootstrap=007``, each with its own random
+    stream from (seed, id)): parallel with ``--workers``, checkpointed, resumed. ``build`` =
+    {options, physics, prior} rebuilds ``base`` in a unit (default: ``base``'s own). A replicate
+    whose unit fails counts against rejection (its statistics are treated as +inf)."""
+    import dataclasses
+
+    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Unit
+
     stats = STATS + (("mienks_drift",) if mienks is not None and "mienks_drift" in observed else ())
-    rng = np.random.default_rng(seed)
     z0 = observed["fits"]["all"].z
     R0 = predict(base, z0[None], obs, np.arange(obs.n_exp), phases.minima, obs.n_samples - 1)[0]
     # measurement noise: P_k minus the across-experiment variance of the baseline curves (the part
@@ -123,19 +151,15 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     # replicates' re-estimated P_k match the data's
     spread = np.var(R0, axis=0, ddof=1) if obs.n_exp >= 2 else np.zeros_like(obs.P)
     sd = np.sqrt(np.maximum(obs.P - spread, 0.25 * obs.P))
-    boot = {k: [] for k in stats}
-    for b in range(B):
-        Y = R0 + sd[None, :] * rng.standard_normal(R0.shape)
-        Y[:, 0] = 1.0
-        Y = np.maximum(Y, 1e-3)
-        P, _ = noise_variance(obs.t_star, Y) if obs.n_exp >= 2 else (obs.P, None)
-        ob = Observations(obs.t_star, Y, P, obs.rmax_m, obs.req_m, obs.t_collapse_star, list(obs.names))
-        st = statistics(base, ob, phases, starts=[z0], mienks=mienks if "mienks_drift" in stats else None,
-                        seed=seed + 1000 + b)
-        for k in stats:
-            boot[k].append(st.get(k, float("nan")))
-        if progress is not None:
-            progress(1)
+    build = build or {"options": base.fm.options, "physics": base.fm.physics, "prior": getattr(base, "prior", None)}
+    common = {**build, "obs": obs, "phases": phases, "R0": R0, "sd": sd, "z0": z0, "stats": list(stats),
+              "mienks": mienks if "mienks_drift" in stats else None}
+    units = [Unit(f"bootstrap={b:03d}", {**common, "seed": seed + 1000 + b}) for b in range(B)]
+    ex = execution or Execution(progress=False)
+    if progress is not None and ex.bar is None:
+        ex = dataclasses.replace(ex, progress=lambda done, total: progress(1))
+    rep = ex.run(units, bootstrap_unit, seed, desc="diagnose bootstrap")
+    boot = {k: [rep.results.get(f"bootstrap={b:03d}", {}).get(k, float("nan")) for b in range(B)] for k in stats}
     p = {k: float(_pvals(observed[k], boot[k])) for k in stats}
     # calibrate min-p: p-values of every bootstrap replicate against the others
     bmat = np.array([boot[k] for k in stats])            # (n_stats, B)

@@ -162,7 +162,8 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                          "estimate_map": baseline["estimate"]})
     say(f"constant-parameter check ({s.n_bootstrap} bootstrap replicates)")
     check = bootstrap_check(base, obs, phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
-                            progress=tick, mienks=mk)
+                            progress=tick, mienks=mk, execution=ex,
+                            build={"options": options, "physics": physics, "prior": prior})
     # candidates
     fits = {"nhkv": full}
     cands = {"nhkv": base}
