@@ -102,6 +102,21 @@ def test_en4dvar_mcmc_one_exact_window(syn, tmp_path):
     assert "undecided" in res.output
 
 
+def test_en4dvar_plain_likelihood_mcmc_samples_the_same_density(syn, tmp_path):
+    """With ``obs_weight=sum`` the MCMC target counts every sample once too (a 1/N_t target would
+    be ~6x wider and the comparison would disagree)."""
+    out = tmp_path / "sum"
+    _run("fit", syn, "--method", "en4dvar", "--n-steps", 60, "--set", "obs_weight=sum",
+         "--set", "n_draws=5", *FWD, "--mcmc", "--mcmc-set", "n_walkers=16", "--mcmc-set", "n_steps=2500",
+         "--mcmc-set", "n_chains=4", "--out", out)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["details"]["settings"]["obs_weight"] == "sum"
+    (e,) = json.loads((out / "compare.json").read_text())["windows"]
+    assert e["agree"] is True, e
+    ens_sd, mc_sd = (np.array(list(e[k]["sd_internal"].values())) for k in ("ensemble", "mcmc"))
+    np.testing.assert_allclose(ens_sd, mc_sd, rtol=0.1)
+
+
 @pytest.mark.parametrize("args,needle", [
     (["--method", "imr", "--mcmc"], "--mcmc"),
     (["--method", "mienks", "--mcmc", "--mcmc-set", "n_walkers=3"], "n_walkers"),

@@ -130,3 +130,43 @@ def test_mienks_rejects_analysis_when_handoff_fails():
     assert sum(len(w["analysis_rejected"]) for w in res.windows) == 1
     assert any("analysis rejected" in w for w in res.warnings)
     assert np.isfinite(res.estimate["G"]["mean"])
+
+
+def _laplace_sd(fm, obs, sp, truth, weight):
+    """Posterior sd of (log G, log mu) from the Gauss–Newton (Laplace) approximation at the truth:
+    Jacobian of R* by central differences, precision J^T diag(weight) J + prior precision."""
+    z0 = np.log([truth["G"], truth["mu"]])
+    n = obs.rmax_m.size
+    cols = []
+    for i in range(2):
+        dz = np.zeros(2)
+        dz[i] = 1e-4
+        R = [fm.simulate({"G": np.full(n, np.exp(z[0])), "mu": np.full(n, np.exp(z[1]))}, obs.rmax_m, obs.req_m,
+                         obs.t_star).R_star[:, 1:] for z in (z0 + dz, z0 - dz)]
+        cols.append(((R[0] - R[1]) / 2e-4).ravel())
+    J = np.stack(cols, axis=1)
+    w = np.tile(weight, n)
+    prec = J.T @ (w[:, None] * J) + np.linalg.inv(sp.prior_cov)
+    return np.sqrt(np.diag(np.linalg.inv(prec)))
+
+
+@pytest.mark.parametrize("obs_weight", ["mean", "sum"])
+def test_en4dvar_obs_weight_matches_laplace_posterior(obs_weight):
+    """The fused posterior's spread is the Gauss–Newton posterior of the chosen likelihood weight
+    (1/(N_t P_k) or 1/P_k), computed independently from finite-difference Jacobians."""
+    fm, obs = observations()
+    sp = space(fm)
+    K = obs.t_star.size - 1
+    res = fit_en4dvar(fm, obs, sp, En4DVarSettings(n_draws=1, loglik=False, n_runs=1, obs_weight=obs_weight), seed=0)
+    weight = 1.0 / ((K if obs_weight == "mean" else 1.0) * obs.P[1:])
+    sd_ref = _laplace_sd(fm, obs, sp, TRUTH, weight)
+    sd = np.sqrt(np.diag(res.cov_internal))
+    np.testing.assert_allclose(sd, sd_ref, rtol=0.25)
+    if obs_weight == "sum":          # the averaged likelihood leaves the prior's pull (6 kPa) in the mean
+        for name in ("G", "mu"):
+            assert res.estimate[name]["mean"] == pytest.approx(TRUTH[name], rel=0.02)
+
+
+def test_en4dvar_obs_weight_is_checked():
+    with pytest.raises(InputError, match="obs_weight"):
+        En4DVarSettings(obs_weight="median").check()

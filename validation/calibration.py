@@ -4,7 +4,10 @@ The cheaper case: the methods.md §5 verification design (5 experiments, Rmax 26
 Rmax/Req 7.58, G0 = 7.29 kPa, mu0 = 0.088 Pa s, the paper's noise) with the polytropic bubble,
 paper method settings. For every seed a fresh noisy data set is drawn and fitted by En4D-Var,
 MIEnKS-MDA and IMR (40 x 25 grid); we count how often each 95 % interval holds the truth: the
-MIEnKS aggregate and every window, En4D-Var, and IMR's region (its G and mu extents). Coverage is
+MIEnKS aggregate and every window, En4D-Var (the paper's averaged cost; the plain likelihood
+``obs_weight=sum`` with the estimated P_k; the same with the true noise variance), and IMR's region
+(its G and mu extents). Per interval also: mean relative error of the estimate, its scatter over
+seeds, the mean posterior sd (relative) and how many seeds land within 5 % of the truth. Coverage is
 reported with a 95 % Wilson interval. Windows of one data set are not independent, so the
 per-window coverage's interval is too narrow; the per-seed fraction is reported beside it.
 
@@ -14,6 +17,7 @@ Usage: python validation/calibration.py [--seeds 20] [--json out.json]
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -21,8 +25,12 @@ import numpy as np
 
 from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, ParamSpace, fit_en4dvar, fit_imr,
                                fit_mienks)
+from imrbayes.data.noise import paper_sigma
 from imrbayes.forward import ForwardModel
 from imrbayes.validation.suite import TRUTH, verification_data
+
+
+METHODS = ("en4dvar", "en4dvar_sum", "en4dvar_sum_known_noise", "mienks", "imr")
 
 
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple:
@@ -43,26 +51,42 @@ def covers(est: dict, name: str) -> bool:
 
 def one_seed(fm, space, seed: int) -> dict:
     obs = verification_data(fm, seed)
+    clean = verification_data(fm, seed, noise=False)
     row = {"seed": seed}
     en = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False), seed=seed)
     row["en4dvar"] = {n: covers(en.estimate, n) for n in TRUTH}
+    # the plain likelihood (obs_weight=sum) with the estimated P_k, and with the true noise variance
+    sm = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum"), seed=seed)
+    row["en4dvar_sum"] = {n: covers(sm.estimate, n) for n in TRUTH}
+    known = dataclasses.replace(obs, P=np.maximum(paper_sigma(clean.t_star, clean.R_star[0]) ** 2, obs.P.min()))
+    sk = fit_en4dvar(fm, known, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum"), seed=seed)
+    row["en4dvar_sum_known_noise"] = {n: covers(sk.estimate, n) for n in TRUTH}
     mi = fit_mienks(fm, obs, space, MIEnKSSettings(), seed=seed)
     row["mienks"] = {n: covers(mi.estimate, n) for n in TRUTH}
     row["mienks_windows"] = {n: [covers(w, n) for w in mi.windows] for n in TRUTH}
     im = fit_imr(fm, obs, space, IMRSettings(n_G=40, n_mu=25), seed=seed)
     row["imr"] = {n: covers(im.estimate, n) for n in TRUTH}
-    row["estimates"] = {m: {n: r.estimate[n]["mean"] for n in TRUTH} for m, r in
-                        (("en4dvar", en), ("mienks", mi), ("imr", im))}
+    fits = (("en4dvar", en), ("en4dvar_sum", sm), ("en4dvar_sum_known_noise", sk), ("mienks", mi), ("imr", im))
+    row["estimates"] = {m: {n: r.estimate[n]["mean"] for n in TRUTH} for m, r in fits}
+    row["sds"] = {m: {n: r.estimate[n]["sd"] for n in TRUTH} for m, r in fits}
     return row
 
 
 def summarise(rows: list) -> dict:
     out = {}
-    for method in ("en4dvar", "mienks", "imr"):
+    for method in METHODS:
+        if method not in rows[0]:
+            continue
         for n in TRUTH:
             k = sum(r[method][n] for r in rows)
             out[f"{method}:{n}"] = {"covered": k, "n": len(rows), "coverage": k / len(rows),
                                     "wilson95": wilson(k, len(rows))}
+            if "estimates" in rows[0]:
+                rel = np.array([r["estimates"][method][n] / TRUTH[n] - 1.0 for r in rows])
+                out[f"{method}:{n}"].update(
+                    mean_relative_error=float(rel.mean()), scatter_relative=float(rel.std(ddof=1)),
+                    mean_sd_relative=float(np.mean([r["sds"][method][n] / TRUTH[n] for r in rows])),
+                    within_5_percent=int(np.sum(np.abs(rel) < 0.05)))
     for n in TRUTH:
         flags = [c for r in rows for c in r["mienks_windows"][n]]
         per_seed = [float(np.mean(r["mienks_windows"][n])) for r in rows]
@@ -85,13 +109,17 @@ def main(argv=None):
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         rows.append(one_seed(fm, space, seed))
         print(f"seed {seed}: " + " ".join(f"{m}:{''.join('y' if rows[-1][m][n] else 'n' for n in TRUTH)}"
-                                           for m in ("en4dvar", "mienks", "imr"))
+                                           for m in METHODS)
               + f" windows G {np.mean(rows[-1]['mienks_windows']['G']):.2f} mu {np.mean(rows[-1]['mienks_windows']['mu']):.2f}",
               flush=True)
     summary = summarise(rows)
-    print(f"\n{'interval':<22} {'covered':>8} {'coverage':>9} {'95 % (Wilson)':>16}")
+    print(f"\n{'interval':<28} {'covered':>8} {'coverage':>9} {'95 % (Wilson)':>16} {'bias':>7} {'scatter':>8} "
+          f"{'mean sd':>8} {'<5 %':>5}")
     for key, v in summary.items():
-        print(f"{key:<22} {v['covered']:>4}/{v['n']:<4} {v['coverage']:9.3f}   [{v['wilson95'][0]:.3f}, {v['wilson95'][1]:.3f}]")
+        extra = (f" {v['mean_relative_error']:+7.3f} {v['scatter_relative']:8.3f} {v['mean_sd_relative']:8.3f} "
+                 f"{v['within_5_percent']:5d}") if "scatter_relative" in v else ""
+        print(f"{key:<28} {v['covered']:>4}/{v['n']:<4} {v['coverage']:9.3f}   [{v['wilson95'][0]:.3f}, "
+              f"{v['wilson95'][1]:.3f}]" + extra)
     result = {"case": "methods.md §5 design, polytropic bubble, paper noise and settings, IMR 40 x 25 grid",
               "truth": TRUTH, "seeds": [r["seed"] for r in rows], "runtime_s": time.perf_counter() - t0,
               "summary": summary, "rows": rows}

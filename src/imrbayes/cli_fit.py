@@ -173,7 +173,8 @@ def _total_runs(method, s, n_exp, n_steps):
               help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
                    "scheme=imrv2-fd, nt=25, radial=km, ...); repeatable.")
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
-              help="Method setting (en4dvar: n_ens, n_iter, n_runs, rtps, t_end [t*], fusion=likelihood|prior; "
+              help="Method setting (en4dvar: n_ens, n_iter, n_runs, rtps, t_end [t*], fusion=likelihood|prior, "
+                   "obs_weight=mean|sum; "
                    "mienks: L, h [samples], n_ens, n_iter, rtps, obs_weight=mean|mda, fusion=chain|prior; imr: n_G, "
                    "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
                    "repeatable.")

@@ -6,7 +6,8 @@ its Gaussians approximate:
 * ``mienks``: every window j (:func:`imrbayes.mcmc.windows.mienks_window_specs`) -- chained prior,
   MDA weights beta_jk / L, each experiment started from the smoother's **handed-off ensemble mean
   state** (``FitResult.window_start_states``), compared with the window's fused Gaussian;
-* ``en4dvar``: the fitting window from the maximum to ``t_end`` with En4D-Var's 1/N_t weights and
+* ``en4dvar``: the fitting window from the maximum to ``t_end`` with En4D-Var's 1/N_t weights (weight 1
+  with ``obs_weight=sum``) and
   the parameter prior (:func:`imrbayes.mcmc.target.fitting_window_target`), compared with the fused
   En4D-Var Gaussian (one "window", index 0).
 
@@ -57,7 +58,8 @@ def fit_window_specs(fm, obs, space, res, *, runner=None, windows=None, box_sd: 
             raise InputError("--mcmc-windows", "an En4D-Var fit has one window (0)")
         t_end = res.details["settings"].get("t_end")
         prior = GaussianPrior.from_space(space, box_sd)
-        tg = fitting_window_target(runner or fm, obs, prior, t_end=t_end, weight="en4dvar")
+        plain = res.details["settings"].get("obs_weight", "mean") == "sum"
+        tg = fitting_window_target(runner or fm, obs, prior, t_end=t_end, weight="plain" if plain else "en4dvar")
         tg.description["state"] = "maximum radius (exact)"
         return [WindowSpec(0, (float(obs.t_star[0]), float(tg.t_eval[-1])), tg, np.asarray(res.mean_internal, float),
                            np.asarray(res.cov_internal, float), space.prior_mean, space.prior_cov,
