@@ -210,6 +210,37 @@ def test_noise_variance_relative_floor_dominates_for_noisy_data():
     assert P[0] == info["floor"]
 
 
+def test_noise_variance_pooled_is_the_running_mean_of_the_sample_variance():
+    rng = np.random.default_rng(3)
+    t = np.arange(121) * 0.025
+    Y = curve(t)[None, :] + 0.02 * rng.standard_normal((5, 121))
+    P, info = noise_variance(t, Y, method="pooled")
+    raw = Y.var(axis=0, ddof=1)
+    padded = np.concatenate([np.full(5, raw[0]), raw, np.full(5, raw[-1])])   # edges: nearest value
+    pooled = np.array([padded[k:k + 11].mean() for k in range(121)])
+    assert info["method"] == "pooled-sample-variance"
+    np.testing.assert_allclose(P, np.maximum(pooled, info["floor"]), rtol=1e-12)
+
+
+def test_pooled_noise_weights_are_nearly_unbiased_where_the_sample_variance_doubles_them():
+    """Five records, sd 0.02: the per-step 1/var has mean 2/sigma^2 (4 degrees of freedom);
+    pooled over 11 steps it is within 10 % of 1/sigma^2."""
+    rng = np.random.default_rng(11)
+    t = np.arange(401) * 0.025
+    Y = 0.5 + 0.02 * rng.standard_normal((5, 401))
+    inv = {m: np.mean(1.0 / noise_variance(t, Y, floor_abs=0.0, floor_rel=0.0, method=m)[0]) * 0.02 ** 2
+           for m in ("sample", "pooled")}
+    assert inv["sample"] > 1.6
+    assert abs(inv["pooled"] - 1.0) < 0.1
+
+
+def test_noise_method_is_checked():
+    with pytest.raises(ValueError, match="pooled"):
+        noise_variance(np.arange(3) * 0.025, np.ones((1, 3)), method="pooled")
+    with pytest.raises(ValueError, match="must be"):
+        noise_variance(np.arange(3) * 0.025, np.ones((2, 3)), method="median")
+
+
 # ----------------------------------------------------------------------------- whole pipeline
 def test_preprocess_dataset_recovers_truth(tmp_path):
     truths = make_dataset(tmp_path / "ds", n_exp=4, h_star=0.03)

@@ -6,7 +6,9 @@ paper method settings. For every seed a fresh noisy data set is drawn and fitted
 MIEnKS-MDA and IMR (40 x 25 grid); we count how often each 95 % interval holds the truth: the
 MIEnKS aggregate and every window, En4D-Var (the paper's averaged cost; the plain likelihood
 ``obs_weight=sum`` with the estimated P_k; the same with the true noise variance), and IMR's region
-(its G and mu extents). Per interval also: mean relative error of the estimate, its scatter over
+(its G and mu extents); and with the pooled noise variance (``--noise pooled``) En4D-Var with
+``obs_weight=sum`` and MIEnKS-MDA with ``obs_weight=mda`` (each observation's weights summing to
+one). Per interval also: mean relative error of the estimate, its scatter over
 seeds, the mean posterior sd (relative) and how many seeds land within 5 % of the truth. Coverage is
 reported with a 95 % Wilson interval. Windows of one data set are not independent, so the
 per-window coverage's interval is too narrow; the per-seed fraction is reported beside it.
@@ -25,12 +27,13 @@ import numpy as np
 
 from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, ParamSpace, fit_en4dvar, fit_imr,
                                fit_mienks)
-from imrbayes.data.noise import paper_sigma
+from imrbayes.data.noise import noise_variance, paper_sigma
 from imrbayes.forward import ForwardModel
 from imrbayes.validation.suite import TRUTH, verification_data
 
 
-METHODS = ("en4dvar", "en4dvar_sum", "en4dvar_sum_known_noise", "mienks", "imr")
+METHODS = ("en4dvar", "en4dvar_sum", "en4dvar_sum_known_noise", "en4dvar_sum_pooled", "mienks",
+           "mienks_mda_pooled", "imr")
 
 
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple:
@@ -61,12 +64,19 @@ def one_seed(fm, space, seed: int) -> dict:
     known = dataclasses.replace(obs, P=np.maximum(paper_sigma(clean.t_star, clean.R_star[0]) ** 2, obs.P.min()))
     sk = fit_en4dvar(fm, known, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum"), seed=seed)
     row["en4dvar_sum_known_noise"] = {n: covers(sk.estimate, n) for n in TRUTH}
+    pooled = dataclasses.replace(obs, P=noise_variance(obs.t_star, obs.R_star, method="pooled")[0])
+    sp = fit_en4dvar(fm, pooled, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum"), seed=seed)
+    row["en4dvar_sum_pooled"] = {n: covers(sp.estimate, n) for n in TRUTH}
+    mp = fit_mienks(fm, pooled, space, MIEnKSSettings(n_draws=1, obs_weight="mda"), seed=seed)
+    row["mienks_mda_pooled"] = {n: covers(mp.estimate, n) for n in TRUTH}
+    row["mienks_mda_pooled_windows"] = {n: [covers(w, n) for w in mp.windows] for n in TRUTH}
     mi = fit_mienks(fm, obs, space, MIEnKSSettings(), seed=seed)
     row["mienks"] = {n: covers(mi.estimate, n) for n in TRUTH}
     row["mienks_windows"] = {n: [covers(w, n) for w in mi.windows] for n in TRUTH}
     im = fit_imr(fm, obs, space, IMRSettings(n_G=40, n_mu=25), seed=seed)
     row["imr"] = {n: covers(im.estimate, n) for n in TRUTH}
-    fits = (("en4dvar", en), ("en4dvar_sum", sm), ("en4dvar_sum_known_noise", sk), ("mienks", mi), ("imr", im))
+    fits = (("en4dvar", en), ("en4dvar_sum", sm), ("en4dvar_sum_known_noise", sk), ("en4dvar_sum_pooled", sp),
+            ("mienks", mi), ("mienks_mda_pooled", mp), ("imr", im))
     row["estimates"] = {m: {n: r.estimate[n]["mean"] for n in TRUTH} for m, r in fits}
     row["sds"] = {m: {n: r.estimate[n]["sd"] for n in TRUTH} for m, r in fits}
     return row
@@ -87,10 +97,12 @@ def summarise(rows: list) -> dict:
                     mean_relative_error=float(rel.mean()), scatter_relative=float(rel.std(ddof=1)),
                     mean_sd_relative=float(np.mean([r["sds"][method][n] / TRUTH[n] for r in rows])),
                     within_5_percent=int(np.sum(np.abs(rel) < 0.05)))
-    for n in TRUTH:
-        flags = [c for r in rows for c in r["mienks_windows"][n]]
-        per_seed = [float(np.mean(r["mienks_windows"][n])) for r in rows]
-        out[f"mienks_windows:{n}"] = {"covered": int(sum(flags)), "n": len(flags), "coverage": float(np.mean(flags)),
+    for key, n in [(k, n) for k in ("mienks_windows", "mienks_mda_pooled_windows") for n in TRUTH]:
+        if key not in rows[0]:
+            continue
+        flags = [c for r in rows for c in r[key][n]]
+        per_seed = [float(np.mean(r[key][n])) for r in rows]
+        out[f"{key}:{n}"] = {"covered": int(sum(flags)), "n": len(flags), "coverage": float(np.mean(flags)),
                                       "wilson95": wilson(int(sum(flags)), len(flags)),
                                       "per_seed_min": min(per_seed), "per_seed_median": float(np.median(per_seed)),
                                       "seeds_with_at_least_90pct": int(sum(p >= 0.9 for p in per_seed))}

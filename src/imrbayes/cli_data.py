@@ -120,8 +120,9 @@ def _print_table(pre, out: Path) -> None:
               help="Interpolation onto the t* grid.")
 @click.option("--n-tail", type=int, default=20, show_default=True,
               help="Samples [-] averaged for Req when meta.json does not give it.")
-@click.option("--noise", type=click.Choice(["auto", "sample", "paper"]), default="auto", show_default=True,
-              help="P_k: sample variance across experiments, or the methods.md §5 noise model.")
+@click.option("--noise", type=click.Choice(["auto", "sample", "pooled", "paper"]), default="auto", show_default=True,
+              help="P_k: sample variance across experiments, the same pooled over 11 neighbouring steps, or the "
+                   "methods.md §5 noise model.")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors (and --json output).")
 @config_option
 def inspect_cmd(data, out, as_json, dt_star, n_steps, camera, rmax_method, collapse_method, interp, n_tail,

@@ -187,8 +187,9 @@ def _total_runs(method, s, n_exp, n_steps):
 @click.option("--camera", default=None, help="Keep one camera view of multi-camera data.")
 @click.option("--dt-star", type=float, default=None, help="Grid step in t* [-] [default: 0.025].")
 @click.option("--n-steps", type=int, default=None, help="Grid steps [-] [default: 120].")
-@click.option("--noise", type=click.Choice(["auto", "sample", "paper"]), default=None,
-              help="P_k: across-experiment sample variance (auto with >= 2 experiments) or the §5 noise model.")
+@click.option("--noise", type=click.Choice(["auto", "sample", "pooled", "paper"]), default=None,
+              help="P_k: across-experiment sample variance (auto with >= 2 experiments), the same pooled over 11 "
+                   "neighbouring steps (better weights with few experiments), or the §5 noise model.")
 @click.option("--mcmc", is_flag=True, default=None,
               help="Also sample every window's posterior with emcee and compare it with the ensemble's Gaussian "
                    "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures.")

@@ -12,6 +12,12 @@ used as is, those steps would get (near-)infinite weight. A floor keeps every we
 * ``P_FLOOR_REL = 0.01``: no step is weighted more than 100 times the typical step, so the steps
   near t* = 0, where every curve is 1 by construction, cannot dominate a fit.
 
+``pooled`` (an option, not methods.md's rule): the same sample variance averaged over a centred
+window of ``POOL_SAMPLES`` = 11 neighbouring steps before the floors. With N_exp = 5 the per-step
+variance has 4 degrees of freedom and E[1/var_k] = 2/sigma^2: every step is over-weighted twofold
+on average, some far more, and the posteriors come out too narrow (docs/results.md, calibration).
+Pooling gives ~4 x 11 degrees of freedom where the noise level varies slowly in time.
+
 With a single experiment there is no spread to measure; P_k then falls back to the verification
 noise model sigma(t*) = |R* - 1|/20 + (1 - exp(-t*/10))/30 evaluated on the measured R*, squared,
 with the same floor.
@@ -20,11 +26,13 @@ with the same floor.
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
-__all__ = ["paper_sigma", "noise_variance", "P_FLOOR_ABS", "P_FLOOR_REL"]
+__all__ = ["paper_sigma", "noise_variance", "P_FLOOR_ABS", "P_FLOOR_REL", "POOL_SAMPLES"]
 
 P_FLOOR_ABS = (2e-3) ** 2
 P_FLOOR_REL = 0.01
+POOL_SAMPLES = 11
 
 
 def paper_sigma(t_star, R_star):
@@ -49,9 +57,10 @@ def noise_variance(t_star, R_star, floor_abs: float = P_FLOOR_ABS, floor_rel: fl
         Resampled R* of every experiment.
     floor_abs, floor_rel : float
         Floor = ``max(floor_abs, floor_rel * median(var))`` (see module docstring).
-    method : ``"auto"``, ``"sample"`` or ``"paper"``
-        ``auto``: sample variance with >= 2 experiments, else the noise model; ``paper``: the
-        noise model evaluated on the across-experiment mean R*.
+    method : ``"auto"``, ``"sample"``, ``"pooled"`` or ``"paper"``
+        ``auto``: sample variance with >= 2 experiments, else the noise model; ``pooled``: the
+        sample variance averaged over ``POOL_SAMPLES`` neighbouring steps (module docstring);
+        ``paper``: the noise model evaluated on the across-experiment mean R*.
 
     Returns
     -------
@@ -64,11 +73,14 @@ def noise_variance(t_star, R_star, floor_abs: float = P_FLOOR_ABS, floor_rel: fl
     Y = np.atleast_2d(np.asarray(R_star, dtype=float))
     if Y.shape[1] != t.size:
         raise ValueError(f"R_star has {Y.shape[1]} columns but t_star {t.size} values")
-    if method not in ("auto", "sample", "paper"):
-        raise ValueError(f"method must be auto, sample or paper, got {method!r}")
-    if method == "sample" and Y.shape[0] < 2:
-        raise ValueError("the sample variance needs at least two experiments")
-    if method != "paper" and Y.shape[0] >= 2:
+    if method not in ("auto", "sample", "pooled", "paper"):
+        raise ValueError(f"method must be auto, sample, pooled or paper, got {method!r}")
+    if method in ("sample", "pooled") and Y.shape[0] < 2:
+        raise ValueError(f"the {method} sample variance needs at least two experiments")
+    if method == "pooled":
+        raw = uniform_filter1d(Y.var(axis=0, ddof=1), POOL_SAMPLES, mode="nearest")
+        method = "pooled-sample-variance"
+    elif method != "paper" and Y.shape[0] >= 2:
         raw = Y.var(axis=0, ddof=1)
         method = "sample-variance"
     else:
@@ -79,6 +91,6 @@ def noise_variance(t_star, R_star, floor_abs: float = P_FLOOR_ABS, floor_rel: fl
     info = {"method": method, "floor": floor, "floor_abs": float(floor_abs), "floor_rel": float(floor_rel),
             "n_floored": int(np.count_nonzero(raw < floor)), "n_experiments": int(Y.shape[0]),
             "rule": "P_k = max(var_k, max(floor_abs, floor_rel * median_k var_k)); var_k = sample "
-                    "variance (ddof=1) across experiments, or the methods.md §5 noise model squared "
-                    "for a single experiment"}
+                    "variance (ddof=1) across experiments (pooled: its running mean over "
+                    f"{POOL_SAMPLES} steps), or the methods.md §5 noise model squared for a single experiment"}
     return P, info

@@ -199,8 +199,8 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         raise InputError("--dt-star", f"must be a positive number, got {dt_star}")
     if int(n_steps) < 1:
         raise InputError("--n-steps", f"must be at least 1, got {n_steps}")
-    if noise not in ("auto", "sample", "paper"):
-        raise InputError("noise", f"must be auto, sample or paper, got {noise!r}")
+    if noise not in ("auto", "sample", "pooled", "paper"):
+        raise InputError("noise", f"must be auto, sample, pooled or paper, got {noise!r}")
     rho = dataset.rho if rho is None else float(rho)
     p8 = dataset.p8 if p8 is None else float(p8)
     summaries, records = [], []
@@ -241,8 +241,8 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         grid, values, _ = pp.resample(ts, Rs, dt_star, n_use, method=interp)
         R_star[i] = values
     t_star = np.arange(n_use + 1) * dt_star
-    if noise == "sample" and len(records) < 2:
-        raise InputError(dataset.path, "noise='sample' needs at least two experiments")
+    if noise in ("sample", "pooled") and len(records) < 2:
+        raise InputError(dataset.path, f"noise={noise!r} needs at least two experiments")
     P, pinfo = noise_variance(t_star, R_star, p_floor_abs, p_floor_rel, method=noise)
     if pinfo["method"] == "paper-noise-model" and noise == "auto":
         warnings.append("one experiment: P_k from the methods.md §5 noise model, not from data")
