@@ -148,11 +148,22 @@ class ForwardModel:
             # so the warm medium runs on the plain tridiagonal splitting.
             cols = []
         self._cols = np.array(cols, dtype=np.int64)
+        self._radau = o.method == "radau5"
+        if self._radau:
+            # Radau: every Jacobian entry outside the fields' block-tridiagonal pattern lies in
+            # these columns (see kernel): R, Rdot, p_b, the field values next to the wall
+            # (through the wall gradient in p_b's rate) and the stress states.
+            dense = [0, 1, 2, th + self.nt - 2, th + self.nt - 3]
+            if mass:
+                dense += [kv + self.nt - 2, kv + self.nt - 3]
+            st = self._slices["stress"]
+            dense += list(range(st.start, st.stop))
+            self._cols = np.array(dense, dtype=np.int64)
         self._kernel = None
         self.parallel = bool(parallel)
         self.field_weight = 1.0
         self.filter_error = False  # Shampine filter of the error estimate (see kernel); off: it loosened accuracy in tests
-        tab = TABLEAUX[o.method]()
+        tab = TABLEAUX["ark548" if o.method == "radau5" else o.method]()  # radau5 ignores the tableau
         self._tableau = (tab["AE"], tab["AI"], tab["b"], tab["bhat"], tab["c"], float(tab["gamma"]),
                          float(tab["order"]))
 
@@ -294,7 +305,8 @@ class ForwardModel:
         integrate = self.kernel.integrate_batch_parallel if (self.parallel and n > 1) else self.kernel.integrate_batch
         Y, R, status, nsteps, nrej = integrate(
             np.ascontiguousarray(state.y, dtype=float), t0, t_end, t_eval, G, P, breaks, self._flags,
-            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols, float(self.field_weight), bool(self.filter_error))
+            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols, float(self.field_weight), bool(self.filter_error),
+            self._radau)
         end = BatchState(Y, t_end, state.rmax_m.copy(), state.req_m.copy())
         return Propagation(t_eval, R, end, status, nsteps, nrej)
 

@@ -19,7 +19,8 @@ DEFAULT_STRETCH = 1.5
 # (rtol, atol) per integrator, chosen so that R has <= 1e-4 pointwise relative error against a
 # tight solve on the LIC benchmark batch (benchmarks/forward.py, row d).
 DEFAULT_TOLERANCES = {"ark548": (3e-6, 3e-8), "ark324": (1e-7, 1e-9), "dopri5": (1e-7, 1e-9),
-                      "dop853": (3e-6, 3e-8)}
+                      "dop853": (3e-6, 3e-8), "radau5": (3e-6, 3e-8)}
+INTEGRATORS = ("ark548", "ark324", "radau5", "dopri5", "dop853")
 
 
 @dataclass(frozen=True)
@@ -80,8 +81,11 @@ class ForwardOptions:
             v = getattr(self, name)
             if v is not None and (int(v) != v or v < 5):
                 raise InputError(src, f"{name} must be an integer >= 5, got {v!r}")
-        if self.integrator not in (None, "ark548", "ark324", "dopri5", "dop853"):
-            raise InputError(src, f"integrator must be ark548, ark324, dopri5 or dop853, got {self.integrator!r}")
+        if self.integrator not in (None, *INTEGRATORS):
+            raise InputError(src, f"integrator must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
+        if self.integrator == "radau5" and not (self.thermal and self.medium == "cold"):
+            raise InputError(src, "integrator radau5 needs bubble=thermal with medium=cold "
+                                  "(use ark548 for the warm medium, dop853 for the polytropic bubble)")
         if self.integrator in ("dopri5", "dop853") and self.thermal:
             raise InputError(src, f"integrator {self.integrator} is explicit: it needs bubble=polytropic "
                                   "(the thermal bubble's diffusion is stiff; use ark548)")
