@@ -210,7 +210,8 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
             dkv_w = w0 * kv[nt - 1] + w1 * kv[nt - 2] + w2 * kv[nt - 3]
             rmix_w = kv[nt - 1] * rv + (1.0 - kv[nt - 1]) * rg
             bracket += kappa * pb * fom * rv * dkv_w / (T[nt - 1] * R * rmix_w * (1.0 - kv[nt - 1]))
-        pdot = 3.0 * inv_r * bracket
+        # work[-1]: a shift of the pressure rate, zero except when the Radau Jacobian probes df/d(pdot).
+        pdot = 3.0 * inv_r * bracket + work[work.shape[0] - 1]
         out[2] = pdot
         ckap = (kappa - 1.0) / kappa
         c_u1 = chi * (kappa - 1.0) * inv_r / (kappa * pb)      # u = c_u1 * theta' - y * c_u2 (+ mass part)
@@ -980,14 +981,21 @@ _QUOT2 = 1.2
 
 
 @njit(cache=True, error_model="numpy")
-def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, dense, in_dense, nidx, bs, Jl, Jd, Ju, W,
-                    ypert, fp, coef, work):
-    """Finite-difference Jacobian in the solver's structure: the 2x2-block tridiagonal part over
-    the bubble nodes 0..nt-2 (Jl: coupling to node i-1, Jd: node i, Ju: node i+1; blocks [row
-    field, column field]) from 3*bs coloured evaluations, and the full columns ``dense`` minus
-    their block-tridiagonal entries (W, one row per dense column) from one evaluation each."""
+def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx, vval,
+                    vcnt, Wc, wall, ypert, fp, coef, work):
+    """Finite-difference Jacobian in the solver's structure, J = blocks + U V^T:
+
+    * blocks: the 2x2-block tridiagonal part over the bubble nodes 0..m-1 (fields temperature,
+      vapour; Jl couples node i to i-1, Jd to itself, Ju to i+1; [row field, column field]),
+      from 3*bs coloured evaluations;
+    * U V^T: one term per non-field column in ``cols`` (R, Rdot, p_b, stress states: the whole
+      column, V = that unit vector) and one rank-one term w g^T for the field values next to the
+      wall in ``cols``: they reach every other row only through the bubble pressure rate, so
+      w = df/d(pdot) (one evaluation with pdot shifted through ``work[-1]``) and g = d(pdot)/dy
+      on those cells (row 2 of their columns); the rest of their columns joins the blocks.
+
+    Returns the number of low-rank terms."""
     n = y.shape[0]
-    m = nidx.shape[1]
     for k in range(n):
         ypert[k] = y[k]
     for i in range(m):
@@ -997,11 +1005,12 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, dense, in_dense, nidx, 
                 Jd[i, b, a] = 0.0
                 Ju[i, b, a] = 0.0
     for a in range(bs):
+        off = 3 if a == 0 else o1
         for c in range(3):
             any_node = False
             for i in range(c, m, 3):
-                j = nidx[a, i]
-                if in_dense[j]:
+                j = off + i
+                if in_cols[j]:
                     continue
                 ypert[j] = y[j] + 1.5e-8 * max(abs(y[j]), 1e-3)
                 any_node = True
@@ -1009,47 +1018,74 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, dense, in_dense, nidx, 
                 continue
             rhs(t, ypert, g, pr, flags, grid, mgrid, fp, coef, work)
             for i in range(c, m, 3):
-                j = nidx[a, i]
-                if in_dense[j]:
+                j = off + i
+                if in_cols[j]:
                     continue
                 d = ypert[j] - y[j]
                 for b in range(bs):
-                    Jd[i, b, a] = (fp[nidx[b, i]] - f0[nidx[b, i]]) / d
+                    ob = 3 if b == 0 else o1
+                    Jd[i, b, a] = (fp[ob + i] - f0[ob + i]) / d
                     if i + 1 < m:
-                        r = nidx[b, i + 1]
-                        Jl[i + 1, b, a] = (fp[r] - f0[r]) / d
+                        Jl[i + 1, b, a] = (fp[ob + i + 1] - f0[ob + i + 1]) / d
                     if i > 0:
-                        r = nidx[b, i - 1]
-                        Ju[i - 1, b, a] = (fp[r] - f0[r]) / d
+                        Ju[i - 1, b, a] = (fp[ob + i - 1] - f0[ob + i - 1]) / d
                 ypert[j] = y[j]
-    for q in range(dense.shape[0]):
-        j = dense[q]
+    kk = 0
+    nw = 0
+    for q in range(cols.shape[0]):
+        j = cols[q]
         ypert[j] = y[j] + 1.5e-8 * max(abs(y[j]), 1e-3)
         d = ypert[j] - y[j]
         rhs(t, ypert, g, pr, flags, grid, mgrid, fp, coef, work)
         ypert[j] = y[j]
+        field = (3 <= j < 3 + m) or (bs == 2 and o1 <= j < o1 + m)
+        if field:
+            for k in range(n):
+                Wc[nw, k] = (fp[k] - f0[k]) / d
+            wall[nw] = j
+            nw += 1
+        else:
+            for k in range(n):
+                U[kk, k] = (fp[k] - f0[k]) / d
+            vidx[kk, 0] = j
+            vval[kk, 0] = 1.0
+            vcnt[kk] = 1
+            kk += 1
+    if nw > 0:
+        dp = 1.5e-8 * max(abs(f0[2]), 1.0)
+        last = work.shape[0] - 1
+        work[last] = dp
+        rhs(t, y, g, pr, flags, grid, mgrid, fp, coef, work)
+        work[last] = 0.0
         for k in range(n):
-            W[q, k] = (fp[k] - f0[k]) / d
-        # Entries inside the block-tridiagonal pattern go to the blocks, the rest stays in W.
-        for i in range(m):
-            for a in range(bs):
-                if nidx[a, i] != j:
-                    continue
-                for b in range(bs):
-                    r = nidx[b, i]
-                    Jd[i, b, a] = W[q, r]
-                    W[q, r] = 0.0
-                    if i + 1 < m:
-                        r = nidx[b, i + 1]
-                        Jl[i + 1, b, a] = W[q, r]
-                        W[q, r] = 0.0
-                    if i > 0:
-                        r = nidx[b, i - 1]
-                        Ju[i - 1, b, a] = W[q, r]
-                        W[q, r] = 0.0
+            U[kk, k] = (fp[k] - f0[k]) / dp
+        for e in range(nw):
+            j = wall[e]
+            ge = Wc[e, 2]
+            vidx[kk, e] = j
+            vval[kk, e] = ge
+            if j >= o1 and bs == 2:
+                i = j - o1
+                a = 1
+            else:
+                i = j - 3
+                a = 0
+            for b in range(bs):
+                ob = 3 if b == 0 else o1
+                Jd[i, b, a] = Wc[e, ob + i] - U[kk, ob + i] * ge
+                if i + 1 < m:
+                    Jl[i + 1, b, a] = Wc[e, ob + i + 1] - U[kk, ob + i + 1] * ge
+                if i > 0:
+                    Ju[i - 1, b, a] = Wc[e, ob + i - 1] - U[kk, ob + i - 1] * ge
+        vcnt[kk] = nw
+        kk += 1
+    for r in range(kk):
         for k in range(n):
-            if not math.isfinite(W[q, k]):
-                W[q, k] = 0.0
+            if not math.isfinite(U[r, k]):
+                U[r, k] = 0.0
+        for e in range(vcnt[r]):
+            if not math.isfinite(vval[r, e]):
+                vval[r, e] = 0.0
     for i in range(m):
         for a in range(bs):
             for b in range(bs):
@@ -1059,108 +1095,145 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, dense, in_dense, nidx, 
                     Jd[i, b, a] = 0.0
                 if not math.isfinite(Ju[i, b, a]):
                     Ju[i, b, a] = 0.0
+    return kk
 
 
-@njit(cache=True, error_model="numpy")
-def _inv_block(M, bs, out):
-    """out = M^-1 for a 1x1 or 2x2 block (real or complex); False if singular."""
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+def _bt_factor(a, bs, m, Jl, Jd, Ju, invD, Cu):
+    """Block-Thomas pivots of M = a I - blocks: invD_i = (a I - Jd_i + Jl_i C_{i-1})^-1 and
+    C_i = -invD_i Ju_i. False if a pivot is singular."""
     if bs == 1:
-        if M[0, 0] == 0.0:
-            return False
-        out[0, 0] = 1.0 / M[0, 0]
+        cprev = 0.0 * a
+        for i in range(m):
+            d = a - Jd[i, 0, 0]
+            if i > 0:
+                d += Jl[i, 0, 0] * cprev
+            if d == 0.0:
+                return False
+            inv = 1.0 / d
+            invD[i, 0, 0] = inv
+            cprev = -inv * Ju[i, 0, 0]
+            Cu[i, 0, 0] = cprev
         return True
-    det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
-    if det == 0.0:
-        return False
-    inv = 1.0 / det
-    out[0, 0] = M[1, 1] * inv
-    out[1, 1] = M[0, 0] * inv
-    out[0, 1] = -M[0, 1] * inv
-    out[1, 0] = -M[1, 0] * inv
+    c00 = 0.0 * a
+    c01 = c00
+    c10 = c00
+    c11 = c00
+    for i in range(m):
+        m00 = a - Jd[i, 0, 0]
+        m01 = -Jd[i, 0, 1] + 0.0 * a
+        m10 = -Jd[i, 1, 0] + 0.0 * a
+        m11 = a - Jd[i, 1, 1]
+        if i > 0:
+            l00 = Jl[i, 0, 0]
+            l01 = Jl[i, 0, 1]
+            l10 = Jl[i, 1, 0]
+            l11 = Jl[i, 1, 1]
+            m00 += l00 * c00 + l01 * c10
+            m01 += l00 * c01 + l01 * c11
+            m10 += l10 * c00 + l11 * c10
+            m11 += l10 * c01 + l11 * c11
+        det = m00 * m11 - m01 * m10
+        if det == 0.0:
+            return False
+        inv = 1.0 / det
+        i00 = m11 * inv
+        i01 = -m01 * inv
+        i10 = -m10 * inv
+        i11 = m00 * inv
+        invD[i, 0, 0] = i00
+        invD[i, 0, 1] = i01
+        invD[i, 1, 0] = i10
+        invD[i, 1, 1] = i11
+        u00 = Ju[i, 0, 0]
+        u01 = Ju[i, 0, 1]
+        u10 = Ju[i, 1, 0]
+        u11 = Ju[i, 1, 1]
+        c00 = -(i00 * u00 + i01 * u10)
+        c01 = -(i00 * u01 + i01 * u11)
+        c10 = -(i10 * u00 + i11 * u10)
+        c11 = -(i10 * u01 + i11 * u11)
+        Cu[i, 0, 0] = c00
+        Cu[i, 0, 1] = c01
+        Cu[i, 1, 0] = c10
+        Cu[i, 1, 1] = c11
     return True
 
 
-@njit(cache=True, error_model="numpy")
-def _bt_solve(a, nidx, bs, Jl, invD, Cu, b, x, gv):
-    """x = M^-1 b with M = a I - (block-tridiagonal part); identity-scaled (a I) elsewhere."""
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+def _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv):
+    """x = M^-1 b for M = a I - blocks on the field nodes and a I on every other row."""
     n = b.shape[0]
-    m = nidx.shape[1]
+    ia = 1.0 / a
     for k in range(n):
-        x[k] = b[k] / a
-    # forward: g_i = invD_i (b_i + Jl_i g_{i-1})   (M_{i,i-1} = -Jl_i)
-    for i in range(m):
-        for r in range(bs):
-            s = b[nidx[r, i]]
+        x[k] = b[k] * ia
+    if bs == 1:
+        gp = 0.0 * a
+        for i in range(m):
+            r0 = b[3 + i]
             if i > 0:
-                for c in range(bs):
-                    s += Jl[i, r, c] * gv[i - 1, c]
-            x[nidx[r, i]] = s
-        for r in range(bs):
-            s = 0.0 * a
-            for c in range(bs):
-                s += invD[i, r, c] * x[nidx[c, i]]
-            gv[i, r] = s
-    # back: x_i = g_i - C_i x_{i+1}
-    for i in range(m - 1, -1, -1):
-        for r in range(bs):
-            s = gv[i, r]
-            if i < m - 1:
-                for c in range(bs):
-                    s -= Cu[i, r, c] * gv[i + 1, c]
-            gv[i, r] = s
-        for r in range(bs):
-            x[nidx[r, i]] = gv[i, r]
-
-
-@njit(cache=True, error_model="numpy")
-def _radau_factor(a, nidx, bs, Jl, Jd, Ju, W, dense, invD, Cu, Z, K, piv, Mtmp, tmp2, gv, col):
-    """Factor (a I - J) for the structured J: block Thomas pivots of M = a I - blocks, then
-    Z = M^-1 W^T and the small matrix K = I - E^T Z of the Woodbury identity (LU in place)."""
-    m = nidx.shape[1]
+                r0 += Jl[i, 0, 0] * gp
+            gp = invD[i, 0, 0] * r0
+            gv[i, 0] = gp
+        xn = gv[m - 1, 0]
+        x[3 + m - 1] = xn
+        for i in range(m - 2, -1, -1):
+            xn = gv[i, 0] - Cu[i, 0, 0] * xn
+            x[3 + i] = xn
+        return
+    g0 = 0.0 * a
+    g1 = g0
     for i in range(m):
-        for r in range(bs):
-            for c in range(bs):
-                v = -Jd[i, r, c] + 0.0 * a
-                if r == c:
-                    v += a
-                if i > 0:
-                    # - M_{i,i-1} C_{i-1} = + Jl_i C_{i-1}
-                    for q in range(bs):
-                        v += Jl[i, r, q] * Cu[i - 1, q, c]
-                Mtmp[r, c] = v
-        if not _inv_block(Mtmp, bs, tmp2):
-            return False
-        for r in range(bs):
-            for c in range(bs):
-                invD[i, r, c] = tmp2[r, c]
-        if i < m - 1:
-            # C_i = D_i^-1 M_{i,i+1} = - D_i^-1 Ju_i
-            for r in range(bs):
-                for c in range(bs):
-                    s = 0.0 * a
-                    for q in range(bs):
-                        s -= tmp2[r, q] * Ju[i, q, c]
-                    Cu[i, r, c] = s
-    k = dense.shape[0]
-    for q in range(k):
-        for j in range(W.shape[1]):
-            col[j] = W[q, j]
-        _bt_solve(a, nidx, bs, Jl, invD, Cu, col, Z[q], gv)
-    for r in range(k):
-        for q in range(k):
-            K[r, q] = (1.0 if r == q else 0.0) - Z[q, dense[r]]
-    return _lu_small(K, piv)
+        r0 = b[3 + i] + 0.0 * a
+        r1 = b[o1 + i] + 0.0 * a
+        if i > 0:
+            r0 += Jl[i, 0, 0] * g0 + Jl[i, 0, 1] * g1
+            r1 += Jl[i, 1, 0] * g0 + Jl[i, 1, 1] * g1
+        g0 = invD[i, 0, 0] * r0 + invD[i, 0, 1] * r1
+        g1 = invD[i, 1, 0] * r0 + invD[i, 1, 1] * r1
+        gv[i, 0] = g0
+        gv[i, 1] = g1
+    x0 = gv[m - 1, 0]
+    x1 = gv[m - 1, 1]
+    x[3 + m - 1] = x0
+    x[o1 + m - 1] = x1
+    for i in range(m - 2, -1, -1):
+        y0 = gv[i, 0] - (Cu[i, 0, 0] * x0 + Cu[i, 0, 1] * x1)
+        y1 = gv[i, 1] - (Cu[i, 1, 0] * x0 + Cu[i, 1, 1] * x1)
+        x0 = y0
+        x1 = y1
+        x[3 + i] = x0
+        x[o1 + i] = x1
 
 
 @njit(cache=True, error_model="numpy")
-def _radau_solve(a, nidx, bs, Jl, invD, Cu, Z, K, piv, dense, b, x, gv, sv):
+def _radau_factor(a, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD, Cu, Z, K, piv, gv):
+    """Factor (a I - J): block-Thomas pivots, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
+    if not _bt_factor(a, bs, m, Jl, Jd, Ju, invD, Cu):
+        return False
+    for q in range(kk):
+        _bt_solve(a, o1, bs, m, Jl, invD, Cu, U[q], Z[q], gv)
+    Kv = K[:kk, :kk]
+    for r in range(kk):
+        for q in range(kk):
+            s = (1.0 if r == q else 0.0) + 0.0 * a
+            for e in range(vcnt[r]):
+                s -= vval[r, e] * Z[q, vidx[r, e]]
+            Kv[r, q] = s
+    return _lu_small(Kv, piv[:kk])
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+def _radau_solve(a, o1, bs, m, kk, Jl, invD, Cu, Z, K, piv, vidx, vval, vcnt, b, x, gv, sv):
     """x = (a I - J)^-1 b from the factorisation of _radau_factor."""
-    _bt_solve(a, nidx, bs, Jl, invD, Cu, b, x, gv)
-    k = dense.shape[0]
-    for r in range(k):
-        sv[r] = x[dense[r]]
-    _lu_solve_small(K, piv, sv)
-    for q in range(k):
+    _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv)
+    for r in range(kk):
+        s = 0.0 * a
+        for e in range(vcnt[r]):
+            s += vval[r, e] * x[vidx[r, e]]
+        sv[r] = s
+    _lu_solve_small(K[:kk, :kk], piv[:kk], sv[:kk])
+    for q in range(kk):
         s = sv[q]
         Zq = Z[q]
         for j in range(x.shape[0]):
@@ -1187,42 +1260,36 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     nt = flags[F_NT]
     m = nt - 1
     bs = 2 if flags[F_MASS] else 1
-    k = dense.shape[0]
-    nidx = np.zeros((bs, m), dtype=np.int64)
-    i_kv = 3 + nt * flags[F_THERMAL] + flags[F_MT] * flags[F_MEDIUM]
-    for i in range(m):
-        nidx[0, i] = 3 + i
-        if bs == 2:
-            nidx[1, i] = i_kv + i
-    in_dense = np.zeros(n, dtype=np.bool_)
-    for q in range(k):
-        in_dense[dense[q]] = True
+    nc = dense.shape[0]
+    o1 = 3 + nt * flags[F_THERMAL] + flags[F_MT] * flags[F_MEDIUM]
+    in_cols = np.zeros(n, dtype=np.bool_)
+    for q in range(nc):
+        in_cols[dense[q]] = True
     work = np.zeros(4 * nt + 2 * flags[F_MT] + 2)
     coef = np.zeros(2 * nt + flags[F_MT] + 1)
     Jl = np.zeros((m, bs, bs))
     Jd = np.zeros((m, bs, bs))
     Ju = np.zeros((m, bs, bs))
-    W = np.zeros((k, n))
+    U = np.zeros((nc, n))
+    vidx = np.zeros((nc, nc), dtype=np.int64)
+    vval = np.zeros((nc, nc))
+    vcnt = np.zeros(nc, dtype=np.int64)
+    Wc = np.zeros((nc, n))
+    wall = np.zeros(nc, dtype=np.int64)
     invD_r = np.zeros((m, bs, bs))
     Cu_r = np.zeros((m, bs, bs))
-    Z_r = np.zeros((k, n))
-    K_r = np.zeros((k, k))
-    piv_r = np.zeros(k, dtype=np.int64)
+    Z_r = np.zeros((nc, n))
+    K_r = np.zeros((nc, nc))
+    piv_r = np.zeros(nc, dtype=np.int64)
     invD_c = np.zeros((m, bs, bs), dtype=np.complex128)
     Cu_c = np.zeros((m, bs, bs), dtype=np.complex128)
-    Z_c = np.zeros((k, n), dtype=np.complex128)
-    K_c = np.zeros((k, k), dtype=np.complex128)
-    piv_c = np.zeros(k, dtype=np.int64)
-    Mtmp_r = np.zeros((bs, bs))
-    tmp_r = np.zeros((bs, bs))
-    Mtmp_c = np.zeros((bs, bs), dtype=np.complex128)
-    tmp_c = np.zeros((bs, bs), dtype=np.complex128)
+    Z_c = np.zeros((nc, n), dtype=np.complex128)
+    K_c = np.zeros((nc, nc), dtype=np.complex128)
+    piv_c = np.zeros(nc, dtype=np.int64)
     gv_r = np.zeros((m, bs))
     gv_c = np.zeros((m, bs), dtype=np.complex128)
-    col_r = np.zeros(n)
-    col_c = np.zeros(n, dtype=np.complex128)
-    sv_r = np.zeros(k)
-    sv_c = np.zeros(k, dtype=np.complex128)
+    sv_r = np.zeros(nc)
+    sv_c = np.zeros(nc, dtype=np.complex128)
     ypert = np.zeros(n)
     fp = np.zeros(n)
     f = np.zeros(n)
@@ -1261,7 +1328,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     have_sol = False
     t_old = t
     hsol = 1.0
-    _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_dense, nidx, bs, Jl, Jd, Ju, W, ypert, fp, coef, work)
+    nrank = _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx, vval, vcnt,
+                         Wc, wall, ypert, fp, coef, work)
     current_jac = True
     lu_ok = False
     nsteps = 0
@@ -1305,10 +1373,10 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
             finite = True
             while not converged:
                 if not lu_ok:
-                    ok1 = _radau_factor(ar, nidx, bs, Jl, Jd, Ju, W, dense, invD_r, Cu_r, Z_r, K_r, piv_r,
-                                        Mtmp_r, tmp_r, gv_r, col_r)
-                    ok2 = _radau_factor(ac, nidx, bs, Jl, Jd, Ju, W, dense, invD_c, Cu_c, Z_c, K_c, piv_c,
-                                        Mtmp_c, tmp_c, gv_c, col_c)
+                    ok1 = _radau_factor(ar, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r, Z_r, K_r,
+                                        piv_r, gv_r)
+                    ok2 = _radau_factor(ac, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_c, Cu_c, Z_c, K_c,
+                                        piv_c, gv_c)
                     lu_ok = ok1 and ok2
                     if not lu_ok:
                         break
@@ -1340,8 +1408,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                         fc[kk] = complex(RADAU_TI[1, 0] * F[0, kk] + RADAU_TI[1, 1] * F[1, kk] + RADAU_TI[1, 2] * F[2, kk],
                                          RADAU_TI[2, 0] * F[0, kk] + RADAU_TI[2, 1] * F[1, kk] + RADAU_TI[2, 2] * F[2, kk]) \
                             - ac * complex(Wn[1, kk], Wn[2, kk])
-                    _radau_solve(ar, nidx, bs, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, dense, fr, xr, gv_r, sv_r)
-                    _radau_solve(ac, nidx, bs, Jl, invD_c, Cu_c, Z_c, K_c, piv_c, dense, fc, xc, gv_c, sv_c)
+                    _radau_solve(ar, o1, bs, m, nrank, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, xr, gv_r, sv_r)
+                    _radau_solve(ac, o1, bs, m, nrank, Jl, invD_c, Cu_c, Z_c, K_c, piv_c, vidx, vval, vcnt, fc, xc, gv_c, sv_c)
                     s2 = 0.0
                     for kk in range(n):
                         dW[0, kk] = xr[kk]
@@ -1372,8 +1440,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                     break
                 if current_jac:
                     break
-                _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_dense, nidx, bs, Jl, Jd, Ju, W,
-                                ypert, fp, coef, work)
+                nrank = _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx,
+                                     vval, vcnt, Wc, wall, ypert, fp, coef, work)
                 current_jac = True
                 lu_ok = False
             if not converged:
@@ -1390,7 +1458,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                 continue
             for kk in range(n):
                 fr[kk] = f[kk] + (RADAU_E[0] * Zs[0, kk] + RADAU_E[1] * Zs[1, kk] + RADAU_E[2] * Zs[2, kk]) / h
-            _radau_solve(ar, nidx, bs, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, dense, fr, err, gv_r, sv_r)
+            _radau_solve(ar, o1, bs, m, nrank, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
             for kk in range(n):
                 scale[kk] = atol + max(abs(y[kk]), abs(ynew[kk])) * rtol
             err_norm = _rms(err, scale)
@@ -1401,7 +1469,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                 rhs(t, ystage, g, pr, flags, grid, mgrid, fp, coef, work)
                 for kk in range(n):
                     fr[kk] = fp[kk] + (RADAU_E[0] * Zs[0, kk] + RADAU_E[1] * Zs[1, kk] + RADAU_E[2] * Zs[2, kk]) / h
-                _radau_solve(ar, nidx, bs, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, dense, fr, err, gv_r, sv_r)
+                _radau_solve(ar, o1, bs, m, nrank, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
                 err_norm = _rms(err, scale)
             if not math.isfinite(err_norm):
                 h *= 0.25
@@ -1472,8 +1540,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
             h_old = -1.0
             err_old = -1.0
         if recompute_jac:
-            _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_dense, nidx, bs, Jl, Jd, Ju, W,
-                            ypert, fp, coef, work)
+            nrank = _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx,
+                                 vval, vcnt, Wc, wall, ypert, fp, coef, work)
             current_jac = True
         else:
             current_jac = False
