@@ -1300,7 +1300,6 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     Zs = np.zeros((3, n))
     Z0 = np.zeros((3, n))
     Wn = np.zeros((3, n))
-    dW = np.zeros((3, n))
     F = np.zeros((3, n))
     Q = np.zeros((n, 3))
     fr = np.zeros(n)
@@ -1396,10 +1395,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                         if not (ystage[0] > 0.0):
                             finite = False
                             break
+                        # A non-finite rate propagates into the norm of the Newton update below.
                         rhs(t + RADAU_C[i] * h, ystage, g, pr, flags, grid, mgrid, F[i], coef, work)
-                        for kk in range(n):
-                            if not math.isfinite(F[i, kk]):
-                                finite = False
                     if not finite:
                         break
                     for kk in range(n):
@@ -1410,14 +1407,24 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                             - ac * complex(Wn[1, kk], Wn[2, kk])
                     _radau_solve(ar, o1, bs, m, nrank, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, xr, gv_r, sv_r)
                     _radau_solve(ac, o1, bs, m, nrank, Jl, invD_c, Cu_c, Z_c, K_c, piv_c, vidx, vval, vcnt, fc, xc, gv_c, sv_c)
+                    # W += dW and Z = T W in the same pass as the norm of dW: a diverging iteration
+                    # breaks out below and the retry starts again from Z0, so the update is harmless.
                     s2 = 0.0
                     for kk in range(n):
-                        dW[0, kk] = xr[kk]
-                        dW[1, kk] = xc[kk].real
-                        dW[2, kk] = xc[kk].imag
-                        for i in range(3):
-                            e = dW[i, kk] / scale[kk]
-                            s2 += e * e
+                        d0 = xr[kk]
+                        d1 = xc[kk].real
+                        d2 = xc[kk].imag
+                        isc = 1.0 / scale[kk]
+                        s2 += (d0 * isc) ** 2 + (d1 * isc) ** 2 + (d2 * isc) ** 2
+                        w0 = Wn[0, kk] + d0
+                        w1 = Wn[1, kk] + d1
+                        w2 = Wn[2, kk] + d2
+                        Wn[0, kk] = w0
+                        Wn[1, kk] = w1
+                        Wn[2, kk] = w2
+                        Zs[0, kk] = RADAU_T[0, 0] * w0 + RADAU_T[0, 1] * w1 + RADAU_T[0, 2] * w2
+                        Zs[1, kk] = RADAU_T[1, 0] * w0 + RADAU_T[1, 1] * w1 + RADAU_T[1, 2] * w2
+                        Zs[2, kk] = w0 + w1
                     dw = math.sqrt(s2 / (3 * n))
                     if not math.isfinite(dw):
                         finite = False
@@ -1426,12 +1433,6 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                         rate = dw / dw_old
                     if rate >= 0.0 and (rate >= 1.0 or rate ** (_NEWTON_MAXITER - it) / (1.0 - rate) * dw > newton_tol):
                         break
-                    for i in range(3):
-                        for kk in range(n):
-                            Wn[i, kk] += dW[i, kk]
-                    for i in range(3):
-                        for kk in range(n):
-                            Zs[i, kk] = RADAU_T[i, 0] * Wn[0, kk] + RADAU_T[i, 1] * Wn[1, kk] + RADAU_T[i, 2] * Wn[2, kk]
                     if dw == 0.0 or (rate >= 0.0 and rate / (1.0 - rate) * dw < newton_tol):
                         converged = True
                         break
