@@ -19,7 +19,10 @@ DEFAULT_STRETCH = 1.5
 # (rtol, atol) per integrator, chosen so that R has <= 1e-4 pointwise relative error against a
 # tight solve on the LIC benchmark batch (benchmarks/forward.py, row d).
 DEFAULT_TOLERANCES = {"ark548": (3e-6, 3e-8), "ark324": (1e-7, 1e-9), "dopri5": (1e-7, 1e-9),
-                      "dop853": (3e-6, 3e-8), "radau5": (3e-6, 3e-8)}
+                      "dop853": (3e-6, 3e-8), "radau5": (2e-5, 2e-7)}
+# IMRv2's coarse uniform grid amplifies integration error through the collapses, so it gets
+# tighter tolerances (benchmark batch: ARK 3e-6 gave 9e-4 in R; Radau 3e-5 gave 6.6e-4, 3e-6 3.6e-5).
+IMRV2_FD_TOLERANCES = {"ark548": (2e-7, 2e-9), "radau5": (3e-6, 3e-8)}
 INTEGRATORS = ("ark548", "ark324", "radau5", "dopri5", "dop853")
 
 
@@ -41,9 +44,10 @@ class ForwardOptions:
         ``imrv2-fd`` scheme and ``consistent`` otherwise.
     rtol, atol : integrator tolerances (per component: atol + rtol |y|); None: the integrator's
         default (DEFAULT_TOLERANCES).
-    integrator : ``ark548`` (5th-order implicit-explicit; default with a thermal bubble), ``ark324``
-        (3rd order), ``dop853`` (explicit 8th order; default for the polytropic bubble, which is not
-        stiff) or ``dopri5`` (explicit 5th order).
+    integrator : ``radau5`` (Radau IIA, implicit 5th order with the structured Jacobian; default
+        for the thermal bubble in a cold medium), ``ark548`` (5th-order implicit-explicit; default
+        with the warm medium), ``ark324`` (3rd order), ``dop853`` (explicit 8th order; default for
+        the polytropic bubble, which is not stiff) or ``dopri5`` (explicit 5th order).
     """
 
     radial: str = "km"
@@ -89,9 +93,9 @@ class ForwardOptions:
         if self.integrator in ("dopri5", "dop853") and self.thermal:
             raise InputError(src, f"integrator {self.integrator} is explicit: it needs bubble=polytropic "
                                   "(the thermal bubble's diffusion is stiff; use ark548)")
-        # IMRv2's coarse uniform grid amplifies integration error more through the collapses
-        # (3e-6 gave 9e-4 and 1e-6 gave 6e-4 in R on the benchmark batch), so it gets a tighter ARK tolerance.
-        tol = (2e-7, 2e-9) if (self.scheme == "imrv2-fd" and self.method == "ark548") else DEFAULT_TOLERANCES[self.method]
+        tol = DEFAULT_TOLERANCES[self.method]
+        if self.scheme == "imrv2-fd":
+            tol = IMRV2_FD_TOLERANCES.get(self.method, tol)
         if self.rtol is None:
             object.__setattr__(self, "rtol", tol[0])
         if self.atol is None:
@@ -126,7 +130,9 @@ class ForwardOptions:
         """The time integrator actually used."""
         if self.integrator:
             return self.integrator
-        return "ark548" if self.thermal else "dop853"
+        if not self.thermal:
+            return "dop853"
+        return "radau5" if self.medium == "cold" else "ark548"
 
     @property
     def resolution(self) -> tuple:
