@@ -8,8 +8,12 @@ Rows (issue: Foundation, §4), each for the converged default resolution and for
   (d) the max relative error in R (pointwise |dR|/R and max |dR*|) vs a tight-tolerance solve of the
       same discretisation;
   (e) compile time (fresh cache, separate process), load time from the cache, peak memory.
+Beside the default (Radau IIA) the table has the previous default integrator (ARK5(4)8L, IMEX)
+on the same grid, for comparison. ``--grid-study`` adds the cost of grid convergence: for
+wall-clustered grids up to the grid limit (stretch 3, nt 512, rtol 1e-8), relative L2 distance
+of R* to the limit, steps and ms per member at the default tolerance (8 members, mass transfer).
 
-Usage: python benchmarks/forward.py [--json out.json] [--repeat 5]
+Usage: python benchmarks/forward.py [--json out.json] [--repeat 5] [--grid-study]
 """
 
 from __future__ import annotations
@@ -108,14 +112,37 @@ def compile_times(options: dict) -> dict:
     return {"first_process_s": first, "cached_process_s": second}
 
 
+GRIDS = [(1.5, 64), (1.5, 128), (2.0, 64), (2.5, 64), (3.0, 64), (3.0, 96), (3.0, 128)]
+
+
+def grid_study(n_members: int = 8) -> list[dict]:
+    """R* distance to the grid limit and cost per member for wall-clustered grids (module doc)."""
+    params = {k: v[:n_members] for k, v in _params().items()}
+    limit_fm = ForwardModel("nhkv", options=ForwardOptions(nt=512, mt=512, stretch=3.0, rtol=1e-8, atol=1e-10))
+    limit = limit_fm.simulate(params, RMAX, RMAX / RATIO, T_STAR, max_steps=20_000_000).R_star
+    rows = []
+    for stretch, nt in GRIDS:
+        fm = ForwardModel("nhkv", options=ForwardOptions(nt=nt, mt=nt, stretch=stretch))
+        fm.simulate({"G": 7290.0, "mu": 0.088}, RMAX, RMAX / RATIO, T_STAR[:3])
+        dt, out = _time(lambda: fm.simulate(params, RMAX, RMAX / RATIO, T_STAR), 3)
+        l2 = np.sqrt(np.sum((out.R_star - limit) ** 2, axis=1) / np.sum(limit ** 2, axis=1))
+        rows.append({"stretch": stretch, "nt": nt, "rel_l2_to_limit_max": float(l2.max()),
+                     "max_abs_err_Rstar": float(np.max(np.abs(out.R_star - limit))),
+                     "steps_per_member": float(out.n_steps.mean()), "ms_per_member": 1e3 * dt / n_members,
+                     "failed": int(out.failed.sum())})
+    return rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", help="write the results here")
     ap.add_argument("--repeat", type=int, default=5, help="timing repeats (best is reported)")
     ap.add_argument("--no-compile", action="store_true", help="skip the compile-time measurement")
+    ap.add_argument("--grid-study", action="store_true", help="add the grid-convergence cost table")
     args = ap.parse_args(argv)
     cases = [
         ("full physics, converged (default)", {}),
+        ("  same, previous integrator ARK548", {"integrator": "ark548"}),
         ("full physics, IMRv2 grid Nt=25", {"scheme": "imrv2-fd"}),
         ("polytropic + vapour", {"bubble": "polytropic"}),
     ]
@@ -134,6 +161,12 @@ def main(argv=None):
         aerr = max(r["max_abs_err_Rstar_full"], r["max_abs_err_Rstar_window"])
         print(f"{r['label']:36s} {r['full_ms']:11.1f} {r['window_ms']:10.1f} {r['steps_per_member_full']:9.0f} "
               f"{err:11.1e} {aerr:8.1e} {r['failed']:4d}")
+    if args.grid_study:
+        result["grid_study"] = grid_study()
+        print(f"\n{'grid (mass transfer)':22s} {'L2 to limit':>11s} {'max|dR*|':>9s} {'steps':>6s} {'ms/member':>9s}")
+        for g in result["grid_study"]:
+            print(f"stretch {g['stretch']:.1f}, nt {g['nt']:<5d}   {g['rel_l2_to_limit_max']:11.1e} "
+                  f"{g['max_abs_err_Rstar']:9.1e} {g['steps_per_member']:6.0f} {g['ms_per_member']:9.1f}")
     if "compile" in result:
         c = result["compile"]
         print(f"(e) first process (compile) {c['first_process_s']:.1f} s; cached process {c['cached_process_s']:.1f} s; "
