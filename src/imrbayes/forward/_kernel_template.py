@@ -4,11 +4,13 @@
 # (numba cannot cache a kernel that receives the stress function as an argument).
 #
 # Physics: shared/docs/forward-model.md (IMRv2, in our words). Everything here is dimensionless.
-# Time stepping: an additive Runge-Kutta pair (tableaux.py; ARK5(4)8L[2]SA by default).
-# The stiff part is the diffusion of the bubble and medium fields, linear with its coefficients
-# frozen at the start of each step, so each step costs one tridiagonal factorisation per field
-# and one tridiagonal solve per implicit stage; everything else (radial dynamics, advection, wall coupling,
-# stresses) is explicit. Step size from the embedded error estimate.
+# Time stepping, three loops: (1) Radau IIA order 5 (integrate_member_radau; default for the
+# thermal bubble in a cold medium) with a finite-difference Jacobian in the problem's structure,
+# 2x2-block tridiagonal over the bubble nodes plus a few low-rank columns, solved by block Thomas
+# + Woodbury; (2) an additive Runge-Kutta pair (integrate_member; tableaux.py, ARK5(4)8L[2]SA)
+# whose implicit part is the fields' diffusion with coefficients frozen over the step plus
+# coupling columns (warm medium); (3) an explicit pair for the polytropic bubble
+# (integrate_member_explicit). Step size from the embedded error estimate in all three.
 import math
 
 import numpy as np
