@@ -5,6 +5,11 @@ function as an argument. So each model gets its own copy of ``_kernel_template.p
 import names that model's functions; the copy is written to a per-user cache directory under a
 name that hashes every source it depends on, so a second process reuses the machine code and an
 edit of any of those sources gives a new file.
+
+The kernel is compiled in a child process, and every process -- the first one included -- runs
+the machine code numba cached: the code numba keeps in memory after compiling differs from what
+it writes to the cache in the last bits of floating-point results (measured: R* sums 1e-15 apart
+for the same polytropic batch), which made a run and its resume on worker processes differ.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import importlib.util
 import inspect
 import os
 import re
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -28,6 +34,39 @@ def cache_dir() -> Path:
     root = os.environ.get("IMRBAYES_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.join(Path.home(), ".cache"), "imrbayes")
     return Path(root) / "kernels"
+
+
+def _warm_up(module_name: str) -> None:
+    """Compile ``module_name``'s kernel entry points (serial and threaded) in this process; runs in
+    the child that :func:`kernel_module` starts."""
+    import numpy as np
+
+    from imrbayes.forward import ForwardModel, ForwardOptions
+    from imrbayes.forward.constitutive.base import REGISTRY
+
+    model = next(name for name, mod in REGISTRY.items() if mod == module_name)
+    fm = ForwardModel(model, options=ForwardOptions(bubble="polytropic"))
+    defaults = {p.name: p.default for p in fm.constitutive.parameters}
+    for n in (1, 2):  # integrate_batch, integrate_batch_parallel
+        fm.simulate({k: np.full(n, v) for k, v in defaults.items()}, 100e-6, 20e-6, np.array([0.0, 0.01]))
+
+
+def _compile_in_child(module_name: str, marker: Path) -> None:
+    """Populate numba's cache from a child process (see module doc); best effort: on failure
+    this process compiles for itself."""
+    stamp = os.environ.get("NUMBA_CACHE_DIR", "")
+    if marker.exists() and marker.read_text() == stamp:
+        return
+    code = f"import imrbayes.forward._codegen as c; c._IN_CHILD = True; c._warm_up({module_name!r})"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    if done.returncode == 0:
+        fd, tmp = tempfile.mkstemp(dir=marker.parent, suffix=".tmp")
+        with os.fdopen(fd, "w") as fh:
+            fh.write(stamp)
+        os.replace(tmp, marker)
+
+
+_IN_CHILD = False
 
 
 def kernel_module(module_name: str):
@@ -54,6 +93,8 @@ def kernel_module(module_name: str):
         with os.fdopen(fd, "w") as fh:
             fh.write(src)
         os.replace(tmp, path)  # atomic: concurrent processes never see half a file
+    if not _IN_CHILD:
+        _compile_in_child(module_name, path.with_suffix(".compiled"))
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module

@@ -284,7 +284,7 @@ class ForwardModel:
         t_end = float(t_end)
         if not t_end >= t0:
             raise InputError("t_end", f"end time {t_end} is before the start time {t0}")
-        t_eval = np.atleast_1d(np.asarray([t_end] if t_eval is None else t_eval, dtype=float))
+        t_eval = np.ascontiguousarray(np.atleast_1d(np.asarray([t_end] if t_eval is None else t_eval, dtype=float)))
         if t_eval.size and (np.any(np.diff(t_eval) < 0) or t_eval[0] < t0 - 1e-12 or t_eval[-1] > t_end + 1e-12):
             raise InputError("t_eval", "output times must be increasing and inside [t0, t_end]")
         breaks = np.atleast_1d(np.asarray([] if breaks_star is None else breaks_star, dtype=float))
