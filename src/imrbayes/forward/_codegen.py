@@ -57,8 +57,9 @@ def _compile_in_child(module_name: str, marker: Path) -> None:
     stamp = os.environ.get("NUMBA_CACHE_DIR", "")
     if marker.exists() and marker.read_text() == stamp:
         return
-    code = f"import imrbayes.forward._codegen as c; c._IN_CHILD = True; c._warm_up({module_name!r})"
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    code = f"import imrbayes.forward._codegen as c; c._warm_up({module_name!r})"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env={**os.environ, _CHILD_ENV: "1"})
     if done.returncode == 0:
         fd, tmp = tempfile.mkstemp(dir=marker.parent, suffix=".tmp")
         with os.fdopen(fd, "w") as fh:
@@ -66,7 +67,7 @@ def _compile_in_child(module_name: str, marker: Path) -> None:
         os.replace(tmp, marker)
 
 
-_IN_CHILD = False
+_CHILD_ENV = "IMRBAYES_KERNEL_CHILD"   # set in the compiling child, which must not start another
 
 
 def kernel_module(module_name: str):
@@ -93,7 +94,7 @@ def kernel_module(module_name: str):
         with os.fdopen(fd, "w") as fh:
             fh.write(src)
         os.replace(tmp, path)  # atomic: concurrent processes never see half a file
-    if not _IN_CHILD:
+    if not os.environ.get(_CHILD_ENV):
         _compile_in_child(module_name, path.with_suffix(".compiled"))
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)

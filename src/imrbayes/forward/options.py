@@ -92,7 +92,7 @@ class ForwardOptions:
                                   "(use ark548 for the warm medium, dop853 for the polytropic bubble)")
         if self.integrator in ("dopri5", "dop853") and self.thermal:
             raise InputError(src, f"integrator {self.integrator} is explicit: it needs bubble=polytropic "
-                                  "(the thermal bubble's diffusion is stiff; use ark548)")
+                                  "(the thermal bubble's diffusion is stiff; use radau5, or ark548 with the warm medium)")
         tol = DEFAULT_TOLERANCES[self.method]
         if self.scheme == "imrv2-fd":
             tol = IMRV2_FD_TOLERANCES.get(self.method, tol)
