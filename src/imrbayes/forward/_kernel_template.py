@@ -994,8 +994,11 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, 
       column, V = that unit vector) and one rank-one term w g^T for the field values next to the
       wall in ``cols``: they reach every other row only through the bubble pressure rate, so
       w = df/d(pdot) (one evaluation with pdot shifted through ``work[-1]``) and g = d(pdot)/dy
-      on those cells (row 2 of their columns); the rest of their columns joins the blocks.
+      on those cells (row 2 of their columns). The wall cells are perturbed in the coloured
+      evaluations with the rest (the 3-colouring puts at most one of them in each evaluation);
+      subtracting w times the change of row 2 leaves their local columns for the blocks.
 
+    ``in_cols``, ``Wc`` and ``wall`` are unused scratch kept for the call signature.
     Returns the number of low-rank terms."""
     n = y.shape[0]
     for k in range(n):
@@ -1006,80 +1009,76 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, 
                 Jl[i, b, a] = 0.0
                 Jd[i, b, a] = 0.0
                 Ju[i, b, a] = 0.0
-    for a in range(bs):
-        off = 3 if a == 0 else o1
-        for c in range(3):
-            any_node = False
-            for i in range(c, m, 3):
-                j = off + i
-                if in_cols[j]:
-                    continue
-                ypert[j] = y[j] + 1.5e-8 * max(abs(y[j]), 1e-3)
-                any_node = True
-            if not any_node:
-                continue
-            rhs(t, ypert, g, pr, flags, grid, mgrid, fp, coef, work)
-            for i in range(c, m, 3):
-                j = off + i
-                if in_cols[j]:
-                    continue
-                d = ypert[j] - y[j]
-                for b in range(bs):
-                    ob = 3 if b == 0 else o1
-                    Jd[i, b, a] = (fp[ob + i] - f0[ob + i]) / d
-                    if i + 1 < m:
-                        Jl[i + 1, b, a] = (fp[ob + i + 1] - f0[ob + i + 1]) / d
-                    if i > 0:
-                        Ju[i - 1, b, a] = (fp[ob + i - 1] - f0[ob + i - 1]) / d
-                ypert[j] = y[j]
-    kk = 0
+    nf = 0
     nw = 0
     for q in range(cols.shape[0]):
         j = cols[q]
-        ypert[j] = y[j] + 1.5e-8 * max(abs(y[j]), 1e-3)
-        d = ypert[j] - y[j]
-        rhs(t, ypert, g, pr, flags, grid, mgrid, fp, coef, work)
-        ypert[j] = y[j]
-        field = (3 <= j < 3 + m) or (bs == 2 and o1 <= j < o1 + m)
-        if field:
-            for k in range(n):
-                Wc[nw, k] = (fp[k] - f0[k]) / d
-            wall[nw] = j
+        if (3 <= j < 3 + m) or (bs == 2 and o1 <= j < o1 + m):
             nw += 1
         else:
-            for k in range(n):
-                U[kk, k] = (fp[k] - f0[k]) / d
-            vidx[kk, 0] = j
-            vval[kk, 0] = 1.0
-            vcnt[kk] = 1
-            kk += 1
+            nf += 1
+    kw = nf
     if nw > 0:
         dp = 1.5e-8 * max(abs(f0[2]), 1.0)
         last = work.shape[0] - 1
         work[last] = dp
         rhs(t, y, g, pr, flags, grid, mgrid, fp, coef, work)
         work[last] = 0.0
+        inv = 1.0 / dp
         for k in range(n):
-            U[kk, k] = (fp[k] - f0[k]) / dp
-        for e in range(nw):
-            j = wall[e]
-            ge = Wc[e, 2]
-            vidx[kk, e] = j
-            vval[kk, e] = ge
-            if j >= o1 and bs == 2:
-                i = j - o1
-                a = 1
-            else:
-                i = j - 3
-                a = 0
-            for b in range(bs):
-                ob = 3 if b == 0 else o1
-                Jd[i, b, a] = Wc[e, ob + i] - U[kk, ob + i] * ge
-                if i + 1 < m:
-                    Jl[i + 1, b, a] = Wc[e, ob + i + 1] - U[kk, ob + i + 1] * ge
-                if i > 0:
-                    Ju[i - 1, b, a] = Wc[e, ob + i - 1] - U[kk, ob + i - 1] * ge
-        vcnt[kk] = nw
+            U[kw, k] = (fp[k] - f0[k]) * inv
+    e = 0
+    for a in range(bs):
+        off = 3 if a == 0 else o1
+        for c in range(3):
+            if c >= m:
+                continue
+            jw = -1
+            for i in range(c, m, 3):
+                j = off + i
+                ypert[j] = y[j] + 1.5e-8 * max(abs(y[j]), 1e-3)
+                if nw > 0 and in_cols[j]:
+                    jw = j
+            rhs(t, ypert, g, pr, flags, grid, mgrid, fp, coef, work)
+            if jw >= 0:
+                # The wall cell's reach through the pressure rate is the low-rank term's job.
+                dpd = fp[2] - f0[2]
+                for b in range(bs):
+                    ob = 3 if b == 0 else o1
+                    for r in range(ob, ob + m):
+                        fp[r] -= U[kw, r] * dpd
+                vidx[kw, e] = jw
+                vval[kw, e] = dpd / (ypert[jw] - y[jw])
+                e += 1
+            for i in range(c, m, 3):
+                j = off + i
+                inv = 1.0 / (ypert[j] - y[j])
+                for b in range(bs):
+                    ob = 3 if b == 0 else o1
+                    Jd[i, b, a] = (fp[ob + i] - f0[ob + i]) * inv
+                    if i + 1 < m:
+                        Jl[i + 1, b, a] = (fp[ob + i + 1] - f0[ob + i + 1]) * inv
+                    if i > 0:
+                        Ju[i - 1, b, a] = (fp[ob + i - 1] - f0[ob + i - 1]) * inv
+                ypert[j] = y[j]
+    if nw > 0:
+        vcnt[kw] = e
+    kk = 0
+    for q in range(cols.shape[0]):
+        j = cols[q]
+        if (3 <= j < 3 + m) or (bs == 2 and o1 <= j < o1 + m):
+            continue
+        ypert[j] = y[j] + 1.5e-8 * max(abs(y[j]), 1e-3)
+        inv = 1.0 / (ypert[j] - y[j])
+        rhs(t, ypert, g, pr, flags, grid, mgrid, fp, coef, work)
+        ypert[j] = y[j]
+        for k in range(n):
+            U[kk, k] = (fp[k] - f0[k]) * inv
+        vidx[kk, 0] = j
+        vval[kk, 0] = 1.0
+        vcnt[kk] = 1
+        kk += 1
+    if nw > 0:
         kk += 1
     for r in range(kk):
         for k in range(n):
@@ -1208,13 +1207,75 @@ def _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv):
         x[o1 + i] = x1
 
 
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+def _bt_solve_many(a, o1, bs, m, kk, Jl, invD, Cu, B, X, gm):
+    """X[q] = M^-1 B[q] for q < kk in one sweep (the kk right-hand sides share each block's
+    loads, and the innermost loop over them vectorises); ``gm`` (m, bs, >= kk) scratch."""
+    n = B.shape[1]
+    ia = 1.0 / a
+    for q in range(kk):
+        for k in range(n):
+            X[q, k] = B[q, k] * ia
+    if bs == 1:
+        for i in range(m):
+            d0 = invD[i, 0, 0]
+            l0 = Jl[i, 0, 0]
+            for q in range(kk):
+                r0 = B[q, 3 + i] + 0.0 * a
+                if i > 0:
+                    r0 += l0 * gm[i - 1, 0, q]
+                gm[i, 0, q] = d0 * r0
+        for q in range(kk):
+            X[q, 3 + m - 1] = gm[m - 1, 0, q]
+        for i in range(m - 2, -1, -1):
+            c0 = Cu[i, 0, 0]
+            for q in range(kk):
+                X[q, 3 + i] = gm[i, 0, q] - c0 * X[q, 4 + i]
+        return
+    for i in range(m):
+        i00 = invD[i, 0, 0]
+        i01 = invD[i, 0, 1]
+        i10 = invD[i, 1, 0]
+        i11 = invD[i, 1, 1]
+        if i == 0:
+            for q in range(kk):
+                r0 = B[q, 3] + 0.0 * a
+                r1 = B[q, o1] + 0.0 * a
+                gm[0, 0, q] = i00 * r0 + i01 * r1
+                gm[0, 1, q] = i10 * r0 + i11 * r1
+        else:
+            l00 = Jl[i, 0, 0]
+            l01 = Jl[i, 0, 1]
+            l10 = Jl[i, 1, 0]
+            l11 = Jl[i, 1, 1]
+            for q in range(kk):
+                g0 = gm[i - 1, 0, q]
+                g1 = gm[i - 1, 1, q]
+                r0 = B[q, 3 + i] + l00 * g0 + l01 * g1
+                r1 = B[q, o1 + i] + l10 * g0 + l11 * g1
+                gm[i, 0, q] = i00 * r0 + i01 * r1
+                gm[i, 1, q] = i10 * r0 + i11 * r1
+    for q in range(kk):
+        X[q, 3 + m - 1] = gm[m - 1, 0, q]
+        X[q, o1 + m - 1] = gm[m - 1, 1, q]
+    for i in range(m - 2, -1, -1):
+        c00 = Cu[i, 0, 0]
+        c01 = Cu[i, 0, 1]
+        c10 = Cu[i, 1, 0]
+        c11 = Cu[i, 1, 1]
+        for q in range(kk):
+            x0 = X[q, 4 + i]
+            x1 = X[q, o1 + i + 1]
+            X[q, 3 + i] = gm[i, 0, q] - (c00 * x0 + c01 * x1)
+            X[q, o1 + i] = gm[i, 1, q] - (c10 * x0 + c11 * x1)
+
+
 @njit(cache=True, error_model="numpy")
-def _radau_factor(a, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD, Cu, Z, K, piv, gv):
+def _radau_factor(a, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD, Cu, Z, K, piv, gm):
     """Factor (a I - J): block-Thomas pivots, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
     if not _bt_factor(a, bs, m, Jl, Jd, Ju, invD, Cu):
         return False
-    for q in range(kk):
-        _bt_solve(a, o1, bs, m, Jl, invD, Cu, U[q], Z[q], gv)
+    _bt_solve_many(a, o1, bs, m, kk, Jl, invD, Cu, U, Z, gm)
     Kv = K[:kk, :kk]
     for r in range(kk):
         for q in range(kk):
@@ -1290,6 +1351,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     piv_c = np.zeros(nc, dtype=np.int64)
     gv_r = np.zeros((m, bs))
     gv_c = np.zeros((m, bs), dtype=np.complex128)
+    gm_r = np.zeros((m, bs, nc))
+    gm_c = np.zeros((m, bs, nc), dtype=np.complex128)
     sv_r = np.zeros(nc)
     sv_c = np.zeros(nc, dtype=np.complex128)
     ypert = np.zeros(n)
@@ -1309,6 +1372,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     xr = np.zeros(n)
     xc = np.zeros(n, dtype=np.complex128)
     scale = np.zeros(n)
+    iscale = np.zeros(n)
     err = np.zeros(n)
     neval = t_eval.shape[0]
     k_eval = 0
@@ -1369,15 +1433,15 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                     for kk in range(n):
                         Z0[i, kk] = 0.0
             for kk in range(n):
-                scale[kk] = atol + abs(y[kk]) * rtol
+                iscale[kk] = 1.0 / (atol + abs(y[kk]) * rtol)
             converged = False
             finite = True
             while not converged:
                 if not lu_ok:
                     ok1 = _radau_factor(ar, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r, Z_r, K_r,
-                                        piv_r, gv_r)
+                                        piv_r, gm_r)
                     ok2 = _radau_factor(ac, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_c, Cu_c, Z_c, K_c,
-                                        piv_c, gv_c)
+                                        piv_c, gm_c)
                     lu_ok = ok1 and ok2
                     if not lu_ok:
                         break
@@ -1416,7 +1480,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                         d0 = xr[kk]
                         d1 = xc[kk].real
                         d2 = xc[kk].imag
-                        isc = 1.0 / scale[kk]
+                        isc = iscale[kk]
                         s2 += (d0 * isc) ** 2 + (d1 * isc) ** 2 + (d2 * isc) ** 2
                         w0 = Wn[0, kk] + d0
                         w1 = Wn[1, kk] + d1
