@@ -1271,11 +1271,8 @@ def _bt_solve_many(a, o1, bs, m, kk, Jl, invD, Cu, B, X, gm):
 
 
 @njit(cache=True, error_model="numpy")
-def _radau_factor(a, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD, Cu, Z, K, piv, gm):
-    """Factor (a I - J): block-Thomas pivots, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
-    if not _bt_factor(a, bs, m, Jl, Jd, Ju, invD, Cu):
-        return False
-    _bt_solve_many(a, o1, bs, m, kk, Jl, invD, Cu, U, Z, gm)
+def _woodbury_factor(a, kk, vidx, vval, vcnt, Z, K, piv):
+    """LU of K = I - V^T Z (Woodbury capacitance matrix) for Z = M^-1 U."""
     Kv = K[:kk, :kk]
     for r in range(kk):
         for q in range(kk):
@@ -1287,11 +1284,10 @@ def _radau_factor(a, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD, Cu, Z
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _radau_solve(a, o1, bs, m, kk, Jl, invD, Cu, Z, K, piv, vidx, vval, vcnt, b, x, gv, sv):
-    """x = (a I - J)^-1 b from the factorisation of _radau_factor."""
-    _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv)
+def _woodbury(kk, Z, K, piv, vidx, vval, vcnt, x, sv):
+    """x += Z (K^-1 V^T x): the low-rank correction of a block solve (see _radau_factor)."""
     for r in range(kk):
-        s = 0.0 * a
+        s = 0.0 * sv[0]
         for e in range(vcnt[r]):
             s += vval[r, e] * x[vidx[r, e]]
         sv[r] = s
@@ -1301,6 +1297,192 @@ def _radau_solve(a, o1, bs, m, kk, Jl, invD, Cu, Z, K, piv, vidx, vval, vcnt, b,
         Zq = Z[q]
         for j in range(x.shape[0]):
             x[j] += Zq[j] * s
+
+
+@njit(cache=True, error_model="numpy")
+def _radau_factor(a, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD, Cu, Z, K, piv, gm):
+    """Factor (a I - J): block-Thomas pivots, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
+    if not _bt_factor(a, bs, m, Jl, Jd, Ju, invD, Cu):
+        return False
+    _bt_solve_many(a, o1, bs, m, kk, Jl, invD, Cu, U, Z, gm)
+    return _woodbury_factor(a, kk, vidx, vval, vcnt, Z, K, piv)
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+def _radau_solve(a, o1, bs, m, kk, Jl, invD, Cu, Z, K, piv, vidx, vval, vcnt, b, x, gv, sv):
+    """x = (a I - J)^-1 b from the factorisation of _radau_factor."""
+    _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv)
+    if kk > 0:
+        _woodbury(kk, Z, K, piv, vidx, vval, vcnt, x, sv)
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+def _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
+    """_bt_factor of the real and the complex system (2x2 blocks) in one loop, for the same
+    reason as _bt_solve_pair. False if a pivot is singular."""
+    c00 = 0.0
+    c01 = 0.0
+    c10 = 0.0
+    c11 = 0.0
+    e00 = 0.0j
+    e01 = 0.0j
+    e10 = 0.0j
+    e11 = 0.0j
+    for i in range(m):
+        j00 = Jd[i, 0, 0]
+        j01 = Jd[i, 0, 1]
+        j10 = Jd[i, 1, 0]
+        j11 = Jd[i, 1, 1]
+        m00 = ar - j00
+        m01 = -j01
+        m10 = -j10
+        m11 = ar - j11
+        n00 = ac - j00
+        n01 = -j01 + 0.0j
+        n10 = -j10 + 0.0j
+        n11 = ac - j11
+        if i > 0:
+            l00 = Jl[i, 0, 0]
+            l01 = Jl[i, 0, 1]
+            l10 = Jl[i, 1, 0]
+            l11 = Jl[i, 1, 1]
+            m00 += l00 * c00 + l01 * c10
+            m01 += l00 * c01 + l01 * c11
+            m10 += l10 * c00 + l11 * c10
+            m11 += l10 * c01 + l11 * c11
+            n00 += l00 * e00 + l01 * e10
+            n01 += l00 * e01 + l01 * e11
+            n10 += l10 * e00 + l11 * e10
+            n11 += l10 * e01 + l11 * e11
+        det = m00 * m11 - m01 * m10
+        dec = n00 * n11 - n01 * n10
+        if det == 0.0 or dec == 0.0:
+            return False
+        inv = 1.0 / det
+        inc = 1.0 / dec
+        i00 = m11 * inv
+        i01 = -m01 * inv
+        i10 = -m10 * inv
+        i11 = m00 * inv
+        k00 = n11 * inc
+        k01 = -n01 * inc
+        k10 = -n10 * inc
+        k11 = n00 * inc
+        invD_r[i, 0, 0] = i00
+        invD_r[i, 0, 1] = i01
+        invD_r[i, 1, 0] = i10
+        invD_r[i, 1, 1] = i11
+        invD_c[i, 0, 0] = k00
+        invD_c[i, 0, 1] = k01
+        invD_c[i, 1, 0] = k10
+        invD_c[i, 1, 1] = k11
+        u00 = Ju[i, 0, 0]
+        u01 = Ju[i, 0, 1]
+        u10 = Ju[i, 1, 0]
+        u11 = Ju[i, 1, 1]
+        c00 = -(i00 * u00 + i01 * u10)
+        c01 = -(i00 * u01 + i01 * u11)
+        c10 = -(i10 * u00 + i11 * u10)
+        c11 = -(i10 * u01 + i11 * u11)
+        e00 = -(k00 * u00 + k01 * u10)
+        e01 = -(k00 * u01 + k01 * u11)
+        e10 = -(k10 * u00 + k11 * u10)
+        e11 = -(k10 * u01 + k11 * u11)
+        Cu_r[i, 0, 0] = c00
+        Cu_r[i, 0, 1] = c01
+        Cu_r[i, 1, 0] = c10
+        Cu_r[i, 1, 1] = c11
+        Cu_c[i, 0, 0] = e00
+        Cu_c[i, 0, 1] = e01
+        Cu_c[i, 1, 0] = e10
+        Cu_c[i, 1, 1] = e11
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _radau_factor_pair(ar, ac, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r, Z_r, K_r, piv_r,
+                       invD_c, Cu_c, Z_c, K_c, piv_c, gm_r, gm_c):
+    """_radau_factor of the real (ar) and the complex (ac) system of a Radau step."""
+    if bs == 2:
+        if not _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
+            return False
+    else:
+        if not (_bt_factor(ar, bs, m, Jl, Jd, Ju, invD_r, Cu_r) and _bt_factor(ac, bs, m, Jl, Jd, Ju, invD_c, Cu_c)):
+            return False
+    _bt_solve_many(ar, o1, bs, m, kk, Jl, invD_r, Cu_r, U, Z_r, gm_r)
+    _bt_solve_many(ac, o1, bs, m, kk, Jl, invD_c, Cu_c, U, Z_c, gm_c)
+    return _woodbury_factor(ar, kk, vidx, vval, vcnt, Z_r, K_r, piv_r) and \
+        _woodbury_factor(ac, kk, vidx, vval, vcnt, Z_c, K_c, piv_c)
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+def _bt_solve_pair(ar, ac, o1, m, Jl, invD_r, Cu_r, invD_c, Cu_c, br, bc, xr, xc, gv_r, gv_c):
+    """_bt_solve of the real (ar) and the complex (ac) system together (2x2 blocks): each sweep
+    is a chain of dependent operations, and running the two independent chains in one loop lets
+    the processor overlap them."""
+    n = br.shape[0]
+    iar = 1.0 / ar
+    iac = 1.0 / ac
+    for k in range(n):
+        xr[k] = br[k] * iar
+        xc[k] = bc[k] * iac
+    p0 = 0.0
+    p1 = 0.0
+    q0 = 0.0j
+    q1 = 0.0j
+    for i in range(m):
+        r0 = br[3 + i]
+        r1 = br[o1 + i]
+        s0 = bc[3 + i]
+        s1 = bc[o1 + i]
+        if i > 0:
+            l00 = Jl[i, 0, 0]
+            l01 = Jl[i, 0, 1]
+            l10 = Jl[i, 1, 0]
+            l11 = Jl[i, 1, 1]
+            r0 += l00 * p0 + l01 * p1
+            r1 += l10 * p0 + l11 * p1
+            s0 += l00 * q0 + l01 * q1
+            s1 += l10 * q0 + l11 * q1
+        p0 = invD_r[i, 0, 0] * r0 + invD_r[i, 0, 1] * r1
+        p1 = invD_r[i, 1, 0] * r0 + invD_r[i, 1, 1] * r1
+        q0 = invD_c[i, 0, 0] * s0 + invD_c[i, 0, 1] * s1
+        q1 = invD_c[i, 1, 0] * s0 + invD_c[i, 1, 1] * s1
+        gv_r[i, 0] = p0
+        gv_r[i, 1] = p1
+        gv_c[i, 0] = q0
+        gv_c[i, 1] = q1
+    xr[3 + m - 1] = p0
+    xr[o1 + m - 1] = p1
+    xc[3 + m - 1] = q0
+    xc[o1 + m - 1] = q1
+    for i in range(m - 2, -1, -1):
+        y0 = gv_r[i, 0] - (Cu_r[i, 0, 0] * p0 + Cu_r[i, 0, 1] * p1)
+        y1 = gv_r[i, 1] - (Cu_r[i, 1, 0] * p0 + Cu_r[i, 1, 1] * p1)
+        z0 = gv_c[i, 0] - (Cu_c[i, 0, 0] * q0 + Cu_c[i, 0, 1] * q1)
+        z1 = gv_c[i, 1] - (Cu_c[i, 1, 0] * q0 + Cu_c[i, 1, 1] * q1)
+        p0 = y0
+        p1 = y1
+        q0 = z0
+        q1 = z1
+        xr[3 + i] = p0
+        xr[o1 + i] = p1
+        xc[3 + i] = q0
+        xc[o1 + i] = q1
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+def _radau_solve_pair(ar, ac, o1, bs, m, kk, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, invD_c, Cu_c, Z_c, K_c, piv_c,
+                      vidx, vval, vcnt, br, bc, xr, xc, gv_r, gv_c, sv_r, sv_c):
+    """xr = (ar I - J)^-1 br and xc = (ac I - J)^-1 bc, the two solves of a Newton iteration."""
+    if bs == 2:
+        _bt_solve_pair(ar, ac, o1, m, Jl, invD_r, Cu_r, invD_c, Cu_c, br, bc, xr, xc, gv_r, gv_c)
+    else:
+        _bt_solve(ar, o1, bs, m, Jl, invD_r, Cu_r, br, xr, gv_r)
+        _bt_solve(ac, o1, bs, m, Jl, invD_c, Cu_c, bc, xc, gv_c)
+    if kk > 0:
+        _woodbury(kk, Z_r, K_r, piv_r, vidx, vval, vcnt, xr, sv_r)
+        _woodbury(kk, Z_c, K_c, piv_c, vidx, vval, vcnt, xc, sv_c)
 
 
 @njit(cache=True, error_model="numpy")
@@ -1438,11 +1620,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
             finite = True
             while not converged:
                 if not lu_ok:
-                    ok1 = _radau_factor(ar, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r, Z_r, K_r,
-                                        piv_r, gm_r)
-                    ok2 = _radau_factor(ac, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_c, Cu_c, Z_c, K_c,
-                                        piv_c, gm_c)
-                    lu_ok = ok1 and ok2
+                    lu_ok = _radau_factor_pair(ar, ac, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r,
+                                               Z_r, K_r, piv_r, invD_c, Cu_c, Z_c, K_c, piv_c, gm_r, gm_c)
                     if not lu_ok:
                         break
                 # Simplified Newton on the transformed system (W = TI Z).
@@ -1471,8 +1650,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                         fc[kk] = complex(RADAU_TI[1, 0] * F[0, kk] + RADAU_TI[1, 1] * F[1, kk] + RADAU_TI[1, 2] * F[2, kk],
                                          RADAU_TI[2, 0] * F[0, kk] + RADAU_TI[2, 1] * F[1, kk] + RADAU_TI[2, 2] * F[2, kk]) \
                             - ac * complex(Wn[1, kk], Wn[2, kk])
-                    _radau_solve(ar, o1, bs, m, nrank, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, xr, gv_r, sv_r)
-                    _radau_solve(ac, o1, bs, m, nrank, Jl, invD_c, Cu_c, Z_c, K_c, piv_c, vidx, vval, vcnt, fc, xc, gv_c, sv_c)
+                    _radau_solve_pair(ar, ac, o1, bs, m, nrank, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, invD_c, Cu_c, Z_c,
+                                      K_c, piv_c, vidx, vval, vcnt, fr, fc, xr, xc, gv_r, gv_c, sv_r, sv_c)
                     # W += dW and Z = T W in the same pass as the norm of dW: a diverging iteration
                     # breaks out below and the retry starts again from Z0, so the update is harmless.
                     s2 = 0.0
