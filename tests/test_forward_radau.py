@@ -75,10 +75,10 @@ def test_structured_jacobian_equals_dense_finite_differences(mass_transfer):
     in_cols = np.zeros(n, dtype=bool)
     in_cols[dense] = True
     Jl, Jd, Ju = (np.zeros((m, bs, bs)) for _ in range(3))
-    U, Wc = np.zeros((nc, n)), np.zeros((nc, n))
+    U = np.zeros((nc, n))
     vidx, vval, vcnt = np.zeros((nc, nc), dtype=np.int64), np.zeros((nc, nc)), np.zeros(nc, dtype=np.int64)
     kk = k._radau_jacobian(0.9, y, f0, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx,
-                           vval, vcnt, Wc, np.zeros(nc, dtype=np.int64), np.zeros(n), np.zeros(n), coef, work)
+                           vval, vcnt, np.zeros(n), np.zeros(n), coef, work)
     J = np.zeros((n, n))
     offs = [3, o1][:bs]
     for i in range(m):

@@ -984,7 +984,7 @@ _QUOT2 = 1.2
 
 @njit(cache=True, error_model="numpy")
 def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx, vval,
-                    vcnt, Wc, wall, ypert, fp, coef, work):
+                    vcnt, ypert, fp, coef, work):
     """Finite-difference Jacobian in the solver's structure, J = blocks + U V^T:
 
     * blocks: the 2x2-block tridiagonal part over the bubble nodes 0..m-1 (fields temperature,
@@ -998,7 +998,7 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, 
       evaluations with the rest (the 3-colouring puts at most one of them in each evaluation);
       subtracting w times the change of row 2 leaves their local columns for the blocks.
 
-    ``in_cols``, ``Wc`` and ``wall`` are unused scratch kept for the call signature.
+    ``in_cols`` (n,) marks the state indices in ``cols``.
     Returns the number of low-rank terms."""
     n = y.shape[0]
     for k in range(n):
@@ -1100,64 +1100,21 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, 
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_factor(a, bs, m, Jl, Jd, Ju, invD, Cu):
-    """Block-Thomas pivots of M = a I - blocks: invD_i = (a I - Jd_i + Jl_i C_{i-1})^-1 and
-    C_i = -invD_i Ju_i. False if a pivot is singular."""
-    if bs == 1:
-        cprev = 0.0 * a
-        for i in range(m):
-            d = a - Jd[i, 0, 0]
-            if i > 0:
-                d += Jl[i, 0, 0] * cprev
-            if d == 0.0:
-                return False
-            inv = 1.0 / d
-            invD[i, 0, 0] = inv
-            cprev = -inv * Ju[i, 0, 0]
-            Cu[i, 0, 0] = cprev
-        return True
-    c00 = 0.0 * a
-    c01 = c00
-    c10 = c00
-    c11 = c00
+def _bt_factor_scalar(a, m, Jl, Jd, Ju, invD, Cu):
+    """Block-Thomas pivots of M = a I - blocks for 1x1 blocks (no vapour field; the 2x2 case is
+    _bt_factor_pair): invD_i = (a - Jd_i + Jl_i C_{i-1})^-1 and C_i = -invD_i Ju_i. False if a
+    pivot is singular."""
+    cprev = 0.0 * a
     for i in range(m):
-        m00 = a - Jd[i, 0, 0]
-        m01 = -Jd[i, 0, 1] + 0.0 * a
-        m10 = -Jd[i, 1, 0] + 0.0 * a
-        m11 = a - Jd[i, 1, 1]
+        d = a - Jd[i, 0, 0]
         if i > 0:
-            l00 = Jl[i, 0, 0]
-            l01 = Jl[i, 0, 1]
-            l10 = Jl[i, 1, 0]
-            l11 = Jl[i, 1, 1]
-            m00 += l00 * c00 + l01 * c10
-            m01 += l00 * c01 + l01 * c11
-            m10 += l10 * c00 + l11 * c10
-            m11 += l10 * c01 + l11 * c11
-        det = m00 * m11 - m01 * m10
-        if det == 0.0:
+            d += Jl[i, 0, 0] * cprev
+        if d == 0.0:
             return False
-        inv = 1.0 / det
-        i00 = m11 * inv
-        i01 = -m01 * inv
-        i10 = -m10 * inv
-        i11 = m00 * inv
-        invD[i, 0, 0] = i00
-        invD[i, 0, 1] = i01
-        invD[i, 1, 0] = i10
-        invD[i, 1, 1] = i11
-        u00 = Ju[i, 0, 0]
-        u01 = Ju[i, 0, 1]
-        u10 = Ju[i, 1, 0]
-        u11 = Ju[i, 1, 1]
-        c00 = -(i00 * u00 + i01 * u10)
-        c01 = -(i00 * u01 + i01 * u11)
-        c10 = -(i10 * u00 + i11 * u10)
-        c11 = -(i10 * u01 + i11 * u11)
-        Cu[i, 0, 0] = c00
-        Cu[i, 0, 1] = c01
-        Cu[i, 1, 0] = c10
-        Cu[i, 1, 1] = c11
+        inv = 1.0 / d
+        invD[i, 0, 0] = inv
+        cprev = -inv * Ju[i, 0, 0]
+        Cu[i, 0, 0] = cprev
     return True
 
 
@@ -1299,18 +1256,9 @@ def _woodbury(kk, Z, K, piv, vidx, vval, vcnt, x, sv):
             x[j] += Zq[j] * s
 
 
-@njit(cache=True, error_model="numpy")
-def _radau_factor(a, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD, Cu, Z, K, piv, gm):
-    """Factor (a I - J): block-Thomas pivots, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
-    if not _bt_factor(a, bs, m, Jl, Jd, Ju, invD, Cu):
-        return False
-    _bt_solve_many(a, o1, bs, m, kk, Jl, invD, Cu, U, Z, gm)
-    return _woodbury_factor(a, kk, vidx, vval, vcnt, Z, K, piv)
-
-
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _radau_solve(a, o1, bs, m, kk, Jl, invD, Cu, Z, K, piv, vidx, vval, vcnt, b, x, gv, sv):
-    """x = (a I - J)^-1 b from the factorisation of _radau_factor."""
+    """x = (a I - J)^-1 b from the factorisation of _radau_factor_pair."""
     _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv)
     if kk > 0:
         _woodbury(kk, Z, K, piv, vidx, vval, vcnt, x, sv)
@@ -1318,8 +1266,9 @@ def _radau_solve(a, o1, bs, m, kk, Jl, invD, Cu, Z, K, piv, vidx, vval, vcnt, b,
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
-    """_bt_factor of the real and the complex system (2x2 blocks) in one loop, for the same
-    reason as _bt_solve_pair. False if a pivot is singular."""
+    """Block-Thomas pivots of M = a I - blocks (2x2 blocks) for the real (ar) and the complex (ac)
+    system in one loop, for the same reason as _bt_solve_pair: invD_i = (a I - Jd_i +
+    Jl_i C_{i-1})^-1 and C_i = -invD_i Ju_i. False if a pivot is singular."""
     c00 = 0.0
     c01 = 0.0
     c10 = 0.0
@@ -1402,12 +1351,13 @@ def _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
 @njit(cache=True, error_model="numpy")
 def _radau_factor_pair(ar, ac, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r, Z_r, K_r, piv_r,
                        invD_c, Cu_c, Z_c, K_c, piv_c, gm_r, gm_c):
-    """_radau_factor of the real (ar) and the complex (ac) system of a Radau step."""
+    """Factor (a I - J) for the real (ar) and the complex (ac) system of a Radau step: block-Thomas
+    pivots, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
     if bs == 2:
         if not _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
             return False
     else:
-        if not (_bt_factor(ar, bs, m, Jl, Jd, Ju, invD_r, Cu_r) and _bt_factor(ac, bs, m, Jl, Jd, Ju, invD_c, Cu_c)):
+        if not (_bt_factor_scalar(ar, m, Jl, Jd, Ju, invD_r, Cu_r) and _bt_factor_scalar(ac, m, Jl, Jd, Ju, invD_c, Cu_c)):
             return False
     _bt_solve_many(ar, o1, bs, m, kk, Jl, invD_r, Cu_r, U, Z_r, gm_r)
     _bt_solve_many(ac, o1, bs, m, kk, Jl, invD_c, Cu_c, U, Z_c, gm_c)
@@ -1519,8 +1469,6 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     vidx = np.zeros((nc, nc), dtype=np.int64)
     vval = np.zeros((nc, nc))
     vcnt = np.zeros(nc, dtype=np.int64)
-    Wc = np.zeros((nc, n))
-    wall = np.zeros(nc, dtype=np.int64)
     invD_r = np.zeros((m, bs, bs))
     Cu_r = np.zeros((m, bs, bs))
     Z_r = np.zeros((nc, n))
@@ -1576,7 +1524,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     t_old = t
     hsol = 1.0
     nrank = _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx, vval, vcnt,
-                         Wc, wall, ypert, fp, coef, work)
+                         ypert, fp, coef, work)
     current_jac = True
     lu_ok = False
     nsteps = 0
@@ -1687,7 +1635,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                 if current_jac:
                     break
                 nrank = _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx,
-                                     vval, vcnt, Wc, wall, ypert, fp, coef, work)
+                                     vval, vcnt, ypert, fp, coef, work)
                 current_jac = True
                 lu_ok = False
             if not converged:
@@ -1787,7 +1735,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
             err_old = -1.0
         if recompute_jac:
             nrank = _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx,
-                                 vval, vcnt, Wc, wall, ypert, fp, coef, work)
+                                 vval, vcnt, ypert, fp, coef, work)
             current_jac = True
         else:
             current_jac = False
