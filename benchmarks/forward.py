@@ -32,6 +32,9 @@ import numpy as np
 
 from imrbayes.forward import ForwardModel, ForwardOptions
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _machine import cpu_label, machine_info  # noqa: E402
+
 RMAX, RATIO = 263e-6, 7.58
 T_STAR = np.arange(121) * 0.025
 WINDOW_START = 0.6          # t*; 35 samples to 1.45 cover the first collapse (t* ~ 0.9)
@@ -147,12 +150,12 @@ def main(argv=None):
         ("polytropic + vapour", {"bubble": "polytropic"}),
     ]
     rows = [bench_case(label, opts, args.repeat) for label, opts in cases]
-    result = {"machine": {"python": platform.python_version(), "processor": platform.processor() or platform.machine(),
-                          "cpus": os.cpu_count()},
+    result = {"machine": machine_info(),
               "n_members": N_MEMBERS, "rows": rows, "load_average_after": os.getloadavg(),
               "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
     if not args.no_compile:
         result["compile"] = compile_times({})
+    print(f"CPU: {cpu_label(result['machine'])}, {result['machine']['cpus']} cores")
     hdr = f"{'case':36s} {'(a) 0-3 ms':>11s} {'(b) win ms':>10s} {'steps/mbr':>9s} {'(d) rel err':>11s} {'abs err':>8s} {'fail':>4s}"
     print(hdr)
     print("-" * len(hdr))

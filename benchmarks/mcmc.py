@@ -25,6 +25,7 @@ import json
 import os
 import platform
 import tempfile
+import sys
 import time
 from pathlib import Path
 
@@ -36,6 +37,9 @@ from imrbayes.ensemble.windows import mda_weights, window_spans
 from imrbayes.forward import ForwardModel
 from imrbayes.mcmc import GaussianPrior, MCMCSettings, WindowTarget, run_mcmc
 from imrbayes.validation.suite import TRUTH, verification_data
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _machine import machine_info  # noqa: E402
 
 FORWARD = {"converged": {}, "imrv2-fd": {"scheme": "imrv2-fd"}, "polytropic": {"bubble": "polytropic"}}
 DEFAULT_RUNS = 32 * 2000 * 4 * 5          # member-runs of the default benchmark (5 experiments)
@@ -116,6 +120,7 @@ def main():
               f"{row['acceptance']:5.2f} {p['G']['mean'] / 1e3:7.3f}±{p['G']['sd'] / 1e3:6.3f} "
               f"{p['mu']['mean']:8.4f}±{p['mu']['sd']:7.4f} {row['projected_default_h']:14.2f}", flush=True)
     meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
+            "cpu": machine_info(),
             "case": "methods.md §5 verification, 5 experiments, paper noise; MIEnKS window (L=35, h=5), weights "
                     "beta/L, paper prior, true start state", "truth": TRUTH, "seed": args.seed,
             "lockstep": not args.sequential}

@@ -14,6 +14,7 @@ import argparse
 import json
 import os
 import platform
+import sys
 import time
 
 import numpy as np
@@ -22,6 +23,9 @@ from imrbayes.ensemble import METHODS, IMRSettings, ParamSpace, Runner
 from imrbayes.ensemble.output import jsonable
 from imrbayes.forward import ForwardModel
 from imrbayes.validation.suite import TRUTH, verification_data
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _machine import machine_info  # noqa: E402
 
 FORWARD = {"polytropic": {"bubble": "polytropic"}, "imrv2-fd": {"scheme": "imrv2-fd"}, "converged": {}}
 
@@ -72,6 +76,7 @@ def main():
                   f"{e['G']['mean'] / 1e3:8.3f} ± {e['G']['sd'] / 1e3:5.3f} {e['mu']['mean']:8.4f} ± {e['mu']['sd']:6.4f}",
                   flush=True)
     meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
+            "cpu": machine_info(),
             "case": "methods.md §5 verification, 5 experiments, paper noise", "truth": TRUTH, "seed": args.seed}
     if args.json:
         with open(args.json, "w") as fh:

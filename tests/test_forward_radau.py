@@ -68,7 +68,7 @@ def test_structured_jacobian_equals_dense_finite_differences(mass_transfer):
     bs = 2 if mass_transfer else 1
     m = nt - 1
     o1 = fm.layout()["kv"].start if mass_transfer else 3 + nt
-    work, coef = np.zeros(4 * nt + 2 * mt + 2), np.zeros(2 * nt + mt + 1)
+    work, coef = np.zeros(7 * nt + 2 * mt + 2), np.zeros(2 * nt + mt + 1)
     f0 = np.zeros(n)
     k.rhs(0.9, y, g, pr, flags, grid, mgrid, f0, coef, work)
     nc = dense.size

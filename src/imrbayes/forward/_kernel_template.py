@@ -135,7 +135,7 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
 
     ``y`` (n,): [R, Rdot, p_b, theta (nt), T_m (mt), k_v (nt), stress states]; ``g`` groups;
     ``p`` dimensionless material parameters (p[0] = 1/Ca, p[1] = 1/Re, then model-specific);
-    ``work`` scratch (>= 4 nt + 2 mt + 2); work[0] carries the warm start of the wall root.
+    ``work`` scratch (>= 7 nt + 2 mt + 2); work[0] carries the warm start of the wall root.
     """
     nt = flags[F_NT]
     mt = flags[F_MT]
@@ -220,36 +220,59 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
         c_u2 = R * pdot / (3.0 * kappa * pb)
         c_fom = fom * inv_r2
         c_chi = chi * inv_r2
-        for i in range(nt - 1):
-            yi = grid[GR_Y, i]
-            if i == 0:
-                d1 = 0.0
-                d2 = grid[GR_D2C, 0] * th[0] + grid[GR_D2U, 0] * th[1]
-            else:
+        # The node values go to scratch in ``work`` first and are copied out after: a loop whose
+        # reads and writes all lie in one buffer (plus the read-only grid) passes LLVM's runtime
+        # alias checks and is vectorised; writing ``out`` and ``coef`` directly needs more checks
+        # than LLVM allows and leaves the loop scalar (measured: 280 -> 120 ns per call, nt = 64).
+        ob = 1 + 4 * nt + 2 * mt
+        oth = work[ob:ob + nt]
+        okv = work[ob + nt:ob + 2 * nt]
+        cth = work[ob + 2 * nt:ob + 3 * nt]
+        # Centre node (i = 0): the first derivatives vanish by symmetry.
+        d2 = grid[GR_D2C, 0] * th[0] + grid[GR_D2U, 0] * th[1]
+        K = kv[0] * (av * T[0] + bv) + (1.0 - kv[0]) * (ag * T[0] + bg)
+        ckt = ckap * K * T[0] * inv_pb
+        cth[0] = ckt * c_chi
+        if mass:
+            k2 = grid[GR_D2C, 0] * kv[0] + grid[GR_D2U, 0] * kv[1]
+            okv[0] = c_fom * k2
+        oth[0] = ckt * pdot + cth[0] * d2
+        if mass:
+            for i in range(1, nt - 1):
+                yi = grid[GR_Y, i]
                 d1 = grid[GR_D1L, i] * th[i - 1] + grid[GR_D1C, i] * th[i] + grid[GR_D1U, i] * th[i + 1]
                 d2 = grid[GR_D2L, i] * th[i - 1] + grid[GR_D2C, i] * th[i] + grid[GR_D2U, i] * th[i + 1]
-            u = c_u1 * d1 - yi * c_u2
-            Ti = T[i]
-            kvi = kv[i]
-            K = kvi * (av * Ti + bv) + (1.0 - kvi) * (ag * Ti + bg)
-            ckt = ckap * K * Ti * inv_pb
-            cdiff = ckt * c_chi
-            if mass:
-                if i == 0:
-                    k1 = 0.0
-                    k2 = grid[GR_D2C, 0] * kv[0] + grid[GR_D2U, 0] * kv[1]
-                else:
-                    k1 = grid[GR_D1L, i] * kv[i - 1] + grid[GR_D1C, i] * kvi + grid[GR_D1U, i] * kv[i + 1]
-                    k2 = grid[GR_D2L, i] * kv[i - 1] + grid[GR_D2C, i] * kvi + grid[GR_D2U, i] * kv[i + 1]
+                Ti = T[i]
+                kvi = kv[i]
+                K = kvi * (av * Ti + bv) + (1.0 - kvi) * (ag * Ti + bg)
+                ckt = ckap * K * Ti * inv_pb
+                cdiff = ckt * c_chi
+                k1 = grid[GR_D1L, i] * kv[i - 1] + grid[GR_D1C, i] * kvi + grid[GR_D1U, i] * kv[i + 1]
+                k2 = grid[GR_D2L, i] * kv[i - 1] + grid[GR_D2C, i] * kvi + grid[GR_D2U, i] * kv[i + 1]
                 gam = (rv - rg) * k1 / (kvi * rv + (1.0 - kvi) * rg)
-                u += fom * inv_r * gam
+                u = c_u1 * d1 - yi * c_u2 + fom * inv_r * gam
                 adv = (u - yi * U) * inv_r
-                out[i_th + i] = -adv * d1 + ckt * pdot + cdiff * d2 + c_fom * gam * d1
-                out[i_kv + i] = c_fom * (k2 - k1 * (d1 / (sq[i] * Ti) + gam)) - adv * k1
+                oth[i] = -adv * d1 + ckt * pdot + cdiff * d2 + c_fom * gam * d1
+                okv[i] = c_fom * (k2 - k1 * (d1 / (sq[i] * Ti) + gam)) - adv * k1
+                cth[i] = cdiff
+            for i in range(nt - 1):
+                out[i_kv + i] = okv[i]
                 coef[nt + i] = c_fom
-            else:
-                out[i_th + i] = -(u - yi * U) * inv_r * d1 + ckt * pdot + cdiff * d2
-            coef[i] = cdiff
+        else:
+            for i in range(1, nt - 1):
+                yi = grid[GR_Y, i]
+                d1 = grid[GR_D1L, i] * th[i - 1] + grid[GR_D1C, i] * th[i] + grid[GR_D1U, i] * th[i + 1]
+                d2 = grid[GR_D2L, i] * th[i - 1] + grid[GR_D2C, i] * th[i] + grid[GR_D2U, i] * th[i + 1]
+                Ti = T[i]
+                K = kv0 * (av * Ti + bv) + (1.0 - kv0) * (ag * Ti + bg)
+                ckt = ckap * K * Ti * inv_pb
+                cdiff = ckt * c_chi
+                u = c_u1 * d1 - yi * c_u2
+                oth[i] = -(u - yi * U) * inv_r * d1 + ckt * pdot + cdiff * d2
+                cth[i] = cdiff
+        for i in range(nt - 1):
+            out[i_th + i] = oth[i]
+            coef[i] = cth[i]
     # Constitutive stress integral S, its rate without the Rddot part, and J.
     S, Sdot, J = _stress(R, U, y[i_z:i_z + naux], p, g[G_REQ], out[i_z:i_z + naux])
     if medium:
@@ -726,7 +749,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
     nt = flags[F_NT]
     mt = flags[F_MT]
     blocks = _blocks(flags)
-    work = np.zeros(4 * nt + 2 * mt + 2)
+    work = np.zeros(7 * nt + 2 * mt + 2)
     coef = np.zeros(2 * nt + mt + 1)
     coef_new = np.zeros(2 * nt + mt + 1)
     F = np.zeros((ns, n))
@@ -1460,7 +1483,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     in_cols = np.zeros(n, dtype=np.bool_)
     for q in range(nc):
         in_cols[dense[q]] = True
-    work = np.zeros(4 * nt + 2 * flags[F_MT] + 2)
+    work = np.zeros(7 * nt + 2 * flags[F_MT] + 2)
     coef = np.zeros(2 * nt + flags[F_MT] + 1)
     Jl = np.zeros((m, bs, bs))
     Jd = np.zeros((m, bs, bs))
