@@ -1625,19 +1625,20 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                                       K_c, piv_c, vidx, vval, vcnt, fr, fc, xr, xc, gv_r, gv_c, sv_r, sv_c)
                     # W += dW and Z = T W in the same pass as the norm of dW: a diverging iteration
                     # breaks out below and the retry starts again from Z0, so the update is harmless.
+                    # Three simple loops rather than one: each passes LLVM's alias checks and is
+                    # vectorised (the fused loop stayed scalar: 287 -> 137 ns at n = 131).
                     s2 = 0.0
                     for kk in range(n):
-                        d0 = xr[kk]
-                        d1 = xc[kk].real
-                        d2 = xc[kk].imag
                         isc = iscale[kk]
-                        s2 += (d0 * isc) ** 2 + (d1 * isc) ** 2 + (d2 * isc) ** 2
-                        w0 = Wn[0, kk] + d0
-                        w1 = Wn[1, kk] + d1
-                        w2 = Wn[2, kk] + d2
-                        Wn[0, kk] = w0
-                        Wn[1, kk] = w1
-                        Wn[2, kk] = w2
+                        s2 += (xr[kk] * isc) ** 2 + (xc[kk].real * isc) ** 2 + (xc[kk].imag * isc) ** 2
+                    for kk in range(n):
+                        Wn[0, kk] += xr[kk]
+                        Wn[1, kk] += xc[kk].real
+                        Wn[2, kk] += xc[kk].imag
+                    for kk in range(n):
+                        w0 = Wn[0, kk]
+                        w1 = Wn[1, kk]
+                        w2 = Wn[2, kk]
                         Zs[0, kk] = RADAU_T[0, 0] * w0 + RADAU_T[0, 1] * w1 + RADAU_T[0, 2] * w2
                         Zs[1, kk] = RADAU_T[1, 0] * w0 + RADAU_T[1, 1] * w1 + RADAU_T[1, 2] * w2
                         Zs[2, kk] = w0 + w1
