@@ -1589,6 +1589,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                 iscale[kk] = 1.0 / (atol + abs(y[kk]) * rtol)
             converged = False
             finite = True
+            h_fail = 0.5
             while not converged:
                 if not lu_ok:
                     lu_ok = _radau_factor_pair(ar, ac, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r,
@@ -1649,6 +1650,12 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                     if dw_old >= 0.0:
                         rate = dw / dw_old
                     if rate >= 0.0 and (rate >= 1.0 or rate ** (_NEWTON_MAXITER - it) / (1.0 - rate) * dw > newton_tol):
+                        # RADAU5's step reduction after a Newton failure: the further from
+                        # convergence the iteration is predicted to end, the smaller the retry
+                        # (a fixed halving undershot, and the next step doubled back into failure).
+                        if rate < 0.99:
+                            q = max(1e-4, min(20.0, rate ** (_NEWTON_MAXITER - it) / (1.0 - rate) * dw / newton_tol))
+                            h_fail = 0.8 * q ** (-1.0 / (2.0 + _NEWTON_MAXITER - it))
                         break
                     if dw == 0.0 or (rate >= 0.0 and rate / (1.0 - rate) * dw < newton_tol):
                         converged = True
@@ -1663,8 +1670,9 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                 current_jac = True
                 lu_ok = False
             if not converged:
-                h *= 0.5 if finite else 0.25
+                h *= h_fail if finite else 0.25
                 lu_ok = False
+                rejected = True
                 nrej += 1
                 continue
             for kk in range(n):
@@ -1718,6 +1726,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
             else:
                 mult = h / h_old * (err_old / err_norm) ** 0.25
             fac = min(10.0, safety * min(1.0, mult) * err_norm ** -0.25)
+        if rejected:
+            fac = min(fac, 1.0)      # RADAU5: no growth right after a rejected attempt
         if not recompute_jac and _QUOT1 <= fac < _QUOT2:
             fac = 1.0
         else:
