@@ -14,8 +14,11 @@ of G and mu against the truth. ``--json FILE`` writes the rows. The brief's defa
 on a laptop: use ``--steps``/``--chains`` to scale it down; the table's ``proj_default_h`` column
 gives the projected time of the default run from the measured cost per member-run.
 
+``--window-costs`` also times one log-probability batch in each of the 18 windows: windows across
+a collapse take several times more steps than window 0, and the 18-window projection sums them.
+
 Usage: python benchmarks/mcmc.py [--forward converged imrv2-fd polytropic] [--walkers 32] [--steps 2000]
-                                 [--chains 4] [--window 0] [--seed 0] [--json out.json]
+                                 [--chains 4] [--window 0] [--seed 0] [--window-costs] [--json out.json]
 """
 
 from __future__ import annotations
@@ -63,6 +66,29 @@ def window_target(fm, obs, j: int, L: int = 35, h: int = 5):
     return tg, (float(obs.t_star[a]), float(obs.t_star[b]))
 
 
+def window_costs(fm, obs, n_draws: int = 64, seed: int = 0, repeat: int = 3) -> list[dict]:
+    """Cost of one log-probability batch in every window (no sampling): ``n_draws`` parameter sets
+    from the window prior x N_exp experiments, best of ``repeat``. Windows across a collapse take
+    several times more integrator steps than window 0, so the 18-window time is the sum of these
+    costs, not 18 times window 0's."""
+    n_steps = obs.t_star.size - 1
+    out = []
+    for j in range(len(window_spans(n_steps, 35, 5))):
+        tg, span = window_target(fm, obs, j)
+        rng = np.random.default_rng(seed + j)
+        Z = tg.prior.mean + rng.standard_normal((n_draws, tg.ndim)) @ np.linalg.cholesky(tg.prior.cov).T
+        tg.log_prob(Z[:2])
+        best = np.inf
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            tg.log_prob(Z)
+            best = min(best, time.perf_counter() - t0)
+        ms = 1e3 * best / (n_draws * tg.n_exp)
+        out.append({"window": j, "t_star": span, "ms_per_member_run": ms,
+                    "projected_default_h": DEFAULT_RUNS * ms / 3.6e6})
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--forward", nargs="+", default=["converged", "imrv2-fd"], choices=list(FORWARD))
@@ -73,6 +99,8 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--sequential", action="store_true", help="run the ensembles one by one (no shared batches)")
     ap.add_argument("--hdf5", default=None, help="HDF5 file for the chains (default: a temporary file)")
+    ap.add_argument("--window-costs", action="store_true",
+                    help="also time one log-probability batch in every window (projects all 18 windows)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     import arviz as az
@@ -113,12 +141,26 @@ def main():
                                  "eti95": [float(summ.loc[n, "eti95_lb"]), float(summ.loc[n, "eti95_ub"])]}
                              for n in TRUTH},
                "truth_inside_eti95": inside, "projected_default_h": DEFAULT_RUNS * ms / 3.6e6}
+        if args.window_costs:
+            row["window_costs"] = window_costs(fm, obs, seed=args.seed)
         rows.append(row)
         p = row["posterior"]
         print(f"{fkey:<11} {wall:9.1f} {run.n_evals:8d} {ms:7.3f} {row['steps_per_s']:8.1f} {run.tau_max:6.1f} "
               f"{row['n_steps_over_tau']:6.1f} {row['rhat_max']:6.3f} {ess:6.0f} {row['ess_per_s']:7.2f} "
               f"{row['acceptance']:5.2f} {p['G']['mean'] / 1e3:7.3f}±{p['G']['sd'] / 1e3:6.3f} "
               f"{p['mu']['mean']:8.4f}±{p['mu']['sd']:7.4f} {row['projected_default_h']:14.2f}", flush=True)
+    for row in rows:
+        if "window_costs" in row:
+            # emcee's own cost and the log-likelihood recompute are per evaluation, not per integrator
+            # step: carried over from the sampled window as a fixed overhead per member-run.
+            wc = row["window_costs"]
+            overhead = max(0.0, row["ms_per_member_run"] - wc[row["window"]]["ms_per_member_run"])
+            row["overhead_ms_per_member_run"] = overhead
+            row["projected_all_windows_h"] = sum(DEFAULT_RUNS * (w["ms_per_member_run"] + overhead) / 3.6e6 for w in wc)
+            print(f"\n{row['forward']}: log-prob batch per window [ms per member-run]")
+            print("  ".join(f"{w['window']}:{w['ms_per_member_run']:.2f}" for w in wc))
+            print(f"all {len(wc)} windows, 32 x 2000 x 4 each: {row['projected_all_windows_h']:.2f} h (plus "
+                  f"{overhead:.3f} ms per member-run of sampling overhead measured on window {row['window']})")
     meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
             "cpu": machine_info(),
             "case": "methods.md §5 verification, 5 experiments, paper noise; MIEnKS window (L=35, h=5), weights "
