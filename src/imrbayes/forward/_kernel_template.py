@@ -1103,6 +1103,20 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, 
         kk += 1
     if nw > 0:
         kk += 1
+    # Non-finite entries (a probe across a singularity) are zeroed. One pass of products with
+    # zero finds out whether there are any: 0 * x is 0 for finite x and NaN otherwise.
+    probe = 0.0
+    for r in range(kk):
+        for k in range(n):
+            probe += 0.0 * U[r, k]
+        for e in range(vcnt[r]):
+            probe += 0.0 * vval[r, e]
+    for i in range(m):
+        for a in range(bs):
+            for b in range(bs):
+                probe += 0.0 * (Jl[i, b, a] + Jd[i, b, a] + Ju[i, b, a])
+    if probe == 0.0:
+        return kk
     for r in range(kk):
         for k in range(n):
             if not math.isfinite(U[r, k]):
@@ -1142,8 +1156,10 @@ def _bt_factor_scalar(a, m, Jl, Jd, Ju, invD, Cu):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv):
-    """x = M^-1 b for M = a I - blocks on the field nodes and a I on every other row."""
+def _bt_solve(a, o1, bs, m, Pl, invD, Cu, b, x, gv):
+    """x = M^-1 b for M = a I - blocks on the field nodes and a I on every other row. ``Pl`` =
+    invD_i Jl_i (from _bt_factor_pair, or _bt_lower for 1x1 blocks): the forward sweep g_i = invD_i b_i + Pl_i g_{i-1} carries one
+    block product per node along its chain of dependent operations instead of two."""
     n = b.shape[0]
     ia = 1.0 / a
     for k in range(n):
@@ -1151,10 +1167,7 @@ def _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv):
     if bs == 1:
         gp = 0.0 * a
         for i in range(m):
-            r0 = b[3 + i]
-            if i > 0:
-                r0 += Jl[i, 0, 0] * gp
-            gp = invD[i, 0, 0] * r0
+            gp = invD[i, 0, 0] * b[3 + i] + Pl[i, 0, 0] * gp
             gv[i, 0] = gp
         xn = gv[m - 1, 0]
         x[3 + m - 1] = xn
@@ -1165,13 +1178,12 @@ def _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv):
     g0 = 0.0 * a
     g1 = g0
     for i in range(m):
-        r0 = b[3 + i] + 0.0 * a
-        r1 = b[o1 + i] + 0.0 * a
-        if i > 0:
-            r0 += Jl[i, 0, 0] * g0 + Jl[i, 0, 1] * g1
-            r1 += Jl[i, 1, 0] * g0 + Jl[i, 1, 1] * g1
-        g0 = invD[i, 0, 0] * r0 + invD[i, 0, 1] * r1
-        g1 = invD[i, 1, 0] * r0 + invD[i, 1, 1] * r1
+        r0 = b[3 + i]
+        r1 = b[o1 + i]
+        n0 = invD[i, 0, 0] * r0 + invD[i, 0, 1] * r1 + (Pl[i, 0, 0] * g0 + Pl[i, 0, 1] * g1)
+        n1 = invD[i, 1, 0] * r0 + invD[i, 1, 1] * r1 + (Pl[i, 1, 0] * g0 + Pl[i, 1, 1] * g1)
+        g0 = n0
+        g1 = n1
         gv[i, 0] = g0
         gv[i, 1] = g1
     x0 = gv[m - 1, 0]
@@ -1188,7 +1200,23 @@ def _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_solve_many(a, o1, bs, m, kk, Jl, invD, Cu, B, X, gm):
+def _bt_lower(m, bs, Jl, invD, Pl):
+    """Pl_i = invD_i Jl_i (Pl_0 = 0), the forward-sweep multipliers of _bt_solve; independent
+    products, so the loop vectorises."""
+    for a in range(bs):
+        for b in range(bs):
+            Pl[0, a, b] = 0.0 * invD[0, 0, 0]
+    for i in range(1, m):
+        for a in range(bs):
+            for b in range(bs):
+                s = invD[i, a, 0] * Jl[i, 0, b]
+                for c in range(1, bs):
+                    s += invD[i, a, c] * Jl[i, c, b]
+                Pl[i, a, b] = s
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+def _bt_solve_many(a, o1, bs, m, kk, Pl, invD, Cu, B, X, gm):
     """X[q] = M^-1 B[q] for q < kk in one sweep (the kk right-hand sides share each block's
     loads, and the innermost loop over them vectorises); ``gm`` (m, bs, >= kk) scratch."""
     n = B.shape[1]
@@ -1199,12 +1227,12 @@ def _bt_solve_many(a, o1, bs, m, kk, Jl, invD, Cu, B, X, gm):
     if bs == 1:
         for i in range(m):
             d0 = invD[i, 0, 0]
-            l0 = Jl[i, 0, 0]
+            p0 = Pl[i, 0, 0]
             for q in range(kk):
-                r0 = B[q, 3 + i] + 0.0 * a
+                r0 = d0 * B[q, 3 + i]
                 if i > 0:
-                    r0 += l0 * gm[i - 1, 0, q]
-                gm[i, 0, q] = d0 * r0
+                    r0 += p0 * gm[i - 1, 0, q]
+                gm[i, 0, q] = r0
         for q in range(kk):
             X[q, 3 + m - 1] = gm[m - 1, 0, q]
         for i in range(m - 2, -1, -1):
@@ -1224,17 +1252,17 @@ def _bt_solve_many(a, o1, bs, m, kk, Jl, invD, Cu, B, X, gm):
                 gm[0, 0, q] = i00 * r0 + i01 * r1
                 gm[0, 1, q] = i10 * r0 + i11 * r1
         else:
-            l00 = Jl[i, 0, 0]
-            l01 = Jl[i, 0, 1]
-            l10 = Jl[i, 1, 0]
-            l11 = Jl[i, 1, 1]
+            p00 = Pl[i, 0, 0]
+            p01 = Pl[i, 0, 1]
+            p10 = Pl[i, 1, 0]
+            p11 = Pl[i, 1, 1]
             for q in range(kk):
                 g0 = gm[i - 1, 0, q]
                 g1 = gm[i - 1, 1, q]
-                r0 = B[q, 3 + i] + l00 * g0 + l01 * g1
-                r1 = B[q, o1 + i] + l10 * g0 + l11 * g1
-                gm[i, 0, q] = i00 * r0 + i01 * r1
-                gm[i, 1, q] = i10 * r0 + i11 * r1
+                r0 = B[q, 3 + i]
+                r1 = B[q, o1 + i]
+                gm[i, 0, q] = i00 * r0 + i01 * r1 + (p00 * g0 + p01 * g1)
+                gm[i, 1, q] = i10 * r0 + i11 * r1 + (p10 * g0 + p11 * g1)
     for q in range(kk):
         X[q, 3 + m - 1] = gm[m - 1, 0, q]
         X[q, o1 + m - 1] = gm[m - 1, 1, q]
@@ -1280,18 +1308,20 @@ def _woodbury(kk, Z, K, piv, vidx, vval, vcnt, x, sv):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _radau_solve(a, o1, bs, m, kk, Jl, invD, Cu, Z, K, piv, vidx, vval, vcnt, b, x, gv, sv):
+def _radau_solve(a, o1, bs, m, kk, Pl, invD, Cu, Z, K, piv, vidx, vval, vcnt, b, x, gv, sv):
     """x = (a I - J)^-1 b from the factorisation of _radau_factor_pair."""
-    _bt_solve(a, o1, bs, m, Jl, invD, Cu, b, x, gv)
+    _bt_solve(a, o1, bs, m, Pl, invD, Cu, b, x, gv)
     if kk > 0:
         _woodbury(kk, Z, K, piv, vidx, vval, vcnt, x, sv)
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
+def _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r, invD_c, Cu_c, Pl_c):
     """Block-Thomas pivots of M = a I - blocks (2x2 blocks) for the real (ar) and the complex (ac)
     system in one loop, for the same reason as _bt_solve_pair: invD_i = (a I - Jd_i +
-    Jl_i C_{i-1})^-1 and C_i = -invD_i Ju_i. False if a pivot is singular."""
+    Jl_i C_{i-1})^-1, C_i = -invD_i Ju_i and the forward multipliers Pl_i = invD_i Jl_i (Pl_0 = 0;
+    off the chain of dependent operations, so they come almost free). The complex pivot's
+    reciprocal is formed in real arithmetic (one real division). False if a pivot is singular."""
     c00 = 0.0
     c01 = 0.0
     c10 = 0.0
@@ -1328,10 +1358,14 @@ def _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
             n11 += l10 * e01 + l11 * e11
         det = m00 * m11 - m01 * m10
         dec = n00 * n11 - n01 * n10
-        if det == 0.0 or dec == 0.0:
+        dr = dec.real
+        di = dec.imag
+        dd = dr * dr + di * di
+        if det == 0.0 or dd == 0.0:
             return False
         inv = 1.0 / det
-        inc = 1.0 / dec
+        ri = 1.0 / dd
+        inc = complex(dr * ri, -di * ri)
         i00 = m11 * inv
         i01 = -m01 * inv
         i10 = -m10 * inv
@@ -1348,6 +1382,24 @@ def _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
         invD_c[i, 0, 1] = k01
         invD_c[i, 1, 0] = k10
         invD_c[i, 1, 1] = k11
+        if i > 0:
+            Pl_r[i, 0, 0] = i00 * l00 + i01 * l10
+            Pl_r[i, 0, 1] = i00 * l01 + i01 * l11
+            Pl_r[i, 1, 0] = i10 * l00 + i11 * l10
+            Pl_r[i, 1, 1] = i10 * l01 + i11 * l11
+            Pl_c[i, 0, 0] = k00 * l00 + k01 * l10
+            Pl_c[i, 0, 1] = k00 * l01 + k01 * l11
+            Pl_c[i, 1, 0] = k10 * l00 + k11 * l10
+            Pl_c[i, 1, 1] = k10 * l01 + k11 * l11
+        else:
+            Pl_r[0, 0, 0] = 0.0
+            Pl_r[0, 0, 1] = 0.0
+            Pl_r[0, 1, 0] = 0.0
+            Pl_r[0, 1, 1] = 0.0
+            Pl_c[0, 0, 0] = 0.0
+            Pl_c[0, 0, 1] = 0.0
+            Pl_c[0, 1, 0] = 0.0
+            Pl_c[0, 1, 1] = 0.0
         u00 = Ju[i, 0, 0]
         u01 = Ju[i, 0, 1]
         u10 = Ju[i, 1, 0]
@@ -1372,24 +1424,26 @@ def _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
 
 
 @njit(cache=True, error_model="numpy")
-def _radau_factor_pair(ar, ac, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r, Z_r, K_r, piv_r,
-                       invD_c, Cu_c, Z_c, K_c, piv_c, gm_r, gm_c):
+def _radau_factor_pair(ar, ac, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r, Pl_r, Z_r, K_r,
+                       piv_r, invD_c, Cu_c, Pl_c, Z_c, K_c, piv_c, gm_r, gm_c):
     """Factor (a I - J) for the real (ar) and the complex (ac) system of a Radau step: block-Thomas
-    pivots, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
+    pivots and forward multipliers, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
     if bs == 2:
-        if not _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, invD_c, Cu_c):
+        if not _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r, invD_c, Cu_c, Pl_c):
             return False
     else:
         if not (_bt_factor_scalar(ar, m, Jl, Jd, Ju, invD_r, Cu_r) and _bt_factor_scalar(ac, m, Jl, Jd, Ju, invD_c, Cu_c)):
             return False
-    _bt_solve_many(ar, o1, bs, m, kk, Jl, invD_r, Cu_r, U, Z_r, gm_r)
-    _bt_solve_many(ac, o1, bs, m, kk, Jl, invD_c, Cu_c, U, Z_c, gm_c)
+        _bt_lower(m, bs, Jl, invD_r, Pl_r)
+        _bt_lower(m, bs, Jl, invD_c, Pl_c)
+    _bt_solve_many(ar, o1, bs, m, kk, Pl_r, invD_r, Cu_r, U, Z_r, gm_r)
+    _bt_solve_many(ac, o1, bs, m, kk, Pl_c, invD_c, Cu_c, U, Z_c, gm_c)
     return _woodbury_factor(ar, kk, vidx, vval, vcnt, Z_r, K_r, piv_r) and \
         _woodbury_factor(ac, kk, vidx, vval, vcnt, Z_c, K_c, piv_c)
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_solve_pair(ar, ac, o1, m, Jl, invD_r, Cu_r, invD_c, Cu_c, br, bc, xr, xc, gv_r, gv_c):
+def _bt_solve_pair(ar, ac, o1, m, Pl_r, invD_r, Cu_r, Pl_c, invD_c, Cu_c, br, bc, xr, xc, gv_r, gv_c):
     """_bt_solve of the real (ar) and the complex (ac) system together (2x2 blocks): each sweep
     is a chain of dependent operations, and running the two independent chains in one loop lets
     the processor overlap them."""
@@ -1408,19 +1462,14 @@ def _bt_solve_pair(ar, ac, o1, m, Jl, invD_r, Cu_r, invD_c, Cu_c, br, bc, xr, xc
         r1 = br[o1 + i]
         s0 = bc[3 + i]
         s1 = bc[o1 + i]
-        if i > 0:
-            l00 = Jl[i, 0, 0]
-            l01 = Jl[i, 0, 1]
-            l10 = Jl[i, 1, 0]
-            l11 = Jl[i, 1, 1]
-            r0 += l00 * p0 + l01 * p1
-            r1 += l10 * p0 + l11 * p1
-            s0 += l00 * q0 + l01 * q1
-            s1 += l10 * q0 + l11 * q1
-        p0 = invD_r[i, 0, 0] * r0 + invD_r[i, 0, 1] * r1
-        p1 = invD_r[i, 1, 0] * r0 + invD_r[i, 1, 1] * r1
-        q0 = invD_c[i, 0, 0] * s0 + invD_c[i, 0, 1] * s1
-        q1 = invD_c[i, 1, 0] * s0 + invD_c[i, 1, 1] * s1
+        n0 = invD_r[i, 0, 0] * r0 + invD_r[i, 0, 1] * r1 + (Pl_r[i, 0, 0] * p0 + Pl_r[i, 0, 1] * p1)
+        n1 = invD_r[i, 1, 0] * r0 + invD_r[i, 1, 1] * r1 + (Pl_r[i, 1, 0] * p0 + Pl_r[i, 1, 1] * p1)
+        u0 = invD_c[i, 0, 0] * s0 + invD_c[i, 0, 1] * s1 + (Pl_c[i, 0, 0] * q0 + Pl_c[i, 0, 1] * q1)
+        u1 = invD_c[i, 1, 0] * s0 + invD_c[i, 1, 1] * s1 + (Pl_c[i, 1, 0] * q0 + Pl_c[i, 1, 1] * q1)
+        p0 = n0
+        p1 = n1
+        q0 = u0
+        q1 = u1
         gv_r[i, 0] = p0
         gv_r[i, 1] = p1
         gv_c[i, 0] = q0
@@ -1445,14 +1494,14 @@ def _bt_solve_pair(ar, ac, o1, m, Jl, invD_r, Cu_r, invD_c, Cu_c, br, bc, xr, xc
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _radau_solve_pair(ar, ac, o1, bs, m, kk, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, invD_c, Cu_c, Z_c, K_c, piv_c,
-                      vidx, vval, vcnt, br, bc, xr, xc, gv_r, gv_c, sv_r, sv_c):
+def _radau_solve_pair(ar, ac, o1, bs, m, kk, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, Pl_c, invD_c, Cu_c, Z_c, K_c,
+                      piv_c, vidx, vval, vcnt, br, bc, xr, xc, gv_r, gv_c, sv_r, sv_c):
     """xr = (ar I - J)^-1 br and xc = (ac I - J)^-1 bc, the two solves of a Newton iteration."""
     if bs == 2:
-        _bt_solve_pair(ar, ac, o1, m, Jl, invD_r, Cu_r, invD_c, Cu_c, br, bc, xr, xc, gv_r, gv_c)
+        _bt_solve_pair(ar, ac, o1, m, Pl_r, invD_r, Cu_r, Pl_c, invD_c, Cu_c, br, bc, xr, xc, gv_r, gv_c)
     else:
-        _bt_solve(ar, o1, bs, m, Jl, invD_r, Cu_r, br, xr, gv_r)
-        _bt_solve(ac, o1, bs, m, Jl, invD_c, Cu_c, bc, xc, gv_c)
+        _bt_solve(ar, o1, bs, m, Pl_r, invD_r, Cu_r, br, xr, gv_r)
+        _bt_solve(ac, o1, bs, m, Pl_c, invD_c, Cu_c, bc, xc, gv_c)
     if kk > 0:
         _woodbury(kk, Z_r, K_r, piv_r, vidx, vval, vcnt, xr, sv_r)
         _woodbury(kk, Z_c, K_c, piv_c, vidx, vval, vcnt, xc, sv_c)
@@ -1494,11 +1543,13 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     vcnt = np.zeros(nc, dtype=np.int64)
     invD_r = np.zeros((m, bs, bs))
     Cu_r = np.zeros((m, bs, bs))
+    Pl_r = np.zeros((m, bs, bs))
     Z_r = np.zeros((nc, n))
     K_r = np.zeros((nc, nc))
     piv_r = np.zeros(nc, dtype=np.int64)
     invD_c = np.zeros((m, bs, bs), dtype=np.complex128)
     Cu_c = np.zeros((m, bs, bs), dtype=np.complex128)
+    Pl_c = np.zeros((m, bs, bs), dtype=np.complex128)
     Z_c = np.zeros((nc, n), dtype=np.complex128)
     K_c = np.zeros((nc, nc), dtype=np.complex128)
     piv_c = np.zeros(nc, dtype=np.int64)
@@ -1593,7 +1644,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
             while not converged:
                 if not lu_ok:
                     lu_ok = _radau_factor_pair(ar, ac, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r,
-                                               Z_r, K_r, piv_r, invD_c, Cu_c, Z_c, K_c, piv_c, gm_r, gm_c)
+                                               Pl_r, Z_r, K_r, piv_r, invD_c, Cu_c, Pl_c, Z_c, K_c, piv_c, gm_r, gm_c)
                     if not lu_ok:
                         break
                 # Simplified Newton on the transformed system (W = TI Z).
@@ -1622,8 +1673,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                         fc[kk] = complex(RADAU_TI[1, 0] * F[0, kk] + RADAU_TI[1, 1] * F[1, kk] + RADAU_TI[1, 2] * F[2, kk],
                                          RADAU_TI[2, 0] * F[0, kk] + RADAU_TI[2, 1] * F[1, kk] + RADAU_TI[2, 2] * F[2, kk]) \
                             - ac * complex(Wn[1, kk], Wn[2, kk])
-                    _radau_solve_pair(ar, ac, o1, bs, m, nrank, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, invD_c, Cu_c, Z_c,
-                                      K_c, piv_c, vidx, vval, vcnt, fr, fc, xr, xc, gv_r, gv_c, sv_r, sv_c)
+                    _radau_solve_pair(ar, ac, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, Pl_c, invD_c, Cu_c,
+                                      Z_c, K_c, piv_c, vidx, vval, vcnt, fr, fc, xr, xc, gv_r, gv_c, sv_r, sv_c)
                     # W += dW and Z = T W before the convergence test on the norm of dW: a diverging
                     # iteration breaks out below and the retry starts again from Z0, so the update is
                     # harmless. Three simple loops rather than one: each passes LLVM's alias checks and
@@ -1684,7 +1735,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                 continue
             for kk in range(n):
                 fr[kk] = f[kk] + (RADAU_E[0] * Zs[0, kk] + RADAU_E[1] * Zs[1, kk] + RADAU_E[2] * Zs[2, kk]) / h
-            _radau_solve(ar, o1, bs, m, nrank, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
+            _radau_solve(ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
             for kk in range(n):
                 scale[kk] = atol + max(abs(y[kk]), abs(ynew[kk])) * rtol
             err_norm = _rms(err, scale)
@@ -1695,7 +1746,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                 rhs(t, ystage, g, pr, flags, grid, mgrid, fp, coef, work)
                 for kk in range(n):
                     fr[kk] = fp[kk] + (RADAU_E[0] * Zs[0, kk] + RADAU_E[1] * Zs[1, kk] + RADAU_E[2] * Zs[2, kk]) / h
-                _radau_solve(ar, o1, bs, m, nrank, Jl, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
+                _radau_solve(ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
                 err_norm = _rms(err, scale)
             if not math.isfinite(err_norm):
                 h *= 0.25
