@@ -12,7 +12,10 @@ max R-hat, min bulk/tail ESS (one chain per ensemble), ESS per second, acceptanc
 of G and mu against the truth. ``--json FILE`` writes the rows. The brief's default (32 walkers x
 2000 steps x 4 ensembles x 5 experiments = 1.28 M member-runs) takes hours with the thermal bubble
 on a laptop: use ``--steps``/``--chains`` to scale it down; the table's ``proj_default_h`` column
-gives the projected time of the default run from the measured cost per member-run.
+gives the projected time of the default run from the measured cost per member-run, and
+``one_ens_s`` the time of the issue's unit -- one ensemble of 32 walkers x 2000 steps over all
+experiments -- from the same cost (sampling only: the wall time excludes the pointwise
+log-likelihood recompute, reported as ``loglik_recompute_s``).
 
 ``--window-costs`` also times one log-probability batch in each of the 18 windows: windows across
 a collapse take several times more steps than window 0, and the 18-window projection sums them.
@@ -46,6 +49,7 @@ from _machine import machine_info  # noqa: E402
 
 FORWARD = {"converged": {}, "imrv2-fd": {"scheme": "imrv2-fd"}, "polytropic": {"bubble": "polytropic"}}
 DEFAULT_RUNS = 32 * 2000 * 4 * 5          # member-runs of the default benchmark (5 experiments)
+ENSEMBLE_RUNS = 32 * 2000 * 5             # one ensemble of 32 walkers x 2000 steps (the target unit)
 
 
 def window_target(fm, obs, j: int, L: int = 35, h: int = 5):
@@ -107,7 +111,8 @@ def main():
 
     rows = []
     print(f"{'forward':<11} {'wall [s]':>9} {'evals':>8} {'ms/run':>7} {'steps/s':>8} {'tau':>6} {'n/tau':>6} "
-          f"{'R-hat':>6} {'ESS':>6} {'ESS/s':>7} {'acc':>5} {'G [kPa]':>15} {'mu [Pa s]':>17} {'proj_default_h':>14}")
+          f"{'R-hat':>6} {'ESS':>6} {'ESS/s':>7} {'acc':>5} {'G [kPa]':>15} {'mu [Pa s]':>17} {'proj_default_h':>14} "
+          f"{'one_ens_s':>9}")
     tmp = tempfile.TemporaryDirectory()
     for fkey in args.forward:
         fm = ForwardModel("nhkv", options=FORWARD[fkey])
@@ -140,7 +145,8 @@ def main():
                "posterior": {n: {"mean": float(summ.loc[n, "mean"]), "sd": float(summ.loc[n, "sd"]),
                                  "eti95": [float(summ.loc[n, "eti95_lb"]), float(summ.loc[n, "eti95_ub"])]}
                              for n in TRUTH},
-               "truth_inside_eti95": inside, "projected_default_h": DEFAULT_RUNS * ms / 3.6e6}
+               "truth_inside_eti95": inside, "projected_default_h": DEFAULT_RUNS * ms / 3.6e6,
+               "one_ensemble_s": ENSEMBLE_RUNS * ms / 1e3}
         if args.window_costs:
             row["window_costs"] = window_costs(fm, obs, seed=args.seed)
         rows.append(row)
@@ -148,7 +154,8 @@ def main():
         print(f"{fkey:<11} {wall:9.1f} {run.n_evals:8d} {ms:7.3f} {row['steps_per_s']:8.1f} {run.tau_max:6.1f} "
               f"{row['n_steps_over_tau']:6.1f} {row['rhat_max']:6.3f} {ess:6.0f} {row['ess_per_s']:7.2f} "
               f"{row['acceptance']:5.2f} {p['G']['mean'] / 1e3:7.3f}±{p['G']['sd'] / 1e3:6.3f} "
-              f"{p['mu']['mean']:8.4f}±{p['mu']['sd']:7.4f} {row['projected_default_h']:14.2f}", flush=True)
+              f"{p['mu']['mean']:8.4f}±{p['mu']['sd']:7.4f} {row['projected_default_h']:14.2f} {row['one_ensemble_s']:9.1f}",
+              flush=True)
     for row in rows:
         if "window_costs" in row:
             # emcee's own cost and the log-likelihood recompute are per evaluation, not per integrator
