@@ -1137,10 +1137,10 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, 
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_factor_scalar(a, m, Jl, Jd, Ju, invD, Cu):
+def _bt_factor_scalar(a, m, Jl, Jd, Ju, invD, Cu, Pl):
     """Block-Thomas pivots of M = a I - blocks for 1x1 blocks (no vapour field; the 2x2 case is
-    _bt_factor_pair): invD_i = (a - Jd_i + Jl_i C_{i-1})^-1 and C_i = -invD_i Ju_i. False if a
-    pivot is singular."""
+    _bt_factor_pair): invD_i = (a - Jd_i + Jl_i C_{i-1})^-1, C_i = -invD_i Ju_i and the forward
+    multipliers Pl_i = invD_i Jl_i (Pl_0 = 0). False if a pivot is singular."""
     cprev = 0.0 * a
     for i in range(m):
         d = a - Jd[i, 0, 0]
@@ -1150,6 +1150,7 @@ def _bt_factor_scalar(a, m, Jl, Jd, Ju, invD, Cu):
             return False
         inv = 1.0 / d
         invD[i, 0, 0] = inv
+        Pl[i, 0, 0] = inv * Jl[i, 0, 0] if i > 0 else 0.0 * inv
         cprev = -inv * Ju[i, 0, 0]
         Cu[i, 0, 0] = cprev
     return True
@@ -1158,8 +1159,8 @@ def _bt_factor_scalar(a, m, Jl, Jd, Ju, invD, Cu):
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
 def _bt_solve(a, o1, bs, m, Pl, invD, Cu, b, x, gv):
     """x = M^-1 b for M = a I - blocks on the field nodes and a I on every other row. ``Pl`` =
-    invD_i Jl_i (from _bt_factor_pair, or _bt_lower for 1x1 blocks): the forward sweep g_i = invD_i b_i + Pl_i g_{i-1} carries one
-    block product per node along its chain of dependent operations instead of two."""
+    invD_i Jl_i (from the factorisation): the forward sweep g_i = invD_i b_i + Pl_i g_{i-1}
+    carries one block product per node along its chain of dependent operations instead of two."""
     n = b.shape[0]
     ia = 1.0 / a
     for k in range(n):
@@ -1197,22 +1198,6 @@ def _bt_solve(a, o1, bs, m, Pl, invD, Cu, b, x, gv):
         x1 = y1
         x[3 + i] = x0
         x[o1 + i] = x1
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_lower(m, bs, Jl, invD, Pl):
-    """Pl_i = invD_i Jl_i (Pl_0 = 0), the forward-sweep multipliers of _bt_solve; independent
-    products, so the loop vectorises."""
-    for a in range(bs):
-        for b in range(bs):
-            Pl[0, a, b] = 0.0 * invD[0, 0, 0]
-    for i in range(1, m):
-        for a in range(bs):
-            for b in range(bs):
-                s = invD[i, a, 0] * Jl[i, 0, b]
-                for c in range(1, bs):
-                    s += invD[i, a, c] * Jl[i, c, b]
-                Pl[i, a, b] = s
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
@@ -1432,10 +1417,9 @@ def _radau_factor_pair(ar, ac, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, i
         if not _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r, invD_c, Cu_c, Pl_c):
             return False
     else:
-        if not (_bt_factor_scalar(ar, m, Jl, Jd, Ju, invD_r, Cu_r) and _bt_factor_scalar(ac, m, Jl, Jd, Ju, invD_c, Cu_c)):
+        if not (_bt_factor_scalar(ar, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r)
+                and _bt_factor_scalar(ac, m, Jl, Jd, Ju, invD_c, Cu_c, Pl_c)):
             return False
-        _bt_lower(m, bs, Jl, invD_r, Pl_r)
-        _bt_lower(m, bs, Jl, invD_c, Pl_c)
     _bt_solve_many(ar, o1, bs, m, kk, Pl_r, invD_r, Cu_r, U, Z_r, gm_r)
     _bt_solve_many(ac, o1, bs, m, kk, Pl_c, invD_c, Cu_c, U, Z_c, gm_c)
     return _woodbury_factor(ar, kk, vidx, vval, vcnt, Z_r, K_r, piv_r) and \
