@@ -94,16 +94,15 @@ def main():
     """Bayesian, time-resolved inertial microcavitation rheometry."""
 
 
+# Each command is one module that registers itself on `main` (add a module, then its name here).
+COMMANDS = ("inspect", "simulate", "fit", "validate", "diagnose", "compare", "report")
+
+
 def _register_commands():
-    # Command modules register themselves on `main`; importing them here keeps cli.py small.
     import importlib
 
-    for name in ("cli_data", "cli_fit", "cli_diagnose", "cli_mcmc", "cli_report"):
-        try:
-            importlib.import_module(f"imrbayes.{name}")
-        except ModuleNotFoundError as exc:  # a command module not written yet
-            if exc.name != f"imrbayes.{name}":
-                raise
+    for name in COMMANDS:
+        importlib.import_module(f"imrbayes.cli.{name}")
 
 
 _register_commands()

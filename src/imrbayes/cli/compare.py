@@ -95,8 +95,8 @@ def compare_cmd(run_dir, out, pairs, quiet):
     figures = comparison_figures(compare, out / "figures", tree, t_star, R_star, pairs=pairs)
     (out / "compare.json").write_text(json.dumps(jsonable(compare), indent=1, allow_nan=False) + "\n")
     if not quiet:
-        from imrbayes.cli_fit import _compare_line
-        click.echo(_compare_line(compare))
+        from imrbayes.cli.options import compare_line
+        click.echo(compare_line(compare))
         for e in compare["windows"]:
             if e["agree"] is not True:
                 t0, t1 = e["t_star"] if e.get("t_star") else (float("nan"), float("nan"))

@@ -17,8 +17,6 @@ and ``figures/mcmc_*.png``.
 from __future__ import annotations
 
 import dataclasses
-import math
-import sys
 import time
 import tomllib
 from pathlib import Path
@@ -27,86 +25,12 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import main
-from imrbayes.cli_exec import check_options, data_fingerprint, echo_execution, execution_options, open_execution
+from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution,
+                                  execution_options, key_values, method_settings, open_execution, prepare_out,
+                                  prior_overrides)
 from imrbayes.errors import InputError
 
 METHOD_NAMES = ("imr", "pimr", "en4dvar", "mienks")
-
-
-def _kv(items, option) -> dict:
-    out = {}
-    for item in items:
-        key, sep, value = str(item).partition("=")
-        if not sep or not key.strip() or not value.strip():
-            raise InputError(option, f"expected KEY=VALUE, got {item!r}")
-        out[key.strip().replace("-", "_")] = value.strip()
-    return out
-
-
-def _coerce(cls, name, value, source):
-    """A setting value (string from the command line or a TOML value) as the field's type."""
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    if name not in fields:
-        raise InputError(source, f"unknown setting {name!r}; known: {', '.join(sorted(fields))}")
-    typ = str(fields[name].type)
-    if not isinstance(value, str):
-        if "bool" in typ and not isinstance(value, bool):
-            raise InputError(source, f"{name} must be true or false, got {value!r}")
-        if "int" in typ and "float" not in typ and not (isinstance(value, int) and not isinstance(value, bool)):
-            raise InputError(source, f"{name} must be an integer, got {value!r}")
-        if "float" in typ and isinstance(value, (int, float)) and not isinstance(value, bool):
-            value = float(value)
-            if not math.isfinite(value):
-                raise InputError(source, f"{name} must be finite, got {value!r}")
-        return value
-    v = value.strip()
-    if "None" in typ and v.lower() in ("none", "null", ""):
-        return None
-    try:
-        if "bool" in typ:
-            low = v.lower()
-            if low not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
-                raise ValueError
-            return low in ("true", "1", "yes", "on")
-        if "int" in typ and "float" not in typ:
-            f = float(v)
-            if f != int(f):
-                raise ValueError
-            return int(f)
-        if "float" in typ:
-            f = float(v)
-            if not math.isfinite(f):
-                raise ValueError
-            return f
-    except (ValueError, OverflowError):
-        raise InputError(source, f"{name} must be a {typ.replace(' | None', '')}, got {value!r}")
-    return v
-
-
-def _settings(cls, table: dict, cli: dict):
-    kwargs = {}
-    for k, v in (table or {}).items():
-        kwargs[k.replace("-", "_")] = _coerce(cls, k.replace("-", "_"), v, "--config")
-    for k, v in cli.items():
-        kwargs[k] = _coerce(cls, k, v, "--set")
-    return cls(**kwargs)
-
-
-def _prior(table: dict, cli: dict) -> dict:
-    out = {}
-    for k, v in (table or {}).items():
-        if not (isinstance(v, (list, tuple)) and len(v) == 2):
-            raise InputError("--config", f"prior.{k} must be [mean, sd], got {v!r}")
-        out[k] = (float(v[0]), float(v[1]))
-    for k, v in cli.items():
-        parts = v.split(":")
-        try:
-            if len(parts) != 2:
-                raise ValueError
-            out[k] = (float(parts[0]), float(parts[1]))
-        except ValueError:
-            raise InputError("--prior", f"expected NAME=MEAN:SD (SI units), got {k}={v}")
-    return out
 
 
 def _load_config(path) -> dict:
@@ -140,7 +64,7 @@ def _load_config(path) -> dict:
     for name in ("forward", "prior", *METHOD_NAMES):
         v = cfg.get(name)
         if name == "forward" and isinstance(v, (list, tuple)):
-            cfg[name] = _kv(v, "--config forward")
+            cfg[name] = key_values(v, "--config forward")
         elif v is not None and not isinstance(v, dict):
             raise InputError(p, f"{name} must be a table")
     return cfg
@@ -241,30 +165,29 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     if mcmc and method not in ("mienks", "en4dvar"):
         raise InputError("--mcmc", f"needs --method mienks or en4dvar (a Gaussian posterior to check), got {method}")
 
-    from imrbayes.cli_data import _prepare_out
     from imrbayes.data import load_dataset, preprocess_dataset
     from imrbayes.ensemble import METHODS, Observations, ParamSpace, Runner
     from imrbayes.forward import ForwardModel, ForwardOptions
 
     fit_fn, settings_cls = METHODS[method]
-    s = _settings(settings_cls, cfg.get(method, {}), {**_kv(cfg.get("set", []), "--config set"),
-                                                       **_kv(settings, "--set")})
-    prior = _prior(cfg.get("prior", {}), _kv(priors, "--prior"))
+    s = method_settings(settings_cls, cfg.get(method, {}), {**key_values(cfg.get("set", []), "--config set"),
+                                                       **key_values(settings, "--set")})
+    prior = prior_overrides(cfg.get("prior", {}), key_values(priors, "--prior"))
     mcmc_s = None
     if mcmc:
         from imrbayes.mcmc import MCMCSettings
-        mcmc_s = _settings(MCMCSettings, mcmc_cfg, {**_kv(cfg.get("mcmc_set", []), "--config mcmc_set"),
-                                                    **_kv(mcmc_settings, "--mcmc-set")})
+        mcmc_s = method_settings(MCMCSettings, mcmc_cfg, {**key_values(cfg.get("mcmc_set", []), "--config mcmc_set"),
+                                                    **key_values(mcmc_settings, "--mcmc-set")})
     ds = load_dataset(data, camera=camera)
     pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, noise=noise, skip_failed=True)
-    fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **_kv(forward, "--forward")}
+    fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **key_values(forward, "--forward")}
     fm = ForwardModel(model, options=ForwardOptions.from_dict(fopts, source="forward options"),
                       physics_overrides=ds.physics or None)
     obs = Observations.from_preprocessed(pre)
     space = ParamSpace.for_model(fm.constitutive, prior)
     if mcmc_s is not None:
         mcmc_s.check(space.n)                  # before the fit: a bad walker count must not cost a fit
-    out = _prepare_out(Path(out) if out is not None else None, f"fit-{method}", ds.name, protect=Path(data))
+    out = prepare_out(Path(out) if out is not None else None, f"fit-{method}", ds.name, protect=Path(data))
     # everything that determines the numbers (and nothing that does not: workers, scheduler, --out, --quiet)
     run_config = {"command": "fit", "method": method, "model": model, "seed": seed,
                   "settings": dataclasses.asdict(s), "prior": space.describe(), "forward": fm.describe(),
@@ -298,7 +221,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
         extra = ", mcmc.nc, compare.json" if compare is not None else ""
         click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}{extra} and {len(written)} figure(s)")
         if compare is not None:
-            click.echo(_compare_line(compare))
+            click.echo(compare_line(compare))
         for w in list(pre.warnings) + list(res.warnings):
             click.echo(f"imrbayes: warning: {w}", err=True)
     if compare is not None:
@@ -327,13 +250,6 @@ def _window_list(value):
         raise InputError("--mcmc-windows", f"expected 'all' or non-negative window indices, got {value!r}")
     return sorted(set(out))
 
-
-def _compare_line(compare: dict) -> str:
-    o = compare["overall"]
-    worst = f"; worst window {o['worst_window']} (sample KL {o['max_kl_sample']:.3g} nats)" \
-        if o.get("worst_window") is not None and o.get("max_kl_sample") is not None else ""
-    return (f"ensemble vs MCMC: {o['n_agree']} window(s) agree, {o['n_disagree']} disagree, {o['n_undecided']} "
-            f"undecided (chains not converged){worst}; see compare.json")
 
 
 def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config, data,
@@ -370,59 +286,3 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     if compare is not None:
         written += list(compare.get("figures", []))
     return written
-
-
-@main.command("validate")
-@click.option("--suite", type=click.Choice(["quick", "full"]), default="quick", show_default=True,
-              help="quick: polytropic bubble, about a minute; full: IMRv2 thermal bubble and the paper's IMR "
-                   "grid (tens of minutes).")
-@click.option("--case", "cases", multiple=True, help="Run only these cases (repeatable); default: all.")
-@click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Output folder (default: a new folder under ./imrbayes-runs/).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the synthetic noise and every draw.")
-@click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
-              help="Forward-model option overriding the suite's (bubble=polytropic, scheme=imrv2-fd, ...).")
-@click.option("--quiet", is_flag=True, help="Print nothing but errors.")
-@execution_options(with_workers=True)
-def validate_cmd(suite, cases, out, seed, forward, quiet, workers, scheduler, resume, retry_failed):
-    """Synthetic validation: the methods.md §5 verification case (G0 = 7.29 kPa, mu0 = 0.088 Pa s,
-    Rmax = 263 µm, Rmax/Req = 7.58, five noisy experiments) for En4D-Var and MIEnKS-MDA, IMR and
-    pIMR recovery checks, and the fusion rule. Writes validation.json and figures; exit status 1 if
-    any case fails."""
-    import json
-
-    from imrbayes.cli_data import _prepare_out
-    from imrbayes.ensemble.output import jsonable
-    from imrbayes.validation import CASES, run_suite
-
-    unknown = [c for c in cases if c not in CASES]
-    if unknown:
-        raise InputError("--case", f"unknown case(s) {unknown}; known: {', '.join(CASES)}")
-    check_options(workers, scheduler, resume, retry_failed)
-    if seed < 0:
-        raise InputError("--seed", f"must be a non-negative integer, got {seed}")
-    fwd = _kv(forward, "--forward")
-    from imrbayes.forward import ForwardOptions
-    from imrbayes.validation.suite import FORWARD
-    ForwardOptions.from_dict({**FORWARD[suite], **fwd}, source="--forward")   # bad options: exit 2 here
-    out = _prepare_out(Path(out) if out is not None else None, "validate", suite)
-
-    def show(row):
-        if not quiet:
-            status = "PASS" if row["passed"] else "FAIL"
-            click.echo(f"{status}  {row['name']:<24} {row['runtime_s']:7.1f} s  {row.get('error') or row['criteria']}")
-
-    run_config = {"command": "validate", "suite": suite, "cases": list(dict.fromkeys(cases)) or None, "seed": seed,
-                  "forward": fwd}
-    with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
-                        retry_failed=retry_failed, quiet=quiet) as execution:
-        report = run_suite(suite, out, seed=seed, cases=list(dict.fromkeys(cases)) or None, forward=fwd,
-                           progress=show, execution=execution)
-        report["execution"] = execution.summary()
-    (out / "validation.json").write_text(json.dumps(jsonable(report), indent=1) + "\n")
-    if not quiet:
-        n_ok = sum(r["passed"] for r in report["cases"])
-        click.echo(f"{n_ok}/{len(report['cases'])} passed in {report['runtime_s']:.0f} s; wrote {out / 'validation.json'}")
-    echo_execution(report["execution"], quiet, what="cases")
-    if not report["passed"]:
-        raise click.exceptions.Exit(1)

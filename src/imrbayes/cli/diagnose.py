@@ -15,7 +15,8 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
-from imrbayes.cli_exec import check_options, data_fingerprint, echo_execution, execution_options, open_execution
+from imrbayes.cli.options import (check_options, data_fingerprint, echo_execution, execution_options, key_values,
+                                  open_execution, prepare_out)
 from imrbayes.errors import InputError
 
 
@@ -51,8 +52,6 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     relaxation, rate-dependent-viscosity, damage-softening) ranked by held-out prediction, and the gain
     of the extended model (RMSE in R* = R/Rmax, ELPD in nats). SI units for all parameters."""
     t_start = time.perf_counter()
-    from imrbayes.cli_data import _prepare_out
-    from imrbayes.cli_fit import _kv
     from imrbayes.data import load_dataset, preprocess_dataset
     from imrbayes.diagnosis import CANDIDATES, DiagnoseSettings, diagnose
     from imrbayes.diagnosis.figures import write_figures
@@ -98,12 +97,12 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
             obs.P = noise_variance(obs.t_star, obs.R_star)[0]
     # Default discretisation: IMRv2's own (Nt = Mt = 25; the reference code's grid, ~4x cheaper than the
     # converged one) -- a diagnosis needs O(1e5) solves; meta.json or --forward scheme=converged override it.
-    fopts = {**(ds.forward or {}), **_kv(forward, "--forward")}
+    fopts = {**(ds.forward or {}), **key_values(forward, "--forward")}
     if str(fopts.get("bubble", "thermal")) == "thermal" and "scheme" not in fopts:
         fopts["scheme"] = "imrv2-fd"
     options = ForwardOptions.from_dict(fopts, source="forward options")
     physics = Physics.from_overrides(ds.physics or None)
-    out = _prepare_out(Path(out) if out is not None else None, "diagnose", ds.name, protect=Path(data))
+    out = prepare_out(Path(out) if out is not None else None, "diagnose", ds.name, protect=Path(data))
     if options.bubble == "thermal" and not quiet:
         click.echo(f"imrbayes: note: thermal bubble, scheme={options.scheme}; a diagnosis needs "
                    "O(1e5) solves (~15 min for 5 experiments). For exploration use --quick, --forward "

@@ -1,0 +1,258 @@
+"""Shared command-line helpers: option parsing, run folders, and the plumbing of the execution layer (docs/scaling.md): ``--workers``,
+``--scheduler``, ``--resume``, ``--retry-failed`` for ``fit``, ``diagnose`` and ``validate``.
+
+The run directory is ``--out``: ``run.json`` (the exact configuration, its fingerprint, the
+imrbayes version), ``status.json`` and ``units/`` (one checkpoint per finished unit) next to the
+command's own outputs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import math
+import re
+import sys
+from datetime import datetime
+from pathlib import Path
+
+import click
+import numpy as np
+
+from imrbayes.errors import InputError
+
+__all__ = ["execution_options", "open_execution", "data_fingerprint", "echo_execution", "check_options", "new_run_dir",
+           "prepare_out", "jsonable", "key_values", "coerce_setting", "method_settings", "prior_overrides", "compare_line"]
+
+
+def execution_options(with_workers: bool = True):
+    """Decorator adding ``--scheduler``, ``--resume``, ``--retry-failed`` (and ``--workers``)."""
+
+    def deco(f):
+        f = click.option("--retry-failed", "retry_failed", is_flag=True, default=None,
+                         help="With --resume: rerun the units that failed last time (default: report them again).")(f)
+        f = click.option("--resume", is_flag=True, default=None,
+                         help="Continue the run in --out: finished units are read back, not rerun. Refused if "
+                              "the configuration (data, model, settings, seed) or the imrbayes version differs.")(f)
+        f = click.option("--scheduler", default=None, metavar="local|tcp://HOST:PORT",
+                         help="Run the units on a Dask cluster: 'local' starts a LocalCluster with --workers "
+                              "processes; an address uses an existing cluster's workers.")(f)
+        if with_workers:
+            f = click.option("--workers", type=int, default=None,
+                             help="Worker processes for the units (experiments, windows, cases) [default: 1: "
+                                  "in this process].")(f)
+        return f
+
+    return deco
+
+
+def data_fingerprint(*arrays, names=()) -> str:
+    """SHA-256 of the arrays' bytes (dtype, shape, contents) and the names: what the units see."""
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(np.asarray(a))
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    for n in names:
+        h.update(str(n).encode("utf-8") + b"\0")
+    return h.hexdigest()
+
+
+def check_options(workers, scheduler, resume, retry_failed) -> tuple:
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise InputError("--workers", f"must be a positive integer, got {workers!r}")
+    if retry_failed and not resume:
+        raise InputError("--retry-failed", "only makes sense with --resume")
+    if scheduler is not None:
+        s = str(scheduler).strip()
+        if s != "local" and "://" not in s:
+            raise InputError("--scheduler", f"must be 'local' or a scheduler address such as tcp://host:8786, "
+                                            f"got {scheduler!r}")
+    return workers, scheduler, bool(resume), bool(retry_failed)
+
+
+@contextlib.contextmanager
+def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=False, retry_failed=False,
+                   quiet: bool = False):
+    """RunStore under ``out`` for ``config`` + the executor ``--workers/--scheduler`` ask for, as an
+    :class:`imrbayes.ensemble.units.Execution`. Bad options and refused resumes raise InputError."""
+    from imrbayes.ensemble.output import jsonable
+    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import RunStore, make_executor
+
+    workers, scheduler, resume, retry_failed = check_options(workers, scheduler, resume, retry_failed)
+    # the executor first: an unreachable --scheduler must not leave a new run directory behind
+    with make_executor(workers, scheduler) as ex, \
+            RunStore.open(out, jsonable(config), resume=resume) as store:
+        bar = None
+        if not quiet and _isatty(sys.stderr):
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=0, unit="unit", file=sys.stderr, dynamic_ncols=True)
+        try:
+            yield Execution(store=store, executor=ex, retry_failed=retry_failed, progress=False, bar=bar)
+        finally:
+            if bar is not None:
+                bar.close()
+
+
+def _isatty(stream) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+def echo_execution(summary: dict, quiet: bool, what: str = "units") -> None:
+    """One line with the unit counts; every failed unit on stderr (never silently dropped)."""
+    if summary.get("n_units") and not quiet:
+        click.echo(f"{summary['n_units']} {what}: {summary['n_computed']} computed, {summary['n_resumed']} from "
+                   f"checkpoints, {summary['n_failed']} failed")
+    for f in summary.get("failed", []):
+        click.echo(f"imrbayes: warning: unit {f['unit']} failed: {f['error']}", err=True)
+
+
+# ----------------------------------------------------------------------------- helpers
+def new_run_dir(kind: str, name: str, base: Path = Path("imrbayes-runs")) -> Path:
+    """A fresh folder ``base/<kind>-<name>-<YYYYmmdd-HHMMSS>[-k]`` (created)."""
+    slug = re.sub(r"[^A-Za-z0-9._-]+", "_", name)[:60] or "run"
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    path = base / f"{kind}-{slug}-{stamp}"
+    k = 2
+    while path.exists():
+        path = base / f"{kind}-{slug}-{stamp}-{k}"
+        k += 1
+    return path
+
+
+def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = None) -> Path:
+    if out is None:
+        out = new_run_dir(kind, name)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out", f"{out} exists and is not a directory")
+    if protect is not None:
+        p = protect if protect.is_dir() else protect.parent
+        if out.resolve() == p.resolve():
+            raise InputError("--out", f"{out} is the data folder; choose another folder (input files are "
+                                      f"never written to)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError("--out", f"cannot create {out}: {exc.strerror or exc}")
+    return out
+
+
+
+def jsonable(obj):
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    return obj
+
+
+
+def key_values(items, option: str, numeric: bool = False) -> dict:
+    """``["KEY=VALUE", ...]`` from a repeatable option as a dict. Numeric values become finite floats
+    (keys kept as given: parameter names); other values stay strings with dashes in their keys read
+    as underscores (option names such as ``n-ens``)."""
+    out = {}
+    for item in items:
+        key, sep, value = str(item).partition("=")
+        key = key.strip()
+        if not sep or not key or not value.strip():
+            raise InputError(option, f"expected KEY=VALUE, got {item!r}")
+        if numeric:
+            try:
+                v = float(value)
+            except ValueError:
+                raise InputError(option, f"{key} must be a number, got {value!r}")
+            if not math.isfinite(v):
+                raise InputError(option, f"{key} must be finite, got {value!r}")
+            out[key] = v
+        else:
+            out[key.replace("-", "_")] = value.strip()
+    return out
+
+
+def coerce_setting(cls, name, value, source):
+    """A setting value (string from the command line or a TOML value) as the field's type."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    if name not in fields:
+        raise InputError(source, f"unknown setting {name!r}; known: {', '.join(sorted(fields))}")
+    typ = str(fields[name].type)
+    if not isinstance(value, str):
+        if "bool" in typ and not isinstance(value, bool):
+            raise InputError(source, f"{name} must be true or false, got {value!r}")
+        if "int" in typ and "float" not in typ and not (isinstance(value, int) and not isinstance(value, bool)):
+            raise InputError(source, f"{name} must be an integer, got {value!r}")
+        if "float" in typ and isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = float(value)
+            if not math.isfinite(value):
+                raise InputError(source, f"{name} must be finite, got {value!r}")
+        return value
+    v = value.strip()
+    if "None" in typ and v.lower() in ("none", "null", ""):
+        return None
+    try:
+        if "bool" in typ:
+            low = v.lower()
+            if low not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                raise ValueError
+            return low in ("true", "1", "yes", "on")
+        if "int" in typ and "float" not in typ:
+            f = float(v)
+            if f != int(f):
+                raise ValueError
+            return int(f)
+        if "float" in typ:
+            f = float(v)
+            if not math.isfinite(f):
+                raise ValueError
+            return f
+    except (ValueError, OverflowError):
+        raise InputError(source, f"{name} must be a {typ.replace(' | None', '')}, got {value!r}")
+    return v
+
+
+def method_settings(cls, table: dict, cli: dict):
+    kwargs = {}
+    for k, v in (table or {}).items():
+        kwargs[k.replace("-", "_")] = coerce_setting(cls, k.replace("-", "_"), v, "--config")
+    for k, v in cli.items():
+        kwargs[k] = coerce_setting(cls, k, v, "--set")
+    return cls(**kwargs)
+
+
+def prior_overrides(table: dict, cli: dict) -> dict:
+    out = {}
+    for k, v in (table or {}).items():
+        if not (isinstance(v, (list, tuple)) and len(v) == 2):
+            raise InputError("--config", f"prior.{k} must be [mean, sd], got {v!r}")
+        out[k] = (float(v[0]), float(v[1]))
+    for k, v in cli.items():
+        parts = v.split(":")
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            out[k] = (float(parts[0]), float(parts[1]))
+        except ValueError:
+            raise InputError("--prior", f"expected NAME=MEAN:SD (SI units), got {k}={v}")
+    return out
+
+
+def compare_line(compare: dict) -> str:
+    o = compare["overall"]
+    worst = f"; worst window {o['worst_window']} (sample KL {o['max_kl_sample']:.3g} nats)" \
+        if o.get("worst_window") is not None and o.get("max_kl_sample") is not None else ""
+    return (f"ensemble vs MCMC: {o['n_agree']} window(s) agree, {o['n_disagree']} disagree, {o['n_undecided']} "
+            f"undecided (chains not converged){worst}; see compare.json")

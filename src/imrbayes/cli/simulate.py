@@ -1,0 +1,131 @@
+"""``imrbayes simulate``: a synthetic dataset from the forward model, with truth.json."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+import numpy as np
+
+from imrbayes import __version__
+from imrbayes.cli import config_option, main
+from imrbayes.cli.options import jsonable, key_values, prepare_out
+from imrbayes.errors import InputError
+
+
+@main.command("simulate", short_help="Write a synthetic dataset from the forward model (with truth.json).")
+@click.option("--model", required=True, help="Constitutive model (e.g. nhkv); see the error for the list.")
+@click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
+              help="Material parameter in SI units (G [Pa], mu [Pa s], ...); repeat for each parameter.")
+@click.option("--rmax", default="263e-6", show_default=True,
+              help="Maximum radius [m], or MEAN:SD [m] to draw each experiment's value.")
+@click.option("--ratio", default="7.58", show_default=True,
+              help="Rmax/Req [-], or MEAN:SD [-] to draw each experiment's value.")
+@click.option("--n-exp", type=int, default=5, show_default=True, help="Number of experiments [-].")
+@click.option("--noise", default="paper", show_default=True,
+              help="paper (sd |R*-1|/20 + (1-exp(-t*/10))/30 in R*), none, or a number (sd in R* [-]).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
+@click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
+              help="Forward-model option (radial=km, bubble=polytropic, vapor=false, ...); repeatable.")
+@click.option("--physics", "physics", multiple=True, metavar="KEY=VALUE",
+              help="Physical-constant override in SI units (rho [kg/m^3], p8 [Pa], ...); repeatable.")
+@click.option("--t-end", type=float, default=3.0, show_default=True, help="End of each record in t* [-].")
+@click.option("--dt-star", type=float, default=0.025, show_default=True,
+              help="Sample interval in t* [-] (ignored with --frame-s).")
+@click.option("--frame-s", type=float, default=None,
+              help="Sample at a camera frame interval [s] instead of the dt* grid.")
+@click.option("--material", default=None, help="Text for meta.json 'material' (default: synthetic <model>).")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="Dataset folder to create (default: a new folder under ./imrbayes-runs/).")
+@click.option("--quiet", is_flag=True, help="Print nothing but errors.")
+@config_option
+def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physics, t_end, dt_star, frame_s,
+                 material, out, quiet):
+    """Write a synthetic dataset (interfaces.md §1 format) from the forward model, with truth.json."""
+    from imrbayes import forward as fwd
+    from imrbayes.data import synthetic as syn
+
+    if n_exp < 1:
+        raise InputError("--n-exp", f"must be at least 1, got {n_exp}")
+    if not (math.isfinite(t_end) and t_end > 0):
+        raise InputError("--t-end", f"must be a positive number of t* units, got {t_end}")
+    if frame_s is None and not (math.isfinite(dt_star) and 0 < dt_star <= t_end):
+        raise InputError("--dt-star", f"must be positive and at most --t-end, got {dt_star}")
+    if frame_s is not None and not (math.isfinite(frame_s) and 0 < frame_s <= 1e-3):
+        raise InputError("--frame-s", f"must be a frame interval in seconds, 0 < S <= 1e-3, got {frame_s}")
+    rmax_spec = syn.parse_spec(rmax, "--rmax")
+    ratio_spec = syn.parse_spec(ratio, "--ratio")
+    if rmax_spec.mean > 0.01:
+        raise InputError("--rmax", f"{rmax_spec.mean:g} m is over 1 cm; give Rmax in metres (e.g. 263e-6)")
+    if ratio_spec.mean <= 1:
+        raise InputError("--ratio", f"Rmax/Req must exceed 1, got {ratio_spec.mean:g}")
+    noise_d = syn.parse_noise(noise)
+    pvals = key_values(params, "--param", numeric=True)
+    fopts = key_values(forward, "--forward", numeric=False)
+    phys = key_values(physics, "--physics", numeric=True)
+    models = list(fwd.available_models())
+    try:
+        fm = fwd.ForwardModel(model, options=fwd.ForwardOptions.from_dict(fopts, source="--forward"), physics_overrides=phys or None)
+    except InputError as exc:
+        if model not in models and exc.source in (None, "--model", "model"):
+            raise InputError("--model", f"unknown model {model!r}; available: {', '.join(models)}")
+        raise
+    except (KeyError, ValueError) as exc:
+        if model not in models:
+            raise InputError("--model", f"unknown model {model!r}; available: {', '.join(models)}")
+        raise InputError("--forward", str(exc))
+    names = tuple(fm.constitutive.param_names)
+    unknown = [k for k in pvals if k not in names]
+    missing = [k for k in names if k not in pvals]
+    if unknown or missing:
+        parts = ([f"unknown parameter(s) {', '.join(unknown)}"] if unknown else []) + \
+                ([f"missing {', '.join(missing)}"] if missing else [])
+        raise InputError("--param", f"{'; '.join(parts)}; model {model!r} takes {', '.join(names)} "
+                                    f"(SI units, e.g. --param {names[0] if names else 'G'}=...)")
+    ph = fm.physics.to_dict()
+    uc = math.sqrt(float(ph["p8"]) / float(ph["rho"]))
+    rng = np.random.default_rng(seed)
+    rmax_m = syn.draw_values(rmax_spec, n_exp, rng, lambda x: (x > 0) & (x <= 0.01), "--rmax")
+    ratios = syn.draw_values(ratio_spec, n_exp, rng, lambda x: x > 1.0, "--ratio")
+    req_m = rmax_m / ratios
+    tc_s = rmax_m / uc
+    if frame_s is None:
+        n = int(math.floor(t_end / dt_star + 1e-9))
+        grids = [np.arange(n + 1) * dt_star for _ in range(n_exp)]
+    else:
+        grids = [np.arange(int(math.floor(t_end * tc / frame_s + 1e-9)) + 1) * frame_s / tc for tc in tc_s]
+        if min(g.size for g in grids) < 10:
+            raise InputError("--frame-s", f"{frame_s:g} s gives fewer than 10 frames per record")
+    clean = syn.simulate_dataset(fm, pvals, rmax_m, req_m, grids)
+    records, redrawn = [], 0
+    for g, Rs, rm, tc in zip(grids, clean, rmax_m, tc_s):
+        if Rs.shape != g.shape or not np.all(np.isfinite(Rs)):
+            raise RuntimeError("forward model returned a radius history of the wrong shape or with NaN")
+        Rn, k = syn.noisy(g, Rs, noise_d, rng)
+        redrawn += k
+        records.append((g * tc, Rn * rm))
+    out = prepare_out(out, "simulate", model)
+    if any(out.glob("*.csv")) or (out / "meta.json").exists():
+        raise InputError("--out", f"{out} already holds a dataset; choose a new or empty folder")
+    noise_d = {**noise_d, "applied_to": "R* = R/Rmax, independent Gaussian per sample",
+               "n_redrawn_nonpositive": redrawn}
+    files = [f"exp_{i:03d}.csv" for i in range(1, n_exp + 1)]
+    options = fm.options.to_dict()
+    meta = {"material": material or f"synthetic ({model})",
+            "description": f"imrbayes simulate: {model} {pvals}, noise {noise_d['kind']}, seed {seed}",
+            "synthetic": True, "truth": "truth.json", "physics": ph, "forward": options,
+            "experiments": {f: {"Req_m": float(q), "Rmax_m": float(r)} for f, q, r in zip(files, req_m, rmax_m)}}
+    truth = {"model": model, "parameters": pvals, "param_names": list(names), "seed": seed,
+             "n_experiments": n_exp, "noise": noise_d, "forward": options, "physics": ph,
+             "rmax_spec_m": rmax_spec.to_dict(), "ratio_spec": ratio_spec.to_dict(),
+             "sampling": ({"dt_star": dt_star} if frame_s is None else {"frame_s": frame_s}) | {"t_end_star": t_end},
+             "experiments": [{"file": f, "rmax_m": float(r), "req_m": float(q), "rmax_over_req": float(a),
+                              "tc_s": float(tc), "n_samples": int(g.size)}
+                             for f, r, q, a, tc, g in zip(files, rmax_m, req_m, ratios, tc_s, grids)],
+             "random_draws": "numpy.random.default_rng(seed): Rmax (n_exp, if MEAN:SD), ratio (n_exp, if "
+                             "MEAN:SD), then the noise of each experiment in turn",
+             "imrbayes_version": __version__}
+    syn.write_dataset(out, records, jsonable(meta), jsonable(truth))
+    if not quiet:
+        click.echo(f"wrote {n_exp} experiment(s), meta.json and truth.json to {out}")
