@@ -171,11 +171,15 @@ def test_empty_directory(tmp_path):
     assert_bad_input(run("inspect", tmp_path / "empty"), "empty", "no experiment .csv files")
 
 
-def test_missing_meta_json(tmp_path):
+def test_missing_meta_json_is_accepted_with_one_warning(tmp_path):
     d = tmp_path / "ds"
-    make_dataset(d, n_exp=1)
+    make_dataset(d, n_exp=2)
     (d / "meta.json").unlink()
-    assert_bad_input(run("inspect", d), "ds", "has no meta.json")
+    res = run("inspect", d, "--out", tmp_path / "out")
+    assert res.exit_code == 0, res.output
+    assert res.output.count("no meta.json") == 1
+    record = json.loads((tmp_path / "out" / "dataset.json").read_text())
+    assert record["dataset"]["material"] == "unknown"
 
 
 def test_invalid_meta_json(tmp_path):

@@ -2,7 +2,8 @@
 
 :func:`load_dataset` accepts
 
-* a dataset directory: ``meta.json`` (required) and one ``*.csv`` per experiment (``t_s,R_m``);
+* a dataset directory: one ``*.csv`` per experiment (``t_s,R_m``) and a ``meta.json`` (optional: without
+  it the material is "unknown", the default physics is used and a warning says so);
 * a single experiment CSV (``t_s,R_m``) or a long CSV (``experiment,t_s,R_m``); a ``meta.json``
   next to the file is used when present;
 * a MATLAB ``.mat`` file in one of the layouts of :mod:`imrbayes.data.matfile`;
@@ -117,7 +118,7 @@ def _dataset(name, path, fmt, exps, meta: Meta, notes) -> Dataset:
 
 
 def load_directory(path) -> Dataset:
-    """A dataset directory: ``meta.json`` plus one ``*.csv`` per experiment (sorted by name)."""
+    """A dataset directory: one ``*.csv`` per experiment (sorted by name) and an optional ``meta.json``."""
     path = Path(path)
     try:
         entries = sorted(path.iterdir())
@@ -129,11 +130,15 @@ def load_directory(path) -> Dataset:
         others = [p.name for p in entries if p.suffix.lower() == ".mat"]
         hint = f" (found .mat file(s) {', '.join(others[:4])}: pass a .mat file itself)" if others else ""
         raise InputError(path, f"no experiment .csv files in this directory{hint}")
-    if not meta_path.is_file():
-        raise InputError(path, "has no meta.json; a dataset directory needs one, at least "
-                               '{"material": "..."} (interfaces.md §1)')
-    meta = read_meta(meta_path)
     exps = [load_experiment_csv(p) for p in csvs]
+    if not meta_path.is_file():
+        # a folder of camera exports: usable as it is, but the user should know what was assumed
+        ds = _dataset(path.name, path, "directory", exps, Meta(), [f"{len(exps)} experiment CSV file(s)"])
+        ds.warnings.insert(0, f"{path}: no meta.json, so the material is 'unknown' and the default physical "
+                              "constants (water-like gel at 20 °C, 1 atm) and forward options are used; add a "
+                              'meta.json ({"material": "...", "physics": {...}}) to record them')
+        return ds
+    meta = read_meta(meta_path)
     return _dataset(path.name, path, "directory", exps, meta, [f"{len(exps)} experiment CSV file(s)"])
 
 
