@@ -150,7 +150,8 @@ def test_simulate_numeric_noise_and_frame_rate(fake, tmp_path):
     k = np.round(data[0][:, 0] / 1e-6)
     np.testing.assert_allclose(data[0][:, 0], k * 1e-6, rtol=1e-12)
     assert k[-1] == math.floor(3 * tc / 1e-6)
-    assert truth["sampling"] == {"frame_s": 1e-6, "t_end_star": 3.0}
+    assert truth["sampling"] == {"frame_s": 1e-6, "phase": "0", "pre_max_s": 0.0,
+                                 "before_maximum": "mirror of the collapse", "t_end_star": 3.0}
 
 
 @pytest.mark.parametrize("args,where,problem", [
@@ -162,7 +163,7 @@ def test_simulate_numeric_noise_and_frame_rate(fake, tmp_path):
     ([*BASE, "--rmax", "big"], "--rmax", "expected a number or MEAN:SD"),
     ([*BASE, "--rmax", "263"], "--rmax", "give Rmax in metres"),
     ([*BASE, "--ratio", "0.5"], "--ratio", "must exceed 1"),
-    ([*BASE, "--noise", "loud"], "--noise", "expected paper, none or a number"),
+    ([*BASE, "--noise", "loud"], "--noise", "expected paper, none, a number"),
     ([*BASE, "--n-exp", "0"], "--n-exp", "at least 1"),
     ([*BASE, "--frame-s", "2"], "--frame-s", "frame interval in seconds"),
     ([*BASE, "--forward", "bad=1"], "--forward", "unknown forward option"),

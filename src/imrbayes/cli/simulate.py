@@ -24,7 +24,8 @@ from imrbayes.errors import InputError
               help="Rmax/Req [-], or MEAN:SD [-] to draw each experiment's value.")
 @click.option("--n-exp", type=int, default=5, show_default=True, help="Number of experiments [-].")
 @click.option("--noise", default="paper", show_default=True,
-              help="paper (sd |R*-1|/20 + (1-exp(-t*/10))/30 in R*), none, or a number (sd in R* [-]).")
+              help="paper (sd |R*-1|/20 + (1-exp(-t*/10))/30 in R*), none, a number (sd in R* [-]), a number "
+                   "with um (sd in µm, e.g. 3um), or a sum of these joined by + (e.g. 2um+0.01: variances add).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
 @click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
               help="Forward-model option (radial=km, bubble=polytropic, vapor=false, ...); repeatable.")
@@ -35,13 +36,25 @@ from imrbayes.errors import InputError
               help="Sample interval in t* [-] (ignored with --frame-s).")
 @click.option("--frame-s", type=float, default=None,
               help="Sample at a camera frame interval [s] instead of the dt* grid.")
+@click.option("--phase", type=click.Choice(["0", "random"]), default="0", show_default=True,
+              help="With --frame-s: the first frame's sub-frame offset from the maximum (random: uniform in one "
+                   "frame, per experiment, from the seed).")
+@click.option("--pre-max-s", type=float, default=0.0, show_default=True,
+              help="With --frame-s: the record starts this many seconds [s] before the maximum (the growth is "
+                   "taken as the mirror of the collapse).")
+@click.option("--scatter", "scatter", multiple=True, metavar="NAME=SD",
+              help="Per-bubble material scatter: each experiment's NAME is drawn log-normally around --param's "
+                   "value with relative sd SD [-] (e.g. G=0.15); repeatable. truth.json records every draw.")
+@click.option("--req-in-meta/--no-req-in-meta", default=True, show_default=True,
+              help="Write each experiment's true Rmax and Req into meta.json (off: Req must be estimated from "
+                   "the record's tail, as for most real data).")
 @click.option("--material", default=None, help="Text for meta.json 'material' (default: synthetic <model>).")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Dataset folder to create (default: a new folder under ./imrbayes-runs/).")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @config_option
 def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physics, t_end, dt_star, frame_s,
-                 material, out, quiet):
+                 phase, pre_max_s, scatter, req_in_meta, material, out, quiet):
     """Write a synthetic dataset (interfaces.md §1 format) from the forward model, with truth.json."""
     from imrbayes import forward as fwd
     from imrbayes.data import synthetic as syn
@@ -54,6 +67,10 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
         raise InputError("--dt-star", f"must be positive and at most --t-end, got {dt_star}")
     if frame_s is not None and not (math.isfinite(frame_s) and 0 < frame_s <= 1e-3):
         raise InputError("--frame-s", f"must be a frame interval in seconds, 0 < S <= 1e-3, got {frame_s}")
+    if frame_s is None and (phase != "0" or pre_max_s):
+        raise InputError("--phase" if phase != "0" else "--pre-max-s", "needs --frame-s (a camera frame interval)")
+    if not (math.isfinite(pre_max_s) and 0 <= pre_max_s <= (1e-3 if frame_s is None else 1000 * frame_s)):
+        raise InputError("--pre-max-s", f"must be a time in seconds, 0 <= S <= 1000 frames, got {pre_max_s}")
     rmax_spec = syn.parse_spec(rmax, "--rmax")
     ratio_spec = syn.parse_spec(ratio, "--ratio")
     if rmax_spec.mean > 0.01:
@@ -83,6 +100,12 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
                 ([f"missing {', '.join(missing)}"] if missing else [])
         raise InputError("--param", f"{'; '.join(parts)}; model {model!r} takes {', '.join(names)} "
                                     f"(SI units, e.g. --param {names[0] if names else 'G'}=...)")
+    scatter_sd = key_values(scatter, "--scatter", numeric=True)
+    bad = [k for k in scatter_sd if k not in names]
+    if bad:
+        raise InputError("--scatter", f"unknown parameter(s) {', '.join(bad)}; model {model!r} takes {', '.join(names)}")
+    if any(not 0 <= v <= 2 for v in scatter_sd.values()):
+        raise InputError("--scatter", f"a relative sd must be in [0, 2], got {scatter_sd}")
     ph = fm.physics.to_dict()
     uc = math.sqrt(float(ph["p8"]) / float(ph["rho"]))
     rng = np.random.default_rng(seed)
@@ -90,21 +113,25 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
     ratios = syn.draw_values(ratio_spec, n_exp, rng, lambda x: x > 1.0, "--ratio")
     req_m = rmax_m / ratios
     tc_s = rmax_m / uc
+    phases = syn.draw_phases(seed, n_exp, frame_s or 0.0, phase == "random")
     if frame_s is None:
         n = int(math.floor(t_end / dt_star + 1e-9))
         grids = [np.arange(n + 1) * dt_star for _ in range(n_exp)]
     else:
-        grids = [np.arange(int(math.floor(t_end * tc / frame_s + 1e-9)) + 1) * frame_s / tc for tc in tc_s]
+        grids = [syn.camera_times(tc, frame_s, t_end, pre_max_s, ph) for tc, ph in zip(tc_s, phases)]
         if min(g.size for g in grids) < 10:
             raise InputError("--frame-s", f"{frame_s:g} s gives fewer than 10 frames per record")
-    clean = syn.simulate_dataset(fm, pvals, rmax_m, req_m, grids)
-    records, redrawn = [], 0
+    exp_params = syn.draw_scatter(seed, pvals, scatter_sd, n_exp) if scatter_sd else pvals
+    clean = syn.simulate_dataset(fm, exp_params, rmax_m, req_m, grids)
+    records, redrawn, t_max_s, sd_at_max = [], 0, [], []
     for g, Rs, rm, tc in zip(grids, clean, rmax_m, tc_s):
         if Rs.shape != g.shape or not np.all(np.isfinite(Rs)):
             raise RuntimeError("forward model returned a radius history of the wrong shape or with NaN")
-        Rn, k = syn.noisy(g, Rs, noise_d, rng)
+        Rn, k = syn.noisy(g, Rs, noise_d, rng, rmax_m=rm)
         redrawn += k
-        records.append((g * tc, Rn * rm))
+        records.append(((g - g[0]) * tc, Rn * rm))      # camera time: 0 at the first frame
+        t_max_s.append(-g[0] * tc)
+        sd_at_max.append(float(syn.noise_sd(np.zeros(1), np.ones(1), noise_d, rm)[0]))
     out = prepare_out(out, "simulate", model)
     if any(out.glob("*.csv")) or (out / "meta.json").exists():
         raise InputError("--out", f"{out} already holds a dataset; choose a new or empty folder")
@@ -115,16 +142,25 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
     meta = {"material": material or f"synthetic ({model})",
             "description": f"imrbayes simulate: {model} {pvals}, noise {noise_d['kind']}, seed {seed}",
             "synthetic": True, "truth": "truth.json", "physics": ph, "forward": options,
-            "experiments": {f: {"Req_m": float(q), "Rmax_m": float(r)} for f, q, r in zip(files, req_m, rmax_m)}}
+            "experiments": ({f: {"Req_m": float(q), "Rmax_m": float(r)} for f, q, r in zip(files, req_m, rmax_m)}
+                            if req_in_meta else {})}
     truth = {"model": model, "parameters": pvals, "param_names": list(names), "seed": seed,
              "n_experiments": n_exp, "noise": noise_d, "forward": options, "physics": ph,
              "rmax_spec_m": rmax_spec.to_dict(), "ratio_spec": ratio_spec.to_dict(),
-             "sampling": ({"dt_star": dt_star} if frame_s is None else {"frame_s": frame_s}) | {"t_end_star": t_end},
+             "sampling": ({"dt_star": dt_star} if frame_s is None else
+                          {"frame_s": frame_s, "phase": phase, "pre_max_s": pre_max_s,
+                           "before_maximum": "mirror of the collapse"}) | {"t_end_star": t_end},
+             "req_in_meta": req_in_meta, "scatter": scatter_sd,
              "experiments": [{"file": f, "rmax_m": float(r), "req_m": float(q), "rmax_over_req": float(a),
-                              "tc_s": float(tc), "n_samples": int(g.size)}
-                             for f, r, q, a, tc, g in zip(files, rmax_m, req_m, ratios, tc_s, grids)],
+                              "tc_s": float(tc), "n_samples": int(g.size), "t_max_s": float(tm),
+                              "phase_s": float(ph), "noise_sd_at_max_r_star": float(sm),
+                              "parameters": p}
+                             for f, r, q, a, tc, g, tm, ph, sm, p in
+                             zip(files, rmax_m, req_m, ratios, tc_s, grids, t_max_s, phases, sd_at_max,
+                                 exp_params if scatter_sd else [pvals] * n_exp)],
              "random_draws": "numpy.random.default_rng(seed): Rmax (n_exp, if MEAN:SD), ratio (n_exp, if "
-                             "MEAN:SD), then the noise of each experiment in turn",
+                             "MEAN:SD), then the noise of each experiment in turn; phases and scatter from "
+                             "SeedSequence(seed, spawn_key=(1,)) and (2,)",
              "imrbayes_version": __version__}
     syn.write_dataset(out, records, jsonable(meta), jsonable(truth))
     if not quiet:

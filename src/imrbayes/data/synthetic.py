@@ -5,6 +5,14 @@ experiment (if given as ``MEAN:SD``), Rmax/Req for every experiment (if ``MEAN:S
 noise of experiment 1, 2, ... Draws from ``MEAN:SD`` are normal, redrawn while non-physical
 (Rmax <= 0 or Rmax/Req <= 1). Noise is added to R* independently per sample; a noisy radius <= 0 is
 redrawn (a truncated Gaussian, counted in ``truth.json``).
+
+Camera-style records (interfaces.md §4) draw from two further streams of the same seed, so that a
+dataset made without them is unchanged: the sub-frame phase of each experiment's first frame
+(``SeedSequence(seed, spawn_key=(1,))``, uniform in one frame) and the per-bubble material scatter
+(``SeedSequence(seed, spawn_key=(2,))``, log-normal around the given value). Frames before the
+maximum (``pre_max_s``) are filled with the **mirror of the collapse**, R(t_max - s) = R(t_max + s):
+the forward model starts at rest at Rmax, and the growth that precedes it is not modelled; near the
+flat maximum the mirror is exact to second order, which is all the preprocessing looks at.
 """
 
 from __future__ import annotations
@@ -20,7 +28,11 @@ from imrbayes.data.csvio import write_experiment_csv
 from imrbayes.data.noise import paper_sigma
 from imrbayes.errors import InputError
 
-__all__ = ["Spec", "parse_spec", "parse_noise", "draw_values", "noisy", "simulate_dataset", "write_dataset"]
+__all__ = ["Spec", "parse_spec", "parse_noise", "noise_sd", "draw_values", "noisy", "simulate_dataset", "write_dataset",
+           "camera_times", "draw_phases", "draw_scatter", "PHASE_STREAM", "SCATTER_STREAM"]
+
+#: spawn keys of the camera-phase and material-scatter streams (module docstring)
+PHASE_STREAM, SCATTER_STREAM = (1,), (2,)
 
 
 @dataclass(frozen=True)
@@ -49,20 +61,51 @@ def parse_spec(text: str, option: str) -> Spec:
     return Spec(mean, sd)
 
 
-def parse_noise(text: str) -> dict:
-    """``paper`` | ``none`` | a number (sd in R*) -> a description dict."""
-    t = str(text).strip().lower()
+def _noise_term(term: str, text: str) -> dict:
+    t = term.strip().lower()
     if t == "paper":
         return {"kind": "paper", "sigma": "|R*-1|/20 + (1-exp(-t*/10))/30 (methods.md §5)"}
     if t == "none":
         return {"kind": "none"}
+    unit = "um" if t.endswith("um") else ""
     try:
-        sd = float(t)
+        sd = float(t[:-2] if unit else t)
     except ValueError:
-        raise InputError("--noise", f"expected paper, none or a number (sd in R*), got {text!r}")
+        raise InputError("--noise", f"expected paper, none, a number (sd in R*), a number with um (sd in µm) "
+                                    f"or a sum of these joined by '+', got {text!r}")
     if not math.isfinite(sd) or sd < 0:
         raise InputError("--noise", f"sd must be a finite number >= 0, got {text!r}")
-    return {"kind": "gaussian", "sd": sd} if sd > 0 else {"kind": "none"}
+    if sd == 0:
+        return {"kind": "none"}
+    return {"kind": "gaussian_um", "sd_um": sd} if unit else {"kind": "gaussian", "sd": sd}
+
+
+def parse_noise(text: str) -> dict:
+    """``paper`` | ``none`` | a number (sd in R*) | a number with ``um`` (sd in µm) | a sum of these
+    joined by ``+`` (independent terms: their variances add) -> a description dict."""
+    terms = [_noise_term(term, text) for term in str(text).split("+")]
+    terms = [t for t in terms if t["kind"] != "none"]
+    if not terms:
+        return {"kind": "none"}
+    return terms[0] if len(terms) == 1 else {"kind": "sum", "terms": terms}
+
+
+def noise_sd(t_star, R_star, noise: dict, rmax_m: float) -> np.ndarray:
+    """The noise sd [R*] of every sample of a record (R* = R/Rmax, t* from the maximum: negative
+    before it; the paper's model is evaluated at |t*|)."""
+    R = np.asarray(R_star, dtype=float)
+    terms = noise["terms"] if noise["kind"] == "sum" else [noise]
+    sds = []
+    for term in terms:
+        if term["kind"] == "paper":
+            sds.append(paper_sigma(np.abs(np.asarray(t_star, dtype=float)), R))
+        elif term["kind"] == "gaussian":
+            sds.append(np.full(R.shape, float(term["sd"])))
+        elif term["kind"] == "gaussian_um":
+            sds.append(np.full(R.shape, float(term["sd_um"]) * 1e-6 / float(rmax_m)))
+    if not sds:
+        return np.zeros(R.shape)
+    return sds[0] if len(sds) == 1 else np.sqrt(np.sum(np.square(sds), axis=0))
 
 
 def draw_values(spec: Spec, n: int, rng, valid, option: str) -> np.ndarray:
@@ -78,12 +121,13 @@ def draw_values(spec: Spec, n: int, rng, valid, option: str) -> np.ndarray:
     raise InputError(option, f"{spec.mean}:{spec.sd} gives non-physical values too often")
 
 
-def noisy(t_star, R_star, noise: dict, rng) -> tuple:
-    """``(R_star + noise, n_redrawn)``; noisy values <= 0 are redrawn (at most 100 rounds)."""
+def noisy(t_star, R_star, noise: dict, rng, rmax_m: float = 1.0) -> tuple:
+    """``(R_star + noise, n_redrawn)``; noisy values <= 0 are redrawn (at most 100 rounds). ``rmax_m``
+    [m] converts a noise given in µm to R*."""
     R = np.asarray(R_star, dtype=float)
     if noise["kind"] == "none":
         return R.copy(), 0
-    sd = paper_sigma(t_star, R) if noise["kind"] == "paper" else np.full(R.shape, float(noise["sd"]))
+    sd = noise_sd(t_star, R, noise, rmax_m)
     out = R + sd * rng.standard_normal(R.shape)
     redrawn = 0
     for _ in range(100):
@@ -95,10 +139,46 @@ def noisy(t_star, R_star, noise: dict, rng) -> tuple:
     raise InputError("--noise", "noise this large makes radii negative; use a smaller sd")
 
 
-def simulate_dataset(fm, params: dict, rmax_m, req_m, t_star_list) -> list:
-    """Noise-free R* for every experiment: ``fm.simulate_radius`` on each experiment's t* grid."""
-    return [np.asarray(fm.simulate_radius(params, rmax_m=float(rmax), req_m=float(req), t_star=ts), dtype=float)
-            for rmax, req, ts in zip(rmax_m, req_m, t_star_list)]
+def simulate_dataset(fm, params, rmax_m, req_m, t_star_list) -> list:
+    """Noise-free R* for every experiment on its own t* grid (t* from the maximum; samples before it,
+    t* < 0, are the mirror of the collapse: R*(-s) = R*(s)). ``params``: one dict for every
+    experiment, or a list of one dict per experiment."""
+    per_exp = params if isinstance(params, (list, tuple)) else [params] * len(t_star_list)
+    out = []
+    for p, rmax, req, ts in zip(per_exp, rmax_m, req_m, t_star_list):
+        ts = np.asarray(ts, dtype=float)
+        t_abs, back = np.unique(np.abs(ts), return_inverse=True)
+        R = np.asarray(fm.simulate_radius(p, rmax_m=float(rmax), req_m=float(req), t_star=t_abs), dtype=float)
+        out.append(R[back] if R.shape == t_abs.shape else R)
+    return out
+
+
+def camera_times(tc_s: float, frame_s: float, t_end_star: float, pre_max_s: float = 0.0,
+                 phase_s: float = 0.0) -> np.ndarray:
+    """Frame times in t* from the maximum for a camera of interval ``frame_s`` [s]: the frames fall
+    at ``phase_s + k frame_s`` [s] (0 <= phase_s < frame_s), from the last one at or before
+    ``-pre_max_s`` [s] to ``t_end_star`` (t* units, ``tc_s`` = Rmax sqrt(rho/p8) [s] per unit)."""
+    first = math.floor((-pre_max_s - phase_s) / frame_s + 1e-9)
+    last = int(math.floor((t_end_star * tc_s - phase_s) / frame_s + 1e-9))
+    return (phase_s + np.arange(first, last + 1) * frame_s) / tc_s
+
+
+def draw_phases(seed: int, n: int, frame_s: float, random: bool) -> np.ndarray:
+    """Each experiment's sub-frame phase [s]: uniform in [0, frame_s) from the phase stream, or 0."""
+    if not random:
+        return np.zeros(n)
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=PHASE_STREAM))
+    return rng.uniform(0.0, frame_s, n)
+
+
+def draw_scatter(seed: int, params: dict, scatter: dict, n: int) -> list:
+    """One parameter dict per experiment: ``params[name] * exp(sd z)`` (log-normal with median
+    ``params[name]``, relative sd ~ ``sd``) for every ``name`` in ``scatter``, in the order of
+    ``params``; the others as given."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=SCATTER_STREAM))
+    z = rng.standard_normal((n, len(params)))
+    return [{name: (float(v) * math.exp(float(scatter[name]) * z[i, j]) if name in scatter else float(v))
+             for j, (name, v) in enumerate(params.items())} for i in range(n)]
 
 
 def write_dataset(out: Path, records: list, meta: dict, truth: dict) -> list:
