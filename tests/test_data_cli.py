@@ -48,7 +48,7 @@ def test_inspect_writes_outputs(tmp_path):
     assert "exp_002" in res.stdout and "Rmax/Req" in res.stdout and "mean ± sd" in res.stdout
     d = json.loads((tmp_path / "out" / "dataset.json").read_text())
     assert d["n_experiments"] == 3 and len(d["grid"]["t_star"]) == 121
-    assert d["choices"]["rmax_method"] == "parabola" and d["choices"]["noise"]["method"] == "sample-variance"
+    assert d["choices"]["rmax_method"] == "local-fit" and d["choices"]["noise"]["method"] == "sample-variance"
     png = tmp_path / "out" / "figures" / "radius.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert digest(tmp_path / "ds") == before

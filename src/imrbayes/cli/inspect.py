@@ -64,8 +64,10 @@ def _print_table(pre, out: Path) -> None:
               help="Grid steps [-] (fewer if the shortest record ends earlier).")
 @click.option("--camera", default=None,
               help="Keep one camera view of multi-camera data (e.g. cam0deg); default: every view.")
-@click.option("--rmax-method", type=click.Choice(["parabola", "sample"]), default="parabola", show_default=True,
-              help="Time and value of the maximum: sub-frame parabola or largest sample.")
+@click.option("--rmax-method", type=click.Choice(["local-fit", "parabola", "sample"]), default="local-fit",
+              show_default=True, help="Time and value of the maximum: a polynomial fitted over the frames "
+                                      "within 0.35 t_c (robust to noise), the parabola through three frames, or "
+                                      "the largest sample.")
 @click.option("--collapse-method", type=click.Choice(["parabola", "sample"]), default="parabola",
               show_default=True, help="First-collapse time: sub-frame parabola or smallest sample.")
 @click.option("--interp", type=click.Choice(["linear", "pchip"]), default="linear", show_default=True,

@@ -27,7 +27,9 @@ class ExperimentSummary:
 
     ``t0_s``: time of the maximum in the file's clock; ``tc_s``: Rmax/sqrt(p8/rho);
     ``t_collapse_s``: first collapse measured from the maximum; ``t_last_star``: end of the record.
-    ``req_sd_m`` is NaN when Req was given without an uncertainty.
+    ``req_sd_m`` is NaN when Req was given without an uncertainty. ``noise_sd_m``: the record's
+    noise sd estimated from its fourth differences; ``t0_sd_s``, ``rmax_sd_m``: standard errors of
+    the maximum's time and radius (NaN unless ``rmax_method="local-fit"``).
     """
 
     name: str
@@ -49,6 +51,9 @@ class ExperimentSummary:
     t_last_star: float
     n_steps_available: int
     warnings: list = field(default_factory=list)
+    noise_sd_m: float = math.nan
+    t0_sd_s: float = math.nan
+    rmax_sd_m: float = math.nan
 
     @property
     def ratio(self) -> float:
@@ -154,7 +159,7 @@ def summarise(experiments) -> dict:
 
 
 def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 120, *,
-                       rmax_method: str = "parabola", collapse_method: str = "parabola",
+                       rmax_method: str = "local-fit", collapse_method: str = "parabola",
                        interp: str = "linear", n_tail: int = 20, rebound_frac: float = 0.05,
                        noise: str = "auto", rho: float | None = None, p8: float | None = None,
                        p_floor_abs: float = P_FLOOR_ABS, p_floor_rel: float = P_FLOOR_REL,
@@ -169,8 +174,10 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
     n_steps : int
         Steps wanted (default 120 -> 121 samples); fewer when the shortest record ends earlier,
         with a warning naming it.
-    rmax_method, collapse_method : ``"parabola"`` (default) or ``"sample"``
-        Sub-frame refinement of the maximum and of the first collapse (see preprocess.py).
+    rmax_method : ``"local-fit"`` (default), ``"parabola"`` or ``"sample"``
+        Sub-frame refinement of the maximum (see preprocess.py).
+    collapse_method : ``"parabola"`` (default) or ``"sample"``
+        Sub-frame refinement of the first collapse.
     interp : ``"linear"`` (default) or ``"pchip"``
     n_tail : int
         Samples averaged for Req when meta.json does not give it (default 20).
@@ -252,8 +259,11 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         "rho_kg_m3": rho, "p8_Pa": p8, "time_scale": "t_c = Rmax / sqrt(p8/rho) per experiment",
         "dt_star": float(dt_star), "n_steps_requested": int(n_steps), "n_steps": n_use,
         "rmax_method": rmax_method, "collapse_method": collapse_method, "rebound_frac": rebound_frac,
+        "record_noise": "sd from the median absolute fourth difference of each record (noise_sd_m)",
+        "collapse_search": "rebound > max(rebound_frac Rmax, min(4 noise sd, 0.08 Rmax)), no earlier than "
+                           "t* = 0.6 after the maximum; with the noise bar, two frames in a row",
         "req": f"meta.json/file value when given, else mean of the last {n_tail} samples after the first "
-               f"collapse (sd of those samples as uncertainty)",
+               f"collapse (uncertainty: the tail's spread beyond the noise, plus noise/sqrt(n))",
         "n_tail": int(n_tail), "interpolation": interp,
         "resample_anchor": "the point (t*=0, R*=1) at the refined maximum plus the samples at t* > 0",
         "noise": pinfo,
@@ -270,7 +280,9 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
 def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star, synthetic=False):
     t, R = exp.t_s, exp.R_m
     warnings = []
-    mx = pp.locate_rmax(t, R, rmax_method)
+    noise_sd = pp.estimate_noise_sd(R)
+    u_c = math.sqrt(p8 / rho)
+    mx = pp.locate_rmax(t, R, rmax_method, u_c=u_c, noise_sd_m=noise_sd)
     if mx.index == R.size - 1:
         raise InputError(exp.source, f"experiment {exp.name!r}: the largest radius is the last sample; "
                                      f"the record ends before the first collapse")
@@ -278,7 +290,8 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
         warnings.append("the largest radius is the first sample: the growth phase is missing, so the "
                         "maximum may lie before the record starts")
     try:
-        col = pp.first_collapse(t, R, mx.index, collapse_method, rebound_frac)
+        col = pp.first_collapse(t, R, mx.index, collapse_method, rebound_frac, noise_sd_m=noise_sd,
+                                t_min_s=0.6 * mx.rmax_m / u_c, t_max_s=mx.t_s)
     except pp.RecordTooShort as exc:
         raise InputError(exp.source, f"experiment {exp.name!r}: {exc}")
     tc = pp.time_scale_s(mx.rmax_m, rho, p8)
@@ -286,7 +299,7 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
         req, req_sd, req_se, req_src = exp.req_m, (math.nan if exp.req_sd_m is None else exp.req_sd_m), \
             math.nan, exp.req_source or "given"
     else:
-        est = pp.estimate_req(R, col.index, n_tail)
+        est = pp.estimate_req(R, col.index, n_tail, noise_sd_m=noise_sd)
         req, req_sd, req_se = est.req_m, est.sd_m, est.se_m
         req_src = f"mean of last {est.n} samples"
         if est.warning:
@@ -310,5 +323,5 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
         req_sd_m=req_sd, req_se_m=req_se, req_source=req_src, t_collapse_s=col.t_s - mx.t_s,
         t_collapse_star=(col.t_s - mx.t_s) / tc, r_collapse_star=col.r_m / mx.rmax_m,
         collapse_method=col.method, t_last_star=t_last, n_steps_available=n_avail,
-        warnings=warnings)
+        warnings=warnings, noise_sd_m=noise_sd, t0_sd_s=mx.t_sd_s, rmax_sd_m=mx.rmax_sd_m)
     return summary, (ts, Rs)

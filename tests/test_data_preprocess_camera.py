@@ -1,0 +1,96 @@
+"""Preprocessing on camera-style records (1 Mfps, random sub-frame phase, noise at the maximum):
+the time and radius of the maximum, the first collapse and the record's noise level against the
+known truth of a forward-model record, over many noise draws (no seed tuned: 200 draws each)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from imrbayes.data import preprocess as pp
+from imrbayes.data.synthetic import camera_times, simulate_dataset
+from imrbayes.forward import ForwardModel, ForwardOptions
+
+RHO, P8 = 1064.0, 101325.0
+U_C = math.sqrt(P8 / RHO)
+
+
+@pytest.fixture(scope="module")
+def record():
+    """A clean NHKV record (polytropic bubble): Rmax 320 µm, Rmax/Req 7.9, G 5.2 kPa, mu 0.065 Pa s,
+    sampled every 1 µs with phase 0.37 µs, from 6 µs before the maximum to t* = 3."""
+    fm = ForwardModel("nhkv", options=ForwardOptions.from_dict({"bubble": "polytropic"}))
+    rmax, req = 320e-6, 320e-6 / 7.9
+    tc = rmax / U_C
+    ts = camera_times(tc, 1e-6, 3.0, pre_max_s=6e-6, phase_s=0.37e-6)
+    R = simulate_dataset(fm, {"G": 5200.0, "mu": 0.065}, [rmax], [req], [ts])[0] * rmax
+    t = (ts - ts[0]) * tc
+    return t, R, {"t_max_s": -ts[0] * tc, "rmax_m": rmax, "req_m": req, "tc_s": tc}
+
+
+def draws(record, sd_rel=0.02, n=200, seed=0):
+    t, R, truth = record
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        yield t, R + sd_rel * truth["rmax_m"] * rng.standard_normal(R.size)
+
+
+def test_noise_estimate_matches_the_added_noise(record):
+    truth = record[2]
+    est = np.array([pp.estimate_noise_sd(R) for _, R in draws(record)])
+    assert np.median(est) == pytest.approx(0.02 * truth["rmax_m"], rel=0.1)
+    assert pp.estimate_noise_sd(record[1]) < 0.01 * 0.02 * truth["rmax_m"]       # a clean record has ~none
+
+
+def test_local_fit_maximum_is_unbiased_with_honest_errors_where_the_sample_is_not(record):
+    truth = record[2]
+    err_fit, err_t, sd_fit, sd_t, err_parabola = [], [], [], [], []
+    for t, R in draws(record):
+        m = pp.locate_rmax(t, R, "local-fit", u_c=U_C, noise_sd_m=pp.estimate_noise_sd(R))
+        assert m.method == "local-fit"
+        err_fit.append(m.rmax_m - truth["rmax_m"])
+        err_t.append(m.t_s - truth["t_max_s"])
+        sd_fit.append(m.rmax_sd_m)
+        sd_t.append(m.t_sd_s)
+        err_parabola.append(pp.locate_rmax(t, R, "parabola").rmax_m - truth["rmax_m"])
+    err_fit, err_t = np.array(err_fit), np.array(err_t)
+    rmax_sd = err_fit.std()
+    assert abs(err_fit.mean()) < 0.4 * rmax_sd                      # bias well inside one sd
+    assert np.mean(err_parabola) > 2 * rmax_sd                      # the three-frame vertex is biased high
+    assert 0.7 < np.mean(sd_fit) / rmax_sd < 1.5                    # the reported sd is about right
+    assert abs(err_t.mean()) < 0.3 * err_t.std() and 0.7 < np.mean(sd_t) / err_t.std() < 1.5
+    z = err_fit / np.array(sd_fit)
+    assert np.mean(np.abs(z) < 1.96) > 0.88                          # 95 % intervals cover
+
+
+def test_local_fit_on_a_clean_record_is_accurate(record):
+    t, R, truth = record
+    m = pp.locate_rmax(t, R, "local-fit", u_c=U_C, noise_sd_m=pp.estimate_noise_sd(R))
+    assert m.rmax_m == pytest.approx(truth["rmax_m"], rel=1e-4)
+    assert m.t_s == pytest.approx(truth["t_max_s"], abs=1e-3 * truth["tc_s"])
+
+
+def test_collapse_is_never_a_noise_dip(record):
+    truth = record[2]
+    t_c = []
+    for t, R in draws(record, sd_rel=0.02):
+        noise = pp.estimate_noise_sd(R)
+        m = pp.locate_rmax(t, R, "local-fit", u_c=U_C, noise_sd_m=noise)
+        col = pp.first_collapse(t, R, m.index, noise_sd_m=noise, t_min_s=0.6 * m.rmax_m / U_C, t_max_s=m.t_s)
+        t_c.append((col.t_s - m.t_s) / truth["tc_s"])
+    clean = pp.first_collapse(record[0], record[1], int(np.argmax(record[1])))
+    t_true = (clean.t_s - truth["t_max_s"]) / truth["tc_s"]
+    assert 0.8 < t_true < 1.0
+    t_c = np.array(t_c)
+    assert t_c.min() > 0.75                                          # never a dip on the way down
+    assert np.mean(np.abs(t_c - t_true) < 0.1) >= 0.95              # and almost always this collapse
+
+
+def test_req_uncertainty_separates_noise_from_oscillation():
+    rng = np.random.default_rng(3)
+    R = 40e-6 + 2e-6 * rng.standard_normal(400)                      # flat tail, noise 2 µm
+    est = pp.estimate_req(R, 10, n_tail=20, noise_sd_m=2e-6)
+    assert est.sd_m < 0.5 * est.se_m * math.sqrt(20) and est.warning is None
+    osc = 40e-6 * (1 + 0.2 * np.sin(np.arange(400) * 0.7))            # a tail still oscillating by 14 %
+    est = pp.estimate_req(osc, 10, n_tail=20, noise_sd_m=0.0)
+    assert est.sd_m == pytest.approx(np.std(osc[-20:], ddof=1), rel=1e-6) and "varies" in est.warning
