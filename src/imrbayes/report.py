@@ -26,6 +26,7 @@ import warnings
 from pathlib import Path
 
 from imrbayes import __version__
+from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
 from imrbayes.html import PNG_MAGIC, embed_png, esc, num, page, table
 
@@ -34,8 +35,12 @@ __all__ = ["load_run", "write_run_report", "flagged_windows", "window_phase"]
 # Thresholds used when compare.json does not carry its own (imrbayes.mcmc.compare.THRESHOLDS).
 _DEFAULT_THRESHOLDS = {"kl_sym": 0.1, "w2": 0.5, "kl_sample": 0.1, "rhat": 1.01, "ess_bulk": 400.0, "tau_rule": 50.0}
 _CI_PROB = 0.95
-_METHOD_NAMES = {"imr": "standard IMR (grid least squares)", "pimr": "pIMR (collapse-time closed form)",
-                 "en4dvar": "ensemble 4D-Var (En4D-Var)", "mienks": "MIEnKS-MDA (sliding-window smoother)"}
+
+
+def _method(summary):
+    """The registered method (:data:`imrbayes.ensemble.METHODS`) that wrote ``summary``, or None."""
+    name = summary.get("method")
+    return METHODS.get(name) if isinstance(name, str) else None
 
 
 # ----------------------------------------------------------------------------------------- loading
@@ -434,7 +439,8 @@ def _section_config(s) -> str:
     prior = s.get("prior") or (s.get("details") or {}).get("parameter_space") or {}
     units = _units(s)
     method = s.get("method", "?")
-    rows = [("method", f"{esc(method)} — {esc(_METHOD_NAMES.get(method, ''))}"),
+    label = _method(s).label if _method(s) is not None else ""
+    rows = [("method", f"{esc(method)} — {esc(label)}"),
             ("constitutive model", esc(s.get("model", fwd.get("constitutive", "?")))),
             ("parameters", esc(", ".join(f"{p} [{units.get(p, '?')}]" for p in s.get("parameters", [])))),
             ("seed", esc(s.get("seed", cmd.get("seed", "–")))),
@@ -516,8 +522,9 @@ def _section_estimate(s) -> str:
         rows.append((esc(p), esc(units.get(p, "?")), _ncell(e.get("mean")), _ncell(e.get("sd"), ".3g"),
                      _ncell(e.get("median")), _ncell(hdi[0]), _ncell(hdi[1])))
     out = "<h2 id='estimate'>Estimate (SI units)</h2>"
-    if s.get("method") == "mienks":
-        out += "<p>Precision-weighted aggregate over the whole record (all windows).</p>"
+    note = _method(s).estimate_note if _method(s) is not None else ""
+    if note:
+        out += f"<p>{esc(note)}</p>"
     out += table(["parameter", "unit", "mean", "sd", "median", "95 % HDI lower", "95 % HDI upper"], rows)
     if any((s["estimate"].get(p) or {}).get("sd") is None for p in s.get("parameters", [])):
         det = s.get("details") or {}

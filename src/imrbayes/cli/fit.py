@@ -9,7 +9,7 @@ as a list of ``"KEY=VALUE"``), plus tables ``forward`` (forward-model options; a
 ``pimr``, ``en4dvar``, ``mienks`` (method settings, as ``--set``), e.g. ``[fit.en4dvar]``, and
 ``mcmc`` (``true``, or a table of MCMC settings as ``--mcmc-set`` plus ``windows``).
 
-``--mcmc`` (methods ``mienks`` and ``en4dvar``) then samples every window's posterior with emcee
+``--mcmc`` (methods with a Gaussian posterior: ``mienks`` and ``en4dvar``) then samples every window's posterior with emcee
 (:mod:`imrbayes.mcmc.fit`: one execution unit per window) and writes ``mcmc.nc``, ``compare.json``
 and ``figures/mcmc_*.png``.
 """
@@ -28,9 +28,10 @@ from imrbayes.cli import main
 from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution,
                                   execution_options, key_values, method_settings, open_execution, prepare_out,
                                   prior_overrides)
+from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
 
-METHOD_NAMES = ("imr", "pimr", "en4dvar", "mienks")
+METHOD_NAMES = tuple(METHODS)
 
 
 def _load_config(path) -> dict:
@@ -70,22 +71,10 @@ def _load_config(path) -> dict:
     return cfg
 
 
-def _total_runs(method, s, n_exp, n_steps):
-    if method == "imr":
-        return s.n_G * s.n_mu * n_exp + n_exp
-    if method == "pimr":
-        return n_exp
-    if method == "en4dvar":
-        return s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
-    from imrbayes.ensemble.windows import n_windows
-    return n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
-
-
 @main.command("fit")
 @click.argument("data", type=click.Path(path_type=Path))
 @click.option("--method", type=click.Choice(METHOD_NAMES), default=None,
-              help="Inference method: imr (grid least squares), pimr (collapse-time closed form), en4dvar "
-                   "(ensemble 4D-Var, constant parameters), mienks (sliding-window smoother, time-resolved).")
+              help="Inference method: " + "; ".join(f"{m.name}: {m.label}" for m in METHODS.values()) + ".")
 @click.option("--model", default=None, help="Constitutive model [default: nhkv].")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Output folder (default: a new folder under ./imrbayes-runs/).")
@@ -162,15 +151,16 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     mcmc_windows = _window_list(pick("mcmc_windows", mcmc_windows, mcmc_cfg.pop("windows", None)))
     if (mcmc_settings or mcmc_windows is not None) and not mcmc:
         raise InputError("--mcmc-set" if mcmc_settings else "--mcmc-windows", "needs --mcmc")
-    if mcmc and method not in ("mienks", "en4dvar"):
-        raise InputError("--mcmc", f"needs --method mienks or en4dvar (a Gaussian posterior to check), got {method}")
+    meth = METHODS[method]
+    if mcmc and not meth.gaussian_posterior:
+        checkable = " or ".join(m.name for m in METHODS.values() if m.gaussian_posterior)
+        raise InputError("--mcmc", f"needs --method {checkable} (a Gaussian posterior to check), got {method}")
 
     from imrbayes.data import load_dataset, preprocess_dataset
-    from imrbayes.ensemble import METHODS, Observations, ParamSpace, Runner
-    from imrbayes.forward import ForwardModel, ForwardOptions
+    from imrbayes.ensemble import Observations, ParamSpace
+    from imrbayes.forward import ForwardModel, ForwardOptions, Runner
 
-    fit_fn, settings_cls = METHODS[method]
-    s = method_settings(settings_cls, cfg.get(method, {}), {**key_values(cfg.get("set", []), "--config set"),
+    s = method_settings(meth.settings_class, cfg.get(method, {}), {**key_values(cfg.get("set", []), "--config set"),
                                                        **key_values(settings, "--set")})
     prior = prior_overrides(cfg.get("prior", {}), key_values(priors, "--prior"))
     mcmc_s = None
@@ -201,7 +191,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     compare = None
     with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
                         retry_failed=retry_failed, quiet=quiet) as execution:
-        res = fit_fn(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
+        res = meth.fit(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
         if mcmc:
             # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
             _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
@@ -276,13 +266,7 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     write_summary(out / "summary.json", summary)
     posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
     fdir = out / "figures"
-    written = [figs.fit_figure(obs, res, fdir / "fit.png")]
-    if method in ("imr", "pimr"):
-        written.append(figs.landscape_figure(res, fdir / "landscape.png"))
-    if method == "en4dvar":
-        written.append(figs.experiments_figure(res, fdir / "experiments.png"))
-    if method == "mienks":
-        written.append(figs.time_resolved_figure(res, fdir / "parameters.png"))
+    written = [figs.fit_figure(obs, res, fdir / "fit.png")] + list(METHODS[method].figures(obs, res, fdir))
     if compare is not None:
         written += list(compare.get("figures", []))
     return written

@@ -76,9 +76,9 @@ def check_options(workers, scheduler, resume, retry_failed) -> tuple:
 def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=False, retry_failed=False,
                    quiet: bool = False):
     """RunStore under ``out`` for ``config`` + the executor ``--workers/--scheduler`` ask for, as an
-    :class:`imrbayes.ensemble.units.Execution`. Bad options and refused resumes raise InputError."""
+    :class:`imrbayes.execution.Execution`. Bad options and refused resumes raise InputError."""
     from imrbayes.ensemble.output import jsonable
-    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Execution
     from imrbayes.execution import RunStore, make_executor
 
     workers, scheduler, resume, retry_failed = check_options(workers, scheduler, resume, retry_failed)

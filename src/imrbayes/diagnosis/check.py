@@ -140,7 +140,7 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     whose unit fails counts against rejection (its statistics are treated as +inf)."""
     import dataclasses
 
-    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Execution
     from imrbayes.execution import Unit
 
     stats = STATS + (("mienks_drift",) if mienks is not None and "mienks_drift" in observed else ())

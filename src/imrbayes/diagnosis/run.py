@@ -119,13 +119,13 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
 
     The candidate fits (units ``candidate=<key>``) and the held-out fits of every model (units
     ``heldout=<key>``) run through the execution layer: ``execution``
-    (:class:`imrbayes.ensemble.units.Execution`) says where, and checkpoints them (default: this
+    (:class:`imrbayes.execution.Execution`) says where, and checkpoints them (default: this
     process). A candidate whose unit fails is left out of the ranking (reported in
     ``failed_units``); the baseline's own held-out fit must succeed."""
     from dataclasses import asdict as _asdict
 
     from imrbayes.diagnosis.lsq import MapFit
-    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Execution
     from imrbayes.execution import Unit
 
     s = settings or DiagnoseSettings()

@@ -36,10 +36,11 @@ from functools import lru_cache
 import numpy as np
 from scipy import integrate, optimize, stats
 
+from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, rmse
 from imrbayes.errors import InputError
 
-__all__ = ["T_RC", "contents_factor", "PIMRSettings", "collapse_terms", "collapse_time", "fit_pimr"]
+__all__ = ["PIMR", "T_RC", "contents_factor", "PIMRSettings", "collapse_terms", "collapse_time", "fit_pimr"]
 
 T_RC = math.sqrt(6.0 * math.pi) * math.gamma(11.0 / 6.0) / (5.0 * math.gamma(4.0 / 3.0))
 
@@ -267,3 +268,21 @@ def _grid_draws(J, Jmin, n, p, Gg, mg, rng, n_draws=1000):
     G = np.clip(Gg[i] + (rng.random(n_draws) - 0.5) * dG, Gg[0], Gg[-1])
     mu = np.clip(mg[j] + (rng.random(n_draws) - 0.5) * dm, mg[0], mg[-1])
     return np.column_stack([G, mu])
+
+
+class PIMR(InferenceMethod):
+    """pIMR as a plug-in (:class:`~imrbayes.ensemble.method.InferenceMethod`)."""
+
+    name = "pimr"
+    label = "pIMR (collapse-time closed form)"
+    settings_class = PIMRSettings
+    fit = staticmethod(fit_pimr)
+
+    @staticmethod
+    def n_forward_runs(settings, n_exp, n_steps):
+        return n_exp                       # closed form; one run per experiment for the fitted curves
+
+    @staticmethod
+    def figures(obs, res, fdir):
+        from imrbayes.ensemble.figures import landscape_figure
+        return [landscape_figure(res, fdir / "landscape.png")]
