@@ -54,7 +54,7 @@ from imrbayes.errors import InputError
 from imrbayes.execution import Execution, Unit, unit_id
 from imrbayes.forward import Runner, fm_spec, register_runner, runner_for
 
-__all__ = ["En4DVar", "En4DVarSettings", "fit_en4dvar", "en4dvar_unit", "en4dvar_post_unit"]
+__all__ = ["En4DVar", "En4DVarSettings", "fit_en4dvar", "en4dvar_unit", "en4dvar_post_unit", "fitting_window_posterior"]
 
 
 @dataclass
