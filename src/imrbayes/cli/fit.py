@@ -9,9 +9,10 @@ as a list of ``"KEY=VALUE"``), plus tables ``forward`` (forward-model options; a
 ``pimr``, ``en4dvar``, ``mienks`` (method settings, as ``--set``), e.g. ``[fit.en4dvar]``, and
 ``mcmc`` (``true``, or a table of MCMC settings as ``--mcmc-set`` plus ``windows``).
 
-``--mcmc`` (methods with a Gaussian posterior: ``mienks`` and ``en4dvar``) then samples every window's posterior with emcee
-(:mod:`imrbayes.mcmc.fit`: one execution unit per window) and writes ``mcmc.nc``, ``compare.json``
-and ``figures/mcmc_*.png``.
+``--mcmc`` (methods with a Gaussian posterior: ``mienks`` and ``en4dvar``) then samples every
+window's posterior with emcee (:mod:`imrbayes.mcmc.fit`: one execution unit per window) and writes
+``mcmc.nc``, ``compare.json`` and ``figures/mcmc_*.png``. The methods, their settings, figures and
+labels come from the registry :data:`imrbayes.ensemble.METHODS`.
 """
 
 from __future__ import annotations

@@ -177,7 +177,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     K = last_index(obs, s.t_end)
     t_eval = obs.t_star[:K + 1]
     y, weight = fit_window(obs, K, s.obs_weight)
-    n_exp, d = obs.n_exp, space.n
+    n_exp = obs.n_exp
     base = {"spec": spec, "runner": token, "space": space, "settings": s, "t_eval": t_eval}
     rep = ex.run([Unit(unit_id(exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
                                         "y": y[n], "weight": weight})

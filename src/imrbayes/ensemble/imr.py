@@ -31,12 +31,10 @@ pseudo-posterior mean is ``posterior_mean``.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import signal, stats
 
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, rmse
@@ -77,6 +75,9 @@ class IMRSettings:
 
 def collapse_indices(y, prominence: float = 0.05) -> np.ndarray:
     """Sample indices of the collapses (local minima with the given prominence in R*) of one curve."""
+    # scipy is imported where it is used: the method registry (imported when the CLI starts) stays cheap
+    from scipy import signal
+
     idx, _ = signal.find_peaks(-np.asarray(y, dtype=float), prominence=prominence)
     return idx
 
@@ -119,6 +120,8 @@ def confidence_level(J_min: float, n: int, p: int, level: float = 0.95) -> float
     """Cost level of the region J <= J_min (1 + p/(n-p) F_{p,n-p}(level)) (NaN if n <= p)."""
     if n <= p:
         return float("nan")
+    from scipy import stats
+
     return float(J_min * (1.0 + p / (n - p) * stats.f.ppf(level, p, n - p)))
 
 

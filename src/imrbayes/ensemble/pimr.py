@@ -34,7 +34,6 @@ from dataclasses import asdict, dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import integrate, optimize, stats
 
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, rmse
@@ -54,6 +53,9 @@ def contents_factor(kappa: float) -> float:
     F(R) = 3 int_R^1 f(s) s^2 ds / (1 - R^3). For f = R^(-3 kappa) this gives B(1) = 1.4942 and
     B(1.4) = 2.1835, the constants of Zhu et al.; finite for kappa < 11/6.
     """
+    # scipy is imported where it is used: the method registry (imported when the CLI starts) stays cheap
+    from scipy import integrate
+
     k = float(kappa)
     if not 0.5 <= k < 11.0 / 6.0:
         raise InputError("kappa", f"the contents factor needs 0.5 <= kappa < 11/6, got {k}")
@@ -139,6 +141,8 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
 
     Closed form on a grid, in this process: no units (``execution`` is accepted and unused; the run
     directory still records the configuration)."""
+    from scipy import optimize
+
     s = settings or PIMRSettings()
     t0 = time.perf_counter()
     names = space.names
@@ -229,6 +233,8 @@ def _pseudo_logpost(J, Jmin, n, p):
 
 def _grid_estimate(J, Jmin, n, p, Gg, mg, opt, level):
     """SI estimate from the grid pseudo-posterior; mean = optimum, sd and 95% HDI from the marginals."""
+    from scipy import stats
+
     lp = _pseudo_logpost(J, Jmin, n, p)
     level_J = float(Jmin * (1.0 + p / (n - p) * stats.f.ppf(level, p, n - p))) if n > p else float("nan")
     out = {}
