@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from imrbayes.ensemble import METHODS, IMRSettings, ParamSpace, Runner
-from imrbayes.ensemble.output import jsonable
+from imrbayes.io import jsonable
 from imrbayes.forward import ForwardModel
 from imrbayes.validation.suite import TRUTH, verification_data
 
