@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from imrbayes.ensemble import ParamSpace
-from imrbayes.ensemble.output import jsonable
+from imrbayes.io import jsonable
 from imrbayes.ensemble.windows import mda_weights, window_spans
 from imrbayes.forward import ForwardModel
 from imrbayes.mcmc import MCMCSettings, WindowTarget, run_mcmc

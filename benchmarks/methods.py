@@ -20,8 +20,8 @@ import time
 import numpy as np
 
 from imrbayes.ensemble import METHODS, IMRSettings, ParamSpace
-from imrbayes.ensemble.output import jsonable
 from imrbayes.forward import ForwardModel, Runner
+from imrbayes.io import jsonable
 from imrbayes.validation.suite import TRUTH, verification_data
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))

@@ -28,7 +28,7 @@ from pathlib import Path
 from imrbayes import __version__
 from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
-from imrbayes.html import PNG_MAGIC, embed_png, esc, num, page, table
+from imrbayes.html import embed_png, esc, is_png, num, table, write_page
 
 __all__ = ["load_run", "write_run_report", "flagged_windows", "window_phase"]
 
@@ -761,12 +761,7 @@ def _section_figures(run) -> str:
         return out + "<p class='absent'>No figures: figures/*.png is absent.</p>"
     parts, bad = [], []
     for p in run["figures"]:
-        try:
-            with open(p, "rb") as fh:
-                ok = fh.read(8) == PNG_MAGIC
-        except OSError:
-            ok = False
-        if not ok:
+        if not is_png(p):
             bad.append(p.name)
             continue
         parts.append(embed_png(p, caption=f"<code>figures/{esc(p.name)}</code>: {_caption(p)}", title=p.stem))
@@ -796,8 +791,7 @@ def write_run_report(run_dir, path=None) -> Path:
         _section_compare(run), _section_flagged(run), _section_figures(run),
         f"<p class='note'>Written {now} by imrbayes {esc(__version__)} (<code>imrbayes report</code>).</p>"])
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(page(title, body), encoding="utf-8")
+        write_page(path, title, body)
     except OSError as exc:
         raise InputError(path, f"cannot be written ({exc.strerror or exc})")
     return path

@@ -6,7 +6,6 @@ Writes ``diagnosis.json``, a self-contained ``report.html`` and ``figures/*.png`
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -58,7 +57,7 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     from imrbayes.diagnosis.models import _SPECS
     from imrbayes.diagnosis.report import write_report
     from imrbayes.ensemble import Observations
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import write_json
     from imrbayes.forward import ForwardOptions
     from imrbayes.forward.constants import Physics
 
@@ -146,7 +145,7 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     res["failures"] = {"skipped_experiments": list(pre.skipped), "failed_units": res.get("failed_units", [])}
     res["total_runtime_s"] = time.perf_counter() - t_start
     figs = write_figures(d, out / "figures")
-    (out / "diagnosis.json").write_text(json.dumps(jsonable(res), indent=1) + "\n")
+    write_json(out / "diagnosis.json", res)
     write_report(res, figs, out / "report.html", title=f"imrbayes diagnose: {ds.name}")
     if not quiet:
         chk = res["constant_parameter_check"]

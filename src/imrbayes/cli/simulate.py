@@ -10,7 +10,7 @@ import numpy as np
 
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
-from imrbayes.cli.options import jsonable, key_values, prepare_out
+from imrbayes.cli.options import key_values, prepare_out
 from imrbayes.errors import InputError
 
 
@@ -126,6 +126,6 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
              "random_draws": "numpy.random.default_rng(seed): Rmax (n_exp, if MEAN:SD), ratio (n_exp, if "
                              "MEAN:SD), then the noise of each experiment in turn",
              "imrbayes_version": __version__}
-    syn.write_dataset(out, records, jsonable(meta), jsonable(truth))
+    syn.write_dataset(out, records, meta, truth)
     if not quiet:
         click.echo(f"wrote {n_exp} experiment(s), meta.json and truth.json to {out}")

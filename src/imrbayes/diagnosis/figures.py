@@ -1,4 +1,5 @@
-"""Figures of a diagnosis (matplotlib, Agg): residuals by phase, bootstrap check, candidates."""
+"""Figures of a diagnosis (:mod:`imrbayes.plotting`: object API, Agg canvas): residuals by phase,
+bootstrap check, candidates."""
 
 from __future__ import annotations
 
@@ -6,23 +7,16 @@ from pathlib import Path
 
 import numpy as np
 
+from imrbayes.plotting import figure, save
+
 __all__ = ["write_figures"]
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def residuals_figure(d, path):
-    plt = _plt()
     obs, ph = d.obs, d.phases
     t = obs.t_star
-    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig = figure(8, 6, layout=None)
+    ax = fig.subplots(2, 1, sharex=True)
     for i in range(obs.n_exp):
         ax[0].plot(t, obs.R_star[i], ".", ms=2, color=f"C{i % 10}")
         ax[0].plot(t, d.curves["nhkv"][i], "-", lw=1, color=f"C{i % 10}")
@@ -39,17 +33,16 @@ def residuals_figure(d, path):
         ax[1].text(0.5 * (t[a] + t[b]), ax[1].get_ylim()[1] * 0.85, f"{info['phase']}\nrmse {info['rmse']:.3f}\n"
                    f"chi2 {info['chi2_norm']:.2f}", ha="center", va="top", fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def check_figure(d, path):
-    plt = _plt()
     ev = d.result["constant_parameter_check"]["evidence"]
     st = ev["statistics"]
     mw = ev.get("mienks_windows") or {}
     n_extra = 2 if mw.get("t_star_windows") else 1
-    fig, ax = plt.subplots(1, len(st) + n_extra, figsize=(3.2 * (len(st) + n_extra), 3.2))
+    fig = figure(3.2 * (len(st) + n_extra), 3.2, layout=None)
+    ax = fig.subplots(1, len(st) + n_extra)
     for a, (k, v) in zip(ax, st.items()):
         b = np.asarray(v["bootstrap"], dtype=float)
         a.hist(b[np.isfinite(b)], bins=12, color="0.7")
@@ -81,16 +74,15 @@ def check_figure(d, path):
     fig.suptitle(f"constant-parameter check: {d.result['constant_parameter_check']['verdict']} "
                  f"(p = {ev['p_value']:.3f})", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def candidates_figure(d, path):
-    plt = _plt()
     obs = d.obs
     t = obs.t_star
     keys = list(d.curves)
-    fig, ax = plt.subplots(1, 2, figsize=(12, 4))
+    fig = figure(12, 4, layout=None)
+    ax = fig.subplots(1, 2)
     for j, k in enumerate(keys):
         r = np.sqrt(np.nanmean((obs.R_star - d.curves[k]) ** 2, axis=0))
         ax[0].plot(t[1:], r[1:], label=k, color=f"C{j}", lw=1.8 if k == "nhkv" else 1.0)
@@ -109,13 +101,12 @@ def candidates_figure(d, path):
     ax[1].legend(fontsize=7)
     ax[1].set_title(f"cause: {d.result['cause']}", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def write_figures(d, fdir) -> list:
+    """``residuals.png``, ``check.png`` and ``candidates.png`` under ``fdir`` (created); returns their paths."""
     fdir = Path(fdir)
-    fdir.mkdir(parents=True, exist_ok=True)
     out = []
     for name, fn in (("residuals.png", residuals_figure), ("check.png", check_figure),
                      ("candidates.png", candidates_figure)):

@@ -2,31 +2,13 @@
 
 from __future__ import annotations
 
-import json
-import math
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["jsonable", "summary_dict", "posterior_tree", "write_summary", "write_posterior"]
+from imrbayes.io import jsonable, write_json
 
-
-def jsonable(obj):
-    """Plain JSON types; non-finite floats -> None."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    return obj
+__all__ = ["summary_dict", "posterior_tree", "write_summary", "write_posterior"]
 
 
 def summary_dict(result, obs, *, seed: int, extra: dict | None = None) -> dict:
@@ -48,9 +30,8 @@ def summary_dict(result, obs, *, seed: int, extra: dict | None = None) -> dict:
 
 
 def write_summary(path, summary: dict) -> Path:
-    path = Path(path)
-    path.write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
-    return path
+    """``summary.json`` (:func:`imrbayes.io.write_json`: atomic, indent 1, strict JSON)."""
+    return write_json(path, summary)
 
 
 def posterior_tree(result, obs):

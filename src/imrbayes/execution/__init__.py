@@ -17,11 +17,10 @@ from imrbayes.execution.backends import (DaskExecutor, ExecutionError, Executor,
                                          ProcessPoolExecutor, make_executor)
 from imrbayes.execution.driver import RunInterrupted, RunReport, UnitFailure, run_units
 from imrbayes.execution.run import Execution
-from imrbayes.execution.store import (CorruptUnitError, RunStore, atomic_write_bytes, atomic_write_json,
-                                      canonical_config, config_fingerprint)
+from imrbayes.execution.store import CorruptUnitError, RunStore, canonical_config, config_fingerprint
 from imrbayes.execution.units import Unit, normalize_units, safe_name, unit_id, unit_rng, unit_seed_sequence
 
 __all__ = ["Executor", "InProcessExecutor", "ProcessPoolExecutor", "DaskExecutor", "make_executor", "Outcome",
            "ExecutionError", "run_units", "RunReport", "UnitFailure", "RunInterrupted", "RunStore",
-           "CorruptUnitError", "atomic_write_bytes", "atomic_write_json", "canonical_config", "config_fingerprint",
+           "CorruptUnitError", "canonical_config", "config_fingerprint",
            "Execution", "Unit", "unit_id", "unit_rng", "unit_seed_sequence", "normalize_units", "safe_name"]

@@ -128,7 +128,7 @@ def _check_backend(path: Path) -> str:
 def _json(obj) -> str:
     import json
 
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import jsonable
     return json.dumps(jsonable(obj))
 
 
@@ -136,7 +136,7 @@ def _plain(obj):
     """compare entries as plain JSON types (the unit store keeps exact floats)."""
     import json
 
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import jsonable
     return json.loads(json.dumps(jsonable(obj)))
 
 
@@ -195,8 +195,8 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
     compare = write_compare(out / "compare.json", results)
     if failed:
         compare["overall"]["failed_windows"] = failed
-        import json
-        (out / "compare.json").write_text(json.dumps(_plain(compare), indent=1, allow_nan=False) + "\n")
+        from imrbayes.io import write_json
+        write_json(out / "compare.json", compare)
     if figures:
         from imrbayes.mcmc.figures import comparison_figures
         with xr.open_datatree(out / "mcmc.nc") as tree:

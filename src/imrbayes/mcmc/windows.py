@@ -165,11 +165,11 @@ def write_mcmc(path, results, attrs: dict | None = None) -> Path:
 
 def write_compare(path, results_or_entries) -> dict:
     """Write ``compare.json`` (interfaces.md §3) from WindowMCMC results or entries; returns the dict."""
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import jsonable, write_json
 
     entries = [r.entry if isinstance(r, WindowMCMC) else r for r in results_or_entries]
     data = jsonable(compare_windows(entries))
-    Path(path).write_text(json.dumps(data, indent=1, allow_nan=False) + "\n")
+    write_json(path, data)
     return data
 
 

@@ -300,7 +300,7 @@ def case_unit(unit, rng) -> dict:
     that raises is a failed case (reported in its row), as before."""
     import json
 
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import jsonable
 
     d = unit.data
     fm = ForwardModel("nhkv", options=d["forward"])
