@@ -40,7 +40,7 @@ table{{border-collapse:collapse;font-size:13px}}</style></head><body>
 <p><b>Cause:</b> {html.escape(str(r['cause']))} &nbsp; <b>extended model:</b> {html.escape(str(r['extended_model']))}
 &nbsp; <b>constant-parameter check:</b> {html.escape(chk['verdict'])} (bootstrap p = {_f(ev['p_value'], '.3f')},
 {ev['n_bootstrap']} replicates)</p>
-<h2>Baseline (NHKV, {html.escape(r['baseline']['method'])})</h2><p>{est}; RMSE {_f(r['baseline']['rmse'])}</p>
+<h2>Baseline ({html.escape(r['baseline']['model'])}, {html.escape(r['baseline']['method'])})</h2><p>{est}; RMSE {_f(r['baseline']['rmse'])}</p>
 <table><tr><th>phase</th><th>t*</th><th>RMSE</th><th>chi2/n</th></tr>{phases}</table>
 <h2>Constant-parameter check</h2><p>{html.escape(ev['rule'])}</p>
 <table><tr><th>statistic</th><th>observed</th><th>bootstrap 5/50/95 %</th><th>p</th></tr>{stats}</table>
