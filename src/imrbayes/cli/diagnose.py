@@ -160,6 +160,8 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
                        f"{g['elpd_diff']:.1f} ± {g['elpd_se']:.1f}")
         click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")
     echo_execution(exec_summary, quiet)
+    for w in res.get("warnings", []):            # what the diagnosis left out (also in diagnosis.json)
+        click.echo(f"imrbayes: warning: {w}", err=True)
     if pre.skipped:
         click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
                    + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)

@@ -84,7 +84,8 @@ def window_drift(cand, obs, phases, full) -> tuple:
 
 def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0) -> dict:
     """Window fits and the statistics of ``obs`` under the baseline candidate ``base`` (with
-    ``mienks``, an :class:`~imrbayes.ensemble.mienks.MIEnKSSettings`, also ``mienks_drift``)."""
+    ``mienks``, an :class:`~imrbayes.ensemble.mienks.MIEnKSSettings`, also ``mienks_drift``, or,
+    when it cannot be computed, ``mienks_error``: the one-line error)."""
     full = fit_map(base, obs, minima=phases.minima, starts=starts)
     drift, fits = window_drift(base, obs, phases, full)
     r2 = (obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2 / obs.P[None, 1:]
@@ -97,10 +98,14 @@ def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0) -> di
     if mienks is not None:
         try:
             T, det = mienks_drift(base, obs, mienks, seed=seed)
-        except (RuntimeError, ValueError, np.linalg.LinAlgError):   # smoother lost every member: no statistic
-            T, det = float("nan"), {}
-        if np.isfinite(T):
-            out["mienks_drift"], out["mienks"] = T, det
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:   # e.g. the smoother lost its members
+            msg = str(exc).splitlines()
+            out["mienks_error"] = f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__
+        else:
+            if np.isfinite(T):
+                out["mienks_drift"], out["mienks"] = T, det
+            else:
+                out["mienks_error"] = f"the statistic is not finite ({T})"
     return out
 
 

@@ -27,6 +27,7 @@ from imrbayes.diagnosis.candidates import BASELINE, DEFAULT_CANDIDATES
 from imrbayes.diagnosis.lsq import predict
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
+from imrbayes.errors import InputError
 
 __all__ = ["DiagnoseSettings", "diagnose"]
 
@@ -122,15 +123,19 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     phases = phases_of(obs, s.max_collapses)
     base = make_candidate(BASELINE.key, options, physics, prior)
     say("baseline fits (whole record, to the 1st and 2nd collapse)")
+    warnings = []               # what the diagnosis left out, one line each (diagnosis.json, stderr)
     mk = None
     if s.mienks_drift:
         from imrbayes.ensemble.mienks import MIEnKSSettings
         mk = MIEnKSSettings(n_ens=s.mienks_n_ens, n_iter=s.mienks_n_iter, n_draws=1)
         try:
             mk.check(obs.n_samples - 1)
-        except Exception:
+        except InputError as exc:   # settings this record cannot hold (e.g. a window longer than it)
+            warnings.append(f"mienks_drift left out of the check: {exc}")
             mk = None
     observed = statistics(base, obs, phases, mienks=mk, seed=seed)
+    if "mienks_error" in observed:
+        warnings.append(f"mienks_drift left out of the check: {observed['mienks_error']}")
     full = observed["fits"]["all"]
     tick(1)
     baseline = {"model": BASELINE.model, "method": "map", "estimate": base.estimate(full.z, full.cov),
@@ -140,12 +145,13 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                 "estimate_note": "MAP of all experiments jointly with a Laplace posterior (optimistic widths)"}
     if s.baseline_method == "en4dvar":
         say("baseline En4D-Var")
-        from imrbayes.ensemble import En4DVarSettings, ParamSpace, fit_en4dvar
-        sp = ParamSpace.for_model(base.fm.constitutive, prior)
-        en = fit_en4dvar(base.fm, obs, sp, En4DVarSettings(n_ens=s.en4dvar_n_ens, n_runs=s.en4dvar_n_runs,
-                                                           loglik=False, n_draws=1), seed=seed)
+        from imrbayes.ensemble import En4DVarSettings, fit_en4dvar
+        # its units (exp=..., post/exp=...) go through ``ex`` like every other: checkpointed, resumed
+        en = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(n_ens=s.en4dvar_n_ens, n_runs=s.en4dvar_n_runs,
+                                                                   loglik=False, n_draws=1), seed=seed, execution=ex)
         baseline.update({"method": "en4dvar", "estimate": en.estimate, "rmse_en4dvar": en.rmse,
                          "estimate_map": baseline["estimate"]})
+        warnings += [f"baseline En4D-Var: {w}" for w in en.warnings]
     say(f"constant-parameter check ({s.n_bootstrap} bootstrap replicates)")
     check = bootstrap_check(base, obs, phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
                             progress=tick, mienks=mk, execution=ex,
@@ -247,7 +253,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
               "phases": phases.to_list(),
               "minima_t_star": phases.minima_t().tolist(),
               "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": seed,
-              "failed_units": failed_units,
+              "failed_units": failed_units, "warnings": warnings,
               "runtime_s": time.perf_counter() - t0}
     curves = {k: predict(cands[k], fits[k].z[None], obs, np.arange(obs.n_exp), phases.minima,
                          obs.n_samples - 1)[0] for k in cands}
