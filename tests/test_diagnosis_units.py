@@ -102,3 +102,20 @@ def test_consistency_rule_rejects_extensions_that_point_the_wrong_way():
     assert not ok("damage", a_G=1.1, a_mu=1.3)
     assert ok("zener", lambda1=1e-6)
     assert "softening" in CANDIDATES["qkv"].consistent({"alpha": -0.1})[1]
+
+
+def test_a_registered_candidate_needs_nothing_else(monkeypatch):
+    """One declaration + one registry entry: the candidate is built, fitted in z and named in the
+    vocabulary without touching any other module."""
+    from imrbayes.diagnosis.candidates import CANDIDATES, CandidateSpec, Extension
+
+    spec = CandidateSpec("zener-free", "viscoelastic-relaxation", "zener",
+                         extension=(Extension("lambda1", np.log(1e-6), 1.5, log=True),
+                                    Extension("lambda2", np.log(1e-7), 1.5, log=True)))
+    monkeypatch.setitem(CANDIDATES, spec.key, spec)
+    c = make_candidate("zener-free", OPTS, prior={"G": (5e3, 2e3)})
+    assert c.names == ("G", "mu", "lambda1", "lambda2") and c.d == 4 and not c.piecewise
+    assert c.space.prior_si["G"] == (5e3, 2e3)
+    P = c.forward_params(np.log([[6e3, 0.05, 2e-6, 3e-7]]))
+    assert P.shape == (1, 1, 4) and np.allclose(P[0, 0], [6e3, 0.05, 2e-6, 3e-7])
+    assert spec.consistent({"lambda1": 1e-6, "lambda2": 1e-7}) == (True, "")

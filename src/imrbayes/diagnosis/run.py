@@ -21,9 +21,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from imrbayes.diagnosis.candidates import BASELINE, DEFAULT_CANDIDATES
 from imrbayes.diagnosis.check import bootstrap_check, statistics, window_drift
 from imrbayes.diagnosis.heldout import elpd_compare, forecast, loeo, loglik_draws, paired
-from imrbayes.diagnosis.candidates import BASELINE, DEFAULT_CANDIDATES
 from imrbayes.diagnosis.lsq import predict
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
@@ -35,9 +35,10 @@ __all__ = ["DiagnoseSettings", "diagnose"]
 @dataclass
 class DiagnoseSettings:
     """n_bootstrap: synthetic replicates of the check (>= 19 for a 5 % test); candidates: keys of
-    :data:`imrbayes.diagnosis.candidates.CANDIDATES` (default: the ``default`` ones); baseline_method: ``en4dvar`` (also
-    runs En4D-Var on the baseline and reports it) or ``map``; loeo: run leave-one-experiment-out;
-    n_draws: Laplace draws for the ELPD; alpha: level of the check; en4dvar_*: its settings."""
+    :data:`imrbayes.diagnosis.candidates.CANDIDATES` (default: those marked ``default``);
+    baseline_method: ``en4dvar`` (also runs En4D-Var on the baseline and reports it) or ``map``;
+    loeo: run leave-one-experiment-out; n_draws: Laplace draws for the ELPD; alpha: level of the
+    check; en4dvar_*: its settings."""
 
     n_bootstrap: int = 39
     candidates: tuple = DEFAULT_CANDIDATES
@@ -157,9 +158,9 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                             progress=tick, mienks=mk, execution=ex,
                             build={"options": options, "physics": physics, "prior": prior})
     # candidates
-    B0 = BASELINE.key
-    fits = {B0: full}
-    cands = {B0: base}
+    base_key = BASELINE.key
+    fits = {base_key: full}
+    cands = {base_key: base}
     common = {"options": options, "physics": physics, "prior": prior, "obs": obs, "phases": phases}
     say(f"candidates {', '.join(s.candidates)}")
     rep = ex.run([Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z}) for key in s.candidates],
@@ -174,8 +175,8 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     rep = ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "loeo": s.loeo})
                   for key in cands], heldout_unit, seed, desc="diagnose held-out fits")
     failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
-    if f"heldout={B0}" not in rep.results:
-        raise RuntimeError(f"the baseline's held-out fits failed ({rep.failures[f'heldout={B0}'].error})")
+    if f"heldout={base_key}" not in rep.results:
+        raise RuntimeError(f"the baseline's held-out fits failed ({rep.failures[f'heldout={base_key}'].error})")
     held = {key: rep.results[f"heldout={key}"] for key in cands if f"heldout={key}" in rep.results}
     for key in list(cands):
         if key not in held:
@@ -184,12 +185,12 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         tick(1)
     kept = [k for k in s.candidates if k in cands]
     lls = {k: loglik_draws(c, obs, phases, fits[k], s.n_draws, seed + 7) for k, c in cands.items()}
-    elpd = elpd_compare(lls, B0)
-    schemes = [k for k in ("forecast", "loeo") if k in held[B0] and np.isfinite(held[B0][k]["rmse"])]
+    elpd = elpd_compare(lls, base_key)
+    schemes = [k for k in ("forecast", "loeo") if k in held[base_key] and np.isfinite(held[base_key][k]["rmse"])]
     candidates = []
     for key in kept:
         c, f = cands[key], fits[key]
-        rel = {k: 1.0 - held[key][k]["rmse"] / held[B0][k]["rmse"] for k in schemes}
+        rel = {k: 1.0 - held[key][k]["rmse"] / held[base_key][k]["rmse"] for k in schemes}
         score = float(np.mean(list(rel.values()))) if rel else float("nan")
         candidates.append({
             "model": c.spec.model, "key": key, "mechanism": c.mechanism,
@@ -199,7 +200,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
             "misfit_by_phase": _phase_misfit(obs, phases, f.fitted),
             "heldout_rmse": held[key][schemes[0]]["rmse"] if schemes else float("nan"),
             "heldout_scheme": schemes[0] if schemes else None,
-            "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held[B0][k]["per_experiment"],
+            "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held[base_key][k]["per_experiment"],
                                                                           held[key][k]["per_experiment"])}
                         for k in held[key]},
             "relative_reduction": rel, "score": score,
@@ -232,22 +233,23 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     gain = {}
     if top is not None:
         sch = top["heldout_scheme"]
-        gain = {"candidate": top["model"], "heldout_scheme": held[B0][sch]["scheme"] if sch else None,
-                "heldout_rmse_baseline": held[B0][sch]["rmse"] if sch else float("nan"),
+        gain = {"candidate": top["model"], "heldout_scheme": held[base_key][sch]["scheme"] if sch else None,
+                "heldout_rmse_baseline": held[base_key][sch]["rmse"] if sch else float("nan"),
                 "heldout_rmse_extended": top["heldout_rmse"],
                 "relative_reduction": top["relative_reduction"].get(sch, float("nan")) if sch else float("nan"),
                 "paired_difference": top["heldout"][sch]["paired_vs_baseline"] if sch else None,
-                "by_scheme": {k: {"scheme": held[B0][k]["scheme"], "baseline": held[B0][k]["rmse"],
+                "by_scheme": {k: {"scheme": held[base_key][k]["scheme"], "baseline": held[base_key][k]["rmse"],
                                   "extended": held[top["key"]][k]["rmse"],
                                   "relative_reduction": top["relative_reduction"][k],
                                   "paired_vs_baseline": top["heldout"][k]["paired_vs_baseline"]} for k in schemes},
                 "elpd_diff": top["elpd_diff"], "elpd_se": top["elpd_se"],
                 "elpd_scheme": ("PSIS-LOO (az.loo) of the Laplace posterior of the whole-record fit, leaving out one "
-                                + ("experiment (log-likelihood summed over time)" if elpd[B0].get("level") == "experiment"
+                                + ("experiment (log-likelihood summed over time)"
+                                   if elpd[base_key].get("level") == "experiment"
                                    else "sample (PSIS failed at the experiment level)")
                                 + "; elpd_diff = extended - baseline, elpd_se from az.compare")}
-    baseline["heldout"] = held[B0]
-    baseline["elpd"] = elpd[B0]
+    baseline["heldout"] = held[base_key]
+    baseline["elpd"] = elpd[base_key]
     result = {"baseline": baseline, "constant_parameter_check": check, "candidates": candidates,
               "cause": cause, "extended_model": ext, "gain": gain,
               "phases": phases.to_list(),
