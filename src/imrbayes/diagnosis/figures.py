@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imrbayes.diagnosis.candidates import BASELINE, spec_of
 from imrbayes.plotting import figure, save
 
 __all__ = ["write_figures"]
@@ -19,13 +20,13 @@ def residuals_figure(d, path):
     ax = fig.subplots(2, 1, sharex=True)
     for i in range(obs.n_exp):
         ax[0].plot(t, obs.R_star[i], ".", ms=2, color=f"C{i % 10}")
-        ax[0].plot(t, d.curves["nhkv"][i], "-", lw=1, color=f"C{i % 10}")
-        ax[1].plot(t[1:], (obs.R_star[i, 1:] - d.curves["nhkv"][i, 1:]) / np.sqrt(obs.P[1:]), "-", lw=0.7,
+        ax[0].plot(t, d.curves[BASELINE.key][i], "-", lw=1, color=f"C{i % 10}")
+        ax[1].plot(t[1:], (obs.R_star[i, 1:] - d.curves[BASELINE.key][i, 1:]) / np.sqrt(obs.P[1:]), "-", lw=0.7,
                    color=f"C{i % 10}")
     for b in ph.bounds[1:-1]:
         for a in ax:
             a.axvline(t[b], color="0.6", ls=":")
-    ax[0].set_ylabel("R* (dots: data, lines: NHKV fit)")
+    ax[0].set_ylabel(f"R* (dots: data, lines: {BASELINE.model} fit)")
     ax[1].set_ylabel("(y - fit) / sqrt(P_k)")
     ax[1].set_xlabel("t*")
     ax[1].axhline(0, color="k", lw=0.5)
@@ -70,7 +71,7 @@ def check_figure(d, path):
         a.set_ylabel(f"{p} [{'Pa' if p == 'G' else 'Pa s'}]", color=f"C{j}")
     ax[-1].set_xticks(np.arange(len(names)))
     ax[-1].set_xticklabels(names, fontsize=7)
-    ax[-1].set_title("window estimates (NHKV)", fontsize=9)
+    ax[-1].set_title(f"window estimates ({BASELINE.model})", fontsize=9)
     fig.suptitle(f"constant-parameter check: {d.result['constant_parameter_check']['verdict']} "
                  f"(p = {ev['p_value']:.3f})", fontsize=10)
     fig.tight_layout()
@@ -85,7 +86,7 @@ def candidates_figure(d, path):
     ax = fig.subplots(1, 2)
     for j, k in enumerate(keys):
         r = np.sqrt(np.nanmean((obs.R_star - d.curves[k]) ** 2, axis=0))
-        ax[0].plot(t[1:], r[1:], label=k, color=f"C{j}", lw=1.8 if k == "nhkv" else 1.0)
+        ax[0].plot(t[1:], r[1:], label=spec_of(k).model, color=f"C{j}", lw=1.8 if k == BASELINE.key else 1.0)
     ax[0].set_xlabel("t*")
     ax[0].set_ylabel("RMSE over experiments (whole-record fit)")
     ax[0].legend(fontsize=8)

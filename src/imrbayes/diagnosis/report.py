@@ -41,7 +41,7 @@ def write_report(result: dict, figures: list, path, title: str = "imrbayes diagn
 <p><b>Cause:</b> {esc(r['cause'])} &nbsp; <b>extended model:</b> {esc(r['extended_model'])}
 &nbsp; <b>constant-parameter check:</b> {esc(chk['verdict'])} (bootstrap p = {fmt(ev['p_value'], '.3f')},
 {ev['n_bootstrap']} replicates)</p>
-<h2>Baseline (NHKV, {esc(r['baseline']['method'])})</h2><p>{est}; RMSE {fmt(r['baseline']['rmse'])}</p>
+<h2>Baseline ({esc(r['baseline']['model'])}, {esc(r['baseline']['method'])})</h2><p>{est}; RMSE {fmt(r['baseline']['rmse'])}</p>
 {phases}
 <h2>Constant-parameter check</h2><p>{esc(ev['rule'])}</p>
 {stats}
