@@ -19,13 +19,12 @@ from __future__ import annotations
 
 import dataclasses
 import time
-import tomllib
 from pathlib import Path
 
 import click
 
 from imrbayes import __version__
-from imrbayes.cli import main
+from imrbayes.cli import main, read_config
 from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution,
                                   execution_options, key_values, method_settings, open_execution, prepare_out,
                                   prior_overrides)
@@ -35,40 +34,28 @@ from imrbayes.errors import InputError
 METHOD_NAMES = tuple(METHODS)
 
 
+#: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
+CONFIG_OPTIONS = ("method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "dt_star", "n_steps",
+                  "noise", "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES)
+CONFIG_TABLES = ("forward", "prior", "mcmc", *METHOD_NAMES)
+
+
 def _load_config(path) -> dict:
-    """The ``[fit]`` table of a TOML file (or its top level), with the method tables
-    (``[fit.en4dvar]`` or top-level ``[en4dvar]``) merged in."""
-    if path is None:
-        return {}
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise InputError(p, "config file not found")
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(p, f"not valid TOML: {exc}")
-    section = data.get("fit", data)
-    if not isinstance(section, dict):
-        raise InputError(p, "[fit] must be a table")
-    cfg = {k.replace("-", "_"): v for k, v in section.items()}
-    for name in METHOD_NAMES + ("forward", "prior"):
-        if name not in cfg and isinstance(data.get(name), dict):
-            cfg[name] = data[name]
-    known = {"method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "dt_star", "n_steps", "noise",
-             "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES}
-    unknown = {k for k, v in cfg.items() if k not in known and not (section is data and isinstance(v, dict))}
-    if unknown:
-        raise InputError(p, f"unknown option(s) {sorted(unknown)} for 'imrbayes fit'; known: {sorted(known)}")
+    """``--config``: the ``[fit]`` table (or the top level) as :func:`imrbayes.cli.read_config`
+    reads it, with fit's own readings: ``[fit.mcmc]`` turns MCMC on with its settings, and
+    ``forward`` may be a list of ``"KEY=VALUE"``."""
+    cfg = read_config(path, "fit", options=CONFIG_OPTIONS, tables=CONFIG_TABLES,
+                      shared=("forward", "prior", *METHOD_NAMES))   # a top-level [mcmc] does not turn MCMC on
     if isinstance(cfg.get("mcmc"), dict):        # [fit.mcmc] table: MCMC on, with these settings
         cfg["mcmc_table"], cfg["mcmc"] = cfg.pop("mcmc"), True
     if "mcmc" in cfg and not isinstance(cfg["mcmc"], bool):
-        raise InputError(p, "mcmc must be true/false or a table of MCMC settings")
+        raise InputError(path, "mcmc must be true/false or a table of MCMC settings")
     for name in ("forward", "prior", *METHOD_NAMES):
         v = cfg.get(name)
         if name == "forward" and isinstance(v, (list, tuple)):
             cfg[name] = key_values(v, "--config forward")
         elif v is not None and not isinstance(v, dict):
-            raise InputError(p, f"{name} must be a table")
+            raise InputError(path, f"{name} must be a table")
     return cfg
 
 

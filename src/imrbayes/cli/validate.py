@@ -6,13 +6,14 @@ from pathlib import Path
 
 import click
 
-from imrbayes.cli import main
+from imrbayes.cli import config_option, main
 from imrbayes.cli.options import (check_options, echo_execution, execution_options, key_values, open_execution,
                                   prepare_out)
 from imrbayes.errors import InputError
 
 
 @main.command("validate")
+@config_option
 @click.option("--suite", type=click.Choice(["quick", "full"]), default="quick", show_default=True,
               help="quick: polytropic bubble, about a minute; full: IMRv2 thermal bubble and the paper's IMR "
                    "grid (tens of minutes).")

@@ -41,8 +41,8 @@ def posterior_tree(result, obs):
     import arviz as az
     import xarray as xr
 
-    coords = {k: (v[1] if isinstance(v, tuple) else v) for k, v in result.coords.items()
-              if not isinstance(v, tuple)}
+    # plain coordinates index a dimension; (dims, values) tuples (window_start) are attached below
+    coords = {k: v for k, v in result.coords.items() if not isinstance(v, tuple)}
     coords.setdefault("experiment", list(obs.names))
     data = {"posterior": dict(result.posterior), "observed_data": {"R_obs": obs.R_star}}
     dims = dict(result.posterior_dims)
@@ -62,7 +62,27 @@ def posterior_tree(result, obs):
             if dim in result.coords and not isinstance(result.coords[dim], tuple):
                 ds = ds.assign_coords({dim: np.asarray(result.coords[dim])})
         dt[group] = xr.DataTree(ds)
+    _attach_tuple_coords(dt, result.coords)
     return dt
+
+
+def _attach_tuple_coords(dt, coords: dict) -> None:
+    """Put each ``(dims, values)`` coordinate (e.g. MIEnKS's ``window_start``: ``("window", t0)``,
+    or a 2-column ``(("window", "bound"), spans)``) on every group of ``dt`` that has its first
+    dimension, with the plain coordinates of its other dimensions; netCDF stores them as
+    non-index coordinates, so they round-trip."""
+    import xarray as xr
+
+    tupled = {k: (((v[0],) if isinstance(v[0], str) else tuple(v[0])), np.asarray(v[1]))
+              for k, v in coords.items() if isinstance(v, tuple)}
+    for group in list(dt.children):
+        ds = dt[group].to_dataset()
+        add = {k: v for k, v in tupled.items() if v[0][0] in ds.dims}
+        if not add:
+            continue
+        others = {d: np.asarray(coords[d]) for dims, _ in add.values() for d in dims[1:]
+                  if d not in ds.coords and d in coords and not isinstance(coords[d], tuple)}
+        dt[group] = xr.DataTree(ds.assign_coords({**others, **add}))
 
 
 def write_posterior(path, result, obs) -> Path:

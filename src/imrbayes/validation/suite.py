@@ -297,7 +297,8 @@ SUITES = {"quick": list(CASES), "full": list(CASES)}
 
 def case_unit(unit, rng) -> dict:
     """Unit ``case=<name>``: one validation case (its figures go to the run's ``figures``). A case
-    that raises is a failed case (reported in its row), as before."""
+    that raises is left to raise: the execution layer records it as a failed unit (so
+    ``--resume --retry-failed`` reruns it) and :func:`run_suite` reports it as a failed row."""
     import json
 
     from imrbayes.io import jsonable
@@ -305,10 +306,7 @@ def case_unit(unit, rng) -> dict:
     d = unit.data
     fm = ForwardModel("nhkv", options=d["forward"])
     t0 = time.perf_counter()
-    try:
-        r = CASES[d["name"]](d["suite"], fm, Path(d["figures"]), d["seed"])
-    except Exception as exc:  # a crashing case is a failed case, reported
-        r = {"passed": False, "criteria": "", "metrics": {}, "figures": [], "error": f"{type(exc).__name__}: {exc}"}
+    r = CASES[d["name"]](d["suite"], fm, Path(d["figures"]), d["seed"])
     r = {"name": d["name"], **r, "runtime_s": time.perf_counter() - t0}
     return json.loads(json.dumps(jsonable(r), default=str))
 
@@ -332,10 +330,10 @@ def run_suite(suite: str, out: Path, seed: int = 0, cases=None, forward: dict | 
     rows = []
     for name in names:
         r = rep.results.get(f"case={name}")
-        if r is None:
-            f = rep.failures[f"case={name}"]
+        if r is None:  # the case raised (or its worker died): a failed row with the unit's "Type: message"
+            uid = f"case={name}"
             r = {"name": name, "passed": False, "criteria": "", "metrics": {}, "figures": [],
-                 "error": f"unit failed: {f.error}", "runtime_s": float("nan")}
+                 "error": rep.failures[uid].error, "runtime_s": rep.unit_seconds.get(uid, float("nan"))}
         rows.append(r)
         if progress is not None:
             progress(r)
