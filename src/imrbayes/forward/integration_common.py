@@ -2,8 +2,9 @@
 the output grid, the time pieces of piecewise-constant parameters, and the member's final status.
 
 numba functions; ``_codegen`` hashes this file into the per-model kernel's name. The loop helpers
-are inlined into the loops in numba's IR (``inline="always"``), so the loops compile to the same
-code as when these lines were written out in each of them (bit-identical trajectories). Times are dimensionless (t*); ``t_eval`` (m,) is the
+are inlined into the loops in numba's IR (``inline="always"``): as separate compiled functions they
+changed Radau's dense output in the last bit; inlined, Radau's R* is bit-identical to the loops with
+these lines written out. Times are dimensionless (t*); ``t_eval`` (m,) is the
 increasing output grid and ``r_out`` (m,) the member's R* there, written in order: ``k_eval`` is
 the first output not written yet.
 """
