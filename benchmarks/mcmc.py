@@ -38,10 +38,10 @@ from pathlib import Path
 import numpy as np
 
 from imrbayes.ensemble import ParamSpace
-from imrbayes.ensemble.output import jsonable
+from imrbayes.io import jsonable
 from imrbayes.ensemble.windows import mda_weights, window_spans
 from imrbayes.forward import ForwardModel
-from imrbayes.mcmc import GaussianPrior, MCMCSettings, WindowTarget, run_mcmc
+from imrbayes.mcmc import MCMCSettings, WindowTarget, run_mcmc
 from imrbayes.validation.suite import TRUTH, verification_data
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -62,8 +62,7 @@ def window_target(fm, obs, j: int, L: int = 35, h: int = 5):
         ne = obs.rmax_m.size
         out = fm.propagate(st, {"G": np.full(ne, TRUTH["G"]), "mu": np.full(ne, TRUTH["mu"])}, float(obs.t_star[a]))
         st = out.end
-    space = ParamSpace.for_model(fm.constitutive)
-    prior = GaussianPrior.from_space(space)
+    prior = ParamSpace.for_model(fm.constitutive)
     tg = WindowTarget(fm, st, obs.t_star[a:b + 1], obs.R_star[:, a:b + 1], obs.P[a:b + 1], prior, beta / L,
                       list(obs.names), description={"kind": "verification window", "index": int(j), "L": L, "h": h,
                                                     "state": "truth propagated to the window start"})
@@ -80,7 +79,7 @@ def window_costs(fm, obs, n_draws: int = 64, seed: int = 0, repeat: int = 3) -> 
     for j in range(len(window_spans(n_steps, 35, 5))):
         tg, span = window_target(fm, obs, j)
         rng = np.random.default_rng(seed + j)
-        Z = tg.prior.mean + rng.standard_normal((n_draws, tg.ndim)) @ np.linalg.cholesky(tg.prior.cov).T
+        Z = tg.prior.prior_mean + rng.standard_normal((n_draws, tg.ndim)) @ np.linalg.cholesky(tg.prior.prior_cov).T
         tg.log_prob(Z[:2])
         best = np.inf
         for _ in range(repeat):

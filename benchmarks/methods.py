@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
-from imrbayes.ensemble import METHODS, IMRSettings, ParamSpace, Runner
-from imrbayes.ensemble.output import jsonable
-from imrbayes.forward import ForwardModel
+from imrbayes.ensemble import METHODS, IMRSettings, ParamSpace
+from imrbayes.forward import ForwardModel, Runner
+from imrbayes.io import jsonable
 from imrbayes.validation.suite import TRUTH, verification_data
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -59,13 +59,12 @@ def main():
         obs.t_collapse_star = _collapse_times(fm, obs)
         space = ParamSpace.for_model(fm.constitutive)
         for m in args.methods:
-            fn, cls = METHODS[m]
-            s = cls()
+            s = METHODS[m].settings_class()
             if m == "imr" and args.imr_grid == "coarse":
                 s = IMRSettings(n_G=40, n_mu=25)
             runner = Runner(fm)
             t0 = time.perf_counter()
-            res = fn(fm, obs, space, s, seed=args.seed, runner=runner)
+            res = METHODS[m].fit(fm, obs, space, s, seed=args.seed, runner=runner)
             wall = time.perf_counter() - t0
             e = res.estimate
             row = {"forward": fkey, "method": m, "wall_s": wall, "member_runs": runner.n_member_runs,

@@ -62,7 +62,7 @@ def _once(ex, units, seed, store_dir=None):
 
 def _fit_once(fm, obs, space, settings, seed, ex):
     from imrbayes.ensemble import fit_mienks
-    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Execution
 
     execution = Execution(executor=ex, progress=False)
     t = time.perf_counter()

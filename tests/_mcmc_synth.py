@@ -9,7 +9,7 @@ import numpy as np
 
 from imrbayes.data.noise import paper_sigma
 from imrbayes.forward import ForwardModel, ForwardOptions
-from imrbayes.mcmc.target import GaussianPrior
+from imrbayes.ensemble import ParamSpace
 
 TRUTH = {"G": 7.29e3, "mu": 0.088}
 RMAX = np.array([263e-6, 250e-6, 280e-6])
@@ -23,14 +23,14 @@ def model() -> ForwardModel:
     return ForwardModel("nhkv", options=ForwardOptions(bubble="polytropic"))
 
 
-def paper_prior(box_sd=10.0) -> GaussianPrior:
+def paper_prior(box_sd=10.0) -> ParamSpace:
     m, s = [], []
     for name in ("G", "mu"):
         mean, sd = PAPER_PRIOR_SI[name]
         s2 = np.log1p((sd / mean) ** 2)
         m.append(np.log(mean) - 0.5 * s2)
         s.append(np.sqrt(s2))
-    return GaussianPrior(np.array(m), np.diag(np.square(s)), [True, True], ("G", "mu"), "internal", box_sd)
+    return ParamSpace(("G", "mu"), [True, True], np.array(m), np.diag(np.square(s)), box_sd=box_sd)
 
 
 class Obs:
@@ -72,7 +72,7 @@ class GaussianTarget:
         self.cov = np.asarray(cov, float)
         self.prec = np.linalg.inv(self.cov)
         d = self.mean.size
-        self.prior = GaussianPrior(self.mean, 25.0 * self.cov, [False] * d, tuple(f"x{i}" for i in range(d)))
+        self.prior = ParamSpace(tuple(f"x{i}" for i in range(d)), [False] * d, self.mean, 25.0 * self.cov)
         self.internal_names = list(self.prior.names)
         self.ndim = d
         self.n_evals = 0

@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +29,9 @@ def digest(folder: Path) -> dict:
 
 
 def assert_bad_input(result, name: str, problem: str | None = None):
+    # first: no exception escaped the command (a bug, not bad input); if one did, show its traceback
+    escaped = None if isinstance(result.exception, (SystemExit, type(None))) else result.exception
+    assert escaped is None, "".join(traceback.format_exception(escaped))
     assert result.exit_code == 2, (result.exit_code, result.output, result.exception)
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1, result.stderr
@@ -36,7 +40,6 @@ def assert_bad_input(result, name: str, problem: str | None = None):
     if problem:
         assert problem in lines[0], lines[0]
     assert "Traceback" not in result.output and "Traceback" not in result.stderr
-    assert not isinstance(result.exception, Exception) or isinstance(result.exception, SystemExit)
 
 
 # ----------------------------------------------------------------------------- success paths

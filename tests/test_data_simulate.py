@@ -191,10 +191,11 @@ def test_simulate_forward_failure_is_one_line_exit_1(fake, tmp_path):
 
 
 def test_simulate_real_forward_model_end_to_end(tmp_path):
-    """The verification case of methods.md §5 through the real forward model, then inspect."""
-    fm_mod = pytest.importorskip("imrbayes.forward")
-    if not hasattr(fm_mod, "ForwardModel"):
-        pytest.skip("imrbayes.forward.ForwardModel not available")
+    """The verification case of methods.md §5 through the real forward model, then inspect. Never
+    skipped: the forward model is part of imrbayes, so its absence is a failure."""
+    from imrbayes.forward.model import ForwardModel as real_model
+
+    assert fwd.ForwardModel is real_model and fwd.ForwardModel is not FakeModel     # not the fixture's fake
     out = tmp_path / "syn"
     res = sim(*BASE, "--rmax", "263e-6", "--ratio", "7.58", "--n-exp", "2", "--noise", "paper", "--seed", "0",
               "--forward", "bubble=polytropic", "--out", out)

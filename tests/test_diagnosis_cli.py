@@ -18,7 +18,7 @@ def test_diagnose_cli_writes_contract(tmp_path):
                                   "--candidates", "qkv", "--no-loeo", "--forward", "bubble=polytropic"])
     assert r.exit_code == 0, r.output
     d = json.loads((out / "diagnosis.json").read_text())
-    for key in ("baseline", "constant_parameter_check", "candidates", "cause", "extended_model", "gain"):
+    for key in ("baseline", "constant_parameter_check", "candidates", "cause", "extended_model", "gain", "warnings"):
         assert key in d
     assert d["baseline"]["model"] == "nhkv" and d["baseline"]["misfit_by_phase"]
     assert d["constant_parameter_check"]["verdict"] in ("adequate", "inadequate")

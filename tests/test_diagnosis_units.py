@@ -90,14 +90,32 @@ def test_damage_batch_equals_one_call_per_experiment():
 
 
 def test_consistency_rule_rejects_extensions_that_point_the_wrong_way():
-    from imrbayes.diagnosis.run import _consistent
+    from imrbayes.diagnosis.candidates import CANDIDATES
 
-    def cand(key, **medians):
-        return {"key": key, "estimate": {k: {"median": v} for k, v in medians.items()}}
+    def ok(key, **medians):
+        return CANDIDATES[key].consistent(medians)[0]
 
-    assert _consistent(cand("carreau", n=0.6, lambda_c=1e-5))[0]
-    assert not _consistent(cand("carreau", n=3.7, lambda_c=1e-5))[0]      # shear thickening
-    assert _consistent(cand("qkv", alpha=0.3))[0] and not _consistent(cand("qkv", alpha=-0.1))[0]
-    assert _consistent(cand("damage", a_G=0.8, a_mu=1.2))[0]
-    assert not _consistent(cand("damage", a_G=1.1, a_mu=1.3))[0]
-    assert _consistent(cand("zener", lambda1=1e-6))[0]
+    assert ok("carreau", n=0.6, lambda_c=1e-5)
+    assert not ok("carreau", n=3.7, lambda_c=1e-5)      # shear thickening
+    assert ok("qkv", alpha=0.3) and not ok("qkv", alpha=-0.1)
+    assert ok("damage", a_G=0.8, a_mu=1.2)
+    assert not ok("damage", a_G=1.1, a_mu=1.3)
+    assert ok("zener", lambda1=1e-6)
+    assert "softening" in CANDIDATES["qkv"].consistent({"alpha": -0.1})[1]
+
+
+def test_a_registered_candidate_needs_nothing_else(monkeypatch):
+    """One declaration + one registry entry: the candidate is built, fitted in z and named in the
+    vocabulary without touching any other module."""
+    from imrbayes.diagnosis.candidates import CANDIDATES, CandidateSpec, Extension
+
+    spec = CandidateSpec("zener-free", "viscoelastic-relaxation", "zener",
+                         extension=(Extension("lambda1", np.log(1e-6), 1.5, log=True),
+                                    Extension("lambda2", np.log(1e-7), 1.5, log=True)))
+    monkeypatch.setitem(CANDIDATES, spec.key, spec)
+    c = make_candidate("zener-free", OPTS, prior={"G": (5e3, 2e3)})
+    assert c.names == ("G", "mu", "lambda1", "lambda2") and c.d == 4 and not c.piecewise
+    assert c.space.prior_si["G"] == (5e3, 2e3)
+    P = c.forward_params(np.log([[6e3, 0.05, 2e-6, 3e-7]]))
+    assert P.shape == (1, 1, 4) and np.allclose(P[0, 0], [6e3, 0.05, 2e-6, 3e-7])
+    assert spec.consistent({"lambda1": 1e-6, "lambda2": 1e-7}) == (True, "")

@@ -75,6 +75,9 @@ def test_fit_every_method(dataset, tmp_path, method, sets):
     assert {"posterior", "observed_data"} <= set(dt.children)
     s = az.summary(dt, kind="stats", round_to="none")
     assert np.all(np.isfinite(s["mean"]))
+    if method == "mienks":       # each window's first t*, a coordinate of the posterior's windows
+        starts = dt["posterior"]["window_start"]
+        assert starts.dims == ("window",) and list(starts.values) == [w["t_star"][0] for w in summary["windows"]]
     if method == "en4dvar":
         assert "log_likelihood" in dt.children
         assert dict(dt["log_likelihood"].sizes) == {"chain": 1, "draw": 6, "experiment": 3, "time": 120}

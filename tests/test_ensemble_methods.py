@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from _ens_synth import TRUTH, observations, space
-from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, Runner, fit_en4dvar, fit_imr,
-                               fit_mienks)
+from imrbayes.ensemble import En4DVarSettings, IMRSettings, MIEnKSSettings, fit_en4dvar, fit_imr, fit_mienks
 from imrbayes.ensemble.imr import collapse_indices, fit_indices
 from imrbayes.errors import InputError
+from imrbayes.forward import Runner
 
 
 def test_imr_optimum_within_one_grid_cell():

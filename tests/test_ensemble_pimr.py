@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from _ens_synth import model, space
-from imrbayes.ensemble import Observations, PIMRSettings, Runner, fit_pimr
+from imrbayes.ensemble import Observations, PIMRSettings, fit_pimr
+from imrbayes.forward import Runner
 from imrbayes.ensemble.pimr import T_RC, collapse_time, contents_factor
 from imrbayes.forward import ForwardModel
 

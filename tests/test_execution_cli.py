@@ -65,3 +65,33 @@ def test_validate_cases_are_units(tmp_path):
     assert "0 computed, 2 from checkpoints" in res.output
     res = _run("validate", "--case", "imr-recovery", "--out", tmp_path / "a", "--resume", expect=2)
     assert "cannot resume" in res.output
+
+
+def test_validate_crashing_case_is_a_failed_unit_that_retry_failed_reruns(tmp_path, monkeypatch):
+    """A case that raises is a failed unit (recorded as failed, not checkpointed as done): a plain
+    --resume reports it again without rerunning it, --resume --retry-failed reruns it. The user
+    still sees a FAIL row with the error, and validation.json holds it."""
+    from imrbayes.validation import suite
+
+    calls = []
+
+    def flaky(name, fm, out, seed):
+        calls.append(name)
+        if len(calls) == 1:
+            raise RuntimeError("boom")
+        return {"passed": True, "criteria": "ran again", "metrics": {}, "figures": []}
+
+    monkeypatch.setitem(suite.CASES, "flaky", flaky)
+    out = tmp_path / "v"
+    res = _run("validate", "--case", "flaky", "--out", out, expect=1)
+    assert "FAIL  flaky" in res.output and "RuntimeError: boom" in res.output
+    assert "1 cases: 1 computed, 0 from checkpoints, 1 failed" in res.output
+    row = json.loads((out / "validation.json").read_text())["cases"][0]
+    assert (row["name"], row["passed"], row["error"]) == ("flaky", False, "RuntimeError: boom")
+    assert not (out / "units" / "case=flaky.npz").exists()
+    res = _run("validate", "--case", "flaky", "--out", out, "--resume", expect=1)     # reported again, not rerun
+    assert len(calls) == 1 and "RuntimeError: boom" in res.output
+    res = _run("validate", "--case", "flaky", "--out", out, "--resume", "--retry-failed")
+    assert len(calls) == 2 and "PASS  flaky" in res.output
+    assert "1 cases: 1 computed, 0 from checkpoints, 0 failed" in res.output
+    assert json.loads((out / "validation.json").read_text())["passed"]

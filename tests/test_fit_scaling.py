@@ -179,7 +179,7 @@ class _Failing:
     """A runner that raises for one experiment (by its Rmax), from a given window start t* on."""
 
     def __init__(self, fm, rmax, t_from=0.0):
-        from imrbayes.ensemble import Runner
+        from imrbayes.forward import Runner
 
         self.inner, self.rmax, self.t_from = Runner(fm), rmax, t_from
         self.fm = fm
@@ -200,7 +200,7 @@ class _Failing:
 
 def test_failed_units_are_contained_counted_and_retried(tmp_path):
     from imrbayes.ensemble import En4DVarSettings, IMRSettings, MIEnKSSettings, fit_en4dvar, fit_imr, fit_mienks
-    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Execution
     from imrbayes.execution import RunStore
 
     fm, obs = observations(n_exp=3, n_steps=60)

@@ -6,10 +6,10 @@ import pytest
 from scipy import integrate
 
 from _mcmc_synth import TRUTH, model, observations, paper_prior
+from imrbayes.ensemble import ParamSpace
 from imrbayes.errors import InputError
 from imrbayes.forward import BatchState, Propagation
-from imrbayes.mcmc.target import (GaussianPrior, WindowTarget, fitting_window_target, loglik_pointwise,
-                                  window_target_from_ensemble)
+from imrbayes.mcmc.target import WindowTarget, fitting_window_target, loglik_pointwise, window_target_from_ensemble
 
 Z_TRUE = np.log([TRUTH["G"], TRUTH["mu"]])
 
@@ -87,7 +87,7 @@ def test_batching_order_and_failures_give_minus_inf():
 
 def test_prior_natural_scale_has_the_jacobian():
     """A Gaussian stated on theta > 0 and sampled in z = log theta integrates to one over z."""
-    pr = GaussianPrior([5.0], [[1.0]], [True], ("a",), scale="natural")
+    pr = ParamSpace(("a",), [True], [5.0], [[1.0]], scale="natural")
     f = lambda z: np.exp(pr.log_prob(np.array([[z]]))[0])           # noqa: E731
     total, _ = integrate.quad(f, pr.lower[0], pr.upper[0], limit=200)
     from scipy import stats
@@ -95,12 +95,12 @@ def test_prior_natural_scale_has_the_jacobian():
     assert total == pytest.approx(inside, abs=1e-8) and inside > 1 - 1e-5      # the box cuts < 1e-5
     zi = np.log(4.0)
     assert pr.log_prob([[zi]])[0] == pytest.approx(stats.norm(5, 1).logpdf(4.0) + zi)
-    pi = GaussianPrior([1.5], [[0.04]], [True], ("a",))                  # internal: no Jacobian
+    pi = ParamSpace(("a",), [True], [1.5], [[0.04]])                  # internal: no Jacobian
     total, _ = integrate.quad(lambda z: np.exp(pi.log_prob(np.array([[z]]))[0]), 0.0, 3.0)
     assert total == pytest.approx(1.0, abs=1e-6)
     assert np.isneginf(pi.log_prob([[1.5 + 11 * 0.2]])[0])              # outside the 10-sd box
     with pytest.raises(InputError):
-        GaussianPrior([1.0, 2.0], [[1.0, 2.0], [2.0, 1.0]], [True, True])
+        ParamSpace((), [True, True], [1.0, 2.0], [[1.0, 2.0], [2.0, 1.0]])
 
 
 def test_window_target_from_handed_off_ensemble():

@@ -1,6 +1,7 @@
-"""MCMC of MIEnKS-MDA windows: chained priors, reconstructed start states, mcmc.nc layout and
-compare.json from the run files."""
+"""MCMC of MIEnKS-MDA windows: the recorded window posteriors (chained priors, MDA weights,
+handed-off start states), mcmc.nc layout and compare.json from the run files."""
 
+import dataclasses
 import json
 
 import arviz as az
@@ -10,10 +11,13 @@ import xarray as xr
 
 from _mcmc_synth import observations
 from imrbayes.ensemble import MIEnKSSettings, Observations, ParamSpace, fit_mienks
+from imrbayes.ensemble.mienks import rtps_cov
 from imrbayes.ensemble.output import summary_dict
+from imrbayes.ensemble.windows import mda_weights
 from imrbayes.mcmc import MCMCSettings
-from imrbayes.mcmc.windows import (chain_priors, compare_from_tree, mienks_window_specs, sample_windows,
-                                   window_seed, write_compare, write_mcmc)
+from imrbayes.mcmc.fit import fit_window_specs
+from imrbayes.mcmc.windows import (compare_from_tree, sample_windows, window_seed, window_specs, write_compare,
+                                   write_mcmc)
 
 
 @pytest.fixture(scope="module")
@@ -25,10 +29,22 @@ def fitted():
     return fm, obs, space, res
 
 
+def rederived_priors(windows, prior_mean, prior_cov, rtps, fusion):
+    """The window priors as the MCMC layer re-derived them from summary.json's windows before the
+    fit recorded them: RTPS of the previous window's fused covariance, chained from the prior."""
+    m, C = np.asarray(prior_mean, float), np.asarray(prior_cov, float)
+    out = []
+    for w in windows:
+        out.append((m.copy(), C.copy()))
+        if fusion == "chain":
+            m, C = np.asarray(w["mean_internal"], float), rtps_cov(C, np.asarray(w["cov_internal"], float), rtps)
+    return out
+
+
 def test_window_specs(fitted):
     fm, obs, space, res = fitted
     s = res.details["settings"]
-    specs = mienks_window_specs(fm, obs, space, res.windows, s)
+    specs = fit_window_specs(fm, obs, space, res)
     assert [sp.index for sp in specs] == list(range(len(res.windows))) == list(range(6))
     # window 0: the state at the maximum, the parameter prior, weights beta/L
     sp0 = specs[0]
@@ -41,21 +57,40 @@ def test_window_specs(fitted):
         np.testing.assert_allclose(specs[j].prior_mean, res.windows[j - 1]["mean_internal"])
         post_sd = np.sqrt(np.diag(res.windows[j - 1]["cov_internal"]))
         assert np.all(np.sqrt(np.diag(specs[j].prior_cov)) >= post_sd - 1e-15)
-    mda = mienks_window_specs(fm, obs, space, res.windows, {**s, "obs_weight": "mda"}, indices=[0])
-    assert mda[0].target.weight[0, 5] == pytest.approx(0.5)              # obs_weight="mda": beta only
-    pr = chain_priors(res.windows, space.prior_mean, space.prior_cov, 0.7, "prior")
-    assert all(np.allclose(m, space.prior_mean) for m, _ in pr)
-    # window 1 starts from experiment n's window-0 mean propagated over [0, t_5]
+    # the recorded priors and weights are exactly what the MCMC layer used to re-derive from summary.json
+    beta = mda_weights(obs.t_star.size - 1, s["L"], s["h"])
+    for (m, C), sp, w in zip(rederived_priors(res.windows, space.prior_mean, space.prior_cov, s["rtps"], "chain"),
+                             specs, res.window_posteriors):
+        np.testing.assert_array_equal(sp.prior_mean, m)
+        np.testing.assert_array_equal(sp.prior_cov, C)
+        np.testing.assert_array_equal(sp.target.prior.prior_cov, C)
+        a, b = w.samples
+        np.testing.assert_array_equal(w.weight, beta[w.index, a:b + 1] / s["L"])
+        assert sp.state_source == "handed-off ensemble mean"
+    # window 1 starts from the handed-off mean state, close to experiment n's window-0 mean propagated over [0, t_5]
     z = np.array([p["mean_internal"] for p in res.windows[0]["per_experiment"]])
     out = fm.propagate(fm.initial_state(obs.rmax_m, obs.req_m), np.exp(z), obs.t_star[5])
-    np.testing.assert_allclose(specs[1].target.start.y, out.end.y)
-    assert specs[1].target.t0 == pytest.approx(obs.t_star[5]) and specs[1].state_source == "reconstructed"
+    np.testing.assert_allclose(specs[1].target.start.R, out.end.R, rtol=0.05)
+    assert specs[1].target.t0 == pytest.approx(obs.t_star[5])
     assert window_seed(0, 1) != window_seed(0, 2) and window_seed(0, 1) == window_seed(0, 1)
+
+
+def test_recorded_priors_with_prior_fusion_and_mda_weights(fitted):
+    """fusion="prior": the parameter prior in every window; obs_weight="mda": weights beta_jk."""
+    fm, obs, space, _ = fitted
+    res = fit_mienks(fm, obs, space, MIEnKSSettings(n_ens=12, n_iter=3, L=15, h=5, n_draws=5, fusion="prior",
+                                                    obs_weight="mda"), seed=0)
+    specs = fit_window_specs(fm, obs, space, res, windows=[0, 2])
+    priors = rederived_priors(res.windows, space.prior_mean, space.prior_cov, 0.7, "prior")
+    for sp in specs:
+        np.testing.assert_array_equal(sp.prior_mean, space.prior_mean)
+        np.testing.assert_array_equal(sp.prior_cov, priors[sp.index][1])
+    assert specs[0].target.weight[0, 5] == pytest.approx(0.5)              # obs_weight="mda": beta only
 
 
 def test_sample_windows_write_and_compare_from_files(fitted, tmp_path):
     fm, obs, space, res = fitted
-    specs = mienks_window_specs(fm, obs, space, res.windows, res.details["settings"], indices=[0, 3])
+    specs = window_specs(fm, obs, space, res.window_posteriors, indices=[0, 3])
     out = sample_windows(specs, MCMCSettings(n_walkers=6, n_steps=60), seed=1, backend=tmp_path / "mcmc.h5",
                          progress=False)
     assert [r.spec.index for r in out] == [0, 3]
@@ -95,22 +130,20 @@ def test_sample_windows_write_and_compare_from_files(fitted, tmp_path):
 
 
 def test_specs_from_the_smoothers_handed_off_states(fitted):
-    """fit_mienks exposes each window's entering mean state; the specs start from it (not a
-    reconstruction), and an experiment with a NaN state is left out of that window's target."""
+    """fit_mienks records each window's entering mean state; the specs start from it, and an
+    experiment with a NaN state is left out of that window's target."""
     fm, obs, space, res = fitted
-    states = res.window_start_states
-    assert len(states) == len(res.windows)
-    np.testing.assert_array_equal(states[0], fm.initial_state(obs.rmax_m, obs.req_m).y)
-    specs = mienks_window_specs(fm, obs, space, res.windows, res.details["settings"], start_states=states)
-    recon = mienks_window_specs(fm, obs, space, res.windows, res.details["settings"])
-    for j, (sp, rc) in enumerate(zip(specs, recon)):
+    posts = res.window_posteriors
+    assert len(posts) == len(res.windows)
+    np.testing.assert_array_equal(posts[0].start_state, fm.initial_state(obs.rmax_m, obs.req_m).y)
+    specs = window_specs(fm, obs, space, posts)
+    for j, sp in enumerate(specs):
         assert sp.state_source == "handed-off ensemble mean"
-        np.testing.assert_array_equal(sp.target.start.y, states[j])
+        np.testing.assert_array_equal(sp.target.start.y, posts[j].start_state)
         assert sp.target.t0 == pytest.approx(obs.t_star[res.windows[j]["samples"][0]])
-        # the ensemble mean and the reconstruction from per-experiment means describe the same bubble
-        np.testing.assert_allclose(sp.target.start.R, rc.target.start.R, rtol=0.05)
-    cut = [s.copy() for s in states]
-    cut[2][0] = np.nan
-    sp2 = mienks_window_specs(fm, obs, space, res.windows, res.details["settings"], start_states=cut,
-                              indices=[2])[0]
+    q = posts[2].start_state.copy()
+    q[0] = np.nan
+    cut = list(posts)
+    cut[2] = dataclasses.replace(posts[2], start_state=q)
+    sp2 = window_specs(fm, obs, space, cut, indices=[2])[0]
     assert sp2.target.start.n == obs.R_star.shape[0] - 1 and sp2.target.y.shape[0] == obs.R_star.shape[0] - 1

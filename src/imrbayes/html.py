@@ -1,6 +1,8 @@
-"""Small helpers shared by the self-contained HTML reports (``imrbayes diagnose``, ``imrbayes report``):
-number formatting, escaping, tables and PNG figures embedded as base64 (no external CSS, JS or
-images, so one file can be mailed or archived on its own)."""
+"""The page skeleton and helpers shared by the self-contained HTML reports (``imrbayes report``:
+:mod:`imrbayes.report`; ``imrbayes diagnose``: :mod:`imrbayes.diagnosis.report`): the inline style
+sheet and page wrapper (:func:`page`, :func:`write_page`), number formatting, escaping, tables and
+PNG figures embedded as base64 (:func:`embed_png`, :func:`is_png`) -- no external CSS, JS or
+images, so one file can be mailed or archived on its own."""
 
 from __future__ import annotations
 
@@ -9,7 +11,9 @@ import html
 import math
 from pathlib import Path
 
-__all__ = ["CSS", "PNG_MAGIC", "esc", "fmt", "num", "table", "embed_png", "page"]
+from imrbayes.io import atomic_write_text
+
+__all__ = ["CSS", "PNG_MAGIC", "esc", "fmt", "num", "table", "is_png", "embed_png", "page", "write_page"]
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -69,6 +73,15 @@ def table(headers, rows, cls=None) -> str:
     return f"<table{attr}><tr>{head}</tr>{''.join(body)}</table>"
 
 
+def is_png(path) -> bool:
+    """Whether ``path`` can be read and starts with the PNG signature (what :func:`embed_png` embeds)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(PNG_MAGIC)) == PNG_MAGIC
+    except OSError:
+        return False
+
+
 def embed_png(path, caption: str | None = None, title: str | None = None) -> str:
     """A PNG file as an inline ``<img>`` (base64 data URI), optionally inside a captioned figure."""
     path = Path(path)
@@ -85,3 +98,10 @@ def page(title: str, body: str) -> str:
     """A complete HTML document with the shared inline style sheet."""
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(title)}</title>"
             f"<style>{CSS}</style></head><body>\n{body}\n</body></html>\n")
+
+
+def write_page(path, title: str, body: str) -> Path:
+    """:func:`page` written to ``path`` as UTF-8, atomically (folders created); returns ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return atomic_write_text(path, page(title, body))

@@ -26,16 +26,21 @@ import warnings
 from pathlib import Path
 
 from imrbayes import __version__
+from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
-from imrbayes.html import PNG_MAGIC, embed_png, esc, num, page, table
+from imrbayes.html import embed_png, esc, is_png, num, table, write_page
 
 __all__ = ["load_run", "write_run_report", "flagged_windows", "window_phase"]
 
 # Thresholds used when compare.json does not carry its own (imrbayes.mcmc.compare.THRESHOLDS).
 _DEFAULT_THRESHOLDS = {"kl_sym": 0.1, "w2": 0.5, "kl_sample": 0.1, "rhat": 1.01, "ess_bulk": 400.0, "tau_rule": 50.0}
 _CI_PROB = 0.95
-_METHOD_NAMES = {"imr": "standard IMR (grid least squares)", "pimr": "pIMR (collapse-time closed form)",
-                 "en4dvar": "ensemble 4D-Var (En4D-Var)", "mienks": "MIEnKS-MDA (sliding-window smoother)"}
+
+
+def _method(summary):
+    """The registered method (:data:`imrbayes.ensemble.METHODS`) that wrote ``summary``, or None."""
+    name = summary.get("method")
+    return METHODS.get(name) if isinstance(name, str) else None
 
 
 # ----------------------------------------------------------------------------------------- loading
@@ -434,7 +439,8 @@ def _section_config(s) -> str:
     prior = s.get("prior") or (s.get("details") or {}).get("parameter_space") or {}
     units = _units(s)
     method = s.get("method", "?")
-    rows = [("method", f"{esc(method)} — {esc(_METHOD_NAMES.get(method, ''))}"),
+    label = _method(s).label if _method(s) is not None else ""
+    rows = [("method", f"{esc(method)} — {esc(label)}"),
             ("constitutive model", esc(s.get("model", fwd.get("constitutive", "?")))),
             ("parameters", esc(", ".join(f"{p} [{units.get(p, '?')}]" for p in s.get("parameters", [])))),
             ("seed", esc(s.get("seed", cmd.get("seed", "–")))),
@@ -516,8 +522,9 @@ def _section_estimate(s) -> str:
         rows.append((esc(p), esc(units.get(p, "?")), _ncell(e.get("mean")), _ncell(e.get("sd"), ".3g"),
                      _ncell(e.get("median")), _ncell(hdi[0]), _ncell(hdi[1])))
     out = "<h2 id='estimate'>Estimate (SI units)</h2>"
-    if s.get("method") == "mienks":
-        out += "<p>Precision-weighted aggregate over the whole record (all windows).</p>"
+    note = _method(s).estimate_note if _method(s) is not None else ""
+    if note:
+        out += f"<p>{esc(note)}</p>"
     out += table(["parameter", "unit", "mean", "sd", "median", "95 % HDI lower", "95 % HDI upper"], rows)
     if any((s["estimate"].get(p) or {}).get("sd") is None for p in s.get("parameters", [])):
         det = s.get("details") or {}
@@ -754,12 +761,7 @@ def _section_figures(run) -> str:
         return out + "<p class='absent'>No figures: figures/*.png is absent.</p>"
     parts, bad = [], []
     for p in run["figures"]:
-        try:
-            with open(p, "rb") as fh:
-                ok = fh.read(8) == PNG_MAGIC
-        except OSError:
-            ok = False
-        if not ok:
+        if not is_png(p):
             bad.append(p.name)
             continue
         parts.append(embed_png(p, caption=f"<code>figures/{esc(p.name)}</code>: {_caption(p)}", title=p.stem))
@@ -789,8 +791,7 @@ def write_run_report(run_dir, path=None) -> Path:
         _section_compare(run), _section_flagged(run), _section_figures(run),
         f"<p class='note'>Written {now} by imrbayes {esc(__version__)} (<code>imrbayes report</code>).</p>"])
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(page(title, body), encoding="utf-8")
+        write_page(path, title, body)
     except OSError as exc:
         raise InputError(path, f"cannot be written ({exc.strerror or exc})")
     return path

@@ -54,7 +54,7 @@ def compare_cmd(run_dir, out, pairs, quiet):
     Writes compare.json (per window: moments of both, Gaussian KL both ways, W2, sample KL, R-hat,
     ESS, MCSE, Mardia, the agree flag and why) and figures/mcmc_*.png.
     """
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import write_json
     from imrbayes.mcmc.figures import comparison_figures
     from imrbayes.mcmc.windows import compare_from_tree
 
@@ -93,7 +93,7 @@ def compare_cmd(run_dir, out, pairs, quiet):
     if failed:
         compare["overall"]["failed_windows"] = failed
     figures = comparison_figures(compare, out / "figures", tree, t_star, R_star, pairs=pairs)
-    (out / "compare.json").write_text(json.dumps(jsonable(compare), indent=1, allow_nan=False) + "\n")
+    write_json(out / "compare.json", compare)
     if not quiet:
         from imrbayes.cli.options import compare_line
         click.echo(compare_line(compare))

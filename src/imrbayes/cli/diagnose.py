@@ -6,7 +6,6 @@ Writes ``diagnosis.json``, a self-contained ``report.html`` and ``figures/*.png`
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -17,6 +16,7 @@ from imrbayes import __version__
 from imrbayes.cli import config_option, main
 from imrbayes.cli.options import (check_options, data_fingerprint, echo_execution, execution_options, key_values,
                                   open_execution, prepare_out)
+from imrbayes.diagnosis.candidates import CANDIDATES, DEFAULT_CANDIDATES
 from imrbayes.errors import InputError
 
 
@@ -34,9 +34,10 @@ from imrbayes.errors import InputError
                    "(IMRv2's Nt = Mt = 25).")
 @click.option("--n-bootstrap", type=int, default=None,
               help="Bootstrap replicates of the constant-parameter check [-] [default: 39; --quick 19].")
-@click.option("--candidates", default=None,
-              help="Comma-separated candidate models (qkv, fung, zener, carreau, damage) [default: "
-                   "qkv,zener,carreau,damage].")
+@click.option("--candidates", default=None, metavar="KEY[,KEY...]",
+              help="Comma-separated candidate models: "
+                   + "; ".join(f"{k} ({c.mechanism})" for k, c in CANDIDATES.items())
+                   + f" [default: {','.join(DEFAULT_CANDIDATES)}].")
 @click.option("--no-loeo", is_flag=True, default=False, help="Skip leave-one-experiment-out (N_exp extra fits per model).")
 @click.option("--experiments", default=None,
               help="Use only these experiments (comma-separated 1-based indices, e.g. 1,2,3).")
@@ -48,17 +49,16 @@ from imrbayes.errors import InputError
 def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_loeo, experiments, camera, dt_star,
                  n_steps, quiet, workers, scheduler, resume, retry_failed):
     """Diagnose DATA: baseline NHKV fit and misfit by phase (t* = dimensionless time), a bootstrap-
-    calibrated constant-parameter check, candidate mechanisms (strain-stiffening, viscoelastic-
-    relaxation, rate-dependent-viscosity, damage-softening) ranked by held-out prediction, and the gain
-    of the extended model (RMSE in R* = R/Rmax, ELPD in nats). SI units for all parameters."""
+    calibrated constant-parameter check, candidate mechanisms (see --candidates) ranked by held-out
+    prediction, and the gain of the extended model (RMSE in R* = R/Rmax, ELPD in nats). SI units for
+    all parameters."""
     t_start = time.perf_counter()
     from imrbayes.data import load_dataset, preprocess_dataset
-    from imrbayes.diagnosis import CANDIDATES, DiagnoseSettings, diagnose
+    from imrbayes.diagnosis import DiagnoseSettings, diagnose
     from imrbayes.diagnosis.figures import write_figures
-    from imrbayes.diagnosis.models import _SPECS
     from imrbayes.diagnosis.report import write_report
     from imrbayes.ensemble import Observations
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import write_json
     from imrbayes.forward import ForwardOptions
     from imrbayes.forward.constants import Physics
 
@@ -72,12 +72,12 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         kw["n_bootstrap"] = int(n_bootstrap)
     if candidates:
         keys = tuple(c.strip() for c in candidates.split(",") if c.strip())
-        bad = [k for k in keys if k not in _SPECS or k == "nhkv"]
+        bad = [k for k in keys if k not in CANDIDATES]
         if bad or not keys:
-            raise InputError("--candidates", f"unknown candidate(s) {bad}; known: qkv, fung, zener, carreau, damage")
+            raise InputError("--candidates", f"unknown candidate(s) {bad}; known: {', '.join(CANDIDATES)}")
         kw["candidates"] = keys
     else:
-        kw["candidates"] = CANDIDATES
+        kw["candidates"] = DEFAULT_CANDIDATES
     if no_loeo:
         kw["loeo"] = False
     s = DiagnoseSettings.quick(**kw) if quick else DiagnoseSettings(**kw)
@@ -146,7 +146,7 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     res["failures"] = {"skipped_experiments": list(pre.skipped), "failed_units": res.get("failed_units", [])}
     res["total_runtime_s"] = time.perf_counter() - t_start
     figs = write_figures(d, out / "figures")
-    (out / "diagnosis.json").write_text(json.dumps(jsonable(res), indent=1) + "\n")
+    write_json(out / "diagnosis.json", res)
     write_report(res, figs, out / "report.html", title=f"imrbayes diagnose: {ds.name}")
     if not quiet:
         chk = res["constant_parameter_check"]
@@ -159,6 +159,8 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
                        f"{g['elpd_diff']:.1f} ± {g['elpd_se']:.1f}")
         click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")
     echo_execution(exec_summary, quiet)
+    for w in res.get("warnings", []):            # what the diagnosis left out (also in diagnosis.json)
+        click.echo(f"imrbayes: warning: {w}", err=True)
     if pre.skipped:
         click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
                    + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)

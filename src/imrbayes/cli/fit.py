@@ -9,83 +9,60 @@ as a list of ``"KEY=VALUE"``), plus tables ``forward`` (forward-model options; a
 ``pimr``, ``en4dvar``, ``mienks`` (method settings, as ``--set``), e.g. ``[fit.en4dvar]``, and
 ``mcmc`` (``true``, or a table of MCMC settings as ``--mcmc-set`` plus ``windows``).
 
-``--mcmc`` (methods ``mienks`` and ``en4dvar``) then samples every window's posterior with emcee
-(:mod:`imrbayes.mcmc.fit`: one execution unit per window) and writes ``mcmc.nc``, ``compare.json``
-and ``figures/mcmc_*.png``.
+``--mcmc`` (methods with a Gaussian posterior: ``mienks`` and ``en4dvar``) then samples every
+window's posterior with emcee (:mod:`imrbayes.mcmc.fit`: one execution unit per window) and writes
+``mcmc.nc``, ``compare.json`` and ``figures/mcmc_*.png``. The methods, their settings, figures and
+labels come from the registry :data:`imrbayes.ensemble.METHODS`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-import tomllib
 from pathlib import Path
 
 import click
 
 from imrbayes import __version__
-from imrbayes.cli import main
+from imrbayes.cli import main, read_config
 from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution,
                                   execution_options, key_values, method_settings, open_execution, prepare_out,
                                   prior_overrides)
+from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
 
-METHOD_NAMES = ("imr", "pimr", "en4dvar", "mienks")
+METHOD_NAMES = tuple(METHODS)
+
+
+#: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
+CONFIG_OPTIONS = ("method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "dt_star", "n_steps",
+                  "noise", "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES)
+CONFIG_TABLES = ("forward", "prior", "mcmc", *METHOD_NAMES)
 
 
 def _load_config(path) -> dict:
-    """The ``[fit]`` table of a TOML file (or its top level), with the method tables
-    (``[fit.en4dvar]`` or top-level ``[en4dvar]``) merged in."""
-    if path is None:
-        return {}
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise InputError(p, "config file not found")
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(p, f"not valid TOML: {exc}")
-    section = data.get("fit", data)
-    if not isinstance(section, dict):
-        raise InputError(p, "[fit] must be a table")
-    cfg = {k.replace("-", "_"): v for k, v in section.items()}
-    for name in METHOD_NAMES + ("forward", "prior"):
-        if name not in cfg and isinstance(data.get(name), dict):
-            cfg[name] = data[name]
-    known = {"method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "dt_star", "n_steps", "noise",
-             "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES}
-    unknown = {k for k, v in cfg.items() if k not in known and not (section is data and isinstance(v, dict))}
-    if unknown:
-        raise InputError(p, f"unknown option(s) {sorted(unknown)} for 'imrbayes fit'; known: {sorted(known)}")
+    """``--config``: the ``[fit]`` table (or the top level) as :func:`imrbayes.cli.read_config`
+    reads it, with fit's own readings: ``[fit.mcmc]`` turns MCMC on with its settings, and
+    ``forward`` may be a list of ``"KEY=VALUE"``."""
+    cfg = read_config(path, "fit", options=CONFIG_OPTIONS, tables=CONFIG_TABLES,
+                      shared=("forward", "prior", *METHOD_NAMES))   # a top-level [mcmc] does not turn MCMC on
     if isinstance(cfg.get("mcmc"), dict):        # [fit.mcmc] table: MCMC on, with these settings
         cfg["mcmc_table"], cfg["mcmc"] = cfg.pop("mcmc"), True
     if "mcmc" in cfg and not isinstance(cfg["mcmc"], bool):
-        raise InputError(p, "mcmc must be true/false or a table of MCMC settings")
+        raise InputError(path, "mcmc must be true/false or a table of MCMC settings")
     for name in ("forward", "prior", *METHOD_NAMES):
         v = cfg.get(name)
         if name == "forward" and isinstance(v, (list, tuple)):
             cfg[name] = key_values(v, "--config forward")
         elif v is not None and not isinstance(v, dict):
-            raise InputError(p, f"{name} must be a table")
+            raise InputError(path, f"{name} must be a table")
     return cfg
-
-
-def _total_runs(method, s, n_exp, n_steps):
-    if method == "imr":
-        return s.n_G * s.n_mu * n_exp + n_exp
-    if method == "pimr":
-        return n_exp
-    if method == "en4dvar":
-        return s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
-    from imrbayes.ensemble.windows import n_windows
-    return n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
 
 
 @main.command("fit")
 @click.argument("data", type=click.Path(path_type=Path))
 @click.option("--method", type=click.Choice(METHOD_NAMES), default=None,
-              help="Inference method: imr (grid least squares), pimr (collapse-time closed form), en4dvar "
-                   "(ensemble 4D-Var, constant parameters), mienks (sliding-window smoother, time-resolved).")
+              help="Inference method: " + "; ".join(f"{m.name}: {m.label}" for m in METHODS.values()) + ".")
 @click.option("--model", default=None, help="Constitutive model [default: nhkv].")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Output folder (default: a new folder under ./imrbayes-runs/).")
@@ -162,15 +139,16 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     mcmc_windows = _window_list(pick("mcmc_windows", mcmc_windows, mcmc_cfg.pop("windows", None)))
     if (mcmc_settings or mcmc_windows is not None) and not mcmc:
         raise InputError("--mcmc-set" if mcmc_settings else "--mcmc-windows", "needs --mcmc")
-    if mcmc and method not in ("mienks", "en4dvar"):
-        raise InputError("--mcmc", f"needs --method mienks or en4dvar (a Gaussian posterior to check), got {method}")
+    meth = METHODS[method]
+    if mcmc and not meth.gaussian_posterior:
+        checkable = " or ".join(m.name for m in METHODS.values() if m.gaussian_posterior)
+        raise InputError("--mcmc", f"needs --method {checkable} (a Gaussian posterior to check), got {method}")
 
     from imrbayes.data import load_dataset, preprocess_dataset
-    from imrbayes.ensemble import METHODS, Observations, ParamSpace, Runner
-    from imrbayes.forward import ForwardModel, ForwardOptions
+    from imrbayes.ensemble import Observations, ParamSpace
+    from imrbayes.forward import ForwardModel, ForwardOptions, Runner
 
-    fit_fn, settings_cls = METHODS[method]
-    s = method_settings(settings_cls, cfg.get(method, {}), {**key_values(cfg.get("set", []), "--config set"),
+    s = method_settings(meth.settings_class, cfg.get(method, {}), {**key_values(cfg.get("set", []), "--config set"),
                                                        **key_values(settings, "--set")})
     prior = prior_overrides(cfg.get("prior", {}), key_values(priors, "--prior"))
     mcmc_s = None
@@ -201,7 +179,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     compare = None
     with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
                         retry_failed=retry_failed, quiet=quiet) as execution:
-        res = fit_fn(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
+        res = meth.fit(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
         if mcmc:
             # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
             _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
@@ -276,13 +254,7 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     write_summary(out / "summary.json", summary)
     posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
     fdir = out / "figures"
-    written = [figs.fit_figure(obs, res, fdir / "fit.png")]
-    if method in ("imr", "pimr"):
-        written.append(figs.landscape_figure(res, fdir / "landscape.png"))
-    if method == "en4dvar":
-        written.append(figs.experiments_figure(res, fdir / "experiments.png"))
-    if method == "mienks":
-        written.append(figs.time_resolved_figure(res, fdir / "parameters.png"))
+    written = [figs.fit_figure(obs, res, fdir / "fit.png")] + list(METHODS[method].figures(obs, res, fdir))
     if compare is not None:
         written += list(compare.get("figures", []))
     return written

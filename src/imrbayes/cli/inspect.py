@@ -10,8 +10,9 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
-from imrbayes.cli.options import jsonable, prepare_out
+from imrbayes.cli.options import prepare_out
 from imrbayes.errors import InputError
+from imrbayes.io import jsonable, write_json
 
 
 def _fmt(x, digits=4) -> str:
@@ -95,7 +96,7 @@ def inspect_cmd(data, out, as_json, dt_star, n_steps, camera, rmax_method, colla
     record = pre.to_dict()
     record["command"] = {"name": "inspect", "data": str(data), "dt_star": dt_star, "n_steps": n_steps,
                          "camera": camera, "imrbayes_version": __version__}
-    (out / "dataset.json").write_text(json.dumps(jsonable(record), indent=1) + "\n")
+    write_json(out / "dataset.json", record)
     radius_figure(pre, out / "figures" / "radius.png")
     if as_json:
         table = {"dataset": ds.name, "path": ds.path, "format": ds.format, "material": ds.material,

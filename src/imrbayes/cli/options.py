@@ -1,4 +1,5 @@
-"""Shared command-line helpers: option parsing, run folders, and the plumbing of the execution layer (docs/scaling.md): ``--workers``,
+"""Shared command-line helpers: option parsing, run folders (:func:`new_run_dir`, :func:`prepare_out`,
+from :mod:`imrbayes.io`), and the plumbing of the execution layer (docs/scaling.md): ``--workers``,
 ``--scheduler``, ``--resume``, ``--retry-failed`` for ``fit``, ``diagnose`` and ``validate``.
 
 The run directory is ``--out``: ``run.json`` (the exact configuration, its fingerprint, the
@@ -12,18 +13,16 @@ import contextlib
 import dataclasses
 import hashlib
 import math
-import re
 import sys
-from datetime import datetime
-from pathlib import Path
 
 import click
 import numpy as np
 
 from imrbayes.errors import InputError
+from imrbayes.io import new_run_dir, prepare_out  # the run folders' home; the commands take them from here
 
 __all__ = ["execution_options", "open_execution", "data_fingerprint", "echo_execution", "check_options", "new_run_dir",
-           "prepare_out", "jsonable", "key_values", "coerce_setting", "method_settings", "prior_overrides", "compare_line"]
+           "prepare_out", "key_values", "coerce_setting", "method_settings", "prior_overrides", "compare_line"]
 
 
 def execution_options(with_workers: bool = True):
@@ -76,10 +75,10 @@ def check_options(workers, scheduler, resume, retry_failed) -> tuple:
 def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=False, retry_failed=False,
                    quiet: bool = False):
     """RunStore under ``out`` for ``config`` + the executor ``--workers/--scheduler`` ask for, as an
-    :class:`imrbayes.ensemble.units.Execution`. Bad options and refused resumes raise InputError."""
-    from imrbayes.ensemble.output import jsonable
-    from imrbayes.ensemble.units import Execution
+    :class:`imrbayes.execution.Execution`. Bad options and refused resumes raise InputError."""
+    from imrbayes.execution import Execution
     from imrbayes.execution import RunStore, make_executor
+    from imrbayes.io import jsonable
 
     workers, scheduler, resume, retry_failed = check_options(workers, scheduler, resume, retry_failed)
     # the executor first: an unreachable --scheduler must not leave a new run directory behind
@@ -114,53 +113,6 @@ def echo_execution(summary: dict, quiet: bool, what: str = "units") -> None:
 
 
 # ----------------------------------------------------------------------------- helpers
-def new_run_dir(kind: str, name: str, base: Path = Path("imrbayes-runs")) -> Path:
-    """A fresh folder ``base/<kind>-<name>-<YYYYmmdd-HHMMSS>[-k]`` (created)."""
-    slug = re.sub(r"[^A-Za-z0-9._-]+", "_", name)[:60] or "run"
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    path = base / f"{kind}-{slug}-{stamp}"
-    k = 2
-    while path.exists():
-        path = base / f"{kind}-{slug}-{stamp}-{k}"
-        k += 1
-    return path
-
-
-def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = None) -> Path:
-    if out is None:
-        out = new_run_dir(kind, name)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError("--out", f"{out} exists and is not a directory")
-    if protect is not None:
-        p = protect if protect.is_dir() else protect.parent
-        if out.resolve() == p.resolve():
-            raise InputError("--out", f"{out} is the data folder; choose another folder (input files are "
-                                      f"never written to)")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError("--out", f"cannot create {out}: {exc.strerror or exc}")
-    return out
-
-
-
-def jsonable(obj):
-    if isinstance(obj, dict):
-        return {k: jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    return obj
-
-
-
 def key_values(items, option: str, numeric: bool = False) -> dict:
     """``["KEY=VALUE", ...]`` from a repeatable option as a dict. Numeric values become finite floats
     (keys kept as given: parameter names); other values stay strings with dashes in their keys read

@@ -10,7 +10,7 @@ import numpy as np
 
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
-from imrbayes.cli.options import jsonable, key_values, prepare_out
+from imrbayes.cli.options import key_values, prepare_out
 from imrbayes.errors import InputError
 
 
@@ -162,6 +162,6 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
                              "MEAN:SD), then the noise of each experiment in turn; phases and scatter from "
                              "SeedSequence(seed, spawn_key=(1,)) and (2,)",
              "imrbayes_version": __version__}
-    syn.write_dataset(out, records, jsonable(meta), jsonable(truth))
+    syn.write_dataset(out, records, meta, truth)
     if not quiet:
         click.echo(f"wrote {n_exp} experiment(s), meta.json and truth.json to {out}")

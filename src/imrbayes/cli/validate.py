@@ -6,13 +6,14 @@ from pathlib import Path
 
 import click
 
-from imrbayes.cli import main
+from imrbayes.cli import config_option, main
 from imrbayes.cli.options import (check_options, echo_execution, execution_options, key_values, open_execution,
                                   prepare_out)
 from imrbayes.errors import InputError
 
 
 @main.command("validate")
+@config_option
 @click.option("--suite", type=click.Choice(["quick", "full"]), default="quick", show_default=True,
               help="quick: polytropic bubble, about a minute; full: IMRv2 thermal bubble and the paper's IMR "
                    "grid (tens of minutes).")
@@ -29,9 +30,7 @@ def validate_cmd(suite, cases, out, seed, forward, quiet, workers, scheduler, re
     Rmax = 263 µm, Rmax/Req = 7.58, five noisy experiments) for En4D-Var and MIEnKS-MDA, IMR and
     pIMR recovery checks, and the fusion rule. Writes validation.json and figures; exit status 1 if
     any case fails."""
-    import json
-
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import write_json
     from imrbayes.validation import CASES, run_suite
 
     unknown = [c for c in cases if c not in CASES]
@@ -58,7 +57,7 @@ def validate_cmd(suite, cases, out, seed, forward, quiet, workers, scheduler, re
         report = run_suite(suite, out, seed=seed, cases=list(dict.fromkeys(cases)) or None, forward=fwd,
                            progress=show, execution=execution)
         report["execution"] = execution.summary()
-    (out / "validation.json").write_text(json.dumps(jsonable(report), indent=1) + "\n")
+    write_json(out / "validation.json", report)
     if not quiet:
         n_ok = sum(r["passed"] for r in report["cases"])
         click.echo(f"{n_ok}/{len(report['cases'])} passed in {report['runtime_s']:.0f} s; wrote {out / 'validation.json'}")

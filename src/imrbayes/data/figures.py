@@ -1,6 +1,6 @@
 """Figure of a preprocessed dataset (``imrbayes inspect``): raw R(t) and resampled R*(t*) with P_k.
 
-Uses matplotlib's object API with the Agg canvas (no pyplot, no global backend switch).
+Uses :mod:`imrbayes.plotting` (matplotlib's object API with the Agg canvas; no pyplot).
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from imrbayes.data.pipeline import Preprocessed
+from imrbayes.plotting import figure, label, save
 
 __all__ = ["radius_figure"]
 
@@ -21,12 +22,8 @@ def radius_figure(pre: Preprocessed, path, title: str | None = None) -> Path:
     resampled R* against t*, each experiment thin, the mean thick, mean ± sqrt(P_k) shaded.
     """
     import matplotlib
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
 
-    path = Path(path)
-    fig = Figure(figsize=(11.0, 4.2), layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = figure(11.0, 4.2)
     ax1, ax2 = fig.subplots(1, 2)
     n = len(pre.experiments)
     cmap = matplotlib.colormaps["viridis"]
@@ -47,7 +44,7 @@ def radius_figure(pre: Preprocessed, path, title: str | None = None) -> Path:
     ax1.set_ylabel("radius R [µm]")
     ax1.set_title("measured (▼ first collapse)")
     ax2.set_xlabel(r"$t^* = t\,\sqrt{p_\infty/\rho}\,/\,R_{max}$")
-    ax2.set_ylabel(r"$R^* = R/R_{max}$")
+    ax2.set_ylabel(label("R_star"))
     ax2.set_title(f"resampled, dt* = {pre.choices['dt_star']:g}, {pre.n_steps} steps "
                   f"(P_k: {pre.choices['noise']['method']})", fontsize=9)
     ax2.legend(loc="upper right", fontsize=8)
@@ -56,6 +53,4 @@ def radius_figure(pre: Preprocessed, path, title: str | None = None) -> Path:
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
     fig.suptitle(title or f"{pre.dataset.name}: {n} experiment(s)", fontsize=11)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    return path
+    return save(fig, path, dpi=120)

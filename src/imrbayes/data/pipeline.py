@@ -17,6 +17,7 @@ from imrbayes.data import preprocess as pp
 from imrbayes.data.noise import P_FLOOR_ABS, P_FLOOR_REL, noise_variance
 from imrbayes.data.records import Dataset
 from imrbayes.errors import InputError
+from imrbayes.io import jsonable
 
 __all__ = ["ExperimentSummary", "Preprocessed", "preprocess_dataset"]
 
@@ -66,20 +67,10 @@ class ExperimentSummary:
         return self.ratio * self.req_sd_m / self.req_m
 
     def to_dict(self) -> dict:
-        d = {k: _json(v) for k, v in self.__dict__.items()}
-        d["rmax_over_req"] = _json(self.ratio)
-        d["rmax_over_req_sd"] = _json(self.ratio_sd)
+        d = {k: jsonable(v) for k, v in self.__dict__.items()}
+        d["rmax_over_req"] = jsonable(self.ratio)
+        d["rmax_over_req_sd"] = jsonable(self.ratio_sd)
         return d
-
-
-def _json(v):
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    if isinstance(v, np.ndarray):
-        return [_json(float(x)) for x in v]
-    if isinstance(v, (np.floating, np.integer)):
-        return _json(v.item())
-    return v
 
 
 @dataclass
@@ -140,8 +131,8 @@ class Preprocessed:
             "skipped": self.skipped,
         }
         if arrays:
-            out["grid"] = {"t_star": _json(self.t_star), "P": _json(self.P),
-                           "R_star": {e.name: _json(self.R_star[i]) for i, e in enumerate(self.experiments)}}
+            out["grid"] = {"t_star": jsonable(self.t_star), "P": jsonable(self.P),
+                           "R_star": {e.name: jsonable(self.R_star[i]) for i, e in enumerate(self.experiments)}}
         return out
 
 
@@ -153,8 +144,8 @@ def summarise(experiments) -> dict:
     out = {}
     for k, v in cols.items():
         a = np.asarray(v, dtype=float)
-        out[k] = {"mean": _json(float(a.mean())), "sd": _json(float(a.std(ddof=1)) if a.size > 1 else math.nan),
-                  "min": _json(float(a.min())), "max": _json(float(a.max()))}
+        out[k] = {"mean": jsonable(float(a.mean())), "sd": jsonable(float(a.std(ddof=1)) if a.size > 1 else math.nan),
+                  "min": jsonable(float(a.min())), "max": jsonable(float(a.max()))}
     return out
 
 

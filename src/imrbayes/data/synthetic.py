@@ -17,7 +17,6 @@ flat maximum the mirror is exact to second order, which is all the preprocessing
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ import numpy as np
 from imrbayes.data.csvio import write_experiment_csv
 from imrbayes.data.noise import paper_sigma
 from imrbayes.errors import InputError
+from imrbayes.io import write_json
 
 __all__ = ["Spec", "parse_spec", "parse_noise", "noise_sd", "draw_values", "noisy", "simulate_dataset", "write_dataset",
            "camera_times", "draw_phases", "draw_scatter", "PHASE_STREAM", "SCATTER_STREAM"]
@@ -192,6 +192,6 @@ def write_dataset(out: Path, records: list, meta: dict, truth: dict) -> list:
         name = f"exp_{i:03d}.csv"
         write_experiment_csv(out / name, t_s, R_m)
         names.append(name)
-    (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
-    (out / "truth.json").write_text(json.dumps(truth, indent=2) + "\n")
+    write_json(out / "meta.json", meta, indent=2)
+    write_json(out / "truth.json", truth, indent=2)
     return names

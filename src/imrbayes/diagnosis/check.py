@@ -84,7 +84,8 @@ def window_drift(cand, obs, phases, full) -> tuple:
 
 def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0) -> dict:
     """Window fits and the statistics of ``obs`` under the baseline candidate ``base`` (with
-    ``mienks``, an :class:`~imrbayes.ensemble.mienks.MIEnKSSettings`, also ``mienks_drift``)."""
+    ``mienks``, an :class:`~imrbayes.ensemble.mienks.MIEnKSSettings`, also ``mienks_drift``, or,
+    when it cannot be computed, ``mienks_error``: the one-line error)."""
     full = fit_map(base, obs, minima=phases.minima, starts=starts)
     drift, fits = window_drift(base, obs, phases, full)
     r2 = (obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2 / obs.P[None, 1:]
@@ -97,10 +98,14 @@ def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0) -> di
     if mienks is not None:
         try:
             T, det = mienks_drift(base, obs, mienks, seed=seed)
-        except (RuntimeError, ValueError, np.linalg.LinAlgError):   # smoother lost every member: no statistic
-            T, det = float("nan"), {}
-        if np.isfinite(T):
-            out["mienks_drift"], out["mienks"] = T, det
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:   # e.g. the smoother lost its members
+            msg = str(exc).splitlines()
+            out["mienks_error"] = f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__
+        else:
+            if np.isfinite(T):
+                out["mienks_drift"], out["mienks"] = T, det
+            else:
+                out["mienks_error"] = f"the statistic is not finite ({T})"
     return out
 
 
@@ -114,11 +119,12 @@ def bootstrap_unit(unit, rng) -> dict:
     """Unit ``bootstrap=007``: one replicate -- a synthetic dataset of the data's design from the
     baseline curves ``R0`` with noise sd ``sd`` (drawn from the unit's own ``rng``), processed as the
     data; returns its statistics. The baseline candidate is rebuilt from (options, physics, prior)."""
+    from imrbayes.diagnosis.candidates import BASELINE
     from imrbayes.diagnosis.models import make_candidate
 
     d = unit.data
     obs = d["obs"]
-    base = make_candidate("nhkv", d["options"], d["physics"], d["prior"])
+    base = make_candidate(BASELINE.key, d["options"], d["physics"], d["prior"])
     R0, sd = d["R0"], d["sd"]
     Y = R0 + sd[None, :] * rng.standard_normal(R0.shape)
     Y[:, 0] = 1.0
@@ -140,7 +146,7 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     whose unit fails counts against rejection (its statistics are treated as +inf)."""
     import dataclasses
 
-    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Execution
     from imrbayes.execution import Unit
 
     stats = STATS + (("mienks_drift",) if mienks is not None and "mienks_drift" in observed else ())
@@ -151,7 +157,7 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     # replicates' re-estimated P_k match the data's
     spread = np.var(R0, axis=0, ddof=1) if obs.n_exp >= 2 else np.zeros_like(obs.P)
     sd = np.sqrt(np.maximum(obs.P - spread, 0.25 * obs.P))
-    build = build or {"options": base.fm.options, "physics": base.fm.physics, "prior": getattr(base, "prior", None)}
+    build = build or {"options": base.fm.options, "physics": base.fm.physics, "prior": dict(base.space.prior_si)}
     common = {**build, "obs": obs, "phases": phases, "R0": R0, "sd": sd, "z0": z0, "stats": list(stats),
               "mienks": mienks if "mienks_drift" in stats else None}
     units = [Unit(f"bootstrap={b:03d}", {**common, "seed": seed + 1000 + b}) for b in range(B)]

@@ -1,4 +1,5 @@
-"""Figures of a diagnosis (matplotlib, Agg): residuals by phase, bootstrap check, candidates."""
+"""Figures of a diagnosis (:mod:`imrbayes.plotting`: object API, Agg canvas): residuals by phase,
+bootstrap check, candidates."""
 
 from __future__ import annotations
 
@@ -6,32 +7,26 @@ from pathlib import Path
 
 import numpy as np
 
+from imrbayes.diagnosis.candidates import BASELINE, spec_of
+from imrbayes.plotting import figure, save
+
 __all__ = ["write_figures"]
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def residuals_figure(d, path):
-    plt = _plt()
     obs, ph = d.obs, d.phases
     t = obs.t_star
-    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig = figure(8, 6, layout=None)
+    ax = fig.subplots(2, 1, sharex=True)
     for i in range(obs.n_exp):
         ax[0].plot(t, obs.R_star[i], ".", ms=2, color=f"C{i % 10}")
-        ax[0].plot(t, d.curves["nhkv"][i], "-", lw=1, color=f"C{i % 10}")
-        ax[1].plot(t[1:], (obs.R_star[i, 1:] - d.curves["nhkv"][i, 1:]) / np.sqrt(obs.P[1:]), "-", lw=0.7,
+        ax[0].plot(t, d.curves[BASELINE.key][i], "-", lw=1, color=f"C{i % 10}")
+        ax[1].plot(t[1:], (obs.R_star[i, 1:] - d.curves[BASELINE.key][i, 1:]) / np.sqrt(obs.P[1:]), "-", lw=0.7,
                    color=f"C{i % 10}")
     for b in ph.bounds[1:-1]:
         for a in ax:
             a.axvline(t[b], color="0.6", ls=":")
-    ax[0].set_ylabel("R* (dots: data, lines: NHKV fit)")
+    ax[0].set_ylabel(f"R* (dots: data, lines: {BASELINE.model} fit)")
     ax[1].set_ylabel("(y - fit) / sqrt(P_k)")
     ax[1].set_xlabel("t*")
     ax[1].axhline(0, color="k", lw=0.5)
@@ -39,17 +34,16 @@ def residuals_figure(d, path):
         ax[1].text(0.5 * (t[a] + t[b]), ax[1].get_ylim()[1] * 0.85, f"{info['phase']}\nrmse {info['rmse']:.3f}\n"
                    f"chi2 {info['chi2_norm']:.2f}", ha="center", va="top", fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def check_figure(d, path):
-    plt = _plt()
     ev = d.result["constant_parameter_check"]["evidence"]
     st = ev["statistics"]
     mw = ev.get("mienks_windows") or {}
     n_extra = 2 if mw.get("t_star_windows") else 1
-    fig, ax = plt.subplots(1, len(st) + n_extra, figsize=(3.2 * (len(st) + n_extra), 3.2))
+    fig = figure(3.2 * (len(st) + n_extra), 3.2, layout=None)
+    ax = fig.subplots(1, len(st) + n_extra)
     for a, (k, v) in zip(ax, st.items()):
         b = np.asarray(v["bootstrap"], dtype=float)
         a.hist(b[np.isfinite(b)], bins=12, color="0.7")
@@ -77,23 +71,22 @@ def check_figure(d, path):
         a.set_ylabel(f"{p} [{'Pa' if p == 'G' else 'Pa s'}]", color=f"C{j}")
     ax[-1].set_xticks(np.arange(len(names)))
     ax[-1].set_xticklabels(names, fontsize=7)
-    ax[-1].set_title("window estimates (NHKV)", fontsize=9)
+    ax[-1].set_title(f"window estimates ({BASELINE.model})", fontsize=9)
     fig.suptitle(f"constant-parameter check: {d.result['constant_parameter_check']['verdict']} "
                  f"(p = {ev['p_value']:.3f})", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def candidates_figure(d, path):
-    plt = _plt()
     obs = d.obs
     t = obs.t_star
     keys = list(d.curves)
-    fig, ax = plt.subplots(1, 2, figsize=(12, 4))
+    fig = figure(12, 4, layout=None)
+    ax = fig.subplots(1, 2)
     for j, k in enumerate(keys):
         r = np.sqrt(np.nanmean((obs.R_star - d.curves[k]) ** 2, axis=0))
-        ax[0].plot(t[1:], r[1:], label=k, color=f"C{j}", lw=1.8 if k == "nhkv" else 1.0)
+        ax[0].plot(t[1:], r[1:], label=spec_of(k).model, color=f"C{j}", lw=1.8 if k == BASELINE.key else 1.0)
     ax[0].set_xlabel("t*")
     ax[0].set_ylabel("RMSE over experiments (whole-record fit)")
     ax[0].legend(fontsize=8)
@@ -109,13 +102,12 @@ def candidates_figure(d, path):
     ax[1].legend(fontsize=7)
     ax[1].set_title(f"cause: {d.result['cause']}", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path)
 
 
 def write_figures(d, fdir) -> list:
+    """``residuals.png``, ``check.png`` and ``candidates.png`` under ``fdir`` (created); returns their paths."""
     fdir = Path(fdir)
-    fdir.mkdir(parents=True, exist_ok=True)
     out = []
     for name, fn in (("residuals.png", residuals_figure), ("check.png", check_figure),
                      ("candidates.png", candidates_figure)):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from imrbayes.diagnosis.candidates import BASELINE
 from imrbayes.diagnosis.lsq import fit_map, predict
 
 __all__ = ["forecast", "loeo", "loglik_draws", "elpd_compare", "paired"]
@@ -86,7 +87,7 @@ def _loo(az, ll):
     return t, az.loo(t)
 
 
-def elpd_compare(lls: dict, baseline: str = "nhkv") -> dict:
+def elpd_compare(lls: dict, baseline: str = BASELINE.key) -> dict:
     """``az.loo`` per model and ``az.compare`` against the baseline; lls: key -> (draws, n_exp, N_t).
 
     Level ``experiment`` (log-likelihood summed over time: leave one experiment out) first; if PSIS

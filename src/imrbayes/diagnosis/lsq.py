@@ -27,7 +27,7 @@ def predict(cand, z, obs, idx, minima, K: int) -> np.ndarray:
     t = obs.t_star[:K + 1]
     out = np.full((M, E, K + 1), np.nan)
     fm = cand.fm
-    if not cand.damage:
+    if not cand.piecewise:
         P = cand.forward_params(z)                                   # (M, 1, np)
         P = np.repeat(P, E, axis=0)                                   # member m*E + e
         rmax = np.tile(obs.rmax_m[idx], M)
@@ -37,7 +37,7 @@ def predict(cand, z, obs, idx, minima, K: int) -> np.ndarray:
         R = np.where(o.failed[:, None], np.nan, o.R_star)
         out[:] = R.reshape(M, E, K + 1)
         return out
-    # damage: each experiment breaks at its own collapses -> one batch with per-member break times
+    # piecewise: each experiment breaks at its own collapses -> one batch with per-member break times
     # (breaks_star (M*E, n_breaks)); experiments with fewer collapses inside the window are padded
     # with breaks after the last output time, where the extra pieces never act.
     brs = [[float(obs.t_star[m]) for m in minima[e] if 0 < m < K] for e in idx]

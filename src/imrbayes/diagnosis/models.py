@@ -1,54 +1,85 @@
-"""Baseline and candidate models for the diagnosis, each a map from internal coordinates z to
-forward-model parameters.
+"""A diagnosis candidate on a forward model: the map from internal coordinates z to forward-model
+parameters, and the prior of z.
 
-Every candidate nests the baseline (NHKV): ``strain-stiffening`` (qkv: alpha = 0; fung: alpha = 0),
-``viscoelastic-relaxation`` (zener with lambda2 = 0,
-so elastic and viscous stress relax over lambda1; lambda1 -> 0 is NHKV), ``rate-dependent-viscosity`` (carreau,
-mu_inf = 0: n = 1 or lambda_c -> 0), ``damage-softening`` (NHKV whose G and mu are multiplied by
-retention factors a_G, a_mu at every measured collapse of that experiment: piece j, after j
-collapses, has G a_G^j, mu a_mu^j; a = 1 is NHKV). Positive parameters are fitted in log space.
+The candidates themselves are declared in :mod:`imrbayes.diagnosis.candidates`; this module turns
+one declaration (and the user's prior of G, mu) into something the fits can use. Coordinates:
+z = (log G, log mu, extension...), log for positive parameters (:class:`ParamSpace`'s convention).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from imrbayes.ensemble.problem import PAPER_PRIOR
+from imrbayes.diagnosis.candidates import BASELINE, CandidateSpec, spec_of
+from imrbayes.ensemble.problem import ParamSpace
 from imrbayes.forward import ForwardModel
+from imrbayes.forward.constitutive import get_model
 
-__all__ = ["Candidate", "CANDIDATES", "MECHANISMS", "make_candidate"]
-
-MECHANISMS = ("none", "strain-stiffening", "viscoelastic-relaxation", "rate-dependent-viscosity",
-              "damage-softening", "unexplained")
+__all__ = ["Candidate", "make_candidate", "candidate_space"]
 
 
-def _lognormal(mean, sd):
-    s2 = np.log1p((sd / mean) ** 2)
-    return float(np.log(mean) - 0.5 * s2), float(np.sqrt(s2))
+def candidate_space(spec: CandidateSpec, prior: dict | None = None) -> ParamSpace:
+    """(G, mu) as :meth:`ParamSpace.for_model` of the baseline gives them (``prior``: name -> (mean, sd) SI,
+    default the paper's), then the spec's extension with its own prior (given in z, so it has no
+    ``prior_si`` entry)."""
+    base = ParamSpace.for_model(get_model(BASELINE.forward_model), prior)
+    ext = spec.extension
+    return ParamSpace(base.names + tuple(e.name for e in ext),
+                      np.concatenate([base.positive, np.array([e.log for e in ext], dtype=bool)]),
+                      np.concatenate([base.prior_mean, [float(e.mean) for e in ext]]),
+                      np.diag(np.concatenate([np.diag(base.prior_cov), [float(e.sd) ** 2 for e in ext]])),
+                      dict(base.prior_si))
 
 
 @dataclass
 class Candidate:
-    """A model to fit: ``names`` of the fitted parameters, which are log-transformed, the prior
-    (internal mean, sd), fixed forward parameters, and the forward model."""
+    """``spec`` (the declaration), ``space`` (fitted names, log transform, Gaussian prior of z) and
+    the forward model ``fm`` it runs on."""
 
-    key: str
-    mechanism: str
-    forward_name: str
-    names: tuple
-    log: tuple
-    prior_mean: np.ndarray
-    prior_sd: np.ndarray
-    fixed: dict = field(default_factory=dict)
-    damage: bool = False
-    fm: ForwardModel | None = None
+    spec: CandidateSpec
+    space: ParamSpace
+    fm: ForwardModel
+
+    @property
+    def key(self) -> str:
+        return self.spec.key
+
+    @property
+    def mechanism(self) -> str:
+        return self.spec.mechanism
+
+    @property
+    def forward_name(self) -> str:
+        return self.spec.forward_model
+
+    @property
+    def names(self) -> tuple:
+        return self.space.names
+
+    @property
+    def log(self) -> np.ndarray:
+        return self.space.positive
+
+    @property
+    def prior_mean(self) -> np.ndarray:
+        return self.space.prior_mean
+
+    @property
+    def prior_sd(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.space.prior_cov))
 
     @property
     def d(self) -> int:
-        return len(self.names)
+        return self.space.n
 
+    @property
+    def piecewise(self) -> bool:
+        """Parameters change at every measured collapse (forward solves need the break times)."""
+        return self.spec.pieces is not None
+
+    # Clipped (unlike ParamSpace.to_si): Levenberg-Marquardt steps and Laplace draws may wander far.
     def to_si(self, z) -> np.ndarray:
         z = np.asarray(z, dtype=float)
         return np.where(np.asarray(self.log), np.exp(np.clip(z, -50, 50)), z)
@@ -58,25 +89,19 @@ class Candidate:
         return np.where(np.asarray(self.log), np.log(np.abs(theta) + 1e-300), theta)
 
     def forward_params(self, z, n_pieces: int = 1) -> np.ndarray:
-        """(M, d) internal -> (M, n_pieces, n_params) SI forward parameters."""
+        """(M, d) internal -> SI forward parameters (M, P, n_params) in the forward model's order:
+        P = n_pieces for a piecewise candidate, else 1."""
         th = np.atleast_2d(self.to_si(z))
-        M = th.shape[0]
-        pnames = self.fm.constitutive.param_names
         vals = dict(zip(self.names, th.T))
-        if self.damage:
-            pieces = np.empty((M, n_pieces, 2))
-            j = np.arange(n_pieces)[None, :]
-            pieces[:, :, 0] = vals["G"][:, None] * vals["a_G"][:, None] ** j
-            pieces[:, :, 1] = vals["mu"][:, None] * vals["a_mu"][:, None] ** j
-            return pieces
-        out = np.empty((M, 1, len(pnames)))
+        if self.piecewise:
+            per = self.spec.pieces(vals, n_pieces)
+        else:
+            per = {n: v[:, None] for n, v in vals.items()}
+        pnames = self.fm.constitutive.param_names
+        P = n_pieces if self.piecewise else 1
+        out = np.empty((th.shape[0], P, len(pnames)))
         for i, p in enumerate(pnames):
-            if p in vals:
-                out[:, 0, i] = vals[p]
-            elif p == "lambda2" and "Lambda" in vals:
-                out[:, 0, i] = vals["Lambda"] * vals["lambda1"]
-            else:
-                out[:, 0, i] = self.fixed[p]
+            out[:, :, i] = per[p] if p in per else self.spec.fixed[p]
         return out
 
     def estimate(self, z, cov) -> dict:
@@ -96,30 +121,9 @@ class Candidate:
         return out
 
 
-# key: (mechanism, forward model, [(name, log, prior mean SI or internal, prior sd)], fixed)
-_SPECS = {
-    "nhkv": ("none", "nhkv", [], {}),
-    "qkv": ("strain-stiffening", "qkv", [("alpha", False, 0.0, 0.5)], {}),
-    "fung": ("strain-stiffening", "fung", [("alpha", False, 0.0, 0.3)], {}),
-    "zener": ("viscoelastic-relaxation", "zener",
-              [("lambda1", True, np.log(1e-6), 1.5)], {"lambda2": 0.0}),
-    "carreau": ("rate-dependent-viscosity", "carreau",
-                [("lambda_c", True, np.log(1e-6), 2.0), ("n", True, np.log(0.7), 0.6)], {"mu_inf": 0.0}),
-    "damage": ("damage-softening", "nhkv", [("a_G", True, 0.0, 0.7), ("a_mu", True, 0.0, 0.7)], {}),
-}
-CANDIDATES = ("qkv", "zener", "carreau", "damage")
-
-
 def make_candidate(key: str, options, physics=None, prior: dict | None = None) -> Candidate:
-    """The candidate ``key`` on a forward model with ``options`` (ForwardOptions)."""
-    mech, fwd, extra, fixed = _SPECS[key]
-    pr = {**PAPER_PRIOR, **(prior or {})}
-    names, log, pm, ps = [], [], [], []
-    for n in ("G", "mu"):
-        m, s = _lognormal(*pr[n])
-        names.append(n), log.append(True), pm.append(m), ps.append(s)
-    for n, lg, m, s in extra:
-        names.append(n), log.append(lg), pm.append(float(m)), ps.append(float(s))
-    fm = ForwardModel(fwd, options=options, physics=physics)
-    return Candidate(key, mech, fwd, tuple(names), tuple(log), np.array(pm), np.array(ps), dict(fixed),
-                     damage=(key == "damage"), fm=fm)
+    """The baseline (``nhkv``) or registered candidate ``key`` on a forward model with ``options``
+    (ForwardOptions) and ``physics``; ``prior``: (G, mu) prior overrides, name -> (mean, sd) SI."""
+    spec = spec_of(key)
+    return Candidate(spec, candidate_space(spec, prior), ForwardModel(spec.forward_model, options=options,
+                                                                      physics=physics))

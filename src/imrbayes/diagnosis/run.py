@@ -6,8 +6,10 @@ Decision rule (documented in docs/diagnosis.md):
 * every candidate gets a held-out score = mean over the held-out schemes run (forecast of the 3rd
   collapse from a fit to the 2nd; leave-one-experiment-out) of the relative RMSE reduction against
   the baseline; candidates are ranked by it (ELPD difference as tie-break);
-* a candidate whose fitted extension contradicts its mechanism (damage with both retention
-  factors >= 1, strain-stiffening with alpha <= 0, Carreau with n >= 1) is ranked after the others (``consistent``);
+* a candidate whose fitted extension contradicts its mechanism (its declaration's
+  ``points_right_way`` rule, :mod:`imrbayes.diagnosis.candidates`: damage with both retention
+  factors >= 1, strain-stiffening with alpha <= 0, Carreau with n >= 1) is ranked after the others
+  (``consistent``);
 * ``cause`` = ``none`` if the verdict is ``adequate``; otherwise the mechanism of the top-ranked
   candidate if it is consistent and its score is > 0, else ``unexplained``.
 """
@@ -19,11 +21,13 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from imrbayes.diagnosis.candidates import BASELINE, DEFAULT_CANDIDATES
 from imrbayes.diagnosis.check import bootstrap_check, statistics, window_drift
 from imrbayes.diagnosis.heldout import elpd_compare, forecast, loeo, loglik_draws, paired
 from imrbayes.diagnosis.lsq import predict
-from imrbayes.diagnosis.models import CANDIDATES, make_candidate
+from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
+from imrbayes.errors import InputError
 
 __all__ = ["DiagnoseSettings", "diagnose"]
 
@@ -31,12 +35,13 @@ __all__ = ["DiagnoseSettings", "diagnose"]
 @dataclass
 class DiagnoseSettings:
     """n_bootstrap: synthetic replicates of the check (>= 19 for a 5 % test); candidates: keys of
-    :data:`imrbayes.diagnosis.models.CANDIDATES` (and ``fung``); baseline_method: ``en4dvar`` (also
-    runs En4D-Var on the baseline and reports it) or ``map``; loeo: run leave-one-experiment-out;
-    n_draws: Laplace draws for the ELPD; alpha: level of the check; en4dvar_*: its settings."""
+    :data:`imrbayes.diagnosis.candidates.CANDIDATES` (default: those marked ``default``);
+    baseline_method: ``en4dvar`` (also runs En4D-Var on the baseline and reports it) or ``map``;
+    loeo: run leave-one-experiment-out; n_draws: Laplace draws for the ELPD; alpha: level of the
+    check; en4dvar_*: its settings."""
 
     n_bootstrap: int = 39
-    candidates: tuple = CANDIDATES
+    candidates: tuple = DEFAULT_CANDIDATES
     baseline_method: str = "en4dvar"
     loeo: bool = True
     n_draws: int = 100
@@ -71,23 +76,6 @@ def _phase_misfit(obs, phases, fitted):
     return out
 
 
-def _consistent(c) -> tuple:
-    """Does the fitted extension point the way its mechanism says? (damage: some retention factor
-    < 1; strain-stiffening: alpha > 0; rate-dependent viscosity: shear thinning, Carreau n < 1).
-    Other candidates: always."""
-    e = c["estimate"]
-    if c["key"] == "damage":
-        ok = e["a_G"]["median"] < 1.0 or e["a_mu"]["median"] < 1.0
-        return ok, "" if ok else "fitted a_G, a_mu >= 1: stiffening across collapses, not damage"
-    if c["key"] in ("qkv", "fung"):
-        ok = e["alpha"]["median"] > 0.0
-        return ok, "" if ok else "fitted alpha <= 0: strain softening, not stiffening"
-    if c["key"] == "carreau":
-        ok = e["n"]["median"] < 1.0
-        return ok, "" if ok else "fitted Carreau n >= 1: shear thickening, not the shear thinning of the mechanism"
-    return True, ""
-
-
 def candidate_unit(unit, rng) -> dict:
     """Unit ``candidate=<key>``: the MAP + Laplace fit of one candidate to the whole record."""
     from dataclasses import asdict as _asdict
@@ -119,13 +107,13 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
 
     The candidate fits (units ``candidate=<key>``) and the held-out fits of every model (units
     ``heldout=<key>``) run through the execution layer: ``execution``
-    (:class:`imrbayes.ensemble.units.Execution`) says where, and checkpoints them (default: this
+    (:class:`imrbayes.execution.Execution`) says where, and checkpoints them (default: this
     process). A candidate whose unit fails is left out of the ranking (reported in
     ``failed_units``); the baseline's own held-out fit must succeed."""
     from dataclasses import asdict as _asdict
 
     from imrbayes.diagnosis.lsq import MapFit
-    from imrbayes.ensemble.units import Execution
+    from imrbayes.execution import Execution
     from imrbayes.execution import Unit
 
     s = settings or DiagnoseSettings()
@@ -134,39 +122,45 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     say = log or (lambda msg: None)
     tick = progress or (lambda n=1: None)
     phases = phases_of(obs, s.max_collapses)
-    base = make_candidate("nhkv", options, physics, prior)
+    base = make_candidate(BASELINE.key, options, physics, prior)
     say("baseline fits (whole record, to the 1st and 2nd collapse)")
+    warnings = []               # what the diagnosis left out, one line each (diagnosis.json, stderr)
     mk = None
     if s.mienks_drift:
         from imrbayes.ensemble.mienks import MIEnKSSettings
         mk = MIEnKSSettings(n_ens=s.mienks_n_ens, n_iter=s.mienks_n_iter, n_draws=1)
         try:
             mk.check(obs.n_samples - 1)
-        except Exception:
+        except InputError as exc:   # settings this record cannot hold (e.g. a window longer than it)
+            warnings.append(f"mienks_drift left out of the check: {exc}")
             mk = None
     observed = statistics(base, obs, phases, mienks=mk, seed=seed)
+    if "mienks_error" in observed:
+        warnings.append(f"mienks_drift left out of the check: {observed['mienks_error']}")
     full = observed["fits"]["all"]
     tick(1)
-    baseline = {"model": "nhkv", "method": "map", "estimate": base.estimate(full.z, full.cov),
+    baseline = {"model": BASELINE.model, "method": "map", "estimate": base.estimate(full.z, full.cov),
                 "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2))),
                 "chi2_norm": observed["misfit"],
                 "misfit_by_phase": _phase_misfit(obs, phases, full.fitted),
                 "estimate_note": "MAP of all experiments jointly with a Laplace posterior (optimistic widths)"}
     if s.baseline_method == "en4dvar":
         say("baseline En4D-Var")
-        from imrbayes.ensemble import En4DVarSettings, ParamSpace, fit_en4dvar
-        sp = ParamSpace.for_model(base.fm.constitutive, prior)
-        en = fit_en4dvar(base.fm, obs, sp, En4DVarSettings(n_ens=s.en4dvar_n_ens, n_runs=s.en4dvar_n_runs,
-                                                           loglik=False, n_draws=1), seed=seed)
+        from imrbayes.ensemble import En4DVarSettings, fit_en4dvar
+        # its units (exp=..., post/exp=...) go through ``ex`` like every other: checkpointed, resumed
+        en = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(n_ens=s.en4dvar_n_ens, n_runs=s.en4dvar_n_runs,
+                                                                   loglik=False, n_draws=1), seed=seed, execution=ex)
         baseline.update({"method": "en4dvar", "estimate": en.estimate, "rmse_en4dvar": en.rmse,
                          "estimate_map": baseline["estimate"]})
+        warnings += [f"baseline En4D-Var: {w}" for w in en.warnings]
     say(f"constant-parameter check ({s.n_bootstrap} bootstrap replicates)")
     check = bootstrap_check(base, obs, phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
                             progress=tick, mienks=mk, execution=ex,
                             build={"options": options, "physics": physics, "prior": prior})
     # candidates
-    fits = {"nhkv": full}
-    cands = {"nhkv": base}
+    base_key = BASELINE.key
+    fits = {base_key: full}
+    cands = {base_key: base}
     common = {"options": options, "physics": physics, "prior": prior, "obs": obs, "phases": phases}
     say(f"candidates {', '.join(s.candidates)}")
     rep = ex.run([Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z}) for key in s.candidates],
@@ -181,8 +175,8 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     rep = ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "loeo": s.loeo})
                   for key in cands], heldout_unit, seed, desc="diagnose held-out fits")
     failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
-    if "heldout=nhkv" not in rep.results:
-        raise RuntimeError(f"the baseline's held-out fits failed ({rep.failures['heldout=nhkv'].error})")
+    if f"heldout={base_key}" not in rep.results:
+        raise RuntimeError(f"the baseline's held-out fits failed ({rep.failures[f'heldout={base_key}'].error})")
     held = {key: rep.results[f"heldout={key}"] for key in cands if f"heldout={key}" in rep.results}
     for key in list(cands):
         if key not in held:
@@ -191,29 +185,29 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         tick(1)
     kept = [k for k in s.candidates if k in cands]
     lls = {k: loglik_draws(c, obs, phases, fits[k], s.n_draws, seed + 7) for k, c in cands.items()}
-    elpd = elpd_compare(lls, "nhkv")
-    schemes = [k for k in ("forecast", "loeo") if k in held["nhkv"] and np.isfinite(held["nhkv"][k]["rmse"])]
+    elpd = elpd_compare(lls, base_key)
+    schemes = [k for k in ("forecast", "loeo") if k in held[base_key] and np.isfinite(held[base_key][k]["rmse"])]
     candidates = []
     for key in kept:
         c, f = cands[key], fits[key]
-        rel = {k: 1.0 - held[key][k]["rmse"] / held["nhkv"][k]["rmse"] for k in schemes}
+        rel = {k: 1.0 - held[key][k]["rmse"] / held[base_key][k]["rmse"] for k in schemes}
         score = float(np.mean(list(rel.values()))) if rel else float("nan")
         candidates.append({
-            "model": key if key != "damage" else "nhkv-piecewise", "key": key, "mechanism": c.mechanism,
+            "model": c.spec.model, "key": key, "mechanism": c.mechanism,
             "forward_model": c.forward_name, "estimate": c.estimate(f.z, f.cov),
             "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2))),
             "chi2_norm": f.chi2 / f.n_data,
             "misfit_by_phase": _phase_misfit(obs, phases, f.fitted),
             "heldout_rmse": held[key][schemes[0]]["rmse"] if schemes else float("nan"),
             "heldout_scheme": schemes[0] if schemes else None,
-            "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held["nhkv"][k]["per_experiment"],
+            "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held[base_key][k]["per_experiment"],
                                                                           held[key][k]["per_experiment"])}
                         for k in held[key]},
             "relative_reduction": rel, "score": score,
             "elpd_diff": elpd[key]["elpd_diff"], "elpd_se": elpd[key]["elpd_se"],
             "elpd": elpd[key], "converged": bool(f.converged)})
-    for d in candidates:
-        d["consistent"], d["consistency_note"] = _consistent(d)
+        candidates[-1]["consistent"], candidates[-1]["consistency_note"] = c.spec.consistent(
+            {n: e["median"] for n, e in candidates[-1]["estimate"].items()})
     candidates.sort(key=lambda d: (not d["consistent"], -(d["score"] if np.isfinite(d["score"]) else -np.inf),
                                    -d["elpd_diff"]))
     for i, d in enumerate(candidates):
@@ -239,28 +233,29 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     gain = {}
     if top is not None:
         sch = top["heldout_scheme"]
-        gain = {"candidate": top["model"], "heldout_scheme": held["nhkv"][sch]["scheme"] if sch else None,
-                "heldout_rmse_baseline": held["nhkv"][sch]["rmse"] if sch else float("nan"),
+        gain = {"candidate": top["model"], "heldout_scheme": held[base_key][sch]["scheme"] if sch else None,
+                "heldout_rmse_baseline": held[base_key][sch]["rmse"] if sch else float("nan"),
                 "heldout_rmse_extended": top["heldout_rmse"],
                 "relative_reduction": top["relative_reduction"].get(sch, float("nan")) if sch else float("nan"),
                 "paired_difference": top["heldout"][sch]["paired_vs_baseline"] if sch else None,
-                "by_scheme": {k: {"scheme": held["nhkv"][k]["scheme"], "baseline": held["nhkv"][k]["rmse"],
+                "by_scheme": {k: {"scheme": held[base_key][k]["scheme"], "baseline": held[base_key][k]["rmse"],
                                   "extended": held[top["key"]][k]["rmse"],
                                   "relative_reduction": top["relative_reduction"][k],
                                   "paired_vs_baseline": top["heldout"][k]["paired_vs_baseline"]} for k in schemes},
                 "elpd_diff": top["elpd_diff"], "elpd_se": top["elpd_se"],
                 "elpd_scheme": ("PSIS-LOO (az.loo) of the Laplace posterior of the whole-record fit, leaving out one "
-                                + ("experiment (log-likelihood summed over time)" if elpd["nhkv"].get("level") == "experiment"
+                                + ("experiment (log-likelihood summed over time)"
+                                   if elpd[base_key].get("level") == "experiment"
                                    else "sample (PSIS failed at the experiment level)")
                                 + "; elpd_diff = extended - baseline, elpd_se from az.compare")}
-    baseline["heldout"] = held["nhkv"]
-    baseline["elpd"] = elpd["nhkv"]
+    baseline["heldout"] = held[base_key]
+    baseline["elpd"] = elpd[base_key]
     result = {"baseline": baseline, "constant_parameter_check": check, "candidates": candidates,
               "cause": cause, "extended_model": ext, "gain": gain,
               "phases": phases.to_list(),
               "minima_t_star": phases.minima_t().tolist(),
               "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": seed,
-              "failed_units": failed_units,
+              "failed_units": failed_units, "warnings": warnings,
               "runtime_s": time.perf_counter() - t0}
     curves = {k: predict(cands[k], fits[k].z[None], obs, np.arange(obs.n_exp), phases.minima,
                          obs.n_samples - 1)[0] for k in cands}

@@ -1,10 +1,11 @@
 """Synthetic datasets with a hidden mechanism (tests, ``scripts/diagnosis_confusion.py``).
 
 Parameters are drawn (seeded) from realistic ranges: G 3-12 kPa, mu 0.04-0.15 Pa s (log-uniform),
-Rmax ~ N(300, 30) µm, Rmax/Req ~ N(7.5, 0.4) (methods.md §6), and the mechanism's own parameter
-from a range where its effect is of the size seen in real gels (see ``RANGES``). Noise: the paper's
-verification noise (methods.md §5) times ``noise_scale``, independent per sample; P_k is the
-across-experiment sample variance, as for measured data.
+Rmax ~ N(300, 30) µm, Rmax/Req ~ N(7.5, 0.4) (methods.md §6), and the mechanism's own parameters
+from its candidate's ``synthetic`` ranges (:mod:`imrbayes.diagnosis.candidates`), where the effect
+is of the size seen in real gels. Noise: the paper's verification noise (methods.md §5) times
+``noise_scale``, independent per sample; P_k is the across-experiment sample variance, as for
+measured data.
 """
 
 from __future__ import annotations
@@ -12,36 +13,38 @@ from __future__ import annotations
 import numpy as np
 
 from imrbayes.data.noise import noise_variance, paper_sigma
+from imrbayes.diagnosis.candidates import BASELINE, CANDIDATES, Range
 from imrbayes.diagnosis.lsq import predict
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.ensemble import Observations
 
-__all__ = ["RANGES", "MECHANISM_MODEL", "synthetic_obs"]
+__all__ = ["GENERATORS", "BASELINE_TRUTH", "synthetic_obs"]
 
-MECHANISM_MODEL = {"none": "nhkv", "strain-stiffening": "qkv", "viscoelastic-relaxation": "zener",
-                   "rate-dependent-viscosity": "carreau", "damage-softening": "damage"}
-# name -> (low, high, log-uniform?)
-RANGES = {"qkv": {"alpha": (0.2, 0.5, False)},
-          "zener": {"lambda1": (2e-6, 8e-6, True)},
-          "carreau": {"lambda_c": (5e-6, 3e-5, True), "n": (0.25, 0.5, False)},
-          "damage": {"a_G": (0.25, 0.5, False), "a_mu": (0.6, 1.0, False)},
-          "nhkv": {}}
+#: True (G, mu) of every synthetic dataset [Pa, Pa s]; the mechanism's own come from its candidate.
+BASELINE_TRUTH = {"G": Range(3e3, 12e3, log=True), "mu": Range(0.04, 0.15, log=True)}
 
 
-def _u(rng, lo, hi, log):
-    return float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) if log else float(rng.uniform(lo, hi))
+def _generators() -> dict:
+    out = {BASELINE.mechanism: BASELINE.key}
+    for c in CANDIDATES.values():
+        if c.synthetic is not None:
+            out.setdefault(c.mechanism, c.key)
+    return out
+
+
+#: mechanism -> key of the candidate that simulates it (the first registered one with ``synthetic``),
+#: in registry order (``scripts/diagnosis_confusion.py`` derives its seeds from this order).
+GENERATORS = _generators()
 
 
 def synthetic_obs(mechanism: str, seed: int, options, n_exp: int = 5, noise_scale: float = 1.0,
                   n_steps: int = 120, dt_star: float = 0.025):
     """(Observations, truth dict) of ``n_exp`` noisy experiments with the hidden ``mechanism``."""
     rng = np.random.default_rng(seed)
-    key = MECHANISM_MODEL[mechanism]
+    key = GENERATORS[mechanism]
     cand = make_candidate(key, options)
-    theta = {"G": _u(rng, 3e3, 12e3, True), "mu": _u(rng, 0.04, 0.15, True)}
-    for n, (lo, hi, lg) in RANGES[key].items():
-        theta[n] = _u(rng, lo, hi, lg)
+    theta = {n: r.draw(rng) for n, r in {**BASELINE_TRUTH, **cand.spec.synthetic}.items()}
     rmax = np.clip(rng.normal(300e-6, 30e-6, n_exp), 220e-6, 400e-6)
     ratio = np.clip(rng.normal(7.5, 0.4, n_exp), 6.5, 8.5)
     req = rmax / ratio
@@ -49,8 +52,8 @@ def synthetic_obs(mechanism: str, seed: int, options, n_exp: int = 5, noise_scal
     z = cand.to_internal([theta[n] for n in cand.names])
     blank = Observations(t, np.ones((n_exp, t.size)), np.ones(t.size), rmax, req)
     minima = None
-    if cand.damage:   # breaks at the collapses of the undamaged bubble's curve, then refined once
-        base = make_candidate("nhkv", options)
+    if cand.piecewise:   # breaks at the collapses of the baseline bubble's curve, then refined once
+        base = make_candidate(BASELINE.key, options)
         R0 = predict(base, z[None, :2], blank, np.arange(n_exp), None, n_steps)[0]
         minima = phases_of(Observations(t, np.maximum(R0, 1e-3), np.ones(t.size), rmax, req)).minima
         R1 = predict(cand, z[None], blank, np.arange(n_exp), minima, n_steps)[0]

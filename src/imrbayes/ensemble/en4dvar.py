@@ -45,12 +45,16 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods
-from imrbayes.ensemble.result import FitResult, gaussian_estimate, loglik_pointwise, rmse, si_covariance
-from imrbayes.ensemble.runner import Runner
+from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, rtps
+from imrbayes.ensemble.gn import gauss_newton
+from imrbayes.ensemble.method import InferenceMethod
+from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
+                                      si_covariance)
 from imrbayes.errors import InputError
+from imrbayes.execution import Execution, Unit, unit_id
+from imrbayes.forward import Runner, fm_spec, register_runner, runner_for
 
-__all__ = ["En4DVarSettings", "fit_en4dvar"]
+__all__ = ["En4DVar", "En4DVarSettings", "fit_en4dvar", "en4dvar_unit", "en4dvar_post_unit", "fitting_window_posterior"]
 
 
 @dataclass
@@ -107,22 +111,62 @@ def last_index(obs, t_end) -> int:
     return K
 
 
+def en4dvar_unit(unit: Unit, rng) -> dict:
+    """Every restart cycle of one experiment (methods.md §3): its last posterior and the prior
+    that cycle started from."""
+    d = unit.data
+    space, s = d["space"], d["settings"]
+    runner = runner_for(d)
+    before = (runner.n_member_runs, runner.n_failed)
+    rmax, req, t_eval = d["rmax"], d["req"], d["t_eval"]
+
+    def evaluate(groups, Z):
+        out = runner.simulate(space.to_si(Z), np.full(len(Z), rmax), np.full(len(Z), req), t_eval)
+        return out.R_star[:, 1:], out.failed | ~np.all(np.isfinite(out.R_star), axis=1)
+
+    mean, cov = space.prior_mean.copy(), space.prior_cov.copy()
+    cycles = []
+    res = None
+    for r in range(s.n_runs):
+        E0 = draw(rng, mean, cov, s.n_ens, exact=s.exact_moments)[None]
+        res = gauss_newton(E0, evaluate, d["y"][None], d["weight"][None], n_iter=s.n_iter, rng=rng)
+        infl = rtps(res.prior_anoms, res.anoms, s.rtps)
+        mean = res.mean[0].copy()
+        cov = np.einsum("gnd,gne->gde", infl, infl)[0]
+        cycles.append({"cycle": r + 1, "cost": res.cost[0], "n_failed": res.n_failed[0],
+                       "n_redrawn": int(res.n_redrawn[0]), "stopped": bool(res.stopped[0])})
+    qa = res.prior_anoms[0]
+    return {"mean": res.mean[0], "cov": res.cov[0], "prior_mean": res.prior_ensemble[0].mean(axis=0),
+            "prior_cov": qa.T @ qa, "stopped": bool(res.stopped[0]), "cycles": cycles, **runner.counts_since(before)}
+
+
+def en4dvar_post_unit(unit: Unit, rng) -> dict:
+    """After the fusion, one experiment: R* at the fused median and at its own posterior mean, and
+    at every posterior draw (for the pointwise log-likelihood)."""
+    d = unit.data
+    runner = runner_for(d)
+    before = (runner.n_member_runs, runner.n_failed)
+    pts = d["points"]
+    n = pts.shape[0]
+    out = runner.simulate(pts, np.full(n, d["rmax"]), np.full(n, d["req"]), d["t_eval"])
+    return {"R_star": out.R_star, **runner.counts_since(before)}
+
+
 def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: int = 0,
                 runner: Runner | None = None, progress=None, execution=None) -> FitResult:
     """Fit constant parameters to every experiment and fuse (see module doc).
 
     fm : ForwardModel; obs : Observations; space : ParamSpace; seed: the run seed (each experiment
-    draws from its own stream, from the seed and its unit id). Units
-    (:mod:`imrbayes.ensemble.units`): one per experiment (``exp=003``: every cycle), then one per
-    experiment after the fusion (``post/exp=003``: fitted curves, draws' log-likelihood);
-    ``execution`` says where they run and are checkpointed (default: this process, with ``runner``).
+    draws from its own stream, from the seed and its unit id). Units: one per experiment
+    (:func:`en4dvar_unit`, ``exp=003``: every cycle), then one per experiment after the fusion
+    (:func:`en4dvar_post_unit`, ``post=fit/exp=003``: fitted curves, draws' log-likelihood);
+    ``execution`` (:class:`~imrbayes.execution.Execution`) says where they run and are checkpointed
+    (default: this process, with ``runner``).
     An experiment whose unit fails is left out of the fusion (counted, reported in
     ``details["failed_units"]`` and the warnings).
-    Returns a :class:`FitResult` with per-experiment posteriors in ``per_experiment``.
+    Returns a :class:`FitResult` with per-experiment posteriors in ``per_experiment`` and the
+    fused Gaussian with the density it approximates in ``window_posteriors`` (one window).
     """
-    from imrbayes.ensemble.units import Execution, en4dvar_post_unit, en4dvar_unit, fm_spec, register_runner
-    from imrbayes.execution import Unit, unit_id
-
     s = settings or En4DVarSettings()
     s.check()
     t0 = time.perf_counter()
@@ -133,7 +177,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     K = last_index(obs, s.t_end)
     t_eval = obs.t_star[:K + 1]
     y, weight = fit_window(obs, K, s.obs_weight)
-    n_exp, d = obs.n_exp, space.n
+    n_exp = obs.n_exp
     base = {"spec": spec, "runner": token, "space": space, "settings": s, "t_eval": t_eval}
     rep = ex.run([Unit(unit_id(exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
                                         "y": y[n], "weight": weight})
@@ -238,4 +282,37 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
         mean_internal=fus.mean, cov_internal=fus.cov, per_experiment=per, details=details,
         posterior=post, log_likelihood=ll, posterior_dims={"R": ["experiment", "time"]},
         coords={"experiment": list(obs.names), "time": obs.t_star[1:K + 1]},
-        runtime_s=time.perf_counter() - t0, warnings=warnings)
+        runtime_s=time.perf_counter() - t0, warnings=warnings,
+        window_posteriors=[fitting_window_posterior(fm, obs, space, K, s.obs_weight, fus.mean, fus.cov)])
+
+
+def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov) -> WindowPosterior:
+    """The density the fused Gaussian approximates: every experiment from its maximum over samples
+    1..K with the parameter prior and weight 1/K (``obs_weight="mean"``) or 1 (``"sum"``)."""
+    c, rule = (1.0 / K, "1/N_t (En4D-Var averaging)") if obs_weight == "mean" else (1.0, "1 (plain likelihood)")
+    return WindowPosterior(
+        index=0, start=0, samples=(1, K), mean=np.asarray(mean, float), cov=np.asarray(cov, float),
+        prior_mean=space.prior_mean, prior_cov=space.prior_cov, weight=np.full(K, c),
+        start_state=np.array(fm.initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64),
+        description={"kind": "fitting window from the maximum", "samples": [1, K], "weight_rule": rule,
+                     "state": "maximum radius (exact)"})
+
+
+class En4DVar(InferenceMethod):
+    """En4D-Var as a plug-in (:class:`~imrbayes.ensemble.method.InferenceMethod`)."""
+
+    name = "en4dvar"
+    label = "ensemble 4D-Var (En4D-Var)"
+    settings_class = En4DVarSettings
+    gaussian_posterior = True
+    fit = staticmethod(fit_en4dvar)
+
+    @staticmethod
+    def n_forward_runs(settings, n_exp, n_steps):
+        s = settings        # cycles x iterations x members, then the fitted curves and the draws
+        return s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
+
+    @staticmethod
+    def figures(obs, res, fdir):
+        from imrbayes.ensemble.figures import experiments_figure
+        return [experiments_figure(res, fdir / "experiments.png")]

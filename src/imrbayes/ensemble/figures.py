@@ -1,4 +1,4 @@
-"""Figures of a fit (matplotlib object API on the Agg canvas; no pyplot, no global state).
+"""Figures of a fit (:mod:`imrbayes.plotting`: matplotlib object API on the Agg canvas, no pyplot).
 
 * :func:`fit_figure` — measured (dots) vs fitted (line) R*(t*), one panel per experiment;
 * :func:`landscape_figure` — IMR/pIMR cost landscape, 95 % contour, per-experiment and overall optima;
@@ -10,33 +10,12 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
+from imrbayes.plotting import figure, label, save, scale
+
 __all__ = ["fit_figure", "landscape_figure", "time_resolved_figure", "experiments_figure"]
-
-_SCALE = {"G": (1e-3, "G [kPa]"), "mu": (1.0, r"$\mu$ [Pa s]")}
-
-
-def _figure(w, h):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(w, h), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _save(fig, path):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    return path
-
-
-def _label(name):
-    return _SCALE.get(name, (1.0, name))
 
 
 def fit_figure(obs, result, path, max_panels: int = 20):
@@ -44,7 +23,7 @@ def fit_figure(obs, result, path, max_panels: int = 20):
     n = min(obs.n_exp, max_panels)
     ncol = min(4, n)
     nrow = math.ceil(n / ncol)
-    fig = _figure(3.2 * ncol, 2.3 * nrow + 0.5)
+    fig = figure(3.2 * ncol, 2.3 * nrow + 0.5)
     axes = np.atleast_1d(fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False)).ravel()
     for e in range(n):
         ax = axes[e]
@@ -60,18 +39,18 @@ def fit_figure(obs, result, path, max_panels: int = 20):
     for ax in axes[n:]:
         ax.set_visible(False)
     axes[0].legend(fontsize=7, loc="upper right")
-    fig.supxlabel(r"$t^*$")
-    fig.supylabel(r"$R^* = R/R_{max}$")
+    fig.supxlabel(label("t_star"))
+    fig.supylabel(label("R_star"))
     extra = f" (first {n} of {obs.n_exp})" if obs.n_exp > n else ""
     fig.suptitle(f"{result.method}: measured vs fitted, rmse {result.rmse:.4g}{extra}", fontsize=10)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def landscape_figure(result, path):
     """log10 of the IMR cost (or log J of pIMR) with the 95 % contour and the optima."""
-    Gg = np.asarray(result.coords["G_grid"]) * 1e-3
-    mg = np.asarray(result.coords["mu_grid"])
-    fig = _figure(6.4, 4.8)
+    Gg = np.asarray(result.coords["G_grid"]) * scale("G")
+    mg = np.asarray(result.coords["mu_grid"]) * scale("mu")
+    fig = figure(6.4, 4.8)
     ax = fig.subplots()
     det = result.details
     if "J" in result.extra_groups.get("landscape", {}):
@@ -92,26 +71,26 @@ def landscape_figure(result, path):
         ax.plot([], [], "w-", label="95% region")
     for i, p in enumerate(result.per_experiment):
         if "optimum" in p:
-            ax.plot(p["optimum"]["G"] * 1e-3, p["optimum"]["mu"], "o", ms=4, mfc="none", mec="orange",
-                    label="per-experiment optima" if i == 0 else None)
+            ax.plot(p["optimum"]["G"] * scale("G"), p["optimum"]["mu"] * scale("mu"), "o", ms=4, mfc="none",
+                    mec="orange", label="per-experiment optima" if i == 0 else None)
     opt = det["optimum"]
-    ax.plot(opt["G"] * 1e-3, opt["mu"], "*", ms=12, color="red", mec="k", label="optimum")
-    ax.set_xlabel("G [kPa]")
-    ax.set_ylabel(r"$\mu$ [Pa s]")
+    ax.plot(opt["G"] * scale("G"), opt["mu"] * scale("mu"), "*", ms=12, color="red", mec="k", label="optimum")
+    ax.set_xlabel(label("G"))
+    ax.set_ylabel(label("mu"))
     ax.legend(fontsize=8, loc="upper right", facecolor="0.8")
     ax.set_title(f"{result.method}: G = {opt['G'] * 1e-3:.3g} kPa, mu = {opt['mu']:.3g} Pa s", fontsize=10)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def time_resolved_figure(result, path):
     """Time-resolved G(t*), mu(t*) (mean, 95 % HDI band) and per-window estimates (mean ± 2 sd)."""
     names = list(result.param_names)
-    fig = _figure(7.0, 2.6 * len(names) + 0.4)
+    fig = figure(7.0, 2.6 * len(names) + 0.4)
     axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True))
     tr = result.time_resolved
     t = np.array([x["t_star"] for x in tr])
     for ax, nm in zip(axes, names):
-        sc, lab = _label(nm)
+        sc, lab = scale(nm), label(nm)
         m = np.array([x[nm]["mean"] for x in tr]) * sc
         lo = np.array([x[nm]["hdi95"][0] for x in tr]) * sc
         hi = np.array([x[nm]["hdi95"][1] for x in tr]) * sc
@@ -126,18 +105,18 @@ def time_resolved_figure(result, path):
         ax.set_ylabel(lab)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7, loc="upper right")
-    axes[-1].set_xlabel(r"$t^*$")
+    axes[-1].set_xlabel(label("t_star"))
     fig.suptitle("MIEnKS-MDA time-resolved parameters", fontsize=10)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def experiments_figure(result, path):
     """Per-experiment posterior mean ± 2 sd and the fused estimate (En4D-Var)."""
     names = list(result.param_names)
-    fig = _figure(4.0 * len(names), 0.25 * len(result.per_experiment) + 2.0)
+    fig = figure(4.0 * len(names), 0.25 * len(result.per_experiment) + 2.0)
     axes = np.atleast_1d(fig.subplots(1, len(names)))
     for ax, nm in zip(axes, names):
-        sc, lab = _label(nm)
+        sc, lab = scale(nm), label(nm)
         for i, p in enumerate(result.per_experiment):
             e = p["estimate"][nm]
             ax.errorbar(e["mean"] * sc, i, xerr=2 * e["sd"] * sc, fmt="o", ms=3, color="tab:blue")
@@ -149,4 +128,4 @@ def experiments_figure(result, path):
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.suptitle("En4D-Var: per-experiment posteriors (mean ± 2 sd) and the fused estimate", fontsize=10)
-    return _save(fig, path)
+    return save(fig, path)

@@ -13,7 +13,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, stats
 
 __all__ = ["Fusion", "fuse", "fuse_likelihoods", "rtps", "rtps_factors", "precision_weighted", "draw", "marginal_summary",
            "sym", "is_pd"]
@@ -185,6 +184,9 @@ def draw(rng, mean, cov, n: int, exact: bool = True):
 
 def _hdi_lognormal(m, s, prob):
     """Shortest interval of log-normal(m, s) with probability ``prob``."""
+    # scipy is imported where it is used: the method registry (imported when the CLI starts) stays cheap
+    from scipy import optimize, stats
+
     def width(p):
         return math.exp(m + s * stats.norm.ppf(p + prob)) - math.exp(m + s * stats.norm.ppf(p))
     res = optimize.minimize_scalar(width, bounds=(1e-12, 1.0 - prob - 1e-12), method="bounded",
@@ -201,6 +203,8 @@ def marginal_summary(m: float, s: float, log: bool, prob: float = 0.95) -> dict:
     """
     m, s = float(m), float(abs(s))
     if not log:
+        from scipy import stats
+
         h = stats.norm.ppf(0.5 + prob / 2) * s
         return {"mean": m, "sd": s, "hdi95": [m - h, m + h], "median": m}
     mean = math.exp(m + 0.5 * s * s)

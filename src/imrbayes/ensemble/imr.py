@@ -31,18 +31,18 @@ pseudo-posterior mean is ``posterior_mean``.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import signal, stats
 
+from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, rmse
-from imrbayes.ensemble.runner import Runner
 from imrbayes.errors import InputError
+from imrbayes.execution import Execution, Unit, unit_id
+from imrbayes.forward import Runner, fm_spec, register_runner, runner_for
 
-__all__ = ["IMRSettings", "fit_imr", "fit_indices", "collapse_indices", "confidence_level"]
+__all__ = ["IMR", "IMRSettings", "fit_imr", "imr_unit", "fit_indices", "collapse_indices", "confidence_level"]
 
 
 @dataclass
@@ -75,6 +75,9 @@ class IMRSettings:
 
 def collapse_indices(y, prominence: float = 0.05) -> np.ndarray:
     """Sample indices of the collapses (local minima with the given prominence in R*) of one curve."""
+    # scipy is imported where it is used: the method registry (imported when the CLI starts) stays cheap
+    from scipy import signal
+
     idx, _ = signal.find_peaks(-np.asarray(y, dtype=float), prominence=prominence)
     return idx
 
@@ -117,6 +120,8 @@ def confidence_level(J_min: float, n: int, p: int, level: float = 0.95) -> float
     """Cost level of the region J <= J_min (1 + p/(n-p) F_{p,n-p}(level)) (NaN if n <= p)."""
     if n <= p:
         return float("nan")
+    from scipy import stats
+
     return float(J_min * (1.0 + p / (n - p) * stats.f.ppf(level, p, n - p)))
 
 
@@ -162,17 +167,29 @@ def _grid_summary(J, Jmin, n, p, Gg, mg, opt):
     return out, w
 
 
+def imr_unit(unit: Unit, rng) -> dict:
+    """One experiment on the whole (G, mu) grid: cost J_n per grid point (inf where it failed)."""
+    d = unit.data
+    runner = runner_for(d)
+    before = (runner.n_member_runs, runner.n_failed)
+    theta = d["theta"]
+    n_pts = theta.shape[0]
+    K = int(d["K"])
+    out = runner.simulate(theta, np.full(n_pts, d["rmax"]), np.full(n_pts, d["req"]), d["t_eval"])
+    r = out.R_star[:, 1:K + 1] - d["y"][1:K + 1]
+    j = np.sum(d["cw"][1:K + 1] * r * r, axis=1)
+    bad = out.failed | ~np.isfinite(j)
+    return {"J": np.where(bad, np.inf, j), "n_failed": int(bad.sum()), **runner.counts_since(before)}
+
+
 def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, runner: Runner | None = None,
             progress=None, execution=None) -> FitResult:
     """Grid search of (G, mu); see module doc. ``progress(n)`` is called after experiment n.
 
-    Units (:mod:`imrbayes.ensemble.units`): one per experiment (``exp=003``: its cost on the whole
-    grid); ``execution`` says where they run and are checkpointed (default: this process, with
-    ``runner``). An experiment whose unit fails is left out of the cost (counted, reported in
-    ``details["failed_units"]`` and the warnings)."""
-    from imrbayes.ensemble.units import Execution, fm_spec, imr_unit, register_runner
-    from imrbayes.execution import Unit, unit_id
-
+    Units (:func:`imr_unit`): one per experiment (``exp=003``: its cost on the whole grid);
+    ``execution`` (:class:`~imrbayes.execution.Execution`) says where they run and are checkpointed
+    (default: this process, with ``runner``). An experiment whose unit fails is left out of the cost
+    (counted, reported in ``details["failed_units"]`` and the warnings)."""
     s = settings or IMRSettings()
     s.check()
     t0 = time.perf_counter()
@@ -296,3 +313,21 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
         extra_dims={"J": ["G_grid", "mu_grid"], "J_experiment": ["experiment", "G_grid", "mu_grid"]},
         coords={"G_grid": Gg, "mu_grid": mg, "experiment": list(obs.names)},
         runtime_s=time.perf_counter() - t0, warnings=warnings)
+
+
+class IMR(InferenceMethod):
+    """Standard IMR as a plug-in (:class:`~imrbayes.ensemble.method.InferenceMethod`)."""
+
+    name = "imr"
+    label = "standard IMR (grid least squares)"
+    settings_class = IMRSettings
+    fit = staticmethod(fit_imr)
+
+    @staticmethod
+    def n_forward_runs(settings, n_exp, n_steps):
+        return settings.n_G * settings.n_mu * n_exp + n_exp      # the grid, then the fitted curves
+
+    @staticmethod
+    def figures(obs, res, fdir):
+        from imrbayes.ensemble.figures import landscape_figure
+        return [landscape_figure(res, fdir / "landscape.png")]

@@ -31,8 +31,11 @@ parameters: log G, log mu)] is carried through the windows:
    window: the window's prior ensemble is handed on instead (reported in ``analysis_rejected``).
 
 Time-resolved estimate: normalised precision weighting of the windows holding each sample;
-aggregate estimate: the same over all windows with equal weights. ``FitResult.window_start_states``
-holds each window's entering mean state per experiment (what the MCMC window targets start from).
+aggregate estimate: the same over all windows with equal weights. ``FitResult.window_posteriors``
+records every window's fused Gaussian with the density it approximates (what ``--mcmc`` samples):
+the window's parameter prior (``chain``: the previous window's fused posterior after RTPS;
+``prior``: the original prior), the observation weights beta_jk / L (beta_jk with
+``obs_weight="mda"``) and each experiment's mean handed-off state entering the window.
 The fitted curve is the
 ensemble-mean R* of the handed-off posterior ensembles (samples s_j .. s_j + h - 1 of every window,
 the whole last window).
@@ -48,12 +51,14 @@ import numpy as np
 
 from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, precision_weighted, rtps_factors
 from imrbayes.ensemble.gn import gauss_newton
-from imrbayes.ensemble.result import FitResult, gaussian_estimate, rmse, si_covariance
-from imrbayes.ensemble.runner import Runner
+from imrbayes.ensemble.method import InferenceMethod
+from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
 from imrbayes.ensemble.windows import mda_weights, n_windows, time_resolved, window_spans
 from imrbayes.errors import InputError
+from imrbayes.execution import Execution, Unit, unit_id
+from imrbayes.forward import BatchState, Runner, fm_spec, register_runner, runner_for
 
-__all__ = ["MIEnKSSettings", "fit_mienks"]
+__all__ = ["MIEnKS", "MIEnKSSettings", "fit_mienks", "mienks_unit", "rtps_cov"]
 
 
 @dataclass
@@ -119,19 +124,116 @@ def rtps_cov(prior_c, post_c, a):
     return post_c * np.outer(f, f)
 
 
+def mienks_unit(unit: Unit, rng) -> dict:
+    """One window of one experiment (methods.md §4, steps 2, 4, 5): Gauss–Newton analysis of the
+    augmented ensemble, RTPS, hand-off to the next window (failed members redrawn; the analysis is
+    rejected, and the window prior handed on, when too few members survive). Window 0 starts from
+    the state at the maximum radius with parameters drawn from the prior."""
+    d = unit.data
+    space, s = d["space"], d["settings"]
+    runner = runner_for(d)
+    before = (runner.n_member_runs, runner.n_failed)
+    t, a, b, a2, last = d["t"], int(d["a"]), int(d["b"]), int(d["a2"]), bool(d["last"])
+    rmax, req, N, dp = float(d["rmax"]), float(d["req"]), int(s.n_ens), space.n
+    E = d["E"]
+    if E is None:
+        st0 = runner.fm.initial_state(np.full(N, rmax), np.full(N, req))
+        ns = st0.y.shape[1]
+        E = np.empty((N, ns + dp))
+        E[:, :ns] = st0.y
+        E[:, ns:] = draw(rng, space.prior_mean, space.prior_cov, N)
+    E = np.array(E, dtype=np.float64)
+    ns = E.shape[1] - dp
+    t_eval = t[a:b + 1]
+    # The analysis sees log p_b instead of p_b (``log_pressure``): near a collapse the members' p_b
+    # spans orders of magnitude, and a linear update of p_b itself drives most of them negative.
+    ipb = runner.fm.layout()["pb"].start if getattr(s, "log_pressure", False) else None
+
+    def to_analysis(Z):
+        Z = np.array(Z, dtype=np.float64)
+        if ipb is not None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                Z[:, ipb] = np.log(Z[:, ipb])
+        return Z
+
+    def from_analysis(Z):
+        Z = np.array(Z, dtype=np.float64)
+        if ipb is not None:
+            with np.errstate(over="ignore"):
+                Z[:, ipb] = np.exp(Z[:, ipb])
+        return Z
+
+    E = to_analysis(E)
+
+    def propagate(Z, t0, t1, t_ev):
+        """R* (M, len(t_ev)), end state (M, ns, physical), failed (M,) of members Z (M, ns + d, analysis
+        coordinates). A member whose state is not physical (ForwardModel.state_is_valid: R* <= 0,
+        p_b <= 0, vapour fraction outside [0, 1], ...) or whose parameters are not finite is failed
+        without a solve."""
+        Z = from_analysis(Z)
+        ok = np.all(np.isfinite(Z[:, ns:]), axis=1) & runner.fm.state_is_valid(Z[:, :ns])
+        R = np.full((Z.shape[0], len(t_ev)), np.nan)
+        Y = Z[:, :ns].copy()
+        failed = ~ok
+        if ok.any():
+            m = int(ok.sum())
+            st = BatchState(Z[ok, :ns].copy(), t0, np.full(m, rmax), np.full(m, req))
+            out = runner.propagate(st, space.to_si(Z[ok, ns:]), t1, t_ev)
+            R[ok], Y[ok] = out.R_star, out.end.y
+            failed[ok] = out.failed | ~np.all(np.isfinite(out.R_star), axis=1) | ~np.all(np.isfinite(out.end.y), axis=1)
+        return R, Y, failed
+
+    def evaluate(groups, Z):
+        R, _, failed = propagate(np.asarray(Z, dtype=np.float64), t[a], t[b], t_eval)
+        return R, failed
+
+    res = gauss_newton(E[None], evaluate, d["y"][None], d["weight"][None], n_iter=s.n_iter, rng=rng,
+                       max_redraw=s.max_redraw, transform=s.transform)
+    f = rtps_factors(res.prior_anoms, res.anoms, s.rtps)[0]
+    if not s.rtps_state:
+        f[:ns] = 1.0
+    Ea = res.mean[0][None, :] + np.sqrt(N - 1.0) * res.anoms[0] * f[None, :]
+    problems = runner.fm.state_problems(from_analysis(Ea)[:, :ns])     # analysed states that are not physical
+    n_invalid = int(np.any(np.stack(list(problems.values())), axis=0).sum())
+    invalid_why = {k: int(v.sum()) for k, v in problems.items() if v.any()}
+    Rseg, Ynew, failed = propagate(Ea, t[a], t[a2], t[a:a2 + 1])
+    n_failed_analysed = int(failed.sum())
+    rejected = False
+    if (~failed).sum() < max(2, N // 4):
+        # too few analysed members survived the hand-off: hand on the window's prior ensemble
+        # instead (analysis rejected for this window, reported), propagated the same way
+        Ep = res.prior_ensemble[0]
+        Rseg, Ynew, failed = propagate(Ep, t[a], t[a2], t[a:a2 + 1])
+        if (~failed).sum() < 2:
+            raise RuntimeError(f"fewer than two ensemble members survived window t* {t[a]:.3g}-{t[b]:.3g}, "
+                               f"with and without the analysis")
+        Ea = Ep.copy()
+        rejected = True
+    with np.errstate(invalid="ignore"):
+        seg = np.nanmean(np.where(failed[:, None], np.nan, Rseg), axis=0)
+    E_next = to_analysis(np.concatenate([Ynew, Ea[:, ns:]], axis=1))
+    n_fail = int(failed.sum())
+    n_red = _redraw_failed(E_next[None], failed[None], rng) if (n_fail and not last) else 0
+    E_next = from_analysis(E_next)                  # handed on as physical states
+    qa = res.prior_anoms[0, :, ns:]
+    return {"E": None if last else E_next, "seg": seg, "pm": res.mean[0, ns:], "pc": res.cov[0, ns:, ns:],
+            "qm": res.prior_ensemble[0, :, ns:].mean(axis=0), "qc": qa.T @ qa,
+            "n_failed_iter": res.n_failed[0], "n_redrawn_prior": int(res.n_redrawn[0]), "n_failed_handoff": n_fail,
+            "n_redrawn_handoff": int(n_red), "stopped": bool(res.stopped[0]), "rejected": rejected,
+            "n_invalid_analysed": n_invalid, "n_failed_analysed": n_failed_analysed, "invalid_why": invalid_why,
+            "cost": res.cost[0], "state_size": int(ns), **runner.counts_since(before)}
+
+
 def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int = 0,
                runner: Runner | None = None, progress=None, execution=None) -> FitResult:
     """Run MIEnKS-MDA over every window (see module doc); ``progress(j)`` after window j.
 
-    Units (:mod:`imrbayes.ensemble.units`): one per window and experiment (``window=004/exp=003``,
-    its own random stream), windows in order, the experiments of a window independent; each unit's
-    result holds the experiment's hand-off ensemble. ``execution``
-    (:class:`~imrbayes.ensemble.units.Execution`) says where they run and are checkpointed (default:
-    this process, with ``runner``). An experiment whose unit fails is left out of this and every
-    later window (counted, reported in ``details["failed_units"]`` and the warnings)."""
-    from imrbayes.ensemble.units import Execution, fm_spec, mienks_unit, register_runner
-    from imrbayes.execution import Unit, unit_id
-
+    Units (:func:`mienks_unit`): one per window and experiment (``window=004/exp=003``, its own
+    random stream), windows in order, the experiments of a window independent; each unit's result
+    holds the experiment's hand-off ensemble. ``execution`` (:class:`~imrbayes.execution.Execution`)
+    says where they run and are checkpointed (default: this process, with ``runner``). An
+    experiment whose unit fails is left out of this and every later window (counted, reported in
+    ``details["failed_units"]`` and the warnings)."""
     s = settings or MIEnKSSettings()
     n_steps = obs.n_samples - 1
     s.check(n_steps)
@@ -143,7 +245,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     spans = window_spans(n_steps, s.L, s.h)
     beta = mda_weights(n_steps, s.L, s.h)
     nw = spans.shape[0]
-    G, N, d = obs.n_exp, s.n_ens, space.n
+    G = obs.n_exp
     ns = None
     t = obs.t_star
     fitted = np.full(obs.R_star.shape, np.nan)
@@ -154,6 +256,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     handoff = {g: None for g in range(G)}             # each experiment's ensemble entering the next window
     failed_units, member_runs, failed_runs = [], 0, 0
     start_means = []                                  # (G, ns) mean state entering each window (MCMC targets)
+    posteriors = []                                   # WindowPosterior per window: what --mcmc checks
+    average = s.L if s.obs_weight == "mean" else 1    # the weight's 1/L
     for j, (a, b) in enumerate(spans):
         last = j == nw - 1
         if j == 0:
@@ -188,6 +292,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         R = [rep.results[unit_id(window=j, exp=g)] for g in ok]
         ns = int(R[0]["state_size"])
         pm, pc = np.stack([r["pm"] for r in R]), np.stack([r["pc"] for r in R])
+        prior_m, prior_c = (space.prior_mean, space.prior_cov) if s.fusion == "prior" else (chain_m, chain_c)
         if s.fusion == "prior":
             fus = fuse(pm, pc, space.prior_mean, space.prior_cov)
         else:
@@ -197,6 +302,13 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             chain_c = rtps_cov(chain_c, fus.cov, s.rtps)
         win_mean.append(fus.mean)
         win_cov.append(fus.cov)
+        entering = np.isfinite(start_means[j]).all(axis=1)
+        posteriors.append(WindowPosterior(
+            index=j, start=int(a), samples=(int(a), int(b)), mean=fus.mean, cov=fus.cov, prior_mean=prior_m,
+            prior_cov=prior_c, weight=beta[j, a:b + 1] / average, start_state=start_means[j],
+            description={"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
+                         "weight_rule": f"beta_jk / L, L = {average}", "L": average,
+                         "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}))
         stop = a2 + 1 if last else a2
         rejected = []
         for g, r in zip(ok, R):
@@ -273,4 +385,25 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                     **{f"{nm}_hdi95": ["time", "bound"] for nm in space.names}},
         coords={"window": np.arange(nw), "time": t[kk], "bound": ["lower", "upper"],
                 "window_start": ("window", t[spans[:, 0]])},
-        runtime_s=time.perf_counter() - t0c, warnings=warnings, window_start_states=start_means)
+        runtime_s=time.perf_counter() - t0c, warnings=warnings, window_posteriors=posteriors)
+
+
+class MIEnKS(InferenceMethod):
+    """MIEnKS-MDA as a plug-in (:class:`~imrbayes.ensemble.method.InferenceMethod`)."""
+
+    name = "mienks"
+    label = "MIEnKS-MDA (sliding-window smoother)"
+    settings_class = MIEnKSSettings
+    gaussian_posterior = True
+    estimate_note = "Precision-weighted aggregate over the whole record (all windows)."
+    fit = staticmethod(fit_mienks)
+
+    @staticmethod
+    def n_forward_runs(settings, n_exp, n_steps):
+        s = settings        # per window: the Gauss-Newton iterations and the hand-off, every member
+        return n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
+
+    @staticmethod
+    def figures(obs, res, fdir):
+        from imrbayes.ensemble.figures import time_resolved_figure
+        return [time_resolved_figure(res, fdir / "parameters.png")]

@@ -2,31 +2,13 @@
 
 from __future__ import annotations
 
-import json
-import math
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["jsonable", "summary_dict", "posterior_tree", "write_summary", "write_posterior"]
+from imrbayes.io import jsonable, write_json
 
-
-def jsonable(obj):
-    """Plain JSON types; non-finite floats -> None."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    return obj
+__all__ = ["summary_dict", "posterior_tree", "write_summary", "write_posterior"]
 
 
 def summary_dict(result, obs, *, seed: int, extra: dict | None = None) -> dict:
@@ -48,9 +30,8 @@ def summary_dict(result, obs, *, seed: int, extra: dict | None = None) -> dict:
 
 
 def write_summary(path, summary: dict) -> Path:
-    path = Path(path)
-    path.write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
-    return path
+    """``summary.json`` (:func:`imrbayes.io.write_json`: atomic, indent 1, strict JSON)."""
+    return write_json(path, summary)
 
 
 def posterior_tree(result, obs):
@@ -60,8 +41,8 @@ def posterior_tree(result, obs):
     import arviz as az
     import xarray as xr
 
-    coords = {k: (v[1] if isinstance(v, tuple) else v) for k, v in result.coords.items()
-              if not isinstance(v, tuple)}
+    # plain coordinates index a dimension; (dims, values) tuples (window_start) are attached below
+    coords = {k: v for k, v in result.coords.items() if not isinstance(v, tuple)}
     coords.setdefault("experiment", list(obs.names))
     data = {"posterior": dict(result.posterior), "observed_data": {"R_obs": obs.R_star}}
     dims = dict(result.posterior_dims)
@@ -81,7 +62,27 @@ def posterior_tree(result, obs):
             if dim in result.coords and not isinstance(result.coords[dim], tuple):
                 ds = ds.assign_coords({dim: np.asarray(result.coords[dim])})
         dt[group] = xr.DataTree(ds)
+    _attach_tuple_coords(dt, result.coords)
     return dt
+
+
+def _attach_tuple_coords(dt, coords: dict) -> None:
+    """Put each ``(dims, values)`` coordinate (e.g. MIEnKS's ``window_start``: ``("window", t0)``,
+    or a 2-column ``(("window", "bound"), spans)``) on every group of ``dt`` that has its first
+    dimension, with the plain coordinates of its other dimensions; netCDF stores them as
+    non-index coordinates, so they round-trip."""
+    import xarray as xr
+
+    tupled = {k: (((v[0],) if isinstance(v[0], str) else tuple(v[0])), np.asarray(v[1]))
+              for k, v in coords.items() if isinstance(v, tuple)}
+    for group in list(dt.children):
+        ds = dt[group].to_dataset()
+        add = {k: v for k, v in tupled.items() if v[0][0] in ds.dims}
+        if not add:
+            continue
+        others = {d: np.asarray(coords[d]) for dims, _ in add.values() for d in dims[1:]
+                  if d not in ds.coords and d in coords and not isinstance(coords[d], tuple)}
+        dt[group] = xr.DataTree(ds.assign_coords({**others, **add}))
 
 
 def write_posterior(path, result, obs) -> Path:

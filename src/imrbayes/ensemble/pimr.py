@@ -34,12 +34,12 @@ from dataclasses import asdict, dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import integrate, optimize, stats
 
+from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, rmse
 from imrbayes.errors import InputError
 
-__all__ = ["T_RC", "contents_factor", "PIMRSettings", "collapse_terms", "collapse_time", "fit_pimr"]
+__all__ = ["PIMR", "T_RC", "contents_factor", "PIMRSettings", "collapse_terms", "collapse_time", "fit_pimr"]
 
 T_RC = math.sqrt(6.0 * math.pi) * math.gamma(11.0 / 6.0) / (5.0 * math.gamma(4.0 / 3.0))
 
@@ -53,6 +53,9 @@ def contents_factor(kappa: float) -> float:
     F(R) = 3 int_R^1 f(s) s^2 ds / (1 - R^3). For f = R^(-3 kappa) this gives B(1) = 1.4942 and
     B(1.4) = 2.1835, the constants of Zhu et al.; finite for kappa < 11/6.
     """
+    # scipy is imported where it is used: the method registry (imported when the CLI starts) stays cheap
+    from scipy import integrate
+
     k = float(kappa)
     if not 0.5 <= k < 11.0 / 6.0:
         raise InputError("kappa", f"the contents factor needs 0.5 <= kappa < 11/6, got {k}")
@@ -138,6 +141,8 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
 
     Closed form on a grid, in this process: no units (``execution`` is accepted and unused; the run
     directory still records the configuration)."""
+    from scipy import optimize
+
     s = settings or PIMRSettings()
     t0 = time.perf_counter()
     names = space.names
@@ -228,6 +233,8 @@ def _pseudo_logpost(J, Jmin, n, p):
 
 def _grid_estimate(J, Jmin, n, p, Gg, mg, opt, level):
     """SI estimate from the grid pseudo-posterior; mean = optimum, sd and 95% HDI from the marginals."""
+    from scipy import stats
+
     lp = _pseudo_logpost(J, Jmin, n, p)
     level_J = float(Jmin * (1.0 + p / (n - p) * stats.f.ppf(level, p, n - p))) if n > p else float("nan")
     out = {}
@@ -267,3 +274,21 @@ def _grid_draws(J, Jmin, n, p, Gg, mg, rng, n_draws=1000):
     G = np.clip(Gg[i] + (rng.random(n_draws) - 0.5) * dG, Gg[0], Gg[-1])
     mu = np.clip(mg[j] + (rng.random(n_draws) - 0.5) * dm, mg[0], mg[-1])
     return np.column_stack([G, mu])
+
+
+class PIMR(InferenceMethod):
+    """pIMR as a plug-in (:class:`~imrbayes.ensemble.method.InferenceMethod`)."""
+
+    name = "pimr"
+    label = "pIMR (collapse-time closed form)"
+    settings_class = PIMRSettings
+    fit = staticmethod(fit_pimr)
+
+    @staticmethod
+    def n_forward_runs(settings, n_exp, n_steps):
+        return n_exp                       # closed form; one run per experiment for the fitted curves
+
+    @staticmethod
+    def figures(obs, res, fdir):
+        from imrbayes.ensemble.figures import landscape_figure
+        return [landscape_figure(res, fdir / "landscape.png")]

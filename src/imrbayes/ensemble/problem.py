@@ -109,19 +109,39 @@ class Observations:
                             self.t_collapse_star[idx], [self.names[i] for i in idx])
 
 
+def _sym(a):
+    a = np.asarray(a, dtype=np.float64)
+    return 0.5 * (a + np.swapaxes(a, -1, -2))
+
+
 @dataclass
 class ParamSpace:
-    """Parameter names, the log transform, and a Gaussian prior in the internal coordinates.
+    """Parameter names, the log transform, and a Gaussian prior: the one parameter-space type of
+    the methods, the MCMC targets and the diagnosis.
 
     Attributes
     ----------
     names : tuple of str
+        Parameter names (SI), e.g. ``("G", "mu")``.
     positive : ndarray of bool (n_p,)
-        True: internal coordinate is log(theta).
+        True: internal coordinate is z = log(theta / 1 SI unit).
     prior_mean, prior_cov : ndarray (n_p,), (n_p, n_p)
-        Gaussian prior of the internal coordinates z.
+        Gaussian prior of the internal coordinates z (``scale="internal"``, the methods'
+        convention), or of theta in SI units (``scale="natural"``). The covariance is symmetrised
+        and must be positive definite.
     prior_si : dict name -> (mean, sd)
-        The prior as given, in SI units.
+        The prior as given, in SI units ({} for a prior stated directly in z, e.g. a window's).
+    scale : ``"internal"`` | ``"natural"``
+        Where the Gaussian is stated. ``natural`` (MCMC only): theta ~ N(prior_mean, prior_cov)
+        truncated to theta > 0 for positive parameters, sampled in z with the Jacobian
+        log |d theta / d z| = sum_{positive i} z_i (:meth:`log_prob`).
+    box_sd : float
+        Support of :meth:`log_prob`: a box of ``box_sd`` prior standard deviations of z around the
+        prior mean (for ``natural``, of the log-normal with the same moments); ``inf``: no box.
+        Keeps MCMC walkers away from absurd parameters where the stiff forward solve takes very
+        long (the prior density at the box edge is below e^-50 of its peak).
+    lower, upper : ndarray (n_p,)
+        The box in z (derived).
     """
 
     names: tuple
@@ -129,13 +149,45 @@ class ParamSpace:
     prior_mean: np.ndarray
     prior_cov: np.ndarray
     prior_si: dict = field(default_factory=dict)
+    scale: str = "internal"
+    box_sd: float = 10.0
+    lower: np.ndarray = field(init=False, repr=False)
+    upper: np.ndarray = field(init=False, repr=False)
+    _prec: np.ndarray = field(init=False, repr=False)
+    _logdet: float = field(init=False, repr=False)
+
+    def __post_init__(self):
+        self.prior_mean = np.atleast_1d(np.asarray(self.prior_mean, dtype=np.float64))
+        d = self.prior_mean.size
+        self.prior_cov = _sym(np.asarray(self.prior_cov, dtype=np.float64).reshape(d, d))
+        self.positive = np.broadcast_to(np.asarray(self.positive, dtype=bool), (d,)).copy()
+        self.names = tuple(self.names) or tuple(f"theta{i}" for i in range(d))
+        if len(self.names) != d:
+            raise InputError("prior", f"{len(self.names)} names for {d} parameters")
+        if self.scale not in ("internal", "natural"):
+            raise InputError("prior", f"scale must be 'internal' or 'natural', got {self.scale!r}")
+        try:
+            L = np.linalg.cholesky(self.prior_cov)
+        except np.linalg.LinAlgError:
+            raise InputError("prior", "the prior covariance must be symmetric positive definite")
+        self._prec = np.linalg.inv(self.prior_cov)
+        self._logdet = 2.0 * float(np.sum(np.log(np.diag(L))))
+        m, s = self.prior_mean.copy(), np.sqrt(np.diag(self.prior_cov))
+        if self.scale == "natural":
+            if np.any(self.positive & (self.prior_mean <= 0)):
+                raise InputError("prior", "positive parameters need a positive prior mean")
+            s2 = np.log1p(np.square(s / np.where(self.positive, self.prior_mean, 1.0)))
+            m = np.where(self.positive, np.log(np.where(self.positive, self.prior_mean, 1.0)) - 0.5 * s2, m)
+            s = np.where(self.positive, np.sqrt(s2), s)
+        self.lower = m - self.box_sd * s
+        self.upper = m + self.box_sd * s
 
     @property
     def n(self) -> int:
         return len(self.names)
 
     @classmethod
-    def for_model(cls, constitutive, prior: dict | None = None) -> "ParamSpace":
+    def for_model(cls, constitutive, prior: dict | None = None, box_sd: float = 10.0) -> "ParamSpace":
         """From a ``ConstitutiveModel``; ``prior`` maps name -> (mean, sd) in SI (default
         :data:`PAPER_PRIOR`, else the model default with a 50 % sd), uncorrelated."""
         prior = {**PAPER_PRIOR, **(prior or {})}
@@ -157,7 +209,13 @@ class ParamSpace:
             else:
                 means.append(mean)
                 sds.append(sd)
-        return cls(tuple(names), np.array(pos), np.array(means), np.diag(np.square(sds)), si)
+        return cls(tuple(names), np.array(pos), np.array(means), np.diag(np.square(sds)), si, box_sd=box_sd)
+
+    def with_prior(self, mean, cov, box_sd: float | None = None) -> "ParamSpace":
+        """The same parameters with the prior N(mean, cov) stated on z (e.g. a window's chained
+        prior), and ``box_sd`` (default: this space's)."""
+        return ParamSpace(self.names, self.positive, mean, cov, {}, "internal",
+                          self.box_sd if box_sd is None else float(box_sd))
 
     def to_internal(self, theta):
         """(..., n_p) SI -> internal z (log for positive parameters)."""
@@ -168,11 +226,39 @@ class ParamSpace:
     def to_si(self, z):
         """(..., n_p) internal -> SI."""
         z = np.asarray(z, dtype=np.float64)
-        return np.where(self.positive, np.exp(np.where(self.positive, z, 0.0)), z)
+        with np.errstate(over="ignore"):
+            return np.where(self.positive, np.exp(np.where(self.positive, z, 0.0)), z)
+
+    def log_prob(self, Z) -> np.ndarray:
+        """(n, n_p) z -> (n,) log prior density of z (normalised, up to the box truncation); -inf
+        outside the box or where z is not finite."""
+        Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
+        d = self.n
+        out = np.full(Z.shape[0], -np.inf)
+        ok = np.all(np.isfinite(Z), axis=1) & np.all((Z >= self.lower) & (Z <= self.upper), axis=1)
+        if not ok.any():
+            return out
+        z = Z[ok]
+        x = z if self.scale == "internal" else self.to_si(z)
+        r = x - self.prior_mean
+        lp = -0.5 * np.einsum("ni,ij,nj->n", r, self._prec, r) - 0.5 * (d * np.log(2 * np.pi) + self._logdet)
+        if self.scale == "natural":
+            lp = lp + np.sum(np.where(self.positive, z, 0.0), axis=1)          # Jacobian of theta = exp(z)
+        out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
+        return out
 
     def describe(self) -> dict:
+        """The parameter space as the methods use it (``summary.json["prior"]``, the run config)."""
         return {"names": list(self.names), "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)},
                 "prior_si": {k: {"mean": v[0], "sd": v[1]} for k, v in self.prior_si.items()},
                 "prior_internal_mean": self.prior_mean.tolist(), "prior_internal_cov": self.prior_cov.tolist(),
                 "prior_rule": "positive parameters: log-normal with the given SI mean and sd "
                               "(s^2 = log(1 + (sd/mean)^2), m = log(mean) - s^2/2); others Gaussian"}
+
+    def describe_density(self) -> dict:
+        """The prior density as :meth:`log_prob` evaluates it (scale, box; an MCMC target's ``prior``)."""
+        return {"names": list(self.names), "mean": self.prior_mean.tolist(), "cov": self.prior_cov.tolist(),
+                "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)}, "scale": self.scale,
+                "box_sd": float(self.box_sd), "box_lower": self.lower.tolist(), "box_upper": self.upper.tolist(),
+                "rule": ("Gaussian on z (log for positive parameters); no Jacobian" if self.scale == "internal" else
+                         "Gaussian on theta [SI], sampled in z = log(theta) with the Jacobian sum(z_positive)")}

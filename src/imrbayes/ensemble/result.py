@@ -9,7 +9,51 @@ import numpy as np
 
 from imrbayes.ensemble.gaussian import marginal_summary
 
-__all__ = ["FitResult", "gaussian_estimate", "si_covariance", "rmse", "loglik_pointwise"]
+__all__ = ["FitResult", "WindowPosterior", "gaussian_estimate", "si_covariance", "rmse", "loglik_pointwise"]
+
+
+@dataclass
+class WindowPosterior:
+    """One window's Gaussian posterior and the density it approximates, recorded by the method as
+    it used them (what :mod:`imrbayes.mcmc` samples to check the Gaussian; nothing is re-derived).
+
+    The density is ``-1/2 sum_n sum_k weight_k (y_nk - R_nk(z))^2 / P_k + log N(z; prior_mean,
+    prior_cov)`` over samples ``samples[0]..samples[1]`` of the observation grid, every experiment
+    n run from ``start_state[n]`` at sample ``start`` with constant parameters z.
+
+    Attributes
+    ----------
+    index : int
+        Window number (0 for a method with one fitting window).
+    start : int
+        Sample at which the forward runs start (the state's time t*[start]).
+    samples : (int, int)
+        First and last (inclusive) sample whose observations the window's cost holds.
+    mean, cov : (d,), (d, d)
+        The method's (fused) Gaussian posterior, internal coordinates (:class:`ParamSpace`).
+    prior_mean, prior_cov : (d,), (d, d)
+        The parameter prior of the window, internal coordinates (MIEnKS-MDA ``fusion="chain"``:
+        the previous window's fused posterior after RTPS).
+    weight : (samples[1] - samples[0] + 1,)
+        Observation weight c_k (En4D-Var 1/N_t; MIEnKS-MDA beta_jk / L).
+    start_state : (n_exp, n_state)
+        Each experiment's dimensionless forward state at t*[start] (MIEnKS-MDA: the mean of its
+        handed-off ensemble); NaN rows: experiments left out of the window.
+    description : dict
+        How the density is stated (kind, weight rule, ``state`` = where the start state comes from),
+        carried into the MCMC target's description.
+    """
+
+    index: int
+    start: int
+    samples: tuple
+    mean: np.ndarray
+    cov: np.ndarray
+    prior_mean: np.ndarray
+    prior_cov: np.ndarray
+    weight: np.ndarray
+    start_state: np.ndarray
+    description: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -36,9 +80,9 @@ class FitResult:
     coords : coordinates for posterior.nc
     runtime_s : wall time of the method [s]
     warnings : list of str
-    window_start_states : ``mienks`` only, not written to summary.json: per window a (n_exp, n_state)
-        array, the mean of each experiment's ensemble state entering the window (dimensionless
-        forward-model state; NaN rows for experiments left out), at the window's first sample
+    window_posteriors : list of :class:`WindowPosterior` or None, not written to summary.json:
+        the Gaussian posterior of every window with the prior, observation weights and start
+        states the method used (methods with ``gaussian_posterior``: what ``--mcmc`` checks)
     """
 
     method: str
@@ -61,7 +105,7 @@ class FitResult:
     coords: dict = field(default_factory=dict)
     runtime_s: float = float("nan")
     warnings: list = field(default_factory=list)
-    window_start_states: list | None = None
+    window_posteriors: list | None = None
 
     @property
     def rmse(self) -> float:

@@ -4,7 +4,8 @@ A fit is split into *units* (one experiment, one window, one grid chunk, one MCM
 ids. :func:`run_units` runs ``fn(unit, rng)`` for each on an :class:`Executor` (in this process, a
 local process pool, or a Dask cluster: :func:`make_executor`), writes each finished unit atomically
 into a :class:`RunStore` under ``--out``, skips finished units on ``--resume``, and contains
-failures. Each unit's random generator comes from (run seed, unit id), so results are bit-identical
+failures (:class:`Execution` bundles store, executor and progress for the methods' ``execution=``).
+Each unit's random generator comes from (run seed, unit id), so results are bit-identical
 whatever the backend, the worker count, or interruptions and resumes.
 
 >>> from imrbayes.execution import RunStore, Unit, make_executor, run_units
@@ -15,11 +16,11 @@ whatever the backend, the worker count, or interruptions and resumes.
 from imrbayes.execution.backends import (DaskExecutor, ExecutionError, Executor, InProcessExecutor, Outcome,
                                          ProcessPoolExecutor, make_executor)
 from imrbayes.execution.driver import RunInterrupted, RunReport, UnitFailure, run_units
-from imrbayes.execution.store import (CorruptUnitError, RunStore, atomic_write_bytes, atomic_write_json,
-                                      canonical_config, config_fingerprint)
+from imrbayes.execution.run import Execution
+from imrbayes.execution.store import CorruptUnitError, RunStore, canonical_config, config_fingerprint
 from imrbayes.execution.units import Unit, normalize_units, safe_name, unit_id, unit_rng, unit_seed_sequence
 
 __all__ = ["Executor", "InProcessExecutor", "ProcessPoolExecutor", "DaskExecutor", "make_executor", "Outcome",
            "ExecutionError", "run_units", "RunReport", "UnitFailure", "RunInterrupted", "RunStore",
-           "CorruptUnitError", "atomic_write_bytes", "atomic_write_json", "canonical_config", "config_fingerprint",
-           "Unit", "unit_id", "unit_rng", "unit_seed_sequence", "normalize_units", "safe_name"]
+           "CorruptUnitError", "canonical_config", "config_fingerprint",
+           "Execution", "Unit", "unit_id", "unit_rng", "unit_seed_sequence", "normalize_units", "safe_name"]

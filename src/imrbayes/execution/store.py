@@ -8,8 +8,8 @@ Layout under the run directory (``--out DIR``)::
     units/<safe id>.failed.json   one failed unit: its error message and traceback
     .lock                         held (flock) while a process has the run open
 
-Every file is written atomically: to a temporary file in the same directory, flushed and fsynced,
-then ``os.replace``-d onto its name (and the directory fsynced), so a file under its final name is
+Every file is written atomically (:mod:`imrbayes.io`): to a temporary file in the same directory, flushed and
+fsynced, then ``os.replace``-d onto its name (and the directory fsynced), so a file under its final name is
 always complete. A temporary file left by a killed process is never read and is removed the next
 time the run is opened. A unit file that cannot be read anyway (e.g. a damaged copy) is reported
 and recomputed.
@@ -28,18 +28,17 @@ import hashlib
 import json
 import os
 import socket
-import uuid
 import zipfile
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from imrbayes.errors import InputError
 from imrbayes.execution.units import SEEDING_SCHEME, safe_name
+from imrbayes.io import atomic_write, write_json
 
-__all__ = ["RunStore", "canonical_config", "config_fingerprint", "atomic_write_bytes", "atomic_write_json",
-           "CorruptUnitError", "encode_value", "decode_value"]
+__all__ = ["RunStore", "canonical_config", "config_fingerprint", "CorruptUnitError", "encode_value", "decode_value"]
 
 RUN_FORMAT = "imrbayes-run/1"
 UNIT_FORMAT = 1
@@ -51,51 +50,6 @@ class CorruptUnitError(RuntimeError):
 
 def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
-
-# ------------------------------------------------------------------------------------ atomic files
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # e.g. Windows: directories cannot be opened
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _atomic_write(path: Path, write: Callable[[Any], None]) -> None:
-    path = Path(path)
-    tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:12]}.tmp"
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    _fsync_dir(path.parent)
-
-
-def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (temporary file in the same directory, fsync,
-    ``os.replace``): readers see the old file or the new one, never a part."""
-    _atomic_write(Path(path), lambda fh: fh.write(data))
-
-
-def atomic_write_json(path, obj, indent: int | None = 2) -> None:
-    """``json.dumps(obj)`` written with :func:`atomic_write_bytes` (ends with a newline)."""
-    atomic_write_bytes(path, (json.dumps(obj, indent=indent) + "\n").encode("utf-8"))
 
 
 # -------------------------------------------------------------------------------- configurations
@@ -339,7 +293,7 @@ class RunStore:
         return info
 
     def _write_info(self) -> None:
-        atomic_write_json(self.path / "run.json", self.info)
+        write_json(self.path / "run.json", self.info, indent=2)
 
     def _clean_temporaries(self) -> None:
         for folder in (self.path, self.path / "units"):
@@ -406,7 +360,7 @@ class RunStore:
                 "seconds": seconds, "worker": worker}
         header = json.dumps({"format": UNIT_FORMAT, "meta": meta, "value": tree}, allow_nan=True)
         payload = {**arrays, "__json__": np.array(header)}
-        _atomic_write(self._unit_path(uid), lambda fh: np.savez(fh, **payload))
+        atomic_write(self._unit_path(uid), lambda fh: np.savez(fh, **payload))
         fail = self._failure_path(uid)
         if fail.exists():
             fail.unlink()
@@ -447,9 +401,9 @@ class RunStore:
     def save_failure(self, uid: str, *, seed: int, error: str, traceback: str | None = None,
                      seconds: float | None = None, worker: str | None = None) -> None:
         """Record a unit that raised (atomically)."""
-        atomic_write_json(self._failure_path(uid), {
+        write_json(self._failure_path(uid), {
             "unit_id": uid, "seed": int(seed), "fingerprint": self.fingerprint, "finished": _now(),
-            "error": error, "traceback": traceback, "seconds": seconds, "worker": worker})
+            "error": error, "traceback": traceback, "seconds": seconds, "worker": worker}, indent=2)
 
     def load_failure(self, uid: str) -> dict:
         """The stored failure record of a unit (``error``, ``traceback``, ...)."""
@@ -461,7 +415,7 @@ class RunStore:
         return doc
 
     def write_status(self, status: dict) -> None:
-        atomic_write_json(self.path / "status.json", {**status, "updated": _now()})
+        write_json(self.path / "status.json", {**status, "updated": _now()}, indent=2)
 
 
 # ------------------------------------------------------------------------------------------- lock

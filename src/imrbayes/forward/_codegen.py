@@ -3,8 +3,10 @@
 numba caches compiled code per source file, and cannot cache a kernel that receives the stress
 function as an argument. So each model gets its own copy of ``_kernel_template.py`` whose PLUGIN
 import names that model's functions; the copy is written to a per-user cache directory under a
-name that hashes every source it depends on, so a second process reuses the machine code and an
-edit of any of those sources gives a new file.
+name that hashes every source it depends on (the template, the model's module and the other
+constitutive modules, and the shared modules in ``_SHARED`` -- the stress-independent linear
+algebra and loop helpers, compiled once for all models), so a second process reuses the machine
+code and an edit of any of those sources gives a new file.
 
 The kernel is compiled in a child process, and every process -- the first one included -- runs
 the machine code numba cached: the code numba keeps in memory after compiling differs from what
@@ -26,6 +28,8 @@ import tempfile
 from pathlib import Path
 
 _TEMPLATE = Path(__file__).with_name("_kernel_template.py")
+# Modules of compiled code the template imports, shared by every model's kernel (not copied).
+_SHARED = ("_layout.py", "solver_algebra.py", "integration_common.py")
 _LOADED: dict = {}
 
 
@@ -76,9 +80,10 @@ def kernel_module(module_name: str):
         return _LOADED[module_name]
     plugin = importlib.import_module(module_name)
     # numba does not notice edits of the modules a cached function calls into, so the file name
-    # hashes the template, the layout and every constitutive module (models import each other).
+    # hashes the template, the shared modules it imports and every constitutive module (models
+    # import each other).
     here = Path(__file__).parent
-    sources = [_TEMPLATE.read_text(), inspect.getsource(plugin), (here / "_layout.py").read_text()]
+    sources = [_TEMPLATE.read_text(), inspect.getsource(plugin)] + [(here / f).read_text() for f in _SHARED]
     sources += [f.read_text() for f in sorted((here / "constitutive").glob("*.py"))]
     line = f"from {module_name} import stress as _stress, dissipation_q as _dissipation_q  # PLUGIN"
     src, count = re.subn(r"^from .*# PLUGIN$", line, sources[0], flags=re.M)

@@ -1,7 +1,12 @@
-# The compiled forward kernel. This file is a *template*: imrbayes.forward._codegen writes one
-# copy per constitutive model with the line marked PLUGIN replaced by an import of that model's
-# compiled `stress`/`dissipation_q`, so that numba can cache every model's kernel on disk
-# (numba cannot cache a kernel that receives the stress function as an argument).
+# The compiled forward kernel of one constitutive model. This file is a *template*:
+# imrbayes.forward._codegen writes one copy per constitutive model with the line marked PLUGIN
+# replaced by an import of that model's compiled `stress`/`dissipation_q`, so that numba can cache
+# every model's kernel on disk (numba cannot cache a kernel that receives the stress function as an
+# argument). Only what calls the model lives here: the right-hand side (Keller-Miksis and the
+# bubble's fields), the finite-difference Jacobians and the three integration loops. The linear
+# algebra they solve (Thomas / block Thomas sweeps, Woodbury, small LU) is in solver_algebra.py and
+# what the loops share (dense output, parameter pieces, final status) in integration_common.py,
+# both compiled once for all models; _codegen hashes them into this copy's name.
 #
 # Physics: shared/docs/forward-model.md (IMRv2, in our words). Everything here is dimensionless.
 # Time stepping, three loops: (1) Radau IIA order 5 (integrate_member_radau; default for the
@@ -22,6 +27,12 @@ from imrbayes.forward._layout import (
     G_CHI, G_CSTAR, G_FOH, G_FOM, G_INV_WE, G_IOTA, G_KAPPA, G_KV0, G_LSTAR, G_LT, G_P8, G_PB0,
     G_PV, G_REQ, G_RG, G_RV, G_T8, G_TAIT_B, G_TAIT_N, GR_D1C, GR_D1L, GR_D1U, GR_D2C, GR_D2L,
     GR_D2U, GR_WALL, GR_Y, OK)
+from imrbayes.forward.integration_common import (
+    MIN_STEP, T_BREAK_SLACK, before_end, clip_step, crossed_break, final_status, outputs_at_start,
+    outputs_in_step, parameter_piece, piece_end)
+from imrbayes.forward.solver_algebra import (
+    FASTMATH, apply_tridiag, build_tridiag, field_blocks, lu_small, lu_solve_small, radau_factor_pair,
+    radau_solve, radau_solve_pair, rms_norm, thomas_factor, thomas_solve, thomas_solve_many)
 from imrbayes.forward.constitutive.nhkv import stress as _stress, dissipation_q as _dissipation_q  # PLUGIN
 
 @njit(cache=True, error_model="numpy")
@@ -128,7 +139,7 @@ def _wall_root(guess, p, th, kv, tm, g, grid, dxi, nt, mass, kv0):
     return b
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", fastmath=FASTMATH)
 def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
     """Right-hand side ``out = dy/dt`` for one member; fills ``coef`` with the diffusion
     coefficients of the fields (multipliers of their second-difference operators).
@@ -327,7 +338,7 @@ def _rddot(R, U, pb, pdot, S, Sdot, J, g, radial):
     return num / ((1.0 - U / c) * R + J * hh / c)
 
 
-@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp", "reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", inline="always", fastmath=FASTMATH)
 def _rhs_gas(y, g, p, flags, out):
     """``out = dy/dt`` for the polytropic bubble (no fields): rhs() with thermal = 0, lean enough
     for the explicit integrator, whose cost is a few RHS evaluations per step."""
@@ -347,7 +358,7 @@ def _rhs_gas(y, g, p, flags, out):
     out[1] = _rddot(R, U, pb, pdot, S, Sdot, J, g, flags[F_RADIAL])
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", fastmath=FASTMATH)
 def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, atol, h_init, max_steps, r_out,
                               A, B, BH, C, order):
     """integrate_member() for the polytropic bubble with an explicit pair (AI = 0): same step
@@ -364,16 +375,9 @@ def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, a
     Y = np.zeros(n)
     ynew = np.zeros(n)
     fnew = np.zeros(n)
-    neval = t_eval.shape[0]
-    k_eval = 0
-    while k_eval < neval and t_eval[k_eval] < t0 - 1e-12:
-        r_out[k_eval] = np.nan
-        k_eval += 1
-    while k_eval < neval and t_eval[k_eval] <= t0 + 1e-12:
-        r_out[k_eval] = y[0]
-        k_eval += 1
+    k_eval = outputs_at_start(t_eval, t0, y[0], r_out)
     t = t0
-    piece = _piece(t + 1e-14, breaks)
+    piece = parameter_piece(t + T_BREAK_SLACK, breaks)
     _rhs_gas(y, g, ptab[piece], flags, F[0])
     h = h_init if h_init > 0.0 else 1e-4
     nsteps = 0
@@ -384,20 +388,15 @@ def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, a
     # trend instead of overshooting and rejecting every other step.
     h_acc = -1.0
     err_acc = 1.0
-    while t < t1 - 1e-14 * max(1.0, abs(t1)):
+    while before_end(t, t1):
         if nsteps >= max_steps:
             status = FAIL_MAXSTEPS
             break
-        t_stop = t1
-        if piece < breaks.shape[0] and breaks[piece] < t_stop:
-            t_stop = breaks[piece]
-        if h < 1e-13:
+        t_stop = piece_end(t1, piece, breaks)
+        if h < MIN_STEP:
             status = FAIL_STEP
             break
-        last = False
-        if t + h >= t_stop - 1e-14:
-            h = t_stop - t
-            last = True
+        h, last = clip_step(t, h, t_stop)
         pr = ptab[piece]
         ok = True
         for s in range(1, ns):
@@ -442,19 +441,13 @@ def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, a
             h *= 0.25
             nrej += 1
             continue
-        while k_eval < neval and t_eval[k_eval] <= t_new + 1e-12:
-            if t_eval[k_eval] >= t_new - 1e-12:
-                r_out[k_eval] = ynew[0]
-            else:
-                r_out[k_eval] = _hermite5(t_eval[k_eval], t, t_new, y[0], y[1], F[0, 1],
-                                          ynew[0], ynew[1], fnew[1])
-            k_eval += 1
+        k_eval = outputs_in_step(t_eval, k_eval, t, t_new, y[0], y[1], F[0, 1], ynew[0], ynew[1], fnew[1], r_out)
         for k in range(n):
             y[k] = ynew[k]
             F[0, k] = fnew[k]
         t = t_new
         nsteps += 1
-        if last and piece < breaks.shape[0] and t >= breaks[piece] - 1e-14:
+        if crossed_break(last, t, piece, breaks):
             # New parameters from here: the dense output above used the left limit.
             piece += 1
             _rhs_gas(y, g, ptab[piece], flags, F[0])
@@ -465,193 +458,10 @@ def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, a
             h_acc = h
             err_acc = max(1e-2, err)
         h *= fac
-    if status != OK:
-        for k in range(k_eval, neval):
-            r_out[k] = np.nan
-    if status == OK:
-        for k in range(n):
-            if not math.isfinite(y[k]):
-                status = FAIL_NONFINITE
-        if not (y[0] > 0.0):
-            status = FAIL_RADIUS
-    return status, nsteps, nrej
+    return final_status(status, y, r_out, k_eval), nsteps, nrej
 
 
-@njit(cache=True, error_model="numpy")
-def _blocks(flags):
-    """(offset, length, coef offset) of each implicit field block; length 0 when absent."""
-    nt = flags[F_NT]
-    mt = flags[F_MT]
-    thermal = flags[F_THERMAL]
-    medium = flags[F_MEDIUM]
-    mass = flags[F_MASS]
-    i_tm = 3 + nt * thermal
-    i_kv = i_tm + mt * medium
-    out = np.zeros((3, 3), dtype=np.int64)
-    if thermal:
-        out[0, 0] = 3
-        out[0, 1] = nt - 1          # unknowns 0..nt-2 (the wall row is not evolved)
-        out[0, 2] = 0
-    if mass:
-        out[1, 0] = i_kv
-        out[1, 1] = nt - 1
-        out[1, 2] = nt
-    if medium:
-        out[2, 0] = i_tm + 1        # interior nodes 1..mt-2
-        out[2, 1] = mt - 2
-        out[2, 2] = 2 * nt + 1
-    return out
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _build_tridiag(coef, blocks, grid, mgrid, lo, di, up):
-    """Tridiagonal diffusion operator A (frozen coefficients) for each block, in place."""
-    for b in range(3):
-        off = blocks[b, 0]
-        m = blocks[b, 1]
-        co = blocks[b, 2]
-        if m == 0:
-            continue
-        if b < 2:
-            for k in range(m):
-                c = coef[co + k]
-                lo[off + k] = c * grid[GR_D2L, k] if k > 0 else 0.0
-                di[off + k] = c * grid[GR_D2C, k]
-                up[off + k] = c * grid[GR_D2U, k] if k < m - 1 else 0.0
-        else:
-            dxi = mgrid[0, 1] - mgrid[0, 0]
-            for k in range(m):
-                c = coef[co + k] / (dxi * dxi)
-                lo[off + k] = c if k > 0 else 0.0
-                di[off + k] = -2.0 * c
-                up[off + k] = c if k < m - 1 else 0.0
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _apply_tridiag(blocks, lo, di, up, x, out):
-    for k in range(out.shape[0]):
-        out[k] = 0.0
-    for b in range(3):
-        off = blocks[b, 0]
-        m = blocks[b, 1]
-        for k in range(m):
-            s = di[off + k] * x[off + k]
-            if k > 0:
-                s += lo[off + k] * x[off + k - 1]
-            if k < m - 1:
-                s += up[off + k] * x[off + k + 1]
-            out[off + k] = s
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _factor(blocks, lo, di, up, hg, cp, dp):
-    """Thomas factorisation of (I - hg*A): per unknown, the modified super-diagonal (cp) and the
-    inverse pivot (dp), so that a solve costs no division."""
-    for b in range(3):
-        off = blocks[b, 0]
-        m = blocks[b, 1]
-        for k in range(m):
-            a = -hg * lo[off + k]
-            d = 1.0 - hg * di[off + k]
-            c = -hg * up[off + k]
-            if k == 0:
-                piv = d
-            else:
-                piv = d - a * cp[off + k - 1]
-            inv = 1.0 / piv
-            dp[off + k] = inv
-            cp[off + k] = c * inv
-
-
-@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _solve(blocks, lo, hg, cp, dp, rhs_vec, x):
-    """x = (I - hg*A)^-1 rhs on the block unknowns; other components x = rhs.
-
-    The forward sweep is a chain of dependent operations, so its cost is latency: when the
-    temperature and vapour blocks have the same length (the thermal bubble with mass transfer)
-    they are swept together, two independent chains per iteration."""
-    for k in range(rhs_vec.shape[0]):
-        x[k] = rhs_vec[k]
-    b0 = 0
-    if blocks[0, 1] > 0 and blocks[0, 1] == blocks[1, 1]:
-        o0 = blocks[0, 0]
-        o1 = blocks[1, 0]
-        m = blocks[0, 1]
-        x[o0] = rhs_vec[o0] * dp[o0]
-        x[o1] = rhs_vec[o1] * dp[o1]
-        for k in range(1, m):
-            x[o0 + k] = (rhs_vec[o0 + k] + hg * lo[o0 + k] * x[o0 + k - 1]) * dp[o0 + k]
-            x[o1 + k] = (rhs_vec[o1 + k] + hg * lo[o1 + k] * x[o1 + k - 1]) * dp[o1 + k]
-        for k in range(m - 2, -1, -1):
-            x[o0 + k] -= cp[o0 + k] * x[o0 + k + 1]
-            x[o1 + k] -= cp[o1 + k] * x[o1 + k + 1]
-        b0 = 2
-    for b in range(b0, 3):
-        off = blocks[b, 0]
-        m = blocks[b, 1]
-        if m == 0:
-            continue
-        x[off] = rhs_vec[off] * dp[off]
-        for k in range(1, m):
-            x[off + k] = (rhs_vec[off + k] + hg * lo[off + k] * x[off + k - 1]) * dp[off + k]
-        for k in range(m - 2, -1, -1):
-            x[off + k] -= cp[off + k] * x[off + k + 1]
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _solve_many(blocks, lo, hg, cp, dp, R, X):
-    """X[q] = (I - hg*A)^-1 R[q] for every row q: the rows' sweeps are interleaved (independent
-    dependency chains), which hides the latency that dominates one sweep."""
-    r = R.shape[0]
-    n = R.shape[1]
-    for q in range(r):
-        for k in range(n):
-            X[q, k] = R[q, k]
-    for b in range(3):
-        off = blocks[b, 0]
-        m = blocks[b, 1]
-        if m == 0:
-            continue
-        for q in range(r):
-            X[q, off] = R[q, off] * dp[off]
-        for k in range(1, m):
-            a = hg * lo[off + k]
-            d = dp[off + k]
-            for q in range(r):
-                X[q, off + k] = (R[q, off + k] + a * X[q, off + k - 1]) * d
-        for k in range(m - 2, -1, -1):
-            c = cp[off + k]
-            for q in range(r):
-                X[q, off + k] -= c * X[q, off + k + 1]
-
-
-@njit(cache=True, error_model="numpy")
-def _piece(t, breaks):
-    k = 0
-    while k < breaks.shape[0] and t >= breaks[k]:
-        k += 1
-    return k
-
-
-@njit(cache=True, error_model="numpy")
-def _hermite5(t, t0, t1, r0, v0, a0, r1, v1, a1):
-    """Quintic Hermite interpolant of R from R, Rdot, Rddot at both ends of a step."""
-    h = t1 - t0
-    s = (t - t0) / h
-    s2 = s * s
-    s3 = s2 * s
-    s4 = s3 * s
-    s5 = s4 * s
-    h00 = 1.0 - 10.0 * s3 + 15.0 * s4 - 6.0 * s5
-    h10 = s - 6.0 * s3 + 8.0 * s4 - 3.0 * s5
-    h20 = 0.5 * s2 - 1.5 * s3 + 1.5 * s4 - 0.5 * s5
-    h01 = 10.0 * s3 - 15.0 * s4 + 6.0 * s5
-    h11 = -4.0 * s3 + 7.0 * s4 - 3.0 * s5
-    h21 = 0.5 * s3 - s4 + 0.5 * s5
-    return h00 * r0 + h10 * h * v0 + h20 * h * h * a0 + h01 * r1 + h11 * h * v1 + h21 * h * h * a1
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", fastmath=FASTMATH)
 def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_tmp,
               blocks, di, lo, up, W):
     """Finite-difference Jacobian columns of the coupling variables ``cols`` minus the frozen
@@ -686,53 +496,9 @@ def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef
                     W[q, j + 1] -= lo[j + 1]
 
 
-@njit(cache=True, error_model="numpy")
-def _lu_small(K, piv):
-    """In-place LU with partial pivoting of a small dense matrix; False if singular."""
-    r = K.shape[0]
-    for c in range(r):
-        p = c
-        big = abs(K[c, c])
-        for i in range(c + 1, r):
-            if abs(K[i, c]) > big:
-                big = abs(K[i, c])
-                p = i
-        if big == 0.0 or not math.isfinite(big):
-            return False
-        piv[c] = p
-        if p != c:
-            for k in range(r):
-                tmp = K[c, k]
-                K[c, k] = K[p, k]
-                K[p, k] = tmp
-        for i in range(c + 1, r):
-            K[i, c] /= K[c, c]
-            for k in range(c + 1, r):
-                K[i, k] -= K[i, c] * K[c, k]
-    return True
-
-
-@njit(cache=True, error_model="numpy")
-def _lu_solve_small(K, piv, b):
-    r = K.shape[0]
-    for c in range(r):
-        p = piv[c]
-        if p != c:
-            tmp = b[c]
-            b[c] = b[p]
-            b[p] = tmp
-    for i in range(r):
-        for k in range(i):
-            b[i] -= K[i, k] * b[k]
-    for i in range(r - 1, -1, -1):
-        for k in range(i + 1, r):
-            b[i] -= K[i, k] * b[k]
-        b[i] /= K[i, i]
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", fastmath=FASTMATH)
 def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
-                     rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err):
+                     rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols):
     """Advance one member's state ``y`` (in place) from t0 to t1; R at ``t_eval`` -> r_out.
 
     Returns (status, accepted steps, rejected steps). ``ptab`` (n_pieces, n_p): parameters per time
@@ -748,7 +514,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
     expo = -1.0 / order
     nt = flags[F_NT]
     mt = flags[F_MT]
-    blocks = _blocks(flags)
+    blocks = field_blocks(flags)
     work = np.zeros(7 * nt + 2 * mt + 2)
     coef = np.zeros(2 * nt + mt + 1)
     coef_new = np.zeros(2 * nt + mt + 1)
@@ -771,16 +537,9 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
     sv = np.zeros(r)
     scratch = np.zeros(n)
     fp = np.zeros(n)
-    neval = t_eval.shape[0]
-    k_eval = 0
-    while k_eval < neval and t_eval[k_eval] < t0 - 1e-12:
-        r_out[k_eval] = np.nan
-        k_eval += 1
-    while k_eval < neval and t_eval[k_eval] <= t0 + 1e-12:
-        r_out[k_eval] = y[0]
-        k_eval += 1
+    k_eval = outputs_at_start(t_eval, t0, y[0], r_out)
     t = t0
-    piece = _piece(t + 1e-14, breaks)
+    piece = parameter_piece(t + T_BREAK_SLACK, breaks)
     rhs(t, y, g, ptab[piece], flags, grid, mgrid, F[0], coef, work)
     h = h_init
     if h <= 0.0:
@@ -794,26 +553,21 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
     cols_off = 0          # accepted steps left with the coupling columns switched off
     jac_age = -1
     status = OK
-    while t < t1 - 1e-14 * max(1.0, abs(t1)):
+    while before_end(t, t1):
         if nsteps >= max_steps:
             status = FAIL_MAXSTEPS
             break
-        t_stop = t1
-        if piece < breaks.shape[0] and breaks[piece] < t_stop:
-            t_stop = breaks[piece]
-        if h < 1e-13:
+        t_stop = piece_end(t1, piece, breaks)
+        if h < MIN_STEP:
             status = FAIL_STEP
             break
-        last = False
-        if t + h >= t_stop - 1e-14:
-            h = t_stop - t
-            last = True
+        h, last = clip_step(t, h, t_stop)
         pr = ptab[piece]
         hg = h * gamma
         if implicit:
-            _build_tridiag(coef, blocks, grid, mgrid, lo, di, up)
-            _factor(blocks, lo, di, up, hg, cp, dp)
-            _apply_tridiag(blocks, lo, di, up, y, FI[0])
+            build_tridiag(coef, blocks, grid, mgrid, lo, di, up)
+            thomas_factor(blocks, lo, di, up, hg, cp, dp)
+            apply_tridiag(blocks, lo, di, up, y, FI[0])
             if r > 0 and cols_off == 0:
                 # The coupling columns are refreshed every few steps and after a rejection; any
                 # frozen operator keeps the scheme consistent, it only has to hold the stiffness.
@@ -821,7 +575,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                     _coupling(t, y, F[0], cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_new,
                               blocks, di, lo, up, Wc)
                     jac_age = 0
-                _solve_many(blocks, lo, hg, cp, dp, Wc, Z)
+                thomas_solve_many(blocks, lo, hg, cp, dp, Wc, Z)
                 for q in range(r):
                     for k in range(n):
                         # Z decays geometrically away from the wall: flush what would become
@@ -832,7 +586,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                 for a in range(r):
                     for q in range(r):
                         K[a, q] = (1.0 if a == q else 0.0) - hg * Z[q, cols[a]]
-                if not _lu_small(K, piv):
+                if not lu_small(K, piv):
                     cols_off = 50
                     continue
         ok = True
@@ -852,11 +606,11 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                     for k in range(n):
                         rhs_vec[k] += ai * FIj[k]
             if implicit:
-                _solve(blocks, lo, hg, cp, dp, rhs_vec, Y)
+                thomas_solve(blocks, lo, hg, cp, dp, rhs_vec, Y)
                 if r > 0 and cols_off == 0:
                     for a in range(r):
                         sv[a] = Y[cols[a]]
-                    _lu_solve_small(K, piv, sv)
+                    lu_solve_small(K, piv, sv)
                     for q in range(r):
                         for k in range(n):
                             Y[k] += hg * Z[q, k] * sv[q]
@@ -885,24 +639,9 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                 for k in range(n):
                     ynew[k] += bj * Fj[k]
                     rhs_vec[k] += ej * Fj[k]
-            if implicit and filter_err:
-                # Shampine's filter: (I - h gamma A)^-1 applied to the error estimate keeps the
-                # damped stiff components (wall cells) from rejecting steps they cannot spoil.
-                _solve(blocks, lo, hg, cp, dp, rhs_vec, Y)
-                if r > 0 and cols_off == 0:
-                    for a in range(r):
-                        sv[a] = Y[cols[a]]
-                    _lu_solve_small(K, piv, sv)
-                    for q in range(r):
-                        for k in range(n):
-                            Y[k] += hg * Z[q, k] * sv[q]
-                for k in range(n):
-                    rhs_vec[k] = Y[k]
             for k in range(n):
                 sc = atol + rtol * max(abs(y[k]), abs(ynew[k]))
                 e = rhs_vec[k] / sc
-                if k >= 3:
-                    e *= field_weight
                 err += e * e
             err = math.sqrt(err / n)
             if not math.isfinite(err) or not (ynew[0] > 0.0):
@@ -932,13 +671,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
             nrej += 1
             continue
         # Dense output of R on (t, t_new].
-        while k_eval < neval and t_eval[k_eval] <= t_new + 1e-12:
-            if t_eval[k_eval] >= t_new - 1e-12:
-                r_out[k_eval] = ynew[0]
-            else:
-                r_out[k_eval] = _hermite5(t_eval[k_eval], t, t_new, y[0], y[1], F[0, 1],
-                                          ynew[0], ynew[1], fnew[1])
-            k_eval += 1
+        k_eval = outputs_in_step(t_eval, k_eval, t, t_new, y[0], y[1], F[0, 1], ynew[0], ynew[1], fnew[1], r_out)
         for k in range(n):
             # Diffusion spreads exponentially small values into the bubble interior; flushing
             # them (far below any tolerance) keeps subnormal arithmetic (~100x slower) away.
@@ -955,20 +688,11 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
             cols_off -= 1
             if cols_off == 0:
                 jac_age = -1
-        if last and piece < breaks.shape[0] and t >= breaks[piece] - 1e-14:
+        if crossed_break(last, t, piece, breaks):
             piece += 1
         fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** expo))
         h *= fac
-    if status != OK:
-        for k in range(k_eval, neval):
-            r_out[k] = np.nan
-    if status == OK:
-        for k in range(n):
-            if not math.isfinite(y[k]):
-                status = FAIL_NONFINITE
-        if not (y[0] > 0.0):
-            status = FAIL_RADIUS
-    return status, nsteps, nrej
+    return final_status(status, y, r_out, k_eval), nsteps, nrej
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1136,371 +860,7 @@ def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, 
     return kk
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_factor_scalar(a, m, Jl, Jd, Ju, invD, Cu, Pl):
-    """Block-Thomas pivots of M = a I - blocks for 1x1 blocks (no vapour field; the 2x2 case is
-    _bt_factor_pair): invD_i = (a - Jd_i + Jl_i C_{i-1})^-1, C_i = -invD_i Ju_i and the forward
-    multipliers Pl_i = invD_i Jl_i (Pl_0 = 0). False if a pivot is singular."""
-    cprev = 0.0 * a
-    for i in range(m):
-        d = a - Jd[i, 0, 0]
-        if i > 0:
-            d += Jl[i, 0, 0] * cprev
-        if d == 0.0:
-            return False
-        inv = 1.0 / d
-        invD[i, 0, 0] = inv
-        Pl[i, 0, 0] = inv * Jl[i, 0, 0] if i > 0 else 0.0 * inv
-        cprev = -inv * Ju[i, 0, 0]
-        Cu[i, 0, 0] = cprev
-    return True
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_solve(a, o1, bs, m, Pl, invD, Cu, b, x, gv):
-    """x = M^-1 b for M = a I - blocks on the field nodes and a I on every other row. ``Pl`` =
-    invD_i Jl_i (from the factorisation): the forward sweep g_i = invD_i b_i + Pl_i g_{i-1}
-    carries one block product per node along its chain of dependent operations instead of two."""
-    n = b.shape[0]
-    ia = 1.0 / a
-    for k in range(n):
-        x[k] = b[k] * ia
-    if bs == 1:
-        gp = 0.0 * a
-        for i in range(m):
-            gp = invD[i, 0, 0] * b[3 + i] + Pl[i, 0, 0] * gp
-            gv[i, 0] = gp
-        xn = gv[m - 1, 0]
-        x[3 + m - 1] = xn
-        for i in range(m - 2, -1, -1):
-            xn = gv[i, 0] - Cu[i, 0, 0] * xn
-            x[3 + i] = xn
-        return
-    g0 = 0.0 * a
-    g1 = g0
-    for i in range(m):
-        r0 = b[3 + i]
-        r1 = b[o1 + i]
-        n0 = invD[i, 0, 0] * r0 + invD[i, 0, 1] * r1 + (Pl[i, 0, 0] * g0 + Pl[i, 0, 1] * g1)
-        n1 = invD[i, 1, 0] * r0 + invD[i, 1, 1] * r1 + (Pl[i, 1, 0] * g0 + Pl[i, 1, 1] * g1)
-        g0 = n0
-        g1 = n1
-        gv[i, 0] = g0
-        gv[i, 1] = g1
-    x0 = gv[m - 1, 0]
-    x1 = gv[m - 1, 1]
-    x[3 + m - 1] = x0
-    x[o1 + m - 1] = x1
-    for i in range(m - 2, -1, -1):
-        y0 = gv[i, 0] - (Cu[i, 0, 0] * x0 + Cu[i, 0, 1] * x1)
-        y1 = gv[i, 1] - (Cu[i, 1, 0] * x0 + Cu[i, 1, 1] * x1)
-        x0 = y0
-        x1 = y1
-        x[3 + i] = x0
-        x[o1 + i] = x1
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_solve_many(a, o1, bs, m, kk, Pl, invD, Cu, B, X, gm):
-    """X[q] = M^-1 B[q] for q < kk in one sweep (the kk right-hand sides share each block's
-    loads, and the innermost loop over them vectorises); ``gm`` (m, bs, >= kk) scratch."""
-    n = B.shape[1]
-    ia = 1.0 / a
-    for q in range(kk):
-        for k in range(n):
-            X[q, k] = B[q, k] * ia
-    if bs == 1:
-        for i in range(m):
-            d0 = invD[i, 0, 0]
-            p0 = Pl[i, 0, 0]
-            for q in range(kk):
-                r0 = d0 * B[q, 3 + i]
-                if i > 0:
-                    r0 += p0 * gm[i - 1, 0, q]
-                gm[i, 0, q] = r0
-        for q in range(kk):
-            X[q, 3 + m - 1] = gm[m - 1, 0, q]
-        for i in range(m - 2, -1, -1):
-            c0 = Cu[i, 0, 0]
-            for q in range(kk):
-                X[q, 3 + i] = gm[i, 0, q] - c0 * X[q, 4 + i]
-        return
-    for i in range(m):
-        i00 = invD[i, 0, 0]
-        i01 = invD[i, 0, 1]
-        i10 = invD[i, 1, 0]
-        i11 = invD[i, 1, 1]
-        if i == 0:
-            for q in range(kk):
-                r0 = B[q, 3] + 0.0 * a
-                r1 = B[q, o1] + 0.0 * a
-                gm[0, 0, q] = i00 * r0 + i01 * r1
-                gm[0, 1, q] = i10 * r0 + i11 * r1
-        else:
-            p00 = Pl[i, 0, 0]
-            p01 = Pl[i, 0, 1]
-            p10 = Pl[i, 1, 0]
-            p11 = Pl[i, 1, 1]
-            for q in range(kk):
-                g0 = gm[i - 1, 0, q]
-                g1 = gm[i - 1, 1, q]
-                r0 = B[q, 3 + i]
-                r1 = B[q, o1 + i]
-                gm[i, 0, q] = i00 * r0 + i01 * r1 + (p00 * g0 + p01 * g1)
-                gm[i, 1, q] = i10 * r0 + i11 * r1 + (p10 * g0 + p11 * g1)
-    for q in range(kk):
-        X[q, 3 + m - 1] = gm[m - 1, 0, q]
-        X[q, o1 + m - 1] = gm[m - 1, 1, q]
-    for i in range(m - 2, -1, -1):
-        c00 = Cu[i, 0, 0]
-        c01 = Cu[i, 0, 1]
-        c10 = Cu[i, 1, 0]
-        c11 = Cu[i, 1, 1]
-        for q in range(kk):
-            x0 = X[q, 4 + i]
-            x1 = X[q, o1 + i + 1]
-            X[q, 3 + i] = gm[i, 0, q] - (c00 * x0 + c01 * x1)
-            X[q, o1 + i] = gm[i, 1, q] - (c10 * x0 + c11 * x1)
-
-
-@njit(cache=True, error_model="numpy")
-def _woodbury_factor(a, kk, vidx, vval, vcnt, Z, K, piv):
-    """LU of K = I - V^T Z (Woodbury capacitance matrix) for Z = M^-1 U."""
-    Kv = K[:kk, :kk]
-    for r in range(kk):
-        for q in range(kk):
-            s = (1.0 if r == q else 0.0) + 0.0 * a
-            for e in range(vcnt[r]):
-                s -= vval[r, e] * Z[q, vidx[r, e]]
-            Kv[r, q] = s
-    return _lu_small(Kv, piv[:kk])
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _woodbury(kk, Z, K, piv, vidx, vval, vcnt, x, sv):
-    """x += Z (K^-1 V^T x): the low-rank correction of a block solve (see _radau_factor)."""
-    for r in range(kk):
-        s = 0.0 * sv[0]
-        for e in range(vcnt[r]):
-            s += vval[r, e] * x[vidx[r, e]]
-        sv[r] = s
-    _lu_solve_small(K[:kk, :kk], piv[:kk], sv[:kk])
-    for q in range(kk):
-        s = sv[q]
-        Zq = Z[q]
-        for j in range(x.shape[0]):
-            x[j] += Zq[j] * s
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _radau_solve(a, o1, bs, m, kk, Pl, invD, Cu, Z, K, piv, vidx, vval, vcnt, b, x, gv, sv):
-    """x = (a I - J)^-1 b from the factorisation of _radau_factor_pair."""
-    _bt_solve(a, o1, bs, m, Pl, invD, Cu, b, x, gv)
-    if kk > 0:
-        _woodbury(kk, Z, K, piv, vidx, vval, vcnt, x, sv)
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r, invD_c, Cu_c, Pl_c):
-    """Block-Thomas pivots of M = a I - blocks (2x2 blocks) for the real (ar) and the complex (ac)
-    system in one loop, for the same reason as _bt_solve_pair: invD_i = (a I - Jd_i +
-    Jl_i C_{i-1})^-1, C_i = -invD_i Ju_i and the forward multipliers Pl_i = invD_i Jl_i (Pl_0 = 0;
-    off the chain of dependent operations, so they come almost free). The complex pivot's
-    reciprocal is formed in real arithmetic (one real division). False if a pivot is singular."""
-    c00 = 0.0
-    c01 = 0.0
-    c10 = 0.0
-    c11 = 0.0
-    e00 = 0.0j
-    e01 = 0.0j
-    e10 = 0.0j
-    e11 = 0.0j
-    for i in range(m):
-        j00 = Jd[i, 0, 0]
-        j01 = Jd[i, 0, 1]
-        j10 = Jd[i, 1, 0]
-        j11 = Jd[i, 1, 1]
-        m00 = ar - j00
-        m01 = -j01
-        m10 = -j10
-        m11 = ar - j11
-        n00 = ac - j00
-        n01 = -j01 + 0.0j
-        n10 = -j10 + 0.0j
-        n11 = ac - j11
-        if i > 0:
-            l00 = Jl[i, 0, 0]
-            l01 = Jl[i, 0, 1]
-            l10 = Jl[i, 1, 0]
-            l11 = Jl[i, 1, 1]
-            m00 += l00 * c00 + l01 * c10
-            m01 += l00 * c01 + l01 * c11
-            m10 += l10 * c00 + l11 * c10
-            m11 += l10 * c01 + l11 * c11
-            n00 += l00 * e00 + l01 * e10
-            n01 += l00 * e01 + l01 * e11
-            n10 += l10 * e00 + l11 * e10
-            n11 += l10 * e01 + l11 * e11
-        det = m00 * m11 - m01 * m10
-        dec = n00 * n11 - n01 * n10
-        dr = dec.real
-        di = dec.imag
-        dd = dr * dr + di * di
-        if det == 0.0 or dd == 0.0:
-            return False
-        inv = 1.0 / det
-        ri = 1.0 / dd
-        inc = complex(dr * ri, -di * ri)
-        i00 = m11 * inv
-        i01 = -m01 * inv
-        i10 = -m10 * inv
-        i11 = m00 * inv
-        k00 = n11 * inc
-        k01 = -n01 * inc
-        k10 = -n10 * inc
-        k11 = n00 * inc
-        invD_r[i, 0, 0] = i00
-        invD_r[i, 0, 1] = i01
-        invD_r[i, 1, 0] = i10
-        invD_r[i, 1, 1] = i11
-        invD_c[i, 0, 0] = k00
-        invD_c[i, 0, 1] = k01
-        invD_c[i, 1, 0] = k10
-        invD_c[i, 1, 1] = k11
-        if i > 0:
-            Pl_r[i, 0, 0] = i00 * l00 + i01 * l10
-            Pl_r[i, 0, 1] = i00 * l01 + i01 * l11
-            Pl_r[i, 1, 0] = i10 * l00 + i11 * l10
-            Pl_r[i, 1, 1] = i10 * l01 + i11 * l11
-            Pl_c[i, 0, 0] = k00 * l00 + k01 * l10
-            Pl_c[i, 0, 1] = k00 * l01 + k01 * l11
-            Pl_c[i, 1, 0] = k10 * l00 + k11 * l10
-            Pl_c[i, 1, 1] = k10 * l01 + k11 * l11
-        else:
-            Pl_r[0, 0, 0] = 0.0
-            Pl_r[0, 0, 1] = 0.0
-            Pl_r[0, 1, 0] = 0.0
-            Pl_r[0, 1, 1] = 0.0
-            Pl_c[0, 0, 0] = 0.0
-            Pl_c[0, 0, 1] = 0.0
-            Pl_c[0, 1, 0] = 0.0
-            Pl_c[0, 1, 1] = 0.0
-        u00 = Ju[i, 0, 0]
-        u01 = Ju[i, 0, 1]
-        u10 = Ju[i, 1, 0]
-        u11 = Ju[i, 1, 1]
-        c00 = -(i00 * u00 + i01 * u10)
-        c01 = -(i00 * u01 + i01 * u11)
-        c10 = -(i10 * u00 + i11 * u10)
-        c11 = -(i10 * u01 + i11 * u11)
-        e00 = -(k00 * u00 + k01 * u10)
-        e01 = -(k00 * u01 + k01 * u11)
-        e10 = -(k10 * u00 + k11 * u10)
-        e11 = -(k10 * u01 + k11 * u11)
-        Cu_r[i, 0, 0] = c00
-        Cu_r[i, 0, 1] = c01
-        Cu_r[i, 1, 0] = c10
-        Cu_r[i, 1, 1] = c11
-        Cu_c[i, 0, 0] = e00
-        Cu_c[i, 0, 1] = e01
-        Cu_c[i, 1, 0] = e10
-        Cu_c[i, 1, 1] = e11
-    return True
-
-
-@njit(cache=True, error_model="numpy")
-def _radau_factor_pair(ar, ac, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r, Pl_r, Z_r, K_r,
-                       piv_r, invD_c, Cu_c, Pl_c, Z_c, K_c, piv_c, gm_r, gm_c):
-    """Factor (a I - J) for the real (ar) and the complex (ac) system of a Radau step: block-Thomas
-    pivots and forward multipliers, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
-    if bs == 2:
-        if not _bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r, invD_c, Cu_c, Pl_c):
-            return False
-    else:
-        if not (_bt_factor_scalar(ar, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r)
-                and _bt_factor_scalar(ac, m, Jl, Jd, Ju, invD_c, Cu_c, Pl_c)):
-            return False
-    _bt_solve_many(ar, o1, bs, m, kk, Pl_r, invD_r, Cu_r, U, Z_r, gm_r)
-    _bt_solve_many(ac, o1, bs, m, kk, Pl_c, invD_c, Cu_c, U, Z_c, gm_c)
-    return _woodbury_factor(ar, kk, vidx, vval, vcnt, Z_r, K_r, piv_r) and \
-        _woodbury_factor(ac, kk, vidx, vval, vcnt, Z_c, K_c, piv_c)
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _bt_solve_pair(ar, ac, o1, m, Pl_r, invD_r, Cu_r, Pl_c, invD_c, Cu_c, br, bc, xr, xc, gv_r, gv_c):
-    """_bt_solve of the real (ar) and the complex (ac) system together (2x2 blocks): each sweep
-    is a chain of dependent operations, and running the two independent chains in one loop lets
-    the processor overlap them."""
-    n = br.shape[0]
-    iar = 1.0 / ar
-    iac = 1.0 / ac
-    for k in range(n):
-        xr[k] = br[k] * iar
-        xc[k] = bc[k] * iac
-    p0 = 0.0
-    p1 = 0.0
-    q0 = 0.0j
-    q1 = 0.0j
-    for i in range(m):
-        r0 = br[3 + i]
-        r1 = br[o1 + i]
-        s0 = bc[3 + i]
-        s1 = bc[o1 + i]
-        n0 = invD_r[i, 0, 0] * r0 + invD_r[i, 0, 1] * r1 + (Pl_r[i, 0, 0] * p0 + Pl_r[i, 0, 1] * p1)
-        n1 = invD_r[i, 1, 0] * r0 + invD_r[i, 1, 1] * r1 + (Pl_r[i, 1, 0] * p0 + Pl_r[i, 1, 1] * p1)
-        u0 = invD_c[i, 0, 0] * s0 + invD_c[i, 0, 1] * s1 + (Pl_c[i, 0, 0] * q0 + Pl_c[i, 0, 1] * q1)
-        u1 = invD_c[i, 1, 0] * s0 + invD_c[i, 1, 1] * s1 + (Pl_c[i, 1, 0] * q0 + Pl_c[i, 1, 1] * q1)
-        p0 = n0
-        p1 = n1
-        q0 = u0
-        q1 = u1
-        gv_r[i, 0] = p0
-        gv_r[i, 1] = p1
-        gv_c[i, 0] = q0
-        gv_c[i, 1] = q1
-    xr[3 + m - 1] = p0
-    xr[o1 + m - 1] = p1
-    xc[3 + m - 1] = q0
-    xc[o1 + m - 1] = q1
-    for i in range(m - 2, -1, -1):
-        y0 = gv_r[i, 0] - (Cu_r[i, 0, 0] * p0 + Cu_r[i, 0, 1] * p1)
-        y1 = gv_r[i, 1] - (Cu_r[i, 1, 0] * p0 + Cu_r[i, 1, 1] * p1)
-        z0 = gv_c[i, 0] - (Cu_c[i, 0, 0] * q0 + Cu_c[i, 0, 1] * q1)
-        z1 = gv_c[i, 1] - (Cu_c[i, 1, 0] * q0 + Cu_c[i, 1, 1] * q1)
-        p0 = y0
-        p1 = y1
-        q0 = z0
-        q1 = z1
-        xr[3 + i] = p0
-        xr[o1 + i] = p1
-        xc[3 + i] = q0
-        xc[o1 + i] = q1
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
-def _radau_solve_pair(ar, ac, o1, bs, m, kk, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, Pl_c, invD_c, Cu_c, Z_c, K_c,
-                      piv_c, vidx, vval, vcnt, br, bc, xr, xc, gv_r, gv_c, sv_r, sv_c):
-    """xr = (ar I - J)^-1 br and xc = (ac I - J)^-1 bc, the two solves of a Newton iteration."""
-    if bs == 2:
-        _bt_solve_pair(ar, ac, o1, m, Pl_r, invD_r, Cu_r, Pl_c, invD_c, Cu_c, br, bc, xr, xc, gv_r, gv_c)
-    else:
-        _bt_solve(ar, o1, bs, m, Pl_r, invD_r, Cu_r, br, xr, gv_r)
-        _bt_solve(ac, o1, bs, m, Pl_c, invD_c, Cu_c, bc, xc, gv_c)
-    if kk > 0:
-        _woodbury(kk, Z_r, K_r, piv_r, vidx, vval, vcnt, xr, sv_r)
-        _woodbury(kk, Z_c, K_c, piv_c, vidx, vval, vcnt, xc, sv_c)
-
-
-@njit(cache=True, error_model="numpy")
-def _rms(v, scale):
-    s = 0.0
-    for k in range(v.shape[0]):
-        e = v[k] / scale[k]
-        s += e * e
-    return math.sqrt(s / v.shape[0])
-
-
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp", "reassoc", "nsz"})
+@njit(cache=True, error_model="numpy", fastmath=FASTMATH)
 def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid, rtol, atol, h_init,
                            max_steps, r_out, dense):
     """Advance one member's state ``y`` (in place) from t0 to t1 with Radau IIA (order 5); R at
@@ -1562,17 +922,10 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     scale = np.zeros(n)
     iscale = np.zeros(n)
     err = np.zeros(n)
-    neval = t_eval.shape[0]
-    k_eval = 0
-    while k_eval < neval and t_eval[k_eval] < t0 - 1e-12:
-        r_out[k_eval] = np.nan
-        k_eval += 1
-    while k_eval < neval and t_eval[k_eval] <= t0 + 1e-12:
-        r_out[k_eval] = y[0]
-        k_eval += 1
+    k_eval = outputs_at_start(t_eval, t0, y[0], r_out)
     newton_tol = max(10.0 * 2.220446049250313e-16 / rtol, min(0.03, rtol ** 0.5))
     t = t0
-    piece = _piece(t + 1e-14, breaks)
+    piece = parameter_piece(t + T_BREAK_SLACK, breaks)
     pr = ptab[piece]
     rhs(t, y, g, pr, flags, grid, mgrid, f, coef, work)
     h = h_init if h_init > 0.0 else 1e-4
@@ -1588,13 +941,11 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
     nsteps = 0
     nrej = 0
     status = OK
-    while t < t1 - 1e-14 * max(1.0, abs(t1)):
+    while before_end(t, t1):
         if nsteps >= max_steps:
             status = FAIL_MAXSTEPS
             break
-        t_stop = t1
-        if piece < breaks.shape[0] and breaks[piece] < t_stop:
-            t_stop = breaks[piece]
+        t_stop = piece_end(t1, piece, breaks)
         rejected = False
         accepted = False
         last = False
@@ -1603,13 +954,10 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
         rate = -1.0
         err_norm = 0.0
         while not accepted:
-            if h < 1e-13:
+            if h < MIN_STEP:
                 status = FAIL_STEP
                 break
-            last = False
-            if t + h >= t_stop - 1e-14:
-                h = t_stop - t
-                last = True
+            h, last = clip_step(t, h, t_stop)
             ar = RADAU_MU_REAL / h
             ac = RADAU_MU_COMPLEX / h
             for i in range(3):
@@ -1627,7 +975,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
             h_fail = 0.5
             while not converged:
                 if not lu_ok:
-                    lu_ok = _radau_factor_pair(ar, ac, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r,
+                    lu_ok = radau_factor_pair(ar, ac, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r,
                                                Pl_r, Z_r, K_r, piv_r, invD_c, Cu_c, Pl_c, Z_c, K_c, piv_c, gm_r, gm_c)
                     if not lu_ok:
                         break
@@ -1657,7 +1005,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                         fc[kk] = complex(RADAU_TI[1, 0] * F[0, kk] + RADAU_TI[1, 1] * F[1, kk] + RADAU_TI[1, 2] * F[2, kk],
                                          RADAU_TI[2, 0] * F[0, kk] + RADAU_TI[2, 1] * F[1, kk] + RADAU_TI[2, 2] * F[2, kk]) \
                             - ac * complex(Wn[1, kk], Wn[2, kk])
-                    _radau_solve_pair(ar, ac, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, Pl_c, invD_c, Cu_c,
+                    radau_solve_pair(ar, ac, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, Pl_c, invD_c, Cu_c,
                                       Z_c, K_c, piv_c, vidx, vval, vcnt, fr, fc, xr, xc, gv_r, gv_c, sv_r, sv_c)
                     # W += dW and Z = T W before the convergence test on the norm of dW: a diverging
                     # iteration breaks out below and the retry starts again from Z0, so the update is
@@ -1719,10 +1067,10 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                 continue
             for kk in range(n):
                 fr[kk] = f[kk] + (RADAU_E[0] * Zs[0, kk] + RADAU_E[1] * Zs[1, kk] + RADAU_E[2] * Zs[2, kk]) / h
-            _radau_solve(ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
+            radau_solve(ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
             for kk in range(n):
                 scale[kk] = atol + max(abs(y[kk]), abs(ynew[kk])) * rtol
-            err_norm = _rms(err, scale)
+            err_norm = rms_norm(err, scale)
             safety = 0.9 * (2 * _NEWTON_MAXITER + 1) / (2 * _NEWTON_MAXITER + n_iter)
             if rejected and err_norm > 1.0:
                 for kk in range(n):
@@ -1730,8 +1078,8 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
                 rhs(t, ystage, g, pr, flags, grid, mgrid, fp, coef, work)
                 for kk in range(n):
                     fr[kk] = fp[kk] + (RADAU_E[0] * Zs[0, kk] + RADAU_E[1] * Zs[1, kk] + RADAU_E[2] * Zs[2, kk]) / h
-                _radau_solve(ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
-                err_norm = _rms(err, scale)
+                radau_solve(ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
+                err_norm = rms_norm(err, scale)
             if not math.isfinite(err_norm):
                 h *= 0.25
                 lu_ok = False
@@ -1770,12 +1118,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
         t_new = t_stop if last else t + h
         rhs(t_new, ynew, g, pr, flags, grid, mgrid, fnew, coef, work)
         # Dense output of R on (t, t_new].
-        while k_eval < neval and t_eval[k_eval] <= t_new + 1e-12:
-            if t_eval[k_eval] >= t_new - 1e-12:
-                r_out[k_eval] = ynew[0]
-            else:
-                r_out[k_eval] = _hermite5(t_eval[k_eval], t, t_new, y[0], y[1], f[1], ynew[0], ynew[1], fnew[1])
-            k_eval += 1
+        k_eval = outputs_in_step(t_eval, k_eval, t, t_new, y[0], y[1], f[1], ynew[0], ynew[1], fnew[1], r_out)
         # The collocation polynomial of this step predicts the next step's stages.
         for kk in range(n):
             for j in range(3):
@@ -1792,7 +1135,7 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
         t = t_new
         nsteps += 1
         h = h * fac
-        if last and piece < breaks.shape[0] and t >= breaks[piece] - 1e-14:
+        if crossed_break(last, t, piece, breaks):
             # New parameters from here: fresh rate, Jacobian and no extrapolation across the jump.
             piece += 1
             pr = ptab[piece]
@@ -1808,21 +1151,12 @@ def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgri
             current_jac = True
         else:
             current_jac = False
-    if status != OK:
-        for kk in range(k_eval, neval):
-            r_out[kk] = np.nan
-    if status == OK:
-        for kk in range(n):
-            if not math.isfinite(y[kk]):
-                status = FAIL_NONFINITE
-        if not (y[0] > 0.0):
-            status = FAIL_RADIUS
-    return status, nsteps, nrej
+    return final_status(status, y, r_out, k_eval), nsteps, nrej
 
 
 @njit(cache=True, error_model="numpy")
 def _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err, radau):
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau):
     """Integrate member m of a batch in place (shared by the serial and threaded drivers)."""
     ym = Y[m]
     finite = True
@@ -1840,8 +1174,7 @@ def _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks,
                                                h_init, max_steps, R[m], AE, B, BH, C, order)
     else:
         st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks[m], flags, grid, mgrid,
-                                      rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols,
-                                      field_weight, filter_err)
+                                      rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols)
     status[m] = st
     nsteps[m] = ns
     nrej[m] = nr
@@ -1849,7 +1182,7 @@ def _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks,
 
 @njit(cache=True, error_model="numpy")
 def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err, radau):
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau):
     """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps, nrejected).
 
     ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters, whose pieces
@@ -1863,14 +1196,14 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
     nrej = np.zeros(N, dtype=np.int64)
     for m in range(N):
         _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                        rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err, radau)
+                        rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau)
     return Y, R, status, nsteps, nrej
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
 def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                             rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight,
-                             filter_err, radau):
+                             rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols,
+                             radau):
     """As integrate_batch, with the members spread over numba threads (prange)."""
     N = Y0.shape[0]
     Y = Y0.copy()
@@ -1880,5 +1213,5 @@ def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgri
     nrej = np.zeros(N, dtype=np.int64)
     for m in prange(N):
         _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
-                        rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, field_weight, filter_err, radau)
+                        rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau)
     return Y, R, status, nsteps, nrej

@@ -161,8 +161,6 @@ class ForwardModel:
             self._cols = np.array(dense, dtype=np.int64)
         self._kernel = None
         self.parallel = bool(parallel)
-        self.field_weight = 1.0
-        self.filter_error = False  # Shampine filter of the error estimate (see kernel); off: it loosened accuracy in tests
         tab = TABLEAUX["ark548" if o.method == "radau5" else o.method]()  # radau5 ignores the tableau
         self._tableau = (tab["AE"], tab["AI"], tab["b"], tab["bhat"], tab["c"], float(tab["gamma"]),
                          float(tab["order"]))
@@ -305,7 +303,7 @@ class ForwardModel:
         integrate = self.kernel.integrate_batch_parallel if (self.parallel and n > 1) else self.kernel.integrate_batch
         Y, R, status, nsteps, nrej = integrate(
             np.ascontiguousarray(state.y, dtype=float), t0, t_end, t_eval, G, P, breaks, self._flags,
-            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols, float(self.field_weight), bool(self.filter_error),
+            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols,
             self._radau)
         end = BatchState(Y, t_end, state.rmax_m.copy(), state.req_m.copy())
         return Propagation(t_eval, R, end, status, nsteps, nrej)

@@ -1,4 +1,4 @@
-"""Figures of the ensemble-vs-MCMC comparison (matplotlib object API on the Agg canvas; no pyplot).
+"""Figures of the ensemble-vs-MCMC comparison (:mod:`imrbayes.plotting`: object API, Agg canvas).
 
 * :func:`forest_figure` -- per parameter, every window's ensemble Gaussian and MCMC posterior
   (median and 95 % interval, SI units) against the window's time span;
@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from imrbayes.plotting import figure, label, save, scale
+
 __all__ = ["forest_figure", "divergence_figure", "pair_figure", "comparison_figures"]
 
-from imrbayes.ensemble.figures import _figure, _label, _save  # one set of figure helpers
 _ENS, _MC = "tab:blue", "tab:red"
 
 
@@ -42,11 +43,11 @@ def forest_figure(entries, path, tree=None, prob: float = 0.95):
     plotted against the window's time span (a horizontal bar marks [t_start, t_end])."""
     entries = list(entries)
     names = entries[0]["parameters"]
-    fig = _figure(4.2 * len(names), 3.6)
+    fig = figure(4.2 * len(names), 3.6)
     axes = np.atleast_1d(fig.subplots(1, len(names), squeeze=False)).ravel()
     q = stats.norm.ppf(0.5 + prob / 2)
     for ax, name in zip(axes, names):
-        sc, lab = _label(name)
+        sc, lab = scale(name), label(name)
         i = names.index(name)
         iname = entries[0]["internal"][i]
         log = iname != name
@@ -79,7 +80,7 @@ def forest_figure(entries, path, tree=None, prob: float = 0.95):
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8, title=f"median, {int(prob * 100)}% interval ($\\blacktriangledown$: disagree)",
                    title_fontsize=7)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def divergence_figure(entries, path, t_star=None, R_star=None):
@@ -89,7 +90,7 @@ def divergence_figure(entries, path, t_star=None, R_star=None):
 
     entries = list(entries)
     top = t_star is not None and R_star is not None
-    fig = _figure(7.0, 6.2 if top else 4.4)
+    fig = figure(7.0, 6.2 if top else 4.4)
     axes = fig.subplots(3 if top else 2, 1, sharex=True)
     if top:
         ax = axes[0]
@@ -128,7 +129,7 @@ def divergence_figure(entries, path, t_star=None, R_star=None):
             if e.get("agree") is False:
                 fig.axes[0].axvspan(a, b, color="tab:red", alpha=0.08, lw=0)
     axes[-1].set_xlabel("t* (window centre; red: ensemble and MCMC disagree; grey: MCMC undecided)")
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def _ellipse(ax, m, S, k, **kw):
@@ -150,7 +151,7 @@ def pair_figure(entry, node, path, max_points: int = 3000):
     SE = np.asarray(entry["ensemble"]["cov_internal"], float)
     mM = np.array([entry["mcmc"]["mean_internal"][v] for v in names])
     SM = np.asarray(entry["mcmc"]["cov_internal"], float)
-    fig = _figure(2.6 * d + 0.6, 2.6 * d + 0.4)
+    fig = figure(2.6 * d + 0.6, 2.6 * d + 0.4)
     axes = fig.subplots(d, d, squeeze=False)
     for i in range(d):
         for j in range(d):
@@ -180,7 +181,7 @@ def pair_figure(entry, node, path, max_points: int = 3000):
     fig.suptitle(f"window {entry['index']}{span}: {verdict} (KL {entry['kl_sym']:.2g}, sample KL "
                  f"{entry['kl_sample']:.2g}, W2 {entry['w2']:.2g} sd)\nblue: ensemble Gaussian; red: MCMC",
                  fontsize=8)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def comparison_figures(compare: dict, out_dir, tree=None, t_star=None, R_star=None, pairs="worst") -> list:

@@ -1,15 +1,15 @@
 """MCMC of a finished fit, window by window, as execution units: what ``imrbayes fit --mcmc`` runs.
 
-:func:`fit_window_specs` turns a :class:`~imrbayes.ensemble.result.FitResult` into the densities
-its Gaussians approximate:
+:func:`fit_window_specs` turns a :class:`~imrbayes.ensemble.result.FitResult` of a method with a
+Gaussian posterior (``InferenceMethod.gaussian_posterior``) into the densities its Gaussians
+approximate, as the method recorded them (``FitResult.window_posteriors``: prior, observation
+weights, start states; :func:`imrbayes.mcmc.windows.window_specs`):
 
-* ``mienks``: every window j (:func:`imrbayes.mcmc.windows.mienks_window_specs`) -- chained prior,
-  MDA weights beta_jk / L, each experiment started from the smoother's **handed-off ensemble mean
-  state** (``FitResult.window_start_states``), compared with the window's fused Gaussian;
-* ``en4dvar``: the fitting window from the maximum to ``t_end`` with En4D-Var's 1/N_t weights (weight 1
-  with ``obs_weight=sum``) and
-  the parameter prior (:func:`imrbayes.mcmc.target.fitting_window_target`), compared with the fused
-  En4D-Var Gaussian (one "window", index 0).
+* ``mienks``: every window j -- chained prior, MDA weights beta_jk / L, each experiment started
+  from the smoother's **handed-off ensemble mean state**, compared with the window's fused Gaussian;
+* ``en4dvar``: the fitting window from the maximum to ``t_end`` with En4D-Var's 1/N_t weights
+  (weight 1 with ``obs_weight=sum``) and the parameter prior, compared with the fused En4D-Var
+  Gaussian (one "window", index 0).
 
 :func:`run_fit_mcmc` samples each window as one unit of the execution layer
 (:mod:`imrbayes.execution`; id ``mcmc=004``): windows are independent given the fit, so they run in
@@ -28,44 +28,31 @@ from pathlib import Path
 
 import numpy as np
 
+from imrbayes.ensemble import METHODS, ParamSpace
 from imrbayes.errors import InputError
-from imrbayes.forward import BatchState
+from imrbayes.execution import Execution, Unit, unit_id
+from imrbayes.forward import BatchState, fm_spec, register_runner, runner_for
 from imrbayes.mcmc.compare import compare_window
 from imrbayes.mcmc.sampler import MCMCSettings, run_mcmc
-from imrbayes.mcmc.target import GaussianPrior, WindowTarget, fitting_window_target
-from imrbayes.mcmc.windows import (WindowMCMC, WindowSpec, mienks_window_specs, mcmc_tree, window_seed,
-                                   write_compare)
+from imrbayes.mcmc.target import WindowTarget
+from imrbayes.mcmc.windows import WindowMCMC, mcmc_tree, window_seed, window_specs, write_compare
 
-__all__ = ["fit_window_specs", "mcmc_window_unit", "run_fit_mcmc", "MCMC_METHODS"]
-
-#: methods whose result is a Gaussian posterior the MCMC can check
-MCMC_METHODS = ("mienks", "en4dvar")
+__all__ = ["fit_window_specs", "mcmc_window_unit", "run_fit_mcmc"]
 
 
 def fit_window_specs(fm, obs, space, res, *, runner=None, windows=None, box_sd: float = 10.0) -> list:
     """[WindowSpec] the targets of ``res`` (module docstring); ``windows``: indices (default all)."""
-    if res.method == "mienks":
-        n = len(res.windows)
-        idx = list(range(n)) if windows is None else sorted(set(int(j) for j in windows))
-        bad = [j for j in idx if not 0 <= j < n]
-        if bad:
-            raise InputError("--mcmc-windows", f"window(s) {bad} do not exist; this fit has windows 0-{n - 1}")
-        return mienks_window_specs(fm, obs, space, res.windows, res.details["settings"],
-                                   start_states=res.window_start_states, indices=idx, box_sd=box_sd,
-                                   model=runner or fm)
-    if res.method == "en4dvar":
-        if windows is not None and set(int(j) for j in windows) != {0}:
-            raise InputError("--mcmc-windows", "an En4D-Var fit has one window (0)")
-        t_end = res.details["settings"].get("t_end")
-        prior = GaussianPrior.from_space(space, box_sd)
-        plain = res.details["settings"].get("obs_weight", "mean") == "sum"
-        tg = fitting_window_target(runner or fm, obs, prior, t_end=t_end, weight="plain" if plain else "en4dvar")
-        tg.description["state"] = "maximum radius (exact)"
-        return [WindowSpec(0, (float(obs.t_star[0]), float(tg.t_eval[-1])), tg, np.asarray(res.mean_internal, float),
-                           np.asarray(res.cov_internal, float), space.prior_mean, space.prior_cov,
-                           "maximum radius (exact)")]
-    raise InputError("--mcmc", f"needs --method {' or '.join(MCMC_METHODS)} (a Gaussian posterior to check), "
-                               f"got {res.method!r}")
+    method = METHODS.get(res.method)
+    if method is None or not method.gaussian_posterior or res.window_posteriors is None:
+        checkable = " or ".join(m.name for m in METHODS.values() if m.gaussian_posterior)
+        raise InputError("--mcmc", f"needs --method {checkable} (a Gaussian posterior to check), got {res.method!r}")
+    n = len(res.window_posteriors)
+    idx = list(range(n)) if windows is None else sorted(set(int(j) for j in windows))
+    bad = [j for j in idx if not 0 <= j < n]
+    if bad:
+        raise InputError("--mcmc-windows", f"window(s) {bad} do not exist; this fit has " +
+                         ("one window (0)" if n == 1 else f"windows 0-{n - 1}"))
+    return window_specs(runner or fm, obs, space, res.window_posteriors, indices=idx, box_sd=box_sd)
 
 
 def _target_data(tg: WindowTarget) -> dict:
@@ -74,14 +61,14 @@ def _target_data(tg: WindowTarget) -> dict:
     return {"y0": tg.start.y, "t0": tg.t0, "rmax": tg.start.rmax_m, "req": tg.start.req_m, "t_eval": tg.t_eval,
             "y": tg.y, "P": tg.P, "weight": tg.weight, "names": list(tg.names),
             "description": {k: v for k, v in tg.description.items() if isinstance(v, (str, int, float, list))},
-            "prior": {"mean": p.mean, "cov": p.cov, "positive": np.asarray(p.positive, bool), "names": list(p.names),
-                      "scale": p.scale, "box_sd": float(p.box_sd)}}
+            "prior": {"mean": p.prior_mean, "cov": p.prior_cov, "positive": np.asarray(p.positive, bool),
+                      "names": list(p.names), "scale": p.scale, "box_sd": float(p.box_sd)}}
 
 
 def _rebuild_target(d: dict, model) -> WindowTarget:
     p = d["prior"]
-    prior = GaussianPrior(np.asarray(p["mean"]), np.asarray(p["cov"]), np.asarray(p["positive"], bool),
-                          tuple(p["names"]), p["scale"], float(p["box_sd"]))
+    prior = ParamSpace(tuple(p["names"]), np.asarray(p["positive"], bool), np.asarray(p["mean"]), np.asarray(p["cov"]),
+                       {}, p["scale"], float(p["box_sd"]))
     start = BatchState(np.array(d["y0"], dtype=np.float64), float(d["t0"]), np.asarray(d["rmax"], float),
                        np.asarray(d["req"], float))
     return WindowTarget(model, start, d["t_eval"], d["y"], d["P"], prior, d["weight"], d["names"],
@@ -97,8 +84,6 @@ def _atomic_netcdf(tree, path: Path) -> None:
 def mcmc_window_unit(unit, rng) -> dict:
     """One window: emcee (:func:`run_mcmc`), its ArviZ tree written to ``node_path``, its compare
     entry returned. ``rng`` is not used: the window's seed is ``window_seed(seed, index)``."""
-    from imrbayes.ensemble.units import runner_for
-
     d = unit.data
     notes = _check_backend(Path(d["backend"]))
     target = _rebuild_target(d["target"], runner_for(d))
@@ -143,7 +128,7 @@ def _check_backend(path: Path) -> str:
 def _json(obj) -> str:
     import json
 
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import jsonable
     return json.dumps(jsonable(obj))
 
 
@@ -151,7 +136,7 @@ def _plain(obj):
     """compare entries as plain JSON types (the unit store keeps exact floats)."""
     import json
 
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import jsonable
     return json.loads(json.dumps(jsonable(obj)))
 
 
@@ -161,15 +146,12 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
     comparison figures (``out/figures/mcmc_*.png``). Returns the compare dict.
 
     settings : MCMCSettings (default: 4 ensembles x 32 walkers x 2000 steps);
-    execution : :class:`imrbayes.ensemble.units.Execution` (default: this process, no checkpoints);
+    execution : :class:`imrbayes.execution.Execution` (default: this process, no checkpoints);
     windows : indices to sample (default all); start : ``"ensemble"`` (walkers start from the
     window's ensemble Gaussian) or ``"prior"``; progress : emcee progress bars (None: on a terminal,
     in this process only).
     """
     import xarray as xr
-
-    from imrbayes.ensemble.units import Execution, fm_spec, register_runner
-    from imrbayes.execution import Unit, unit_id
 
     s = settings or MCMCSettings()
     s.check(space.n)
@@ -213,8 +195,8 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
     compare = write_compare(out / "compare.json", results)
     if failed:
         compare["overall"]["failed_windows"] = failed
-        import json
-        (out / "compare.json").write_text(json.dumps(_plain(compare), indent=1, allow_nan=False) + "\n")
+        from imrbayes.io import write_json
+        write_json(out / "compare.json", compare)
     if figures:
         from imrbayes.mcmc.figures import comparison_figures
         with xr.open_datatree(out / "mcmc.nc") as tree:

@@ -340,7 +340,7 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
     if start_mean is None:
         if getattr(target.prior, "scale", "internal") != "internal":
             raise InputError("start_mean", "give the start Gaussian for a prior stated on the natural scale")
-        start_mean, start_cov = target.prior.mean, target.prior.cov
+        start_mean, start_cov = target.prior.prior_mean, target.prior.prior_cov
     start_mean = np.asarray(start_mean, dtype=np.float64).reshape(d)
     start_cov = np.asarray(start_cov, dtype=np.float64).reshape(d, d)
     Lc = np.linalg.cholesky(0.5 * (start_cov + start_cov.T))

@@ -18,8 +18,9 @@ and the forward prediction R_nk(z) = R*(t_k; q_n, theta(z)),
   A weight c is the same as a Gaussian likelihood with variance ``P_k / c_k``; samples with
   ``c = 0`` or at the start time t0 (where R* is the given state and does not depend on z) are not
   used;
-* ``p0``: a Gaussian prior N(m0, S0) (:class:`GaussianPrior`). ``scale="internal"`` (default, the
-  convention of ``ParamSpace``: the paper's SI mean/sd are turned into a log-normal by moment
+* ``p0``: the Gaussian prior N(m0, S0) of a :class:`~imrbayes.ensemble.ParamSpace`
+  (:meth:`~imrbayes.ensemble.ParamSpace.log_prob`). ``scale="internal"`` (default, the
+  methods' convention: the paper's SI mean/sd are turned into a log-normal by moment
   matching) states it on z, so no Jacobian is needed. ``scale="natural"`` states it on theta
   (truncated to theta > 0 for positive parameters); sampling z = log theta then adds the Jacobian
   ``log |d theta / d z| = sum_{positive i} z_i``;
@@ -38,123 +39,13 @@ Batching: :meth:`WindowTarget.log_prob` takes ``(n, d)`` and runs all n x N_exp 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
+from imrbayes.ensemble.problem import ParamSpace
 from imrbayes.errors import InputError
 from imrbayes.forward import BatchState
 
-__all__ = ["GaussianPrior", "WindowTarget", "fitting_window_target", "window_target_from_ensemble",
-           "loglik_pointwise"]
-
-
-def _sym(a):
-    a = np.asarray(a, dtype=np.float64)
-    return 0.5 * (a + np.swapaxes(a, -1, -2))
-
-
-@dataclass
-class GaussianPrior:
-    """Gaussian prior N(mean, cov) of the parameters, on the internal or the natural scale.
-
-    Attributes
-    ----------
-    mean : (d,), cov : (d, d)
-        Prior moments: of z (``scale="internal"``) or of theta in SI units (``scale="natural"``).
-    positive : (d,) bool
-        Parameters sampled as z = log(theta).
-    names : tuple of str
-        Parameter names (SI), e.g. ``("G", "mu")``.
-    scale : ``"internal"`` | ``"natural"``
-        Where the Gaussian is stated (see the module docstring; ``natural`` adds the Jacobian).
-    box_sd : float
-        Half-width of the support box in prior standard deviations of z (for ``natural``, of
-        the log-normal with the same moments); ``inf`` for no box.
-    """
-
-    mean: np.ndarray
-    cov: np.ndarray
-    positive: np.ndarray
-    names: tuple = ()
-    scale: str = "internal"
-    box_sd: float = 10.0
-    _prec: np.ndarray = field(init=False, repr=False)
-    _logdet: float = field(init=False, repr=False)
-    lower: np.ndarray = field(init=False, repr=False)
-    upper: np.ndarray = field(init=False, repr=False)
-
-    def __post_init__(self):
-        self.mean = np.atleast_1d(np.asarray(self.mean, dtype=np.float64))
-        d = self.mean.size
-        self.cov = _sym(np.asarray(self.cov, dtype=np.float64).reshape(d, d))
-        self.positive = np.broadcast_to(np.asarray(self.positive, dtype=bool), (d,)).copy()
-        self.names = tuple(self.names) or tuple(f"theta{i}" for i in range(d))
-        if len(self.names) != d:
-            raise InputError("prior", f"{len(self.names)} names for {d} parameters")
-        if self.scale not in ("internal", "natural"):
-            raise InputError("prior", f"scale must be 'internal' or 'natural', got {self.scale!r}")
-        try:
-            L = np.linalg.cholesky(self.cov)
-        except np.linalg.LinAlgError:
-            raise InputError("prior", "the prior covariance must be symmetric positive definite")
-        self._prec = np.linalg.inv(self.cov)
-        self._logdet = 2.0 * float(np.sum(np.log(np.diag(L))))
-        m, s = self.mean.copy(), np.sqrt(np.diag(self.cov))
-        if self.scale == "natural":
-            if np.any(self.positive & (self.mean <= 0)):
-                raise InputError("prior", "positive parameters need a positive prior mean")
-            s2 = np.log1p(np.square(s / np.where(self.positive, self.mean, 1.0)))
-            m = np.where(self.positive, np.log(np.where(self.positive, self.mean, 1.0)) - 0.5 * s2, m)
-            s = np.where(self.positive, np.sqrt(s2), s)
-        self.lower = m - self.box_sd * s
-        self.upper = m + self.box_sd * s
-
-    @classmethod
-    def from_space(cls, space, box_sd: float = 10.0) -> "GaussianPrior":
-        """The prior of an :class:`imrbayes.ensemble.ParamSpace` (stated on z: ``internal``)."""
-        return cls(space.prior_mean, space.prior_cov, space.positive, tuple(space.names), "internal", box_sd)
-
-    @property
-    def ndim(self) -> int:
-        return self.mean.size
-
-    def to_si(self, Z):
-        """(..., d) internal z -> theta [SI]."""
-        Z = np.asarray(Z, dtype=np.float64)
-        with np.errstate(over="ignore"):
-            return np.where(self.positive, np.exp(np.where(self.positive, Z, 0.0)), Z)
-
-    def to_internal(self, theta):
-        """(..., d) theta [SI] -> internal z."""
-        theta = np.asarray(theta, dtype=np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self.positive, np.log(np.where(self.positive, theta, 1.0)), theta)
-
-    def log_prob(self, Z) -> np.ndarray:
-        """(n, d) z -> (n,) log prior density of z (normalised, up to the box truncation); -inf
-        outside the box or where z is not finite."""
-        Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
-        d = self.ndim
-        out = np.full(Z.shape[0], -np.inf)
-        ok = np.all(np.isfinite(Z), axis=1) & np.all((Z >= self.lower) & (Z <= self.upper), axis=1)
-        if not ok.any():
-            return out
-        z = Z[ok]
-        x = z if self.scale == "internal" else self.to_si(z)
-        r = x - self.mean
-        lp = -0.5 * np.einsum("ni,ij,nj->n", r, self._prec, r) - 0.5 * (d * np.log(2 * np.pi) + self._logdet)
-        if self.scale == "natural":
-            lp = lp + np.sum(np.where(self.positive, z, 0.0), axis=1)          # Jacobian of theta = exp(z)
-        out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
-        return out
-
-    def describe(self) -> dict:
-        return {"names": list(self.names), "mean": self.mean.tolist(), "cov": self.cov.tolist(),
-                "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)}, "scale": self.scale,
-                "box_sd": float(self.box_sd), "box_lower": self.lower.tolist(), "box_upper": self.upper.tolist(),
-                "rule": ("Gaussian on z (log for positive parameters); no Jacobian" if self.scale == "internal" else
-                         "Gaussian on theta [SI], sampled in z = log(theta) with the Jacobian sum(z_positive)")}
+__all__ = ["WindowTarget", "fitting_window_target", "window_target_from_ensemble", "loglik_pointwise"]
 
 
 def loglik_pointwise(R, y, P, weight):
@@ -172,7 +63,7 @@ class WindowTarget:
 
     Parameters
     ----------
-    model : ForwardModel or imrbayes.ensemble.Runner
+    model : ForwardModel or imrbayes.forward.Runner
         Anything with ``propagate(state, params (N, d) SI, t_end, t_eval) -> Propagation``.
     start : BatchState
         One state per experiment (N_exp members) at the window start t0 = ``start.t_star``.
@@ -182,14 +73,15 @@ class WindowTarget:
         Observed R* at ``t_eval``.
     P : (m,) or (N_exp, m)
         Noise variance [R*^2], > 0.
-    prior : GaussianPrior
+    prior : ParamSpace
+        Parameter names, log transform and the prior density (its ``box_sd`` bounds the support).
     weight : scalar, (m,) or (N_exp, m)
         Observation weight c (see module docstring): 1, 1/N_t (En4D-Var) or beta_jk/L (MIEnKS-MDA).
     names : list of str, optional
         Experiment names (for the ``experiment`` coordinate).
     """
 
-    def __init__(self, model, start: BatchState, t_eval, y, P, prior: GaussianPrior, weight=1.0,
+    def __init__(self, model, start: BatchState, t_eval, y, P, prior: ParamSpace, weight=1.0,
                  names=None, description: dict | None = None):
         self.model = model
         self.start = start.copy()
@@ -223,7 +115,7 @@ class WindowTarget:
     # ------------------------------------------------------------------ description
     @property
     def ndim(self) -> int:
-        return self.prior.ndim
+        return self.prior.n
 
     @property
     def n_exp(self) -> int:
@@ -246,7 +138,7 @@ class WindowTarget:
     def describe(self) -> dict:
         return {"t0_star": self.t0, "t_star": [float(self.t_eval[0]), float(self.t_eval[-1])],
                 "n_samples": int(self.t_eval.size), "n_used": int(self.use.sum()), "n_experiments": self.n_exp,
-                "prior": self.prior.describe(), "internal_names": self.internal_names,
+                "prior": self.prior.describe_density(), "internal_names": self.internal_names,
                 "density": "-1/2 sum_n sum_k c_nk (y_nk - R_nk(z))^2 / P_k + log p0(z)",
                 "weight_min": float(self.weight[self.use].min()), "weight_max": float(self.weight[self.use].max()),
                 **self.description}
@@ -320,7 +212,7 @@ class WindowTarget:
         return out
 
 
-def fitting_window_target(model, obs, prior: GaussianPrior, t_end: float | None = None,
+def fitting_window_target(model, obs, prior: ParamSpace, t_end: float | None = None,
                           weight="en4dvar") -> WindowTarget:
     """Constant parameters over [0, t_end] from the radius maximum (the En4D-Var / IMR window).
 
@@ -329,7 +221,7 @@ def fitting_window_target(model, obs, prior: GaussianPrior, t_end: float | None 
     model : ForwardModel or Runner
     obs : imrbayes.ensemble.Observations or imrbayes.data.Preprocessed
         Anything with ``t_star`` (n,), ``R_star`` (N_exp, n), ``P`` (n,), ``rmax_m``, ``req_m`` (N_exp,).
-    prior : GaussianPrior (e.g. ``GaussianPrior.from_space(ParamSpace.for_model(fm.constitutive))``)
+    prior : ParamSpace (e.g. ``ParamSpace.for_model(fm.constitutive)``)
     t_end : last fitted t* (None: the whole record).
     weight : ``"en4dvar"`` (c = 1/K over the K fitted samples 1..K, methods.md §3; the density the
         fused En4D-Var posterior approximates), ``"plain"`` (c = 1) or an array (K,) / (N_exp, K).
@@ -353,7 +245,7 @@ def fitting_window_target(model, obs, prior: GaussianPrior, t_end: float | None 
                         description={"kind": "fitting window from the maximum", "samples": [1, K], "weight_rule": rule})
 
 
-def window_target_from_ensemble(model, ensemble: BatchState, t_eval, y, P, prior: GaussianPrior, mda_weight=1.0,
+def window_target_from_ensemble(model, ensemble: BatchState, t_eval, y, P, prior: ParamSpace, mda_weight=1.0,
                                 L: int | None = None, n_exp: int | None = None, groups=None, names=None,
                                 index: int | None = None) -> WindowTarget:
     """The density that the MIEnKS-MDA Gauss–Newton analysis of one window approximates.
@@ -382,7 +274,7 @@ def window_target_from_ensemble(model, ensemble: BatchState, t_eval, y, P, prior
         member i of experiment n (the order of ``fit_mienks``), unless ``groups`` says otherwise.
     t_eval : (m,) the window's samples t* (the first may equal t0; it is then not used).
     y : (N_exp, m) observed R*; P : (m,) noise variance.
-    prior : GaussianPrior  -- (m_j, C_j) on the internal parameters.
+    prior : ParamSpace  -- (m_j, C_j) on the internal parameters (``space.with_prior(m_j, C_j)``).
     mda_weight : scalar or (m,) beta_jk; L : window length (samples) for the 1/L average
         (default: m; 1 for fit_mienks' ``obs_weight="mda"``). The weight is ``beta_jk / L``.
     n_exp : number of experiments (default: ``len(y)``); groups : (N_exp N_En,) experiment of each member.

@@ -1,27 +1,17 @@
-"""MCMC of every MIEnKS-MDA window, ``mcmc.nc`` and ``compare.json`` (interfaces.md §2-3).
+"""MCMC of the windows of a fit, ``mcmc.nc`` and ``compare.json`` (interfaces.md §2-3).
 
-Given a MIEnKS-MDA fit -- its window list (``FitResult.windows`` or ``summary.json["windows"]``)
-and its settings (L, h, RTPS factor a, fusion) -- :func:`mienks_window_specs` builds, for every
-window j, the target density the window's analysis approximates
-(:func:`imrbayes.mcmc.target.window_target_from_ensemble`) and the ensemble's fused Gaussian to
-compare with:
+A method with a Gaussian posterior records, per window, the density its Gaussian approximates
+(:class:`imrbayes.ensemble.WindowPosterior` in ``FitResult.window_posteriors``): the parameter
+prior it used, the observation weights and each experiment's start state. :func:`window_specs`
+turns those records into MCMC targets (:class:`imrbayes.mcmc.target.WindowTarget`) without
+re-deriving anything:
 
-* **prior** (m_j, C_j) of the window's parameters: with ``fusion="chain"`` (the default of
-  ``fit_mienks``) the previous window's fused posterior after RTPS of the standard deviations
-  (correlations kept), chained from the parameter prior at window 0 --
-  ``m_{j+1} = mu_j``, ``C_{j+1} = rtps_cov(C_j, Sigma_j, a)``; with ``fusion="prior"`` the
-  parameter prior in every window;
-* **observation weight** beta_jk / L (:func:`imrbayes.ensemble.windows.mda_weights`;
-  ``obs_weight="mean"``, fit_mienks' default), or beta_jk (``obs_weight="mda"``);
-* **start state** of each experiment at t*_{jh}: the smoother's handed-off ensemble mean when it
-  is given (``start_states``; ``fit_mienks`` exposes it as ``FitResult.window_start_states``, and
-  ``imrbayes fit --mcmc`` uses it). Without it (e.g. from a summary.json alone) the state is
-  *reconstructed* by propagating each experiment from its maximum with piecewise-constant
-  parameters: experiment n's posterior mean of window k (``per_experiment[n]["mean_internal"]``)
-  over [t*_{kh}, t*_{(k+1)h}] -- the interval over which the smoother hands that window's
-  posterior on. The reconstruction ignores the smoother's state updates and the ensemble spread;
-  its effect shows as a shift of the MCMC posterior in late windows, so read late-window
-  disagreements with this in mind (``spec.state_source`` says which was used).
+* MIEnKS-MDA window j: prior (m_j, C_j) -- with ``fusion="chain"`` the previous window's fused
+  posterior after RTPS, chained from the parameter prior --, weights beta_jk / L (beta_jk with
+  ``obs_weight="mda"``), each experiment started from the mean of its handed-off ensemble at
+  t*_{jh} (experiments left out of the window have NaN start states and are left out);
+* En4D-Var: one window from the maximum over samples 1..N_t with the parameter prior and weight
+  1/N_t (1 with ``obs_weight="sum"``).
 
 :func:`sample_windows` runs :func:`imrbayes.mcmc.sampler.run_mcmc` window by window (HDF5 group
 ``window_XX``, so an interrupted run resumes window by window) and compares each with its
@@ -44,56 +34,10 @@ from imrbayes.errors import InputError
 from imrbayes.forward import BatchState
 from imrbayes.mcmc.compare import compare_window, compare_windows
 from imrbayes.mcmc.sampler import MCMCRun, MCMCSettings, run_mcmc
-from imrbayes.mcmc.target import GaussianPrior, WindowTarget, window_target_from_ensemble
+from imrbayes.mcmc.target import WindowTarget
 
-__all__ = ["WindowSpec", "WindowMCMC", "chain_priors", "reconstruct_start_states", "mienks_window_specs",
-           "sample_windows", "mcmc_tree", "write_mcmc", "write_compare", "compare_from_tree", "window_seed"]
-
-
-def _rtps_cov(prior_c, post_c, a):
-    """RTPS of a covariance: sd -> sd_post + a (sd_prior - sd_post), correlations kept (as fit_mienks)."""
-    sp, sa = np.sqrt(np.diag(prior_c)), np.sqrt(np.diag(post_c))
-    f = np.where(sa > 0, ((1.0 - a) * sa + a * sp) / np.where(sa > 0, sa, 1.0), 1.0)
-    return post_c * np.outer(f, f)
-
-
-def chain_priors(windows, prior_mean, prior_cov, rtps: float, fusion: str = "chain"):
-    """[(m_j, C_j)] the parameter prior of every window (module docstring), internal coordinates."""
-    m, C = np.asarray(prior_mean, float), np.asarray(prior_cov, float)
-    out = []
-    for w in windows:
-        out.append((m.copy(), C.copy()))
-        if fusion == "chain":
-            mu, S = np.asarray(w["mean_internal"], float), np.asarray(w["cov_internal"], float)
-            m, C = mu, _rtps_cov(C, S, float(rtps))
-        elif fusion != "prior":
-            raise InputError("fusion", f"must be 'chain' or 'prior', got {fusion!r}")
-    return out
-
-
-def reconstruct_start_states(fm, obs, windows, h: int, positive) -> list:
-    """[BatchState (N_exp,)] the state of every experiment at each window start, propagated from its
-    maximum with experiment n's window-k posterior mean over [t*_{kh}, t*_{(k+1)h}] (module docstring).
-    Raises if a propagation fails."""
-    positive = np.asarray(positive, bool)
-    t = np.asarray(obs.t_star, float)
-    state = fm.initial_state(obs.rmax_m, obs.req_m)
-    states = []
-    for j, w in enumerate(windows):
-        a = int(w["samples"][0]) if "samples" in w else j * h
-        if abs(state.t_star - t[a]) > 1e-12:
-            raise InputError("windows", f"window {j} starts at sample {a}, not at {state.t_star:g} + h")
-        states.append(state.copy())
-        if j == len(windows) - 1:
-            break
-        z = np.array([p["mean_internal"] for p in w["per_experiment"]], dtype=float)
-        theta = np.where(positive, np.exp(np.where(positive, z, 0.0)), z)
-        out = fm.propagate(state, theta, float(t[a + h]))
-        if np.any(out.failed):
-            raise RuntimeError(f"reconstructing the start of window {j + 1}: forward solve failed for "
-                               f"{int(out.failed.sum())} experiment(s)")
-        state = out.end
-    return states
+__all__ = ["WindowSpec", "WindowMCMC", "window_specs", "sample_windows", "mcmc_tree", "write_mcmc", "write_compare",
+           "compare_from_tree", "window_seed"]
 
 
 @dataclass
@@ -107,66 +51,34 @@ class WindowSpec:
     ens_cov: np.ndarray
     prior_mean: np.ndarray
     prior_cov: np.ndarray
-    state_source: str = "reconstructed"
+    state_source: str = ""
 
 
-def mienks_window_specs(fm, obs, space, windows, settings: dict, *, start_states=None, indices=None,
-                        box_sd: float = 10.0, model=None) -> list:
-    """Window targets of a MIEnKS-MDA fit (module docstring).
+def window_specs(model, obs, space, posteriors, *, indices=None, box_sd: float = 10.0) -> list:
+    """[WindowSpec] the MCMC targets of recorded window posteriors (module docstring).
 
-    fm : ForwardModel; obs : Observations (t_star, R_star, P, rmax_m, req_m, names);
-    space : ParamSpace (names, positive, prior_mean, prior_cov);
-    windows : list of window dicts (``FitResult.windows`` / ``summary.json["windows"]``) with
-        ``index``, ``t_star``, ``samples``, ``mean_internal``, ``cov_internal``, ``per_experiment``;
-    settings : the fit's MIEnKS settings (``L``, ``h``, ``rtps``, ``fusion``, ``obs_weight``);
-    start_states : optional list (one per window) of the smoother's handed-off ensembles
-        (BatchState of N_exp x N_En members, experiment-major) or of their mean states ((N_exp,
-        n_state) arrays, ``FitResult.window_start_states``; experiments with a NaN row are left out of
-        that window) -- used instead of the reconstruction;
-    indices : windows to build (default all); model : ForwardModel or Runner for the targets (default fm).
+    model : ForwardModel or Runner for the targets; obs : Observations (t_star, R_star, P, rmax_m,
+    req_m, names); space : ParamSpace (names, positive); posteriors : list of
+    :class:`imrbayes.ensemble.WindowPosterior` (``FitResult.window_posteriors``); indices : windows
+    to build (default all); box_sd : support of each window's prior in its standard deviations.
     """
-    from imrbayes.ensemble.windows import mda_weights
-
-    L, h = int(settings["L"]), int(settings["h"])
-    rtps, fusion = float(settings.get("rtps", 0.7)), settings.get("fusion", "chain")
-    obs_weight = settings.get("obs_weight", "mean")
-    if obs_weight not in ("mean", "mda"):
-        raise InputError("obs_weight", f"must be 'mean' or 'mda', got {obs_weight!r}")
-    average = L if obs_weight == "mean" else 1          # weight beta_jk / average
-    n_steps = obs.t_star.size - 1
-    beta = mda_weights(n_steps, L, h)
-    if len(windows) != beta.shape[0]:
-        raise InputError("windows", f"{len(windows)} windows, but L = {L}, h = {h} over {n_steps} steps give "
-                                    f"{beta.shape[0]}")
-    priors = chain_priors(windows, space.prior_mean, space.prior_cov, rtps, fusion)
-    positive = np.asarray(space.positive, bool)
-    recon = reconstruct_start_states(fm, obs, windows, h, positive) if start_states is None else None
+    t = np.asarray(obs.t_star, dtype=np.float64)
     specs = []
-    for j in (range(len(windows)) if indices is None else indices):
-        w = windows[j]
-        a, b = (int(w["samples"][0]), int(w["samples"][1])) if "samples" in w else (j * h, j * h + L - 1)
-        m, C = priors[j]
-        prior = GaussianPrior(m, C, positive, tuple(space.names), "internal", box_sd)
-        rows = np.arange(obs.R_star.shape[0])
-        if start_states is None:
-            ens = recon[j]
-        elif isinstance(start_states[j], BatchState):
-            ens = start_states[j]
-        else:                   # (N_exp, n_state) mean states (FitResult.window_start_states); NaN rows: left out
-            q = np.asarray(start_states[j], dtype=np.float64)
-            rows = np.flatnonzero(np.all(np.isfinite(q), axis=1))
-            if rows.size == 0:
-                raise InputError("start_states", f"window {j}: no experiment has a valid start state")
-            ens = BatchState(q[rows].copy(), float(obs.t_star[a]), np.asarray(obs.rmax_m, float)[rows],
-                             np.asarray(obs.req_m, float)[rows])
-        tg = window_target_from_ensemble(model or fm, ens, obs.t_star[a:b + 1], obs.R_star[rows, a:b + 1],
-                                         obs.P[a:b + 1], prior, mda_weight=beta[j, a:b + 1], L=average,
-                                         n_exp=rows.size, names=[obs.names[i] for i in rows], index=j)
-        src = "reconstructed" if start_states is None else "handed-off ensemble mean"
-        tg.description["state"] = src
-        specs.append(WindowSpec(j, (float(obs.t_star[a]), float(obs.t_star[b])), tg,
-                                np.asarray(w["mean_internal"], float), np.asarray(w["cov_internal"], float),
-                                m, C, src))
+    for j in (range(len(posteriors)) if indices is None else indices):
+        w = posteriors[j]
+        a, b = int(w.samples[0]), int(w.samples[1])
+        q = np.asarray(w.start_state, dtype=np.float64)
+        rows = np.flatnonzero(np.all(np.isfinite(q), axis=1))
+        if rows.size == 0:
+            raise InputError("start_state", f"window {w.index}: no experiment has a valid start state")
+        start = BatchState(q[rows].copy(), float(t[w.start]), np.asarray(obs.rmax_m, float)[rows],
+                           np.asarray(obs.req_m, float)[rows])
+        prior = space.with_prior(w.prior_mean, w.prior_cov, box_sd)
+        tg = WindowTarget(model, start, t[a:b + 1], np.asarray(obs.R_star)[rows, a:b + 1], np.asarray(obs.P)[a:b + 1],
+                          prior, w.weight, [obs.names[i] for i in rows], description=dict(w.description))
+        specs.append(WindowSpec(w.index, (float(t[w.start]), float(t[b])), tg, np.asarray(w.mean, float),
+                                np.asarray(w.cov, float), np.asarray(w.prior_mean, float),
+                                np.asarray(w.prior_cov, float), w.description.get("state", "")))
     return specs
 
 
@@ -253,11 +165,11 @@ def write_mcmc(path, results, attrs: dict | None = None) -> Path:
 
 def write_compare(path, results_or_entries) -> dict:
     """Write ``compare.json`` (interfaces.md §3) from WindowMCMC results or entries; returns the dict."""
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import jsonable, write_json
 
     entries = [r.entry if isinstance(r, WindowMCMC) else r for r in results_or_entries]
     data = jsonable(compare_windows(entries))
-    Path(path).write_text(json.dumps(data, indent=1, allow_nan=False) + "\n")
+    write_json(path, data)
     return data
 
 

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from imrbayes.data.noise import noise_variance, paper_sigma
-from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, Observations, ParamSpace, Runner,
-                               fit_en4dvar, fit_imr, fit_mienks)
+from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, Observations, ParamSpace, fit_en4dvar,
+                               fit_imr, fit_mienks)
 from imrbayes.ensemble import figures as figs
 from imrbayes.ensemble.gaussian import fuse
 from imrbayes.ensemble.pimr import collapse_time
@@ -259,7 +259,7 @@ def case_mcmc_non_gaussian(suite, fm, out, seed):
     from imrbayes.mcmc.compare import compare_window
     from imrbayes.mcmc.figures import pair_figure
     from imrbayes.mcmc.sampler import run_mcmc
-    from imrbayes.mcmc.target import GaussianPrior, fitting_window_target
+    from imrbayes.mcmc.target import fitting_window_target
 
     obs = verification_data(fm, seed)
     space = ParamSpace.for_model(fm.constitutive)
@@ -267,7 +267,7 @@ def case_mcmc_non_gaussian(suite, fm, out, seed):
     one = Observations(obs.t_star, obs.R_star[:n], obs.P, obs.rmax_m[:n], obs.req_m[:n], names=obs.names[:n])
     t = obs.t_star[1:int(round(b / 0.025)) + 1]
     weight = ((t >= a - 1e-9) & (t <= b + 1e-9)).astype(float)
-    target = fitting_window_target(fm, one, GaussianPrior.from_space(space), t_end=b, weight=weight)
+    target = fitting_window_target(fm, one, space, t_end=b, weight=weight)
     run = run_mcmc(target, space.prior_mean, space.prior_cov, MCMCSettings(n_walkers=16, n_steps=2500, n_chains=4),
                    seed=seed, progress=False)
     tree = run.to_datatree(target, loglik=False)
@@ -297,18 +297,16 @@ SUITES = {"quick": list(CASES), "full": list(CASES)}
 
 def case_unit(unit, rng) -> dict:
     """Unit ``case=<name>``: one validation case (its figures go to the run's ``figures``). A case
-    that raises is a failed case (reported in its row), as before."""
+    that raises is left to raise: the execution layer records it as a failed unit (so
+    ``--resume --retry-failed`` reruns it) and :func:`run_suite` reports it as a failed row."""
     import json
 
-    from imrbayes.ensemble.output import jsonable
+    from imrbayes.io import jsonable
 
     d = unit.data
     fm = ForwardModel("nhkv", options=d["forward"])
     t0 = time.perf_counter()
-    try:
-        r = CASES[d["name"]](d["suite"], fm, Path(d["figures"]), d["seed"])
-    except Exception as exc:  # a crashing case is a failed case, reported
-        r = {"passed": False, "criteria": "", "metrics": {}, "figures": [], "error": f"{type(exc).__name__}: {exc}"}
+    r = CASES[d["name"]](d["suite"], fm, Path(d["figures"]), d["seed"])
     r = {"name": d["name"], **r, "runtime_s": time.perf_counter() - t0}
     return json.loads(json.dumps(jsonable(r), default=str))
 
@@ -317,8 +315,7 @@ def run_suite(suite: str, out: Path, seed: int = 0, cases=None, forward: dict | 
               execution=None) -> dict:
     """Run the suite's cases (units ``case=<name>``: ``execution`` says where, and checkpoints them;
     default: this process); figures go to ``out/figures``. Returns the validation.json object."""
-    from imrbayes.ensemble.units import Execution
-    from imrbayes.execution import Unit
+    from imrbayes.execution import Execution, Unit
 
     out = Path(out)
     fdir = out / "figures"
@@ -333,10 +330,10 @@ def run_suite(suite: str, out: Path, seed: int = 0, cases=None, forward: dict | 
     rows = []
     for name in names:
         r = rep.results.get(f"case={name}")
-        if r is None:
-            f = rep.failures[f"case={name}"]
+        if r is None:  # the case raised (or its worker died): a failed row with the unit's "Type: message"
+            uid = f"case={name}"
             r = {"name": name, "passed": False, "criteria": "", "metrics": {}, "figures": [],
-                 "error": f"unit failed: {f.error}", "runtime_s": float("nan")}
+                 "error": rep.failures[uid].error, "runtime_s": rep.unit_seconds.get(uid, float("nan"))}
         rows.append(r)
         if progress is not None:
             progress(r)

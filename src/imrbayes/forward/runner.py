@@ -1,24 +1,76 @@
-"""Batched forward runs for the methods: one call, any number of members, optional processes.
+"""Batched forward runs for the methods and the units that carry a forward model to a worker.
 
 :class:`Runner` wraps ``ForwardModel.propagate``: it splits a batch into chunks (for a progress
 callback and to bound memory) and, with ``workers > 1``, runs the chunks in worker processes, each
 running its members serially (the forward model itself spreads a batch over numba threads, so
 ``workers = 1`` already uses every core of one machine; processes help where threads do not scale). Members are independent, so
 chunking never changes a result.
+
+Units of work (:mod:`imrbayes.execution`) carry the forward model as a *spec*
+(:func:`fm_spec`: constitutive name, options, physics) that a worker rebuilds (serial
+kernel) and caches, and a token (:func:`register_runner`) under which a unit that runs in the
+caller's process finds the caller's own runner; :func:`runner_for` resolves the two.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import multiprocessing as mp
+import os
+import time
 
 import numpy as np
 
-from imrbayes.forward import BatchState, ForwardModel, Propagation
+from imrbayes.forward.model import BatchState, ForwardModel, Propagation
 
-__all__ = ["Runner"]
+__all__ = ["Runner", "fm_spec", "forward_model_from_spec", "register_runner", "runner_for"]
 
-_WORKER_FM: dict = {}
+_WORKER_FM: dict = {}          # spec -> serial ForwardModel, per process (Runner's worker processes)
+_FM: dict = {}                 # spec -> ForwardModel for units (this process: the caller's own model)
+_RUNNERS: dict = {}            # token -> the caller's Runner (units running in this process)
+
+
+def fm_spec(fm) -> tuple:
+    """(constitutive name, options, physics): what a worker needs to rebuild ``fm``. In this
+    process the spec maps back to ``fm`` itself."""
+    spec = (fm.constitutive.name, fm.options, fm.physics)
+    _FM[repr(spec)] = fm
+    return spec
+
+
+def forward_model_from_spec(spec) -> ForwardModel:
+    """The model of :func:`fm_spec` (``fm`` itself in the process that made the spec;
+    elsewhere rebuilt once, with the serial kernel, and cached)."""
+    key = repr(spec)
+    fm = _FM.get(key)
+    if fm is None:
+        name, options, physics = spec
+        fm = _FM[key] = ForwardModel(name, options=options, physics=physics, parallel=False)
+    return fm
+
+
+def register_runner(runner) -> str:
+    """A token under which units running in this process find ``runner`` (other processes rebuild
+    one from the spec)."""
+    token = f"{os.getpid()}:{id(runner)}"
+    _RUNNERS[token] = runner
+    return token
+
+
+def runner_for(data: dict):
+    """The runner of a unit whose data hold ``"spec"`` and ``"runner"`` (token): the caller's
+    (same process) or a fresh :class:`Runner` on the rebuilt model.
+
+    ``IMRBAYES_UNIT_DELAY_S`` (seconds, a testing aid: makes every unit slow enough to interrupt
+    a small run part-way) delays each unit; it never changes a result."""
+    delay = os.environ.get("IMRBAYES_UNIT_DELAY_S")
+    if delay:
+        try:
+            time.sleep(max(0.0, float(delay)))
+        except ValueError:
+            pass
+    r = _RUNNERS.get(data.get("runner"))
+    return r if r is not None else Runner(forward_model_from_spec(data["spec"]))
 
 
 def _worker_propagate(spec, y, t0, rmax, req, params, t_end, t_eval):
@@ -67,6 +119,12 @@ class Runner:
 
     def _spec(self):
         return (self.fm.constitutive.name, self.fm.options, self.fm.physics)
+
+    def counts_since(self, before: tuple) -> dict:
+        """Member runs and failed member runs since ``before = (n_member_runs, n_failed)`` (what a
+        unit reports)."""
+        return {"member_runs": int(self.n_member_runs - before[0]),
+                "failed_member_runs": int(self.n_failed - before[1])}
 
     def propagate(self, state: BatchState, params, t_end: float, t_eval=None) -> Propagation:
         """Like ``ForwardModel.propagate``; ``params`` an (N, n_params) SI array or a dict."""

@@ -1,0 +1,150 @@
+"""The diagnosis candidates: one declaration per candidate mechanism, one registry.
+
+A candidate is a constitutive model that nests the baseline NHKV (G, mu) with a few extra fitted
+parameters (its *extension*), the mechanism it stands for, the rule that says whether a fitted
+extension points the way of that mechanism, and how synthetic data with the mechanism hidden are
+drawn. Everything else in :mod:`imrbayes.diagnosis` (the fits, the ranking, the synthetic data,
+figure and report labels, the command line's ``--candidates``) reads :data:`CANDIDATES`.
+
+Adding one: write a :class:`CandidateSpec` below and add it to :data:`CANDIDATES` (docs/diagnosis.md).
+
+This module is light (numpy only): the command line imports it to list the candidates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+__all__ = ["Extension", "Range", "CandidateSpec", "BASELINE", "CANDIDATES", "DEFAULT_CANDIDATES", "MECHANISMS",
+           "spec_of"]
+
+
+@dataclass(frozen=True)
+class Extension:
+    """A fitted parameter beyond (G, mu), with its Gaussian prior N(mean, sd) in the internal
+    coordinate: log of the SI value when ``log`` (so mean = log of the prior median), else the SI
+    value itself."""
+
+    name: str
+    mean: float
+    sd: float
+    log: bool = False
+
+
+@dataclass(frozen=True)
+class Range:
+    """True values in synthetic data: uniform on [low, high] (SI), log-uniform when ``log``."""
+
+    low: float
+    high: float
+    log: bool = False
+
+    def draw(self, rng) -> float:
+        if self.log:
+            return float(np.exp(rng.uniform(np.log(self.low), np.log(self.high))))
+        return float(rng.uniform(self.low, self.high))
+
+
+@dataclass(frozen=True)
+class CandidateSpec:
+    """One diagnosis candidate.
+
+    key : its name in ``--candidates``, results and unit ids.
+    mechanism : what it stands for; the diagnosis ``cause`` when it wins.
+    forward_model : constitutive model of :mod:`imrbayes.forward` it runs on.
+    extension : fitted parameters after (G, mu), in order (:class:`Extension`).
+    fixed : forward parameters held at a value (SI), e.g. Zener's lambda2 = 0.
+    pieces : None for constant parameters; else ``pieces(values, n_pieces)`` maps the fitted SI
+        values (name -> (M,)) to forward parameters per piece (name -> (M, n_pieces)); piece j
+        follows the j-th measured collapse of the experiment, whose times become the forward
+        model's breaks.
+    points_right_way : rule on the fitted SI medians (name -> float): True when the extension
+        points the way of the mechanism (None: always); ``wrong_way`` says why when it does not.
+        A candidate failing it is ranked after the others and never named the cause.
+    synthetic : the true values of the extension in synthetic data with this mechanism hidden
+        (:class:`Range` per extension name, drawn in this order; sizes of the effect seen in real
+        gels). None: no generator (the mechanism is simulated by another candidate).
+    default : in the default candidate set of ``diagnose``.
+    label : the model's name in results, figures and reports (default: ``key``).
+    """
+
+    key: str
+    mechanism: str
+    forward_model: str
+    extension: tuple = ()
+    fixed: Mapping = field(default_factory=dict)
+    pieces: Callable | None = None
+    points_right_way: Callable | None = None
+    wrong_way: str = ""
+    synthetic: Mapping | None = None
+    default: bool = True
+    label: str = ""
+
+    @property
+    def model(self) -> str:
+        return self.label or self.key
+
+    def consistent(self, medians: Mapping) -> tuple:
+        """(ok, note): does the fitted extension (SI medians, name -> float) point the right way?"""
+        ok = self.points_right_way is None or bool(self.points_right_way(medians))
+        return ok, "" if ok else self.wrong_way
+
+
+def _retention(values, n_pieces):
+    """Damage: piece j (after j collapses) has G a_G^j and mu a_mu^j -> nhkv's (G, mu) per piece."""
+    j = np.arange(n_pieces)[None, :]
+    return {"G": values["G"][:, None] * values["a_G"][:, None] ** j,
+            "mu": values["mu"][:, None] * values["a_mu"][:, None] ** j}
+
+
+#: The constant-parameter model every candidate nests; synthetic data of mechanism ``none``.
+BASELINE = CandidateSpec("nhkv", "none", "nhkv", synthetic={})
+
+QKV = CandidateSpec(
+    "qkv", "strain-stiffening", "qkv", extension=(Extension("alpha", 0.0, 0.5),),
+    points_right_way=lambda m: m["alpha"] > 0.0, wrong_way="fitted alpha <= 0: strain softening, not stiffening",
+    synthetic={"alpha": Range(0.2, 0.5)})
+
+# Fung: the same mechanism as qkv with another stiffening law; qkv is the default and generates the data.
+FUNG = CandidateSpec(
+    "fung", "strain-stiffening", "fung", extension=(Extension("alpha", 0.0, 0.3),),
+    points_right_way=lambda m: m["alpha"] > 0.0, wrong_way="fitted alpha <= 0: strain softening, not stiffening",
+    default=False)
+
+# lambda2 = 0: elastic and viscous stress relax together over lambda1; lambda1 -> 0 is NHKV. No
+# direction rule: any lambda1 > 0 is relaxation.
+ZENER = CandidateSpec(
+    "zener", "viscoelastic-relaxation", "zener", extension=(Extension("lambda1", float(np.log(1e-6)), 1.5, log=True),),
+    fixed={"lambda2": 0.0}, synthetic={"lambda1": Range(2e-6, 8e-6, log=True)})
+
+# mu_inf = 0; n = 1 or lambda_c -> 0 is NHKV. Shear thinning is n < 1.
+CARREAU = CandidateSpec(
+    "carreau", "rate-dependent-viscosity", "carreau",
+    extension=(Extension("lambda_c", float(np.log(1e-6)), 2.0, log=True),
+               Extension("n", float(np.log(0.7)), 0.6, log=True)),
+    fixed={"mu_inf": 0.0}, points_right_way=lambda m: m["n"] < 1.0,
+    wrong_way="fitted Carreau n >= 1: shear thickening, not the shear thinning of the mechanism",
+    synthetic={"lambda_c": Range(5e-6, 3e-5, log=True), "n": Range(0.25, 0.5)})
+
+# NHKV whose G and mu lose a fraction at every measured collapse (retention factors, median 1 = NHKV).
+DAMAGE = CandidateSpec(
+    "damage", "damage-softening", "nhkv", label="nhkv-piecewise",
+    extension=(Extension("a_G", 0.0, 0.7, log=True), Extension("a_mu", 0.0, 0.7, log=True)), pieces=_retention,
+    points_right_way=lambda m: m["a_G"] < 1.0 or m["a_mu"] < 1.0,
+    wrong_way="fitted a_G, a_mu >= 1: stiffening across collapses, not damage",
+    synthetic={"a_G": Range(0.25, 0.5), "a_mu": Range(0.6, 1.0)})
+
+#: key -> candidate: the registry every other module reads.
+CANDIDATES = {c.key: c for c in (QKV, FUNG, ZENER, CARREAU, DAMAGE)}
+#: The candidates ``diagnose`` fits unless told otherwise.
+DEFAULT_CANDIDATES = tuple(k for k, c in CANDIDATES.items() if c.default)
+#: Every possible ``cause``.
+MECHANISMS = (BASELINE.mechanism, *dict.fromkeys(c.mechanism for c in CANDIDATES.values()), "unexplained")
+
+
+def spec_of(key: str) -> CandidateSpec:
+    """The baseline (``nhkv``) or a registered candidate."""
+    return BASELINE if key == BASELINE.key else CANDIDATES[key]

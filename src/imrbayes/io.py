@@ -1,0 +1,146 @@
+"""Writing files: plain-JSON conversion, atomic writes and run folders -- the one home of each.
+
+* :func:`jsonable` -- numpy scalars and arrays, tuples and non-finite floats as plain JSON values;
+* :func:`atomic_write` / :func:`atomic_write_bytes` / :func:`atomic_write_text` -- a file that is
+  either the old one or the complete new one, never a part (temporary file in the same folder,
+  flushed, fsynced, ``os.replace``-d onto its name, the folder fsynced);
+* :func:`write_json` -- :func:`jsonable` + strict JSON (no NaN) + newline, written atomically: every
+  JSON file imrbayes writes (``summary.json``, ``compare.json``, ``dataset.json``, ``run.json``, ...);
+* :func:`new_run_dir` / :func:`prepare_out` -- the ``--out`` folder of a command.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import uuid
+from datetime import datetime
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from imrbayes.errors import InputError
+
+__all__ = ["jsonable", "atomic_write", "atomic_write_bytes", "atomic_write_text", "write_json", "new_run_dir",
+           "prepare_out"]
+
+
+# ------------------------------------------------------------------------------------------ JSON
+def jsonable(obj):
+    """``obj`` as plain JSON types, recursively.
+
+    dict keys -> ``str(key)``; tuples and lists -> lists; ndarrays -> nested lists; numpy bools,
+    integers and floats -> ``bool``, ``int``, ``float``; NaN and +-inf -> ``None``. Anything else
+    (str, None, Python ints) is returned as it is.
+    """
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    return obj
+
+
+# -------------------------------------------------------------------------------- atomic files
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # e.g. Windows: directories cannot be opened
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def atomic_write(path, write: Callable[[Any], None]) -> Path:
+    """Call ``write(fh)`` on a binary file handle and put the result at ``path`` atomically.
+
+    The temporary file is ``.<name>.<12 hex>.tmp`` in the same folder (a run store removes such
+    leftovers of a killed process); it is deleted if ``write`` raises. Returns ``path``.
+    """
+    path = Path(path)
+    tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:12]}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    _fsync_dir(path.parent)
+    return path
+
+
+def atomic_write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically: readers see the old file or the new one, never a part."""
+    return atomic_write(path, lambda fh: fh.write(data))
+
+
+def atomic_write_text(path, text: str) -> Path:
+    """``text`` as UTF-8 written with :func:`atomic_write_bytes`."""
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def write_json(path, obj, indent: int | None = 1) -> Path:
+    """``json.dumps(jsonable(obj), indent=indent, allow_nan=False)`` and a newline, written atomically.
+
+    ``indent``: 1 for the result files (summary.json, compare.json, dataset.json, ...), 2 for the
+    dataset's meta.json/truth.json and the run store's records (what each has always used).
+    """
+    return atomic_write_text(path, json.dumps(jsonable(obj), indent=indent, allow_nan=False) + "\n")
+
+
+# --------------------------------------------------------------------------------- run folders
+def new_run_dir(kind: str, name: str, base: Path = Path("imrbayes-runs")) -> Path:
+    """A fresh folder path ``base/<kind>-<name>-<YYYYmmdd-HHMMSS>[-k]`` (not created yet)."""
+    slug = re.sub(r"[^A-Za-z0-9._-]+", "_", name)[:60] or "run"
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    path = base / f"{kind}-{slug}-{stamp}"
+    k = 2
+    while path.exists():
+        path = base / f"{kind}-{slug}-{stamp}-{k}"
+        k += 1
+    return path
+
+
+def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = None) -> Path:
+    """The command's ``--out`` folder, created: ``out``, or :func:`new_run_dir` when it is None.
+
+    InputError (option ``--out``) when ``out`` is a file, is the data folder ``protect`` (or the
+    folder of the data file ``protect``: input files are never written to), or cannot be created.
+    """
+    if out is None:
+        out = new_run_dir(kind, name)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out", f"{out} exists and is not a directory")
+    if protect is not None:
+        p = protect if protect.is_dir() else protect.parent
+        if out.resolve() == p.resolve():
+            raise InputError("--out", f"{out} is the data folder; choose another folder (input files are "
+                                      f"never written to)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError("--out", f"cannot create {out}: {exc.strerror or exc}")
+    return out

@@ -1,0 +1,61 @@
+"""diagnose's bookkeeping: a statistic left out of the check is reported, and the En4D-Var
+baseline is checkpointed with the other units (small polytropic runs, no candidates)."""
+
+import pytest
+
+import imrbayes.diagnosis.check as check_mod
+import imrbayes.diagnosis.run as run_mod
+from imrbayes.diagnosis import DiagnoseSettings, diagnose
+from imrbayes.diagnosis.synthetic import synthetic_obs
+from imrbayes.execution import Execution
+from imrbayes.execution import RunStore
+from imrbayes.forward import ForwardOptions
+
+OPTS = ForwardOptions(bubble="polytropic")
+SMALL = {"n_bootstrap": 2, "candidates": (), "loeo": False, "n_draws": 20}
+
+
+def _obs():
+    return synthetic_obs("none", 11, OPTS, n_exp=3, noise_scale=0.5)[0]
+
+
+def _lost_every_member(*args, **kwargs):
+    raise RuntimeError("experiment 0: fewer than two ensemble members survived the hand-off")
+
+
+@pytest.mark.parametrize("case", ["settings", "smoother"])
+def test_failed_mienks_drift_is_reported(case, monkeypatch):
+    """The MIEnKS drift statistic that cannot be computed (settings the record cannot hold; the
+    smoother failing on the data) is left out of the check with a warning naming the error."""
+    if case == "settings":
+        s, expect = DiagnoseSettings.quick(mienks_n_ens=2, **SMALL), "at least 3 members"
+    else:
+        monkeypatch.setattr(check_mod, "mienks_drift", _lost_every_member)
+        s, expect = DiagnoseSettings.quick(**SMALL), "ensemble members survived"
+    r = diagnose(_obs(), OPTS, settings=s, seed=0).result
+    assert "mienks_drift" not in r["constant_parameter_check"]["evidence"]["statistics"]
+    hits = [w for w in r["warnings"] if "mienks_drift" in w]
+    assert len(hits) == 1 and expect in hits[0], r["warnings"]
+
+
+def test_en4dvar_baseline_resumes_from_its_checkpoint(tmp_path, monkeypatch):
+    """An interrupted diagnose reads the finished En4D-Var units back from its run store."""
+    obs = _obs()
+    s = DiagnoseSettings.quick(baseline_method="en4dvar", en4dvar_n_ens=6, en4dvar_n_runs=1, mienks_drift=False,
+                               **SMALL)
+    config = {"test": "en4dvar-resume"}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m, RunStore.open(tmp_path, config) as store:
+        m.setattr(run_mod, "bootstrap_check", interrupted)   # stop right after the baseline stage
+        with pytest.raises(KeyboardInterrupt):
+            diagnose(obs, OPTS, settings=s, seed=0, execution=Execution(store=store, progress=False))
+    with RunStore.open(tmp_path, config, resume=True) as store:
+        ex = Execution(store=store, progress=False)
+        r = diagnose(obs, OPTS, settings=s, seed=0, execution=ex).result
+    en4dvar = [rep for desc, rep in ex.reports if desc.startswith("en4dvar")]
+    assert en4dvar, [desc for desc, _ in ex.reports]
+    assert all(rep.n_computed == 0 and rep.n_resumed == obs.n_exp for rep in en4dvar)
+    assert r["baseline"]["method"] == "en4dvar" and set(r["baseline"]["estimate"]) >= {"G", "mu"}

@@ -1,0 +1,34 @@
+"""The inference-method protocol: every registered method declares what the CLI, the report and
+the MCMC layer ask of it, and those ask the registry, not the method's name."""
+
+import dataclasses
+
+import pytest
+
+from imrbayes.ensemble import METHODS, InferenceMethod
+from imrbayes.errors import InputError
+
+
+def test_every_method_declares_the_protocol():
+    assert list(METHODS) == ["imr", "pimr", "en4dvar", "mienks"]
+    for name, m in METHODS.items():
+        assert issubclass(m, InferenceMethod) and m.name == name and m.label
+        assert dataclasses.is_dataclass(m.settings_class) and callable(m.fit)
+        assert m.n_forward_runs(m.settings_class(), 3, 120) > 0
+    assert {m.name for m in METHODS.values() if m.gaussian_posterior} == {"en4dvar", "mienks"}
+    assert METHODS["en4dvar"].n_forward_runs(METHODS["en4dvar"].settings_class(), 2, 120) == 3 * 5 * 48 * 2 + 4 + 96
+    assert METHODS["mienks"].n_forward_runs(METHODS["mienks"].settings_class(), 2, 120) == 18 * 6 * 48 * 2
+
+
+def test_cli_choices_come_from_the_registry():
+    from imrbayes.cli.fit import fit_cmd
+    opt = next(p for p in fit_cmd.params if p.name == "method")
+    assert list(opt.type.choices) == list(METHODS)
+
+
+def test_mcmc_refuses_a_method_without_gaussian_posterior():
+    from imrbayes.ensemble import FitResult
+    from imrbayes.mcmc.fit import fit_window_specs
+    res = FitResult("imr", "nhkv", ("G", "mu"), {}, None, None)
+    with pytest.raises(InputError, match="en4dvar or mienks"):
+        fit_window_specs(None, None, None, res)
