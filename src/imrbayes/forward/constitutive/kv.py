@@ -5,7 +5,6 @@ of rest radius Req: S_e = -(4/(3 Ca)) (1 - (Req/R)^3). The medium-energy dissipa
 neo-Hookean form (IMRv2 has no linear model to copy); it only matters with a warm medium.
 """
 
-import numpy as np
 from numba import njit
 
 from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter

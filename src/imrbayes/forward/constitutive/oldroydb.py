@@ -3,7 +3,6 @@
 p = [0, 1/Re, De, Lambda]; two auxiliary states, zero at t = 0; J = 4 Lambda/Re.
 """
 
-import numpy as np
 from numba import njit
 
 from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter
