@@ -1,12 +1,12 @@
 # The compiled forward kernel of one constitutive model. This file is a *template*:
-# imrbayes.forward._codegen writes one copy per constitutive model with the line marked PLUGIN
+# imrbayes.forward.codegen writes one copy per constitutive model with the line marked PLUGIN
 # replaced by an import of that model's compiled `stress`/`dissipation_q`, so that numba can cache
 # every model's kernel on disk (numba cannot cache a kernel that receives the stress function as an
 # argument). Only what calls the model lives here: the right-hand side (Keller-Miksis and the
 # bubble's fields), the finite-difference Jacobians and the three integration loops. The linear
 # algebra they solve (Thomas / block Thomas sweeps, Woodbury, small LU) is in solver_algebra.py and
 # what the loops share (dense output, parameter pieces, final status) in integration_common.py,
-# both compiled once for all models; _codegen hashes them into this copy's name.
+# both compiled once for all models; codegen hashes them into this copy's name.
 #
 # Physics: shared/docs/forward-model.md (IMRv2, in our words). Everything here is dimensionless.
 # Time stepping, three loops: (1) Radau IIA order 5 (integrate_member_radau; default for the
@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from imrbayes.forward._layout import (
+from imrbayes.forward.layout import (
     F_MASS, F_MEDIUM, F_MT, F_NAUX, F_NT, F_PDOT, F_RADIAL, F_THERMAL, FAIL_MAXSTEPS,
     FAIL_NONFINITE, FAIL_RADIUS, FAIL_STEP, G_ALPHA_G, G_ALPHA_V, G_BETA_G, G_BETA_V, G_BR,
     G_CHI, G_CSTAR, G_FOH, G_FOM, G_INV_WE, G_IOTA, G_KAPPA, G_KV0, G_LSTAR, G_LT, G_P8, G_PB0,

@@ -1,7 +1,7 @@
 """What the forward kernel's three integration loops (Radau IIA, ARK, explicit pair) share: R on
 the output grid, the time pieces of piecewise-constant parameters, and the member's final status.
 
-numba functions; ``_codegen`` hashes this file into the per-model kernel's name. The loop helpers
+numba functions; ``codegen`` hashes this file into the per-model kernel's name. The loop helpers
 are inlined into the loops in numba's IR (``inline="always"``): as separate compiled functions they
 changed Radau's dense output in the last bit; inlined, Radau's R* is bit-identical to the loops with
 these lines written out. Times are dimensionless (t*); ``t_eval`` (m,) is the
@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from imrbayes.forward._layout import FAIL_NONFINITE, FAIL_RADIUS, OK
+from imrbayes.forward.layout import FAIL_NONFINITE, FAIL_RADIUS, OK
 from imrbayes.forward.solver_algebra import FASTMATH
 
 # Steps below this (in t*) mean the step control has collapsed (status FAIL_STEP).

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from imrbayes.errors import ForwardModelError, InputError
-from imrbayes.forward import _layout as L
-from imrbayes.forward._codegen import kernel_module
+from imrbayes.forward import layout as L
+from imrbayes.forward.codegen import kernel_module
 from imrbayes.forward.constants import Physics, group_matrix, nondimensional_groups
 from imrbayes.forward.constitutive import ConstitutiveModel, get_model
 from imrbayes.forward.options import RADIAL, ForwardOptions, bubble_grid, medium_grid

@@ -191,7 +191,7 @@ def bubble_grid(nt: int, stretch: float) -> tuple:
 
     ``stretch = 0`` is IMRv2's uniform grid; ``stretch = b > 0`` maps a uniform ``s`` through
     ``y = tanh(b s)/tanh(b)``, which clusters points at the wall where the thermal and vapour
-    boundary layers form. Rows (see _layout.GR_*): y; first derivative (lower, centre, upper);
+    boundary layers form. Rows (see layout.GR_*): y; first derivative (lower, centre, upper);
     spherical Laplacian d2/dy2 + (2/y) d/dy (lower, centre, upper); the wall row's one-sided
     derivative coefficients on (wall, wall-1, wall-2) in entries 0..2 of the last row.
     On the uniform grid these are exactly IMRv2's second-order formulas.

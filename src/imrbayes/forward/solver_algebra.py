@@ -1,8 +1,8 @@
 """The forward kernel's linear algebra: everything its implicit integrators solve that does not
 depend on the constitutive model (numba functions, compiled and cached once, not per model).
 
-The per-model kernel (``_kernel_template.py``, copied per model by ``_codegen.py``) imports these;
-``_codegen`` hashes this file into the kernel's name, so an edit here recompiles every model.
+The per-model kernel (``_kernel_template.py``, copied per model by ``codegen.py``) imports these;
+``codegen`` hashes this file into the kernel's name, so an edit here recompiles every model.
 
 * The ARK integrator's implicit operator: per field block (bubble temperature, vapour fraction,
   medium temperature; :func:`field_blocks`) a tridiagonal diffusion matrix A with frozen
@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-from imrbayes.forward._layout import F_MASS, F_MEDIUM, F_MT, F_NT, F_THERMAL, GR_D2C, GR_D2L, GR_D2U
+from imrbayes.forward.layout import F_MASS, F_MEDIUM, F_MT, F_NT, F_THERMAL, GR_D2C, GR_D2L, GR_D2U
 
 # The integration loops' floating-point flags (no "nnan"/"ninf": the loops test for NaN and inf).
 FASTMATH = {"contract", "arcp", "reassoc", "nsz"}

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter
-from imrbayes.forward.constitutive.qkv import _nondim
+from imrbayes.forward.constitutive.qkv import MODEL as QKV   # same parameters, same scaling
 
 N_AUX = 0
 _X, _W = np.polynomial.legendre.leggauss(32)
@@ -45,4 +45,4 @@ MODEL = ConstitutiveModel(
     parameters=(Parameter("G", "Pa", 7.29e3, description="small-strain shear modulus"),
                 Parameter("mu", "Pa s", 0.088, description="viscosity"),
                 Parameter("alpha", "-", 0.05, positive=False, description="exponential stiffening coefficient")),
-    n_aux=N_AUX, module=__name__, imrv2_stress=None, _nondim=_nondim)
+    n_aux=N_AUX, module=__name__, imrv2_stress=None, _nondim=QKV.nondimensionalise)

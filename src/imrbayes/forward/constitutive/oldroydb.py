@@ -6,7 +6,7 @@ p = [0, 1/Re, De, Lambda]; two auxiliary states, zero at t = 0; J = 4 Lambda/Re.
 from numba import njit
 
 from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter
-from imrbayes.forward.constitutive.maxwell import _nondim
+from imrbayes.forward.constitutive.maxwell import MODEL as MAXWELL   # same parameters, same scaling
 
 N_AUX = 2
 
@@ -35,4 +35,4 @@ MODEL = ConstitutiveModel(
     parameters=(Parameter("mu", "Pa s", 0.088, description="viscosity"),
                 Parameter("lambda1", "s", 1e-6, description="relaxation time"),
                 Parameter("lambda2", "s", 0.0, positive=False, description="retardation time")),
-    n_aux=N_AUX, module=__name__, imrv2_stress=5, _nondim=_nondim)
+    n_aux=N_AUX, module=__name__, imrv2_stress=5, _nondim=MAXWELL.nondimensionalise)

@@ -29,7 +29,7 @@ from pathlib import Path
 
 _TEMPLATE = Path(__file__).with_name("_kernel_template.py")
 # Modules of compiled code the template imports, shared by every model's kernel (not copied).
-_SHARED = ("_layout.py", "solver_algebra.py", "integration_common.py")
+_SHARED = ("layout.py", "solver_algebra.py", "integration_common.py")
 _LOADED: dict = {}
 
 
@@ -61,7 +61,7 @@ def _compile_in_child(module_name: str, marker: Path) -> None:
     stamp = os.environ.get("NUMBA_CACHE_DIR", "")
     if marker.exists() and marker.read_text() == stamp:
         return
-    code = f"import imrbayes.forward._codegen as c; c._warm_up({module_name!r})"
+    code = f"import imrbayes.forward.codegen as c; c._warm_up({module_name!r})"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           env={**os.environ, _CHILD_ENV: "1"})
     if done.returncode == 0:
