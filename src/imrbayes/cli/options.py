@@ -21,8 +21,15 @@ import numpy as np
 from imrbayes.errors import InputError
 from imrbayes.io import new_run_dir, prepare_out  # the run folders' home; the commands take them from here
 
-__all__ = ["execution_options", "open_execution", "data_fingerprint", "echo_execution", "check_options", "new_run_dir",
+__all__ = ["execution_options", "force_option", "open_execution", "data_fingerprint", "echo_execution", "check_options", "new_run_dir",
            "prepare_out", "key_values", "coerce_setting", "method_settings", "prior_overrides", "compare_line"]
+
+
+def force_option(f):
+    """Decorator adding ``--force``: write into an existing, non-empty ``--out`` folder."""
+    return click.option("--force", is_flag=True, default=None,
+                        help="Write into --out even if it already holds files (files of the same name are "
+                             "replaced). Without it a non-empty --out is refused.")(f)
 
 
 def execution_options(with_workers: bool = True):
