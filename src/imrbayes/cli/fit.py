@@ -25,9 +25,9 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import main, read_config
-from imrbayes.cli.options import (check_options, force_option, compare_line, data_fingerprint, echo_execution,
-                                  execution_options, key_values, method_settings, open_execution, prepare_out,
-                                  prior_overrides)
+from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution, estimate_text,
+                                  execution_options, force_option, key_values, method_settings, open_execution,
+                                  prepare_out, prior_overrides)
 from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
 
@@ -195,15 +195,14 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     written = _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
                          data, exec_summary, t_start, quiet=quiet, compare=compare)
     if not quiet:
-        est = ", ".join(f"{n} = {e['mean']:.4g} ± {e['sd']:.2g}" for n, e in res.estimate.items())
-        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {est}; rmse {res.rmse:.4g}; "
-                   f"{res.runtime_s:.1f} s")
+        for w in list(pre.warnings) + list(res.warnings):       # warnings first: they qualify the result
+            click.echo(f"imrbayes: warning: {w}", err=True)
+        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(res.estimate)}; "
+                   f"rmse {res.rmse:.4g}; {res.runtime_s:.1f} s")
         extra = ", mcmc.nc, compare.json" if compare is not None else ""
         click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}{extra} and {len(written)} figure(s)")
         if compare is not None:
             click.echo(compare_line(compare))
-        for w in list(pre.warnings) + list(res.warnings):
-            click.echo(f"imrbayes: warning: {w}", err=True)
     if compare is not None:
         for f in compare["overall"].get("failed_windows", []):
             click.echo(f"imrbayes: warning: MCMC of window {f['window']} failed: {f['error']}", err=True)

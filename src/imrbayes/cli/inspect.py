@@ -77,7 +77,7 @@ def _print_table(pre, out: Path) -> None:
               help="Samples [-] averaged for Req when meta.json does not give it.")
 @click.option("--noise", type=click.Choice(["auto", "sample", "pooled", "paper"]), default="auto", show_default=True,
               help="P_k: sample variance across experiments, the same pooled over 11 neighbouring steps, or the "
-                   "methods.md §5 noise model.")
+                   "paper's verification noise model sd |R*-1|/20 + (1-exp(-t*/10))/30.")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors (and --json output).")
 @config_option
 @force_option

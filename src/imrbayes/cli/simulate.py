@@ -56,7 +56,8 @@ from imrbayes.errors import InputError
 @force_option
 def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physics, t_end, dt_star, frame_s,
                  phase, pre_max_s, scatter, req_in_meta, material, out, quiet, force):
-    """Write a synthetic dataset (interfaces.md §1 format) from the forward model, with truth.json."""
+    """Write a synthetic dataset (one CSV per experiment, t_s,R_m in SI; meta.json) from the forward model, with
+    truth.json."""
     from imrbayes import forward as fwd
     from imrbayes.data import synthetic as syn
 

@@ -27,7 +27,7 @@ from imrbayes.errors import InputError
 @execution_options(with_workers=True)
 @force_option
 def validate_cmd(suite, cases, out, seed, forward, quiet, workers, scheduler, resume, retry_failed, force):
-    """Synthetic validation: the methods.md §5 verification case (G0 = 7.29 kPa, mu0 = 0.088 Pa s,
+    """Synthetic validation: the paper's verification case (G0 = 7.29 kPa, mu0 = 0.088 Pa s,
     Rmax = 263 µm, Rmax/Req = 7.58, five noisy experiments) for En4D-Var and MIEnKS-MDA, IMR and
     pIMR recovery checks, and the fusion rule. Writes validation.json and figures; exit status 1 if
     any case fails."""
