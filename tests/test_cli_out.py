@@ -6,19 +6,7 @@ import json
 from click.testing import CliRunner
 
 from imrbayes.cli import main
-from test_data_simulate import BASE, CALLS, FakeModel, FakeOptions  # noqa: F401
-
-import imrbayes.forward as fwd
-import pytest
-
-
-@pytest.fixture
-def fake(monkeypatch):
-    CALLS.clear()
-    monkeypatch.setattr(fwd, "ForwardModel", FakeModel, raising=False)
-    monkeypatch.setattr(fwd, "ForwardOptions", FakeOptions, raising=False)
-    monkeypatch.setattr(fwd, "available_models", lambda: ["nhkv", "qkv"], raising=False)
-    return CALLS
+from test_data_simulate import BASE
 
 
 def run(*args):
