@@ -137,6 +137,8 @@ def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = N
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError("--out", f"{out} exists and is not a directory")
+    if out.is_dir() and not resume and (out / "run.json").exists():
+        raise InputError(out, "already holds a run (run.json); pass --resume to continue it, or choose a new --out")
     if out.is_dir() and not (force or resume):
         entries = sorted(p.name for p in out.iterdir())
         if entries:
