@@ -39,7 +39,7 @@ MATS = ["estrada2018_stiffPA_RofT_shifted.mat", "estrada2018_stiffPA_xy002_RofT.
 
 
 def inspect(path, extra, out, *more) -> dict:
-    cmd = [str(EXE), "inspect", str(path), "--out", str(out), "--json", *extra, *more]
+    cmd = [str(EXE), "inspect", str(path), "--out", str(out), "--force", "--json", *extra, *more]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=True)
     return json.loads(proc.stdout)
 

@@ -2,7 +2,6 @@
 
 import json
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -10,55 +9,10 @@ from click.testing import CliRunner
 
 import imrbayes.forward as fwd
 from _data_synth import curve
+from _fake_forward import FakeModel
 from imrbayes.cli import main
 from imrbayes.data import load_dataset, preprocess_dataset
 from imrbayes.data.noise import paper_sigma
-from imrbayes.errors import ForwardModelError, InputError
-
-CALLS = []
-
-
-class FakeOptions:
-    def __init__(self, d):
-        self.d = dict(d)
-
-    @classmethod
-    def from_dict(cls, d, source="forward options"):
-        if "bad" in d:
-            raise InputError(source, "unknown forward option 'bad'")
-        return cls(d)
-
-    def to_dict(self):
-        return {"radial": "km", **self.d}
-
-
-class FakeModel:
-    """R*(t*) = curve(t*, q=Req/Rmax, tc=0.9); fails when G < 0."""
-
-    def __init__(self, name, options=None, physics_overrides=None):
-        if name not in ("nhkv", "qkv"):
-            raise InputError("--model", f"unknown constitutive model {name!r}")
-        self.constitutive = SimpleNamespace(param_names=("G", "mu") if name == "nhkv" else ("G", "mu", "alpha"))
-        self.options = options
-        ph = {"rho": 1064.0, "p8": 101325.0, "c8": 1484.0}
-        ph.update(physics_overrides or {})
-        self.physics = SimpleNamespace(to_dict=lambda: dict(ph))
-
-    def simulate_radius(self, params, rmax_m, req_m, t_star):
-        CALLS.append((dict(params), rmax_m, req_m, np.array(t_star)))
-        if params["G"] < 0:
-            raise ForwardModelError("forward solve failed: fake")
-        return curve(np.asarray(t_star), q=req_m / rmax_m, tc=0.9)
-
-
-@pytest.fixture
-def fake(monkeypatch):
-    CALLS.clear()
-    monkeypatch.setattr(fwd, "ForwardModel", FakeModel, raising=False)
-    monkeypatch.setattr(fwd, "ForwardOptions", FakeOptions, raising=False)
-    monkeypatch.setattr(fwd, "available_models", lambda: ["nhkv", "qkv"], raising=False)
-    return CALLS
-
 
 def sim(*args):
     return CliRunner().invoke(main, ["simulate", *[str(a) for a in args]])
@@ -180,6 +134,8 @@ def test_simulate_refuses_existing_dataset(fake, tmp_path):
     assert sim(*BASE, "--out", tmp_path / "o").exit_code == 0
     before = (tmp_path / "o" / "exp_001.csv").read_bytes()
     res = sim(*BASE, "--seed", "9", "--out", tmp_path / "o")
+    assert res.exit_code == 2 and "already holds" in res.stderr and "--force" in res.stderr
+    res = sim(*BASE, "--seed", "9", "--out", tmp_path / "o", "--force")   # even forced: datasets never mix
     assert res.exit_code == 2 and "already holds a dataset" in res.stderr
     assert (tmp_path / "o" / "exp_001.csv").read_bytes() == before
 

@@ -7,21 +7,10 @@ import math
 import numpy as np
 import pytest
 
-import imrbayes.forward as fwd
 from _data_synth import curve
 from imrbayes.data import load_dataset, preprocess_dataset
 from imrbayes.data.synthetic import camera_times, parse_noise
-from test_data_simulate import BASE, CALLS, FakeModel, FakeOptions, read, sim
-
-
-@pytest.fixture
-def fake(monkeypatch):
-    """The fake forward model of test_data_simulate.py; its calls are recorded in the list returned."""
-    CALLS.clear()
-    monkeypatch.setattr(fwd, "ForwardModel", FakeModel, raising=False)
-    monkeypatch.setattr(fwd, "ForwardOptions", FakeOptions, raising=False)
-    monkeypatch.setattr(fwd, "available_models", lambda: ["nhkv", "qkv"], raising=False)
-    return CALLS
+from test_data_simulate import BASE, read, sim
 
 RMAX = 263e-6
 TC = RMAX / math.sqrt(101325 / 1064)        # the fake model's physics

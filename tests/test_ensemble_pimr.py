@@ -94,3 +94,36 @@ def test_fit_pimr_reproduces_collapse_times():
     assert math.isnan(res.rmse)                              # no forward run without a runner
     res2 = fit_pimr(fm, obs, space(fm), PIMRSettings(n_G=30, n_mu=20), runner=Runner(fm))
     assert np.all(np.isfinite(res2.fitted[:, 1:]))
+
+
+def test_fit_pimr_on_one_bubble_reports_the_ridge_not_nan():
+    """One collapse time fixes a curve in (G, mu): every reported ridge point reproduces it, the
+    truth lies on it, and the estimate says so instead of printing NaN."""
+    from imrbayes.cli.options import estimate_text
+
+    fm = model("polytropic")
+    rmax, req = np.array([263e-6]), np.array([263e-6 / 7.58])
+    tc = collapse_time(fm, 7.29e3, 0.088, rmax, req)
+    t = np.arange(121) * 0.025
+    obs = Observations(t, np.ones((1, t.size)), np.full(t.size, 1e-4), rmax, req, tc)
+    res = fit_pimr(fm, obs, space(fm), PIMRSettings(n_G=60, n_mu=40))
+    ridge = res.details["ridge"]
+    assert len(ridge["G"]) >= 10
+    pred = collapse_time(fm, np.array(ridge["G"]), np.array(ridge["mu"]), rmax[0], req[0])
+    np.testing.assert_allclose(pred, tc[0], rtol=2e-3)                 # on the ridge (linear in mu between nodes)
+    mu_at_truth = np.interp(7.29e3, ridge["G"], ridge["mu"])            # the truth is one of its points
+    assert mu_at_truth == pytest.approx(0.088, rel=0.05)
+    for name in ("G", "mu"):
+        lo, hi = res.estimate[name]["ridge"]
+        assert lo < hi
+    assert any("ridge" in w for w in res.warnings)
+    text = estimate_text(res.estimate)
+    assert "nan" not in text.lower() and "on a ridge" in text and "kPa" in text
+
+
+def test_estimate_text_units():
+    from imrbayes.cli.options import estimate_text
+
+    assert estimate_text({"G": {"mean": 13500.0, "sd": 600.0}, "mu": {"mean": 0.101, "sd": 0.023}}) == \
+        "G = 13.5 kPa ± 0.6, mu = 0.101 Pa s ± 0.023"
+    assert estimate_text({"alpha": {"mean": 2.0, "sd": float("nan")}}) == "alpha = 2 (no interval)"

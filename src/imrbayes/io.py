@@ -123,17 +123,28 @@ def new_run_dir(kind: str, name: str, base: Path = Path("imrbayes-runs")) -> Pat
     return path
 
 
-def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = None) -> Path:
+def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = None, *,
+                force: bool = False, resume: bool = False) -> Path:
     """The command's ``--out`` folder, created: ``out``, or :func:`new_run_dir` when it is None.
 
     InputError (option ``--out``) when ``out`` is a file, is the data folder ``protect`` (or the
-    folder of the data file ``protect``: input files are never written to), or cannot be created.
+    folder of the data file ``protect``: input files are never written to), cannot be created, or
+    already holds files -- unless ``force`` (the user accepts that files of the same name are
+    replaced) or ``resume`` (a run continues in its own folder; the run store checks it is one).
     """
     if out is None:
         out = new_run_dir(kind, name)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError("--out", f"{out} exists and is not a directory")
+    if out.is_dir() and not resume and (out / "run.json").exists():
+        raise InputError(out, "already holds a run (run.json); pass --resume to continue it, or choose a new --out")
+    if out.is_dir() and not (force or resume):
+        entries = sorted(p.name for p in out.iterdir())
+        if entries:
+            shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
+            raise InputError("--out", f"{out} already holds {len(entries)} file(s) ({shown}); choose a new folder, "
+                                      f"or pass --force to write into it (files of the same name are replaced)")
     if protect is not None:
         p = protect if protect.is_dir() else protect.parent
         if out.resolve() == p.resolve():

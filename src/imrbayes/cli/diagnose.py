@@ -14,7 +14,7 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
-from imrbayes.cli.options import (check_options, data_fingerprint, echo_execution, execution_options, key_values,
+from imrbayes.cli.options import (check_options, force_option, data_fingerprint, echo_execution, execution_options, key_values,
                                   open_execution, prepare_out)
 from imrbayes.diagnosis.candidates import CANDIDATES, DEFAULT_CANDIDATES
 from imrbayes.errors import InputError
@@ -46,8 +46,9 @@ from imrbayes.errors import InputError
 @click.option("--n-steps", type=int, default=120, show_default=True, help="Grid steps [-].")
 @click.option("--quiet", is_flag=True, default=False, help="Print nothing but errors.")
 @execution_options(with_workers=True)
+@force_option
 def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_loeo, experiments, camera, dt_star,
-                 n_steps, quiet, workers, scheduler, resume, retry_failed):
+                 n_steps, quiet, workers, scheduler, resume, retry_failed, force):
     """Diagnose DATA: baseline NHKV fit and misfit by phase (t* = dimensionless time), a bootstrap-
     calibrated constant-parameter check, candidate mechanisms (see --candidates) ranked by held-out
     prediction, and the gain of the extended model (RMSE in R* = R/Rmax, ELPD in nats). SI units for
@@ -102,7 +103,8 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         fopts["scheme"] = "imrv2-fd"
     options = ForwardOptions.from_dict(fopts, source="forward options")
     physics = Physics.from_overrides(ds.physics or None)
-    out = prepare_out(Path(out) if out is not None else None, "diagnose", ds.name, protect=Path(data))
+    out = prepare_out(Path(out) if out is not None else None, "diagnose", ds.name, protect=Path(data),
+                      force=bool(force), resume=bool(resume))
     if options.bubble == "thermal" and not quiet:
         click.echo(f"imrbayes: note: thermal bubble, scheme={options.scheme}; a diagnosis needs "
                    "O(1e5) solves (~15 min for 5 experiments). For exploration use --quick, --forward "

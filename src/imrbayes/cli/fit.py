@@ -25,9 +25,9 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import main, read_config
-from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution,
-                                  execution_options, key_values, method_settings, open_execution, prepare_out,
-                                  prior_overrides)
+from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution, estimate_text,
+                                  execution_options, force_option, key_values, method_settings, open_execution,
+                                  prepare_out, prior_overrides)
 from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
 
@@ -101,8 +101,9 @@ def _load_config(path) -> dict:
 @click.option("--mcmc-windows", default=None, metavar="all|J,K,...",
               help="Windows to sample with --mcmc (indices from 0) [default: all].")
 @click.option("--quiet", is_flag=True, default=None, help="Print nothing but errors.")
+@force_option
 def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, workers, camera, dt_star, n_steps,
-            noise, mcmc, mcmc_settings, mcmc_windows, quiet, scheduler, resume, retry_failed):
+            noise, mcmc, mcmc_settings, mcmc_windows, quiet, scheduler, resume, retry_failed, force):
     """Fit a constitutive model to DATA (dataset folder, .csv or .mat) with one inference method.
 
     Writes summary.json (estimate: SI units, G [Pa], mu [Pa s]; times as t*), posterior.nc (ArviZ)
@@ -165,7 +166,8 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     space = ParamSpace.for_model(fm.constitutive, prior)
     if mcmc_s is not None:
         mcmc_s.check(space.n)                  # before the fit: a bad walker count must not cost a fit
-    out = prepare_out(Path(out) if out is not None else None, f"fit-{method}", ds.name, protect=Path(data))
+    out = prepare_out(Path(out) if out is not None else None, f"fit-{method}", ds.name, protect=Path(data),
+                      force=bool(force), resume=bool(resume))
     # everything that determines the numbers (and nothing that does not: workers, scheduler, --out, --quiet)
     run_config = {"command": "fit", "method": method, "model": model, "seed": seed,
                   "settings": dataclasses.asdict(s), "prior": space.describe(), "forward": fm.describe(),
@@ -193,15 +195,14 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     written = _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
                          data, exec_summary, t_start, quiet=quiet, compare=compare)
     if not quiet:
-        est = ", ".join(f"{n} = {e['mean']:.4g} ± {e['sd']:.2g}" for n, e in res.estimate.items())
-        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {est}; rmse {res.rmse:.4g}; "
-                   f"{res.runtime_s:.1f} s")
+        for w in list(pre.warnings) + list(res.warnings):       # warnings first: they qualify the result
+            click.echo(f"imrbayes: warning: {w}", err=True)
+        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(res.estimate)}; "
+                   f"rmse {res.rmse:.4g}; {res.runtime_s:.1f} s")
         extra = ", mcmc.nc, compare.json" if compare is not None else ""
         click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}{extra} and {len(written)} figure(s)")
         if compare is not None:
             click.echo(compare_line(compare))
-        for w in list(pre.warnings) + list(res.warnings):
-            click.echo(f"imrbayes: warning: {w}", err=True)
     if compare is not None:
         for f in compare["overall"].get("failed_windows", []):
             click.echo(f"imrbayes: warning: MCMC of window {f['window']} failed: {f['error']}", err=True)

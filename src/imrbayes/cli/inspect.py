@@ -10,7 +10,7 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
-from imrbayes.cli.options import prepare_out
+from imrbayes.cli.options import force_option, prepare_out
 from imrbayes.errors import InputError
 from imrbayes.io import jsonable, write_json
 
@@ -77,11 +77,12 @@ def _print_table(pre, out: Path) -> None:
               help="Samples [-] averaged for Req when meta.json does not give it.")
 @click.option("--noise", type=click.Choice(["auto", "sample", "pooled", "paper"]), default="auto", show_default=True,
               help="P_k: sample variance across experiments, the same pooled over 11 neighbouring steps, or the "
-                   "methods.md §5 noise model.")
+                   "paper's verification noise model sd |R*-1|/20 + (1-exp(-t*/10))/30.")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors (and --json output).")
 @config_option
+@force_option
 def inspect_cmd(data, out, as_json, dt_star, n_steps, camera, rmax_method, collapse_method, interp, n_tail,
-                noise, quiet):
+                noise, quiet, force):
     """Load DATA (dataset folder, .csv or .mat), preprocess it and report Rmax, Req, Rmax/Req and the
     first-collapse time t_c* of every experiment. Writes dataset.json and figures/radius.png."""
     from imrbayes.data import load_dataset, preprocess_dataset
@@ -92,7 +93,7 @@ def inspect_cmd(data, out, as_json, dt_star, n_steps, camera, rmax_method, colla
     ds = load_dataset(data, camera=camera)
     pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, rmax_method=rmax_method,
                              collapse_method=collapse_method, interp=interp, n_tail=n_tail, noise=noise)
-    out = prepare_out(out, "inspect", ds.name, protect=Path(data))
+    out = prepare_out(out, "inspect", ds.name, protect=Path(data), force=bool(force))
     record = pre.to_dict()
     record["command"] = {"name": "inspect", "data": str(data), "dt_star": dt_star, "n_steps": n_steps,
                          "camera": camera, "imrbayes_version": __version__}

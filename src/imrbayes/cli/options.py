@@ -21,8 +21,39 @@ import numpy as np
 from imrbayes.errors import InputError
 from imrbayes.io import new_run_dir, prepare_out  # the run folders' home; the commands take them from here
 
-__all__ = ["execution_options", "open_execution", "data_fingerprint", "echo_execution", "check_options", "new_run_dir",
+__all__ = ["execution_options", "estimate_text", "force_option", "open_execution", "data_fingerprint", "echo_execution", "check_options", "new_run_dir",
            "prepare_out", "key_values", "coerce_setting", "method_settings", "prior_overrides", "compare_line"]
+
+
+#: display unit and scale of the parameters people read most (SI otherwise)
+_DISPLAY = {"G": ("kPa", 1e-3), "mu": ("Pa s", 1.0)}
+
+
+def estimate_text(estimate: dict) -> str:
+    """One line of a fit's estimate with units: ``G = 13.5 kPa ± 0.6, mu = 0.101 Pa s ± 0.02``; a
+    parameter the data fix only along a ridge reads ``G on a ridge 2.1-30 kPa (best fit 7.3)``."""
+    parts = []
+    for name, e in estimate.items():
+        unit, scale = _DISPLAY.get(name, ("", 1.0))
+        u = f" {unit}" if unit else ""
+        mean, sd, ridge = e.get("mean"), e.get("sd"), e.get("ridge")
+        if mean is None or not math.isfinite(mean):
+            parts.append(f"{name}: no estimate")
+        elif sd is not None and math.isfinite(sd):
+            parts.append(f"{name} = {mean * scale:.4g}{u} ± {sd * scale:.2g}")
+        elif ridge:
+            parts.append(f"{name} on a ridge {ridge[0] * scale:.3g}-{ridge[1] * scale:.3g}{u} "
+                         f"(best fit {mean * scale:.4g})")
+        else:
+            parts.append(f"{name} = {mean * scale:.4g}{u} (no interval)")
+    return ", ".join(parts)
+
+
+def force_option(f):
+    """Decorator adding ``--force``: write into an existing, non-empty ``--out`` folder."""
+    return click.option("--force", is_flag=True, default=None,
+                        help="Write into --out even if it already holds files (files of the same name are "
+                             "replaced). Without it a non-empty --out is refused.")(f)
 
 
 def execution_options(with_workers: bool = True):

@@ -10,7 +10,7 @@ import numpy as np
 
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
-from imrbayes.cli.options import key_values, prepare_out
+from imrbayes.cli.options import force_option, key_values, prepare_out
 from imrbayes.errors import InputError
 
 
@@ -53,9 +53,11 @@ from imrbayes.errors import InputError
               help="Dataset folder to create (default: a new folder under ./imrbayes-runs/).")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @config_option
+@force_option
 def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physics, t_end, dt_star, frame_s,
-                 phase, pre_max_s, scatter, req_in_meta, material, out, quiet):
-    """Write a synthetic dataset (interfaces.md §1 format) from the forward model, with truth.json."""
+                 phase, pre_max_s, scatter, req_in_meta, material, out, quiet, force):
+    """Write a synthetic dataset (one CSV per experiment, t_s,R_m in SI; meta.json) from the forward model, with
+    truth.json."""
     from imrbayes import forward as fwd
     from imrbayes.data import synthetic as syn
 
@@ -132,7 +134,7 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
         records.append(((g - g[0]) * tc, Rn * rm))      # camera time: 0 at the first frame
         t_max_s.append(-g[0] * tc)
         sd_at_max.append(float(syn.noise_sd(np.zeros(1), np.ones(1), noise_d, rm)[0]))
-    out = prepare_out(out, "simulate", model)
+    out = prepare_out(out, "simulate", model, force=bool(force))
     if any(out.glob("*.csv")) or (out / "meta.json").exists():
         raise InputError("--out", f"{out} already holds a dataset; choose a new or empty folder")
     noise_d = {**noise_d, "applied_to": "R* = R/Rmax, independent Gaussian per sample",

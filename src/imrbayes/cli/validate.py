@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from imrbayes.cli import config_option, main
-from imrbayes.cli.options import (check_options, echo_execution, execution_options, key_values, open_execution,
+from imrbayes.cli.options import (force_option, check_options, echo_execution, execution_options, key_values, open_execution,
                                   prepare_out)
 from imrbayes.errors import InputError
 
@@ -25,8 +25,9 @@ from imrbayes.errors import InputError
               help="Forward-model option overriding the suite's (bubble=polytropic, scheme=imrv2-fd, ...).")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @execution_options(with_workers=True)
-def validate_cmd(suite, cases, out, seed, forward, quiet, workers, scheduler, resume, retry_failed):
-    """Synthetic validation: the methods.md §5 verification case (G0 = 7.29 kPa, mu0 = 0.088 Pa s,
+@force_option
+def validate_cmd(suite, cases, out, seed, forward, quiet, workers, scheduler, resume, retry_failed, force):
+    """Synthetic validation: the paper's verification case (G0 = 7.29 kPa, mu0 = 0.088 Pa s,
     Rmax = 263 µm, Rmax/Req = 7.58, five noisy experiments) for En4D-Var and MIEnKS-MDA, IMR and
     pIMR recovery checks, and the fusion rule. Writes validation.json and figures; exit status 1 if
     any case fails."""
@@ -43,7 +44,8 @@ def validate_cmd(suite, cases, out, seed, forward, quiet, workers, scheduler, re
     from imrbayes.forward import ForwardOptions
     from imrbayes.validation.suite import FORWARD
     ForwardOptions.from_dict({**FORWARD[suite], **fwd}, source="--forward")   # bad options: exit 2 here
-    out = prepare_out(Path(out) if out is not None else None, "validate", suite)
+    out = prepare_out(Path(out) if out is not None else None, "validate", suite,
+                      force=bool(force), resume=bool(resume))
 
     def show(row):
         if not quiet:

@@ -82,7 +82,7 @@ def parse_meta(raw, path=None) -> Meta:
     meta = Meta(raw=raw, path=None if path is None else str(path))
     material = raw.get("material")
     if material is None:
-        meta.warnings.append("meta.json has no 'material' (interfaces.md §1 asks for one)")
+        meta.warnings.append("meta.json has no 'material' (say what the gel is, e.g. \"10 % PAAm\")")
     elif not isinstance(material, str):
         raise InputError(src, f"'material' must be a string, got {material!r}")
     else:

@@ -92,5 +92,5 @@ def noise_variance(t_star, R_star, floor_abs: float = P_FLOOR_ABS, floor_rel: fl
             "n_floored": int(np.count_nonzero(raw < floor)), "n_experiments": int(Y.shape[0]),
             "rule": "P_k = max(var_k, max(floor_abs, floor_rel * median_k var_k)); var_k = sample "
                     "variance (ddof=1) across experiments (pooled: its running mean over "
-                    f"{POOL_SAMPLES} steps), or the methods.md §5 noise model squared for a single experiment"}
+                    f"{POOL_SAMPLES} steps), or the paper's verification noise model squared for a single experiment"}
     return P, info

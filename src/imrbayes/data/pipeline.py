@@ -243,7 +243,8 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         raise InputError(dataset.path, f"noise={noise!r} needs at least two experiments")
     P, pinfo = noise_variance(t_star, R_star, p_floor_abs, p_floor_rel, method=noise)
     if pinfo["method"] == "paper-noise-model" and noise == "auto":
-        warnings.append("one experiment: P_k from the methods.md §5 noise model, not from data")
+        warnings.append("one experiment: the noise variance P_k comes from the paper's verification noise model (sd |R*-1|/20 + "
+                        "(1-exp(-t*/10))/30), not from data")
     elif len(records) == 2 and noise != "paper":
         warnings.append("P_k from only two experiments is a very rough estimate")
     choices = {

@@ -64,7 +64,7 @@ def parse_spec(text: str, option: str) -> Spec:
 def _noise_term(term: str, text: str) -> dict:
     t = term.strip().lower()
     if t == "paper":
-        return {"kind": "paper", "sigma": "|R*-1|/20 + (1-exp(-t*/10))/30 (methods.md §5)"}
+        return {"kind": "paper", "sigma": "|R*-1|/20 + (1-exp(-t*/10))/30 (the paper's verification noise)"}
     if t == "none":
         return {"kind": "none"}
     unit = "um" if t.endswith("um") else ""

@@ -274,7 +274,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
                "member_runs": member_runs, "failed_member_runs": failed_runs,
                "failed_units": failed_units, "experiments_used": [obs.names[n] for n in ok],
                "gauss_newton": "normalised anomalies: H = I + (1/N_t) sum Y'^T P^-1 Y', grad = w - ...; identical "
-                               "iterates to methods.md's (N_En - 1) form with unnormalised anomalies",
+                               "iterates to the paper's (N_En - 1) form with unnormalised anomalies",
                "fitted_curve": "forward run at the fused posterior median exp(mean of log parameters)"}
     return FitResult(
         method="en4dvar", model=fm.constitutive.name, param_names=tuple(space.names),

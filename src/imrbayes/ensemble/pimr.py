@@ -203,6 +203,24 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
                               "the 95% region is J <= J_min (1 + p/(n-p) F_{p,n-p}(0.95))",
                "note": "one collapse time per experiment constrains a ridge in (G, mu); only the spread of "
                        "Rmax and Req across experiments breaks the degeneracy"}
+    warnings = []
+    if n <= p:
+        # one collapse time fixes a curve in (G, mu), two at most a point with no noise scale: no
+        # interval can be given, but the set of (G, mu) that reproduce the data can
+        ridge = _ridge(tc, tm, Gg, mg)
+        details["ridge"] = ridge
+        for name in ("G", "mu"):
+            vals = ridge[name]
+            est[name]["ridge"] = [float(min(vals)), float(max(vals))] if vals else None
+        if n == 1 and ridge["G"]:
+            warnings.append(f"one experiment: its collapse time fixes a ridge of (G, mu), not a point -- G "
+                            f"{min(ridge['G']) / 1e3:.3g}-{max(ridge['G']) / 1e3:.3g} kPa with mu "
+                            f"{min(ridge['mu']):.3g}-{max(ridge['mu']):.3g} Pa s along it reproduce it; the "
+                            f"estimate is one point on the ridge and has no interval (add experiments of "
+                            f"different Rmax/Req to break the degeneracy)")
+        else:
+            warnings.append(f"{n} experiments for 2 parameters: no noise scale, so no interval; the estimate is "
+                            f"the best fit only")
     rng = np.random.default_rng(seed)
     draws = _grid_draws(J, Jmin, n, p, Gg, mg, rng)
     return FitResult(
@@ -213,7 +231,7 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
         extra_dims={"log_J": ["G_grid", "mu_grid"], "t_collapse_measured": ["experiment"],
                     "t_collapse_fitted": ["experiment"]},
         coords={"G_grid": Gg, "mu_grid": mg, "experiment": list(obs.names)},
-        runtime_s=time.perf_counter() - t0)
+        runtime_s=time.perf_counter() - t0, warnings=warnings)
 
 
 def collapse_time_from_q(G, mu, q):
@@ -221,6 +239,22 @@ def collapse_time_from_q(G, mu, q):
     fbar = sum(terms.values())
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(fbar < 1.0, T_RC / np.sqrt(1.0 - fbar), np.inf)
+
+
+def _ridge(tc, tm, Gg, mg) -> dict:
+    """The (G, mu) [Pa, Pa s] on the grid where the predicted collapse time of the first experiment
+    crosses its measured one: for each G, the mu (linear between grid points) where tc - tm changes
+    sign. ``tc`` is (n_G, n_mu, n_exp)."""
+    r = tc[:, :, 0] - tm[0]
+    G_out, mu_out = [], []
+    for i, G in enumerate(Gg):
+        row = r[i]
+        for j in np.flatnonzero(np.isfinite(row[:-1]) & np.isfinite(row[1:]) & (np.sign(row[:-1]) != np.sign(row[1:]))):
+            f = row[j] / (row[j] - row[j + 1])
+            G_out.append(float(G))
+            mu_out.append(float(mg[j] + f * (mg[j + 1] - mg[j])))
+    return {"G": G_out, "mu": mu_out,
+            "note": "(G, mu) on the grid whose predicted first-collapse time equals the measured one"}
 
 
 def _pseudo_logpost(J, Jmin, n, p):
