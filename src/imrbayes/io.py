@@ -137,6 +137,11 @@ def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = N
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError("--out", f"{out} exists and is not a directory")
+    if protect is not None:
+        p = protect if protect.is_dir() else protect.parent
+        if out.resolve() == p.resolve():
+            raise InputError("--out", f"{out} is the data folder; choose another folder (input files are "
+                                      f"never written to)")
     if out.is_dir() and not resume and (out / "run.json").exists():
         raise InputError(out, "already holds a run (run.json); pass --resume to continue it, or choose a new --out")
     if out.is_dir() and not (force or resume):
@@ -145,11 +150,6 @@ def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = N
             shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
             raise InputError("--out", f"{out} already holds {len(entries)} file(s) ({shown}); choose a new folder, "
                                       f"or pass --force to write into it (files of the same name are replaced)")
-    if protect is not None:
-        p = protect if protect.is_dir() else protect.parent
-        if out.resolve() == p.resolve():
-            raise InputError("--out", f"{out} is the data folder; choose another folder (input files are "
-                                      f"never written to)")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
