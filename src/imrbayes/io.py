@@ -24,7 +24,7 @@ import numpy as np
 
 from imrbayes.errors import InputError
 
-__all__ = ["jsonable", "atomic_write", "atomic_write_bytes", "atomic_write_text", "write_json", "new_run_dir",
+__all__ = ["jsonable", "read_json", "atomic_write", "atomic_write_bytes", "atomic_write_text", "write_json", "new_run_dir",
            "prepare_out"]
 
 
@@ -155,3 +155,23 @@ def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = N
     except OSError as exc:
         raise InputError("--out", f"cannot create {out}: {exc.strerror or exc}")
     return out
+
+
+def read_json(path: Path, required: bool = True):
+    """The JSON object in ``path``; None if it is absent and not ``required``. InputError naming the
+    file when it is absent (and required), not a file, unreadable, not JSON or not an object."""
+    if not path.exists():
+        if required:
+            raise InputError(path, "not found (is this a run directory written by 'imrbayes fit'?)")
+        return None
+    if not path.is_file():
+        raise InputError(path, "not a file")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"not valid JSON ({' '.join(str(exc).split())})")
+    except OSError as exc:
+        raise InputError(path, f"cannot be read ({exc.strerror or exc})")
+    if not isinstance(data, dict):
+        raise InputError(path, f"expected a JSON object, got {type(data).__name__}")
+    return data

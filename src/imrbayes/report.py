@@ -29,6 +29,7 @@ from imrbayes import __version__
 from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
 from imrbayes.html import embed_png, esc, is_png, num, table, write_page
+from imrbayes.io import read_json
 
 __all__ = ["load_run", "write_run_report", "flagged_windows", "window_phase"]
 
@@ -44,24 +45,6 @@ def _method(summary):
 
 
 # ----------------------------------------------------------------------------------------- loading
-def _read_json(path: Path, required: bool):
-    if not path.exists():
-        if required:
-            raise InputError(path, "not found (is this a run directory written by 'imrbayes fit'?)")
-        return None
-    if not path.is_file():
-        raise InputError(path, "not a file")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"not valid JSON ({' '.join(str(exc).split())})")
-    except OSError as exc:
-        raise InputError(path, f"cannot be read ({exc.strerror or exc})")
-    if not isinstance(data, dict):
-        raise InputError(path, f"expected a JSON object, got {type(data).__name__}")
-    return data
-
-
 def _open_tree(path: Path):
     import xarray as xr
 
@@ -94,7 +77,7 @@ def load_run(run_dir) -> dict:
     if not run_dir.is_dir():
         raise InputError(run_dir, "not a directory (expected a run directory written by 'imrbayes fit')")
     sp = run_dir / "summary.json"
-    summary = _read_json(sp, required=True)
+    summary = read_json(sp, required=True)
     missing = [k for k in ("method", "parameters", "estimate") if k not in summary]
     if missing:
         raise InputError(sp, f"has no {', '.join(repr(k) for k in missing)} (not written by 'imrbayes fit')")
@@ -113,7 +96,7 @@ def load_run(run_dir) -> dict:
         raise InputError(run_dir / "mcmc.nc", "holds neither window_XX groups nor a 'posterior' group "
                                               "(not written by 'imrbayes fit --mcmc')")
     cp = run_dir / "compare.json"
-    compare = _read_json(cp, required=False)
+    compare = read_json(cp, required=False)
     if compare is not None:
         wins = compare.get("windows")
         if not isinstance(wins, list) or not all(isinstance(w, dict) and "index" in w for w in wins):

@@ -15,18 +15,7 @@ import numpy as np
 
 from imrbayes.cli import main
 from imrbayes.errors import InputError
-
-
-def _read_json(path: Path) -> dict:
-    if not path.is_file():
-        raise InputError(path, "not found (is this a run directory written by 'imrbayes fit'?)")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"not valid JSON: {exc}")
-    if not isinstance(data, dict):
-        raise InputError(path, "expected a JSON object")
-    return data
+from imrbayes.io import read_json
 
 
 def _open_tree(path: Path, what: str):
@@ -61,7 +50,7 @@ def compare_cmd(run_dir, out, pairs, quiet):
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise InputError(run_dir, "not a directory")
-    summary = _read_json(run_dir / "summary.json")
+    summary = read_json(run_dir / "summary.json")
     if "parameters" not in summary:
         raise InputError(run_dir / "summary.json", "has no 'parameters' (not written by 'imrbayes fit')")
     tree = _open_tree(run_dir / "mcmc.nc", "run 'imrbayes fit ... --mcmc' first")
