@@ -1166,14 +1166,15 @@ def _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks,
     if not finite or not (ym[0] > 0.0):
         status[m] = FAIL_NONFINITE if not finite else FAIL_RADIUS
         return
+    te = t_eval[m]
     if radau:
-        st, ns, nr = integrate_member_radau(ym, t0, t1, t_eval, G[m], P[m], breaks[m], flags, grid, mgrid, rtol,
+        st, ns, nr = integrate_member_radau(ym, t0, t1, te, G[m], P[m], breaks[m], flags, grid, mgrid, rtol,
                                             atol, h_init, max_steps, R[m], cols)
     elif flags[F_THERMAL] == 0 and gamma == 0.0:
-        st, ns, nr = integrate_member_explicit(ym, t0, t1, t_eval, G[m], P[m], breaks[m], flags, rtol, atol,
+        st, ns, nr = integrate_member_explicit(ym, t0, t1, te, G[m], P[m], breaks[m], flags, rtol, atol,
                                                h_init, max_steps, R[m], AE, B, BH, C, order)
     else:
-        st, ns, nr = integrate_member(ym, t0, t1, t_eval, G[m], P[m], breaks[m], flags, grid, mgrid,
+        st, ns, nr = integrate_member(ym, t0, t1, te, G[m], P[m], breaks[m], flags, grid, mgrid,
                                       rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols)
     status[m] = st
     nsteps[m] = ns
@@ -1184,13 +1185,14 @@ def _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks,
 def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
                     rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau):
     """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps, nrejected).
+    ``t_eval`` (N, m): each member's own output times (rows may differ, e.g. per-member time offsets).
 
     ``G`` (N, n_groups) per-member groups; ``P`` (N, n_pieces, n_p) parameters, whose pieces
     change at the member's ``breaks`` (N, n_pieces - 1) in t*.
     """
     N = Y0.shape[0]
     Y = Y0.copy()
-    R = np.full((N, t_eval.shape[0]), np.nan)
+    R = np.full((N, t_eval.shape[1]), np.nan)
     status = np.zeros(N, dtype=np.int64)
     nsteps = np.zeros(N, dtype=np.int64)
     nrej = np.zeros(N, dtype=np.int64)
@@ -1207,7 +1209,7 @@ def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgri
     """As integrate_batch, with the members spread over numba threads (prange)."""
     N = Y0.shape[0]
     Y = Y0.copy()
-    R = np.full((N, t_eval.shape[0]), np.nan)
+    R = np.full((N, t_eval.shape[1]), np.nan)
     status = np.zeros(N, dtype=np.int64)
     nsteps = np.zeros(N, dtype=np.int64)
     nrej = np.zeros(N, dtype=np.int64)

@@ -273,7 +273,8 @@ class ForwardModel:
             (N, n_pieces, n_params) array of piecewise-constant-in-time parameters whose pieces
             change at ``breaks_star``: (n_pieces-1,) increasing t*, the same for every member, or
             (N, n_pieces-1), one row per member (e.g. each bubble's own collapse times).
-        t_eval : (m,) output times in [t0, t_end] (default: t_end only).
+        t_eval : (m,) output times in [t0, t_end] (default: t_end only), or (N, m): each member's own
+            increasing times (e.g. a per-member time offset of the observations).
         Members whose solve fails are flagged in ``status`` (NaN output after the failure);
         they never stop the batch.
         """
@@ -282,9 +283,13 @@ class ForwardModel:
         t_end = float(t_end)
         if not t_end >= t0:
             raise InputError("t_end", f"end time {t_end} is before the start time {t0}")
-        t_eval = np.ascontiguousarray(np.atleast_1d(np.asarray([t_end] if t_eval is None else t_eval, dtype=float)))
-        if t_eval.size and (np.any(np.diff(t_eval) < 0) or t_eval[0] < t0 - 1e-12 or t_eval[-1] > t_end + 1e-12):
+        t_eval = np.atleast_1d(np.asarray([t_end] if t_eval is None else t_eval, dtype=float))
+        if t_eval.ndim > 2 or (t_eval.ndim == 2 and t_eval.shape[0] != n):
+            raise InputError("t_eval", f"expected (m,) or ({n}, m) output times, got shape {t_eval.shape}")
+        if t_eval.size and (np.any(np.diff(t_eval, axis=-1) < 0) or np.min(t_eval) < t0 - 1e-12
+                            or np.max(t_eval) > t_end + 1e-12 or not np.all(np.isfinite(t_eval))):
             raise InputError("t_eval", "output times must be increasing and inside [t0, t_end]")
+        te = np.ascontiguousarray(np.broadcast_to(t_eval, (n, t_eval.shape[-1])))
         breaks = np.atleast_1d(np.asarray([] if breaks_star is None else breaks_star, dtype=float))
         if breaks.ndim > 2 or (breaks.ndim == 2 and breaks.shape[0] != n):
             raise InputError("breaks_star", f"expected (n_breaks,) or ({n}, n_breaks) break times, got shape "
@@ -302,14 +307,14 @@ class ForwardModel:
         o = self.options
         integrate = self.kernel.integrate_batch_parallel if (self.parallel and n > 1) else self.kernel.integrate_batch
         Y, R, status, nsteps, nrej = integrate(
-            np.ascontiguousarray(state.y, dtype=float), t0, t_end, t_eval, G, P, breaks, self._flags,
+            np.ascontiguousarray(state.y, dtype=float), t0, t_end, te, G, P, breaks, self._flags,
             self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols,
             self._radau)
         end = BatchState(Y, t_end, state.rmax_m.copy(), state.req_m.copy())
         return Propagation(t_eval, R, end, status, nsteps, nrej)
 
     def simulate(self, params, rmax_m, req_m, t_star, **kwargs) -> Propagation:
-        """Propagate from the maximum radius (t* = 0) and return R* on ``t_star``."""
+        """Propagate from the maximum radius (t* = 0) and return R* on ``t_star`` ((m,) or (N, m))."""
         t_star = np.asarray(t_star, dtype=float)
         n = None
         if not isinstance(params, dict):
@@ -318,7 +323,7 @@ class ForwardModel:
         else:
             n = max([np.size(v) for v in params.values()] + [1])
         state = self.initial_state(rmax_m, req_m, n=n)
-        return self.propagate(state, params, float(t_star[-1]), t_star, **kwargs)
+        return self.propagate(state, params, float(np.max(t_star[..., -1])), t_star, **kwargs)
 
     def simulate_radius(self, params: dict, rmax_m: float, req_m: float, t_star) -> np.ndarray:
         """R* on ``t_star`` for one bubble; raises ForwardModelError if the solve fails."""

@@ -133,12 +133,16 @@ class Runner:
             params = self.fm.constitutive.param_array(params, n=n)
         params = np.asarray(params, dtype=np.float64)
         t_eval = np.atleast_1d(np.asarray([t_end] if t_eval is None else t_eval, dtype=np.float64))
+        per_member = t_eval.ndim == 2
+
+        def rows(a, b):
+            return t_eval[a:b] if per_member else t_eval
         if self.workers > 1 and n >= 2 * 32:
             size = self.chunk or max(32, -(-n // (4 * self.workers)))
         else:
             size = self.chunk or 4096
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
-        R = np.empty((n, t_eval.size))
+        R = np.empty((n, t_eval.shape[-1]))
         Y = np.empty_like(state.y)
         status = np.empty(n, dtype=np.int64)
         nst = np.empty(n, dtype=np.int64)
@@ -153,14 +157,14 @@ class Runner:
             if self._pool is None:
                 self._pool = cf.ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
             futs = {self._pool.submit(_worker_propagate, self._spec(), state.y[a:b], state.t_star,
-                                      state.rmax_m[a:b], state.req_m[a:b], params[a:b], t_end, t_eval): (a, b)
+                                      state.rmax_m[a:b], state.req_m[a:b], params[a:b], t_end, rows(a, b)): (a, b)
                     for a, b in bounds}
             for fut in cf.as_completed(futs):
                 a, b = futs[fut]
                 put(a, b, fut.result())
         else:
             for a, b in bounds:
-                out = self.fm.propagate(state.take(np.arange(a, b)), params[a:b], t_end, t_eval)
+                out = self.fm.propagate(state.take(np.arange(a, b)), params[a:b], t_end, rows(a, b))
                 put(a, b, (out.R_star, out.end.y, out.status, out.n_steps, out.n_rejected))
         end = BatchState(Y, float(t_end), state.rmax_m.copy(), state.req_m.copy())
         out = Propagation(t_eval, R, end, status, nst, nrj)
@@ -169,8 +173,9 @@ class Runner:
         return out
 
     def simulate(self, params, rmax_m, req_m, t_star) -> Propagation:
-        """From the maximum radius (t* = 0) for N members with their own Rmax, Req (N,)."""
+        """From the maximum radius (t* = 0) for N members with their own Rmax, Req (N,); ``t_star``
+        (m,) shared or (N, m) per member."""
         params = np.asarray(params, dtype=np.float64)
         st = self.fm.initial_state(rmax_m, req_m, n=params.shape[0])
         t_star = np.asarray(t_star, dtype=np.float64)
-        return self.propagate(st, params, float(t_star[-1]), t_star)
+        return self.propagate(st, params, float(np.max(t_star[..., -1])), t_star)
