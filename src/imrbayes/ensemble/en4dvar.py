@@ -47,6 +47,8 @@ import numpy as np
 
 from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, rtps
 from imrbayes.ensemble.gn import gauss_newton
+from imrbayes.ensemble.hierarchical import likelihood_terms, random_effects
+from imrbayes.ensemble.likelihood import experiment_likelihood, nuisance_summary, record_noise_sd, simulate_shifted
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
                                       si_covariance)
@@ -75,20 +77,36 @@ class En4DVarSettings:
     exact_moments: bool = True
     n_draws: int = 48
     loglik: bool = True
-    fusion: str = "prior"
-    obs_weight: str = "mean"
+    fusion: str | None = None
+    obs_weight: str | None = None
+    likelihood: str = "default"
+
+    def resolved(self) -> "En4DVarSettings":
+        """The settings with the likelihood's own choices filled in (``paper``: averaged cost and the
+        prior-corrected fusion unless set)."""
+        from dataclasses import replace
+        if self.likelihood == "paper":
+            return replace(self, fusion=self.fusion or "prior", obs_weight=self.obs_weight or "mean")
+        return self
 
     def check(self):
+        from imrbayes.ensemble.likelihood import LIKELIHOODS
+        if self.likelihood not in LIKELIHOODS:
+            raise InputError("likelihood", f"must be one of {', '.join(LIKELIHOODS)}, got {self.likelihood!r}")
+        if self.likelihood == "default" and (self.fusion or self.obs_weight):
+            raise InputError("fusion/obs_weight", "apply to --likelihood paper only (the default likelihood counts "
+                                                  "each sample once and fuses through a between-bubble layer)")
+        s = self.resolved()
         if self.n_ens < 3:
             raise InputError("n_ens", f"needs at least 3 members, got {self.n_ens}")
         if self.n_iter < 1 or self.n_runs < 1:
             raise InputError("n_iter/n_runs", "must be at least 1")
         if not 0.0 <= self.rtps <= 1.0:
             raise InputError("rtps", f"the RTPS factor must lie in [0, 1], got {self.rtps}")
-        if self.fusion not in ("likelihood", "prior"):
-            raise InputError("fusion", f"must be 'likelihood' or 'prior', got {self.fusion!r}")
-        if self.obs_weight not in ("mean", "sum"):
-            raise InputError("obs_weight", f"must be 'mean' or 'sum', got {self.obs_weight!r}")
+        if s.likelihood == "paper" and s.fusion not in ("likelihood", "prior"):
+            raise InputError("fusion", f"must be 'likelihood' or 'prior', got {s.fusion!r}")
+        if s.likelihood == "paper" and s.obs_weight not in ("mean", "sum"):
+            raise InputError("obs_weight", f"must be 'mean' or 'sum', got {s.obs_weight!r}")
         if self.n_draws < 1:
             raise InputError("n_draws", f"needs at least one posterior draw, got {self.n_draws}")
 
@@ -127,17 +145,71 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
     mean, cov = space.prior_mean.copy(), space.prior_cov.copy()
     cycles = []
     res = None
+    default = s.likelihood == "default"
+    y, weight = d["y"], d["weight"]
+    lik = W = None
+    n_p = space.n
+    lin_sd = None
+    if default:
+        # the time of the maximum is inferred with the parameters (augmented ensemble, nonlinear: an
+        # offset of a frame or two near the collapse is far outside a linear model); Rmax and Req,
+        # small relative errors, are integrated out to first order (imrbayes.ensemble.likelihood)
+        sd = np.asarray(d["nuisance_sd"], dtype=np.float64)
+        lin_sd = np.array([sd[0], 0.0, sd[2]])
+        if sd[1] > 0:
+            mean = np.append(mean, 0.0)
+            cov = np.block([[cov, np.zeros((n_p, 1))], [np.zeros((1, n_p)), np.array([[sd[1] ** 2]])]])
+
+            def evaluate(groups, Z):
+                return simulate_shifted(runner, space.to_si(Z[:, :n_p]), np.full(len(Z), rmax), np.full(len(Z), req),
+                                        t_eval[1:], Z[:, n_p])
     for r in range(s.n_runs):
+        if default:
+            # the observation model at the current centre: cycle 1 with the record's noise alone, later
+            # cycles also with the residual's level and autocorrelation (module doc of likelihood)
+            off = float(mean[n_p]) if mean.size > n_p else 0.0
+            lik = experiment_likelihood(runner, space.to_si(mean[:n_p]), rmax, req, t_eval[1:], d["y"], lin_sd,
+                                        d["noise_var"], adapt=r > 0, offset=off)
+            W = lik.W
+            y, weight = W @ d["y"], np.ones(d["y"].size)
+            ev = _whitened(evaluate, W)
+        else:
+            ev = evaluate
         E0 = draw(rng, mean, cov, s.n_ens, exact=s.exact_moments)[None]
-        res = gauss_newton(E0, evaluate, d["y"][None], d["weight"][None], n_iter=s.n_iter, rng=rng)
+        res = gauss_newton(E0, ev, y[None], weight[None], n_iter=s.n_iter, rng=rng)
         infl = rtps(res.prior_anoms, res.anoms, s.rtps)
         mean = res.mean[0].copy()
         cov = np.einsum("gnd,gne->gde", infl, infl)[0]
         cycles.append({"cycle": r + 1, "cost": res.cost[0], "n_failed": res.n_failed[0],
-                       "n_redrawn": int(res.n_redrawn[0]), "stopped": bool(res.stopped[0])})
+                       "n_redrawn": int(res.n_redrawn[0]), "stopped": bool(res.stopped[0]),
+                       **({"likelihood": lik.to_dict()} if default else {})})
     qa = res.prior_anoms[0]
-    return {"mean": res.mean[0], "cov": res.cov[0], "prior_mean": res.prior_ensemble[0].mean(axis=0),
-            "prior_cov": qa.T @ qa, "stopped": bool(res.stopped[0]), "cycles": cycles, **runner.counts_since(before)}
+    pm, pc, qm, qc = res.mean[0], res.cov[0], res.prior_ensemble[0].mean(axis=0), qa.T @ qa
+    # the parameters' marginals (the time offset, if augmented, is reported as a nuisance)
+    out = {"mean": pm[:n_p], "cov": pc[:n_p, :n_p], "prior_mean": qm[:n_p], "prior_cov": qc[:n_p, :n_p],
+           "stopped": bool(res.stopped[0]), "cycles": cycles}
+    if default:
+        # the density the last cycle used (what MCMC samples), and the nuisances at the final centre
+        off = float(pm[n_p]) if pm.size > n_p else 0.0
+        fin = experiment_likelihood(runner, space.to_si(pm[:n_p]), rmax, req, t_eval[1:], d["y"],
+                                    lin_sd, d["noise_var"], adapt=True, offset=off)
+        nu_mean, nu_cov = fin.nu_mean.copy(), fin.nu_cov.copy()
+        sd = np.asarray(d["nuisance_sd"], dtype=np.float64)
+        if pm.size > n_p and sd[1] > 0:         # standardised like the linear nuisances
+            nu_mean[1] = off / sd[1]
+            nu_cov[1, :] = nu_cov[:, 1] = 0.0
+            nu_cov[1, 1] = pc[n_p, n_p] / sd[1] ** 2
+        out.update({"whiten": W, "likelihood": lik.to_dict(), "final_likelihood": fin.to_dict(),
+                    "nu_mean": nu_mean, "nu_cov": nu_cov, "var": lik.var, "alpha": lik.alpha, "offset_star": off,
+                    "offset_sd_star": float(np.sqrt(pc[n_p, n_p])) if pm.size > n_p else 0.0})
+    return {**out, **runner.counts_since(before)}
+
+
+def _whitened(evaluate, W):
+    def ev(groups, Z):
+        Y, failed = evaluate(groups, Z)
+        return Y @ W.T, failed
+    return ev
 
 
 def en4dvar_post_unit(unit: Unit, rng) -> dict:
@@ -169,6 +241,8 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     """
     s = settings or En4DVarSettings()
     s.check()
+    s = s.resolved()
+    default = s.likelihood == "default"
     t0 = time.perf_counter()
     ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
@@ -176,11 +250,13 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     rng = np.random.default_rng(seed)                   # the fused posterior's draws (units have their own)
     K = last_index(obs, s.t_end)
     t_eval = obs.t_star[:K + 1]
-    y, weight = fit_window(obs, K, s.obs_weight)
+    y, weight = fit_window(obs, K, s.obs_weight or "sum")
     n_exp = obs.n_exp
     base = {"spec": spec, "runner": token, "space": space, "settings": s, "t_eval": t_eval}
+    noise_var = [record_noise_sd(obs, n) ** 2 for n in range(n_exp)]
     rep = ex.run([Unit(unit_id(exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
-                                        "y": y[n], "weight": weight})
+                                        "y": y[n], "weight": weight, "noise_var": noise_var[n],
+                                        "nuisance_sd": obs.nuisance_sd[n]})
                   for n in range(n_exp)], en4dvar_unit, seed, desc="en4dvar experiments")
     warnings = []
     failed_units = []
@@ -209,7 +285,20 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
             progress(c + 1)
     post_mean = np.stack([r["mean"] for r in R])
     post_cov = np.stack([r["cov"] for r in R])
-    if s.fusion == "prior":
+    hier = None
+    if default:
+        Lam, eta, _, n_clip = likelihood_terms(post_mean, post_cov, np.stack([r["prior_mean"] for r in R]),
+                                               np.stack([r["prior_cov"] for r in R]))
+        hier = random_effects(Lam, eta, space.prior_mean, space.prior_cov)
+        fus = fuse_likelihoods(post_mean, post_cov, np.stack([r["prior_mean"] for r in R]),
+                               np.stack([r["prior_cov"] for r in R]), space.prior_mean, space.prior_cov)
+        warnings.extend(hier.notes)
+        # each experiment's own posterior: the parameter prior times its likelihood
+        own_cov = np.stack([np.linalg.inv(np.linalg.inv(space.prior_cov) + L) for L in Lam])
+        own_mean = np.stack([C @ (np.linalg.solve(space.prior_cov, space.prior_mean) + e)
+                             for C, e in zip(own_cov, eta)])
+        post_mean, post_cov = own_mean, own_cov
+    elif s.fusion == "prior":
         fus = fuse(post_mean, post_cov, space.prior_mean, space.prior_cov)
     else:
         fus = fuse_likelihoods(post_mean, post_cov, np.stack([r["prior_mean"] for r in R]),
@@ -219,12 +308,14 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     n_stopped = sum(bool(r["stopped"]) for r in R)
     if n_stopped:
         warnings.append(f"{n_stopped} experiment(s) stopped early: too many failed members")
-    # posterior draws (1 chain) of the fused Gaussian
-    Zd = draw(rng, fus.mean, fus.cov, s.n_draws, exact=False)
+    # the reported estimate: the gel-level mean (default likelihood), else the fused Gaussian
+    est_mean, est_cov = (hier.mean, hier.cov) if hier is not None else (fus.mean, fus.cov)
+    # posterior draws (1 chain) of the reported Gaussian
+    Zd = draw(rng, est_mean, est_cov, s.n_draws, exact=False)
     post = {nm: space.to_si(Zd)[None, :, i] for i, nm in enumerate(space.names)}
     want_ll = s.loglik and s.n_draws > 0
     # after the fusion, per experiment: R* at the fused median, at its own mean, at every draw
-    fused_si = space.to_si(fus.mean)[None, :]
+    fused_si = space.to_si(est_mean)[None, :]
     post_units = []
     for i, n in enumerate(ok):
         pts = [fused_si, space.to_si(post_mean[i])[None, :]] + ([space.to_si(Zd)] if want_ll else [])
@@ -259,14 +350,40 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
                         "error": next(f["error"] for f in failed_units if f["experiment"] == obs.names[n])})
             continue
         i = ok.index(n)
-        per.append({"name": obs.names[n], "estimate": gaussian_estimate(space, post_mean[i], post_cov[i]),
-                    "mean_internal": post_mean[i].tolist(), "cov_internal": post_cov[i].tolist(),
-                    "rmse_own": rmse(own[n], obs.R_star[n], mask[n]) if mask[n].any() else float("nan")})
+        entry = {"name": obs.names[n], "estimate": gaussian_estimate(space, post_mean[i], post_cov[i]),
+                 "mean_internal": post_mean[i].tolist(), "cov_internal": post_cov[i].tolist(),
+                 "rmse_own": rmse(own[n], obs.R_star[n], mask[n]) if mask[n].any() else float("nan")}
+        if default:
+            from imrbayes.ensemble.likelihood import ExperimentLikelihood
+            r = R[i]
+            lk = ExperimentLikelihood(r["whiten"], r["var"], noise_var[n], r["alpha"], 0.0, 1.0, np.zeros((K, 3)),
+                                      np.zeros(K), 0.0, np.asarray(r["nu_mean"]), np.asarray(r["nu_cov"]), True)
+            entry["nuisance"] = nuisance_summary(lk, obs.nuisance_sd[n], float(obs.rmax_m[n]), float(obs.req_m[n]),
+                                                 float(obs.t0_s[n]), float(obs.tc_s[n]))
+            entry["likelihood"] = r["likelihood"]
+        per.append(entry)
     ll = None
     if want_ll:
-        lp = loglik_pointwise(Yd, y[None], obs.P[1:K + 1])
+        if default:      # per-sample Gaussian with each experiment's tempered variance (nuisance correlation left out)
+            var = np.full(n_exp, np.nan)
+            for i, n in enumerate(ok):
+                var[n] = R[i]["var"] / R[i]["alpha"]
+            lp = loglik_pointwise(Yd, y[None], var[None, :, None])
+        else:
+            lp = loglik_pointwise(Yd, y[None], obs.P[1:K + 1])
         ll = {"R": np.where(np.isfinite(lp), lp, -1e300)[None]}
-    details = {"settings": asdict(s), "n_fit_steps": K, "t_end_star": float(obs.t_star[K]),
+    if default:
+        eff = [float(R[ok.index(n)]["likelihood"]["effective_samples"]) if n in ok else None for n in range(n_exp)]
+        likelihood = {"name": "default", "effective_samples": eff, "n_samples": K,
+                      "noise": "each record's fourth-difference noise sd, raised to the RMS of its nuisance-corrected "
+                               "residual where the model does not reach the noise; each experiment tempered by "
+                               "n_eff/K (integrated autocorrelation time of the residual); Rmax, the time of the "
+                               "maximum and Req integrated out to first order",
+                      "fusion": "random effects across experiments (gel-level mean, between-bubble sd, predictive)"}
+    else:
+        likelihood = {"name": "paper", "noise": "P_k of preprocessing (" + str(s.obs_weight) + " cost)",
+                      "fusion": str(s.fusion), "effective_samples": None}
+    details = {"settings": asdict(s), "n_fit_steps": K, "t_end_star": float(obs.t_star[K]), "likelihood": likelihood,
                "cycles": cycles, "fusion": fus.to_dict(), "rmse": rmse(fitted, obs.R_star, mask),
                "fused_mean_internal": fus.mean.tolist(), "fused_cov_internal": fus.cov.tolist(),
                "fused_cov_si": si_covariance(space, fus.mean, fus.cov).tolist(),
@@ -276,26 +393,45 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
                "gauss_newton": "normalised anomalies: H = I + (1/N_t) sum Y'^T P^-1 Y', grad = w - ...; identical "
                                "iterates to the paper's (N_En - 1) form with unnormalised anomalies",
                "fitted_curve": "forward run at the fused posterior median exp(mean of log parameters)"}
+    estimate = gaussian_estimate(space, est_mean, est_cov)
+    if hier is not None:
+        h = hier.summaries(space)
+        estimate = h["estimate"]
+        details.update({"between_experiments": h["between_experiments"], "predictive": h["predictive"],
+                        "random_effects": hier.to_dict(), "pooled_mean_internal": fus.mean.tolist(),
+                        "pooled_cov_internal": fus.cov.tolist()})
+    whiten = None
+    if default:
+        whiten = np.full((n_exp, K, K), np.nan)
+        for i, n in enumerate(ok):
+            whiten[n] = R[i]["whiten"]
     return FitResult(
         method="en4dvar", model=fm.constitutive.name, param_names=tuple(space.names),
-        estimate=gaussian_estimate(space, fus.mean, fus.cov), fitted=fitted, fit_mask=mask,
-        mean_internal=fus.mean, cov_internal=fus.cov, per_experiment=per, details=details,
+        estimate=estimate, fitted=fitted, fit_mask=mask,
+        mean_internal=est_mean, cov_internal=est_cov, per_experiment=per, details=details,
         posterior=post, log_likelihood=ll, posterior_dims={"R": ["experiment", "time"]},
         coords={"experiment": list(obs.names), "time": obs.t_star[1:K + 1]},
         runtime_s=time.perf_counter() - t0, warnings=warnings,
-        window_posteriors=[fitting_window_posterior(fm, obs, space, K, s.obs_weight, fus.mean, fus.cov)])
+        window_posteriors=[fitting_window_posterior(fm, obs, space, K, s.obs_weight or "sum", fus.mean, fus.cov,
+                                                    whiten)])
 
 
-def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov) -> WindowPosterior:
+def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov, whiten=None) -> WindowPosterior:
     """The density the fused Gaussian approximates: every experiment from its maximum over samples
-    1..K with the parameter prior and weight 1/K (``obs_weight="mean"``) or 1 (``"sum"``)."""
+    1..K with the parameter prior and weight 1/K (``obs_weight="mean"``) or 1 (``"sum"``), or, with
+    ``whiten`` (n_exp, K, K), the default likelihood's whitened residuals (no between-bubble
+    scatter: the pooled, product-rule posterior, which ``mean``/``cov`` then are)."""
     c, rule = (1.0 / K, "1/N_t (En4D-Var averaging)") if obs_weight == "mean" else (1.0, "1 (plain likelihood)")
+    desc = {"kind": "fitting window from the maximum", "samples": [1, K], "weight_rule": rule,
+            "state": "maximum radius (exact)"}
+    if whiten is not None:
+        desc.update({"weight_rule": "default likelihood: ||W_n (y_n - R_n)||^2 per experiment (noise, nuisances, "
+                                    "tempering)", "gaussian": "pooled over experiments (no between-bubble scatter)"})
     return WindowPosterior(
         index=0, start=0, samples=(1, K), mean=np.asarray(mean, float), cov=np.asarray(cov, float),
         prior_mean=space.prior_mean, prior_cov=space.prior_cov, weight=np.full(K, c),
         start_state=np.array(fm.initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64),
-        description={"kind": "fitting window from the maximum", "samples": [1, K], "weight_rule": rule,
-                     "state": "maximum radius (exact)"})
+        description=desc, whiten=whiten)
 
 
 class En4DVar(InferenceMethod):

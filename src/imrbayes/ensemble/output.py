@@ -17,6 +17,9 @@ def summary_dict(result, obs, *, seed: int, extra: dict | None = None) -> dict:
            "n_experiments": int(obs.n_exp), "runtime_s": float(result.runtime_s), "estimate": result.estimate,
            "fit": {"rmse": result.rmse, "n_samples": result.n_fit_samples,
                    "rmse_definition": "sqrt(mean((fitted R* - measured R*)^2)) over the fitted (experiment, sample) pairs"}}
+    for key in ("between_experiments", "predictive", "likelihood"):       # interfaces.md §4
+        if key in result.details:
+            out[key] = result.details[key]
     if result.windows is not None:
         out["windows"] = result.windows
     if result.time_resolved is not None:

@@ -51,6 +51,15 @@ class Observations:
     t_collapse_star : ndarray (n_exp,)
         Measured first-collapse time t* (pIMR); NaN if unknown.
     names : list of str
+    noise_sd : ndarray (n_exp,)
+        Each record's own measurement-noise sd in R* (its fourth differences / Rmax; NaN: unknown),
+        what the default likelihood uses (:mod:`imrbayes.ensemble.likelihood`).
+    nuisance_sd : ndarray (n_exp, 3)
+        Preprocessing's standard errors of (Rmax / Rmax_hat - 1 [-], time of the maximum [t*],
+        Req [m]); 0 where unknown (the quantity is then treated as known).
+    t0_s, tc_s : ndarray (n_exp,)
+        Time of the maximum in the file's clock [s] and the time scale Rmax sqrt(rho/p8) [s]
+        (to state the time offset in seconds; NaN if unknown).
     """
 
     t_star: np.ndarray
@@ -60,6 +69,10 @@ class Observations:
     req_m: np.ndarray
     t_collapse_star: np.ndarray | None = None
     names: list = field(default_factory=list)
+    noise_sd: np.ndarray | None = None
+    nuisance_sd: np.ndarray | None = None
+    t0_s: np.ndarray | None = None
+    tc_s: np.ndarray | None = None
 
     def __post_init__(self):
         self.t_star = np.asarray(self.t_star, dtype=np.float64)
@@ -74,6 +87,14 @@ class Observations:
                                                (n_exp,)).copy()
         if not self.names:
             self.names = [f"exp_{i + 1:03d}" for i in range(n_exp)]
+
+        def per_exp(a, shape, fill):
+            return np.full(shape, fill) if a is None else np.broadcast_to(np.asarray(a, np.float64), shape).copy()
+        self.noise_sd = per_exp(self.noise_sd, (n_exp,), np.nan)
+        self.nuisance_sd = per_exp(self.nuisance_sd, (n_exp, 3), 0.0)
+        self.nuisance_sd = np.where(np.isfinite(self.nuisance_sd) & (self.nuisance_sd > 0), self.nuisance_sd, 0.0)
+        self.t0_s = per_exp(self.t0_s, (n_exp,), np.nan)
+        self.tc_s = per_exp(self.tc_s, (n_exp,), np.nan)
         if n != self.t_star.size:
             raise InputError("observations", f"R_star has {n} samples per experiment, t_star {self.t_star.size}")
         if n < 2 or np.any(np.diff(self.t_star) <= 0):
@@ -88,7 +109,19 @@ class Observations:
     @classmethod
     def from_preprocessed(cls, pre) -> "Observations":
         """From :class:`imrbayes.data.Preprocessed`."""
-        return cls(pre.t_star, pre.R_star, pre.P, pre.rmax_m, pre.req_m, pre.t_collapse_star, list(pre.names))
+        ex = list(getattr(pre, "experiments", []) or [])
+        if not ex:
+            return cls(pre.t_star, pre.R_star, pre.P, pre.rmax_m, pre.req_m, pre.t_collapse_star, list(pre.names))
+
+        def col(key):
+            return np.array([float(getattr(e, key, np.nan)) for e in ex])
+        rmax = np.asarray(pre.rmax_m, dtype=np.float64)
+        noise_m, tc = col("noise_sd_m"), col("tc_s")
+        # the maximum's radius: the local fit's standard error, else one noise sd (a max sample)
+        rmax_se = np.where(np.isfinite(col("rmax_sd_m")), col("rmax_sd_m"), noise_m)
+        nuis = np.stack([rmax_se / rmax, col("t0_sd_s") / tc, col("req_sd_m")], axis=1)
+        return cls(pre.t_star, pre.R_star, pre.P, rmax, pre.req_m, pre.t_collapse_star, list(pre.names),
+                   noise_sd=noise_m / rmax, nuisance_sd=nuis, t0_s=col("t0_s"), tc_s=tc)
 
     @property
     def n_exp(self) -> int:
@@ -106,7 +139,8 @@ class Observations:
         """The experiments ``index`` (list/array of ints)."""
         idx = np.atleast_1d(np.asarray(index, dtype=int))
         return Observations(self.t_star, self.R_star[idx], self.P, self.rmax_m[idx], self.req_m[idx],
-                            self.t_collapse_star[idx], [self.names[i] for i in idx])
+                            self.t_collapse_star[idx], [self.names[i] for i in idx], self.noise_sd[idx],
+                            self.nuisance_sd[idx], self.t0_s[idx], self.tc_s[idx])
 
 
 def _sym(a):

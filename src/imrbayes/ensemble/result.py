@@ -42,6 +42,10 @@ class WindowPosterior:
     description : dict
         How the density is stated (kind, weight rule, ``state`` = where the start state comes from),
         carried into the MCMC target's description.
+    whiten : (n_exp, m, m) or None
+        The default likelihood (:mod:`imrbayes.ensemble.likelihood`): the density's likelihood is
+        ``-1/2 sum_n ||W_n (y_n - R_n(z))||^2`` over the window's samples instead of the weighted
+        sum above (NaN rows: experiments left out).
     """
 
     index: int
@@ -54,6 +58,7 @@ class WindowPosterior:
     weight: np.ndarray
     start_state: np.ndarray
     description: dict = field(default_factory=dict)
+    whiten: np.ndarray | None = None
 
 
 @dataclass
