@@ -106,7 +106,7 @@ def test_en4dvar_plain_likelihood_mcmc_samples_the_same_density(syn, tmp_path):
     """With ``obs_weight=sum`` the MCMC target counts every sample once too (a 1/N_t target would
     be ~6x wider and the comparison would disagree)."""
     out = tmp_path / "sum"
-    _run("fit", syn, "--method", "en4dvar", "--n-steps", 60, "--set", "obs_weight=sum",
+    _run("fit", syn, "--method", "en4dvar", "--n-steps", 60, "--likelihood", "paper", "--set", "obs_weight=sum",
          "--set", "n_draws=5", *FWD, "--mcmc", "--mcmc-set", "n_walkers=16", "--mcmc-set", "n_steps=2500",
          "--mcmc-set", "n_chains=4", "--out", out)
     summary = json.loads((out / "summary.json").read_text())

@@ -157,7 +157,8 @@ def test_en4dvar_obs_weight_matches_laplace_posterior(obs_weight):
     fm, obs = observations()
     sp = space(fm)
     K = obs.t_star.size - 1
-    res = fit_en4dvar(fm, obs, sp, En4DVarSettings(n_draws=1, loglik=False, n_runs=1, obs_weight=obs_weight), seed=0)
+    res = fit_en4dvar(fm, obs, sp, En4DVarSettings(n_draws=1, loglik=False, n_runs=1, obs_weight=obs_weight,
+                                                          likelihood="paper"), seed=0)
     weight = 1.0 / ((K if obs_weight == "mean" else 1.0) * obs.P[1:])
     sd_ref = _laplace_sd(fm, obs, sp, TRUTH, weight)
     sd = np.sqrt(np.diag(res.cov_internal))

@@ -16,7 +16,10 @@ def test_every_method_declares_the_protocol():
         assert dataclasses.is_dataclass(m.settings_class) and callable(m.fit)
         assert m.n_forward_runs(m.settings_class(), 3, 120) > 0
     assert {m.name for m in METHODS.values() if m.gaussian_posterior} == {"en4dvar", "mienks"}
-    assert METHODS["en4dvar"].n_forward_runs(METHODS["en4dvar"].settings_class(), 2, 120) == 3 * 5 * 48 * 2 + 4 + 96
+    paper = METHODS["en4dvar"].settings_class(likelihood="paper")
+    assert METHODS["en4dvar"].n_forward_runs(paper, 2, 120) == 3 * 5 * 48 * 2 + 4 + 96
+    # the default likelihood adds four runs per experiment per cycle and at the end
+    assert METHODS["en4dvar"].n_forward_runs(METHODS["en4dvar"].settings_class(), 2, 120) == 3 * 5 * 48 * 2 + 4 + 96 + 32
     assert METHODS["mienks"].n_forward_runs(METHODS["mienks"].settings_class(), 2, 120) == 18 * 6 * 48 * 2
 
 

@@ -56,16 +56,16 @@ def one_seed(fm, space, seed: int) -> dict:
     obs = verification_data(fm, seed)
     clean = verification_data(fm, seed, noise=False)
     row = {"seed": seed}
-    en = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False), seed=seed)
+    en = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False, likelihood="paper"), seed=seed)
     row["en4dvar"] = {n: covers(en.estimate, n) for n in TRUTH}
     # the plain likelihood (obs_weight=sum) with the estimated P_k, and with the true noise variance
-    sm = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum"), seed=seed)
+    sm = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum", likelihood="paper"), seed=seed)
     row["en4dvar_sum"] = {n: covers(sm.estimate, n) for n in TRUTH}
     known = dataclasses.replace(obs, P=np.maximum(paper_sigma(clean.t_star, clean.R_star[0]) ** 2, obs.P.min()))
-    sk = fit_en4dvar(fm, known, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum"), seed=seed)
+    sk = fit_en4dvar(fm, known, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum", likelihood="paper"), seed=seed)
     row["en4dvar_sum_known_noise"] = {n: covers(sk.estimate, n) for n in TRUTH}
     pooled = dataclasses.replace(obs, P=noise_variance(obs.t_star, obs.R_star, method="pooled")[0])
-    sp = fit_en4dvar(fm, pooled, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum"), seed=seed)
+    sp = fit_en4dvar(fm, pooled, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum", likelihood="paper"), seed=seed)
     row["en4dvar_sum_pooled"] = {n: covers(sp.estimate, n) for n in TRUTH}
     mp = fit_mienks(fm, pooled, space, MIEnKSSettings(n_draws=1, obs_weight="mda"), seed=seed)
     row["mienks_mda_pooled"] = {n: covers(mp.estimate, n) for n in TRUTH}

@@ -36,7 +36,7 @@ METHOD_NAMES = tuple(METHODS)
 
 #: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
 CONFIG_OPTIONS = ("method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "dt_star", "n_steps",
-                  "noise", "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES)
+                  "noise", "likelihood", "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES)
 CONFIG_TABLES = ("forward", "prior", "mcmc", *METHOD_NAMES)
 
 
@@ -91,6 +91,10 @@ def _load_config(path) -> dict:
 @click.option("--noise", type=click.Choice(["auto", "sample", "pooled", "paper"]), default=None,
               help="P_k: across-experiment sample variance (auto with >= 2 experiments), the same pooled over 11 "
                    "neighbouring steps (better weights with few experiments), or the §5 noise model.")
+@click.option("--likelihood", type=click.Choice(["default", "paper"]), default=None,
+              help="default: each sample once, each record's own noise, Rmax/Req/time of the maximum as "
+                   "nuisances, residual correlation tempered, a between-bubble layer; paper: the paper's averaged "
+                   "cost, across-experiment P_k and prior-corrected fusion (en4dvar, mienks) [default: default].")
 @click.option("--mcmc", is_flag=True, default=None,
               help="Also sample every window's posterior with emcee and compare it with the ensemble's Gaussian "
                    "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures.")
@@ -103,7 +107,7 @@ def _load_config(path) -> dict:
 @click.option("--quiet", is_flag=True, default=None, help="Print nothing but errors.")
 @force_option
 def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, workers, camera, dt_star, n_steps,
-            noise, mcmc, mcmc_settings, mcmc_windows, quiet, scheduler, resume, retry_failed, force):
+            noise, likelihood, mcmc, mcmc_settings, mcmc_windows, quiet, scheduler, resume, retry_failed, force):
     """Fit a constitutive model to DATA (dataset folder, .csv or .mat) with one inference method.
 
     Writes summary.json (estimate: SI units, G [Pa], mu [Pa s]; times as t*), posterior.nc (ArviZ)
@@ -151,6 +155,14 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
 
     s = method_settings(meth.settings_class, cfg.get(method, {}), {**key_values(cfg.get("set", []), "--config set"),
                                                        **key_values(settings, "--set")})
+    likelihood = pick("likelihood", likelihood, None)
+    if likelihood is not None:
+        if not any(f.name == "likelihood" for f in dataclasses.fields(s)):
+            if likelihood != "default":
+                raise InputError("--likelihood", f"applies to methods with a likelihood choice; {method} has one "
+                                                 "observation model")
+        else:
+            s = dataclasses.replace(s, likelihood=likelihood)
     prior = prior_overrides(cfg.get("prior", {}), key_values(priors, "--prior"))
     mcmc_s = None
     if mcmc:

@@ -400,11 +400,13 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
         details.update({"between_experiments": h["between_experiments"], "predictive": h["predictive"],
                         "random_effects": hier.to_dict(), "pooled_mean_internal": fus.mean.tolist(),
                         "pooled_cov_internal": fus.cov.tolist()})
-    whiten = None
+    whiten = offsets = None
     if default:
         whiten = np.full((n_exp, K, K), np.nan)
+        offsets = np.zeros((3, n_exp))           # prior sd, posterior mean, posterior sd (t*)
         for i, n in enumerate(ok):
             whiten[n] = R[i]["whiten"]
+            offsets[:, n] = [obs.nuisance_sd[n, 1], R[i]["offset_star"], R[i]["offset_sd_star"]]
     return FitResult(
         method="en4dvar", model=fm.constitutive.name, param_names=tuple(space.names),
         estimate=estimate, fitted=fitted, fit_mask=mask,
@@ -413,10 +415,11 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
         coords={"experiment": list(obs.names), "time": obs.t_star[1:K + 1]},
         runtime_s=time.perf_counter() - t0, warnings=warnings,
         window_posteriors=[fitting_window_posterior(fm, obs, space, K, s.obs_weight or "sum", fus.mean, fus.cov,
-                                                    whiten)])
+                                                    whiten, offsets)])
 
 
-def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov, whiten=None) -> WindowPosterior:
+def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov, whiten=None,
+                             offsets=None) -> WindowPosterior:
     """The density the fused Gaussian approximates: every experiment from its maximum over samples
     1..K with the parameter prior and weight 1/K (``obs_weight="mean"``) or 1 (``"sum"``), or, with
     ``whiten`` (n_exp, K, K), the default likelihood's whitened residuals (no between-bubble
@@ -431,7 +434,9 @@ def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov,
         index=0, start=0, samples=(1, K), mean=np.asarray(mean, float), cov=np.asarray(cov, float),
         prior_mean=space.prior_mean, prior_cov=space.prior_cov, weight=np.full(K, c),
         start_state=np.array(fm.initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64),
-        description=desc, whiten=whiten)
+        description=desc, whiten=whiten, **({} if offsets is None else
+                                            {"offset_sd": offsets[0], "offset_mean": offsets[1],
+                                             "offset_post_sd": offsets[2]}))
 
 
 class En4DVar(InferenceMethod):
@@ -446,7 +451,10 @@ class En4DVar(InferenceMethod):
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         s = settings        # cycles x iterations x members, then the fitted curves and the draws
-        return s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
+        n = s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
+        if s.likelihood == "default":       # the observation model: 4 runs per cycle and at the end
+            n += 4 * (s.n_runs + 1) * n_exp
+        return n
 
     @staticmethod
     def figures(obs, res, fdir):

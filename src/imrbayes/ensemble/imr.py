@@ -27,6 +27,13 @@ optimum (the quadratic fit's Hessian) is used instead (``details["uncertainty_fr
 the residuals as independent; residuals of one R(t) curve are correlated in time, so the region is
 optimistic. ``estimate[*]["mean"]`` is the optimum (standard IMR's point estimate); the
 pseudo-posterior mean is ``posterior_mean``.
+
+Nuisances (methods.md §7.3). Standard IMR is kept as the literature's method: Rmax, Req and the
+time of the maximum stay fixed at preprocessing's estimates (the local fit of the maximum, Req from
+the tail), and its region does not include their uncertainty. Adding three nuisances per bubble
+would turn the 2-D grid into a (2 + 3 N_exp)-D search, and its purpose here is the paper's
+reference answer. For intervals that include alignment and geometry (and each sample counted
+once) use ``en4dvar`` (the default likelihood); ``details["nuisances"]`` says this in each run.
 """
 
 from __future__ import annotations
@@ -292,7 +299,9 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
         dG_draw = np.clip(Gg[ii] + (rng.random(s.n_draws) - 0.5) * spacing[0], Gg[0], Gg[-1])
         dm_draw = np.clip(mg[jj] + (rng.random(s.n_draws) - 0.5) * spacing[1], mg[0], mg[-1])
     dG, dm = spacing
-    details = {"settings": asdict(s), "grid": {"G": [float(Gg[0]), float(Gg[-1]), s.n_G, float(dG)],
+    details = {"nuisances": "Rmax, Req and the time of the maximum fixed at preprocessing's estimates (not "
+                            "propagated); en4dvar's default likelihood includes them",
+               "settings": asdict(s), "grid": {"G": [float(Gg[0]), float(Gg[-1]), s.n_G, float(dG)],
                                               "mu": [float(mg[0]), float(mg[-1]), s.n_mu, float(dm)]},
                "grid_optimum": {"G": float(opt[0]), "mu": float(opt[1])},
                "optimum": {"G": float(refined[0]), "mu": float(refined[1])}, "refined": ref is not None,

@@ -35,7 +35,7 @@ from imrbayes.forward import BatchState, fm_spec, register_runner, runner_for
 from imrbayes.mcmc.compare import compare_window
 from imrbayes.mcmc.sampler import MCMCSettings, run_mcmc
 from imrbayes.mcmc.target import WindowTarget
-from imrbayes.mcmc.windows import WindowMCMC, mcmc_tree, window_seed, window_specs, write_compare
+from imrbayes.mcmc.windows import WindowMCMC, mcmc_tree, window_seed, start_gaussian, window_specs, write_compare
 
 __all__ = ["fit_window_specs", "mcmc_window_unit", "run_fit_mcmc"]
 
@@ -59,7 +59,8 @@ def _target_data(tg: WindowTarget) -> dict:
     """What a worker needs to rebuild ``tg`` on its own forward model (plain arrays)."""
     p = tg.prior
     return {"y0": tg.start.y, "t0": tg.t0, "rmax": tg.start.rmax_m, "req": tg.start.req_m, "t_eval": tg.t_eval,
-            "y": tg.y, "P": tg.P, "weight": tg.weight, "names": list(tg.names),
+            "y": tg.y, "P": tg.P, "weight": tg.weight, "names": list(tg.names), "whiten": tg.whiten,
+            "offset_sd": tg.offset_sd,
             "description": {k: v for k, v in tg.description.items() if isinstance(v, (str, int, float, list))},
             "prior": {"mean": p.prior_mean, "cov": p.prior_cov, "positive": np.asarray(p.positive, bool),
                       "names": list(p.names), "scale": p.scale, "box_sd": float(p.box_sd)}}
@@ -72,7 +73,7 @@ def _rebuild_target(d: dict, model) -> WindowTarget:
     start = BatchState(np.array(d["y0"], dtype=np.float64), float(d["t0"]), np.asarray(d["rmax"], float),
                        np.asarray(d["req"], float))
     return WindowTarget(model, start, d["t_eval"], d["y"], d["P"], prior, d["weight"], d["names"],
-                        description=d["description"])
+                        description=d["description"], whiten=d.get("whiten"), offset_sd=d.get("offset_sd"))
 
 
 def _atomic_netcdf(tree, path: Path) -> None:
@@ -166,7 +167,7 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
     local = ex.executor is None or type(ex.executor).__name__ == "InProcessExecutor"
     units = []
     for sp in specs:
-        m, C = (sp.ens_mean, sp.ens_cov) if start == "ensemble" else (sp.prior_mean, sp.prior_cov)
+        m, C = start_gaussian(sp, start)
         units.append(Unit(unit_id(mcmc=sp.index), {
             "spec": spec, "runner": token, "target": _target_data(sp.target), "settings": asdict(s),
             "index": sp.index, "t_star": list(sp.t_star), "seed": int(seed), "start_mean": m, "start_cov": C,

@@ -82,7 +82,7 @@ class WindowTarget:
     """
 
     def __init__(self, model, start: BatchState, t_eval, y, P, prior: ParamSpace, weight=1.0,
-                 names=None, description: dict | None = None):
+                 names=None, description: dict | None = None, whiten=None, offset_sd=None):
         self.model = model
         self.start = start.copy()
         self.t0 = float(start.t_star)
@@ -111,11 +111,21 @@ class WindowTarget:
             raise InputError("window", "observations must be finite where they are used")
         self.n_evals = 0          # parameter sets evaluated
         self.n_failed = 0         # of which the forward solve failed
+        # the default likelihood (imrbayes.ensemble.likelihood): whitened residuals, and the time of
+        # each experiment's maximum sampled with the parameters (offsets in t*, prior N(0, sd^2))
+        self.whiten = None if whiten is None else np.asarray(whiten, dtype=np.float64).reshape(n_exp, m, m)
+        if self.whiten is not None and not np.all(np.isfinite(self.whiten)):
+            raise InputError("window", "whitening matrices must be finite")
+        sd = np.zeros(n_exp) if offset_sd is None else np.broadcast_to(np.asarray(offset_sd, np.float64), (n_exp,))
+        self.offset_sd = np.where(np.isfinite(sd) & (sd > 0), sd, 0.0)
+        self.offset_exp = np.flatnonzero(self.offset_sd > 0)
+        if self.offset_exp.size and self.t0 != 0.0:
+            raise InputError("window", "time offsets need a window that starts at the maximum (t* = 0)")
 
     # ------------------------------------------------------------------ description
     @property
     def ndim(self) -> int:
-        return self.prior.n
+        return self.prior.n + int(self.offset_exp.size)
 
     @property
     def n_exp(self) -> int:
@@ -128,7 +138,8 @@ class WindowTarget:
     @property
     def internal_names(self) -> list:
         """Names of the sampled coordinates: ``log_G`` for a positive ``G``, else the name."""
-        return [f"log_{n}" if p else n for n, p in zip(self.prior.names, self.prior.positive)]
+        return ([f"log_{n}" if p else n for n, p in zip(self.prior.names, self.prior.positive)]
+                + [f"t0_offset_{self.names[i]}" for i in self.offset_exp])
 
     @property
     def t_used(self) -> np.ndarray:
@@ -139,7 +150,9 @@ class WindowTarget:
         return {"t0_star": self.t0, "t_star": [float(self.t_eval[0]), float(self.t_eval[-1])],
                 "n_samples": int(self.t_eval.size), "n_used": int(self.use.sum()), "n_experiments": self.n_exp,
                 "prior": self.prior.describe_density(), "internal_names": self.internal_names,
-                "density": "-1/2 sum_n sum_k c_nk (y_nk - R_nk(z))^2 / P_k + log p0(z)",
+                "density": ("-1/2 sum_n ||W_n (y_n - R_n(z, offset_n))||^2 + log p0(z) + sum_n log N(offset_n; 0, sd_n^2)"
+                            if self.whiten is not None else "-1/2 sum_n sum_k c_nk (y_nk - R_nk(z))^2 / P_k + log p0(z)"),
+                "time_offsets_sampled": [self.names[i] for i in self.offset_exp],
                 "weight_min": float(self.weight[self.use].min()), "weight_max": float(self.weight[self.use].max()),
                 **self.description}
 
@@ -154,7 +167,7 @@ class WindowTarget:
         Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
         n, ne, m = Z.shape[0], self.n_exp, self.t_eval.size
         R = np.full((n, ne, m), np.nan)
-        theta = self.prior.to_si(Z)
+        theta = self.prior.to_si(Z[:, :self.prior.n])
         ok = np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(Z), axis=1)
         failed = ~ok
         idx = np.flatnonzero(ok)
@@ -163,8 +176,19 @@ class WindowTarget:
             st = BatchState(np.tile(s.y, (idx.size, 1)), self.t0, np.tile(s.rmax_m, idx.size),
                             np.tile(s.req_m, idx.size))
             params = np.repeat(theta[idx], ne, axis=0)                     # member = i * N_exp + e
-            out = self.model.propagate(st, params, float(self.t_eval[-1]), self.t_eval)
-            Ri = np.asarray(out.R_star, dtype=np.float64).reshape(idx.size, ne, m)
+            if self.offset_exp.size:
+                off = np.zeros((idx.size, ne))
+                off[:, self.offset_exp] = Z[idx, self.prior.n:]
+                rows = np.abs(self.t_eval[None, :] - off.reshape(-1, 1))    # before its maximum: the mirror image
+                order = np.argsort(rows, axis=1, kind="stable")
+                srt = np.take_along_axis(rows, order, axis=1)
+                out = self.model.propagate(st, params, float(srt.max()), srt)
+                Rs = np.empty_like(np.asarray(out.R_star, dtype=np.float64))
+                np.put_along_axis(Rs, order, np.asarray(out.R_star, dtype=np.float64), axis=1)
+            else:
+                out = self.model.propagate(st, params, float(self.t_eval[-1]), self.t_eval)
+                Rs = np.asarray(out.R_star, dtype=np.float64)
+            Ri = Rs.reshape(idx.size, ne, m)
             bad = np.asarray(out.failed).reshape(idx.size, ne).any(axis=1)
             bad |= ~np.all(np.isfinite(np.where(self.use[None], Ri, 0.0)), axis=(1, 2))
             R[idx] = Ri
@@ -176,16 +200,32 @@ class WindowTarget:
     def log_likelihood(self, Z) -> np.ndarray:
         """(n, d) -> (n,) ``-1/2 sum c (y - R)^2 / P`` over the used samples; -inf where a solve failed."""
         R, failed = self.predict(Z)
-        r2 = np.where(self.use[None], self.weight * (self.y - R) ** 2 / self.P, 0.0)
-        ll = -0.5 * np.sum(r2, axis=(1, 2))
+        if self.whiten is not None:
+            r = np.where(self.use[None], self.y - R, 0.0)
+            ll = -0.5 * np.sum(np.einsum("eij,nej->nei", self.whiten, r) ** 2, axis=(1, 2))
+        else:
+            r2 = np.where(self.use[None], self.weight * (self.y - R) ** 2 / self.P, 0.0)
+            ll = -0.5 * np.sum(r2, axis=(1, 2))
         return np.where(failed | ~np.isfinite(ll), -np.inf, ll)
+
+    def log_prior(self, Z) -> np.ndarray:
+        """(n, ndim) -> (n,) the parameter prior plus the time offsets' N(0, sd^2)."""
+        Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
+        d = self.prior.n
+        out = self.prior.log_prob(Z[:, :d])
+        if self.offset_exp.size:
+            sd = self.offset_sd[self.offset_exp]
+            x = Z[:, d:] / sd
+            out = out - 0.5 * np.sum(x * x + np.log(2 * np.pi * sd * sd), axis=1)
+            out[np.any(np.abs(x) > self.prior.box_sd, axis=1)] = -np.inf
+        return out
 
     def log_prob(self, Z) -> np.ndarray:
         """(n, d) internal coordinates -> (n,) log-posterior (unnormalised); -inf, never NaN, where
         the prior is zero or a forward solve failed. Only parameter sets inside the prior's support
         are simulated."""
         Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
-        out = self.prior.log_prob(Z)
+        out = self.log_prior(Z)
         ok = np.isfinite(out)
         if ok.any():
             out[ok] = out[ok] + self.log_likelihood(Z[ok])
@@ -206,7 +246,15 @@ class WindowTarget:
             R, failed = self.predict(Z[a:a + per])
             w = self.weight[:, cols]
             with np.errstate(divide="ignore", invalid="ignore"):
-                lp = loglik_pointwise(R[:, :, cols], self.y[:, cols], self.P[:, cols], w)
+                if self.whiten is not None:
+                    # per whitened component (the nuisance correlation is in W); log|W_kk| normalises it
+                    # approximately, enough for LOO diagnostics
+                    r = np.where(self.use[None], self.y - R, 0.0)
+                    wr = np.einsum("eij,nej->nei", self.whiten, r)[:, :, cols]
+                    diag = np.abs(np.einsum("eii->ei", self.whiten))[:, cols]
+                    lp = -0.5 * (wr ** 2 + np.log(2.0 * np.pi)) + np.log(diag)[None]
+                else:
+                    lp = loglik_pointwise(R[:, :, cols], self.y[:, cols], self.P[:, cols], w)
             lp = np.where((w > 0)[None] & ~failed[:, None, None] & np.isfinite(lp), lp, -1e300)
             out[a:a + per] = lp
         return out

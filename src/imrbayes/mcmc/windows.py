@@ -36,7 +36,7 @@ from imrbayes.mcmc.compare import compare_window, compare_windows
 from imrbayes.mcmc.sampler import MCMCRun, MCMCSettings, run_mcmc
 from imrbayes.mcmc.target import WindowTarget
 
-__all__ = ["WindowSpec", "WindowMCMC", "window_specs", "sample_windows", "mcmc_tree", "write_mcmc", "write_compare",
+__all__ = ["start_gaussian", "WindowSpec", "WindowMCMC", "window_specs", "sample_windows", "mcmc_tree", "write_mcmc", "write_compare",
            "compare_from_tree", "window_seed"]
 
 
@@ -52,6 +52,8 @@ class WindowSpec:
     prior_mean: np.ndarray
     prior_cov: np.ndarray
     state_source: str = ""
+    start: tuple | None = None          # (mean, cov) over all sampled coordinates (walker starts)
+    prior_start: tuple | None = None    # the same from the prior
 
 
 def window_specs(model, obs, space, posteriors, *, indices=None, box_sd: float = 10.0) -> list:
@@ -68,18 +70,36 @@ def window_specs(model, obs, space, posteriors, *, indices=None, box_sd: float =
         w = posteriors[j]
         a, b = int(w.samples[0]), int(w.samples[1])
         q = np.asarray(w.start_state, dtype=np.float64)
-        rows = np.flatnonzero(np.all(np.isfinite(q), axis=1))
+        valid = np.all(np.isfinite(q), axis=1)
+        if w.whiten is not None:          # experiments without a whitening (failed in the fit) are left out
+            valid &= np.all(np.isfinite(np.asarray(w.whiten)), axis=(1, 2))
+        rows = np.flatnonzero(valid)
         if rows.size == 0:
             raise InputError("start_state", f"window {w.index}: no experiment has a valid start state")
         start = BatchState(q[rows].copy(), float(t[w.start]), np.asarray(obs.rmax_m, float)[rows],
                            np.asarray(obs.req_m, float)[rows])
         prior = space.with_prior(w.prior_mean, w.prior_cov, box_sd)
+        offset_sd = None if w.offset_sd is None else np.asarray(w.offset_sd, float)[rows]
         tg = WindowTarget(model, start, t[a:b + 1], np.asarray(obs.R_star)[rows, a:b + 1], np.asarray(obs.P)[a:b + 1],
-                          prior, w.weight, [obs.names[i] for i in rows], description=dict(w.description))
+                          prior, w.weight, [obs.names[i] for i in rows], description=dict(w.description),
+                          whiten=None if w.whiten is None else np.asarray(w.whiten)[rows], offset_sd=offset_sd)
+        sub = w
+        if w.offset_sd is not None:
+            from dataclasses import replace
+            sub = replace(w, offset_sd=offset_sd, offset_mean=np.asarray(w.offset_mean, float)[rows],
+                          offset_post_sd=np.asarray(w.offset_post_sd, float)[rows])
         specs.append(WindowSpec(w.index, (float(t[w.start]), float(t[b])), tg, np.asarray(w.mean, float),
                                 np.asarray(w.cov, float), np.asarray(w.prior_mean, float),
-                                np.asarray(w.prior_cov, float), w.description.get("state", "")))
+                                np.asarray(w.prior_cov, float), w.description.get("state", ""),
+                                sub.start_gaussian(), sub.start_gaussian(prior=True)))
     return specs
+
+
+def start_gaussian(sp, start: str):
+    """The walkers' start Gaussian over every sampled coordinate (parameters, then time offsets)."""
+    if start == "ensemble":
+        return sp.start if sp.start is not None else (sp.ens_mean, sp.ens_cov)
+    return sp.prior_start if sp.prior_start is not None else (sp.prior_mean, sp.prior_cov)
 
 
 def window_seed(seed: int, index: int) -> int:
@@ -108,7 +128,7 @@ def sample_windows(specs, settings: MCMCSettings | None = None, seed: int = 0, b
     """
     out = []
     for sp in specs:
-        m, C = (sp.ens_mean, sp.ens_cov) if start == "ensemble" else (sp.prior_mean, sp.prior_cov)
+        m, C = start_gaussian(sp, start)
         run = run_mcmc(sp.target, m, C, settings, seed=window_seed(seed, sp.index), backend=backend,
                        name=f"window_{sp.index:02d}", progress=progress)
         tree = run.to_datatree(sp.target, loglik=loglik)

@@ -1,0 +1,169 @@
+"""Calibration on camera-style data: the "camera" case family (issue #19, deliverables 1 and 6).
+
+Each seed draws a fresh data set the way real data arrive (``imrbayes simulate``): 6 bubbles,
+Rmax 320 +- 45 µm, Rmax/Req 7.9 +- 0.45, a 1 Mfps camera with a random sub-frame phase, records
+starting 5 µs before the maximum, Gaussian noise 0.02 R* at every sample (the maximum included),
+Req not given. The data are generated with tight solver tolerances (rtol 1e-9) and fitted with the
+default ones, so the fitted model is not the generating one bit for bit. Preprocessing is the
+default (local fit of the maximum, estimated noise, Req from the tail); nothing of the truth is
+passed to the fit.
+
+For each seed and each likelihood (``default``, ``paper``) En4D-Var is fitted and we record
+whether the 95 % interval of the gel-level estimate holds the truth (G, mu), the relative error,
+and, for the ``scatter`` family (``--scatter G=SD --scatter mu=SD``), whether the between-bubble
+sd's 95 % interval holds the true relative sd and the fraction of the bubbles' true parameters
+inside the 95 % predictive interval. Coverage is given with a 95 % Wilson interval.
+
+The bubble model is polytropic by default (``--bubble thermal`` for the thermal model: ~10x the
+cost). Usage:
+
+    python validation/camera_calibration.py --seeds 20 --family camera --json validation/results/camera.json
+    python validation/camera_calibration.py --seeds 20 --family scatter --json validation/results/camera_scatter.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from imrbayes.data import load_dataset, preprocess_dataset
+from imrbayes.ensemble import En4DVarSettings, Observations, ParamSpace, fit_en4dvar
+from imrbayes.forward import ForwardModel
+
+TRUTH = {"G": 5200.0, "mu": 0.065}
+SCATTER = 0.15
+
+
+def wilson(k: int, n: int, z: float = 1.959964) -> list:
+    """95 % Wilson score interval of a binomial proportion k/n."""
+    if n == 0:
+        return [float("nan"), float("nan")]
+    p = k / n
+    den = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / den
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return [c - h, c + h]
+
+
+def simulate(folder: Path, seed: int, family: str, bubble: str) -> dict:
+    cmd = [sys.executable, "-m", "imrbayes.cli", "simulate", "--model", "nhkv",
+           "--param", f"G={TRUTH['G']}", "--param", f"mu={TRUTH['mu']}", "--rmax", "320e-6:45e-6",
+           "--ratio", "7.9:0.45", "--n-exp", "6", "--noise", "0.02", "--frame-s", "1e-6", "--phase", "random",
+           "--pre-max-s", "5e-6", "--no-req-in-meta", "--t-end", "3.6", "--seed", str(seed), "--out", str(folder),
+           "--forward", f"bubble={bubble}", "--forward", "rtol=1e-9", "--forward", "atol=1e-11"]
+    if family == "scatter":
+        cmd += ["--scatter", f"G={SCATTER}", "--scatter", f"mu={SCATTER}"]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    return json.loads((folder / "truth.json").read_text())
+
+
+def one_seed(seed: int, family: str, bubble: str, likelihoods) -> dict:
+    fm = ForwardModel("nhkv", options={"bubble": bubble})
+    row = {"seed": seed}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "data"
+        truth = simulate(folder, seed, family, bubble)
+        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    space = ParamSpace.for_model(fm.constitutive)
+    bubbles = {n: np.array([e["parameters"][n] for e in truth["experiments"]]) for n in TRUTH}
+    for lk in likelihoods:
+        t0 = time.perf_counter()
+        res = fit_en4dvar(fm, obs, space, En4DVarSettings(likelihood=lk, n_draws=1, loglik=False), seed=seed)
+        r = {"runtime_s": time.perf_counter() - t0}
+        for n, true in TRUTH.items():
+            e = res.estimate[n]
+            r[n] = {"mean": e["mean"], "sd": e["sd"], "hdi95": e["hdi95"],
+                    "covers": bool(e["hdi95"][0] <= true <= e["hdi95"][1]), "rel_error": e["mean"] / true - 1}
+            between = res.details.get("between_experiments", {}).get(n)
+            if between and between.get("ci95_log") is not None:
+                lo, hi = between["ci95_log"]
+                true_sd = SCATTER if family == "scatter" else 0.0
+                r[n]["between_sd_log"] = between["sd_log"]
+                r[n]["between_covers"] = bool(lo <= true_sd + 1e-12 and true_sd <= hi + 1e-12)
+            pred = res.details.get("predictive", {}).get(n)
+            if pred:
+                lo, hi = pred["hdi95"]
+                r[n]["predictive_holds"] = float(np.mean((bubbles[n] >= lo) & (bubbles[n] <= hi)))
+        r["effective_samples"] = res.details.get("likelihood", {}).get("effective_samples")
+        row[lk] = r
+    return row
+
+
+def summarise(rows, likelihoods) -> dict:
+    out = {}
+    for lk in likelihoods:
+        s = {}
+        for n in TRUTH:
+            k = sum(r[lk][n]["covers"] for r in rows)
+            err = np.array([r[lk][n]["rel_error"] for r in rows])
+            s[n] = {"coverage": k / len(rows), "coverage_wilson95": wilson(k, len(rows)), "n_seeds": len(rows),
+                    "mean_rel_error": float(err.mean()), "sd_rel_error": float(err.std(ddof=1)) if len(rows) > 1 else None,
+                    "mean_rel_sd": float(np.mean([r[lk][n]["sd"] / r[lk][n]["mean"] for r in rows])),
+                    "within_10pct": int(np.sum(np.abs(err) <= 0.10))}
+            b = [r[lk][n]["between_covers"] for r in rows if "between_covers" in r[lk][n]]
+            if b:
+                s[n]["between_coverage"] = sum(b) / len(b)
+                s[n]["between_coverage_wilson95"] = wilson(sum(b), len(b))
+            p = [r[lk][n]["predictive_holds"] for r in rows if "predictive_holds" in r[lk][n]]
+            if p:
+                s[n]["predictive_fraction"] = float(np.mean(p))
+        s["mean_runtime_s"] = float(np.mean([r[lk]["runtime_s"] for r in rows]))
+        out[lk] = s
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--first-seed", type=int, default=100)
+    ap.add_argument("--family", choices=["camera", "scatter"], default="camera")
+    ap.add_argument("--bubble", choices=["polytropic", "thermal"], default="polytropic")
+    ap.add_argument("--likelihoods", default="default,paper")
+    ap.add_argument("--json", type=Path, default=None)
+    a = ap.parse_args(argv)
+    lks = [x for x in a.likelihoods.split(",") if x]
+    rows = []
+    prev = json.loads(a.json.read_text()) if a.json and a.json.exists() else {}
+    done = {r["seed"]: r for r in prev.get("rows", []) if prev.get("family") == a.family and prev.get("bubble") == a.bubble
+            and all(lk in r for lk in lks)}
+    for seed in range(a.first_seed, a.first_seed + a.seeds):
+        if seed in done:                 # an interrupted run loses nothing it finished
+            rows.append(done[seed])
+            continue
+        rows.append(one_seed(seed, a.family, a.bubble, lks))
+        r = rows[-1]
+        print(f"seed {seed}: " + "; ".join(
+            f"{lk}: G {r[lk]['G']['mean']:.0f} [{r[lk]['G']['hdi95'][0]:.0f}, {r[lk]['G']['hdi95'][1]:.0f}] "
+            f"mu {r[lk]['mu']['mean']:.4f} [{r[lk]['mu']['hdi95'][0]:.4f}, {r[lk]['mu']['hdi95'][1]:.4f}]"
+            for lk in lks), flush=True)
+        if a.json:
+            a.json.parent.mkdir(parents=True, exist_ok=True)
+            a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "truth": TRUTH, "rows": rows,
+                                          "summary": summarise(rows, lks)}, indent=1))
+    summ = summarise(rows, lks)
+    print(f"\n{a.family} family, {len(rows)} seeds, bubble {a.bubble}")
+    print(f"{'likelihood':<10} {'param':<5} {'coverage':>9} {'Wilson 95%':>15} {'bias':>8} {'scatter':>8} "
+          f"{'post sd':>8} {'between cov':>12} {'pred frac':>10}")
+    for lk in lks:
+        for n in TRUTH:
+            s = summ[lk][n]
+            w = s["coverage_wilson95"]
+            print(f"{lk:<10} {n:<5} {s['coverage']:>9.2f} {f'[{w[0]:.2f}, {w[1]:.2f}]':>15} {s['mean_rel_error']:>+8.3f} "
+                  f"{(s['sd_rel_error'] or float('nan')):>8.3f} {s['mean_rel_sd']:>8.3f} "
+                  f"{s.get('between_coverage', float('nan')):>12.2f} {s.get('predictive_fraction', float('nan')):>10.2f}")
+    if a.json:
+        a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "truth": TRUTH, "rows": rows,
+                                      "summary": summ}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
