@@ -131,7 +131,7 @@ def main(argv=None):
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
     lks = [x for x in a.likelihoods.split(",") if x]
-    rows = []
+    rows, failures = [], []
     prev = json.loads(a.json.read_text()) if a.json and a.json.exists() else {}
     done = {r["seed"]: r for r in prev.get("rows", []) if prev.get("family") == a.family and prev.get("bubble") == a.bubble
             and all(lk in r for lk in lks)}
@@ -139,7 +139,12 @@ def main(argv=None):
         if seed in done:                 # an interrupted run loses nothing it finished
             rows.append(done[seed])
             continue
-        rows.append(one_seed(seed, a.family, a.bubble, lks))
+        try:
+            rows.append(one_seed(seed, a.family, a.bubble, lks))
+        except Exception as exc:        # a failed seed is reported, never silently dropped
+            failures.append({"seed": seed, "error": f"{type(exc).__name__}: {exc}"[:300]})
+            print(f"seed {seed}: FAILED ({failures[-1]['error']})", flush=True)
+            continue
         r = rows[-1]
         print(f"seed {seed}: " + "; ".join(
             f"{lk}: G {r[lk]['G']['mean']:.0f} [{r[lk]['G']['hdi95'][0]:.0f}, {r[lk]['G']['hdi95'][1]:.0f}] "
@@ -148,9 +153,9 @@ def main(argv=None):
         if a.json:
             a.json.parent.mkdir(parents=True, exist_ok=True)
             a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "truth": TRUTH, "rows": rows,
-                                          "summary": summarise(rows, lks)}, indent=1))
+                                          "failures": failures, "summary": summarise(rows, lks)}, indent=1))
     summ = summarise(rows, lks)
-    print(f"\n{a.family} family, {len(rows)} seeds, bubble {a.bubble}")
+    print(f"\n{a.family} family, {len(rows)} seeds ({len(failures)} failed), bubble {a.bubble}")
     print(f"{'likelihood':<10} {'param':<5} {'coverage':>9} {'Wilson 95%':>15} {'bias':>8} {'scatter':>8} "
           f"{'post sd':>8} {'between cov':>12} {'pred frac':>10}")
     for lk in lks:
@@ -162,7 +167,7 @@ def main(argv=None):
                   f"{s.get('between_coverage', float('nan')):>12.2f} {s.get('predictive_fraction', float('nan')):>10.2f}")
     if a.json:
         a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "truth": TRUTH, "rows": rows,
-                                      "summary": summ}, indent=1))
+                                      "failures": failures, "summary": summ}, indent=1))
 
 
 if __name__ == "__main__":

@@ -48,7 +48,8 @@ import numpy as np
 from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, rtps
 from imrbayes.ensemble.gn import gauss_newton
 from imrbayes.ensemble.hierarchical import likelihood_terms, random_effects
-from imrbayes.ensemble.likelihood import experiment_likelihood, nuisance_summary, record_noise_sd, simulate_shifted
+from imrbayes.ensemble.likelihood import (nuisance_prior_sd, nuisance_summary, observation_model, predict,
+                                          record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
                                       si_covariance)
@@ -149,28 +150,29 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
     y, weight = d["y"], d["weight"]
     lik = W = None
     n_p = space.n
-    lin_sd = None
     if default:
-        # the time of the maximum is inferred with the parameters (augmented ensemble, nonlinear: an
-        # offset of a frame or two near the collapse is far outside a linear model); Rmax and Req,
-        # small relative errors, are integrated out to first order (imrbayes.ensemble.likelihood)
-        sd = np.asarray(d["nuisance_sd"], dtype=np.float64)
-        lin_sd = np.array([sd[0], 0.0, sd[2]])
-        if sd[1] > 0:
-            mean = np.append(mean, 0.0)
-            cov = np.block([[cov, np.zeros((n_p, 1))], [np.zeros((1, n_p)), np.array([[sd[1] ** 2]])]])
+        # Rmax, the time of the maximum and Req are inferred with the parameters: the ensemble is
+        # augmented by (a, delta, rho) with the preprocessing prior (imrbayes.ensemble.likelihood)
+        nu_sd = np.asarray(d["nuisance_sd"], dtype=np.float64)
+        active = np.flatnonzero(nu_sd > 0)
+        k = active.size
+        mean = np.concatenate([mean, np.zeros(k)])
+        cov = np.block([[cov, np.zeros((n_p, k))], [np.zeros((k, n_p)), np.diag(nu_sd[active] ** 2)]])
 
-            def evaluate(groups, Z):
-                return simulate_shifted(runner, space.to_si(Z[:, :n_p]), np.full(len(Z), rmax), np.full(len(Z), req),
-                                        t_eval[1:], Z[:, n_p])
+        def nuisances(Z):
+            nu = np.zeros((Z.shape[0], 3))
+            nu[:, active] = Z[:, n_p:]
+            return nu
+
+        def evaluate(groups, Z):
+            return predict(runner, space.to_si(Z[:, :n_p]), rmax, req, t_eval[1:], nuisances(Z))
     for r in range(s.n_runs):
         if default:
             # the observation model at the current centre: cycle 1 with the record's noise alone, later
-            # cycles also with the residual's level and autocorrelation (module doc of likelihood)
-            off = float(mean[n_p]) if mean.size > n_p else 0.0
-            lik = experiment_likelihood(runner, space.to_si(mean[:n_p]), rmax, req, t_eval[1:], d["y"], lin_sd,
-                                        d["noise_var"], adapt=r > 0, offset=off)
-            W = lik.W
+            # cycles also with the residual's level and autocorrelation
+            f, _ = predict(runner, space.to_si(mean[None, :n_p]), rmax, req, t_eval[1:], nuisances(mean[None]))
+            lik = observation_model(d["y"], f[0], d["noise_var"], adapt=r > 0)
+            W = lik["W"]
             y, weight = W @ d["y"], np.ones(d["y"].size)
             ev = _whitened(evaluate, W)
         else:
@@ -182,26 +184,18 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         cov = np.einsum("gnd,gne->gde", infl, infl)[0]
         cycles.append({"cycle": r + 1, "cost": res.cost[0], "n_failed": res.n_failed[0],
                        "n_redrawn": int(res.n_redrawn[0]), "stopped": bool(res.stopped[0]),
-                       **({"likelihood": lik.to_dict()} if default else {})})
+                       **({"likelihood": {k_: v for k_, v in lik.items() if k_ != "W"}} if default else {})})
     qa = res.prior_anoms[0]
     pm, pc, qm, qc = res.mean[0], res.cov[0], res.prior_ensemble[0].mean(axis=0), qa.T @ qa
-    # the parameters' marginals (the time offset, if augmented, is reported as a nuisance)
+    # the parameters' marginals (the nuisances are reported per experiment)
     out = {"mean": pm[:n_p], "cov": pc[:n_p, :n_p], "prior_mean": qm[:n_p], "prior_cov": qc[:n_p, :n_p],
            "stopped": bool(res.stopped[0]), "cycles": cycles}
     if default:
-        # the density the last cycle used (what MCMC samples), and the nuisances at the final centre
-        off = float(pm[n_p]) if pm.size > n_p else 0.0
-        fin = experiment_likelihood(runner, space.to_si(pm[:n_p]), rmax, req, t_eval[1:], d["y"],
-                                    lin_sd, d["noise_var"], adapt=True, offset=off)
-        nu_mean, nu_cov = fin.nu_mean.copy(), fin.nu_cov.copy()
-        sd = np.asarray(d["nuisance_sd"], dtype=np.float64)
-        if pm.size > n_p and sd[1] > 0:         # standardised like the linear nuisances
-            nu_mean[1] = off / sd[1]
-            nu_cov[1, :] = nu_cov[:, 1] = 0.0
-            nu_cov[1, 1] = pc[n_p, n_p] / sd[1] ** 2
-        out.update({"whiten": W, "likelihood": lik.to_dict(), "final_likelihood": fin.to_dict(),
-                    "nu_mean": nu_mean, "nu_cov": nu_cov, "var": lik.var, "alpha": lik.alpha, "offset_star": off,
-                    "offset_sd_star": float(np.sqrt(pc[n_p, n_p])) if pm.size > n_p else 0.0})
+        nu_mean, nu_sd_post = np.zeros(3), np.zeros(3)
+        nu_mean[active] = pm[n_p:]
+        nu_sd_post[active] = np.sqrt(np.diag(pc)[n_p:])
+        out.update({"whiten": W, "likelihood": {k_: v for k_, v in lik.items() if k_ != "W"},
+                    "var": lik["var"], "alpha": lik["alpha"], "nu_mean": nu_mean, "nu_sd": nu_sd_post})
     return {**out, **runner.counts_since(before)}
 
 
@@ -256,7 +250,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     noise_var = [record_noise_sd(obs, n) ** 2 for n in range(n_exp)]
     rep = ex.run([Unit(unit_id(exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
                                         "y": y[n], "weight": weight, "noise_var": noise_var[n],
-                                        "nuisance_sd": obs.nuisance_sd[n]})
+                                        "nuisance_sd": nuisance_prior_sd(obs, n)})
                   for n in range(n_exp)], en4dvar_unit, seed, desc="en4dvar experiments")
     warnings = []
     failed_units = []
@@ -354,12 +348,10 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
                  "mean_internal": post_mean[i].tolist(), "cov_internal": post_cov[i].tolist(),
                  "rmse_own": rmse(own[n], obs.R_star[n], mask[n]) if mask[n].any() else float("nan")}
         if default:
-            from imrbayes.ensemble.likelihood import ExperimentLikelihood
             r = R[i]
-            lk = ExperimentLikelihood(r["whiten"], r["var"], noise_var[n], r["alpha"], 0.0, 1.0, np.zeros((K, 3)),
-                                      np.zeros(K), 0.0, np.asarray(r["nu_mean"]), np.asarray(r["nu_cov"]), True)
-            entry["nuisance"] = nuisance_summary(lk, obs.nuisance_sd[n], float(obs.rmax_m[n]), float(obs.req_m[n]),
-                                                 float(obs.t0_s[n]), float(obs.tc_s[n]))
+            entry["nuisance"] = nuisance_summary(r["nu_mean"], r["nu_sd"], nuisance_prior_sd(obs, n),
+                                                 float(obs.rmax_m[n]), float(obs.req_m[n]), float(obs.t0_s[n]),
+                                                 float(obs.tc_s[n]))
             entry["likelihood"] = r["likelihood"]
         per.append(entry)
     ll = None
@@ -403,10 +395,10 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     whiten = offsets = None
     if default:
         whiten = np.full((n_exp, K, K), np.nan)
-        offsets = np.zeros((3, n_exp))           # prior sd, posterior mean, posterior sd (t*)
+        offsets = np.zeros((3, n_exp, 3))        # prior sd, posterior mean, posterior sd of (a, delta, rho)
         for i, n in enumerate(ok):
             whiten[n] = R[i]["whiten"]
-            offsets[:, n] = [obs.nuisance_sd[n, 1], R[i]["offset_star"], R[i]["offset_sd_star"]]
+            offsets[:, n] = [nuisance_prior_sd(obs, n), R[i]["nu_mean"], R[i]["nu_sd"]]
     return FitResult(
         method="en4dvar", model=fm.constitutive.name, param_names=tuple(space.names),
         estimate=estimate, fitted=fitted, fit_mask=mask,
@@ -435,8 +427,8 @@ def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov,
         prior_mean=space.prior_mean, prior_cov=space.prior_cov, weight=np.full(K, c),
         start_state=np.array(fm.initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64),
         description=desc, whiten=whiten, **({} if offsets is None else
-                                            {"offset_sd": offsets[0], "offset_mean": offsets[1],
-                                             "offset_post_sd": offsets[2]}))
+                                            {"nuisance_sd": offsets[0], "nuisance_mean": offsets[1],
+                                             "nuisance_post_sd": offsets[2]}))
 
 
 class En4DVar(InferenceMethod):
@@ -452,8 +444,8 @@ class En4DVar(InferenceMethod):
     def n_forward_runs(settings, n_exp, n_steps):
         s = settings        # cycles x iterations x members, then the fitted curves and the draws
         n = s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
-        if s.likelihood == "default":       # the observation model: 4 runs per cycle and at the end
-            n += 4 * (s.n_runs + 1) * n_exp
+        if s.likelihood == "default":       # the observation model: one run per cycle
+            n += s.n_runs * n_exp
         return n
 
     @staticmethod

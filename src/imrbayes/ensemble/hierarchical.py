@@ -176,14 +176,17 @@ def random_effects(Lam, eta, prior_mean, prior_cov, m=None) -> RandomEffects:
         return -optimize.minimize(f, x0, method="L-BFGS-B", bounds=[(lo, hi)] * len(others)).fun
 
     ci = np.empty((d, 2))
-    grid = np.concatenate([[0.0], np.geomspace(1e-3, _TAU_MAX, 60)])
     notes = []
     for i in range(d):
-        prof = np.array([profile(i, t) for t in grid])
-        inside = 2.0 * (max(ll_hat, prof.max()) - prof) <= _CHI2_95
-        idx = np.flatnonzero(inside)
-        ci[i] = [grid[idx[0]], grid[idx[-1]]] if idx.size else [tau[i], tau[i]]
-        if idx.size and idx[-1] == grid.size - 1:
+        # the interval's ends: where the profile drops 3.84/2 below its maximum, each side of tau_hat
+        def excess(t, i=i):
+            return 2.0 * (ll_hat - profile(i, t)) - _CHI2_95
+        lo_end = 0.0 if excess(0.0) <= 0 else optimize.brentq(excess, 0.0, max(tau[i], 1e-6), xtol=1e-4)
+        if excess(_TAU_MAX) <= 0:
+            hi_end = _TAU_MAX
             notes.append(f"parameter {i}: the between-bubble sd is not bounded above by the data")
+        else:
+            hi_end = optimize.brentq(excess, max(tau[i], 1e-6), _TAU_MAX, xtol=1e-4)
+        ci[i] = [lo_end, hi_end]
     pred = sym(cov + np.diag(tau ** 2))
     return RandomEffects(mu, cov, tau, ci, pred, mu0, cov0, float(ll_hat - ll0), N, notes)

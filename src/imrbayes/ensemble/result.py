@@ -46,9 +46,10 @@ class WindowPosterior:
         The default likelihood (:mod:`imrbayes.ensemble.likelihood`): the density's likelihood is
         ``-1/2 sum_n ||W_n (y_n - R_n(z))||^2`` over the window's samples instead of the weighted
         sum above (NaN rows: experiments left out).
-    offset_sd, offset_mean, offset_post_sd : (n_exp,) or None
-        The time of each experiment's maximum, sampled with the parameters (t*; prior N(0, sd^2);
-        0: not sampled), and its posterior mean and sd from the method (to start MCMC walkers).
+    nuisance_sd, nuisance_mean, nuisance_post_sd : (n_exp, 3) or None
+        Each experiment's nuisances (a, delta, rho) of :mod:`imrbayes.ensemble.likelihood`, sampled
+        with the parameters: prior sd (0: not sampled), and the method's posterior mean and sd (to
+        start MCMC walkers).
     """
 
     index: int
@@ -62,23 +63,24 @@ class WindowPosterior:
     start_state: np.ndarray
     description: dict = field(default_factory=dict)
     whiten: np.ndarray | None = None
-    offset_sd: np.ndarray | None = None
-    offset_mean: np.ndarray | None = None
-    offset_post_sd: np.ndarray | None = None
+    nuisance_sd: np.ndarray | None = None
+    nuisance_mean: np.ndarray | None = None
+    nuisance_post_sd: np.ndarray | None = None
 
     def start_gaussian(self, prior: bool = False):
-        """(mean, cov) over the sampled coordinates: the parameters' Gaussian (or prior), then each
-        sampled time offset's posterior (or prior) N(mean, sd^2), independent."""
+        """(mean, cov) over the sampled coordinates: the parameters' Gaussian (or prior), then every
+        experiment's sampled nuisances (posterior or prior), independent."""
         m, C = (self.prior_mean, self.prior_cov) if prior else (self.mean, self.cov)
         m, C = np.asarray(m, float), np.asarray(C, float)
-        if self.offset_sd is None or not np.any(self.offset_sd > 0):
+        if self.nuisance_sd is None:
             return m, C
-        use = np.flatnonzero(np.isfinite(self.offset_sd) & (self.offset_sd > 0))
-        om = np.zeros(use.size) if prior else np.nan_to_num(np.asarray(self.offset_mean, float)[use])
-        osd = np.asarray(self.offset_sd if prior else self.offset_post_sd, float)[use]
-        osd = np.where(np.isfinite(osd) & (osd > 0), osd, np.asarray(self.offset_sd, float)[use])
+        sd0 = np.asarray(self.nuisance_sd, float)
+        use = np.isfinite(sd0) & (sd0 > 0)
+        om = np.zeros(int(use.sum())) if prior else np.nan_to_num(np.asarray(self.nuisance_mean, float)[use])
+        osd = sd0[use] if prior else np.asarray(self.nuisance_post_sd, float)[use]
+        osd = np.where(np.isfinite(osd) & (osd > 0), osd, sd0[use])
         d = m.size
-        full = np.zeros((d + use.size, d + use.size))
+        full = np.zeros((d + om.size, d + om.size))
         full[:d, :d] = C
         full[d:, d:] = np.diag(osd ** 2)
         return np.concatenate([m, om]), full

@@ -82,7 +82,7 @@ class WindowTarget:
     """
 
     def __init__(self, model, start: BatchState, t_eval, y, P, prior: ParamSpace, weight=1.0,
-                 names=None, description: dict | None = None, whiten=None, offset_sd=None):
+                 names=None, description: dict | None = None, whiten=None, nuisance_sd=None):
         self.model = model
         self.start = start.copy()
         self.t0 = float(start.t_star)
@@ -111,21 +111,22 @@ class WindowTarget:
             raise InputError("window", "observations must be finite where they are used")
         self.n_evals = 0          # parameter sets evaluated
         self.n_failed = 0         # of which the forward solve failed
-        # the default likelihood (imrbayes.ensemble.likelihood): whitened residuals, and the time of
-        # each experiment's maximum sampled with the parameters (offsets in t*, prior N(0, sd^2))
+        # the default likelihood (imrbayes.ensemble.likelihood): whitened residuals, and each
+        # experiment's nuisances (a, delta, rho) sampled with the parameters, prior N(0, sd^2)
         self.whiten = None if whiten is None else np.asarray(whiten, dtype=np.float64).reshape(n_exp, m, m)
         if self.whiten is not None and not np.all(np.isfinite(self.whiten)):
             raise InputError("window", "whitening matrices must be finite")
-        sd = np.zeros(n_exp) if offset_sd is None else np.broadcast_to(np.asarray(offset_sd, np.float64), (n_exp,))
-        self.offset_sd = np.where(np.isfinite(sd) & (sd > 0), sd, 0.0)
-        self.offset_exp = np.flatnonzero(self.offset_sd > 0)
-        if self.offset_exp.size and self.t0 != 0.0:
-            raise InputError("window", "time offsets need a window that starts at the maximum (t* = 0)")
+        sd = np.zeros((n_exp, 3)) if nuisance_sd is None else np.broadcast_to(
+            np.asarray(nuisance_sd, np.float64), (n_exp, 3))
+        self.nuisance_sd = np.where(np.isfinite(sd) & (sd > 0), sd, 0.0)
+        self.nuisance_used = self.nuisance_sd > 0           # (n_exp, 3), row-major order of the extra coordinates
+        if self.nuisance_used.any() and self.t0 != 0.0:
+            raise InputError("window", "nuisances need a window that starts at the maximum (t* = 0)")
 
     # ------------------------------------------------------------------ description
     @property
     def ndim(self) -> int:
-        return self.prior.n + int(self.offset_exp.size)
+        return self.prior.n + int(self.nuisance_used.sum())
 
     @property
     def n_exp(self) -> int:
@@ -139,7 +140,8 @@ class WindowTarget:
     def internal_names(self) -> list:
         """Names of the sampled coordinates: ``log_G`` for a positive ``G``, else the name."""
         return ([f"log_{n}" if p else n for n, p in zip(self.prior.names, self.prior.positive)]
-                + [f"t0_offset_{self.names[i]}" for i in self.offset_exp])
+                + [f"{q}_{self.names[e]}" for e, j in zip(*np.nonzero(self.nuisance_used))
+                   for q in [("rmax_rel", "t0_offset", "log_req")[j]]])
 
     @property
     def t_used(self) -> np.ndarray:
@@ -150,9 +152,9 @@ class WindowTarget:
         return {"t0_star": self.t0, "t_star": [float(self.t_eval[0]), float(self.t_eval[-1])],
                 "n_samples": int(self.t_eval.size), "n_used": int(self.use.sum()), "n_experiments": self.n_exp,
                 "prior": self.prior.describe_density(), "internal_names": self.internal_names,
-                "density": ("-1/2 sum_n ||W_n (y_n - R_n(z, offset_n))||^2 + log p0(z) + sum_n log N(offset_n; 0, sd_n^2)"
+                "density": ("-1/2 sum_n ||W_n (y_n - R_n(z, nu_n))||^2 + log p0(z) + sum_n log N(nu_n; 0, diag(sd_n^2))"
                             if self.whiten is not None else "-1/2 sum_n sum_k c_nk (y_nk - R_nk(z))^2 / P_k + log p0(z)"),
-                "time_offsets_sampled": [self.names[i] for i in self.offset_exp],
+                "nuisances_sampled": self.internal_names[self.prior.n:],
                 "weight_min": float(self.weight[self.use].min()), "weight_max": float(self.weight[self.use].max()),
                 **self.description}
 
@@ -176,20 +178,21 @@ class WindowTarget:
             st = BatchState(np.tile(s.y, (idx.size, 1)), self.t0, np.tile(s.rmax_m, idx.size),
                             np.tile(s.req_m, idx.size))
             params = np.repeat(theta[idx], ne, axis=0)                     # member = i * N_exp + e
-            if self.offset_exp.size:
-                off = np.zeros((idx.size, ne))
-                off[:, self.offset_exp] = Z[idx, self.prior.n:]
-                rows = np.abs(self.t_eval[None, :] - off.reshape(-1, 1))    # before its maximum: the mirror image
-                order = np.argsort(rows, axis=1, kind="stable")
-                srt = np.take_along_axis(rows, order, axis=1)
-                out = self.model.propagate(st, params, float(srt.max()), srt)
-                Rs = np.empty_like(np.asarray(out.R_star, dtype=np.float64))
-                np.put_along_axis(Rs, order, np.asarray(out.R_star, dtype=np.float64), axis=1)
+            if self.nuisance_used.any():
+                from imrbayes.ensemble.likelihood import predict as predict_nuisance
+                nu = np.zeros((idx.size, ne, 3))
+                nu[:, self.nuisance_used] = Z[idx, self.prior.n:]
+                Rs, bad_nu = predict_nuisance(self.model, params, s.rmax_m[None].repeat(idx.size, 0).ravel(),
+                                              s.req_m[None].repeat(idx.size, 0).ravel(), self.t_eval,
+                                              nu.reshape(-1, 3))
+                Rs = np.where(bad_nu[:, None], np.nan, Rs)
+                out = None
             else:
                 out = self.model.propagate(st, params, float(self.t_eval[-1]), self.t_eval)
                 Rs = np.asarray(out.R_star, dtype=np.float64)
             Ri = Rs.reshape(idx.size, ne, m)
-            bad = np.asarray(out.failed).reshape(idx.size, ne).any(axis=1)
+            failed_members = bad_nu if out is None else np.asarray(out.failed)
+            bad = failed_members.reshape(idx.size, ne).any(axis=1)
             bad |= ~np.all(np.isfinite(np.where(self.use[None], Ri, 0.0)), axis=(1, 2))
             R[idx] = Ri
             failed[idx] = bad
@@ -209,12 +212,12 @@ class WindowTarget:
         return np.where(failed | ~np.isfinite(ll), -np.inf, ll)
 
     def log_prior(self, Z) -> np.ndarray:
-        """(n, ndim) -> (n,) the parameter prior plus the time offsets' N(0, sd^2)."""
+        """(n, ndim) -> (n,) the parameter prior plus the nuisances' N(0, sd^2)."""
         Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
         d = self.prior.n
         out = self.prior.log_prob(Z[:, :d])
-        if self.offset_exp.size:
-            sd = self.offset_sd[self.offset_exp]
+        if self.nuisance_used.any():
+            sd = self.nuisance_sd[self.nuisance_used]
             x = Z[:, d:] / sd
             out = out - 0.5 * np.sum(x * x + np.log(2 * np.pi * sd * sd), axis=1)
             out[np.any(np.abs(x) > self.prior.box_sd, axis=1)] = -np.inf

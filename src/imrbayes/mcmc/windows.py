@@ -79,15 +79,15 @@ def window_specs(model, obs, space, posteriors, *, indices=None, box_sd: float =
         start = BatchState(q[rows].copy(), float(t[w.start]), np.asarray(obs.rmax_m, float)[rows],
                            np.asarray(obs.req_m, float)[rows])
         prior = space.with_prior(w.prior_mean, w.prior_cov, box_sd)
-        offset_sd = None if w.offset_sd is None else np.asarray(w.offset_sd, float)[rows]
+        nuisance_sd = None if w.nuisance_sd is None else np.asarray(w.nuisance_sd, float)[rows]
         tg = WindowTarget(model, start, t[a:b + 1], np.asarray(obs.R_star)[rows, a:b + 1], np.asarray(obs.P)[a:b + 1],
                           prior, w.weight, [obs.names[i] for i in rows], description=dict(w.description),
-                          whiten=None if w.whiten is None else np.asarray(w.whiten)[rows], offset_sd=offset_sd)
+                          whiten=None if w.whiten is None else np.asarray(w.whiten)[rows], nuisance_sd=nuisance_sd)
         sub = w
-        if w.offset_sd is not None:
+        if w.nuisance_sd is not None:
             from dataclasses import replace
-            sub = replace(w, offset_sd=offset_sd, offset_mean=np.asarray(w.offset_mean, float)[rows],
-                          offset_post_sd=np.asarray(w.offset_post_sd, float)[rows])
+            sub = replace(w, nuisance_sd=nuisance_sd, nuisance_mean=np.asarray(w.nuisance_mean, float)[rows],
+                          nuisance_post_sd=np.asarray(w.nuisance_post_sd, float)[rows])
         specs.append(WindowSpec(w.index, (float(t[w.start]), float(t[b])), tg, np.asarray(w.mean, float),
                                 np.asarray(w.cov, float), np.asarray(w.prior_mean, float),
                                 np.asarray(w.prior_cov, float), w.description.get("state", ""),
