@@ -106,7 +106,7 @@ def test_nuisance_prediction_is_the_true_geometry_seen_on_the_data_clock():
     plain = fm.simulate(theta[None], [rmax], [req], t).R_star[0]
     np.testing.assert_allclose(R[0], plain, atol=1e-9)
     big = fm.simulate(theta[None], [rmax * 1.01], [req], t / 1.01).R_star[0] * 1.01
-    np.testing.assert_allclose(R[1], big, atol=1e-9)
+    np.testing.assert_allclose(R[1], big, atol=1e-7)     # a batch ends at its latest output time: last-step rounding
     shifted = np.abs(t - 0.04)
     order = np.argsort(shifted)
     direct = np.empty_like(t)

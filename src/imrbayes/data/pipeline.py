@@ -88,6 +88,9 @@ class Preprocessed:
     rmax_m, req_m, req_sd_m, t_collapse_star : ndarray (n_exp,)
         Per-experiment Rmax [m], Req [m], its sd [m] (NaN if unknown), first-collapse time t*.
     experiments : list of ExperimentSummary
+    frame_t_star : list of ndarray
+        Per experiment, the frame times t* (from the estimated maximum, with the point (0, 1) first)
+        that the grid values interpolate linearly ([] for other interpolants).
     choices : dict
         Every setting used and the rule behind it.
     warnings : list of str
@@ -107,6 +110,7 @@ class Preprocessed:
     warnings: list
     dataset: Dataset
     skipped: list = field(default_factory=list)
+    frame_t_star: list = field(default_factory=list)
 
     @property
     def names(self) -> list:
@@ -235,9 +239,16 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         warnings.append(f"grid truncated to {n_use} steps (t* <= {n_use * dt_star:.4g}) instead of {n_steps}: "
                         f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.4g}")
     R_star = np.empty((len(records), n_use + 1))
+    frames = []
     for i, (ts, Rs) in enumerate(records):
         grid, values, _ = pp.resample(ts, Rs, dt_star, n_use, method=interp)
         R_star[i] = values
+        if interp == "linear":
+            # the frame times the grid values interpolate (the anchor at the maximum first): a method can
+            # interpolate its prediction the same way instead of comparing point values with chords
+            tf = np.concatenate(([0.0], np.asarray(ts, float)[np.asarray(ts) > 0.0]))
+            last = int(np.searchsorted(tf, n_use * dt_star, side="left"))
+            frames.append(tf[:min(tf.size, last + 1)])
     t_star = np.arange(n_use + 1) * dt_star
     if noise in ("sample", "pooled") and len(records) < 2:
         raise InputError(dataset.path, f"noise={noise!r} needs at least two experiments")
@@ -260,7 +271,7 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         "resample_anchor": "the point (t*=0, R*=1) at the refined maximum plus the samples at t* > 0",
         "noise": pinfo,
     }
-    return Preprocessed(t_star=t_star, R_star=R_star, P=P,
+    return Preprocessed(frame_t_star=frames, t_star=t_star, R_star=R_star, P=P,
                         rmax_m=np.array([s.rmax_m for s in summaries]),
                         req_m=np.array([s.req_m for s in summaries]),
                         req_sd_m=np.array([s.req_sd_m for s in summaries]),

@@ -48,8 +48,8 @@ import numpy as np
 from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, rtps
 from imrbayes.ensemble.gn import gauss_newton
 from imrbayes.ensemble.hierarchical import likelihood_terms, random_effects
-from imrbayes.ensemble.likelihood import (nuisance_prior_sd, nuisance_summary, observation_model, predict,
-                                          record_noise_sd)
+from imrbayes.ensemble.likelihood import (frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
+                                          predict, record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
                                       si_covariance)
@@ -165,12 +165,13 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
             return nu
 
         def evaluate(groups, Z):
-            return predict(runner, space.to_si(Z[:, :n_p]), rmax, req, t_eval[1:], nuisances(Z))
+            return predict(runner, space.to_si(Z[:, :n_p]), rmax, req, t_eval[1:], nuisances(Z), d.get("frames"))
     for r in range(s.n_runs):
         if default:
             # the observation model at the current centre: cycle 1 with the record's noise alone, later
             # cycles also with the residual's level and autocorrelation
-            f, _ = predict(runner, space.to_si(mean[None, :n_p]), rmax, req, t_eval[1:], nuisances(mean[None]))
+            f, _ = predict(runner, space.to_si(mean[None, :n_p]), rmax, req, t_eval[1:], nuisances(mean[None]),
+                           d.get("frames"))
             lik = observation_model(d["y"], f[0], d["noise_var"], adapt=r > 0)
             W = lik["W"]
             y, weight = W @ d["y"], np.ones(d["y"].size)
@@ -250,7 +251,9 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     noise_var = [record_noise_sd(obs, n) ** 2 for n in range(n_exp)]
     rep = ex.run([Unit(unit_id(exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
                                         "y": y[n], "weight": weight, "noise_var": noise_var[n],
-                                        "nuisance_sd": nuisance_prior_sd(obs, n)})
+                                        "nuisance_sd": nuisance_prior_sd(obs, n),
+                                        "frames": None if obs.frame_t is None else
+                                        frame_operator(obs.frame_t[n], t_eval[1:])})
                   for n in range(n_exp)], en4dvar_unit, seed, desc="en4dvar experiments")
     warnings = []
     failed_units = []
@@ -283,7 +286,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     if default:
         Lam, eta, _, n_clip = likelihood_terms(post_mean, post_cov, np.stack([r["prior_mean"] for r in R]),
                                                np.stack([r["prior_cov"] for r in R]))
-        hier = random_effects(Lam, eta, space.prior_mean, space.prior_cov)
+        hier = random_effects(Lam, eta, space.prior_mean, space.prior_cov, names=space.names)
         fus = fuse_likelihoods(post_mean, post_cov, np.stack([r["prior_mean"] for r in R]),
                                np.stack([r["prior_cov"] for r in R]), space.prior_mean, space.prior_cov)
         warnings.extend(hier.notes)
@@ -428,7 +431,9 @@ def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov,
         start_state=np.array(fm.initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64),
         description=desc, whiten=whiten, **({} if offsets is None else
                                             {"nuisance_sd": offsets[0], "nuisance_mean": offsets[1],
-                                             "nuisance_post_sd": offsets[2]}))
+                                             "nuisance_post_sd": offsets[2],
+                                             "frames": None if obs.frame_t is None else
+                                             [frame_operator(f, obs.t_star[1:K + 1]) for f in obs.frame_t]}))
 
 
 class En4DVar(InferenceMethod):

@@ -128,11 +128,12 @@ def _conditional(Lam, m, T, m0, C0i):
     return mu, cov, ll
 
 
-def random_effects(Lam, eta, prior_mean, prior_cov, m=None) -> RandomEffects:
+def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None) -> RandomEffects:
     """Gel-level mean, between-bubble sd and predictive from per-experiment likelihoods (module doc).
 
     Lam (N, d, d), eta (N, d): each experiment's likelihood precision and information (internal
-    coordinates); m (N, d) its centre (default Lam^-1 eta); prior_mean (d,), prior_cov (d, d).
+    coordinates); m (N, d) its centre (default Lam^-1 eta); prior_mean (d,), prior_cov (d, d);
+    names: parameter names for the notes.
     """
     from scipy import optimize
 
@@ -184,7 +185,9 @@ def random_effects(Lam, eta, prior_mean, prior_cov, m=None) -> RandomEffects:
         lo_end = 0.0 if excess(0.0) <= 0 else optimize.brentq(excess, 0.0, max(tau[i], 1e-6), xtol=1e-4)
         if excess(_TAU_MAX) <= 0:
             hi_end = _TAU_MAX
-            notes.append(f"parameter {i}: the between-bubble sd is not bounded above by the data")
+            label = names[i] if names is not None else f"parameter {i}"
+            notes.append(f"{label}: the data do not bound the between-bubble sd from above (too few bubbles "
+                         f"or too little information per bubble)")
         else:
             hi_end = optimize.brentq(excess, max(tau[i], 1e-6), _TAU_MAX, xtol=1e-4)
         ci[i] = [lo_end, hi_end]

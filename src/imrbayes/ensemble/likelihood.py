@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-__all__ = ["LIKELIHOODS", "NUISANCES", "record_noise_sd", "simulate_shifted", "predict", "whitening",
+__all__ = ["LIKELIHOODS", "NUISANCES", "record_noise_sd", "simulate_shifted", "frame_operator", "predict", "whitening",
            "effective_samples", "observation_model", "nuisance_summary", "nuisance_prior_sd"]
 
 #: ``default``: this module; ``paper``: the paper's averaged cost, sample-variance P_k, prior-corrected fusion.
@@ -95,9 +95,27 @@ def effective_samples(resid) -> tuple:
     return r.size / tau, tau
 
 
-def predict(runner, theta, rmax_m: float, req_m: float, t_eval, nu) -> tuple:
+def frame_operator(frame_t, t_grid) -> tuple:
+    """How grid values were made from frames by linear interpolation: (tf (F,), ia (K,), w (K,))
+    with value_k = (1 - w_k) x[ia_k] + w_k x[ia_k + 1] for x on the frame times tf (only the frames
+    the grid needs). ``frame_t`` (increasing, t*), ``t_grid`` (K,) inside its range."""
+    tf = np.asarray(frame_t, dtype=np.float64)
+    tg = np.asarray(t_grid, dtype=np.float64)
+    ia = np.clip(np.searchsorted(tf, tg, side="right") - 1, 0, tf.size - 2)
+    w = np.clip((tg - tf[ia]) / (tf[ia + 1] - tf[ia]), 0.0, 1.0)
+    last = int(ia.max()) + 2
+    return tf[:last], ia, w
+
+
+def predict(runner, theta, rmax_m: float, req_m: float, t_eval, nu, frames=None) -> tuple:
     """R* at the data's samples for M members: theta (M, d) SI, nu (M, 3) = (a, delta, rho) (module
-    doc), t_eval (K,) the data's t*. Returns (R (M, K), failed (M,))."""
+    doc), t_eval (K,) the data's t*. ``frames`` (:func:`frame_operator`): the data are a linear
+    interpolation of camera frames, so the prediction is made at the frame times and interpolated
+    the same way (a chord across a sharp collapse is not a point value). Returns (R (M, K), failed (M,))."""
+    if frames is not None:
+        tf, ia, w = frames
+        Rf, failed = predict(runner, theta, rmax_m, req_m, tf, nu)
+        return (1.0 - w) * Rf[:, ia] + w * Rf[:, ia + 1], failed
     nu = np.atleast_2d(np.asarray(nu, dtype=np.float64))
     a, delta, rho = nu[:, 0], nu[:, 1], nu[:, 2]
     scale = 1.0 + a

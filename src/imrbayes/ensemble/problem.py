@@ -60,6 +60,9 @@ class Observations:
     t0_s, tc_s : ndarray (n_exp,)
         Time of the maximum in the file's clock [s] and the time scale Rmax sqrt(rho/p8) [s]
         (to state the time offset in seconds; NaN if unknown).
+    frame_t : list of ndarray or None
+        Per experiment, the camera frame times t* whose linear interpolation gave ``R_star``
+        (:attr:`imrbayes.data.Preprocessed.frame_t_star`); None: the grid values are point values.
     """
 
     t_star: np.ndarray
@@ -73,6 +76,7 @@ class Observations:
     nuisance_sd: np.ndarray | None = None
     t0_s: np.ndarray | None = None
     tc_s: np.ndarray | None = None
+    frame_t: list | None = None
 
     def __post_init__(self):
         self.t_star = np.asarray(self.t_star, dtype=np.float64)
@@ -95,6 +99,10 @@ class Observations:
         self.nuisance_sd = np.where(np.isfinite(self.nuisance_sd) & (self.nuisance_sd > 0), self.nuisance_sd, 0.0)
         self.t0_s = per_exp(self.t0_s, (n_exp,), np.nan)
         self.tc_s = per_exp(self.tc_s, (n_exp,), np.nan)
+        if self.frame_t is not None:
+            self.frame_t = [np.asarray(f, dtype=np.float64) for f in self.frame_t]
+            if len(self.frame_t) != n_exp or any(f.size < 2 or np.any(np.diff(f) <= 0) for f in self.frame_t):
+                raise InputError("observations", "frame_t needs increasing frame times for every experiment")
         if n != self.t_star.size:
             raise InputError("observations", f"R_star has {n} samples per experiment, t_star {self.t_star.size}")
         if n < 2 or np.any(np.diff(self.t_star) <= 0):
@@ -121,7 +129,8 @@ class Observations:
         rmax_se = np.where(np.isfinite(col("rmax_sd_m")), col("rmax_sd_m"), noise_m)
         nuis = np.stack([rmax_se / rmax, col("t0_sd_s") / tc, col("req_sd_m")], axis=1)
         return cls(pre.t_star, pre.R_star, pre.P, rmax, pre.req_m, pre.t_collapse_star, list(pre.names),
-                   noise_sd=noise_m / rmax, nuisance_sd=nuis, t0_s=col("t0_s"), tc_s=tc)
+                   noise_sd=noise_m / rmax, nuisance_sd=nuis, t0_s=col("t0_s"), tc_s=tc,
+                   frame_t=list(getattr(pre, "frame_t_star", []) or []) or None)
 
     @property
     def n_exp(self) -> int:
@@ -140,7 +149,8 @@ class Observations:
         idx = np.atleast_1d(np.asarray(index, dtype=int))
         return Observations(self.t_star, self.R_star[idx], self.P, self.rmax_m[idx], self.req_m[idx],
                             self.t_collapse_star[idx], [self.names[i] for i in idx], self.noise_sd[idx],
-                            self.nuisance_sd[idx], self.t0_s[idx], self.tc_s[idx])
+                            self.nuisance_sd[idx], self.t0_s[idx], self.tc_s[idx],
+                            None if self.frame_t is None else [self.frame_t[i] for i in idx])
 
 
 def _sym(a):

@@ -50,6 +50,9 @@ class WindowPosterior:
         Each experiment's nuisances (a, delta, rho) of :mod:`imrbayes.ensemble.likelihood`, sampled
         with the parameters: prior sd (0: not sampled), and the method's posterior mean and sd (to
         start MCMC walkers).
+    frames : list or None
+        Per experiment, how the grid values interpolate camera frames
+        (:func:`imrbayes.ensemble.likelihood.frame_operator`); the prediction is interpolated alike.
     """
 
     index: int
@@ -66,6 +69,7 @@ class WindowPosterior:
     nuisance_sd: np.ndarray | None = None
     nuisance_mean: np.ndarray | None = None
     nuisance_post_sd: np.ndarray | None = None
+    frames: list | None = None
 
     def start_gaussian(self, prior: bool = False):
         """(mean, cov) over the sampled coordinates: the parameters' Gaussian (or prior), then every

@@ -60,7 +60,7 @@ def _target_data(tg: WindowTarget) -> dict:
     p = tg.prior
     return {"y0": tg.start.y, "t0": tg.t0, "rmax": tg.start.rmax_m, "req": tg.start.req_m, "t_eval": tg.t_eval,
             "y": tg.y, "P": tg.P, "weight": tg.weight, "names": list(tg.names), "whiten": tg.whiten,
-            "nuisance_sd": tg.nuisance_sd,
+            "nuisance_sd": tg.nuisance_sd, "frames": tg.frames,
             "description": {k: v for k, v in tg.description.items() if isinstance(v, (str, int, float, list))},
             "prior": {"mean": p.prior_mean, "cov": p.prior_cov, "positive": np.asarray(p.positive, bool),
                       "names": list(p.names), "scale": p.scale, "box_sd": float(p.box_sd)}}
@@ -73,7 +73,8 @@ def _rebuild_target(d: dict, model) -> WindowTarget:
     start = BatchState(np.array(d["y0"], dtype=np.float64), float(d["t0"]), np.asarray(d["rmax"], float),
                        np.asarray(d["req"], float))
     return WindowTarget(model, start, d["t_eval"], d["y"], d["P"], prior, d["weight"], d["names"],
-                        description=d["description"], whiten=d.get("whiten"), nuisance_sd=d.get("nuisance_sd"))
+                        description=d["description"], whiten=d.get("whiten"), nuisance_sd=d.get("nuisance_sd"),
+                        frames=d.get("frames"))
 
 
 def _atomic_netcdf(tree, path: Path) -> None:

@@ -281,6 +281,8 @@ class MCMCRun:
             post[n] = theta[:, :, i]
             if self.positive[i]:
                 post[self.internal_names[i]] = samples[:, :, i]
+        for i in range(len(self.names), d):          # nuisance coordinates of the default likelihood
+            post[self.internal_names[i]] = samples[:, :, i]
         data = {"posterior": post,
                 "sample_stats": {"lp": lp, "walker": np.broadcast_to(walker, (C, D)).copy(),
                                  "step": np.broadcast_to(step, (C, D)).copy()}}
@@ -472,7 +474,8 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
     thin = max(thin, math.ceil((n - burn) / max(1, s.max_draws // W)))        # at most max_draws per chain
     prior = target.prior
     return MCMCRun(names=tuple(prior.names), internal_names=list(getattr(target, "internal_names", prior.names)),
-                   positive=np.asarray(prior.positive, dtype=bool), chain=chain, log_prob=logp, acceptance=acc,
+                   positive=np.concatenate([np.asarray(prior.positive, dtype=bool), np.zeros(d - prior.n, dtype=bool)]),
+                   chain=chain, log_prob=logp, acceptance=acc,
                    tau=tau, burn=burn, thin=thin, seeds=seeds, runtime_s=time.perf_counter() - t0,
                    n_evals=int(getattr(target, "n_evals", 0)) - evals0, steps_run=remaining,
                    backend=None if backend is None else {"path": str(backend), "name": name},

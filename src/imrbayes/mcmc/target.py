@@ -82,7 +82,7 @@ class WindowTarget:
     """
 
     def __init__(self, model, start: BatchState, t_eval, y, P, prior: ParamSpace, weight=1.0,
-                 names=None, description: dict | None = None, whiten=None, nuisance_sd=None):
+                 names=None, description: dict | None = None, whiten=None, nuisance_sd=None, frames=None):
         self.model = model
         self.start = start.copy()
         self.t0 = float(start.t_star)
@@ -120,7 +120,11 @@ class WindowTarget:
             np.asarray(nuisance_sd, np.float64), (n_exp, 3))
         self.nuisance_sd = np.where(np.isfinite(sd) & (sd > 0), sd, 0.0)
         self.nuisance_used = self.nuisance_sd > 0           # (n_exp, 3), row-major order of the extra coordinates
-        if self.nuisance_used.any() and self.t0 != 0.0:
+        # the grid values interpolate camera frames (imrbayes.ensemble.likelihood.frame_operator per experiment)
+        self.frames = None if frames is None else list(frames)
+        if self.frames is not None and len(self.frames) != n_exp:
+            raise InputError("window", f"{len(self.frames)} frame operators for {n_exp} experiments")
+        if (self.nuisance_used.any() or self.frames is not None) and self.t0 != 0.0:
             raise InputError("window", "nuisances need a window that starts at the maximum (t* = 0)")
 
     # ------------------------------------------------------------------ description
@@ -178,14 +182,18 @@ class WindowTarget:
             st = BatchState(np.tile(s.y, (idx.size, 1)), self.t0, np.tile(s.rmax_m, idx.size),
                             np.tile(s.req_m, idx.size))
             params = np.repeat(theta[idx], ne, axis=0)                     # member = i * N_exp + e
-            if self.nuisance_used.any():
+            if self.nuisance_used.any() or self.frames is not None:
                 from imrbayes.ensemble.likelihood import predict as predict_nuisance
                 nu = np.zeros((idx.size, ne, 3))
                 nu[:, self.nuisance_used] = Z[idx, self.prior.n:]
-                Rs, bad_nu = predict_nuisance(self.model, params, s.rmax_m[None].repeat(idx.size, 0).ravel(),
-                                              s.req_m[None].repeat(idx.size, 0).ravel(), self.t_eval,
-                                              nu.reshape(-1, 3))
-                Rs = np.where(bad_nu[:, None], np.nan, Rs)
+                Rs = np.empty((idx.size, ne, m))
+                bad_nu = np.zeros((idx.size, ne), dtype=bool)
+                for e in range(ne):         # one batch per experiment: its own frame times
+                    Rs[:, e], bad_nu[:, e] = predict_nuisance(
+                        self.model, theta[idx], float(s.rmax_m[e]), float(s.req_m[e]), self.t_eval, nu[:, e],
+                        None if self.frames is None else self.frames[e])
+                Rs = np.where(bad_nu[:, :, None], np.nan, Rs).reshape(idx.size * ne, m)
+                bad_nu = bad_nu.ravel()
                 out = None
             else:
                 out = self.model.propagate(st, params, float(self.t_eval[-1]), self.t_eval)

@@ -82,7 +82,8 @@ def window_specs(model, obs, space, posteriors, *, indices=None, box_sd: float =
         nuisance_sd = None if w.nuisance_sd is None else np.asarray(w.nuisance_sd, float)[rows]
         tg = WindowTarget(model, start, t[a:b + 1], np.asarray(obs.R_star)[rows, a:b + 1], np.asarray(obs.P)[a:b + 1],
                           prior, w.weight, [obs.names[i] for i in rows], description=dict(w.description),
-                          whiten=None if w.whiten is None else np.asarray(w.whiten)[rows], nuisance_sd=nuisance_sd)
+                          whiten=None if w.whiten is None else np.asarray(w.whiten)[rows], nuisance_sd=nuisance_sd,
+                          frames=None if w.frames is None else [w.frames[i] for i in rows])
         sub = w
         if w.nuisance_sd is not None:
             from dataclasses import replace
