@@ -112,9 +112,9 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     show = (not quiet) and sys.stderr.isatty()
     bar = None
     if show:
-        from tqdm import tqdm
-        bar = tqdm(total=1 + s.n_bootstrap + 2 * len(s.candidates) + 1, unit="step", desc="diagnose",
-                   file=sys.stderr, dynamic_ncols=True)
+        from imrbayes.execution.progress import progress_bar
+        bar = progress_bar(total=1 + s.n_bootstrap + 2 * len(s.candidates) + 1, unit="steps", desc="diagnose",
+                           file=sys.stderr)
     from dataclasses import asdict
 
     run_config = {"command": "diagnose", "seed": seed, "settings": {**asdict(s), "candidates": list(s.candidates)},

@@ -18,6 +18,7 @@ labels come from the registry :data:`imrbayes.ensemble.METHODS`.
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from pathlib import Path
 
@@ -30,8 +31,29 @@ from imrbayes.cli.options import (check_options, compare_line, data_fingerprint,
                                   prepare_out, prior_overrides)
 from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
+from imrbayes.execution.progress import finish, plan
 
 METHOD_NAMES = tuple(METHODS)
+
+
+def planned_units(meth, settings, n_exp: int, n_steps: int) -> tuple:
+    """(units the fit will run, what they are in words) for the progress bar's total, so that it counts
+    the whole run from the start (``mienks: 18 windows x 5 experiments``); ``(None, "")`` when not
+    known (the bar then grows batch by batch). A method may declare ``n_units(settings, n_exp,
+    n_steps)`` itself; for the built-in ones the count follows their units (docs/scaling.md)."""
+    own = getattr(meth, "n_units", None)
+    if callable(own):
+        return int(own(settings, n_exp, n_steps)), ""
+    if meth.name == "mienks":
+        from imrbayes.ensemble.windows import n_windows
+
+        nw = n_windows(n_steps, settings.L, settings.h)
+        return nw * n_exp, f"{nw} windows x {n_exp} experiments"
+    if meth.name == "en4dvar":      # each experiment's cycles, then its fitted curves (fast)
+        return 2 * n_exp, f"{n_exp} experiments, then their fitted curves"
+    if meth.name == "imr":
+        return n_exp, f"grid over {n_exp} experiments"
+    return None, ""
 
 
 #: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
@@ -180,8 +202,13 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     runner = Runner(fm)
     compare = None
     with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
-                        retry_failed=retry_failed, quiet=quiet) as execution:
+                        retry_failed=retry_failed, quiet=quiet, desc=method) as execution:
+        n_units, what = planned_units(meth, s, obs.n_exp, obs.n_samples - 1)
+        if what and execution.bar is not None:
+            execution.bar.write(f"imrbayes: {method}: {n_units} units ({what})", file=sys.stderr)
+        plan(execution.bar, n_units, method)
         res = meth.fit(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
+        finish(execution.bar)
         if mcmc:
             # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
             _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
@@ -189,6 +216,9 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
             if not quiet:
                 click.echo(f"{method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
             from imrbayes.mcmc.fit import run_fit_mcmc
+            n_win = len(getattr(res, "window_posteriors", None) or []) or 1
+            n_win = n_win if mcmc_windows is None else len([w for w in mcmc_windows if w < n_win]) or 1
+            plan(execution.bar, n_win, "emcee windows")
             compare = run_fit_mcmc(fm, obs, space, res, out, mcmc_s, seed, execution=execution, runner=runner,
                                    windows=mcmc_windows)
         exec_summary = execution.summary()
