@@ -285,6 +285,11 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     write_summary(out / "summary.json", summary)
     posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
     fdir = out / "figures"
+    # the figures' µs and strain-rate axes: each experiment's time scale t_c [s] (t = t* t_c)
+    tcs = {e.get("name"): e.get("tc_s") for e in pre.to_dict(arrays=False).get("experiments", [])
+           if isinstance(e, dict)}
+    if all(tcs.get(n) for n in obs.names):
+        res.time_scale_s = [float(tcs[n]) for n in obs.names]
     written = [figs.fit_figure(obs, res, fdir / "fit.png")] + list(METHODS[method].figures(obs, res, fdir))
     if compare is not None:
         written += list(compare.get("figures", []))
