@@ -81,11 +81,11 @@ def _load_config(path) -> dict:
     return cfg
 
 
-@main.command("fit")
+@main.command("fit", help_lists=("models", "methods"))
 @click.argument("data", type=click.Path(path_type=Path))
 @click.option("--method", type=click.Choice(METHOD_NAMES), default=None,
-              help="Inference method: " + "; ".join(f"{m.name}: {m.label}" for m in METHODS.values()) + ".")
-@click.option("--model", default=None, help="Constitutive model [default: nhkv].")
+              help="Inference method (list below; or 'method' in --config).  [required]")
+@click.option("--model", default=None, help="Constitutive model (list below).  [default: nhkv]")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Output folder (default: a new folder under ./imrbayes-runs/).")
 @click.option("--seed", type=int, default=None, help="Seed of every random draw [default: 0].")
@@ -111,11 +111,15 @@ def _load_config(path) -> dict:
 @click.option("--dt-star", type=float, default=None, help="Grid step in t* [-] [default: 0.025].")
 @click.option("--n-steps", type=int, default=None, help="Grid steps [-] [default: 120].")
 @click.option("--noise", type=click.Choice(["auto", "sample", "pooled", "paper"]), default=None,
-              help="P_k: across-experiment sample variance (auto with >= 2 experiments), the same pooled over 11 "
-                   "neighbouring steps (better weights with few experiments), or the §5 noise model.")
+              help="Observation noise P_k: sample: the across-experiment sample variance; pooled: the same pooled "
+                   "over 11 neighbouring steps (better weights with few experiments); paper: the paper's "
+                   "verification noise model; auto: sample with >= 2 experiments, else paper.  [default: auto]")
 @click.option("--mcmc", is_flag=True, default=None,
               help="Also sample every window's posterior with emcee and compare it with the ensemble's Gaussian "
-                   "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures.")
+                   "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures. Slow: "
+                   "256,000 likelihood evaluations per window with the defaults: minutes per window with "
+                   "--forward bubble=polytropic, hours with the thermal bubble (fewer with --mcmc-windows or "
+                   "--mcmc-set n_steps=...).")
 @click.option("--mcmc-set", "mcmc_settings", multiple=True, metavar="KEY=VALUE",
               help="emcee setting: n_walkers, n_steps, n_chains (independent ensembles), burn, thin, max_draws, "
                    "init_scale, tau_rule, lockstep, loglik [default: 32 walkers x 2000 steps x 4 ensembles]; "
@@ -129,7 +133,10 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     """Fit a constitutive model to DATA (dataset folder, .csv or .mat) with one inference method.
 
     Writes summary.json (estimate: SI units, G [Pa], mu [Pa s]; times as t*), posterior.nc (ArviZ)
-    and figures/*.png.
+    and figures/*.png; 'imrbayes report OUT' turns them into one HTML page.
+
+    Runtime: seconds (pimr) to minutes (imr, en4dvar, mienks; the thermal bubble is the slow part,
+    --forward bubble=polytropic the fast one); --mcmc adds minutes to hours (see --mcmc).
     """
     t_start = time.perf_counter()
     cfg = _load_config(config)
