@@ -414,3 +414,14 @@ def test_report_renders_in_a_headless_browser(runs, tmp_path, kind):
     assert res["n_images"] == len(list((run / "figures").glob("*.png"))) > 0
     if png is not None:
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_report_flags_a_gel_level_estimate_outside_the_experiments(runs, tmp_path):
+    run = _copy(runs, "en4dvar", tmp_path)
+
+    def far(s):
+        s["estimate"]["G"].update(mean=26000.0, sd=1400.0, hdi95=[23200.0, 28800.0], median=25900.0)
+    _edit_summary(run, far)
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    concl = _text(_section(html, "conclusion"))
+    assert "the gel-level G (26 kPa) lies outside the range of the per-experiment estimates" in concl

@@ -586,13 +586,9 @@ def _section_conclusion(run) -> str:
                         + (f" (95 % {_qrange(hd[0], hd[1], p, units)})" if len(hd) == 2 and hd[0] is not None else ""))
         items.append("Between bubbles (scatter of the gel from bubble to bubble): " + "; ".join(bits) + ".")
     else:
-        per = [x for x in s.get("per_experiment") or [] if isinstance(x, dict) and isinstance(x.get("estimate"), dict)]
         rng = []
-        for p in params:
-            v = [_fnum((x["estimate"].get(p) or {}).get("mean")) for x in per]
-            v = [x for x in v if math.isfinite(x)]
-            if len(v) >= 2:
-                rng.append(f"{esc(p)} {_qrange(min(v), max(v), p, units)}")
+        for p, (lo, hi) in _per_experiment_range(s).items():
+            rng.append(f"{esc(p)} {_qrange(lo, hi, p, units)}")
         items.append("Between bubbles: not estimated by this run" +
                      (f"; the per-experiment estimates span {', '.join(rng)}" if rng else "") + ".")
     if isinstance(pred, dict) and pred:
@@ -642,6 +638,12 @@ def _section_conclusion(run) -> str:
         cav.append(f"and {len(warn) - 6} more (see Warnings and failures)")
     if n_failed:
         cav.append(f"{n_failed} experiment(s) or unit(s) failed or were left out (see Warnings and failures)")
+    for p, (lo, hi) in _per_experiment_range(s).items():
+        m = _fnum((est.get(p) or {}).get("mean"))
+        if math.isfinite(m) and not (lo <= m <= hi):
+            cav.append(f"the gel-level {esc(p)} ({_q(m, p, units)}) lies outside the range of the per-experiment "
+                       f"estimates ({_qrange(lo, hi, p, units)}): the experiments disagree with each other or with "
+                       "the model, and their combination is not to be trusted")
     fit = s.get("fit") or {}
     if meth is not None and meth.name == "pimr":
         cav.append("pIMR fits the collapse time only, not the shape of R(t)")
@@ -654,6 +656,18 @@ def _section_conclusion(run) -> str:
                      "samples.")
     return ("<h2 id='conclusion'>Conclusion</h2><div class='conclusion'>" + head + "<ul>"
             + "".join(f"<li>{i}</li>" for i in items) + "</ul></div>")
+
+
+def _per_experiment_range(s) -> dict:
+    """{parameter: (min, max)} of the per-experiment posterior means (two experiments or more)."""
+    per = [x for x in s.get("per_experiment") or [] if isinstance(x, dict) and isinstance(x.get("estimate"), dict)]
+    out = {}
+    for p in s.get("parameters", []):
+        v = [_fnum((x["estimate"].get(p) or {}).get("mean")) for x in per]
+        v = [x for x in v if math.isfinite(x)]
+        if len(v) >= 2:
+            out[p] = (min(v), max(v))
+    return out
 
 
 def _section_experiments(s) -> str:
