@@ -385,7 +385,8 @@ def test_report_en4dvar_without_mcmc_suggests_its_own_method(runs):
     text = _text(html)
     assert "--method mienks" not in text
     assert "imrbayes fit DATA --method en4dvar --mcmc" in _text(_section(html, "conclusion"))
-    assert "a rough guess from this fit's speed" in _text(_section(html, "conclusion"))
+    assert "evaluations" in _text(_section(html, "conclusion"))
+    assert "minutes per window with this fit's polytropic bubble" in _text(_section(html, "conclusion"))
 
 
 def _browser_check():
@@ -421,7 +422,13 @@ def test_report_flags_a_gel_level_estimate_outside_the_experiments(runs, tmp_pat
 
     def far(s):
         s["estimate"]["G"].update(mean=26000.0, sd=1400.0, hdi95=[23200.0, 28800.0], median=25900.0)
-    _edit_summary(run, far)
+    s = _edit_summary(run, far)
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     concl = _text(_section(html, "conclusion"))
-    assert "the gel-level G (26 kPa) lies outside the range of the per-experiment estimates" in concl
+    assert "the gel-level G (26 kPa) lies outside every experiment's own 95 % interval" in concl
+    assert "the gel-level mu" not in concl
+    # just below the lowest experiment's mean, but inside its interval: no caveat
+    low = min(e["estimate"]["G"]["mean"] - e["estimate"]["G"]["sd"] for e in s["per_experiment"])
+    _edit_summary(run, lambda s: s["estimate"]["G"].update(mean=low))
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    assert "outside every experiment" not in _text(_section(html, "conclusion"))

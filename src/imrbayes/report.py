@@ -486,30 +486,22 @@ def _duration(seconds: float) -> str:
 
 
 def _mcmc_eta(s) -> str:
-    """A rough runtime of ``--mcmc`` with the default emcee settings, scaled from this fit's speed
-    (forward runs per second); "" when it cannot be told."""
-    meth = _method(s)
+    """What ``--mcmc`` costs with the default emcee settings, in words: the evaluations per window and
+    minutes or hours per window depending on the bubble model this fit used."""
     try:
-        from dataclasses import fields
-
         from imrbayes.mcmc import MCMCSettings
 
         d = MCMCSettings()
         evals = d.n_walkers * d.n_steps * d.n_chains
-        st = (s.get("details") or {}).get("settings") or {}
-        known = {f.name for f in fields(meth.settings_class)}
-        settings = meth.settings_class(**{k: v for k, v in st.items() if k in known})
-        n_exp = int(s.get("n_experiments") or 1)
-        n_steps = int(((s.get("preprocessing") or {}).get("choices") or {}).get("n_steps") or 120)
-        runs = meth.n_forward_runs(settings, n_exp, n_steps)
-        n_win = max(len(s.get("windows") or []), 1)
-        t = _fnum(s.get("runtime_s")) * n_win * evals * n_exp / max(runs, 1)
-    except Exception:  # an old or unusual summary: no guess
-        return ""
-    d = _duration(t)
-    return (f" (a rough guess from this fit's speed: ~{d} with the default {MCMCSettings().n_walkers} walkers × "
-            f"{MCMCSettings().n_steps} steps × {MCMCSettings().n_chains} ensembles"
-            + (f" in each of {n_win} windows" if n_win > 1 else "") + ")") if d else ""
+        head = f"{d.n_walkers} walkers × {d.n_steps} steps × {d.n_chains} ensembles = {evals:,} evaluations"
+    except Exception:  # an unusual installation: no numbers
+        head = "the default emcee settings"
+    n_win = len(s.get("windows") or [])
+    per = f" in each of {n_win} windows" if n_win > 1 else ""
+    bubble = str((((s.get("forward") or {}).get("options")) or {}).get("bubble", "thermal"))
+    speed = ("minutes per window with this fit's polytropic bubble" if bubble == "polytropic"
+             else "hours per window with this fit's thermal bubble")
+    return f" ({head}{per}: {speed}; --mcmc-windows and --mcmc-set n_steps=... make it shorter)"
 
 
 def _mcmc_words(run) -> str:
@@ -638,12 +630,12 @@ def _section_conclusion(run) -> str:
         cav.append(f"and {len(warn) - 6} more (see Warnings and failures)")
     if n_failed:
         cav.append(f"{n_failed} experiment(s) or unit(s) failed or were left out (see Warnings and failures)")
-    for p, (lo, hi) in _per_experiment_range(s).items():
+    for p, (lo, hi) in _per_experiment_range(s, width=1.96).items():
         m = _fnum((est.get(p) or {}).get("mean"))
         if math.isfinite(m) and not (lo <= m <= hi):
-            cav.append(f"the gel-level {esc(p)} ({_q(m, p, units)}) lies outside the range of the per-experiment "
-                       f"estimates ({_qrange(lo, hi, p, units)}): the experiments disagree with each other or with "
-                       "the model, and their combination is not to be trusted")
+            cav.append(f"the gel-level {esc(p)} ({_q(m, p, units)}) lies outside every experiment's own 95 % interval "
+                       f"(together {_qrange(lo, hi, p, units)}): no single bubble supports it, so the combination "
+                       "of the experiments is not to be trusted (they disagree with each other or with the model)")
     fit = s.get("fit") or {}
     if meth is not None and meth.name == "pimr":
         cav.append("pIMR fits the collapse time only, not the shape of R(t)")
@@ -658,15 +650,23 @@ def _section_conclusion(run) -> str:
             + "".join(f"<li>{i}</li>" for i in items) + "</ul></div>")
 
 
-def _per_experiment_range(s) -> dict:
-    """{parameter: (min, max)} of the per-experiment posterior means (two experiments or more)."""
+def _per_experiment_range(s, width: float = 0.0) -> dict:
+    """{parameter: (min, max)} of the per-experiment posterior means (two experiments or more), or
+    with ``width`` > 0 of their intervals mean ± width sd (the union of the experiments' own
+    intervals; sd missing: the mean alone)."""
     per = [x for x in s.get("per_experiment") or [] if isinstance(x, dict) and isinstance(x.get("estimate"), dict)]
     out = {}
     for p in s.get("parameters", []):
-        v = [_fnum((x["estimate"].get(p) or {}).get("mean")) for x in per]
-        v = [x for x in v if math.isfinite(x)]
-        if len(v) >= 2:
-            out[p] = (min(v), max(v))
+        lo, hi = [], []
+        for x in per:
+            e = x["estimate"].get(p) or {}
+            m, sd = _fnum(e.get("mean")), _fnum(e.get("sd"), 0.0)
+            if math.isfinite(m):
+                sd = sd if math.isfinite(sd) else 0.0
+                lo.append(m - width * sd)
+                hi.append(m + width * sd)
+        if len(lo) >= 2:
+            out[p] = (min(lo), max(hi))
     return out
 
 
