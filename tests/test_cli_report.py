@@ -174,6 +174,10 @@ def test_report_lists_a_disagreeing_window_in_words(runs, tmp_path):
     assert any(i.startswith("Window 0 ") and "undecided" in i for i in items)
     table = _text(_section((run / "report.html").read_text(), "compare"))
     assert "1 disagree, 1 undecided" in table
+    concl = _text(_section((run / "report.html").read_text(), "conclusion"))    # the numbers to believe instead
+    g = bad["mcmc"]["mean"]["G"]
+    assert f"disagrees in window 6: believe the MCMC posterior there, not the Gaussian (emcee: window 6: G = " \
+           f"{g * 1e-3:.3g} kPa ±" in concl
 
 
 def test_report_without_mcmc_says_so(runs, tmp_path):

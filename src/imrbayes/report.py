@@ -522,8 +522,16 @@ def _mcmc_words(run) -> str:
         if ok:
             parts.append(f"emcee agrees with the ensemble Gaussian in {len(ok)} of {n} sampled window(s)")
         if dis:
+            units = _units(s)
+            nums = []
+            for w in dis[:3]:
+                m, sd = (w.get("mcmc") or {}).get("mean") or {}, (w.get("mcmc") or {}).get("sd") or {}
+                txt = ", ".join(f"{esc(p)} = {_q(m.get(p), p, units)} ± {_q(sd.get(p), p, units, '.2g', unit=False)}"
+                                for p in s.get("parameters", []) if p in m)
+                if txt:
+                    nums.append((f"window {esc(w.get('index'))}: " if n > 1 else "") + txt)
             parts.append(f"<span class='caveat'>disagrees in {where(dis)}: believe the MCMC posterior there, not the "
-                         f"Gaussian (see Flagged windows)</span>")
+                         f"Gaussian" + (f" (emcee: {'; '.join(nums)})" if nums else "") + "; see Flagged windows</span>")
         if und:
             parts.append(f"<span class='caveat'>undecided in {where(und)}: the emcee chains did not converge, so the "
                          "check says nothing yet (sample longer: see Flagged windows)</span>")
