@@ -39,6 +39,10 @@ def runs(tmp_path_factory):
     r = _run("fit", ds, *TINY_MIENKS, "--out", base / "mienks")
     assert r.exit_code == 0, r.output
     out["mienks"] = base / "mienks"
+    r = _run("fit", ds, "--method", "en4dvar", "--forward", "bubble=polytropic", "--set", "n_ens=8", "--set",
+             "n_iter=2", "--set", "n_runs=1", "--n-steps", "40", "--out", base / "en4dvar", "--quiet")
+    assert r.exit_code == 0, r.output
+    out["en4dvar"] = base / "en4dvar"
     r = _run("fit", ds, *TINY_MIENKS, "--out", base / "mcmc", "--mcmc", "--mcmc-set", "n_walkers=8",
              "--mcmc-set", "n_steps=60", "--mcmc-set", "n_chains=2", "--mcmc-windows", "0,6")
     assert r.exit_code == 0, r.output
@@ -102,10 +106,13 @@ def test_report_mienks_with_mcmc(runs):
     for w in summary["windows"]:
         assert f"title='{w['mu']['mean']!r}'" in win
 
-    # ArviZ summaries (round_to="none": raw numbers) of posterior.nc and of each MCMC window
+    # ArviZ summaries (round_to="none": raw numbers) of posterior.nc (diagnostics only: the estimate is the
+    # Estimate/Windows tables') and of each MCMC window
     for col in ("mean", "sd", "hdi95_lb", "hdi95_ub", "ess_bulk", "ess_tail", "r_hat", "mcse_mean", "mcse_sd"):
         assert f"<th>{col}</th>" in _section(html, "mcmc"), col
     assert "<th>r_hat</th>" in _section(html, "posterior") and "G[6]" in _section(html, "posterior")
+    for col in ("mean", "sd", "hdi95_lb", "hdi95_ub"):
+        assert f"<th>{col}</th>" not in _section(html, "posterior"), col
     with xr.open_datatree(run / "mcmc.nc") as tree:
         s6 = az.summary(tree["window_06"], round_to="none", ci_kind="hdi", ci_prob=0.95)
     mc = _section(html, "mcmc")
@@ -167,6 +174,10 @@ def test_report_lists_a_disagreeing_window_in_words(runs, tmp_path):
     assert any(i.startswith("Window 0 ") and "undecided" in i for i in items)
     table = _text(_section((run / "report.html").read_text(), "compare"))
     assert "1 disagree, 1 undecided" in table
+    concl = _text(_section((run / "report.html").read_text(), "conclusion"))    # the numbers to believe instead
+    g = bad["mcmc"]["mean"]["G"]
+    assert f"disagrees in window 6: believe the MCMC posterior there, not the Gaussian (emcee: window 6: G = " \
+           f"{g * 1e-3:.3g} kPa ±" in concl
 
 
 def test_report_without_mcmc_says_so(runs, tmp_path):
@@ -182,14 +193,14 @@ def test_report_without_mcmc_says_so(runs, tmp_path):
     assert "<h2 id='windows'>" not in html
     assert html.count("data:image/png;base64,") == len(list((runs["pimr"] / "figures").glob("*.png"))) == 2
     text = _text(html)
-    assert "The MCMC comparison is absent" in text
-    assert "mcmc.nc" in text and "absent (the fit ran without --mcmc)" in text
-    # MIEnKS-MDA without --mcmc: the windows are there, the comparison is not
+    assert "MCMC check: not applicable" in text
+    # MIEnKS-MDA without --mcmc: the windows are there, the comparison is not (and says how to add it)
     _report(runs["mienks"], "--quiet")
     html = (runs["mienks"] / "report.html").read_text()
     assert "<h2 id='windows'>Windows (7)</h2>" in html
-    assert "Absent: no compare.json" in _text(_section(html, "flagged"))
-    assert "Absent: this run directory has no mcmc.nc" in _text(_section(html, "mcmc"))
+    assert "MCMC check: not run" in _text(_section(html, "compare"))
+    assert "imrbayes fit DATA --method mienks --mcmc" in _text(_section(html, "compare"))
+    assert "<h2 id='mcmc'>" not in html and "<h2 id='flagged'>" not in html
 
 
 def test_report_quiet_prints_nothing(runs, tmp_path):
@@ -246,3 +257,182 @@ def test_report_bad_run_dir(runs, tmp_path, kind):
     assert len(lines) == 1 and lines[0].startswith("imrbayes: error: ") and name in lines[0], r.stderr
     assert "Traceback" not in r.output
     assert not (tmp_path / "run" / "report.html").exists()
+
+
+# ------------------------------------------------------------------ issue #22: what a rheologist sees
+def _first_h2(html):
+    return re.search(r"<h2 id='([^']+)'>", html).group(1)
+
+
+def _copy(runs, kind, tmp_path):
+    run = tmp_path / kind
+    shutil.copytree(runs[kind], run)
+    (run / "report.html").unlink(missing_ok=True)
+    return run
+
+
+def _edit_summary(run, fn):
+    p = run / "summary.json"
+    s = json.loads(p.read_text())
+    fn(s)
+    p.write_text(json.dumps(s))
+    return s
+
+
+def test_report_opens_with_a_conclusion_in_physical_units(runs):
+    run = runs["mcmc"]
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    assert _first_h2(html) == "conclusion"
+    concl = _text(_section(html, "conclusion"))
+    s = json.loads((run / "summary.json").read_text())
+    g = s["estimate"]["G"]
+    assert f"G = {g['mean'] * 1e-3:.3g} kPa" in concl
+    assert f"95 % interval {g['hdi95'][0] * 1e-3:.3g}–{g['hdi95'][1] * 1e-3:.3g} kPa" in concl
+    assert " Pa s" in concl
+    assert "MCMC check: undecided in windows 0, 6" in concl           # 60 emcee steps never converge
+    assert "Caveats:" in concl
+    # configuration and raw settings at the bottom
+    order = re.findall(r"<h2 id='([^']+)'>", html)
+    assert order.index("config") > order.index("figures") and order.index("posterior") > order.index("config")
+
+
+def test_report_conclusion_shows_between_predictive_and_nuisance(runs, tmp_path):
+    run = _copy(runs, "en4dvar", tmp_path)
+
+    def add(s):
+        s["between_experiments"] = {"G": {"sd": 1500.0, "hdi95": [400.0, 3100.0]},
+                                    "mu": {"sd": 0.02, "hdi95": [0.004, 0.05]}}
+        s["predictive"] = {"G": {"mean": 7300.0, "sd": 1600.0, "hdi95": [4200.0, 10900.0]},
+                           "mu": {"mean": 0.09, "sd": 0.03, "hdi95": [0.04, 0.16]}}
+        for i, e in enumerate(s["per_experiment"]):
+            e["nuisance"] = {"rmax_m": {"mean": 263e-6 + i * 1e-6, "sd": 0.8e-6},
+                             "req_m": {"mean": 34.7e-6, "sd": 0.3e-6}, "t0_s": {"mean": 0.12e-6, "sd": 0.05e-6}}
+        s["likelihood"] = {"name": "default", "noise": "x", "effective_samples": [31.5, 28.0]}
+    _edit_summary(run, add)
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    concl = _text(_section(html, "conclusion"))
+    assert "Between bubbles (scatter of the gel from bubble to bubble): G sd 1.5 kPa (95 % 0.4–3.1 kPa)" in concl
+    assert "A new bubble of this gel (95 % predictive range): G 4.2–10.9 kPa; mu 0.04–0.16 Pa s" in concl
+    assert "nuisance" in concl
+    exps = _text(_section(html, "experiments"))
+    assert "Rmax mean [µm]" in exps and "264" in exps and "t0 mean [µs]" in exps and "0.12" in exps
+    assert "effective samples" in exps and "31.5" in exps
+
+
+def test_report_conclusion_one_bubble_and_absent_keys(runs, tmp_path):
+    run = _copy(runs, "en4dvar", tmp_path)
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    concl = _text(_section(html, "conclusion"))
+    assert "Between bubbles: not estimated by this run; the per-experiment estimates span G " in concl
+    assert "A new bubble" not in concl and "<h2 id='experiments'>" in html
+    _edit_summary(run, lambda s: s.update(n_experiments=1, per_experiment=s["per_experiment"][:1]))
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    assert "One experiment: bubble-to-bubble scatter unknown" in _text(_section(html, "conclusion"))
+
+
+def test_report_says_when_the_data_say_little(runs, tmp_path):
+    run = _copy(runs, "en4dvar", tmp_path)
+
+    def wide(s):          # mu's posterior as wide as its prior (log-normal 0.209 +- 0.088 Pa s)
+        s["estimate"]["mu"].update(mean=0.21, sd=0.085, hdi95=[0.09, 0.41])
+    _edit_summary(run, wide)
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    concl = _text(_section(html, "conclusion"))
+    assert "mu: posterior as wide as the prior — the data say little" in concl
+    assert "G: constrained by the data" in concl
+    # MIEnKS windows the data barely moved are marked in the windows table
+    html = _report(runs["mienks"], "--quiet") and (runs["mienks"] / "report.html").read_text()
+    assert "(barely moved)" in _section(html, "windows")
+
+
+def test_report_one_source_of_numbers(runs):
+    """The estimate's mean, sd and interval appear once (summary.json); the ArviZ table of posterior.nc
+    shows only the draws' diagnostics, so the report never gives two results for one posterior."""
+    run = runs["en4dvar"]
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    post = _section(html, "posterior")
+    assert "<th>ess_bulk</th>" in post and "<th>sd</th>" not in post and "<th>hdi95_lb</th>" not in post
+    s = json.loads((run / "summary.json").read_text())
+    assert f"title='{s['estimate']['G']['sd']!r}'" in _section(html, "estimate")
+
+
+def test_report_has_no_raw_json_escapes_or_empty_headers(runs, tmp_path):
+    run = _copy(runs, "mienks", tmp_path)
+
+    def odd(s):
+        s["preprocessing"]["choices"]["noise_model"] = {"method": "paper", "ref": "methods.md §5",
+                                                        "levels": [1, 2], "nested": {"a": None}}
+        s["details"]["uncertainty"] = {"why": "closed form §4"}
+    _edit_summary(run, odd)
+    html = _report(run, "--quiet") and (run / "report.html").read_text(encoding="utf-8")
+    text = _text(html)
+    assert "\\u00" not in html and "\\u00" not in text
+    assert '{"' not in text and "{'" not in _text(_section(html, "dataset")).replace(
+        json.loads((run / "summary.json").read_text())["preprocessing"]["dataset"]["meta"].get("description", ""), "")
+    assert "methods.md §5" in text and "paper" in _text(_section(html, "dataset"))
+    assert "<tr><th></th><th></th></tr>" not in html and "<th></th>" not in html
+
+
+def test_report_pimr_shows_no_sections_that_do_not_apply(runs):
+    html = _report(runs["pimr"], "--quiet") and (runs["pimr"] / "report.html").read_text()
+    text = _text(html[html.index("<body>"):])
+    assert "Absent" not in text and "absent" not in text
+    for anchor in ("flagged", "mcmc", "compare", "windows"):
+        assert f"<h2 id='{anchor}'>" not in html, anchor
+    assert "MCMC check: not applicable" in _text(_section(html, "conclusion"))
+    assert "collapse time only" in _text(_section(html, "figures"))
+    assert "mcmc.nc" not in _text(_section(html, "contents"))
+
+
+def test_report_en4dvar_without_mcmc_suggests_its_own_method(runs):
+    html = _report(runs["en4dvar"], "--quiet") and (runs["en4dvar"] / "report.html").read_text()
+    text = _text(html)
+    assert "--method mienks" not in text
+    assert "imrbayes fit DATA --method en4dvar --mcmc" in _text(_section(html, "conclusion"))
+    assert "evaluations" in _text(_section(html, "conclusion"))
+    assert "minutes per window with this fit's polytropic bubble" in _text(_section(html, "conclusion"))
+
+
+def _browser_check():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "check_report_browser.py"
+    spec = importlib.util.spec_from_file_location("check_report_browser", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("kind", ["pimr", "mcmc"])
+def test_report_renders_in_a_headless_browser(runs, tmp_path, kind):
+    """scripts/check_report_browser.py: Chromium renders report.html; every image loads, the visible
+    text has no raw JSON and no escapes, and the page opens with the conclusion."""
+    chk = _browser_check()
+    if chk.find_browser() is None:
+        pytest.skip("no Chromium/Chrome installed (apt-get install chromium)")
+    run = _copy(runs, kind, tmp_path)
+    _report(run, "--quiet")
+    png = tmp_path / "page.png" if kind == "mcmc" else None
+    res = chk.check(run / "report.html", png=png)
+    assert res["ok"], res["problems"]
+    assert res["n_images"] == len(list((run / "figures").glob("*.png"))) > 0
+    if png is not None:
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_report_flags_a_gel_level_estimate_outside_the_experiments(runs, tmp_path):
+    run = _copy(runs, "en4dvar", tmp_path)
+
+    def far(s):
+        s["estimate"]["G"].update(mean=26000.0, sd=1400.0, hdi95=[23200.0, 28800.0], median=25900.0)
+    s = _edit_summary(run, far)
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    concl = _text(_section(html, "conclusion"))
+    assert "the gel-level G (26 kPa) lies outside every experiment's own 95 % interval" in concl
+    assert "the gel-level mu" not in concl
+    # just below the lowest experiment's mean, but inside its interval: no caveat
+    low = min(e["estimate"]["G"]["mean"] - e["estimate"]["G"]["sd"] for e in s["per_experiment"])
+    _edit_summary(run, lambda s: s["estimate"]["G"].update(mean=low))
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    assert "outside every experiment" not in _text(_section(html, "conclusion"))

@@ -25,7 +25,11 @@ td.n{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 .bad{background:#fde2e2}.ok{background:#e3f4e3}.undecided{background:#fff4cc}
 .note{font-size:12px;color:#555}.absent{color:#8a4b00;font-weight:bold}
 figure{margin:14px 0}figcaption{font-size:13px;color:#333;margin-top:4px}
-code{background:#f5f5f5;padding:0 2px}"""
+code{background:#f5f5f5;padding:0 2px}
+table.kv td:first-child{background:#f3f3f3;font-weight:bold;white-space:nowrap}
+.conclusion{border:2px solid #4a7;border-radius:6px;padding:4px 14px;background:#f6fbf7;margin:10px 0}
+.conclusion li{margin:3px 0}.caveat{color:#8a4b00}
+ul.plain{margin:2px 0;padding-left:18px}"""
 
 
 def esc(x) -> str:
@@ -58,8 +62,9 @@ def num(x, spec=".5g", missing="–") -> str:
 
 def table(headers, rows, cls=None) -> str:
     """``<table>`` from header strings (HTML) and rows of cell HTML; a cell may be a tuple
-    ``(html, attributes)`` to add e.g. ``class='n'``."""
-    head = "".join(f"<th>{h}</th>" for h in headers)
+    ``(html, attributes)`` to add e.g. ``class='n'``. ``headers`` None or empty: no header row (a
+    key-value table), not an empty one."""
+    head = "".join(f"<th>{h}</th>" for h in headers or ())
     body = []
     for row in rows:
         cells = []
@@ -70,7 +75,8 @@ def table(headers, rows, cls=None) -> str:
                 cells.append(f"<td>{c}</td>")
         body.append("<tr>" + "".join(cells) + "</tr>")
     attr = f" class='{cls}'" if cls else ""
-    return f"<table{attr}><tr>{head}</tr>{''.join(body)}</table>"
+    head = f"<tr>{head}</tr>" if head else ""
+    return f"<table{attr}>{head}{''.join(body)}</table>"
 
 
 def is_png(path) -> bool:

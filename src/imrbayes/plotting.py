@@ -15,7 +15,7 @@ from pathlib import Path
 
 from imrbayes.io import atomic_write
 
-__all__ = ["DPI", "figure", "save", "scale", "label"]
+__all__ = ["DPI", "figure", "save", "scale", "label", "plain_log_axis", "time_axis_us"]
 
 DPI = 110
 """Resolution [dots per inch] of the saved PNGs (``imrbayes inspect``'s radius figure uses 120)."""
@@ -61,3 +61,28 @@ def label(name: str) -> str:
     """Axis label with the display unit of ``name`` (``"G"`` -> ``"G [kPa]"``; the name itself for
     names without one)."""
     return _DISPLAY.get(name, (1.0, name))[1]
+
+
+def plain_log_axis(ax, which: str = "y") -> None:
+    """Tick labels of a log axis as plain numbers (``7``, ``10``, ``20``), not ``7 x 10^0``."""
+    from matplotlib.ticker import FuncFormatter, LogLocator
+
+    fmt = FuncFormatter(lambda v, _: f"{v:.3g}")
+    axis = ax.yaxis if which == "y" else ax.xaxis
+    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(fmt)
+    axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+
+
+def time_axis_us(ax, tc_s: float, label_text: str | None = None):
+    """A second x axis on top of ``ax`` in microseconds (t = t* x ``tc_s``); returns it (None when the
+    time scale is unknown)."""
+    import math
+
+    if tc_s is None or not math.isfinite(tc_s) or tc_s <= 0:
+        return None
+    f = tc_s * 1e6
+    sec = ax.secondary_xaxis("top", functions=(lambda t: t * f, lambda u: u / f))
+    sec.set_xlabel(label_text or "t [µs]", fontsize=8)
+    sec.tick_params(labelsize=7)
+    return sec

@@ -148,21 +148,143 @@ def _span(ts, spec=".3g") -> str:
     return f"{num(ts[0], spec)}–{num(ts[1], spec)}"
 
 
+def _plain(v) -> str:
+    """A value of summary.json as a reader wants it (HTML): numbers rounded, strings as they are,
+    objects as nested ``key = value`` lists, lists of objects one per line -- never raw JSON."""
+    if v is None:
+        return "none"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return num(v, ".6g")
+    if isinstance(v, int):
+        return esc(v)
+    if isinstance(v, dict):
+        if not v:
+            return "<i>none</i>"
+        return ("<ul class='plain'>" + "".join(f"<li><code>{esc(k)}</code> = {_plain(x)}</li>" for k, x in v.items())
+                + "</ul>")
+    if isinstance(v, (list, tuple)):
+        if not v:
+            return "<i>none</i>"
+        if all(isinstance(x, dict) for x in v):
+            return "<ul class='plain'>" + "".join(f"<li>{_plain_inline(x)}</li>" for x in v) + "</ul>"
+        return ", ".join(_plain(x) for x in v)
+    return esc(v)
+
+
+def _plain_inline(d: dict) -> str:
+    """One object on one line: ``exp_003: Req could not be estimated`` for a {name, error} pair,
+    else ``key = value, ...``."""
+    if set(d) >= {"name", "error"} and len(d) <= 3:
+        return f"{esc(d['name'])}: {esc(d['error'])}"
+    return ", ".join(f"<code>{esc(k)}</code> = {_plain(x)}" for k, x in d.items())
+
+
 def _kv_list(d: dict, skip=()) -> str:
     if not d:
         return "<i>none</i>"
-    items = []
-    for k, v in d.items():
-        if k in skip:
-            continue
-        if isinstance(v, float):
-            v = num(v, ".6g")
-        elif isinstance(v, (dict, list)):
-            v = esc(json.dumps(v))
-        else:
-            v = esc(v)
-        items.append(f"<code>{esc(k)}</code>&nbsp;=&nbsp;{v}")
+    items = [f"<code>{esc(k)}</code>&nbsp;=&nbsp;{_plain(v)}" for k, v in d.items() if k not in skip]
     return ", ".join(items) if items else "<i>none</i>"
+
+
+def _kv_table(d: dict, skip=()) -> str:
+    """A key-value table (no header row) of an object of summary.json."""
+    rows = [(f"<code>{esc(k)}</code>", _plain(v)) for k, v in d.items() if k not in skip]
+    return table(None, rows, cls="kv") if rows else "<p><i>none</i></p>"
+
+
+# display units of the parameters people read most (SI otherwise): G in kPa, mu in Pa s
+_DISPLAY = {"G": (1e-3, "kPa"), "mu": (1.0, "Pa s")}
+_NUISANCE = {"rmax_m": ("Rmax", 1e6, "µm"), "req_m": ("Req", 1e6, "µm"), "t0_s": ("t0", 1e6, "µs")}
+
+
+def _disp(name, units) -> tuple:
+    """(factor from SI, unit) in which ``name`` is shown in the conclusion."""
+    return _DISPLAY.get(name, (1.0, units.get(name, "")))
+
+
+def _q(x, name, units, spec=".3g", unit=True) -> str:
+    """``x`` (SI) in the display unit of ``name``: ``11 kPa``."""
+    f, u = _disp(name, units)
+    v = _fnum(x)
+    if not math.isfinite(v):
+        return "–"
+    return num(v * f, spec) + (f" {u}" if unit and u else "")
+
+
+def _qrange(lo, hi, name, units, spec=".3g") -> str:
+    if not (math.isfinite(_fnum(lo)) and math.isfinite(_fnum(hi))):
+        return "–"
+    return f"{_q(lo, name, units, spec, unit=False)}–{_q(hi, name, units, spec)}"
+
+
+def _prior_log_sd(s) -> dict:
+    """Prior sd per parameter in the internal coordinates (log for log-normal parameters)."""
+    prior = s.get("prior") or (s.get("details") or {}).get("parameter_space") or {}
+    names = prior.get("names") or list((prior.get("prior_si") or {}))
+    cov = prior.get("prior_internal_cov")
+    out = {}
+    try:
+        for i, n in enumerate(names):
+            out[n] = math.sqrt(float(cov[i][i]))
+    except (TypeError, IndexError, ValueError):
+        ls = prior.get("log_space") or {}
+        for n, v in (prior.get("prior_si") or {}).items():
+            m, sd = _fnum((v or {}).get("mean")), _fnum((v or {}).get("sd"))
+            if ls.get(n, True) and m > 0 and sd > 0:
+                out[n] = math.sqrt(math.log1p((sd / m) ** 2))
+            elif sd > 0:
+                out[n] = sd
+    return out
+
+
+def _post_internal_sd(e, log: bool) -> float:
+    """Posterior sd in the internal coordinates from an estimate object (its 95 % interval, else
+    its sd): the same yardstick as the prior's."""
+    hdi = e.get("hdi95") or [None, None]
+    lo, hi = _fnum(hdi[0]) if len(hdi) == 2 else math.nan, _fnum(hdi[1]) if len(hdi) == 2 else math.nan
+    if math.isfinite(lo) and math.isfinite(hi) and hi > lo and (not log or lo > 0):
+        return (math.log(hi) - math.log(lo) if log else hi - lo) / (2 * 1.959964)
+    m, sd = _fnum(e.get("mean")), _fnum(e.get("sd"))
+    if math.isfinite(sd) and sd > 0:
+        return sd / m if log and m > 0 else (sd if not log else math.nan)
+    return math.nan
+
+
+def constraint_ratios(s, estimate=None) -> dict:
+    """Per parameter: posterior width / prior width (internal coordinates; 1 = the data said nothing)."""
+    est = s.get("estimate") if estimate is None else estimate
+    prior_sd = _prior_log_sd(s)
+    ls = ((s.get("prior") or {}).get("log_space")) or {}
+    out = {}
+    for p, e in (est or {}).items():
+        if p in prior_sd and isinstance(e, dict):
+            r = _post_internal_sd(e, bool(ls.get(p, True))) / prior_sd[p]
+            if math.isfinite(r):
+                out[p] = r
+    return out
+
+
+def window_ratios(s) -> list:
+    """Per MIEnKS window: {parameter: posterior sd / prior sd} in the internal coordinates."""
+    prior_sd = _prior_log_sd(s)
+    names = s.get("parameters", [])
+    out = []
+    for w in s.get("windows") or []:
+        r = {}
+        cov = (w or {}).get("cov_internal")
+        for i, p in enumerate(names):
+            try:
+                r[p] = math.sqrt(float(cov[i][i])) / prior_sd[p]
+            except (TypeError, IndexError, KeyError, ValueError, ZeroDivisionError):
+                pass
+        out.append(r)
+    return out
+
+
+#: posterior / prior width at or above which the data "say little" (the window "barely moved")
+SAYS_LITTLE = 0.8
 
 
 def _collapse_time(summary) -> float:
@@ -336,33 +458,298 @@ def flagged_windows(compare: dict, summary: dict | None = None) -> list:
 
 
 # ----------------------------------------------------------------------------------- sections
+def _warnings_list(s) -> list:
+    """Every warning of the run (run, preprocessing, per experiment), de-duplicated, in order."""
+    warn = []
+    for w in list(s.get("warnings") or []) + list(s.get("warnings_preprocessing") or []) + \
+            list((s.get("preprocessing") or {}).get("warnings") or []):
+        if w not in warn:
+            warn.append(w)
+    for e in (s.get("preprocessing") or {}).get("experiments") or []:
+        for w in (e.get("warnings") or []) if isinstance(e, dict) else []:
+            item = f"{e.get('name')}: {w}"
+            if item not in warn:
+                warn.append(item)
+    return warn
+
+
+def _duration(seconds: float) -> str:
+    if not math.isfinite(seconds) or seconds <= 0:
+        return ""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 2 * 86400:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.1f} days"
+
+
+def _mcmc_eta(s) -> str:
+    """What ``--mcmc`` costs with the default emcee settings, in words: the evaluations per window and
+    minutes or hours per window depending on the bubble model this fit used."""
+    try:
+        from imrbayes.mcmc import MCMCSettings
+
+        d = MCMCSettings()
+        evals = d.n_walkers * d.n_steps * d.n_chains
+        head = f"{d.n_walkers} walkers × {d.n_steps} steps × {d.n_chains} ensembles = {evals:,} evaluations"
+    except Exception:  # an unusual installation: no numbers
+        head = "the default emcee settings"
+    n_win = len(s.get("windows") or [])
+    per = f" in each of {n_win} windows" if n_win > 1 else ""
+    bubble = str((((s.get("forward") or {}).get("options")) or {}).get("bubble", "thermal"))
+    speed = ("minutes per window with this fit's polytropic bubble" if bubble == "polytropic"
+             else "hours per window with this fit's thermal bubble")
+    return f" ({head}{per}: {speed}; --mcmc-windows and --mcmc-set n_steps=... make it shorter)"
+
+
+def _mcmc_words(run) -> str:
+    """The MCMC agreement in one sentence (HTML)."""
+    s, compare = run["summary"], run["compare"]
+    meth = _method(s)
+    name = s.get("method", "?")
+    if compare is not None:
+        ov = compare.get("overall") or {}
+        wins = sorted(compare.get("windows") or [], key=lambda w: w.get("index", 0))
+        n = len(wins)
+        dis = [w for w in wins if w.get("agree") is False]
+        und = [w for w in wins if w.get("agree") is None]
+        ok = [w for w in wins if w.get("agree") is True]
+        where = (lambda ws: "window" + ("s " if len(ws) > 1 else " ") + ", ".join(str(w.get("index")) for w in ws)) \
+            if n > 1 else (lambda ws: "the fitting window")
+        parts = []
+        if ok:
+            parts.append(f"emcee agrees with the ensemble Gaussian in {len(ok)} of {n} sampled window(s)")
+        if dis:
+            units = _units(s)
+            nums = []
+            for w in dis[:3]:
+                m, sd = (w.get("mcmc") or {}).get("mean") or {}, (w.get("mcmc") or {}).get("sd") or {}
+                txt = ", ".join(f"{esc(p)} = {_q(m.get(p), p, units)} ± {_q(sd.get(p), p, units, '.2g', unit=False)}"
+                                for p in s.get("parameters", []) if p in m)
+                if txt:
+                    nums.append((f"window {esc(w.get('index'))}: " if n > 1 else "") + txt)
+            parts.append(f"<span class='caveat'>disagrees in {where(dis)}: believe the MCMC posterior there, not the "
+                         f"Gaussian" + (f" (emcee: {'; '.join(nums)})" if nums else "") + "; see Flagged windows</span>")
+        if und:
+            parts.append(f"<span class='caveat'>undecided in {where(und)}: the emcee chains did not converge, so the "
+                         "check says nothing yet (sample longer: see Flagged windows)</span>")
+        if ov.get("failed_windows"):
+            parts.append(f"<span class='caveat'>the MCMC failed in {len(ov['failed_windows'])} window(s)</span>")
+        return "MCMC check: " + ("; ".join(parts) if parts else "no window compared") + "."
+    if meth is not None and not meth.gaussian_posterior:
+        return (f"MCMC check: not applicable ({esc(meth.label)} gives no Gaussian posterior for emcee to check).")
+    if run["mcmc"] is not None:
+        return "MCMC check: mcmc.nc is here but compare.json is not: run <code>imrbayes compare RUN_DIR</code>."
+    return (f"MCMC check: not run. To check the Gaussian posterior against emcee: <code>imrbayes fit DATA --method "
+            f"{esc(name)} --mcmc</code>{esc(_mcmc_eta(s))}.")
+
+
+def _section_conclusion(run) -> str:
+    """The block a rheologist reads first: gel-level estimate with units and its interval, the
+    bubble-to-bubble spread, a new bubble's range, the MCMC agreement, what the data did not
+    constrain, and the caveats. Every number comes from summary.json (and compare.json)."""
+    s = run["summary"]
+    units = _units(s)
+    params = s.get("parameters", [])
+    est = s["estimate"]
+    meth = _method(s)
+    n_exp = s.get("n_experiments")
+    label = meth.label if meth is not None else s.get("method", "?")
+    parts = []
+    for p in params:
+        e = est.get(p) or {}
+        hdi = e.get("hdi95") or [None, None]
+        lo, hi = (hdi + [None, None])[:2]
+        if math.isfinite(_fnum(lo)) and math.isfinite(_fnum(hi)):
+            parts.append(f"<b>{esc(p)} = {_q(e.get('mean'), p, units)}</b> (95 % interval {_qrange(lo, hi, p, units)})")
+        elif e.get("ridge") and len(e["ridge"]) == 2:
+            parts.append(f"<b>{esc(p)} ≈ {_q(e.get('mean'), p, units)}</b> (best fit on a ridge "
+                         f"{_qrange(e['ridge'][0], e['ridge'][1], p, units)}: not fixed on its own)")
+        else:
+            parts.append(f"<b>{esc(p)} = {_q(e.get('mean'), p, units)}</b> (no interval from this method)")
+    head = (f"<p><b>Gel-level estimate</b> ({esc(s.get('model', '?'))}, {esc(n_exp)} experiment(s), "
+            f"{esc(label)}): {'; '.join(parts)}.</p>")
+    items = []
+    # bubble-to-bubble spread and a new bubble
+    be, pred = s.get("between_experiments"), s.get("predictive")
+    if n_exp == 1:
+        items.append("One experiment: bubble-to-bubble scatter unknown (one bubble cannot show how much the "
+                     "next one differs).")
+    elif isinstance(be, dict) and be:
+        bits = []
+        for p in params:
+            b = be.get(p) or {}
+            hd = b.get("hdi95") or [None, None]
+            bits.append(f"{esc(p)} sd {_q(b.get('sd'), p, units)}"
+                        + (f" (95 % {_qrange(hd[0], hd[1], p, units)})" if len(hd) == 2 and hd[0] is not None else ""))
+        items.append("Between bubbles (scatter of the gel from bubble to bubble): " + "; ".join(bits) + ".")
+    else:
+        rng = []
+        for p, (lo, hi) in _per_experiment_range(s).items():
+            rng.append(f"{esc(p)} {_qrange(lo, hi, p, units)}")
+        items.append("Between bubbles: not estimated by this run" +
+                     (f"; the per-experiment estimates span {', '.join(rng)}" if rng else "") + ".")
+    if isinstance(pred, dict) and pred:
+        bits = []
+        for p in params:
+            b = pred.get(p) or {}
+            hd = b.get("hdi95") or [None, None]
+            bits.append(f"{esc(p)} {_qrange(hd[0], hd[1], p, units)}" if len(hd) == 2 else f"{esc(p)} –")
+        items.append("A new bubble of this gel (95 % predictive range): " + "; ".join(bits) + ".")
+    items.append(_mcmc_words(run))
+    # what the data did not constrain
+    ratios = constraint_ratios(s)
+    ridge = [p for p in params if p not in ratios and (est.get(p) or {}).get("ridge")]
+    if ridge:
+        items.append(f"<span class='caveat'>{esc(' and '.join(ridge))}: the data fix only a combination of the "
+                     "parameters (a ridge), not each one on its own.</span>")
+    for p in params:
+        r = ratios.get(p)
+        if r is None:
+            continue
+        pct = f"{100 * r:.0f} % of the prior's width"
+        if r >= SAYS_LITTLE:
+            items.append(f"<span class='caveat'>{esc(p)}: posterior as wide as the prior — the data say little "
+                         f"({pct}); the estimate is mostly the prior.</span>")
+        elif r >= 0.5:
+            items.append(f"{esc(p)}: only partly constrained by the data (posterior {pct}).")
+        else:
+            items.append(f"{esc(p)}: constrained by the data (posterior {pct}).")
+    wr = window_ratios(s)
+    wins = s.get("windows") or []
+    barely = [w for w, r in zip(wins, wr) if r and max(r.values()) >= SAYS_LITTLE]
+    if barely:
+        spans = ", ".join(f"{esc(w.get('index'))} (t* {_span(w.get('t_star'))})" for w in barely)
+        items.append(f"<span class='caveat'>Window{'s' if len(barely) > 1 else ''} {spans}: the data barely moved "
+                     f"the prior (posterior ≥ {100 * SAYS_LITTLE:.0f} % of its width; hatched in the parameters "
+                     "figure).</span>")
+    per = s.get("per_experiment") or []
+    if any(isinstance(x, dict) and x.get("nuisance") for x in per):
+        items.append("Rmax, Req and the time origin were estimated per experiment with the material (nuisance "
+                     "parameters): see Experiments.")
+    # caveats
+    warn = _warnings_list(s)
+    fail = s.get("failures") or {}
+    n_failed = len(fail.get("failed_units") or []) + len(fail.get("skipped_experiments") or [])
+    cav = [esc(w) for w in warn[:6]]
+    if len(warn) > 6:
+        cav.append(f"and {len(warn) - 6} more (see Warnings and failures)")
+    if n_failed:
+        cav.append(f"{n_failed} experiment(s) or unit(s) failed or were left out (see Warnings and failures)")
+    for p, (lo, hi) in _per_experiment_range(s, width=1.96).items():
+        m = _fnum((est.get(p) or {}).get("mean"))
+        if math.isfinite(m) and not (lo <= m <= hi):
+            cav.append(f"the gel-level {esc(p)} ({_q(m, p, units)}) lies outside every experiment's own 95 % interval "
+                       f"(together {_qrange(lo, hi, p, units)}): no single bubble supports it, so the combination "
+                       "of the experiments is not to be trusted (they disagree with each other or with the model)")
+    fit = s.get("fit") or {}
+    if meth is not None and meth.name == "pimr":
+        cav.append("pIMR fits the collapse time only, not the shape of R(t)")
+    if cav:
+        items.append("<span class='caveat'>Caveats: " + "; ".join(cav) + ".</span>")
+    else:
+        items.append("Caveats: none recorded.")
+    if fit.get("rmse") is not None:
+        items.append(f"Fit: RMSE {num(fit.get('rmse'), '.3g')} in R* = R/Rmax over {esc(fit.get('n_samples', '–'))} "
+                     "samples.")
+    return ("<h2 id='conclusion'>Conclusion</h2><div class='conclusion'>" + head + "<ul>"
+            + "".join(f"<li>{i}</li>" for i in items) + "</ul></div>")
+
+
+def _per_experiment_range(s, width: float = 0.0) -> dict:
+    """{parameter: (min, max)} of the per-experiment posterior means (two experiments or more), or
+    with ``width`` > 0 of their intervals mean ± width sd (the union of the experiments' own
+    intervals; sd missing: the mean alone)."""
+    per = [x for x in s.get("per_experiment") or [] if isinstance(x, dict) and isinstance(x.get("estimate"), dict)]
+    out = {}
+    for p in s.get("parameters", []):
+        lo, hi = [], []
+        for x in per:
+            e = x["estimate"].get(p) or {}
+            m, sd = _fnum(e.get("mean")), _fnum(e.get("sd"), 0.0)
+            if math.isfinite(m):
+                sd = sd if math.isfinite(sd) else 0.0
+                lo.append(m - width * sd)
+                hi.append(m + width * sd)
+        if len(lo) >= 2:
+            out[p] = (min(lo), max(hi))
+    return out
+
+
+def _section_experiments(s) -> str:
+    """Per experiment: its own estimate and, when the fit estimated them, its nuisance parameters
+    (Rmax, Req, time origin) and effective samples."""
+    per = [x for x in s.get("per_experiment") or [] if isinstance(x, dict)]
+    has_est = any(isinstance(x.get("estimate"), dict) for x in per)
+    nkeys = []
+    for x in per:
+        for k in (x.get("nuisance") or {}):
+            if k not in nkeys:
+                nkeys.append(k)
+    if not per or not (has_est or nkeys):
+        return ""
+    units = _units(s)
+    params = s.get("parameters", [])
+    eff = (s.get("likelihood") or {}).get("effective_samples") or []
+    heads = ["experiment"]
+    if has_est:
+        for p in params:
+            f, u = _disp(p, units)
+            heads += [f"{esc(p)} mean [{esc(u)}]", f"{esc(p)} sd [{esc(u)}]"]
+    for k in nkeys:
+        lab, _, u = _NUISANCE.get(k, (k, 1.0, ""))
+        heads += [f"{esc(lab)} mean" + (f" [{esc(u)}]" if u else ""), f"{esc(lab)} sd" + (f" [{esc(u)}]" if u else "")]
+    if eff:
+        heads.append("effective samples")
+    rows = []
+    for i, x in enumerate(per):
+        r = [esc(x.get("name", i))]
+        if has_est:
+            for p in params:
+                e = (x.get("estimate") or {}).get(p) or {}
+                f, _ = _disp(p, units)
+                r += [_ncell(_fnum(e.get("mean")) * f, ".4g"), _ncell(_fnum(e.get("sd")) * f, ".3g")]
+        for k in nkeys:
+            e = (x.get("nuisance") or {}).get(k) or {}
+            _, f, _ = _NUISANCE.get(k, (k, 1.0, ""))
+            r += [_ncell(_fnum(e.get("mean")) * f, ".4g"), _ncell(_fnum(e.get("sd")) * f, ".3g")]
+        if eff:
+            r.append(_ncell(eff[i] if i < len(eff) else None, ".3g"))
+        rows.append(r)
+    note = ("Each experiment's own posterior (display units: G in kPa, mu in Pa s)"
+            + ("; Rmax, Req [µm] and the time origin t0 [µs] estimated with the material" if nkeys else "") + ".")
+    return f"<h2 id='experiments'>Experiments</h2><p class='note'>{note}</p>" + table(heads, rows)
+
+
 def _section_contents(run) -> str:
     rd = run["run_dir"]
     s = run["summary"]
     ran_mcmc = "mcmc" in s
+    meth = _method(s)
+    applies = meth is None or meth.gaussian_posterior
     rows = [("summary.json", "<span class='ok'>present</span>", "run summary (dataset, settings, estimate)")]
     rows.append(("posterior.nc", "<span class='ok'>present</span>" if run["posterior"] is not None else
                  "<span class='absent'>absent</span>", "ArviZ posterior of the fit"))
-    if run["mcmc"] is not None:
-        st = "<span class='ok'>present</span>"
-    elif ran_mcmc:
-        st = "<span class='absent'>absent, although summary.json records an MCMC run</span>"
-    else:
-        st = "<span class='absent'>absent</span> (the fit ran without <code>--mcmc</code>)"
-    rows.append(("mcmc.nc", st, "MCMC reference posteriors per window"))
-    if run["compare"] is not None:
-        st = "<span class='ok'>present</span>"
-    elif run["mcmc"] is not None:
-        st = "<span class='absent'>absent</span> (run <code>imrbayes compare RUN_DIR</code>)"
-    else:
-        st = "<span class='absent'>absent</span>"
-    rows.append(("compare.json", st, "ensemble Gaussian vs MCMC, per window"))
+    if applies or run["mcmc"] is not None or run["compare"] is not None:
+        if run["mcmc"] is not None:
+            st = "<span class='ok'>present</span>"
+        elif ran_mcmc:
+            st = "<span class='absent'>absent, although summary.json records an MCMC run</span>"
+        else:
+            st = "not written (the fit ran without <code>--mcmc</code>)"
+        rows.append(("mcmc.nc", st, "MCMC reference posteriors per window"))
+        if run["compare"] is not None:
+            st = "<span class='ok'>present</span>"
+        elif run["mcmc"] is not None:
+            st = "<span class='absent'>absent</span> (run <code>imrbayes compare RUN_DIR</code>)"
+        else:
+            st = "not written"
+        rows.append(("compare.json", st, "ensemble Gaussian vs MCMC, per window"))
     rows.append(("figures/*.png", f"{len(run['figures'])} file(s)" if run["figures"] else
-                 "<span class='absent'>absent</span>", "figures (embedded below)"))
+                 "<span class='absent'>absent</span>", "figures (embedded above)"))
     out = table(["file", "status", "content"], [(f"<code>{esc(a)}</code>", b, esc(c)) for a, b, c in rows])
-    if run["mcmc"] is None and run["compare"] is None:
-        out += ("<p class='absent'>The MCMC comparison is absent: this run directory has no mcmc.nc and no "
-                "compare.json (rerun <code>imrbayes fit ... --method mienks --mcmc</code> to add it).</p>")
     return f"<h2 id='contents'>Run directory</h2><p><code>{esc(rd)}</code></p>{out}"
 
 
@@ -409,10 +796,10 @@ def _section_dataset(s) -> str:
         out += "<p class='absent'>summary.json lists no per-experiment preprocessing results.</p>"
     skipped = pre.get("skipped") or (s.get("failures") or {}).get("skipped_experiments") or []
     if skipped:
-        out += f"<p><b>Experiments left out by preprocessing:</b> {esc(json.dumps(skipped))}</p>"
+        out += f"<p><b>Experiments left out by preprocessing:</b></p>{_plain(skipped)}"
     choices = pre.get("choices") or {}
     if choices:
-        out += f"<h3>Preprocessing</h3><p>{_kv_list(choices)}</p>"
+        out += "<h3 id='preprocessing'>Preprocessing</h3>" + _kv_table(choices)
     return out
 
 
@@ -447,7 +834,7 @@ def _section_config(s) -> str:
     settings = (s.get("details") or {}).get("settings")
     if settings:
         rows.append(("method settings", _kv_list(settings)))
-    out = "<h2 id='config'>Run configuration</h2>" + table(["", ""], rows)
+    out = "<h2 id='config'>Run configuration</h2>" + table(None, rows, cls="kv")
     psi = prior.get("prior_si") or {}
     if psi:
         ls = prior.get("log_space") or {}
@@ -460,32 +847,23 @@ def _section_config(s) -> str:
 
 
 def _section_warnings(s, compare) -> str:
-    warn = []
-    for w in list(s.get("warnings") or []) + list(s.get("warnings_preprocessing") or []) + \
-            list((s.get("preprocessing") or {}).get("warnings") or []):
-        if w not in warn:
-            warn.append(w)
-    for e in (s.get("preprocessing") or {}).get("experiments") or []:
-        for w in (e.get("warnings") or []) if isinstance(e, dict) else []:
-            item = f"{e.get('name')}: {w}"
-            if item not in warn:
-                warn.append(item)
+    warn = _warnings_list(s)
     fail = s.get("failures") or {}
     items = []
     if fail.get("skipped_experiments"):
-        items.append(f"experiments left out (preprocessing failed): {esc(json.dumps(fail['skipped_experiments']))}")
+        items.append(f"experiments left out (preprocessing failed): {_plain(fail['skipped_experiments'])}")
     for u in fail.get("failed_units") or []:
-        items.append(f"failed unit: {esc(json.dumps(u) if not isinstance(u, str) else u)}")
+        items.append(f"failed unit: {_plain_inline(u) if isinstance(u, dict) else esc(u)}")
     ex_failed = (s.get("execution") or {}).get("failed") or []
     for u in ex_failed:
-        t = esc(json.dumps(u) if not isinstance(u, str) else u)
+        t = _plain_inline(u) if isinstance(u, dict) else esc(u)
         if not any(t in i for i in items):
             items.append(f"failed execution unit: {t}")
     for key, lab in (("failed_member_runs", "failed forward runs of ensemble members / grid points"),
                      ("redrawn_members", "ensemble members redrawn")):
         v = fail.get(key)
         if v:
-            items.append(f"{lab}: {esc(v)}")
+            items.append(f"{lab}: {_plain(v)}")
     for f in ((compare or {}).get("overall") or {}).get("failed_windows") or []:
         items.append(f"MCMC failed in window {esc(f.get('window') if isinstance(f, dict) else f)}: "
                      f"{esc(f.get('error', '') if isinstance(f, dict) else '')}")
@@ -504,7 +882,8 @@ def _section_estimate(s) -> str:
         hdi = e.get("hdi95") or [None, None]
         rows.append((esc(p), esc(units.get(p, "?")), _ncell(e.get("mean")), _ncell(e.get("sd"), ".3g"),
                      _ncell(e.get("median")), _ncell(hdi[0]), _ncell(hdi[1])))
-    out = "<h2 id='estimate'>Estimate (SI units)</h2>"
+    out = ("<h2 id='estimate'>Estimate (SI units)</h2><p class='note'>The numbers of summary.json, the one "
+           "source of every estimate in this report (the conclusion shows them in kPa and Pa s).</p>")
     note = _method(s).estimate_note if _method(s) is not None else ""
     if note:
         out += f"<p>{esc(note)}</p>"
@@ -513,7 +892,7 @@ def _section_estimate(s) -> str:
         det = s.get("details") or {}
         why = det.get("uncertainty") or det.get("note")
         out += ("<p class='note'>– : not available from this method"
-                + (f" ({esc(why if isinstance(why, str) else json.dumps(why))})" if why else "") + ".</p>")
+                + (f" ({_plain(why)})" if why else "") + ".</p>")
     fit = s.get("fit") or {}
     if fit:
         out += (f"<p>Fit: RMSE {num(fit.get('rmse'), '.4g')} in R* over {esc(fit.get('n_samples', '–'))} "
@@ -531,18 +910,32 @@ def _section_windows(s) -> str:
     heads = ["window", "t* span [-]", "phase"]
     for p in params:
         heads += [f"{esc(p)} mean [{esc(units.get(p, '?'))}]", f"{esc(p)} sd [{esc(units.get(p, '?'))}]"]
-    heads += ["failed experiments"]
+    has_be = any(isinstance(w.get("between_experiments"), dict) for w in wins)
+    if has_be:
+        heads += [f"{esc(p)} between-bubble sd [{esc(units.get(p, '?'))}]" for p in params]
+    heads += ["posterior / prior width", "failed experiments"]
+    ratios = window_ratios(s)
     rows = []
-    for w in wins:
+    for w, ratio in zip(wins, ratios + [{}] * (len(wins) - len(ratios))):
         r = [esc(w.get("index")), _span(w.get("t_star"), ".4g"), esc(window_phase(w.get("t_star"), tc) or "–")]
         for p in params:
             r += [_ncell((w.get(p) or {}).get("mean")), _ncell((w.get(p) or {}).get("sd"), ".3g")]
+        if has_be:
+            r += [_ncell(((w.get("between_experiments") or {}).get(p) or {}).get("sd"), ".3g") for p in params]
+        if ratio:
+            little = max(ratio.values()) >= SAYS_LITTLE
+            txt = ", ".join(f"{esc(p)} {100 * v:.0f} %" for p, v in ratio.items())
+            r.append((txt + (" (barely moved)" if little else ""), "class='undecided'" if little else ""))
+        else:
+            r.append("–")
         fe = w.get("failed_experiments") or []
         r.append(esc(", ".join(map(str, fe))) if fe else "–")
         rows.append(r)
     n_tr = len(s.get("time_resolved") or [])
     return (f"<h2 id='windows'>Windows ({len(wins)})</h2><p>Per-window posterior (mean, sd; SI units). "
-            f"The time-resolved estimate has {n_tr} points (see the parameters figure).</p>" + table(heads, rows))
+            f"The time-resolved estimate has {n_tr} points (see the parameters figure). Posterior / prior width: "
+            f"the window posterior's sd over the prior's (log coordinates); ≥ {100 * SAYS_LITTLE:.0f} %: the data "
+            "barely moved the prior in that window.</p>" + table(heads, rows))
 
 
 _AZ_COLS = [("mean", ".5g"), ("sd", ".3g"), ("hdi95_lb", ".5g"), ("hdi95_ub", ".5g"), ("ess_bulk", ".0f"),
@@ -562,9 +955,10 @@ def _az_summary(tree, var_names=None):
         return None, f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
 
 
-def _az_table(df, th=None) -> str:
-    cols = [(c, f) for c, f in _AZ_COLS if c in df.columns]
-    cols += [(c, ".4g") for c in df.columns if c not in {k for k, _ in cols}]
+def _az_table(df, th=None, only=None) -> str:
+    cols = [(c, f) for c, f in _AZ_COLS if c in df.columns and (only is None or c in only)]
+    if only is None:
+        cols += [(c, ".4g") for c in df.columns if c not in {k for k, _ in cols}]
     rows = []
     for name, rec in df.iterrows():
         r = [f"<code>{esc(name)}</code>"]
@@ -583,7 +977,7 @@ def _az_table(df, th=None) -> str:
 
 
 def _section_posterior(run) -> str:
-    out = "<h2 id='posterior'>ArviZ summary of posterior.nc</h2>"
+    out = "<h2 id='posterior'>Sampling diagnostics of posterior.nc (ArviZ)</h2>"
     tree = run["posterior"]
     if tree is None:
         return out + "<p class='absent'>posterior.nc is absent from this run directory.</p>"
@@ -594,21 +988,23 @@ def _section_posterior(run) -> str:
     n_chain = post.sizes.get("chain", 1)
     n_draw = post.sizes.get("draw", 0)
     out += (f"<p><code>az.summary(tree, round_to=\"none\", ci_kind=\"hdi\", ci_prob={_CI_PROB})</code>; "
-            f"{n_chain} chain(s) × {n_draw} draws. Numbers are shown rounded; hover a cell for its raw value.")
+            f"{n_chain} chain(s) × {n_draw} draws: the effective sample sizes, R-hat and Monte Carlo errors of the "
+            "draws. Their mean, sd and interval are not repeated here: the estimate is the one of the Estimate and "
+            "Windows tables (summary.json), so that the report gives one number for one quantity. Numbers are "
+            "shown rounded; hover a cell for its raw value.")
     if "window" in post.dims:
         out += " Rows <code>G[j]</code> etc. are window j."
     if n_chain < 2:
         out += (" These are independent draws from the method's posterior approximation (one chain), not a "
                 "Markov chain: r_hat is undefined (–) and ESS and MCSE treat the draws as one sequence.")
-    return out + "</p>" + _az_table(df)
+    return out + "</p>" + _az_table(df, only=("ess_bulk", "ess_tail", "r_hat", "mcse_mean", "mcse_sd"))
 
 
 def _section_mcmc(run) -> str:
     out = "<h2 id='mcmc'>MCMC reference posteriors (mcmc.nc)</h2>"
     tree = run["mcmc"]
     if tree is None:
-        return out + ("<p class='absent'>Absent: this run directory has no mcmc.nc (the fit ran without "
-                      "<code>--mcmc</code>).</p>")
+        return ""           # the conclusion and the MCMC check say why (not run, or not applicable)
     th = _thresholds(run["compare"] or {})
     try:
         settings = json.loads(tree.attrs.get("mcmc_settings_json", "null")) or {}
@@ -658,17 +1054,25 @@ def _section_mcmc(run) -> str:
                     f"{num(diag.get('n_steps_over_tau'), '.3g')} (rule ≥ {rule})"
                     + (f"; mean acceptance {num(sum(acc) / len(acc), '.2f')}" if acc else "") + "</p>")
         df, err = _az_summary(node)
-        out += _az_table(df, th) if df is not None else f"<p class='absent'>ArviZ summary failed: {esc(err)}</p>"
+        if df is None:
+            out += f"<p class='absent'>ArviZ summary failed: {esc(err)}</p>"
+            continue
+        internal = [i for i in df.index if str(i).startswith("log_")]
+        out += _az_table(df.drop(index=internal), th)
+        if internal:
+            out += ("<details><summary>the same in the sampler's internal coordinates (log G, log mu)</summary>"
+                    + _az_table(df.loc[internal], th) + "</details>")
     return out
 
 
 def _section_compare(run) -> str:
-    out = "<h2 id='compare'>Ensemble Gaussian vs MCMC (compare.json)</h2>"
+    out = "<h2 id='compare'>MCMC check: ensemble Gaussian vs emcee (compare.json)</h2>"
     compare = run["compare"]
     if compare is None:
-        why = ("run <code>imrbayes compare RUN_DIR</code> to compute it from mcmc.nc" if run["mcmc"] is not None
-               else "the fit ran without <code>--mcmc</code>")
-        return out + f"<p class='absent'>The MCMC comparison is absent: no compare.json ({why}).</p>"
+        meth = _method(run["summary"])
+        if meth is not None and not meth.gaussian_posterior and run["mcmc"] is None:
+            return ""       # does not apply (pIMR, IMR): the conclusion says so in one line
+        return out + f"<p>{_mcmc_words(run)}</p>"
     th = _thresholds(compare)
     ov = compare.get("overall") or {}
     n_win = ov.get("n_windows", len(compare.get("windows") or []))
@@ -708,34 +1112,51 @@ def _section_compare(run) -> str:
 def _section_flagged(run) -> str:
     out = "<h2 id='flagged'>Flagged windows</h2>"
     if run["compare"] is None:
-        return out + "<p class='absent'>Absent: no compare.json, so no window could be checked against MCMC.</p>"
+        return ""
     lines = flagged_windows(run["compare"], run["summary"])
     if not lines:
         return out + "<p>None: in every sampled window the ensemble Gaussian agrees with its MCMC posterior.</p>"
     return out + "<ul class='flagged'>" + "".join(f"<li>{esc(ln)}</li>" for ln in lines) + "</ul>"
 
 
+#: figure file -> (title, caption); the figures are shown in this order, the rest after them
 _CAPTIONS = {
-    "fit.png": "Measured R*(t*) (dots) and the fitted curve per experiment; samples outside the fit are shaded.",
-    "landscape.png": "Cost landscape over the parameters (grid of the IMR/pIMR method) with the optimum.",
-    "parameters.png": "Time-resolved parameters: per-window posterior means with 95 % bands against t*.",
-    "experiments.png": "Per-experiment posterior mean ± 2 sd and the fused estimate.",
-    "radius.png": "Preprocessed radius records R*(t*).",
-    "mcmc_forest.png": "Per window: ensemble Gaussian (blue) and MCMC (red) median and 95 % interval against the "
-                       "window's t* span; ▼ marks a disagreeing window.",
-    "mcmc_divergence.png": "KL (Gaussian, symmetrised, and sample-based) and W2 per window against t*, with the "
-                           "agreement thresholds, under the measured R*(t*).",
+    "fit.png": ("Fit to the data", "Measured R/Rmax (dots) and the fitted curve per experiment, against t* and "
+                "time [µs]; samples the method did not fit are shaded."),
+    "parameters.png": ("Time-resolved parameters", "G and mu per window (posterior mean, 95 % band) with the "
+                       "prior's 95 % band, against t*, time [µs] and the wall strain rate -2Ṙ/R [1/s]; windows "
+                       "the data barely moved are hatched."),
+    "experiments.png": ("Per-experiment estimates", "Per-experiment posterior mean ± 2 sd and the gel-level "
+                        "(fused) estimate."),
+    "landscape.png": ("Cost landscape", "Cost over (G, mu) (grid of the IMR/pIMR method) with the optimum and "
+                      "the 95 % region."),
+    "radius.png": ("Radius records", "Preprocessed radius records R*(t*)."),
+    "mcmc_forest.png": ("MCMC check per window", "Per window: ensemble Gaussian (blue) and MCMC (red) median and "
+                        "95 % interval against the window's t* span; ▼ marks a disagreeing window."),
+    "mcmc_divergence.png": ("MCMC agreement against time", "KL (Gaussian, symmetrised, and sample-based) and W2 "
+                            "per window against t*, with the agreement thresholds, under the measured R*(t*)."),
 }
 
 
-def _caption(p: Path) -> str:
+def _caption(p: Path, summary=None) -> tuple:
+    """(title, caption) of a figure file."""
     if p.name in _CAPTIONS:
-        return _CAPTIONS[p.name]
+        title, cap = _CAPTIONS[p.name]
+        if p.name == "fit.png" and (summary or {}).get("method") == "pimr":
+            cap = ("Measured R/Rmax (dots) and the curve at the pIMR estimate: pIMR fits the first-collapse time "
+                   "only, so only the collapse time of the curve is fitted, not its shape.")
+        return title, cap
     if p.name.startswith("mcmc_pair_window_"):
-        w = p.stem.rsplit("_", 1)[-1]
-        return (f"Window {esc(w.lstrip('0') or '0')}: MCMC draws in the log parameters with the 1- and 2-sd "
-                "ellipses of the ensemble Gaussian and of the MCMC draws' Gaussian, and both marginals.")
-    return esc(p.stem.replace("_", " "))
+        w = esc(p.stem.rsplit("_", 1)[-1].lstrip("0") or "0")
+        return (f"MCMC posterior, window {w}",
+                f"Window {w}: MCMC draws of G [kPa] and mu [Pa s] (log axes) with the 1- and 2-sd ellipses of the "
+                "ensemble Gaussian and of the MCMC draws' Gaussian, and both marginals.")
+    return p.stem.replace("_", " "), esc(p.stem.replace("_", " "))
+
+
+def _figure_order(p: Path):
+    keys = list(_CAPTIONS)
+    return (keys.index(p.name) if p.name in keys else len(keys), p.name)
 
 
 def _section_figures(run) -> str:
@@ -743,35 +1164,40 @@ def _section_figures(run) -> str:
     if not run["figures"]:
         return out + "<p class='absent'>No figures: figures/*.png is absent.</p>"
     parts, bad = [], []
-    for p in run["figures"]:
+    for p in sorted(run["figures"], key=_figure_order):
         if not is_png(p):
             bad.append(p.name)
             continue
-        parts.append(embed_png(p, caption=f"<code>figures/{esc(p.name)}</code>: {_caption(p)}", title=p.stem))
+        title, cap = _caption(p, run["summary"])
+        parts.append(embed_png(p, caption=f"{cap} <span class='note'>(<code>figures/{esc(p.name)}</code>)</span>",
+                               title=title))
     if bad:
         out += f"<p class='absent'>Not embedded (not a readable PNG file): {esc(', '.join(bad))}</p>"
     return out + "".join(parts)
 
 
 def write_run_report(run_dir, path=None) -> Path:
-    """Write the HTML report of ``run_dir`` to ``path`` (default ``run_dir/report.html``); returns it."""
+    """Write the HTML report of ``run_dir`` to ``path`` (default ``run_dir/report.html``); returns it.
+
+    Order: the conclusion first (what a rheologist reads), then the estimate, experiments, windows
+    and figures, the MCMC check where it applies, and the dataset, warnings, configuration, raw
+    sampling diagnostics and files at the bottom."""
     run = load_run(run_dir)
     s = run["summary"]
     path = Path(path) if path is not None else run["run_dir"] / "report.html"
     title = f"imrbayes report: {s.get('method', '?')} fit ({s.get('model', '?')}) of {s.get('data', '?')}"
-    toc = [("contents", "Run directory"), ("dataset", "Dataset"), ("config", "Run configuration"),
-           ("warnings", "Warnings and failures"), ("estimate", "Estimate")]
-    if s.get("windows"):
-        toc.append(("windows", "Windows"))
-    toc += [("posterior", "ArviZ summary"), ("mcmc", "MCMC"), ("compare", "Comparison"),
-            ("flagged", "Flagged windows"), ("figures", "Figures")]
-    nav = " · ".join(f"<a href='#{a}'>{esc(b)}</a>" for a, b in toc)
+    sections = [("conclusion", "Conclusion", _section_conclusion(run)), ("estimate", "Estimate", _section_estimate(s)),
+                ("experiments", "Experiments", _section_experiments(s)), ("windows", "Windows", _section_windows(s)),
+                ("figures", "Figures", _section_figures(run)), ("compare", "MCMC check", _section_compare(run)),
+                ("flagged", "Flagged windows", _section_flagged(run)), ("mcmc", "MCMC tables", _section_mcmc(run)),
+                ("dataset", "Dataset", _section_dataset(s)),
+                ("warnings", "Warnings and failures", _section_warnings(s, run["compare"])),
+                ("config", "Run configuration", _section_config(s)),
+                ("posterior", "Sampling diagnostics", _section_posterior(run)),
+                ("contents", "Run directory", _section_contents(run))]
+    nav = " · ".join(f"<a href='#{a}'>{esc(b)}</a>" for a, b, html_ in sections if html_)
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    body = "\n".join([
-        f"<h1>{esc(title)}</h1><p class='note'>{nav}</p>",
-        _section_contents(run), _section_dataset(s), _section_config(s), _section_warnings(s, run["compare"]),
-        _section_estimate(s), _section_windows(s), _section_posterior(run), _section_mcmc(run),
-        _section_compare(run), _section_flagged(run), _section_figures(run),
+    body = "\n".join([f"<h1>{esc(title)}</h1><p class='note'>{nav}</p>"] + [h for _, _, h in sections if h] + [
         f"<p class='note'>Written {now} by imrbayes {esc(__version__)} (<code>imrbayes report</code>).</p>"])
     try:
         write_page(path, title, body)

@@ -20,9 +20,41 @@ from imrbayes.errors import InputError
 _CONFIG_ITEMS = "imrbayes.config_items"
 
 
+def _format_lists(formatter, which) -> None:
+    """``--help``'s lists of what a name may be: the constitutive models (with their parameters and
+    units) and the inference methods, read from the registries when the help is shown."""
+    if "models" in which:
+        rows = []
+        try:
+            from imrbayes.forward.constitutive.base import available_models, get_model
+
+            for name in available_models():
+                try:
+                    m = get_model(name)
+                    rows.append((name, ", ".join(f"{p.name} [{p.unit}]" for p in m.parameters) or "no parameters"))
+                except Exception:  # a model that cannot be loaded is still listed
+                    rows.append((name, ""))
+        except Exception:  # pragma: no cover - the forward layer is always there
+            rows = []
+        if rows:
+            with formatter.section("Constitutive models (--model)"):
+                formatter.write_dl(rows)
+    if "methods" in which:
+        from imrbayes.ensemble import METHODS
+
+        with formatter.section("Inference methods (--method)"):
+            formatter.write_dl([(m.name, m.label + ("; --mcmc checks its Gaussian posterior"
+                                                    if m.gaussian_posterior else "")) for m in METHODS.values()])
+
+
 class _Command(click.Command):
     """A command whose ``KEY=VALUE`` options start from the --config sub-table's items: the command
-    line's items come after them, so they win key by key (as ``fit`` merges ``[fit.forward]``)."""
+    line's items come after them, so they win key by key (as ``fit`` merges ``[fit.forward]``).
+    ``help_lists`` (``("models", "methods")``) appends those lists to ``--help``."""
+
+    def __init__(self, *args, help_lists=(), **kwargs):
+        super().__init__(*args, **kwargs)
+        self.help_lists = tuple(help_lists)
 
     def parse_args(self, ctx, args):
         rest = super().parse_args(ctx, args)
@@ -30,9 +62,23 @@ class _Command(click.Command):
             ctx.params[name] = (*items, *(ctx.params.get(name) or ()))
         return rest
 
+    def format_epilog(self, ctx, formatter):
+        super().format_epilog(ctx, formatter)
+        if self.help_lists:
+            _format_lists(formatter, self.help_lists)
+
 
 class _Group(click.Group):
     command_class = _Command
+
+    def format_epilog(self, ctx, formatter):
+        super().format_epilog(ctx, formatter)
+        _format_lists(formatter, ("models", "methods"))
+        with formatter.section("Runtimes"):
+            formatter.write_text("inspect, simulate, report, compare: seconds. fit: seconds (pimr) to minutes "
+                                 "(imr, en4dvar, mienks); fit --mcmc: minutes per window with "
+                                 "--forward bubble=polytropic, hours with the thermal bubble. diagnose: about "
+                                 "15 min for 5 experiments (--quick: a few). validate --suite quick: minutes.")
 
     def invoke(self, ctx):
         try:

@@ -18,6 +18,7 @@ labels come from the registry :data:`imrbayes.ensemble.METHODS`.
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from pathlib import Path
 
@@ -30,8 +31,29 @@ from imrbayes.cli.options import (check_options, compare_line, data_fingerprint,
                                   prepare_out, prior_overrides)
 from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
+from imrbayes.execution.progress import finish, plan
 
 METHOD_NAMES = tuple(METHODS)
+
+
+def planned_units(meth, settings, n_exp: int, n_steps: int) -> tuple:
+    """(units the fit will run, what they are in words) for the progress bar's total, so that it counts
+    the whole run from the start (``mienks: 18 windows x 5 experiments``); ``(None, "")`` when not
+    known (the bar then grows batch by batch). A method may declare ``n_units(settings, n_exp,
+    n_steps)`` itself; for the built-in ones the count follows their units (docs/scaling.md)."""
+    own = getattr(meth, "n_units", None)
+    if callable(own):
+        return int(own(settings, n_exp, n_steps)), ""
+    if meth.name == "mienks":
+        from imrbayes.ensemble.windows import n_windows
+
+        nw = n_windows(n_steps, settings.L, settings.h)
+        return nw * n_exp, f"{nw} windows x {n_exp} experiments"
+    if meth.name == "en4dvar":      # each experiment's cycles, then its fitted curves (fast)
+        return 2 * n_exp, f"{n_exp} experiments, then their fitted curves"
+    if meth.name == "imr":
+        return n_exp, f"grid over {n_exp} experiments"
+    return None, ""
 
 
 #: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
@@ -59,11 +81,11 @@ def _load_config(path) -> dict:
     return cfg
 
 
-@main.command("fit")
+@main.command("fit", help_lists=("models", "methods"))
 @click.argument("data", type=click.Path(path_type=Path))
 @click.option("--method", type=click.Choice(METHOD_NAMES), default=None,
-              help="Inference method: " + "; ".join(f"{m.name}: {m.label}" for m in METHODS.values()) + ".")
-@click.option("--model", default=None, help="Constitutive model [default: nhkv].")
+              help="Inference method (list below; or 'method' in --config).  [required]")
+@click.option("--model", default=None, help="Constitutive model (list below).  [default: nhkv]")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Output folder (default: a new folder under ./imrbayes-runs/).")
 @click.option("--seed", type=int, default=None, help="Seed of every random draw [default: 0].")
@@ -89,15 +111,20 @@ def _load_config(path) -> dict:
 @click.option("--dt-star", type=float, default=None, help="Grid step in t* [-] [default: 0.025].")
 @click.option("--n-steps", type=int, default=None, help="Grid steps [-] [default: 120].")
 @click.option("--noise", type=click.Choice(["auto", "sample", "pooled", "paper"]), default=None,
-              help="P_k: across-experiment sample variance (auto with >= 2 experiments), the same pooled over 11 "
-                   "neighbouring steps (better weights with few experiments), or the §5 noise model.")
+              help="Observation noise P_k of --likelihood paper: sample: the across-experiment sample variance; "
+                   "pooled: the same pooled over 11 neighbouring steps (better weights with few experiments); "
+                   "paper: the paper's verification noise model; auto: sample with >= 2 experiments, else paper. "
+                   "The default likelihood uses each record's own noise.  [default: auto]")
 @click.option("--likelihood", type=click.Choice(["default", "paper"]), default=None,
               help="default: each sample once, each record's own noise, Rmax/Req/time of the maximum as "
                    "nuisances, residual correlation tempered, a between-bubble layer; paper: the paper's averaged "
-                   "cost, across-experiment P_k and prior-corrected fusion (en4dvar, mienks) [default: default].")
+                   "cost, across-experiment P_k and prior-corrected fusion (en4dvar, mienks).  [default: default]")
 @click.option("--mcmc", is_flag=True, default=None,
               help="Also sample every window's posterior with emcee and compare it with the ensemble's Gaussian "
-                   "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures.")
+                   "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures. Slow: "
+                   "256,000 likelihood evaluations per window with the defaults: minutes per window with "
+                   "--forward bubble=polytropic, hours with the thermal bubble (fewer with --mcmc-windows or "
+                   "--mcmc-set n_steps=...).")
 @click.option("--mcmc-set", "mcmc_settings", multiple=True, metavar="KEY=VALUE",
               help="emcee setting: n_walkers, n_steps, n_chains (independent ensembles), burn, thin, max_draws, "
                    "init_scale, tau_rule, lockstep, loglik [default: 32 walkers x 2000 steps x 4 ensembles]; "
@@ -111,7 +138,10 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     """Fit a constitutive model to DATA (dataset folder, .csv or .mat) with one inference method.
 
     Writes summary.json (estimate: SI units, G [Pa], mu [Pa s]; times as t*), posterior.nc (ArviZ)
-    and figures/*.png.
+    and figures/*.png; 'imrbayes report OUT' turns them into one HTML page.
+
+    Runtime: seconds (pimr) to minutes (imr, en4dvar, mienks; the thermal bubble is the slow part,
+    --forward bubble=polytropic the fast one); --mcmc adds minutes to hours (see --mcmc).
     """
     t_start = time.perf_counter()
     cfg = _load_config(config)
@@ -192,8 +222,13 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     runner = Runner(fm)
     compare = None
     with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
-                        retry_failed=retry_failed, quiet=quiet) as execution:
+                        retry_failed=retry_failed, quiet=quiet, desc=method) as execution:
+        n_units, what = planned_units(meth, s, obs.n_exp, obs.n_samples - 1)
+        if what and execution.bar is not None:
+            execution.bar.write(f"imrbayes: {method}: {n_units} units ({what})", file=sys.stderr)
+        plan(execution.bar, n_units, method)
         res = meth.fit(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
+        finish(execution.bar)
         if mcmc:
             # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
             _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
@@ -201,6 +236,9 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
             if not quiet:
                 click.echo(f"{method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
             from imrbayes.mcmc.fit import run_fit_mcmc
+            n_win = len(getattr(res, "window_posteriors", None) or []) or 1
+            n_win = n_win if mcmc_windows is None else len([w for w in mcmc_windows if w < n_win]) or 1
+            plan(execution.bar, n_win, "emcee windows")
             compare = run_fit_mcmc(fm, obs, space, res, out, mcmc_s, seed, execution=execution, runner=runner,
                                    windows=mcmc_windows)
         exec_summary = execution.summary()
@@ -267,6 +305,11 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     write_summary(out / "summary.json", summary)
     posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
     fdir = out / "figures"
+    # the figures' µs and strain-rate axes: each experiment's time scale t_c [s] (t = t* t_c)
+    tcs = {e.get("name"): e.get("tc_s") for e in pre.to_dict(arrays=False).get("experiments", [])
+           if isinstance(e, dict)}
+    if all(tcs.get(n) for n in obs.names):
+        res.time_scale_s = [float(tcs[n]) for n in obs.names]
     written = [figs.fit_figure(obs, res, fdir / "fit.png")] + list(METHODS[method].figures(obs, res, fdir))
     if compare is not None:
         written += list(compare.get("figures", []))

@@ -104,9 +104,11 @@ def check_options(workers, scheduler, resume, retry_failed) -> tuple:
 
 @contextlib.contextmanager
 def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=False, retry_failed=False,
-                   quiet: bool = False):
+                   quiet: bool = False, desc: str = "run"):
     """RunStore under ``out`` for ``config`` + the executor ``--workers/--scheduler`` ask for, as an
-    :class:`imrbayes.execution.Execution`. Bad options and refused resumes raise InputError."""
+    :class:`imrbayes.execution.Execution` with, on a terminal and unless ``quiet``, one progress bar
+    (``desc``) over every batch; the command plans its total
+    (:func:`imrbayes.execution.progress.plan`). Bad options and refused resumes raise InputError."""
     from imrbayes.execution import Execution
     from imrbayes.execution import RunStore, make_executor
     from imrbayes.io import jsonable
@@ -117,9 +119,9 @@ def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=Fa
             RunStore.open(out, jsonable(config), resume=resume) as store:
         bar = None
         if not quiet and _isatty(sys.stderr):
-            from tqdm.auto import tqdm
+            from imrbayes.execution.progress import progress_bar
 
-            bar = tqdm(total=0, unit="unit", file=sys.stderr, dynamic_ncols=True)
+            bar = progress_bar(total=None, desc=desc, unit="units", file=sys.stderr)
         try:
             yield Execution(store=store, executor=ex, retry_failed=retry_failed, progress=False, bar=bar)
         finally:

@@ -14,8 +14,9 @@ from imrbayes.cli.options import force_option, key_values, prepare_out
 from imrbayes.errors import InputError
 
 
-@main.command("simulate", short_help="Write a synthetic dataset from the forward model (with truth.json).")
-@click.option("--model", required=True, help="Constitutive model (e.g. nhkv); see the error for the list.")
+@main.command("simulate", short_help="Write a synthetic dataset from the forward model (with truth.json).",
+              help_lists=("models",))
+@click.option("--model", required=True, help="Constitutive model (list below), e.g. nhkv.")
 @click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
               help="Material parameter in SI units (G [Pa], mu [Pa s], ...); repeat for each parameter.")
 @click.option("--rmax", default="263e-6", show_default=True,

@@ -121,10 +121,12 @@ def _progress_bar(progress, total: int, initial: int, desc: str | None):
     show = progress if isinstance(progress, bool) else (progress is None and _isatty(sys.stderr))
     if not show:
         return None
-    from tqdm.auto import tqdm
+    from imrbayes.execution.progress import progress_bar
 
-    return tqdm(total=total, initial=initial, desc=desc or "units", unit="unit", file=sys.stderr,
-                dynamic_ncols=True, leave=True)
+    bar = progress_bar(total=total, desc=desc or "units", unit="units", file=sys.stderr)
+    if initial:
+        bar.update(initial)
+    return bar
 
 
 def _isatty(stream) -> bool:

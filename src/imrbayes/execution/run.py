@@ -18,7 +18,10 @@ class Execution:
     store: :class:`~imrbayes.execution.RunStore` or None; executor: an
     :class:`~imrbayes.execution.Executor` or None (in-process); retry_failed: rerun units that failed
     in a stored run; progress: as :func:`~imrbayes.execution.run_units` (None: a bar per batch on a
-    terminal); bar: a tqdm bar that every batch advances instead (``progress`` is then ignored).
+    terminal); bar: a tqdm bar (:func:`imrbayes.execution.progress.progress_bar`) that every batch
+    advances instead (``progress`` is then ignored): its total is the whole run's units when the
+    command planned it (:func:`imrbayes.execution.progress.plan`), raised only when a batch goes
+    beyond the plan; the batch being run shows after the bar.
     """
 
     store: Any = None
@@ -35,8 +38,9 @@ class Execution:
         progress = self.progress
         if self.bar is not None:     # one bar over every batch (MIEnKS: a batch per window)
             bar, last = self.bar, [None]
-            bar.total = (bar.total or 0) + len(units)
-            bar.set_description(desc, refresh=False)
+            if not bar.total or bar.n + len(units) > bar.total:   # no plan, or the plan was short
+                bar.total = bar.n + len(units)
+            bar.set_postfix_str(desc, refresh=False)
 
             def progress(done, total):
                 bar.update(1 if last[0] is None else done - last[0])

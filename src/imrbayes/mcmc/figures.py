@@ -4,8 +4,8 @@
   (median and 95 % interval, SI units) against the window's time span;
 * :func:`divergence_figure` -- KL (Gaussian, symmetrised, and sample-based) and W2 per window
   against t*, with the agreement thresholds, under the measured R*(t*);
-* :func:`pair_figure` -- one window: MCMC draws in the log parameters with the ensemble Gaussian's
-  and the MCMC Gaussian's 1- and 2-sd ellipses, and both marginals.
+* :func:`pair_figure` -- one window: MCMC draws in kPa and Pa s (log axes) with the ensemble
+  Gaussian's and the MCMC Gaussian's 1- and 2-sd ellipses, and both marginals.
 
 Inputs are ``compare.json`` window entries (:func:`imrbayes.mcmc.compare.compare_window`) and, for
 the MCMC quantiles and draws, the ``mcmc.nc`` tree (:func:`imrbayes.mcmc.windows.mcmc_tree`) or a
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from imrbayes.plotting import figure, label, save, scale
+from imrbayes.plotting import figure, label, plain_log_axis, save, scale
 
 __all__ = ["forest_figure", "divergence_figure", "pair_figure", "comparison_figures"]
 
@@ -77,6 +77,7 @@ def forest_figure(entries, path, tree=None, prob: float = 0.95):
         ax.set_ylabel(lab)
         if log:
             ax.set_yscale("log")
+            plain_log_axis(ax, "y")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8, title=f"median, {int(prob * 100)}% interval ($\\blacktriangledown$: disagree)",
                    title_fontsize=7)
@@ -132,18 +133,20 @@ def divergence_figure(entries, path, t_star=None, R_star=None):
     return save(fig, path)
 
 
-def _ellipse(ax, m, S, k, **kw):
-    lam, V = np.linalg.eigh(0.5 * (S + S.T))
-    a = np.linspace(0, 2 * np.pi, 120)
-    pts = m[:, None] + V @ (np.sqrt(np.maximum(lam, 0))[:, None] * k * np.vstack([np.cos(a), np.sin(a)]))
-    ax.plot(pts[0], pts[1], **kw)
-
-
 def pair_figure(entry, node, path, max_points: int = 3000):
-    """One window: MCMC draws of the internal parameters (dots) with the 1- and 2-sd ellipses of the
-    ensemble Gaussian (blue) and of the MCMC draws' Gaussian (red, dashed); marginals on the diagonal."""
+    """One window: MCMC draws in physical units (G [kPa], mu [Pa s]; log axes for the log-normal
+    parameters, which the sampler works in) with the 1- and 2-sd ellipses of the ensemble Gaussian
+    (blue) and of the MCMC draws' Gaussian (red, dashed); marginals on the diagonal."""
     names = entry["internal"]
+    params = entry.get("parameters") or names
     d = len(names)
+    logs = [iv != pv for iv, pv in zip(names, params)]
+    scs = [scale(pv) for pv in params]
+
+    def phys(k, v):            # internal coordinate k -> display unit
+        v = np.asarray(v, dtype=float)
+        return (np.exp(v) if logs[k] else v) * scs[k]
+
     x = np.stack([_mcmc_draws(node, v) for v in names], axis=1)
     if x.shape[0] > max_points:
         x = x[np.linspace(0, x.shape[0] - 1, max_points).round().astype(int)]
@@ -151,7 +154,7 @@ def pair_figure(entry, node, path, max_points: int = 3000):
     SE = np.asarray(entry["ensemble"]["cov_internal"], float)
     mM = np.array([entry["mcmc"]["mean_internal"][v] for v in names])
     SM = np.asarray(entry["mcmc"]["cov_internal"], float)
-    fig = figure(2.6 * d + 0.6, 2.6 * d + 0.4)
+    fig = figure(2.7 * d + 0.6, 2.7 * d + 0.5)
     axes = fig.subplots(d, d, squeeze=False)
     for i in range(d):
         for j in range(d):
@@ -160,20 +163,32 @@ def pair_figure(entry, node, path, max_points: int = 3000):
                 ax.set_visible(False)
                 continue
             if i == j:
-                ax.hist(x[:, i], bins=40, density=True, color=_MC, alpha=0.35)
-                g = np.linspace(x[:, i].min(), x[:, i].max(), 200)
-                ax.plot(g, stats.norm.pdf(g, mE[i], math.sqrt(SE[i, i])), color=_ENS, lw=1.5)
-                ax.plot(g, stats.norm.pdf(g, mM[i], math.sqrt(SM[i, i])), color=_MC, lw=1, ls="--")
+                dens, edges = np.histogram(x[:, i], bins=40, density=True)
+                ax.stairs(dens, phys(i, edges), fill=True, color=_MC, alpha=0.35)
+                g = np.linspace(min(x[:, i].min(), mE[i] - 3 * math.sqrt(SE[i, i])),
+                                max(x[:, i].max(), mE[i] + 3 * math.sqrt(SE[i, i])), 200)
+                ax.plot(phys(i, g), stats.norm.pdf(g, mE[i], math.sqrt(SE[i, i])), color=_ENS, lw=1.5)
+                ax.plot(phys(i, g), stats.norm.pdf(g, mM[i], math.sqrt(SM[i, i])), color=_MC, lw=1, ls="--")
                 ax.set_yticks([])
+                if logs[i]:
+                    ax.set_xscale("log")
+                    plain_log_axis(ax, "x")
             else:
-                ax.plot(x[:, j], x[:, i], ".", ms=1.2, color=_MC, alpha=0.25, rasterized=True)
+                ax.plot(phys(j, x[:, j]), phys(i, x[:, i]), ".", ms=1.2, color=_MC, alpha=0.25, rasterized=True)
                 for k in (1, 2):
-                    _ellipse(ax, mE[[j, i]], SE[np.ix_([j, i], [j, i])], k, color=_ENS, lw=1.4)
-                    _ellipse(ax, mM[[j, i]], SM[np.ix_([j, i], [j, i])], k, color=_MC, lw=1, ls="--")
+                    for m_, S_, kw in ((mE, SE, {"color": _ENS, "lw": 1.4}), (mM, SM, {"color": _MC, "lw": 1, "ls": "--"})):
+                        pts = _ellipse_points(m_[[j, i]], S_[np.ix_([j, i], [j, i])], k)
+                        ax.plot(phys(j, pts[0]), phys(i, pts[1]), **kw)
+                if logs[j]:
+                    ax.set_xscale("log")
+                    plain_log_axis(ax, "x")
+                if logs[i]:
+                    ax.set_yscale("log")
+                    plain_log_axis(ax, "y")
             if i == d - 1:
-                ax.set_xlabel(names[j])
+                ax.set_xlabel(label(params[j]))
             if j == 0 and i > 0:
-                ax.set_ylabel(names[i])
+                ax.set_ylabel(label(params[i]))
             ax.grid(alpha=0.25)
     ts = entry.get("t_star")
     span = f", t* {ts[0]:.3g}-{ts[1]:.3g}" if ts else ""
@@ -182,6 +197,12 @@ def pair_figure(entry, node, path, max_points: int = 3000):
                  f"{entry['kl_sample']:.2g}, W2 {entry['w2']:.2g} sd)\nblue: ensemble Gaussian; red: MCMC",
                  fontsize=8)
     return save(fig, path)
+
+
+def _ellipse_points(m, S, k):
+    lam, V = np.linalg.eigh(0.5 * (S + S.T))
+    a = np.linspace(0, 2 * np.pi, 120)
+    return m[:, None] + V @ (np.sqrt(np.maximum(lam, 0))[:, None] * k * np.vstack([np.cos(a), np.sin(a)]))
 
 
 def comparison_figures(compare: dict, out_dir, tree=None, t_star=None, R_star=None, pairs="worst") -> list:
