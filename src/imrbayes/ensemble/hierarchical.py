@@ -128,6 +128,24 @@ def _conditional(Lam, m, T, m0, C0i):
     return mu, cov, ll
 
 
+def _crossing(f, a: float, b: float) -> float:
+    """Where f changes sign between a and b: brentq on the bracket, or (when the inner end is not
+    quite inside the interval: the optimiser's tau_hat is approximate) the first sign change on a
+    scan from a to b; a when there is none."""
+    from scipy import optimize
+
+    fa, fb = f(a), f(b)
+    if fa * fb < 0:
+        return float(optimize.brentq(f, a, b, xtol=1e-4))
+    pts = np.concatenate([[a], np.geomspace(max(a, 1e-4), b, 40)])
+    vals = np.array([f(x) for x in pts])
+    change = np.flatnonzero(np.sign(vals[:-1]) != np.sign(vals[1:]))
+    if change.size == 0:
+        return float(a)
+    j = int(change[0])
+    return float(optimize.brentq(f, pts[j], pts[j + 1], xtol=1e-4))
+
+
 def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None) -> RandomEffects:
     """Gel-level mean, between-bubble sd and predictive from per-experiment likelihoods (module doc).
 
@@ -182,14 +200,15 @@ def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None) -> Rando
         # the interval's ends: where the profile drops 3.84/2 below its maximum, each side of tau_hat
         def excess(t, i=i):
             return 2.0 * (ll_hat - profile(i, t)) - _CHI2_95
-        lo_end = 0.0 if excess(0.0) <= 0 else optimize.brentq(excess, 0.0, max(tau[i], 1e-6), xtol=1e-4)
+        inner = max(tau[i], 1e-6)
+        lo_end = 0.0 if excess(0.0) <= 0 else _crossing(excess, 0.0, inner)
         if excess(_TAU_MAX) <= 0:
             hi_end = _TAU_MAX
             label = names[i] if names is not None else f"parameter {i}"
             notes.append(f"{label}: the data do not bound the between-bubble sd from above (too few bubbles "
                          f"or too little information per bubble)")
         else:
-            hi_end = optimize.brentq(excess, max(tau[i], 1e-6), _TAU_MAX, xtol=1e-4)
+            hi_end = _crossing(excess, inner, _TAU_MAX)
         ci[i] = [lo_end, hi_end]
     pred = sym(cov + np.diag(tau ** 2))
     return RandomEffects(mu, cov, tau, ci, pred, mu0, cov0, float(ll_hat - ll0), N, notes)
