@@ -1,4 +1,4 @@
-"""MIEnKS-MDA: sliding-window ensemble smoother with state hand-off (methods.md §4).
+"""MIEnKS-MDA: sliding-window ensemble smoother with state hand-off (methods.md §4, §7).
 
 Windows of L samples shifted by h (:mod:`imrbayes.ensemble.windows`). For every experiment an
 ensemble of N_En augmented members [state q (forward-model state vector), z (internal
@@ -8,17 +8,10 @@ parameters: log G, log mu)] is carried through the windows:
    maximum radius, parameters drawn from the prior);
 2. ensemble-space Gauss–Newton (:mod:`imrbayes.ensemble.gn`, N_iter iterations, transform variant)
    on the augmented members, the forward model run from t*_{s_j} over the window's L samples, cost
-   1/(2L) sum_k beta_jk ||y_k - <Y_k> - Y'_k w||^2_{P_k} + 1/2 w^T w with the MDA coefficients
-   beta_jk = 1/|I(k)| (every sample's weights over the windows sum to one);
-3. the experiments' parameter posteriors (the z-block of each augmented posterior) are fused
-   -> N(mu_j, Sigma_j). Default (``fusion="chain"``, :func:`imrbayes.ensemble.gaussian.fuse_likelihoods`): the product rule with
-   the window's prior, i.e. every experiment's window likelihood (its posterior divided by its own
-   window prior) times the fused chain's prior. ``fusion="prior"`` applies methods.md §3's rule
-   with the original prior N(m0, S0) in every window. The two agree without RTPS; with RTPS each
-   experiment's posterior has partly forgotten the original prior, and dividing it out N_exp - 1
-   times extrapolates away from the data: on the §5 verification case (5 experiments, paper noise)
-   ``prior`` drove G to ~0.2 kPa and mu to ~0.002 Pa s in the late windows, ``chain`` stays at
-   the truth;
+   1/2 sum_k c_nk (y_k - <Y_k> - Y'_k w)^2 + 1/2 w^T w with the observation weights c_nk of the
+   likelihood (below);
+3. the experiments' parameter posteriors (the z-block of each augmented posterior) are combined
+   (below) -> the window's estimate N(mu_j, Sigma_j);
 4. RTPS (factor a) on the parameter spread (``rtps_state`` also relaxes the state spread);
 5. **hand-off**: the posterior ensemble is propagated from t*_{s_j} to t*_{s_j + h}; its full
    evolved state (R, Rdot, p_b, stress and thermal/vapour fields) and its parameters form window
@@ -30,13 +23,68 @@ parameters: log G, log mu)] is carried through the windows:
    If fewer than a quarter of an experiment's members survive, its analysis is rejected for that
    window: the window's prior ensemble is handed on instead (reported in ``analysis_rejected``).
 
-Time-resolved estimate: normalised precision weighting of the windows holding each sample;
-aggregate estimate: the same over all windows with equal weights. ``FitResult.window_posteriors``
-records every window's fused Gaussian with the density it approximates (what ``--mcmc`` samples):
-the window's parameter prior (``chain``: the previous window's fused posterior after RTPS;
-``prior``: the original prior), the observation weights beta_jk / L (beta_jk with
-``obs_weight="mda"``) and each experiment's mean handed-off state entering the window.
-The fitted curve is the
+The window combination never feeds back into the experiments' ensembles (each carries its own
+parameters), so it is computed after the sweep over the windows.
+
+Likelihood ``default`` (methods.md §7)
+--------------------------------------
+* **Each sample counts once** (§7.1): c_nk = beta_jk alpha_n / sigma_n^2 with the MDA coefficients
+  beta_jk = 1/|I(k)| (the weights of sample k over the windows holding it sum to one; no 1/L).
+  Sample 0 (the maximum, R* = 1 by construction) has weight 0, as in En4D-Var.
+* **Noise estimated** (§7.2): sigma_n is experiment n's own noise sd
+  (:func:`imrbayes.ensemble.likelihood.record_noise_sd`). A *pilot pass* (the whole sweep with
+  sigma_n and alpha_n = 1; units ``pass=pilot/...``) gives a fitted curve; its residual sets
+  sigma_n^2 = max(record noise^2, mean squared residual) (model error counts as noise, never as
+  information) and the tempering alpha_n = n_eff / K, n_eff from the residual's integrated
+  autocorrelation time (:func:`imrbayes.ensemble.likelihood.effective_samples`), so each
+  *independent* observation counts once. The reported pass uses these (``adapt=False``: no pilot,
+  the record noise and alpha = 1). One noise level and one tempering per experiment over the whole
+  record (a window of 35 correlated samples is too short to estimate an autocorrelation time);
+  the pilot doubles the cost.
+* **Time of the maximum** (§7.3): inferred, not fixed. Window 0's members carry an offset delta
+  (t*) of the maximum, drawn from N(0, s_t^2) with s_t the preprocessing standard error
+  (``Observations.nuisance_sd[:, 1]``) and analysed with the parameters: member m's R* at data time
+  t is R*(|t - delta_m|) (before its maximum, the mirror image; as En4D-Var), and it is handed off
+  with its state at data time t_h (its own time t_h - delta_m), so every later window starts on the
+  data's clock and the timing error lives on in the handed-off state, which later analyses update.
+  Inferring it in the ensemble rather than integrating it out to first order: an offset of a frame
+  near the collapse is far outside a linear model, and window 0 is the only place where the offset
+  is a separate quantity (afterwards it is part of the state). Its window-0 posterior is reported
+  as ``per_experiment[].nuisance.t0_s``. **Rmax and Req are not inferred** (they would need each
+  member's own time scale, i.e. its own clock, in every window): they stay at the preprocessing
+  estimates, and ``nuisance`` says so (posterior = prior).
+* **Across bubbles** (§7.4), in every window: each experiment's window likelihood (its posterior
+  divided by the prior its window started from,
+  :func:`imrbayes.ensemble.hierarchical.likelihood_terms`) enters the random-effects layer
+  (:func:`imrbayes.ensemble.hierarchical.random_effects`) with the gel mean's prior chained from
+  the previous window (its gel-level posterior after RTPS; window 0: the parameter prior). The
+  window's estimate is the gel-level mean; every window entry carries ``between_experiments`` and
+  ``predictive``. For the whole record, each experiment's window likelihoods are summed (each
+  sample counted once, constant parameters) and the same layer gives the top-level
+  ``between_experiments``; ``predictive`` is the aggregate estimate widened by that scatter;
+  ``per_experiment[].estimate`` is the prior times that experiment's summed likelihood.
+* ``FitResult.window_posteriors`` (what ``--mcmc`` samples): the window's density with no
+  between-bubble scatter (the pooled, product-rule Gaussian ``pooled_mean_internal``): the chained
+  prior and ``whiten`` W_n = diag(sqrt(beta_jk alpha_n / sigma_n^2)), each experiment started from
+  its mean handed-off state; in window 0 the density fixes the time of the maximum at the
+  preprocessing estimate (the ensemble's z-marginal integrates it: a difference of the same kind as
+  En4D-Var's).
+
+Likelihood ``paper`` (the paper's settings, reproduced exactly)
+----------------------------------------------------------------
+Cost 1/(2L) sum_k beta_jk ||y_k - <Y_k> - Y'_k w||^2_{P_k} (``obs_weight="mean"``; ``mda``: no
+1/L) with P_k the preprocessing's noise variance, the window fusion ``fusion="chain"``
+(:func:`imrbayes.ensemble.gaussian.fuse_likelihoods`): the product rule with the window's prior,
+i.e. every experiment's window likelihood (its posterior divided by its own window prior) times
+the fused chain's prior. ``fusion="prior"`` applies methods.md §3's rule with the original prior
+N(m0, S0) in every window. The two agree without RTPS; with RTPS each experiment's posterior has
+partly forgotten the original prior, and dividing it out N_exp - 1 times extrapolates away from the
+data: on the §5 verification case (5 experiments, paper noise) ``prior`` drove G to ~0.2 kPa and
+mu to ~0.002 Pa s in the late windows, ``chain`` stays at the truth. Its window posteriors record
+the weights beta_jk / L (beta_jk with ``mda``) and the chained (``chain``) or original prior.
+
+Time-resolved estimate: normalised precision weighting of the windows' estimates holding each
+sample; aggregate estimate: the same over all windows with equal weights. The fitted curve is the
 ensemble-mean R* of the handed-off posterior ensembles (samples s_j .. s_j + h - 1 of every window,
 the whole last window).
 """
