@@ -748,7 +748,8 @@ class MIEnKS(InferenceMethod):
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         s = settings        # per window: the Gauss-Newton iterations and the hand-off, every member
-        return n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
+        passes = 2 if (s.likelihood == "default" and s.adapt) else 1     # the default likelihood's pilot
+        return passes * n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
 
     @staticmethod
     def figures(obs, res, fdir):
