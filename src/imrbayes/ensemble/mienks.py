@@ -91,6 +91,7 @@ the whole last window).
 
 from __future__ import annotations
 
+import hashlib
 import time
 import warnings as _warnings
 from dataclasses import asdict, dataclass
@@ -352,11 +353,12 @@ def mienks_unit(unit: Unit, rng) -> dict:
     return out
 
 
-def _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, pass_tag, progress, nw):
+def _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, tag, progress, nw):
     """Run every window's units in order (one per alive experiment, :func:`mienks_unit`) and collect
     their results; ``weight_for(j, g, a, b)`` gives experiment g's observation weights in window j.
     The fusion does not feed back into the ensembles, so it is done afterwards
-    (:func:`fit_mienks`). Returns a dict of per-window lists."""
+    (:func:`fit_mienks`). ``tag``: leading parts of the unit ids (e.g. ``{"pass": "pilot"}``).
+    Returns a dict of per-window lists."""
     G = obs.n_exp
     t = obs.t_star
     alive = list(range(G))
@@ -376,14 +378,14 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, pass_tag, progress,
                 q[g] = np.asarray(handoff[g], dtype=np.float64)[:, :ns].mean(axis=0)
             out["start_means"].append(q)
         a2 = b if last else a + s.h
-        tag = {} if pass_tag is None else {"pass": pass_tag}
         units = [Unit(unit_id(**tag, window=j, exp=g),
                       {"spec": base["spec"], "runner": base["runner"], "space": base["space"], "settings": s, "t": t,
                        "a": int(a), "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
                        "req": float(obs.req_m[g]), "y": obs.R_star[g, a:b + 1], "weight": weight_for(j, g, a, b),
                        "E": handoff[g], **({"t0_sd": float(t0_sd[g])} if j == 0 and t0_sd is not None else {})})
                  for g in alive]
-        desc = f"mienks window {j + 1}/{nw}" + ("" if pass_tag is None else f" ({pass_tag})")
+        label = "".join(f" ({v})" for v in tag.values())
+        desc = f"mienks window {j + 1}/{nw}{label}"
         rep = ex.run(units, mienks_unit, seed, desc=desc)
         ok, lost = [], []
         for g in alive:
@@ -394,7 +396,7 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, pass_tag, progress,
                 err = rep.failures[uid].error
                 lost.append(obs.names[g])
                 failed_units.append({"unit": uid, "experiment": obs.names[g], "window": j, "error": err, **tag})
-                warn.append(f"window {j}{'' if pass_tag is None else ' (' + pass_tag + ')'}: experiment "
+                warn.append(f"window {j}{label}: experiment "
                             f"{obs.names[g]!r} failed ({err}); left out from this window on")
         if not ok:
             raise RuntimeError(f"window {j}: every experiment failed (e.g. {failed_units[-1]['error']})")
@@ -457,8 +459,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     """Run MIEnKS-MDA over every window (see module doc); ``progress(j)`` after window j (of each pass).
 
     Units (:func:`mienks_unit`): one per window and experiment (``window=004/exp=003``, its own
-    random stream; the default likelihood's pilot pass: ``pass=pilot/window=004/exp=003``), windows
-    in order, the experiments of a window independent; each unit's result holds the experiment's
+    random stream; the default likelihood's pilot pass: ``pass=pilot/window=004/exp=003``, and its
+    reported pass ``noise=<digest of the noise model>/window=004/exp=003``), windows in order, the experiments of a window independent; each unit's result holds the experiment's
     hand-off ensemble. ``execution`` (:class:`~imrbayes.execution.Execution`) says where they run and
     are checkpointed (default: this process, with ``runner``). An experiment whose unit fails is left
     out of this and every later window of that pass (counted, reported in ``details["failed_units"]``
@@ -493,7 +495,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             # noise level and tempering for the pass that is reported (module doc)
             def w_pilot(j, g, a, b):
                 return beta[j, a:b + 1] / noise_var[g]
-            pil = _sweep(ex, base, obs, s, spans, seed, w_pilot, t0_sd, "pilot", progress, nw)
+            pil = _sweep(ex, base, obs, s, spans, seed, w_pilot, t0_sd, {"pass": "pilot"}, progress, nw)
             for w in pil["warnings"]:
                 warnings.extend(w)
             pilot_failed = pil["failed_units"]
@@ -505,13 +507,18 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
 
         def weight_for(j, g, a, b):
             return beta[j, a:b + 1] * alpha[g] / var[g]
-        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, None, progress, nw)
+        # the reported pass's units depend on the pilot's outcome: their ids carry a digest of the
+        # noise model, so a resume after the pilot changed (e.g. --retry-failed) recomputes them
+        tag = {}
+        if s.adapt:
+            tag = {"noise": hashlib.sha1(np.concatenate([var, alpha]).astype("<f8").tobytes()).hexdigest()[:8]}
+        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, tag, progress, nw)
     else:
         pilot_failed = []
 
         def weight_for(j, g, a, b):
             return beta[j, a:b + 1] / ((s.L if s.obs_weight == "mean" else 1.0) * obs.P[a:b + 1])
-        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, None, None, progress, nw)
+        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, None, {}, progress, nw)
     ns = sw["state_size"]
     alive = sw["alive"]
     failed_units = pilot_failed + sw["failed_units"]
