@@ -156,5 +156,6 @@ def test_default_on_synthetic_records_with_known_truth():
         t0 = nu["t0_s"]
         assert t0["sd"] < t0["prior_sd"]
         assert abs(t0["offset_star"] - offsets[n]) < max(3 * t0["offset_sd_star"], 0.005), (n, t0)
-        assert p["estimate"]["G"]["mean"] == pytest.approx(TRUTH["G"], rel=0.2)
+        # the experiment's own estimate (prior x its window likelihoods over the record): G within 3 sd
+        assert abs(p["estimate"]["G"]["mean"] - TRUTH["G"]) < 3 * p["estimate"]["G"]["sd"], p["estimate"]["G"]
         assert p["estimate"]["mu"]["mean"] == pytest.approx(TRUTH["mu"], rel=0.05)
