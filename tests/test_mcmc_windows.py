@@ -25,7 +25,10 @@ def fitted():
     fm, o = observations(n_exp=2, n_steps=40, noise=0.01, seed=2)
     obs = Observations(o.t_star, o.R_star, o.P, o.rmax_m, o.req_m)
     space = ParamSpace.for_model(fm.constitutive)
-    res = fit_mienks(fm, obs, space, MIEnKSSettings(n_ens=12, n_iter=3, L=15, h=5, n_draws=5), seed=0)
+    # the paper's density (weights beta_jk / L, P_k): these tests are about its recorded priors,
+    # weights and start states; the default likelihood's windows carry ``whiten`` instead
+    res = fit_mienks(fm, obs, space, MIEnKSSettings(n_ens=12, n_iter=3, L=15, h=5, n_draws=5, likelihood="paper"),
+                     seed=0)
     return fm, obs, space, res
 
 
@@ -79,7 +82,7 @@ def test_recorded_priors_with_prior_fusion_and_mda_weights(fitted):
     """fusion="prior": the parameter prior in every window; obs_weight="mda": weights beta_jk."""
     fm, obs, space, _ = fitted
     res = fit_mienks(fm, obs, space, MIEnKSSettings(n_ens=12, n_iter=3, L=15, h=5, n_draws=5, fusion="prior",
-                                                    obs_weight="mda"), seed=0)
+                                                    obs_weight="mda", likelihood="paper"), seed=0)
     specs = fit_window_specs(fm, obs, space, res, windows=[0, 2])
     priors = rederived_priors(res.windows, space.prior_mean, space.prior_cov, 0.7, "prior")
     for sp in specs:

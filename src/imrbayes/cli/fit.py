@@ -98,7 +98,8 @@ def _load_config(path) -> dict:
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Method setting (en4dvar: n_ens, n_iter, n_runs, rtps, t_end [t*], fusion=likelihood|prior, "
                    "obs_weight=mean|sum; "
-                   "mienks: L, h [samples], n_ens, n_iter, rtps, obs_weight=mean|mda, fusion=chain|prior; imr: n_G, "
+                   "mienks: L, h [samples], n_ens, n_iter, rtps, likelihood=default|paper, adapt (default likelihood: "
+                   "pilot pass), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
                    "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
                    "repeatable.")
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",

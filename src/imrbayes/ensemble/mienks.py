@@ -1,4 +1,4 @@
-"""MIEnKS-MDA: sliding-window ensemble smoother with state hand-off (methods.md §4).
+"""MIEnKS-MDA: sliding-window ensemble smoother with state hand-off (methods.md §4, §7).
 
 Windows of L samples shifted by h (:mod:`imrbayes.ensemble.windows`). For every experiment an
 ensemble of N_En augmented members [state q (forward-model state vector), z (internal
@@ -8,17 +8,10 @@ parameters: log G, log mu)] is carried through the windows:
    maximum radius, parameters drawn from the prior);
 2. ensemble-space Gauss–Newton (:mod:`imrbayes.ensemble.gn`, N_iter iterations, transform variant)
    on the augmented members, the forward model run from t*_{s_j} over the window's L samples, cost
-   1/(2L) sum_k beta_jk ||y_k - <Y_k> - Y'_k w||^2_{P_k} + 1/2 w^T w with the MDA coefficients
-   beta_jk = 1/|I(k)| (every sample's weights over the windows sum to one);
-3. the experiments' parameter posteriors (the z-block of each augmented posterior) are fused
-   -> N(mu_j, Sigma_j). Default (``fusion="chain"``, :func:`imrbayes.ensemble.gaussian.fuse_likelihoods`): the product rule with
-   the window's prior, i.e. every experiment's window likelihood (its posterior divided by its own
-   window prior) times the fused chain's prior. ``fusion="prior"`` applies methods.md §3's rule
-   with the original prior N(m0, S0) in every window. The two agree without RTPS; with RTPS each
-   experiment's posterior has partly forgotten the original prior, and dividing it out N_exp - 1
-   times extrapolates away from the data: on the §5 verification case (5 experiments, paper noise)
-   ``prior`` drove G to ~0.2 kPa and mu to ~0.002 Pa s in the late windows, ``chain`` stays at
-   the truth;
+   1/2 sum_k c_nk (y_k - <Y_k> - Y'_k w)^2 + 1/2 w^T w with the observation weights c_nk of the
+   likelihood (below);
+3. the experiments' parameter posteriors (the z-block of each augmented posterior) are combined
+   (below) -> the window's estimate N(mu_j, Sigma_j);
 4. RTPS (factor a) on the parameter spread (``rtps_state`` also relaxes the state spread);
 5. **hand-off**: the posterior ensemble is propagated from t*_{s_j} to t*_{s_j + h}; its full
    evolved state (R, Rdot, p_b, stress and thermal/vapour fields) and its parameters form window
@@ -30,27 +23,86 @@ parameters: log G, log mu)] is carried through the windows:
    If fewer than a quarter of an experiment's members survive, its analysis is rejected for that
    window: the window's prior ensemble is handed on instead (reported in ``analysis_rejected``).
 
-Time-resolved estimate: normalised precision weighting of the windows holding each sample;
-aggregate estimate: the same over all windows with equal weights. ``FitResult.window_posteriors``
-records every window's fused Gaussian with the density it approximates (what ``--mcmc`` samples):
-the window's parameter prior (``chain``: the previous window's fused posterior after RTPS;
-``prior``: the original prior), the observation weights beta_jk / L (beta_jk with
-``obs_weight="mda"``) and each experiment's mean handed-off state entering the window.
-The fitted curve is the
+The window combination never feeds back into the experiments' ensembles (each carries its own
+parameters), so it is computed after the sweep over the windows.
+
+Likelihood ``default`` (methods.md §7)
+--------------------------------------
+* **Each sample counts once** (§7.1): c_nk = beta_jk alpha_n / sigma_n^2 with the MDA coefficients
+  beta_jk = 1/|I(k)| (the weights of sample k over the windows holding it sum to one; no 1/L).
+  Sample 0 (the maximum, R* = 1 by construction) has weight 0, as in En4D-Var.
+* **Noise estimated** (§7.2): sigma_n is experiment n's own noise sd
+  (:func:`imrbayes.ensemble.likelihood.record_noise_sd`). A *pilot pass* (the whole sweep with
+  sigma_n and alpha_n = 1; units ``pass=pilot/...``) gives a fitted curve; its residual sets
+  sigma_n^2 = max(record noise^2, mean squared residual) (model error counts as noise, never as
+  information) and the tempering alpha_n = n_eff / K, n_eff from the residual's integrated
+  autocorrelation time (:func:`imrbayes.ensemble.likelihood.effective_samples`), so each
+  *independent* observation counts once. The reported pass uses these (``adapt=False``: no pilot,
+  the record noise and alpha = 1). One noise level and one tempering per experiment over the whole
+  record (a window of 35 correlated samples is too short to estimate an autocorrelation time);
+  the pilot doubles the cost.
+* **Time of the maximum** (§7.3): inferred, not fixed. Window 0's members carry an offset delta
+  (t*) of the maximum, drawn from N(0, s_t^2) with s_t the preprocessing standard error
+  (``Observations.nuisance_sd[:, 1]``) and analysed with the parameters: member m's R* at data time
+  t is R*(|t - delta_m|) (before its maximum, the mirror image; as En4D-Var), and it is handed off
+  with its state at data time t_h (its own time t_h - delta_m), so every later window starts on the
+  data's clock and the timing error lives on in the handed-off state, which later analyses update.
+  Inferring it in the ensemble rather than integrating it out to first order: an offset of a frame
+  near the collapse is far outside a linear model, and window 0 is the only place where the offset
+  is a separate quantity (afterwards it is part of the state). Its window-0 posterior is reported
+  as ``per_experiment[].nuisance.t0_s``. **Rmax and Req are not inferred** (they would need each
+  member's own time scale, i.e. its own clock, in every window): they stay at the preprocessing
+  estimates, and ``nuisance`` says so (posterior = prior).
+* **Across bubbles** (§7.4), in every window: each experiment's window likelihood (its posterior
+  divided by the prior its window started from,
+  :func:`imrbayes.ensemble.hierarchical.likelihood_terms`) enters the random-effects layer
+  (:func:`imrbayes.ensemble.hierarchical.random_effects`) with the gel mean's prior chained from
+  the previous window (its gel-level posterior after RTPS; window 0: the parameter prior). The
+  window's estimate is the gel-level mean; every window entry carries ``between_experiments`` and
+  ``predictive``. For the whole record, each experiment's window likelihoods are summed (each
+  sample counted once, constant parameters) and the same layer gives the top-level
+  ``between_experiments``; ``predictive`` is the aggregate estimate widened by that scatter;
+  ``per_experiment[].estimate`` is the prior times that experiment's summed likelihood.
+* ``FitResult.window_posteriors`` (what ``--mcmc`` samples): the window's density with no
+  between-bubble scatter (the pooled, product-rule Gaussian ``pooled_mean_internal``): the chained
+  prior and ``whiten`` W_n = diag(sqrt(beta_jk alpha_n / sigma_n^2)), each experiment started from
+  its mean handed-off state; in window 0 the density fixes the time of the maximum at the
+  preprocessing estimate (the ensemble's z-marginal integrates it: a difference of the same kind as
+  En4D-Var's).
+
+Likelihood ``paper`` (the paper's settings, reproduced exactly)
+----------------------------------------------------------------
+Cost 1/(2L) sum_k beta_jk ||y_k - <Y_k> - Y'_k w||^2_{P_k} (``obs_weight="mean"``; ``mda``: no
+1/L) with P_k the preprocessing's noise variance, the window fusion ``fusion="chain"``
+(:func:`imrbayes.ensemble.gaussian.fuse_likelihoods`): the product rule with the window's prior,
+i.e. every experiment's window likelihood (its posterior divided by its own window prior) times
+the fused chain's prior. ``fusion="prior"`` applies methods.md §3's rule with the original prior
+N(m0, S0) in every window. The two agree without RTPS; with RTPS each experiment's posterior has
+partly forgotten the original prior, and dividing it out N_exp - 1 times extrapolates away from the
+data: on the §5 verification case (5 experiments, paper noise) ``prior`` drove G to ~0.2 kPa and
+mu to ~0.002 Pa s in the late windows, ``chain`` stays at the truth. Its window posteriors record
+the weights beta_jk / L (beta_jk with ``mda``) and the chained (``chain``) or original prior.
+
+Time-resolved estimate: normalised precision weighting of the windows' estimates holding each
+sample; aggregate estimate: the same over all windows with equal weights. The fitted curve is the
 ensemble-mean R* of the handed-off posterior ensembles (samples s_j .. s_j + h - 1 of every window,
 the whole last window).
 """
 
 from __future__ import annotations
 
+import hashlib
 import time
 import warnings as _warnings
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, precision_weighted, rtps_factors
+from imrbayes.ensemble.gaussian import (Fusion, draw, fuse, fuse_likelihoods, marginal_summary, precision_weighted,
+                                        rtps_factors)
 from imrbayes.ensemble.gn import gauss_newton
+from imrbayes.ensemble.hierarchical import likelihood_terms, random_effects
+from imrbayes.ensemble.likelihood import LIKELIHOODS, effective_samples, record_noise_sd, simulate_shifted
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
 from imrbayes.ensemble.windows import mda_weights, n_windows, time_resolved, window_spans
@@ -63,13 +115,21 @@ __all__ = ["MIEnKS", "MIEnKSSettings", "fit_mienks", "mienks_unit", "rtps_cov"]
 
 @dataclass
 class MIEnKSSettings:
-    """MIEnKS-MDA settings (paper values by default): members, Gauss–Newton iterations, window
-    length L and shift h [samples], RTPS factor, whether RTPS also acts on the state, redraw
-    rounds for failed members, draws per window written to posterior.nc, transform variant, and
-    the window fusion: ``chain`` (default, :func:`imrbayes.ensemble.gaussian.fuse_likelihoods`) or ``prior`` (methods.md's rule with
-    the original prior, :func:`imrbayes.ensemble.gaussian.fuse`). ``log_pressure``: the analysis updates
-    log p_b rather than p_b (positive by construction; near a collapse the members' p_b spans orders
-    of magnitude and a linear update made most of them negative -- docs/ensemble-methods.md)."""
+    """MIEnKS-MDA settings: members, Gauss–Newton iterations, window length L and shift h
+    [samples], RTPS factor, whether RTPS also acts on the state, redraw rounds for failed members,
+    draws per window written to posterior.nc, transform variant; ``log_pressure``: the analysis
+    updates log p_b rather than p_b (positive by construction; near a collapse the members' p_b
+    spans orders of magnitude and a linear update made most of them negative --
+    docs/ensemble-methods.md).
+
+    ``likelihood``: ``default`` (methods.md §7, module doc) or ``paper`` (the paper's settings:
+    P_k, the 1/L average, and the fusion below). ``fusion`` and ``obs_weight`` apply to ``paper``
+    only (its defaults ``chain`` and ``mean``): the window fusion ``chain``
+    (:func:`imrbayes.ensemble.gaussian.fuse_likelihoods`) or ``prior`` (methods.md's rule with the
+    original prior, :func:`imrbayes.ensemble.gaussian.fuse`), the observation weight
+    ``beta_jk / L`` (``mean``) or ``beta_jk`` (``mda``). ``adapt`` (default likelihood): a pilot pass
+    sets each record's noise level and tempering from its residual (False: the record's noise, no
+    tempering, one pass)."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -80,11 +140,27 @@ class MIEnKSSettings:
     max_redraw: int = 5
     n_draws: int = 500
     transform: bool = True
-    fusion: str = "chain"
-    obs_weight: str = "mean"
+    fusion: str | None = None
+    obs_weight: str | None = None
     log_pressure: bool = True
+    likelihood: str = "default"
+    adapt: bool = True
+
+    def resolved(self) -> "MIEnKSSettings":
+        """The settings with the likelihood's own choices filled in (``paper``: ``chain`` fusion and
+        the ``mean`` weight unless set)."""
+        from dataclasses import replace
+        if self.likelihood == "paper":
+            return replace(self, fusion=self.fusion or "chain", obs_weight=self.obs_weight or "mean")
+        return self
 
     def check(self, n_steps: int):
+        if self.likelihood not in LIKELIHOODS:
+            raise InputError("likelihood", f"must be one of {', '.join(LIKELIHOODS)}, got {self.likelihood!r}")
+        if self.likelihood == "default" and (self.fusion or self.obs_weight):
+            raise InputError("fusion/obs_weight", "apply to --likelihood paper only (the default likelihood counts "
+                                                  "each sample once and fuses through a between-bubble layer)")
+        s = self.resolved()
         if self.n_ens < 3:
             raise InputError("n_ens", f"needs at least 3 members, got {self.n_ens}")
         if self.n_iter < 1:
@@ -93,10 +169,10 @@ class MIEnKSSettings:
             raise InputError("rtps", f"the RTPS factor must lie in [0, 1], got {self.rtps}")
         if self.n_draws < 1:
             raise InputError("n_draws", f"needs at least one posterior draw per window, got {self.n_draws}")
-        if self.fusion not in ("chain", "prior"):
-            raise InputError("fusion", f"must be 'chain' or 'prior', got {self.fusion!r}")
-        if self.obs_weight not in ("mean", "mda"):
-            raise InputError("obs_weight", f"must be 'mean' or 'mda', got {self.obs_weight!r}")
+        if s.likelihood == "paper" and s.fusion not in ("chain", "prior"):
+            raise InputError("fusion", f"must be 'chain' or 'prior', got {s.fusion!r}")
+        if s.likelihood == "paper" and s.obs_weight not in ("mean", "mda"):
+            raise InputError("obs_weight", f"must be 'mean' or 'mda', got {s.obs_weight!r}")
         if self.h > self.L:
             raise InputError("h", f"the shift h = {self.h} exceeds the window length L = {self.L}: samples would be skipped")
         n_windows(n_steps, self.L, self.h)
@@ -128,22 +204,30 @@ def mienks_unit(unit: Unit, rng) -> dict:
     """One window of one experiment (methods.md §4, steps 2, 4, 5): Gauss–Newton analysis of the
     augmented ensemble, RTPS, hand-off to the next window (failed members redrawn; the analysis is
     rejected, and the window prior handed on, when too few members survive). Window 0 starts from
-    the state at the maximum radius with parameters drawn from the prior."""
+    the state at the maximum radius with parameters drawn from the prior; with ``t0_sd`` > 0
+    (default likelihood) its members also carry the time of the maximum (an offset in t*, drawn
+    from N(0, t0_sd^2) and analysed with the parameters; module doc), which is dropped after the
+    hand-off."""
     d = unit.data
     space, s = d["space"], d["settings"]
     runner = runner_for(d)
     before = (runner.n_member_runs, runner.n_failed)
     t, a, b, a2, last = d["t"], int(d["a"]), int(d["b"]), int(d["a2"]), bool(d["last"])
     rmax, req, N, dp = float(d["rmax"]), float(d["req"]), int(s.n_ens), space.n
+    t0_sd = float(d.get("t0_sd", 0.0) or 0.0)
     E = d["E"]
+    n_aug = 0                                       # extra columns after the parameters (window 0: the offset)
     if E is None:
         st0 = runner.fm.initial_state(np.full(N, rmax), np.full(N, req))
         ns = st0.y.shape[1]
-        E = np.empty((N, ns + dp))
+        n_aug = 1 if t0_sd > 0 else 0
+        E = np.empty((N, ns + dp + n_aug))
         E[:, :ns] = st0.y
-        E[:, ns:] = draw(rng, space.prior_mean, space.prior_cov, N)
+        E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov, N)
+        if n_aug:
+            E[:, ns + dp] = t0_sd * rng.standard_normal(N)
     E = np.array(E, dtype=np.float64)
-    ns = E.shape[1] - dp
+    ns = E.shape[1] - dp - n_aug
     t_eval = t[a:b + 1]
     # The analysis sees log p_b instead of p_b (``log_pressure``): near a collapse the members' p_b
     # spans orders of magnitude, and a linear update of p_b itself drives most of them negative.
@@ -178,14 +262,53 @@ def mienks_unit(unit: Unit, rng) -> dict:
         if ok.any():
             m = int(ok.sum())
             st = BatchState(Z[ok, :ns].copy(), t0, np.full(m, rmax), np.full(m, req))
-            out = runner.propagate(st, space.to_si(Z[ok, ns:]), t1, t_ev)
+            out = runner.propagate(st, space.to_si(Z[ok, ns:ns + dp]), t1, t_ev)
             R[ok], Y[ok] = out.R_star, out.end.y
             failed[ok] = out.failed | ~np.all(np.isfinite(out.R_star), axis=1) | ~np.all(np.isfinite(out.end.y), axis=1)
         return R, Y, failed
 
-    def evaluate(groups, Z):
-        R, _, failed = propagate(np.asarray(Z, dtype=np.float64), t[a], t[b], t_eval)
-        return R, failed
+    def propagate_offset(Z, t_ev, t_hand=None):
+        """Window 0 with the time of the maximum augmented: member m's maximum is at t* = Z[m, -1]
+        on the data's clock (every member starts from the same maximum state, so the state block
+        carries no spread). R* at ``t_ev`` (samples before a member's maximum from the mirror image,
+        :func:`imrbayes.ensemble.likelihood.simulate_shifted`), and with ``t_hand`` each member's
+        state at data time t_hand (its own time t_hand - offset; one short run per member)."""
+        Z = from_analysis(Z)
+        M = Z.shape[0]
+        ok = np.all(np.isfinite(Z[:, ns:]), axis=1)
+        R = np.full((M, len(t_ev)), np.nan)
+        Y = Z[:, :ns].copy()
+        failed = ~ok
+        if ok.any():
+            idx = np.flatnonzero(ok)
+            th = space.to_si(Z[idx, ns:ns + dp])
+            Rk, fk = simulate_shifted(runner, th, np.full(idx.size, rmax), np.full(idx.size, req), t_ev,
+                                      Z[idx, ns + dp])
+            R[idx] = Rk
+            failed[idx] = fk
+            if t_hand is not None:
+                st0 = runner.fm.initial_state(np.full(1, rmax), np.full(1, req))
+                for i, m in enumerate(idx):
+                    T = max(float(t_hand) - float(Z[m, ns + dp]), 0.0)
+                    out = runner.propagate(st0, th[i:i + 1], T, np.array([T]))
+                    Y[m] = out.end.y[0]
+                    failed[m] |= bool(out.failed[0]) or not np.all(np.isfinite(out.end.y[0]))
+        return R, Y, failed
+
+    if n_aug:
+        def evaluate(groups, Z):
+            R, _, failed = propagate_offset(np.asarray(Z, dtype=np.float64), t_eval)
+            return R, failed
+
+        def handoff(Z):
+            return propagate_offset(Z, t[a:a2 + 1], t[a2])
+    else:
+        def evaluate(groups, Z):
+            R, _, failed = propagate(np.asarray(Z, dtype=np.float64), t[a], t[b], t_eval)
+            return R, failed
+
+        def handoff(Z):
+            return propagate(Z, t[a], t[a2], t[a:a2 + 1])
 
     res = gauss_newton(E[None], evaluate, d["y"][None], d["weight"][None], n_iter=s.n_iter, rng=rng,
                        max_redraw=s.max_redraw, transform=s.transform)
@@ -196,14 +319,14 @@ def mienks_unit(unit: Unit, rng) -> dict:
     problems = runner.fm.state_problems(from_analysis(Ea)[:, :ns])     # analysed states that are not physical
     n_invalid = int(np.any(np.stack(list(problems.values())), axis=0).sum())
     invalid_why = {k: int(v.sum()) for k, v in problems.items() if v.any()}
-    Rseg, Ynew, failed = propagate(Ea, t[a], t[a2], t[a:a2 + 1])
+    Rseg, Ynew, failed = handoff(Ea)
     n_failed_analysed = int(failed.sum())
     rejected = False
     if (~failed).sum() < max(2, N // 4):
         # too few analysed members survived the hand-off: hand on the window's prior ensemble
         # instead (analysis rejected for this window, reported), propagated the same way
         Ep = res.prior_ensemble[0]
-        Rseg, Ynew, failed = propagate(Ep, t[a], t[a2], t[a:a2 + 1])
+        Rseg, Ynew, failed = handoff(Ep)
         if (~failed).sum() < 2:
             raise RuntimeError(f"fewer than two ensemble members survived window t* {t[a]:.3g}-{t[b]:.3g}, "
                                f"with and without the analysis")
@@ -211,32 +334,142 @@ def mienks_unit(unit: Unit, rng) -> dict:
         rejected = True
     with np.errstate(invalid="ignore"):
         seg = np.nanmean(np.where(failed[:, None], np.nan, Rseg), axis=0)
-    E_next = to_analysis(np.concatenate([Ynew, Ea[:, ns:]], axis=1))
+    E_next = to_analysis(np.concatenate([Ynew, Ea[:, ns:ns + dp]], axis=1))   # the offset is not handed on
     n_fail = int(failed.sum())
     n_red = _redraw_failed(E_next[None], failed[None], rng) if (n_fail and not last) else 0
     E_next = from_analysis(E_next)                  # handed on as physical states
-    qa = res.prior_anoms[0, :, ns:]
-    return {"E": None if last else E_next, "seg": seg, "pm": res.mean[0, ns:], "pc": res.cov[0, ns:, ns:],
-            "qm": res.prior_ensemble[0, :, ns:].mean(axis=0), "qc": qa.T @ qa,
-            "n_failed_iter": res.n_failed[0], "n_redrawn_prior": int(res.n_redrawn[0]), "n_failed_handoff": n_fail,
-            "n_redrawn_handoff": int(n_red), "stopped": bool(res.stopped[0]), "rejected": rejected,
-            "n_invalid_analysed": n_invalid, "n_failed_analysed": n_failed_analysed, "invalid_why": invalid_why,
-            "cost": res.cost[0], "state_size": int(ns), **runner.counts_since(before)}
+    P = slice(ns, ns + dp)
+    qa = res.prior_anoms[0, :, P]
+    out = {"E": None if last else E_next, "seg": seg, "pm": res.mean[0, P], "pc": res.cov[0, P, P],
+           "qm": res.prior_ensemble[0, :, P].mean(axis=0), "qc": qa.T @ qa,
+           "n_failed_iter": res.n_failed[0], "n_redrawn_prior": int(res.n_redrawn[0]), "n_failed_handoff": n_fail,
+           "n_redrawn_handoff": int(n_red), "stopped": bool(res.stopped[0]), "rejected": rejected,
+           "n_invalid_analysed": n_invalid, "n_failed_analysed": n_failed_analysed, "invalid_why": invalid_why,
+           "cost": res.cost[0], "state_size": int(ns), **runner.counts_since(before)}
+    if n_aug:
+        k = ns + dp
+        out["offset"] = {"mean": float(res.mean[0, k]), "sd": float(np.sqrt(max(res.cov[0, k, k], 0.0))),
+                         "prior_sd": t0_sd, "rejected": rejected}
+    return out
+
+
+def _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, tag, progress, nw):
+    """Run every window's units in order (one per alive experiment, :func:`mienks_unit`) and collect
+    their results; ``weight_for(j, g, a, b)`` gives experiment g's observation weights in window j.
+    The fusion does not feed back into the ensembles, so it is done afterwards
+    (:func:`fit_mienks`). ``tag``: leading parts of the unit ids (e.g. ``{"pass": "pilot"}``).
+    Returns a dict of per-window lists."""
+    G = obs.n_exp
+    t = obs.t_star
+    alive = list(range(G))
+    handoff = {g: None for g in range(G)}             # each experiment's ensemble entering the next window
+    failed_units = []
+    ns = None
+    out = {"results": [], "ok": [], "lost": [], "start_means": [], "warnings": [], "failed_units": failed_units,
+           "alive": alive}
+    for j, (a, b) in enumerate(spans):
+        last = j == nw - 1
+        warn = []
+        if j == 0:
+            out["start_means"].append(np.array(base["fm"].initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64))
+        else:
+            q = np.full((G, ns), np.nan)
+            for g in alive:
+                q[g] = np.asarray(handoff[g], dtype=np.float64)[:, :ns].mean(axis=0)
+            out["start_means"].append(q)
+        a2 = b if last else a + s.h
+        units = [Unit(unit_id(**tag, window=j, exp=g),
+                      {"spec": base["spec"], "runner": base["runner"], "space": base["space"], "settings": s, "t": t,
+                       "a": int(a), "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
+                       "req": float(obs.req_m[g]), "y": obs.R_star[g, a:b + 1], "weight": weight_for(j, g, a, b),
+                       "E": handoff[g], **({"t0_sd": float(t0_sd[g])} if j == 0 and t0_sd is not None else {})})
+                 for g in alive]
+        label = "".join(f" ({v})" for v in tag.values())
+        desc = f"mienks window {j + 1}/{nw}{label}"
+        rep = ex.run(units, mienks_unit, seed, desc=desc)
+        ok, lost = [], []
+        for g in alive:
+            uid = unit_id(**tag, window=j, exp=g)
+            if uid in rep.results:
+                ok.append(g)
+            else:
+                err = rep.failures[uid].error
+                lost.append(obs.names[g])
+                failed_units.append({"unit": uid, "experiment": obs.names[g], "window": j, "error": err, **tag})
+                warn.append(f"window {j}{label}: experiment "
+                            f"{obs.names[g]!r} failed ({err}); left out from this window on")
+        if not ok:
+            raise RuntimeError(f"window {j}: every experiment failed (e.g. {failed_units[-1]['error']})")
+        alive[:] = ok
+        R = [rep.results[unit_id(**tag, window=j, exp=g)] for g in ok]
+        ns = int(R[0]["state_size"])
+        for g, r in zip(ok, R):
+            handoff[g] = r["E"]
+        out["results"].append(R)
+        out["ok"].append(list(ok))
+        out["lost"].append(lost)
+        out["warnings"].append(warn)
+        if progress is not None:
+            progress(j + 1)
+    out["state_size"] = ns
+    return out
+
+
+def _fitted(obs, spans, sw, nw, h):
+    """The fitted curve of a sweep: each window's hand-off segment (samples a .. a+h-1, the whole last window)."""
+    fitted = np.full(obs.R_star.shape, np.nan)
+    for j, (a, b) in enumerate(spans):
+        stop = b + 1 if j == nw - 1 else a + h
+        for g, r in zip(sw["ok"][j], sw["results"][j]):
+            fitted[g, a:stop] = r["seg"][:stop - a]
+    return fitted
+
+
+def _noise_model(obs, fitted, noise_var):
+    """Per experiment, from a pilot's fitted curve: the noise variance used (the record's own,
+    raised to the residual's mean square where the model does not reach it), the tempering
+    alpha = n_eff / K with n_eff from the residual's integrated autocorrelation time, and what was
+    found ({noise_sd, sd_used, alpha, effective_samples, autocorrelation_time, n_samples, resid_rms})."""
+    var, alpha, info = [], [], []
+    for g in range(obs.n_exp):
+        r = (obs.R_star[g] - fitted[g])[1:]
+        r = r[np.isfinite(r)]
+        nv = float(noise_var[g])
+        if r.size < 8:
+            var.append(nv)
+            alpha.append(1.0)
+            info.append({"noise_sd": float(np.sqrt(nv)), "sd_used": float(np.sqrt(nv)), "alpha": 1.0,
+                         "effective_samples": None, "autocorrelation_time": None, "n_samples": int(r.size),
+                         "resid_rms": None, "note": "too few fitted samples in the pilot: record noise, no tempering"})
+            continue
+        rms = float(np.sqrt(np.mean(r * r)))
+        v = max(nv, rms * rms)
+        n_eff, tau = effective_samples(r)
+        al = min(1.0, n_eff / r.size)
+        var.append(v)
+        alpha.append(al)
+        info.append({"noise_sd": float(np.sqrt(nv)), "sd_used": float(np.sqrt(v)), "alpha": al,
+                     "effective_samples": float(n_eff), "autocorrelation_time": float(tau), "n_samples": int(r.size),
+                     "resid_rms": rms})
+    return np.array(var), np.array(alpha), info
 
 
 def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int = 0,
                runner: Runner | None = None, progress=None, execution=None) -> FitResult:
-    """Run MIEnKS-MDA over every window (see module doc); ``progress(j)`` after window j.
+    """Run MIEnKS-MDA over every window (see module doc); ``progress(j)`` after window j (of each pass).
 
     Units (:func:`mienks_unit`): one per window and experiment (``window=004/exp=003``, its own
-    random stream), windows in order, the experiments of a window independent; each unit's result
-    holds the experiment's hand-off ensemble. ``execution`` (:class:`~imrbayes.execution.Execution`)
-    says where they run and are checkpointed (default: this process, with ``runner``). An
-    experiment whose unit fails is left out of this and every later window (counted, reported in
-    ``details["failed_units"]`` and the warnings)."""
+    random stream; the default likelihood's pilot pass: ``pass=pilot/window=004/exp=003``, and its
+    reported pass ``noise=<digest of the noise model>/window=004/exp=003``), windows in order, the experiments of a window independent; each unit's result holds the experiment's
+    hand-off ensemble. ``execution`` (:class:`~imrbayes.execution.Execution`) says where they run and
+    are checkpointed (default: this process, with ``runner``). An experiment whose unit fails is left
+    out of this and every later window of that pass (counted, reported in ``details["failed_units"]``
+    and the warnings)."""
     s = settings or MIEnKSSettings()
     n_steps = obs.n_samples - 1
     s.check(n_steps)
+    s = s.resolved()
+    default = s.likelihood == "default"
     t0c = time.perf_counter()
     ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
@@ -246,74 +479,121 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     beta = mda_weights(n_steps, s.L, s.h)
     nw = spans.shape[0]
     G = obs.n_exp
-    ns = None
     t = obs.t_star
-    fitted = np.full(obs.R_star.shape, np.nan)
+    base = {"spec": spec, "runner": token, "space": space, "fm": fm}
+    warnings = []
+    lik_info = None
+    if default:
+        beta = beta.copy()
+        beta[:, 0] = 0.0                 # sample 0 is R* = 1 by construction (the maximum): no information
+        noise_var = np.array([record_noise_sd(obs, g) ** 2 for g in range(G)])
+        t0_sd = np.asarray(obs.nuisance_sd, dtype=np.float64)[:, 1]
+        var, alpha = noise_var.copy(), np.ones(G)
+        pilot_failed = []
+        if s.adapt:
+            # pilot pass: the record's noise, no tempering; its fitted curve sets each experiment's
+            # noise level and tempering for the pass that is reported (module doc)
+            def w_pilot(j, g, a, b):
+                return beta[j, a:b + 1] / noise_var[g]
+            pil = _sweep(ex, base, obs, s, spans, seed, w_pilot, t0_sd, {"pass": "pilot"}, progress, nw)
+            for w in pil["warnings"]:
+                warnings.extend(w)
+            pilot_failed = pil["failed_units"]
+            var, alpha, lik_info = _noise_model(obs, _fitted(obs, spans, pil, nw, s.h), noise_var)
+        else:
+            lik_info = [{"noise_sd": float(np.sqrt(v)), "sd_used": float(np.sqrt(v)), "alpha": 1.0,
+                         "effective_samples": None, "autocorrelation_time": None,
+                         "note": "adapt=False: the record's noise, no tempering"} for v in noise_var]
+
+        def weight_for(j, g, a, b):
+            return beta[j, a:b + 1] * alpha[g] / var[g]
+        # the reported pass's units depend on the pilot's outcome: their ids carry a digest of the
+        # noise model, so a resume after the pilot changed (e.g. --retry-failed) recomputes them
+        tag = {}
+        if s.adapt:
+            tag = {"noise": hashlib.sha1(np.concatenate([var, alpha]).astype("<f8").tobytes()).hexdigest()[:8]}
+        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, tag, progress, nw)
+    else:
+        pilot_failed = []
+
+        def weight_for(j, g, a, b):
+            return beta[j, a:b + 1] / ((s.L if s.obs_weight == "mean" else 1.0) * obs.P[a:b + 1])
+        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, None, {}, progress, nw)
+    ns = sw["state_size"]
+    alive = sw["alive"]
+    failed_units = pilot_failed + sw["failed_units"]
+    fitted = _fitted(obs, spans, sw, nw, s.h)
     win_mean, win_cov, windows, total_redraw, total_fail = [], [], [], 0, 0
     chain_m, chain_c = space.prior_mean.copy(), space.prior_cov.copy()
-    warnings = []
-    alive = list(range(G))
-    handoff = {g: None for g in range(G)}             # each experiment's ensemble entering the next window
-    failed_units, member_runs, failed_runs = [], 0, 0
-    start_means = []                                  # (G, ns) mean state entering each window (MCMC targets)
+    member_runs, failed_runs = 0, 0
+    if default and s.adapt:
+        member_runs += sum(int(r["member_runs"]) for R in pil["results"] for r in R)
+        failed_runs += sum(int(r["failed_member_runs"]) for R in pil["results"] for r in R)
     posteriors = []                                   # WindowPosterior per window: what --mcmc checks
-    average = s.L if s.obs_weight == "mean" else 1    # the weight's 1/L
+    average = s.L if s.obs_weight == "mean" else 1    # the weight's 1/L (paper)
+    lik_terms = {g: [] for g in range(G)}             # default: every window's likelihood of each experiment
     for j, (a, b) in enumerate(spans):
-        last = j == nw - 1
-        if j == 0:
-            start_means.append(np.array(fm.initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64))
-        else:
-            q = np.full((G, ns), np.nan)
-            for g in alive:
-                q[g] = np.asarray(handoff[g], dtype=np.float64)[:, :ns].mean(axis=0)
-            start_means.append(q)
-        a2 = b if last else a + s.h
-        weight = beta[j, a:b + 1] / ((s.L if s.obs_weight == "mean" else 1.0) * obs.P[a:b + 1])
-        units = [Unit(unit_id(window=j, exp=g),
-                      {"spec": spec, "runner": token, "space": space, "settings": s, "t": t, "a": int(a),
-                       "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
-                       "req": float(obs.req_m[g]), "y": obs.R_star[g, a:b + 1], "weight": weight, "E": handoff[g]})
-                 for g in alive]
-        rep = ex.run(units, mienks_unit, seed, desc=f"mienks window {j + 1}/{nw}")
-        ok, lost = [], []
-        for g in alive:
-            uid = unit_id(window=j, exp=g)
-            if uid in rep.results:
-                ok.append(g)
-            else:
-                err = rep.failures[uid].error
-                lost.append(obs.names[g])
-                failed_units.append({"unit": uid, "experiment": obs.names[g], "window": j, "error": err})
-                warnings.append(f"window {j}: experiment {obs.names[g]!r} failed ({err}); left out from this "
-                                f"window on")
-        if not ok:
-            raise RuntimeError(f"window {j}: every experiment failed (e.g. {failed_units[-1]['error']})")
-        alive = ok
-        R = [rep.results[unit_id(window=j, exp=g)] for g in ok]
-        ns = int(R[0]["state_size"])
+        ok, R, lost = sw["ok"][j], sw["results"][j], sw["lost"][j]
+        warnings.extend(sw["warnings"][j])
         pm, pc = np.stack([r["pm"] for r in R]), np.stack([r["pc"] for r in R])
+        qm, qc = np.stack([r["qm"] for r in R]), np.stack([r["qc"] for r in R])
         prior_m, prior_c = (space.prior_mean, space.prior_cov) if s.fusion == "prior" else (chain_m, chain_c)
-        if s.fusion == "prior":
+        extra = {}
+        whiten = None
+        if default:
+            # random effects on the experiments' window likelihoods, the gel mean's prior chained
+            # from the previous window (RTPS); the pooled (no scatter) Gaussian is the density's
+            Lam, eta, _, n_clip = likelihood_terms(pm, pc, qm, qc)
+            hier = random_effects(Lam, eta, chain_m, chain_c)
+            for i, g in enumerate(ok):
+                lik_terms[g].append((Lam[i], eta[i]))
+            fus = Fusion(hier.pooled_mean, hier.pooled_cov, 1.0, n_clip == 0,
+                         [f"{n_clip} negative eigenvalue(s) of window likelihoods clipped to 0"] if n_clip else [])
+            est_m, est_c = hier.mean, hier.cov
+            h = hier.summaries(space)
+            extra = {"between_experiments": h["between_experiments"], "predictive": h["predictive"],
+                     "random_effects": hier.to_dict(), "pooled_mean_internal": hier.pooled_mean.tolist(),
+                     "pooled_cov_internal": hier.pooled_cov.tolist()}
+            if hier.notes:
+                warnings.append(f"window {j}: " + "; ".join(hier.notes))
+            chain_m = hier.mean
+            chain_c = rtps_cov(chain_c, hier.cov, s.rtps)
+            m = b - a + 1
+            whiten = np.full((G, m, m), np.nan)
+            for g in ok:
+                whiten[g] = np.diag(np.sqrt(beta[j, a:b + 1] * alpha[g] / var[g]))
+        elif s.fusion == "prior":
             fus = fuse(pm, pc, space.prior_mean, space.prior_cov)
+            est_m, est_c = fus.mean, fus.cov
         else:
-            fus = fuse_likelihoods(pm, pc, np.stack([r["qm"] for r in R]), np.stack([r["qc"] for r in R]),
-                                   chain_m, chain_c)
+            fus = fuse_likelihoods(pm, pc, qm, qc, chain_m, chain_c)
             chain_m = fus.mean
             chain_c = rtps_cov(chain_c, fus.cov, s.rtps)
-        win_mean.append(fus.mean)
-        win_cov.append(fus.cov)
-        entering = np.isfinite(start_means[j]).all(axis=1)
+            est_m, est_c = fus.mean, fus.cov
+        win_mean.append(est_m)
+        win_cov.append(est_c)
+        start_j = sw["start_means"][j]
+        entering = np.isfinite(start_j).all(axis=1)
+        if default:
+            desc = {"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
+                    "weight_rule": "default likelihood: ||W_n (y_n - R_n)||^2 with W_n = diag(sqrt(beta_jk alpha_n / "
+                                   "sigma_n^2)) (the MDA weights are inside W_n; weight holds beta_jk)",
+                    "gaussian": "pooled over experiments (no between-bubble scatter)", "L": 1,
+                    "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}
+            if j == 0 and np.any(t0_sd > 0):
+                desc["nuisance"] = ("the ensemble also analysed each experiment's time of the maximum; this density "
+                                    "fixes it at the preprocessing estimate")
+            wpost = beta[j, a:b + 1]
+        else:
+            desc = {"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
+                    "weight_rule": f"beta_jk / L, L = {average}", "L": average,
+                    "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}
+            wpost = beta[j, a:b + 1] / average
         posteriors.append(WindowPosterior(
             index=j, start=int(a), samples=(int(a), int(b)), mean=fus.mean, cov=fus.cov, prior_mean=prior_m,
-            prior_cov=prior_c, weight=beta[j, a:b + 1] / average, start_state=start_means[j],
-            description={"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
-                         "weight_rule": f"beta_jk / L, L = {average}", "L": average,
-                         "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}))
-        stop = a2 + 1 if last else a2
+            prior_cov=prior_c, weight=wpost, start_state=start_j, description=desc, whiten=whiten))
         rejected = []
         for g, r in zip(ok, R):
-            fitted[g, a:stop] = r["seg"][:stop - a]
-            handoff[g] = r["E"]
             if r["rejected"]:
                 rejected.append(obs.names[g])
             member_runs += int(r["member_runs"])
@@ -333,9 +613,9 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             _warnings.simplefilter("ignore", RuntimeWarning)
             cost = np.nanmean(np.stack([r["cost"] for r in R]), axis=0)
         windows.append({"index": j, "t_star": [float(t[a]), float(t[b])], "samples": [int(a), int(b)],
-                        **gaussian_estimate(space, fus.mean, fus.cov),
-                        "cov": si_covariance(space, fus.mean, fus.cov).tolist(),
-                        "mean_internal": fus.mean.tolist(), "cov_internal": fus.cov.tolist(),
+                        **gaussian_estimate(space, est_m, est_c),
+                        "cov": si_covariance(space, est_m, est_c).tolist(),
+                        "mean_internal": est_m.tolist(), "cov_internal": est_c.tolist(), **extra,
                         "fusion": fus.to_dict(), "n_failed_iterations": n_failed_iter.tolist(),
                         "n_redrawn_prior": n_red_prior, "n_failed_handoff": n_fail,
                         "n_redrawn_handoff": n_red, "stopped_experiments": sum(bool(r["stopped"]) for r in R),
@@ -348,8 +628,6 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                         "per_experiment": [{"name": obs.names[g], "mean_internal": pm[i].tolist(),
                                             "sd_internal": np.sqrt(np.diag(pc[i])).tolist()}
                                            for i, g in enumerate(ok)]})
-        if progress is not None:
-            progress(j + 1)
     win_mean, win_cov = np.array(win_mean), np.array(win_cov)
     tr_m, tr_c, covered = time_resolved(win_mean, win_cov, n_steps, s.L, s.h)
     tr = [{"t_star": float(t[k]), "sample": int(k), **gaussian_estimate(space, tr_m[k], tr_c[k])}
@@ -375,10 +653,66 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                "parameter_space": space.describe(), "rmse": rmse(fitted, obs.R_star, mask),
                "mda": "beta_jk = 1/|I(k)|, window cost 1/(2L) sum_k beta_jk ||.||^2_{P_k}",
                "fitted_curve": "ensemble-mean R* of the handed-off (RTPS-inflated) posterior ensembles"}
+    per = []
+    if default:
+        details["mda"] = ("beta_jk = 1/|I(k)| (sample 0, the maximum, excluded), window cost 1/2 sum_k beta_jk "
+                          "alpha_n ||.||^2 / sigma_n^2: every sample counts once over the windows, no 1/L")
+        details["likelihood"] = {
+            "name": "default", "effective_samples": [x["effective_samples"] for x in lik_info],
+            "autocorrelation_time": [x["autocorrelation_time"] for x in lik_info],
+            "noise_sd": [x["noise_sd"] for x in lik_info], "sd_used": [x["sd_used"] for x in lik_info],
+            "alpha": [x["alpha"] for x in lik_info], "n_samples": [x.get("n_samples") for x in lik_info],
+            "noise": ("each record's noise sd (preprocessing, else fourth differences), raised to the RMS of the "
+                      "pilot pass's residual where the model does not reach the noise; each experiment tempered "
+                      "by alpha = n_eff/K (integrated autocorrelation time of that residual)"
+                      if s.adapt else "each record's noise sd (preprocessing, else fourth differences); no tempering"),
+            "mda": "beta_jk = 1/|I(k)|: the weights of every sample over the windows holding it sum to one",
+            "nuisances": "time of the maximum analysed in window 0's augmented ensemble (prior sd from "
+                         "preprocessing); Rmax and Req not inferred (fixed at the preprocessing estimates)",
+            "fusion": "random effects across experiments in every window (gel-level mean, between-bubble sd, "
+                      "predictive); the gel mean's prior chained from the previous window (RTPS)"}
+        # the record: each experiment's likelihood summed over the windows (each sample counted once;
+        # parameters constant over the record, like the aggregate estimate), random effects on those
+        used = [g for g in range(G) if lik_terms[g]]
+        Lam_r = np.stack([sum(x[0] for x in lik_terms[g]) for g in used])
+        eta_r = np.stack([sum(x[1] for x in lik_terms[g]) for g in used])
+        rec = random_effects(Lam_r, eta_r, space.prior_mean, space.prior_cov)
+        hr = rec.summaries(space)
+        tau2 = np.diag(np.where(np.isfinite(rec.tau), rec.tau, 0.0) ** 2)
+        pred = {}
+        for i, nm in enumerate(space.names):
+            pred[nm] = marginal_summary(agg_m[i], float(np.sqrt(max(agg_c[i, i] + tau2[i, i], 0.0))),
+                                        bool(space.positive[i]))
+        details.update({"between_experiments": hr["between_experiments"], "predictive": pred,
+                        "record_random_effects": {**rec.to_dict(), "estimate": hr["estimate"],
+                                                  "note": "each experiment's window likelihoods summed over the "
+                                                          "record (constant parameters) with the parameter prior; "
+                                                          "top-level between_experiments is this; predictive is the "
+                                                          "aggregate estimate widened by its between-bubble sd"}})
+        Pi0 = np.linalg.inv(space.prior_cov)
+        for g in range(G):
+            entry = {"name": obs.names[g]}
+            if g in used:
+                i = used.index(g)
+                C = np.linalg.inv(Pi0 + Lam_r[i])
+                mg = C @ (Pi0 @ space.prior_mean + eta_r[i])
+                entry.update({"estimate": gaussian_estimate(space, mg, C), "mean_internal": mg.tolist(),
+                              "cov_internal": C.tolist(), "estimate_rule": "parameter prior times the experiment's "
+                                                                            "window likelihoods over the record"})
+            else:
+                entry["failed"] = True
+            entry["likelihood"] = lik_info[g]
+            entry["nuisance"] = _nuisance(obs, g, sw["results"][0][sw["ok"][0].index(g)].get("offset")
+                                          if g in sw["ok"][0] else None)
+            per.append(entry)
+    else:
+        details["likelihood"] = {"name": "paper", "noise": f"P_k of preprocessing (beta_jk / {average} cost)",
+                                 "fusion": str(s.fusion), "effective_samples": None}
     return FitResult(
         method="mienks", model=fm.constitutive.name, param_names=tuple(space.names),
         estimate=gaussian_estimate(space, agg_m, agg_c), fitted=fitted, fit_mask=mask,
         mean_internal=agg_m, cov_internal=agg_c, windows=windows, time_resolved=tr, details=details,
+        per_experiment=per,
         posterior=post, posterior_dims={nm: ["window"] for nm in space.names},
         extra_groups={"time_resolved": tr_group},
         extra_dims={**{f"{nm}_mean": ["time"] for nm in space.names}, **{f"{nm}_sd": ["time"] for nm in space.names},
@@ -386,6 +720,26 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         coords={"window": np.arange(nw), "time": t[kk], "bound": ["lower", "upper"],
                 "window_start": ("window", t[spans[:, 0]])},
         runtime_s=time.perf_counter() - t0c, warnings=warnings, window_posteriors=posteriors)
+
+
+def _nuisance(obs, g: int, offset) -> dict:
+    """``per_experiment[].nuisance`` (SI): the time of the maximum from window 0's augmented
+    ensemble (``offset`` in t*, None: not analysed); Rmax and Req as preprocessing gave them."""
+    sd = np.asarray(obs.nuisance_sd[g], dtype=np.float64)
+    rmax, req, t0, tc = float(obs.rmax_m[g]), float(obs.req_m[g]), float(obs.t0_s[g]), float(obs.tc_s[g])
+    fixed = "not inferred: fixed at the preprocessing estimate (posterior = prior)"
+    out = {"rmax_m": {"prior_mean": rmax, "prior_sd": rmax * sd[0], "mean": rmax, "sd": rmax * sd[0],
+                      "treatment": fixed},
+           "req_m": {"prior_mean": req, "prior_sd": sd[2], "mean": req, "sd": sd[2], "treatment": fixed}}
+    if offset is None:
+        out["t0_s"] = {"prior_mean": t0, "prior_sd": tc * sd[1], "mean": t0, "sd": tc * sd[1],
+                       "treatment": "not analysed (no preprocessing uncertainty, or window 0 failed)"}
+    else:
+        out["t0_s"] = {"prior_mean": t0, "prior_sd": tc * sd[1], "mean": t0 + tc * offset["mean"],
+                       "sd": tc * offset["sd"], "offset_star": offset["mean"], "offset_sd_star": offset["sd"],
+                       "treatment": "analysed with the parameters in window 0's augmented ensemble"
+                                    + (" (analysis rejected: the prior)" if offset.get("rejected") else "")}
+    return out
 
 
 class MIEnKS(InferenceMethod):
@@ -401,7 +755,8 @@ class MIEnKS(InferenceMethod):
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         s = settings        # per window: the Gauss-Newton iterations and the hand-off, every member
-        return n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
+        passes = 2 if (s.likelihood == "default" and s.adapt) else 1     # the default likelihood's pilot
+        return passes * n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
 
     @staticmethod
     def figures(obs, res, fdir):

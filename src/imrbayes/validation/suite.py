@@ -217,7 +217,8 @@ def case_mcmc_agreement(suite, fm, out, seed):
 
     obs = verification_data(fm, seed)
     space = ParamSpace.for_model(fm.constitutive)
-    res = fit_mienks(fm, obs, space, MIEnKSSettings(n_draws=1), seed=seed)
+    # the paper's density: the MCMC target does not sample the default likelihood's ``whiten`` yet
+    res = fit_mienks(fm, obs, space, MIEnKSSettings(n_draws=1, likelihood="paper"), seed=seed)
     wins = MCMC_WINDOWS[suite]
     priors = {sp.index: np.sqrt(np.diag(sp.prior_cov)) for sp in fit_window_specs(fm, obs, space, res, windows=wins)}
     settings = MCMCSettings(n_walkers=16, n_steps=2000, n_chains=4)
