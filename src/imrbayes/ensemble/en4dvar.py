@@ -357,6 +357,20 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
                                                  float(obs.tc_s[n]))
             entry["likelihood"] = r["likelihood"]
         per.append(entry)
+    if default:
+        # a nuisance pulled far outside what its record says absorbs model error: say so
+        far = []
+        for i, n in enumerate(ok):
+            prior_sd = nuisance_prior_sd(obs, n)
+            z = np.where(prior_sd > 0, np.abs(R[i]["nu_mean"]) / np.where(prior_sd > 0, prior_sd, 1.0), 0.0)
+            moved = [("Rmax", "the time of the maximum", "Req")[j] for j in np.flatnonzero(z > 3.0)]
+            if moved:
+                far.append(f"{obs.names[n]} ({', '.join(moved)})")
+        if far:
+            warnings.append(f"{len(far)} of {len(ok)} experiment(s) need nuisances more than 3 prior sd from what "
+                            f"preprocessing measured: {'; '.join(far[:5])}{' ...' if len(far) > 5 else ''}. The "
+                            f"model is absorbing misfit into the geometry; read the material estimate with care "
+                            f"(per_experiment[].nuisance)")
     ll = None
     if want_ll:
         if default:      # per-sample Gaussian with each experiment's tempered variance (nuisance correlation left out)
