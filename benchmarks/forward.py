@@ -243,9 +243,10 @@ def main(argv=None):
         ("full physics, IMRv2 grid Nt=25", {"scheme": "imrv2-fd"}),
         ("polytropic + vapour", {"bubble": "polytropic"}),
     ]
+    load_before = os.getloadavg()     # other jobs on the machine inflate every timing: recorded beside them
     rows = [] if args.only_peers else [bench_case(label, opts, args.repeat) for label, opts in cases]
     result = {"machine": machine_info(),
-              "n_members": N_MEMBERS, "rows": rows, "load_average_before": os.getloadavg()}
+              "n_members": N_MEMBERS, "rows": rows, "load_average_before": load_before}
     if not args.no_compile and not args.only_peers:
         result["compile"] = compile_times({})
     print(f"CPU: {cpu_label(result['machine'])}, {result['machine']['cpus']} cores; load average "
