@@ -30,8 +30,8 @@ from imrbayes.errors import InputError
               help="Exploration: 19 bootstrap replicates, MAP baseline (no En4D-Var), fewer draws.")
 @click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
               help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
-                   "scheme=converged, ...); repeatable. Default for the thermal bubble: scheme=imrv2-fd "
-                   "(IMRv2's Nt = Mt = 25).")
+                   "scheme=imrv2-fd, ...); repeatable. Default: the forward model's own, grid-converged "
+                   "(scheme=converged).")
 @click.option("--n-bootstrap", type=int, default=None,
               help="Bootstrap replicates of the constant-parameter check [-] [default: 39; --quick 19].")
 @click.option("--candidates", default=None, metavar="KEY[,KEY...]",
@@ -100,11 +100,10 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         if obs.n_exp >= 2:
             from imrbayes.data.noise import noise_variance
             obs.P = noise_variance(obs.t_star, obs.R_star)[0]
-    # Default discretisation: IMRv2's own (Nt = Mt = 25; the reference code's grid, ~4x cheaper than the
-    # converged one) -- a diagnosis needs O(1e5) solves; meta.json or --forward scheme=converged override it.
+    # The forward model's own default discretisation (grid-converged; methods.md §7.5): IMRv2's coarse
+    # Nt = 25 grid moves the inferred viscosity by ~2x on real data and raises alarms on constant-parameter
+    # data, so it is never a silent default here. meta.json or --forward scheme=imrv2-fd select it.
     fopts = {**(ds.forward or {}), **key_values(forward, "--forward")}
-    if str(fopts.get("bubble", "thermal")) == "thermal" and "scheme" not in fopts:
-        fopts["scheme"] = "imrv2-fd"
     options = ForwardOptions.from_dict(fopts, source="forward options")
     physics = Physics.from_overrides(ds.physics or None)
     out = prepare_out(Path(out) if out is not None else None, "diagnose", ds.name, protect=Path(data),

@@ -15,14 +15,14 @@ from imrbayes.errors import InputError
 @main.command("validate")
 @config_option
 @click.option("--suite", type=click.Choice(["quick", "full"]), default="quick", show_default=True,
-              help="quick: polytropic bubble, about a minute; full: IMRv2 thermal bubble and the paper's IMR "
-                   "grid (tens of minutes).")
+              help="quick: polytropic bubble, about a minute; full: thermal bubble on the grid-converged "
+                   "default and the paper's IMR grid (tens of minutes).")
 @click.option("--case", "cases", multiple=True, help="Run only these cases (repeatable); default: all.")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Output folder (default: a new folder under ./imrbayes-runs/).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the synthetic noise and every draw.")
 @click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
-              help="Forward-model option overriding the suite's (bubble=polytropic, scheme=imrv2-fd, ...).")
+              help="Forward-model option overriding the suite's (bubble=polytropic, scheme=imrv2-fd, nt=96, ...).")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @execution_options(with_workers=True)
 @force_option
