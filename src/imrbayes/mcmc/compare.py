@@ -47,7 +47,8 @@ Agreement rule (``agree``)
    b >= 0.2).
 
 ``agree`` is ``None`` (JSON null: undecided) when the MCMC itself is not trustworthy: max R-hat >
-1.01, min bulk ESS < 400, or (when the sampler reports it) a chain shorter than 50 tau. ``notes``
+1.01, min bulk or tail ESS < 400, or (when the sampler reports it) a chain shorter than 50 tau or
+a run that hit its hard step cap before its convergence check passed (``cap_hit``). ``notes``
 says which criterion failed. Mardia's statistics are reported (and noted when the MCMC posterior
 is clearly non-Gaussian) but do not enter ``agree``: the sample check already measures whether a
 non-Gaussian shape matters at the scale of the criteria above.
@@ -69,12 +70,13 @@ __all__ = ["THRESHOLDS", "AGREE_RULE", "gaussian_kl", "gaussian_w2", "whitener",
            "mcmc_summary", "compare_window", "compare_windows", "lognormal_moments"]
 
 #: Thresholds of the agreement rule (module docstring).
-THRESHOLDS = {"kl_sym": 0.1, "w2": 0.5, "kl_sample": 0.1, "rhat": 1.01, "ess_bulk": 400.0, "tau_rule": 50.0}
+THRESHOLDS = {"kl_sym": 0.1, "w2": 0.5, "kl_sample": 0.1, "rhat": 1.01, "ess_bulk": 400.0, "ess_tail": 400.0,
+              "tau_rule": 50.0}
 
 AGREE_RULE = ("agree = kl_sym <= {kl_sym} nats and w2 <= {w2} (MCMC-whitened sd units) and kl_sample <= {kl_sample} "
               "nats (KL(MCMC || ensemble Gaussian) = Gaussian KL + bias-corrected kNN negentropy of the draws); "
-              "null (undecided) when max R-hat > {rhat}, min bulk ESS < {ess_bulk:g} or a chain is shorter "
-              "than {tau_rule:g} tau")
+              "null (undecided) when max R-hat > {rhat}, min bulk ESS < {ess_bulk:g}, min tail ESS < {ess_tail:g}, "
+              "a chain is shorter than {tau_rule:g} tau, or the sampler stopped at its step cap unconverged")
 
 
 def _sym(a):
@@ -344,6 +346,10 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
         if not emin >= THRESHOLDS["ess_bulk"]:
             converged = False
             notes.append(f"MCMC bulk ESS {emin:.0f} < {THRESHOLDS['ess_bulk']:g}")
+        tmin = min(diag["ess_tail"].values())
+        if not tmin >= THRESHOLDS["ess_tail"]:
+            converged = False
+            notes.append(f"MCMC tail ESS {tmin:.0f} < {THRESHOLDS['ess_tail']:g}")
         ess_min = emin
     else:
         converged = False
@@ -355,6 +361,9 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
             converged = False
             notes.append(f"chains shorter than {diagnostics.get('tau_rule', 50):g} tau "
                          f"(n_steps/tau = {diagnostics.get('n_steps_over_tau', float('nan')):.1f})")
+        if diagnostics.get("cap_hit"):
+            converged = False
+            notes.append(f"hard cap of {diagnostics.get('cap')} steps reached before the convergence check passed")
         failed = diagnostics.get("failed_chains") or {}
         if failed:
             first = next(iter(failed.items()))
