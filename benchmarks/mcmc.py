@@ -152,6 +152,69 @@ def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, 
     return rows
 
 
+def whole_run(data, out, method: str = "mienks", extra=(), load_every: float = 30.0) -> dict:
+    """The headline row: ``imrbayes fit DATA --method METHOD --mcmc`` as a subprocess (default
+    settings unless ``extra`` says otherwise), its wall time, the CPU time of the process tree
+    (user + sys: less sensitive than the wall time to other jobs on a shared machine; on an idle
+    2-core machine wall ~ CPU / 2 when both numba threads are busy), the load average sampled every
+    ``load_every`` s, and per window from compare.json: steps, evaluations, stop reason, R-hat,
+    bulk/tail ESS, ESS per second, quadrature cost."""
+    import resource
+    import subprocess
+    import threading
+
+    cmd = [sys.executable, "-m", "imrbayes.cli", "fit", str(data), "--method", method, "--mcmc", "--out", str(out),
+           "--quiet", *map(str, extra)]
+    loads, stop = [], threading.Event()
+
+    def sample():
+        while not stop.wait(load_every):
+            loads.append(os.getloadavg()[0])
+
+    th = threading.Thread(target=sample, daemon=True)
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    load0 = os.getloadavg()
+    t0 = time.perf_counter()
+    th.start()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    stop.set()
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    row = {"command": " ".join(cmd[1:]), "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:],
+           "wall_s": wall, "cpu_s": cpu, "loadavg_start": list(load0), "loadavg_samples": loads,
+           "loadavg_mean": float(np.mean(loads)) if loads else load0[0], "cpu": machine_info()}
+    summ = Path(out) / "summary.json"
+    comp = Path(out) / "compare.json"
+    if summ.is_file():
+        s = json.loads(summ.read_text())
+        row["fit_runtime_s"] = s.get("runtime_s")
+        row["total_runtime_s"] = s.get("total_runtime_s")
+    if comp.is_file():
+        c = json.loads(comp.read_text())
+        wins = []
+        for e in c["windows"]:
+            m = e["mcmc"]
+            smp = m.get("sampler", {})
+            ess = min(min(m["ess_bulk"].values()), min(m["ess_tail"].values()))
+            q = e.get("quadrature") or {}
+            wins.append({"window": e["index"], "t_star": e["t_star"], "agree": e["agree"],
+                         "converged": m["converged"], "stop_reason": smp.get("stop_reason"),
+                         "n_steps": smp.get("n_steps"), "n_evals": e.get("n_evals"), "runtime_s": e.get("runtime_s"),
+                         "tau_max": smp.get("tau_max"), "n_over_tau": smp.get("n_steps_over_tau"),
+                         "rhat_max": max(m["rhat"].values()), "ess_bulk_min": min(m["ess_bulk"].values()),
+                         "ess_tail_min": min(m["ess_tail"].values()),
+                         "ess_per_s": ess / e["runtime_s"] if e.get("runtime_s") else None,
+                         "quadrature_evals": q.get("n_evals"), "quadrature_s": q.get("runtime_s"),
+                         "quadrature_within_mc_error": (q.get("vs_mcmc") or {}).get("within_mc_error")})
+        row["windows"] = wins
+        row["overall"] = {k: c["overall"].get(k) for k in ("n_windows", "n_agree", "n_disagree", "n_undecided",
+                                                           "all_converged")}
+        row["mcmc_evals"] = int(sum(w["n_evals"] or 0 for w in wins))
+        row["quadrature_evals"] = int(sum(w["quadrature_evals"] or 0 for w in wins))
+    return row
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--forward", nargs="+", default=["converged", "imrv2-fd"], choices=list(FORWARD))
@@ -172,7 +235,20 @@ def main():
     ap.add_argument("--fit-cache", default=None, help="pickle of the MIEnKS fit (reused when present)")
     ap.add_argument("--cap", type=int, default=5000)
     ap.add_argument("--init-scale", type=float, default=2.0)
+    ap.add_argument("--whole-run", nargs=2, default=None, metavar=("DATA", "OUT"),
+                    help="time 'imrbayes fit DATA --method METHOD --mcmc --out OUT' (the headline row)")
+    ap.add_argument("--method", default="mienks")
+    ap.add_argument("--fit-args", nargs="*", default=[], help="extra arguments for --whole-run's fit")
     args = ap.parse_args()
+    if args.whole_run is not None:
+        row = whole_run(args.whole_run[0], args.whole_run[1], args.method, args.fit_args)
+        print(json.dumps({k: v for k, v in row.items() if k not in ("windows", "cpu")}, indent=1, default=str))
+        for w in row.get("windows", []):
+            print(w)
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(jsonable({"meta": {"cpu": machine_info()}, "whole_run": row}), fh, indent=1)
+        return
     if args.sweep is not None:
         fkey = args.forward[0]
         fm = ForwardModel("nhkv", options=FORWARD[fkey])

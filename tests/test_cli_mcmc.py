@@ -59,6 +59,14 @@ def test_window0_ensemble_and_mcmc_agree(window0):
         assert "log_likelihood" in dt["window_00"].children
     for f in ("mcmc_forest.png", "mcmc_divergence.png", "mcmc_pair_window_00.png"):
         assert (out / "figures" / f).stat().st_size > 10_000
+    # stopped on convergence under the cap, and the exact grid posterior agrees with it (issue #20)
+    s = e["mcmc"]["sampler"]
+    assert s["stop_reason"] == "converged" and not s["cap_hit"] and s["n_steps"] < 2000
+    q = e["quadrature"]
+    assert q["vs_mcmc"]["within_mc_error"], q["vs_mcmc"]
+    assert q["edge_ok"] and q["n_evals"] > 0 and q["vs_ensemble"]["kl_sym"] < 0.1
+    with xr.open_datatree(out / "mcmc.nc") as dt:
+        assert "quadrature_json" in dt["window_00"].attrs
 
 
 def test_compare_recomputes_from_the_files(window0, tmp_path):
@@ -69,6 +77,7 @@ def test_compare_recomputes_from_the_files(window0, tmp_path):
     e0, e1 = before["windows"][0], again["windows"][0]
     for key in ("kl_sym", "kl_gauss", "w2", "kl_sample", "agree"):
         assert e0[key] == e1[key]
+    assert e1["quadrature"]["vs_mcmc"] == e0["quadrature"]["vs_mcmc"]
     assert "1 window(s) agree" in res.output and (tmp_path / "again" / "figures" / "mcmc_forest.png").exists()
 
 

@@ -316,14 +316,22 @@ def _contour(u, L, m, f, level):
     return out
 
 
-def compare_to_mcmc(grid: GridPosterior, draws, mcse_mean=None, mcse_sd=None, z_max: float = 4.0) -> dict:
+def compare_to_mcmc(grid, draws, mcse_mean=None, mcse_sd=None, z_max: float = 4.0) -> dict:
     """Do MCMC draws (chain, draw, 2) (internal) agree with the grid posterior within Monte-Carlo error?
 
+    grid : :class:`GridPosterior` or its :meth:`~GridPosterior.to_dict`.
     ``mcse_mean``/``mcse_sd``: (2,) ArviZ MCSE of mean and sd of the draws (computed here when None).
     Returns the differences of means and sds in MCSE units (``mean_z``, ``sd_z``), the same in
-    posterior sd, and ``within_mc_error`` = every |z| <= ``z_max`` (and the grid's own resolution
+    posterior sd, and ``within_mc_error`` = every |z| <= ``z_max`` (and the grid's resolution
     error -- a conservative bound: the change on the every-other-point subgrid -- below half the MCSE).
     """
+    if isinstance(grid, dict):
+        names = list(grid["mean_internal"])
+        g_mean = np.array([grid["mean_internal"][n] for n in names])
+        g_sd = np.array([grid["sd_internal"][n] for n in names])
+        res_err = grid["resolution_error"]
+    else:
+        names, g_mean, g_sd, res_err = list(grid.internal_names), grid.mean, grid.sd, grid.resolution_error
     x = np.asarray(draws, dtype=np.float64)
     if x.ndim == 2:
         x = x[None]
@@ -338,13 +346,12 @@ def compare_to_mcmc(grid: GridPosterior, draws, mcse_mean=None, mcse_sd=None, z_
     mcse_mean, mcse_sd = np.asarray(mcse_mean, float), np.asarray(mcse_sd, float)
     flat = x.reshape(-1, 2)
     m, s = flat.mean(axis=0), flat.std(axis=0, ddof=1)
-    zm = (m - grid.mean) / mcse_mean
-    zs = (s - grid.sd) / mcse_sd
-    res_ok = grid.resolution_error["mean_sd"] * float(np.max(grid.sd / mcse_mean)) < 0.5
-    names = grid.internal_names
+    zm = (m - g_mean) / mcse_mean
+    zs = (s - g_sd) / mcse_sd
+    res_ok = res_err["mean_sd"] * float(np.max(g_sd / mcse_mean)) < 0.5
     return {"mean_z": dict(zip(names, zm.tolist())), "sd_z": dict(zip(names, zs.tolist())),
-            "mean_diff_sd": dict(zip(names, ((m - grid.mean) / grid.sd).tolist())),
-            "sd_ratio": dict(zip(names, (s / grid.sd).tolist())),
+            "mean_diff_sd": dict(zip(names, ((m - g_mean) / g_sd).tolist())),
+            "sd_ratio": dict(zip(names, (s / g_sd).tolist())),
             "mcse_mean": dict(zip(names, mcse_mean.tolist())), "mcse_sd": dict(zip(names, mcse_sd.tolist())),
-            "z_max": z_max, "grid_resolution_ok": bool(res_ok), "grid_resolution_error": grid.resolution_error,
+            "z_max": z_max, "grid_resolution_ok": bool(res_ok), "grid_resolution_error": res_err,
             "within_mc_error": bool(np.all(np.abs(zm) <= z_max) and np.all(np.abs(zs) <= z_max) and res_ok)}
