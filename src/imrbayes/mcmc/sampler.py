@@ -222,8 +222,9 @@ class MCMCSettings:
         if not self.init_scale > 0:
             raise InputError("init_scale", "must be positive")
         moves = parse_moves(self.moves)
-        if any(n in ("de", "snooker") for n, _ in moves) and self.n_walkers < 8:
-            raise InputError("n_walkers", f"differential-evolution moves need >= 8 walkers, got {self.n_walkers}")
+        if any(n in ("de", "snooker") for n, _ in moves) and self.n_walkers < 6:
+            raise InputError("n_walkers", f"differential-evolution moves need >= 6 walkers (3 per half: "
+                                          f"more than one difference vector), got {self.n_walkers}")
 
 
 def integrated_tau(chain) -> np.ndarray:
