@@ -1,4 +1,17 @@
-"""emcee benchmark: one MIEnKS-MDA window of the methods.md §5 verification case.
+"""emcee benchmark: the whole ``fit --mcmc`` run (headline), the move/walker sweep, one window.
+
+**Headline** (``--whole-run DATA OUT [--method mienks|en4dvar]``): ``imrbayes fit DATA --method M
+--mcmc`` with the default settings (stop on convergence, DE + snooker, 4 x 8 walkers, quadrature),
+its wall time, the CPU time of the process tree and the load average during it (the 2-core machine
+is shared), and per window: steps, evaluations, stop reason, R-hat, bulk/tail ESS, ESS per second,
+quadrature cost. This replaces the 18-window projection of earlier versions with the measurement.
+
+**Sweep** (``--sweep MOVES@WALKERS ... --sweep-windows 0 6 12 --fit-cache fit.pkl``): each move
+mixture x walker count sampled to convergence on the targets ``fit --mcmc`` builds from a MIEnKS-MDA
+fit of the verification case; evaluations (forward solves of all experiments) to convergence,
+tau, ESS per evaluation (docs/mcmc.md).
+
+**One window** (the default mode, below; kept from before issue #20):
 
 Window j (default 0) of L = 35 samples shifted by h = 5 (the paper's windows) over the 5 noisy
 experiments, weights beta_jk / L, the paper prior on (log G, log mu), each experiment started from
