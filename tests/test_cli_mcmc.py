@@ -109,6 +109,8 @@ def test_en4dvar_mcmc_one_exact_window(syn, tmp_path):
     assert e["t_star"][0] == 0.0 and e["t_star"][1] == pytest.approx(1.0)
     assert e["agree"] is None            # 60 steps cannot meet the 50-tau rule: undecided, never "agree"
     assert "undecided" in res.output
+    s = e["mcmc"]["sampler"]             # the hard cap is hit and says so
+    assert s["cap_hit"] and s["stop_reason"] == "cap" and s["n_steps"] == 60 and "hard cap of 60 steps" in e["notes"]
 
 
 def test_en4dvar_plain_likelihood_mcmc_samples_the_same_density(syn, tmp_path):
