@@ -1,4 +1,17 @@
-"""emcee benchmark: one MIEnKS-MDA window of the methods.md §5 verification case.
+"""emcee benchmark: the whole ``fit --mcmc`` run (headline), the move/walker sweep, one window.
+
+**Headline** (``--whole-run DATA OUT [--method mienks|en4dvar]``): ``imrbayes fit DATA --method M
+--mcmc`` with the default settings (stop on convergence, DE + snooker, 4 x 8 walkers, quadrature),
+its wall time, the CPU time of the process tree and the load average during it (the 2-core machine
+is shared), and per window: steps, evaluations, stop reason, R-hat, bulk/tail ESS, ESS per second,
+quadrature cost. This replaces the 18-window projection of earlier versions with the measurement.
+
+**Sweep** (``--sweep MOVES@WALKERS ... --sweep-windows 0 6 12 --fit-cache fit.pkl``): each move
+mixture x walker count sampled to convergence on the targets ``fit --mcmc`` builds from a MIEnKS-MDA
+fit of the verification case; evaluations (forward solves of all experiments) to convergence,
+tau, ESS per evaluation (docs/mcmc.md).
+
+**One window** (the default mode, below; kept from before issue #20):
 
 Window j (default 0) of L = 35 samples shifted by h = 5 (the paper's windows) over the 5 noisy
 experiments, weights beta_jk / L, the paper prior on (log G, log mu), each experiment started from
@@ -92,6 +105,129 @@ def window_costs(fm, obs, n_draws: int = 64, seed: int = 0, repeat: int = 3) -> 
     return out
 
 
+def fitted_windows(fm, seed: int = 0, cache: str | None = None):
+    """(obs, space, FitResult) of MIEnKS-MDA (default settings, n_draws=1) on the verification case;
+    ``cache``: a pickle file reused across invocations (the fit takes ~40 s with the thermal bubble)."""
+    import pickle
+
+    from imrbayes.ensemble import MIEnKSSettings, fit_mienks
+
+    obs = verification_data(fm, seed)
+    space = ParamSpace.for_model(fm.constitutive)
+    if cache and Path(cache).is_file():
+        with open(cache, "rb") as fh:
+            return obs, space, pickle.load(fh)
+    res = fit_mienks(fm, obs, space, MIEnKSSettings(n_draws=1), seed=seed)
+    if cache:
+        with open(cache, "wb") as fh:
+            pickle.dump(res, fh)
+    return obs, space, res
+
+
+def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, n_chains: int = 4,
+          init_scale: float = 2.0) -> list[dict]:
+    """Move mixture x walker count by the cost of a converged run: each configuration samples the
+    MIEnKS window's exact target (started from the window's ensemble Gaussian, over-dispersed by
+    ``init_scale``) with the stop rule; reported: steps and evaluations to convergence, tau, min
+    bulk/tail ESS at the stop and ESS per evaluation (= per forward solve of all experiments),
+    wall time and the load average around it (the machine is shared)."""
+    from imrbayes.mcmc.fit import fit_window_specs
+
+    obs, space, res = fitted_windows(fm, seed, fit_cache)
+    rows = []
+    for j in windows:
+        (sp,) = fit_window_specs(fm, obs, space, res, windows=[j])
+        for moves, W in configs:
+            tg = sp.target
+            s = MCMCSettings(n_walkers=W, n_steps=cap, n_chains=n_chains, moves=moves, init_scale=init_scale,
+                             loglik=False)
+            load0 = os.getloadavg()
+            e0, t0 = tg.n_evals, time.perf_counter()
+            run = run_mcmc(tg, sp.ens_mean, sp.ens_cov, s, seed=seed)
+            wall = time.perf_counter() - t0
+            evals = tg.n_evals - e0
+            last = run.stop["checks"][-1] if run.stop["checks"] else {}
+            ess = min(last.get("ess_bulk_min", 0.0), last.get("ess_tail_min", 0.0))
+            row = {"window": j, "t_star": list(sp.t_star), "moves": moves, "walkers": W, "chains": n_chains,
+                   "stop_reason": run.stop["reason"], "n_steps": run.n_steps, "n_checks": len(run.stop["checks"]),
+                   "evals": evals, "member_runs": evals * tg.n_exp, "tau_max": run.tau_max,
+                   "tau_mean": float(np.mean(run.tau)), "walkers_x_tau": W * run.tau_max,
+                   "rhat_max": last.get("rhat_max"), "ess_bulk_min": last.get("ess_bulk_min"),
+                   "ess_tail_min": last.get("ess_tail_min"), "ess_per_1k_evals": 1e3 * ess / max(1, evals),
+                   "acceptance": float(run.acceptance.mean()), "wall_s": wall,
+                   "ms_per_member_run": 1e3 * wall / max(1, evals * tg.n_exp),
+                   "loadavg_before": list(load0), "loadavg_after": list(os.getloadavg())}
+            rows.append(row)
+            print(f"w{j:02d} {moves:<22} W={W:<3} {row['stop_reason']:<9} n={run.n_steps:<5} evals={evals:<7} "
+                  f"tau={run.tau_max:6.1f} Wtau={row['walkers_x_tau']:6.0f} R={row['rhat_max']:.4f} "
+                  f"ESS b/t={row['ess_bulk_min']:.0f}/{row['ess_tail_min']:.0f} ESS/1k={row['ess_per_1k_evals']:.1f} "
+                  f"acc={row['acceptance']:.2f} wall={wall:.1f}s load={load0[0]:.2f}", flush=True)
+    return rows
+
+
+def whole_run(data, out, method: str = "mienks", extra=(), load_every: float = 30.0) -> dict:
+    """The headline row: ``imrbayes fit DATA --method METHOD --mcmc`` as a subprocess (default
+    settings unless ``extra`` says otherwise), its wall time, the CPU time of the process tree
+    (user + sys: less sensitive than the wall time to other jobs on a shared machine; on an idle
+    2-core machine wall ~ CPU / 2 when both numba threads are busy), the load average sampled every
+    ``load_every`` s, and per window from compare.json: steps, evaluations, stop reason, R-hat,
+    bulk/tail ESS, ESS per second, quadrature cost."""
+    import resource
+    import subprocess
+    import threading
+
+    cmd = [sys.executable, "-m", "imrbayes.cli", "fit", str(data), "--method", method, "--mcmc", "--out", str(out),
+           "--quiet", *map(str, extra)]
+    loads, stop = [], threading.Event()
+
+    def sample():
+        while not stop.wait(load_every):
+            loads.append(os.getloadavg()[0])
+
+    th = threading.Thread(target=sample, daemon=True)
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    load0 = os.getloadavg()
+    t0 = time.perf_counter()
+    th.start()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    stop.set()
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    row = {"command": " ".join(cmd[1:]), "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:],
+           "wall_s": wall, "cpu_s": cpu, "loadavg_start": list(load0), "loadavg_samples": loads,
+           "loadavg_mean": float(np.mean(loads)) if loads else load0[0], "cpu": machine_info()}
+    summ = Path(out) / "summary.json"
+    comp = Path(out) / "compare.json"
+    if summ.is_file():
+        s = json.loads(summ.read_text())
+        row["fit_runtime_s"] = s.get("runtime_s")
+        row["total_runtime_s"] = s.get("total_runtime_s")
+    if comp.is_file():
+        c = json.loads(comp.read_text())
+        wins = []
+        for e in c["windows"]:
+            m = e["mcmc"]
+            smp = m.get("sampler", {})
+            ess = min(min(m["ess_bulk"].values()), min(m["ess_tail"].values()))
+            q = e.get("quadrature") or {}
+            wins.append({"window": e["index"], "t_star": e["t_star"], "agree": e["agree"],
+                         "converged": m["converged"], "stop_reason": smp.get("stop_reason"),
+                         "n_steps": smp.get("n_steps"), "n_evals": e.get("n_evals"), "runtime_s": e.get("runtime_s"),
+                         "tau_max": smp.get("tau_max"), "n_over_tau": smp.get("n_steps_over_tau"),
+                         "rhat_max": max(m["rhat"].values()), "ess_bulk_min": min(m["ess_bulk"].values()),
+                         "ess_tail_min": min(m["ess_tail"].values()),
+                         "ess_per_s": ess / e["runtime_s"] if e.get("runtime_s") else None,
+                         "quadrature_evals": q.get("n_evals"), "quadrature_s": q.get("runtime_s"),
+                         "quadrature_within_mc_error": (q.get("vs_mcmc") or {}).get("within_mc_error")})
+        row["windows"] = wins
+        row["overall"] = {k: c["overall"].get(k) for k in ("n_windows", "n_agree", "n_disagree", "n_undecided",
+                                                           "all_converged")}
+        row["mcmc_evals"] = int(sum(w["n_evals"] or 0 for w in wins))
+        row["quadrature_evals"] = int(sum(w["quadrature_evals"] or 0 for w in wins))
+    return row
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--forward", nargs="+", default=["converged", "imrv2-fd"], choices=list(FORWARD))
@@ -105,7 +241,41 @@ def main():
     ap.add_argument("--window-costs", action="store_true",
                     help="also time one log-probability batch in every window (projects all 18 windows)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--sweep", nargs="*", default=None, metavar="MOVES@WALKERS",
+                    help="measure move mixtures x walker counts to convergence on the fit's windows "
+                         "(--sweep-windows), e.g. stretch@8 de@8 'de:0.8,snooker:0.2'@16")
+    ap.add_argument("--sweep-windows", type=int, nargs="+", default=[0])
+    ap.add_argument("--fit-cache", default=None, help="pickle of the MIEnKS fit (reused when present)")
+    ap.add_argument("--cap", type=int, default=5000)
+    ap.add_argument("--init-scale", type=float, default=2.0)
+    ap.add_argument("--whole-run", nargs=2, default=None, metavar=("DATA", "OUT"),
+                    help="time 'imrbayes fit DATA --method METHOD --mcmc --out OUT' (the headline row)")
+    ap.add_argument("--method", default="mienks")
+    ap.add_argument("--fit-args", nargs="*", default=[], help="extra arguments for --whole-run's fit")
     args = ap.parse_args()
+    if args.whole_run is not None:
+        row = whole_run(args.whole_run[0], args.whole_run[1], args.method, args.fit_args)
+        print(json.dumps({k: v for k, v in row.items() if k not in ("windows", "cpu")}, indent=1, default=str))
+        for w in row.get("windows", []):
+            print(w)
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(jsonable({"meta": {"cpu": machine_info()}, "whole_run": row}), fh, indent=1)
+        return
+    if args.sweep is not None:
+        fkey = args.forward[0]
+        fm = ForwardModel("nhkv", options=FORWARD[fkey])
+        configs = [(c.rsplit("@", 1)[0], int(c.rsplit("@", 1)[1])) for c in args.sweep]
+        rows = sweep(fm, args.sweep_windows, configs, seed=args.seed, cap=args.cap, fit_cache=args.fit_cache,
+                     n_chains=args.chains, init_scale=args.init_scale)
+        if args.json:
+            meta = {"cpu": machine_info(), "forward": fkey, "options": fm.options.to_dict(), "seed": args.seed,
+                    "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "
+                            "window targets as imrbayes fit --mcmc builds them, start = ensemble Gaussian x init_scale",
+                    "init_scale": args.init_scale, "cap": args.cap}
+            with open(args.json, "w") as fh:
+                json.dump(jsonable({"meta": meta, "sweep": rows}), fh, indent=1)
+        return
     import arviz as az
 
     rows = []

@@ -60,6 +60,14 @@ def test_window0_ensemble_and_mcmc_agree(window0):
         assert "log_likelihood" in dt["window_00"].children
     for f in ("mcmc_forest.png", "mcmc_divergence.png", "mcmc_pair_window_00.png"):
         assert (out / "figures" / f).stat().st_size > 10_000
+    # stopped on convergence under the cap, and the exact grid posterior agrees with it (issue #20)
+    s = e["mcmc"]["sampler"]
+    assert s["stop_reason"] == "converged" and not s["cap_hit"] and s["n_steps"] < 2000
+    q = e["quadrature"]
+    assert q["vs_mcmc"]["within_mc_error"], q["vs_mcmc"]
+    assert q["edge_ok"] and q["n_evals"] > 0 and q["vs_ensemble"]["kl_sym"] < 0.1
+    with xr.open_datatree(out / "mcmc.nc") as dt:
+        assert "quadrature_json" in dt["window_00"].attrs
 
 
 def test_compare_recomputes_from_the_files(window0, tmp_path):
@@ -70,6 +78,7 @@ def test_compare_recomputes_from_the_files(window0, tmp_path):
     e0, e1 = before["windows"][0], again["windows"][0]
     for key in ("kl_sym", "kl_gauss", "w2", "kl_sample", "agree"):
         assert e0[key] == e1[key]
+    assert e1["quadrature"]["vs_mcmc"] == e0["quadrature"]["vs_mcmc"]
     assert "1 window(s) agree" in res.output and (tmp_path / "again" / "figures" / "mcmc_forest.png").exists()
 
 
@@ -101,6 +110,8 @@ def test_en4dvar_mcmc_one_exact_window(syn, tmp_path):
     assert e["t_star"][0] == 0.0 and e["t_star"][1] == pytest.approx(1.0)
     assert e["agree"] is None            # 60 steps cannot meet the 50-tau rule: undecided, never "agree"
     assert "undecided" in res.output
+    s = e["mcmc"]["sampler"]             # the hard cap is hit and says so
+    assert s["cap_hit"] and s["stop_reason"] == "cap" and s["n_steps"] == 60 and "hard cap of 60 steps" in e["notes"]
 
 
 def test_en4dvar_plain_likelihood_mcmc_samples_the_same_density(syn, tmp_path):

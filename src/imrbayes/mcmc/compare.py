@@ -34,6 +34,11 @@ Metrics
   asymptotic tests (n b1/6 ~ chi2 with d(d+1)(d+2)/6 dof; (b2 - d(d+2)) / sqrt(8 d (d+2)/n) ~ N(0, 1)).
 * ArviZ diagnostics with ``round_to="none"``: R-hat, bulk/tail ESS, MCSE of mean and sd, one chain
   per independent emcee ensemble.
+* ``quadrature`` (2-parameter windows, when the grid posterior is given or stored with the tree):
+  the exact posterior's moments, marginal 95 % intervals and 95 % HDR
+  (:mod:`imrbayes.mcmc.quadrature`), ``vs_mcmc`` (MCMC minus grid, in MCSE units; ``within_mc_error``)
+  and ``vs_ensemble`` (the ensemble Gaussian against the grid's moments: KL, W2). Reported, not part
+  of ``agree``; a converged MCMC that misses the grid beyond its Monte-Carlo error is noted.
 
 Agreement rule (``agree``)
 --------------------------
@@ -47,7 +52,8 @@ Agreement rule (``agree``)
    b >= 0.2).
 
 ``agree`` is ``None`` (JSON null: undecided) when the MCMC itself is not trustworthy: max R-hat >
-1.01, min bulk ESS < 400, or (when the sampler reports it) a chain shorter than 50 tau. ``notes``
+1.01, min bulk or tail ESS < 400, or (when the sampler reports it) a chain shorter than 50 tau or
+a run that hit its hard step cap before its convergence check passed (``cap_hit``). ``notes``
 says which criterion failed. Mardia's statistics are reported (and noted when the MCMC posterior
 is clearly non-Gaussian) but do not enter ``agree``: the sample check already measures whether a
 non-Gaussian shape matters at the scale of the criteria above.
@@ -66,15 +72,16 @@ from scipy.special import digamma, gammaln
 
 __all__ = ["THRESHOLDS", "AGREE_RULE", "gaussian_kl", "gaussian_w2", "whitener", "energy_distance",
            "energy_shift_reference", "sample_w1", "knn_entropy", "negentropy", "mardia", "sample_check",
-           "mcmc_summary", "compare_window", "compare_windows", "lognormal_moments"]
+           "mcmc_summary", "compare_window", "compare_windows", "lognormal_moments", "quadrature_block"]
 
 #: Thresholds of the agreement rule (module docstring).
-THRESHOLDS = {"kl_sym": 0.1, "w2": 0.5, "kl_sample": 0.1, "rhat": 1.01, "ess_bulk": 400.0, "tau_rule": 50.0}
+THRESHOLDS = {"kl_sym": 0.1, "w2": 0.5, "kl_sample": 0.1, "rhat": 1.01, "ess_bulk": 400.0, "ess_tail": 400.0,
+              "tau_rule": 50.0}
 
 AGREE_RULE = ("agree = kl_sym <= {kl_sym} nats and w2 <= {w2} (MCMC-whitened sd units) and kl_sample <= {kl_sample} "
               "nats (KL(MCMC || ensemble Gaussian) = Gaussian KL + bias-corrected kNN negentropy of the draws); "
-              "null (undecided) when max R-hat > {rhat}, min bulk ESS < {ess_bulk:g} or a chain is shorter "
-              "than {tau_rule:g} tau")
+              "null (undecided) when max R-hat > {rhat}, min bulk ESS < {ess_bulk:g}, min tail ESS < {ess_tail:g}, "
+              "a chain is shorter than {tau_rule:g} tau, or the sampler stopped at its step cap unconverged")
 
 
 def _sym(a):
@@ -291,8 +298,26 @@ def _draws(mcmc, internal_names):
     return np.stack([np.asarray(post[v].values, float) for v in internal_names], axis=-1)
 
 
+def quadrature_block(quad: dict, x, mE, SE, mcse_mean=None, mcse_sd=None) -> dict:
+    """The ``quadrature`` entry of a window: the grid posterior (:meth:`imrbayes.mcmc.quadrature.
+    GridPosterior.to_dict`), whether the MCMC draws ``x`` (chain, draw, 2) agree with it within their
+    Monte-Carlo error (``vs_mcmc``), and the ensemble Gaussian against the grid's moments
+    (``vs_ensemble``: Gaussian KL both ways, symmetrised, and whitened W2, as for the MCMC)."""
+    from imrbayes.mcmc.quadrature import compare_to_mcmc
+
+    names = list(quad["mean_internal"])
+    mQ = np.array([quad["mean_internal"][n] for n in names])
+    SQ = _sym(np.asarray(quad["cov_internal"], float))
+    W = whitener(SQ)
+    kl_qe, kl_eq = gaussian_kl(mQ, SQ, mE, SE), gaussian_kl(mE, SE, mQ, SQ)
+    return {**quad, "vs_mcmc": compare_to_mcmc(quad, x, mcse_mean, mcse_sd),
+            "vs_ensemble": {"kl_gauss": kl_qe, "kl_gauss_reverse": kl_eq, "kl_sym": 0.5 * (kl_qe + kl_eq),
+                            "w2": gaussian_w2(W @ mE, W @ SE @ W.T, W @ mQ, np.eye(len(names)))}}
+
+
 def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, t_star=None, diagnostics=None,
-                   seed: int = 0, n_max: int = 2000, n_energy: int = 500, n_null: int = 100) -> dict:
+                   seed: int = 0, n_max: int = 2000, n_energy: int = 500, n_null: int = 100,
+                   quadrature: dict | None = None) -> dict:
     """One window's entry of ``compare.json`` (module docstring).
 
     Parameters
@@ -309,6 +334,9 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
     n_max : most MCMC draws used for the negentropy and Mardia's statistics (fewer when the bulk ESS
         is lower: the draws are thinned to about the ESS); n_energy : most draws in the energy test.
     n_null : bootstrap replicates of the null distributions.
+    quadrature : the window's grid posterior (``GridPosterior.to_dict()``; default: the tree's
+        ``quadrature_json`` attribute, which ``fit --mcmc`` writes for 2-parameter windows): added
+        as ``entry["quadrature"]`` (:func:`quadrature_block`); it does not enter ``agree``.
     """
     names = list(names)
     positive = np.asarray(positive, bool)
@@ -344,6 +372,10 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
         if not emin >= THRESHOLDS["ess_bulk"]:
             converged = False
             notes.append(f"MCMC bulk ESS {emin:.0f} < {THRESHOLDS['ess_bulk']:g}")
+        tmin = min(diag["ess_tail"].values())
+        if not tmin >= THRESHOLDS["ess_tail"]:
+            converged = False
+            notes.append(f"MCMC tail ESS {tmin:.0f} < {THRESHOLDS['ess_tail']:g}")
         ess_min = emin
     else:
         converged = False
@@ -355,6 +387,9 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
             converged = False
             notes.append(f"chains shorter than {diagnostics.get('tau_rule', 50):g} tau "
                          f"(n_steps/tau = {diagnostics.get('n_steps_over_tau', float('nan')):.1f})")
+        if diagnostics.get("cap_hit"):
+            converged = False
+            notes.append(f"hard cap of {diagnostics.get('cap')} steps reached before the convergence check passed")
         failed = diagnostics.get("failed_chains") or {}
         if failed:
             first = next(iter(failed.items()))
@@ -399,6 +434,21 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
         notes.insert(0, "ensemble Gaussian agrees with MCMC")
     elif agree is None:
         notes.insert(0, "undecided: the MCMC run does not meet the convergence criteria")
+    if quadrature is None and not isinstance(mcmc, np.ndarray):
+        import json
+        quadrature = json.loads((getattr(mcmc, "attrs", None) or {}).get("quadrature_json", "null"))
+    quad = None
+    if quadrature is not None and "mean_internal" in quadrature and d == 2:
+        mc = (np.array([diag["mcse_mean"][v] for v in internal]), np.array([diag["mcse_sd"][v] for v in internal])) \
+            if diag is not None else (None, None)
+        quad = quadrature_block(quadrature, x, mE, SE, *mc)
+        if not quad["vs_mcmc"]["within_mc_error"] and converged:
+            notes.append("MCMC and the grid quadrature differ by more than their Monte-Carlo error (mean/sd z "
+                         f"{max(map(abs, quad['vs_mcmc']['mean_z'].values())):.1f}/"
+                         f"{max(map(abs, quad['vs_mcmc']['sd_z'].values())):.1f})")
+    elif quadrature is not None and "error" in quadrature:
+        quad = quadrature
+        notes.append(f"grid quadrature failed: {quadrature['error']}")
     entry = {"index": int(index), "t_star": None if t_star is None else [float(t) for t in t_star],
              "parameters": names, "internal": internal,
              "ensemble": _moments_block(names, internal, mE, SE, mE_si, SE_si),
@@ -409,6 +459,8 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
              "sd_ratio": {n: float(v) for n, v in zip(names, sdE / sdM)},
              "kl_sample": kl_sample, "negentropy": neg, "sample_check": chk, "mardia": mar,
              "criteria": crit, "agree": agree, "notes": "; ".join(notes)}
+    if quad is not None:
+        entry["quadrature"] = quad
     return entry
 
 

@@ -5,7 +5,9 @@
 * :func:`divergence_figure` -- KL (Gaussian, symmetrised, and sample-based) and W2 per window
   against t*, with the agreement thresholds, under the measured R*(t*);
 * :func:`pair_figure` -- one window: MCMC draws in kPa and Pa s (log axes) with the ensemble
-  Gaussian's and the MCMC Gaussian's 1- and 2-sd ellipses, and both marginals.
+  Gaussian's and the MCMC Gaussian's 1- and 2-sd ellipses, and both marginals; where the window has
+  its exact grid posterior (``entry["quadrature"]``), its 95 % highest-density region and marginal
+  95 % intervals in green (the forest plot shows its 95 % intervals too).
 
 Inputs are ``compare.json`` window entries (:func:`imrbayes.mcmc.compare.compare_window`) and, for
 the MCMC quantiles and draws, the ``mcmc.nc`` tree (:func:`imrbayes.mcmc.windows.mcmc_tree`) or a
@@ -24,7 +26,7 @@ from imrbayes.plotting import figure, label, plain_log_axis, save, scale
 
 __all__ = ["forest_figure", "divergence_figure", "pair_figure", "comparison_figures"]
 
-_ENS, _MC = "tab:blue", "tab:red"
+_ENS, _MC, _QD = "tab:blue", "tab:red", "tab:green"
 
 
 def _window_node(tree, index):
@@ -70,6 +72,11 @@ def forest_figure(entries, path, tree=None, prob: float = 0.95):
                 lo, med, hi = (np.exp([m - q * s, m, m + q * s]) if log else (m - q * s, m, m + q * s))
             ax.plot([tc + dx] * 2, [lo * sc, hi * sc], color=_MC, lw=2, alpha=0.8)
             ax.plot(tc + dx, med * sc, "s", color=_MC, ms=4, label="MCMC" if k == 0 else None)
+            qi = (e.get("quadrature") or {}).get("eti95", {}).get(name)
+            if qi is not None and prob == 0.95:
+                ax.plot([tc] * 2, [qi[0] * sc, qi[1] * sc], color=_QD, lw=1.2, alpha=0.9,
+                        label="quadrature (exact)" if not any(
+                            (x.get("quadrature") or {}).get("eti95") for x in entries[:k]) else None)
             ax.plot(ts, [med * sc] * 2, color=_MC, lw=0.6, alpha=0.4)
             if e.get("agree") is False:
                 ax.plot(tc, hi * sc, "v", color="k", ms=4)
@@ -154,6 +161,8 @@ def pair_figure(entry, node, path, max_points: int = 3000):
     SE = np.asarray(entry["ensemble"]["cov_internal"], float)
     mM = np.array([entry["mcmc"]["mean_internal"][v] for v in names])
     SM = np.asarray(entry["mcmc"]["cov_internal"], float)
+    quad = entry.get("quadrature") if isinstance(entry.get("quadrature"), dict) and \
+        "mean_internal" in entry.get("quadrature", {}) else None
     fig = figure(2.7 * d + 0.6, 2.7 * d + 0.5)
     axes = fig.subplots(d, d, squeeze=False)
     for i in range(d):
@@ -169,6 +178,9 @@ def pair_figure(entry, node, path, max_points: int = 3000):
                                 max(x[:, i].max(), mE[i] + 3 * math.sqrt(SE[i, i])), 200)
                 ax.plot(phys(i, g), stats.norm.pdf(g, mE[i], math.sqrt(SE[i, i])), color=_ENS, lw=1.5)
                 ax.plot(phys(i, g), stats.norm.pdf(g, mM[i], math.sqrt(SM[i, i])), color=_MC, lw=1, ls="--")
+                if quad is not None:
+                    for v in quad.get("eti95_internal", {}).get(names[i], []):
+                        ax.axvline(phys(i, np.asarray(v, float)), color=_QD, lw=1, ls=":")
                 ax.set_yticks([])
                 if logs[i]:
                     ax.set_xscale("log")
@@ -179,6 +191,10 @@ def pair_figure(entry, node, path, max_points: int = 3000):
                     for m_, S_, kw in ((mE, SE, {"color": _ENS, "lw": 1.4}), (mM, SM, {"color": _MC, "lw": 1, "ls": "--"})):
                         pts = _ellipse_points(m_[[j, i]], S_[np.ix_([j, i], [j, i])], k)
                         ax.plot(phys(j, pts[0]), phys(i, pts[1]), **kw)
+                if quad is not None and d == 2:
+                    for line in (quad.get("hdr95") or {}).get("contour_internal", []):
+                        line = np.asarray(line, float)
+                        ax.plot(phys(j, line[:, j]), phys(i, line[:, i]), color=_QD, lw=1.3)
                 if logs[j]:
                     ax.set_xscale("log")
                     plain_log_axis(ax, "x")
@@ -194,7 +210,8 @@ def pair_figure(entry, node, path, max_points: int = 3000):
     span = f", t* {ts[0]:.3g}-{ts[1]:.3g}" if ts else ""
     verdict = {True: "agree", False: "disagree", None: "undecided"}[entry.get("agree")]
     fig.suptitle(f"window {entry['index']}{span}: {verdict} (KL {entry['kl_sym']:.2g}, sample KL "
-                 f"{entry['kl_sample']:.2g}, W2 {entry['w2']:.2g} sd)\nblue: ensemble Gaussian; red: MCMC",
+                 f"{entry['kl_sample']:.2g}, W2 {entry['w2']:.2g} sd)\nblue: ensemble Gaussian; red: MCMC"
+                 + ("; green: quadrature 95 % region (exact)" if quad is not None else ""),
                  fontsize=8)
     return save(fig, path)
 

@@ -18,6 +18,10 @@ parallel with ``--workers``/``--scheduler``; a finished window is checkpointed (
 resumes from its HDF5 file (``mcmc_chains/window_004.h5``). A window whose sampling fails is left
 out, counted and named in ``compare.json["overall"]["failed_windows"]``; the others are written.
 Seeds: window j uses :func:`imrbayes.mcmc.windows.window_seed` (run seed, j) whatever the backend.
+
+With ``MCMCSettings.quadrature`` (default) a 2-parameter window also gets its exact grid posterior
+(:mod:`imrbayes.mcmc.quadrature`; stored with the window's tree as ``quadrature_json`` and in its
+compare entry as ``quadrature``): ensemble Gaussian, MCMC and quadrature side by side.
 """
 
 from __future__ import annotations
@@ -96,6 +100,8 @@ def mcmc_window_unit(unit, rng) -> dict:
     tree = run.to_datatree(target, loglik=settings.loglik)
     tree.attrs["ensemble_json"] = _json({"mean_internal": d["ens_mean"], "cov_internal": d["ens_cov"],
                                          "t_star": list(d["t_star"]), "state_source": d["state_source"]})
+    if settings.quadrature and target.ndim == 2:
+        tree.attrs["quadrature_json"] = _json(_quadrature(target, d["ens_mean"], d["ens_cov"]))
     entry = compare_window(d["ens_mean"], d["ens_cov"], tree, list(target.prior.names), target.prior.positive,
                            index=j, t_star=d["t_star"], diagnostics=run.diagnostics(), seed=j)
     entry["state_source"] = d["state_source"]
@@ -106,6 +112,23 @@ def mcmc_window_unit(unit, rng) -> dict:
     path = Path(d["node_path"])
     _atomic_netcdf(tree, path)
     return {"entry": _plain(entry), "node_path": str(path)}
+
+
+def _quadrature(target, mean, cov) -> dict:
+    """The window's grid posterior (:func:`imrbayes.mcmc.quadrature.grid_posterior`, placed by the
+    ensemble Gaussian) as a dict with its cost; a failure is recorded, never fatal to the window."""
+    import time
+
+    from imrbayes.mcmc.quadrature import grid_posterior
+
+    t0, e0 = time.perf_counter(), int(getattr(target, "n_evals", 0))
+    try:
+        out = grid_posterior(target, mean, cov).to_dict()
+    except Exception as exc:  # noqa: BLE001 - the MCMC result stands without its reference
+        out = {"error": f"{type(exc).__name__}: {exc}"}
+    out["runtime_s"] = time.perf_counter() - t0
+    out["n_evals"] = int(getattr(target, "n_evals", 0)) - e0
+    return out
 
 
 def _check_backend(path: Path) -> str:

@@ -1,9 +1,10 @@
-"""emcee sampling of a window target: independent ensembles, HDF5 resume, diagnostics, ArviZ output.
+"""emcee sampling of a window target: independent ensembles, stop on convergence, HDF5 resume, ArviZ output.
 
 :func:`run_mcmc` runs ``n_chains`` (>= 4 by default) *independent* emcee ensembles of
 ``n_walkers`` walkers each, every ensemble from its own seed and its own start drawn from
-N(start_mean, init_scale^2 start_cov) (typically the ensemble smoother's Gaussian posterior).
-Walkers of one ensemble are not independent chains (arviz issues #2156, #977), so every
+N(start_mean, init_scale^2 start_cov) (typically the ensemble smoother's Gaussian posterior,
+over-dispersed by ``init_scale`` = 2 so that R-hat can see chains that have not forgotten their
+start). Walkers of one ensemble are not independent chains (arviz issues #2156, #977), so every
 convergence number here treats **one ensemble as one chain**:
 
 * R-hat, bulk/tail ESS and MCSE come from ArviZ on a posterior whose ``chain`` is the ensemble and
@@ -15,17 +16,32 @@ convergence number here treats **one ensemble as one chain**:
 * burn-in (default: max(n/4, 3 tau), at most n/2) and thinning (default: tau/2, more if needed to
   keep at most ``max_draws`` draws per ensemble).
 
+Stopping (``stop="converged"``, the default): the ensembles advance together to a check point,
+where the draws that would be kept are diagnosed exactly as :func:`imrbayes.mcmc.compare.compare_window`
+diagnoses them (same burn-in, thinning, ArviZ R-hat and bulk/tail ESS); sampling stops at the first
+check where max R-hat <= ``rhat_max``, min bulk and tail ESS >= ``ess_min`` and every ensemble is
+at least ``tau_rule`` tau long (emcee's guidance: check every few tau, stop when the estimates are
+trustworthy). Checks start at ``min_steps`` and follow every ``check_tau`` tau (at least 10 steps),
+jumping ahead (at most doubling the length) to where the tau rule or the ESS would be met.
+``n_steps`` is the **hard cap**: a run that reaches it unconverged says so (``stop_reason = "cap"``,
+``cap_hit``), and its comparison is undecided (``agree: null``). ``stop="fixed"`` runs exactly
+``n_steps`` (the behaviour before issue #20). The check schedule depends only on the chain, so it is
+replayed from the HDF5 file on resume and a resumed run stops where the uninterrupted one did.
+
+Moves (``moves``): a weighted mixture of emcee moves named ``stretch``, ``de`` (differential
+evolution), ``snooker`` (the DE snooker, corrected: :func:`snooker_move`), ``walk``, e.g.
+``"de:0.8,snooker:0.2"`` (docs/mcmc.md: the choice was measured by ESS per forward solve).
+
 Sampling is seeded: ensemble c uses ``emcee.State(p0_c, random_state=RandomState(seed_c).get_state())``
 with seeds spawned from ``seed`` by ``numpy.random.SeedSequence``. With an HDF5 file every step of
 ensemble c is written to the group ``{name}/chain_{c}`` (``emcee.backends.HDFBackend``); calling
 :func:`run_mcmc` again with the same file and name **resumes**: each ensemble continues from its
-last saved step and random state (``run_mcmc(None, n)`` semantics: steps are appended) up to
-``n_steps`` in total, so an interrupted run plus its resumption gives the same chains as one
-uninterrupted run.
+last saved step and random state (``run_mcmc(None, n)`` semantics: steps are appended), so an
+interrupted run plus its resumption gives the same chains as one uninterrupted run.
 
 ``lockstep=True`` (default) runs the ensembles in threads that share one batched forward call per
-round (all ensembles' half-walker batches x experiments in one ``propagate``); the chains are the
-same as running the ensembles one after the other (``lockstep=False``).
+round (all ensembles' walker batches x experiments in one ``propagate``); the chains are the same
+as running the ensembles one after the other (``lockstep=False``).
 """
 
 from __future__ import annotations
@@ -42,7 +58,8 @@ import numpy as np
 
 from imrbayes.errors import InputError
 
-__all__ = ["MCMCSettings", "MCMCRun", "run_mcmc", "integrated_tau"]
+__all__ = ["MCMCSettings", "MCMCRun", "run_mcmc", "integrated_tau", "parse_moves", "emcee_moves", "snooker_move",
+           "convergence_check", "MOVE_NAMES", "STOP_REASONS"]
 
 _H5_LOCK = threading.RLock()
 
@@ -64,31 +81,122 @@ def _hdf_backend(path, name, read_only=False):
     return _Locked(str(path), name=name, read_only=read_only)
 
 
+#: emcee moves by name (``MCMCSettings.moves``). ``snooker`` is :func:`snooker_move` (the corrected
+#: DE snooker), not emcee 3.1.6's ``DESnookerMove``, which does not sample the target (docs/mcmc.md).
+MOVE_NAMES = ("stretch", "de", "snooker", "walk")
+
+#: stop reasons reported in ``MCMCRun.stop`` / ``diagnostics()["stop_reason"]``
+STOP_REASONS = ("converged", "cap", "fixed")
+
+
+def parse_moves(spec: str) -> list:
+    """``"de:0.8,snooker:0.2"`` -> ``[(name, weight)]`` with weights summing to 1 (a bare name has weight 1)."""
+    if not isinstance(spec, str) or not spec.strip():
+        raise InputError("moves", f"expected e.g. 'de:0.8,snooker:0.2' or 'stretch', got {spec!r}")
+    out = []
+    for part in spec.split(","):
+        name, _, w = part.strip().partition(":")
+        name = name.strip().lower()
+        if name not in MOVE_NAMES:
+            raise InputError("moves", f"unknown move {name!r} (known: {', '.join(MOVE_NAMES)})")
+        try:
+            weight = float(w) if w.strip() else 1.0
+        except ValueError:
+            raise InputError("moves", f"weight of {name!r} must be a number, got {w!r}") from None
+        if not (math.isfinite(weight) and weight > 0):
+            raise InputError("moves", f"weight of {name!r} must be positive, got {w!r}")
+        out.append((name, weight))
+    total = sum(w for _, w in out)
+    return [(n, w / total) for n, w in out]
+
+
+def snooker_move(gammas: float = 1.7):
+    """The differential-evolution snooker move of ter Braak & Vrugt (2008) as an emcee move.
+
+    emcee 3.1.6's ``DESnookerMove`` divides the direction by the square root of its length (not a
+    unit vector: the step becomes a multiplicative one whose reverse is not proposed with the same
+    density) and applies half the Jacobian exponent; it does not leave the target invariant -- on a
+    2-D Gaussian its walkers have 0.6-0.7 of the true sd, and 0.95 when mixed 20 % with DE
+    (``tests/test_mcmc_sampler.py``; fixed upstream in dfm/emcee#531, after 3.1.6). This is the
+    published move: the walker moves along the line through it and a third walker z by gamma
+    times the difference of the projections of two others, accepted with the extra factor
+    (|x' - z| / |x - z|)^(d - 1).
+    """
+    import emcee
+
+    class _Snooker(emcee.moves.RedBlueMove):
+        def __init__(self):
+            self.gammas = float(gammas)
+            super().__init__(nsplits=4)
+
+        def get_proposal(self, s, c, random):
+            ns, nc, d = len(s), [len(x) for x in c], s.shape[1]
+            q = np.empty_like(s)
+            metropolis = np.empty(ns, dtype=np.float64)
+            for i in range(ns):
+                w = np.array([c[j][random.randint(nc[j])] for j in range(3)])
+                random.shuffle(w)
+                z, z1, z2 = w
+                delta = s[i] - z
+                norm = np.linalg.norm(delta)
+                u = delta / norm
+                q[i] = s[i] + u * self.gammas * (np.dot(u, z1) - np.dot(u, z2))
+                metropolis[i] = np.log(np.linalg.norm(q[i] - z)) - np.log(norm)
+            return q, (d - 1.0) * metropolis
+
+    return _Snooker()
+
+
+def emcee_moves(spec: str) -> list:
+    """emcee move objects with weights for ``EnsembleSampler(moves=...)``."""
+    import emcee
+
+    make = {"stretch": emcee.moves.StretchMove, "de": emcee.moves.DEMove, "snooker": snooker_move,
+            "walk": emcee.moves.WalkMove}
+    return [(make[n](), w) for n, w in parse_moves(spec)]
+
+
 @dataclass
 class MCMCSettings:
     """emcee settings.
 
-    n_walkers : walkers per ensemble (>= 2 d; default 32).
-    n_steps : total steps per ensemble (a resumed run continues to this total).
+    n_walkers : walkers per ensemble (even, >= 2 d; default 8: docs/mcmc.md, ESS per forward solve).
+    n_steps : ``stop="converged"``: the hard cap on steps per ensemble; ``stop="fixed"``: the total
+        steps per ensemble (a resumed run continues to it).
     n_chains : independent ensembles (>= 2; 4 by default; R-hat is computed across them).
+    stop : ``"converged"`` (stop at the first check where the convergence criteria hold, module
+        docstring) or ``"fixed"`` (exactly ``n_steps``).
+    min_steps : first convergence check (steps); check_tau : later checks every ``check_tau`` tau.
+    rhat_max, ess_min : the criteria (max R-hat; min bulk and tail ESS), as ``compare.THRESHOLDS``.
+    moves : emcee move mixture, e.g. ``"de:0.8,snooker:0.2"`` or ``"stretch"`` (:func:`parse_moves`).
     burn, thin : steps discarded / kept every ``thin`` steps; None = automatic (module docstring).
     max_draws : most draws kept per ensemble in the DataTree (thinning is increased to respect it).
-    init_scale : start spread, in units of the start covariance's standard deviations.
+    init_scale : start spread, in units of the start covariance's standard deviations (> 1:
+        over-dispersed).
     tau_rule : the chain should be at least ``tau_rule`` tau long (emcee's advice: 50).
     lockstep : share forward batches between the ensembles (threads); False runs them one by one.
     loglik : recompute the pointwise log-likelihood of the kept draws for the DataTree.
+    quadrature : also compute the exact grid posterior of 2-parameter windows
+        (:mod:`imrbayes.mcmc.quadrature`; used by ``imrbayes fit --mcmc``).
     """
 
-    n_walkers: int = 32
-    n_steps: int = 2000
+    n_walkers: int = 8
+    n_steps: int = 5000
     n_chains: int = 4
+    stop: str = "converged"
+    min_steps: int = 100
+    check_tau: float = 5.0
+    rhat_max: float = 1.01
+    ess_min: float = 400.0
+    moves: str = "de:0.8,snooker:0.2"
     burn: int | None = None
     thin: int | None = None
     max_draws: int = 1000
-    init_scale: float = 1.0
+    init_scale: float = 2.0
     tau_rule: float = 50.0
     lockstep: bool = True
     loglik: bool = True
+    quadrature: bool = True
 
     def check(self, ndim: int):
         if self.n_walkers < 2 * ndim or self.n_walkers % 2:
@@ -97,12 +205,26 @@ class MCMCSettings:
             raise InputError("n_chains", f"R-hat needs at least 2 independent ensembles, got {self.n_chains}")
         if self.n_steps < 4:
             raise InputError("n_steps", f"must be at least 4, got {self.n_steps}")
+        if self.stop not in ("converged", "fixed"):
+            raise InputError("stop", f"must be 'converged' or 'fixed', got {self.stop!r}")
+        if not 4 <= self.min_steps:
+            raise InputError("min_steps", f"must be at least 4, got {self.min_steps}")
+        if not (math.isfinite(self.check_tau) and self.check_tau > 0):
+            raise InputError("check_tau", f"must be positive, got {self.check_tau}")
+        if not self.rhat_max >= 1.0:
+            raise InputError("rhat_max", f"must be >= 1, got {self.rhat_max}")
+        if not self.ess_min > 0:
+            raise InputError("ess_min", f"must be positive, got {self.ess_min}")
         if self.burn is not None and not 0 <= self.burn < self.n_steps:
             raise InputError("burn", f"must lie in [0, n_steps), got {self.burn}")
         if self.thin is not None and self.thin < 1:
             raise InputError("thin", f"must be >= 1, got {self.thin}")
         if not self.init_scale > 0:
             raise InputError("init_scale", "must be positive")
+        moves = parse_moves(self.moves)
+        if any(n in ("de", "snooker") for n, _ in moves) and self.n_walkers < 6:
+            raise InputError("n_walkers", f"differential-evolution moves need >= 6 walkers (3 per half: "
+                                          f"more than one difference vector), got {self.n_walkers}")
 
 
 def integrated_tau(chain) -> np.ndarray:
@@ -111,6 +233,70 @@ def integrated_tau(chain) -> np.ndarray:
     import emcee
 
     return np.asarray(emcee.autocorr.integrated_time(np.asarray(chain), tol=0, quiet=True), dtype=np.float64)
+
+
+def burn_thin(n: int, tau_max: float, s: "MCMCSettings", n_walkers: int) -> tuple:
+    """(burn, thin) of a chain of n steps (module docstring; the same at every check and at the end)."""
+    burn = s.burn if s.burn is not None else int(min(n // 2, max(n // 4, math.ceil(3 * tau_max))))
+    burn = min(burn, n - 1)
+    thin = s.thin if s.thin is not None else max(1, int(tau_max // 2))
+    thin = max(thin, math.ceil((n - burn) / max(1, s.max_draws // n_walkers)))        # at most max_draws per chain
+    return int(burn), int(thin)
+
+
+def walker_major(chain, burn: int, thin: int) -> np.ndarray:
+    """(C, n, W, d) chain -> (C, W k, d) kept draws, walker by walker (draw = walker * k + kept step)."""
+    x = np.asarray(chain)[:, burn::thin]                                 # (C, k, W, d)
+    C, k, W, d = x.shape
+    return x.transpose(0, 2, 1, 3).reshape(C, W * k, d)
+
+
+def convergence_check(chain, s: "MCMCSettings") -> dict:
+    """Diagnose a (C, n, W, d) chain as the final run would be: tau per ensemble (last 3/4), burn-in
+    and thinning, ArviZ R-hat and bulk/tail ESS of the walker-major kept draws (one chain per
+    ensemble), the tau rule. ``ok`` when every criterion of :class:`MCMCSettings` holds."""
+    from imrbayes.mcmc.compare import mcmc_summary
+
+    chain = np.asarray(chain)
+    C, n, W, d = chain.shape
+    tau = np.stack([integrated_tau(chain[c, n // 4:]) for c in range(C)])          # (C, d)
+    tau_max = float(np.max(tau)) if np.all(np.isfinite(tau)) else float("inf")
+    out = {"n": int(n), "tau_max": tau_max, "n_over_tau": float(n / tau_max) if tau_max > 0 else float("inf"),
+           "rhat_max": float("inf"), "ess_bulk_min": 0.0, "ess_tail_min": 0.0}
+    if math.isfinite(tau_max):
+        burn, thin = burn_thin(n, tau_max, s, W)
+        x = walker_major(chain, burn, thin)
+        if x.shape[1] >= 4 and C >= 2:
+            import arviz as az
+
+            names = [f"x{i}" for i in range(d)]
+            dt = az.from_dict({"posterior": {v: x[:, :, i] for i, v in enumerate(names)}})
+            with np.errstate(all="ignore"):
+                summ = mcmc_summary(dt, names)
+            vals = lambda col: [v if np.isfinite(v) else (np.inf if col == "r_hat" else 0.0)   # noqa: E731
+                                for v in summ[col].values()]
+            out.update({"burn": burn, "thin": thin, "rhat_max": float(max(vals("r_hat"))),
+                        "ess_bulk_min": float(min(vals("ess_bulk"))), "ess_tail_min": float(min(vals("ess_tail")))})
+    crit = {"rhat": out["rhat_max"] <= s.rhat_max, "ess_bulk": out["ess_bulk_min"] >= s.ess_min,
+            "ess_tail": out["ess_tail_min"] >= s.ess_min,
+            "tau_rule": bool(np.all(n >= s.tau_rule * tau.max(axis=1))) if math.isfinite(tau_max) else False}
+    out["criteria"] = crit
+    out["ok"] = bool(all(crit.values()))
+    return out
+
+
+def _next_check(n: int, chk: dict, s: "MCMCSettings") -> int:
+    """The next check point after a failed check at n steps (module docstring), capped at n_steps."""
+    tau = chk["tau_max"] if math.isfinite(chk["tau_max"]) else float(n)
+    step = max(10, math.ceil(s.check_tau * tau))
+    want = n + step
+    if not chk["criteria"]["tau_rule"]:
+        want = max(want, math.ceil(s.tau_rule * tau))
+    ess = min(chk["ess_bulk_min"], chk["ess_tail_min"])
+    if 0 < ess < s.ess_min:                              # ESS grows about linearly with the kept length
+        burn = chk.get("burn", n // 4)
+        want = max(want, burn + math.ceil(1.1 * (n - burn) * s.ess_min / ess))
+    return int(min(s.n_steps, n + min(max(step, want - n), n)))        # at most double the length
 
 
 class _Batcher:
@@ -193,6 +379,10 @@ class MCMCRun:
     settings : dict
     failed_chains : dict                  ensemble index (of the requested ones) -> error, for
                                           ensembles that raised and were left out (contained)
+    stop : dict                           how sampling ended: ``rule`` (settings.stop), ``reason``
+                                          ("converged", "cap" or "fixed"), ``cap`` (n_steps),
+                                          ``cap_hit``, ``checks`` (every convergence check: n, tau_max,
+                                          rhat_max, ess_bulk_min, ess_tail_min, criteria, ok)
     """
 
     names: tuple
@@ -211,6 +401,7 @@ class MCMCRun:
     backend: dict | None = None
     settings: dict = field(default_factory=dict)
     failed_chains: dict = field(default_factory=dict)
+    stop: dict = field(default_factory=dict)
 
     @property
     def n_chains(self) -> int:
@@ -260,6 +451,10 @@ class MCMCRun:
                 "acceptance": self.acceptance.tolist(), "seeds": list(self.seeds), "runtime_s": self.runtime_s,
                 "n_evals": self.n_evals, "steps_run": list(self.steps_run), "backend": self.backend,
                 "failed_chains": {str(k): v for k, v in self.failed_chains.items()},
+                "moves": self.settings.get("moves"), "stop_rule": self.stop.get("rule"),
+                "stop_reason": self.stop.get("reason"), "cap": self.stop.get("cap"),
+                "cap_hit": bool(self.stop.get("cap_hit", False)), "checks": list(self.stop.get("checks", [])),
+                "evals_per_chain": int(self.n_steps * self.n_walkers),
                 "chain_definition": "one chain = one independent emcee ensemble; draws walker-major"}
 
     def to_datatree(self, target=None, loglik: bool = True):
@@ -393,19 +588,30 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             states[c] = emcee.State(P0[c], log_prob=LP[c],
                                     random_state=np.random.RandomState(seeds[c]).get_state())
 
-    remaining = [s.n_steps - n for n in done]
-    bar = _progress_bar(progress, sum(remaining))
+    moves = emcee_moves(s.moves)
+    samplers = [None] * C
+    route = [None] * C                  # the batcher each ensemble's log-prob calls go through (None: direct)
+    lengths = list(done)
+    failed = {}
+    bar = _progress_bar(progress, sum(max(0, s.n_steps - n) for n in done))
     bar_lock = threading.Lock()
-    batcher = _Batcher(target.log_prob, sum(1 for r in remaining if r > 0)) if s.lockstep else None
 
-    def run_one(c):
-        if remaining[c] <= 0:
-            return
-        fn = (lambda x, c=c: batcher.call(c, x)) if batcher is not None else target.log_prob
-        sampler = emcee.EnsembleSampler(W, d, fn, vectorize=True, backend=backends[c])
-        state = states[c] if states[c] is not None else sampler.get_last_sample()
+    def run_one(c, upto, batcher):
+        """Advance ensemble c to ``upto`` steps in total."""
+        k = upto - lengths[c]
         try:
-            for _ in sampler.sample(state, iterations=remaining[c], store=True):
+            if k <= 0:
+                return
+            route[c] = batcher
+            if samplers[c] is None:
+                fn = lambda x, c=c: route[c].call(c, x) if route[c] is not None else target.log_prob(x)  # noqa: E731
+                samplers[c] = emcee.EnsembleSampler(W, d, fn, vectorize=True, backend=backends[c], moves=moves)
+                if states[c] is None:
+                    states[c] = samplers[c].get_last_sample()
+            for st in samplers[c].sample(states[c], iterations=k, store=True,
+                                         skip_initial_state_check=lengths[c] > 0):
+                states[c] = st
+                lengths[c] += 1
                 if bar is not None:
                     with bar_lock:
                         bar.update(1)
@@ -413,43 +619,78 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             if batcher is not None:
                 batcher.leave()
 
-    # A failed ensemble (an exception in emcee or in its part of the evaluation) is contained: it
-    # is left out, recorded in ``failed_chains``, and the others go on. KeyboardInterrupt and the
-    # like still stop everything.
-    failed = {}
-    try:
-        if batcher is None:
-            for c in range(C):
+    def advance(upto):
+        """Every surviving ensemble to ``upto`` steps. A failed ensemble (an exception in emcee or in
+        its part of the evaluation) is contained: left out, recorded in ``failed``; the others go on.
+        KeyboardInterrupt and the like still stop everything."""
+        todo = [c for c in range(C) if c not in failed and lengths[c] < upto]
+        if not todo:
+            return
+        if not s.lockstep:
+            for c in todo:
                 try:
-                    run_one(c)
+                    run_one(c, upto, None)
                 except Exception as exc:                        # noqa: BLE001
                     failed[c] = f"{type(exc).__name__}: {exc}"
-        else:
-            errors = []
+            return
+        batcher = _Batcher(target.log_prob, len(todo))
+        errors = []
 
-            def worker(c):
-                try:
-                    run_one(c)
-                except Exception as exc:                        # noqa: BLE001
-                    failed[c] = f"{type(exc).__name__}: {exc}"
-                except BaseException as exc:                    # noqa: BLE001
-                    errors.append(exc)
-                    batcher.abort(exc)
-
-            threads = [threading.Thread(target=worker, args=(c,), daemon=True) for c in range(C)]
-            for th in threads:
-                th.start()
+        def worker(c):
             try:
-                for th in threads:
-                    while th.is_alive():
-                        th.join(0.2)
-            except BaseException as exc:                        # KeyboardInterrupt: stop the others
+                run_one(c, upto, batcher)
+            except Exception as exc:                            # noqa: BLE001
+                failed[c] = f"{type(exc).__name__}: {exc}"
+            except BaseException as exc:                        # noqa: BLE001
+                errors.append(exc)
                 batcher.abort(exc)
-                for th in threads:
-                    th.join()
-                raise
-            if errors:
-                raise errors[0]
+
+        threads = [threading.Thread(target=worker, args=(c,), daemon=True) for c in todo]
+        for th in threads:
+            th.start()
+        try:
+            for th in threads:
+                while th.is_alive():
+                    th.join(0.2)
+        except BaseException as exc:                            # KeyboardInterrupt: stop the others
+            batcher.abort(exc)
+            for th in threads:
+                th.join()
+            raise
+        if errors:
+            raise errors[0]
+
+    def stacked(n):
+        alive = [c for c in range(C) if c not in failed]
+        return alive, np.stack([backends[c].get_chain()[:n] for c in alive])
+
+    # ----- the check schedule: replayed on what the file holds, then sampled on
+    checks, reason, n_chk = [], None, s.n_steps
+    if s.stop == "converged":
+        n_chk = min(s.min_steps, s.n_steps)
+        while n_chk <= min(lengths):                          # replay (resume): no forward run
+            chk = convergence_check(stacked(n_chk)[1], s)
+            checks.append(chk)
+            if chk["ok"] or n_chk >= s.n_steps:
+                reason = "converged" if chk["ok"] else "cap"
+                break
+            n_chk = _next_check(n_chk, chk, s)
+    try:
+        while reason is None:
+            advance(n_chk)
+            if sum(1 for c in range(C) if c not in failed) < 2:
+                break
+            if s.stop == "fixed":
+                reason = "fixed"
+                break
+            chk = convergence_check(stacked(n_chk)[1], s)
+            checks.append(chk)
+            if chk["ok"]:
+                reason = "converged"
+            elif n_chk >= s.n_steps:
+                reason = "cap"
+            else:
+                n_chk = _next_check(n_chk, chk, s)
     finally:
         if bar is not None:
             bar.close()
@@ -461,24 +702,23 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                            f"first error: {next(iter(failed.values()))}")
     backends = [backends[c] for c in alive]
     seeds = [seeds[c] for c in alive]
-    remaining = [remaining[c] for c in alive]
+    steps_run = [max(0, n_chk - done[c]) for c in alive]
     C = len(alive)
-    chain = np.stack([be.get_chain() for be in backends])            # (C, n, W, d)
-    logp = np.stack([be.get_log_prob() for be in backends])          # (C, n, W)
+    chain = np.stack([be.get_chain()[:n_chk] for be in backends])          # (C, n, W, d)
+    logp = np.stack([be.get_log_prob()[:n_chk] for be in backends])        # (C, n, W)
     n = chain.shape[1]
     acc = np.array([float(np.mean(be.accepted)) / max(1, be.iteration) for be in backends])
     tau = np.stack([integrated_tau(chain[c, n // 4:]) for c in range(C)])
-    tau_max = float(np.max(tau))
-    burn = s.burn if s.burn is not None else int(min(n // 2, max(n // 4, math.ceil(3 * tau_max))))
-    thin = s.thin if s.thin is not None else max(1, int(tau_max // 2))
-    thin = max(thin, math.ceil((n - burn) / max(1, s.max_draws // W)))        # at most max_draws per chain
+    burn, thin = burn_thin(n, float(np.max(tau)), s, W)
     prior = target.prior
+    stop = {"rule": s.stop, "reason": reason, "cap": int(s.n_steps), "cap_hit": reason == "cap",
+            "checks": checks}
     return MCMCRun(names=tuple(prior.names), internal_names=list(getattr(target, "internal_names", prior.names)),
                    positive=np.concatenate([np.asarray(prior.positive, dtype=bool), np.zeros(d - prior.n, dtype=bool)]),
                    chain=chain, log_prob=logp, acceptance=acc,
                    tau=tau, burn=burn, thin=thin, seeds=seeds, runtime_s=time.perf_counter() - t0,
-                   n_evals=int(getattr(target, "n_evals", 0)) - evals0, steps_run=remaining,
+                   n_evals=int(getattr(target, "n_evals", 0)) - evals0, steps_run=steps_run,
                    backend=None if backend is None else {"path": str(backend), "name": name},
-                   failed_chains=dict(sorted(failed.items())),
+                   failed_chains=dict(sorted(failed.items())), stop=stop,
                    settings={**asdict(s), "seed": int(seed), "start_mean": start_mean.tolist(),
                              "start_cov": start_cov.tolist()})
