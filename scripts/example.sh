@@ -13,8 +13,7 @@ rm -rf "$OUT"
 .venv/bin/imrbayes simulate --model nhkv --param G=7.29e3 --param mu=0.088 --rmax 263e-6 --ratio 7.58 \
     --n-exp 5 --noise paper --seed 0 --forward bubble=polytropic --out "$OUT/data"
 .venv/bin/imrbayes inspect "$OUT/data" --out "$OUT/inspect"
-.venv/bin/imrbayes fit "$OUT/data" --method en4dvar --seed 0 --out "$OUT/fit" \
-    --mcmc --mcmc-set n_walkers=16 --mcmc-set n_steps=2000
+.venv/bin/imrbayes fit "$OUT/data" --method en4dvar --seed 0 --out "$OUT/fit" --mcmc
 .venv/bin/imrbayes report "$OUT/fit"
 .venv/bin/python - "$OUT" <<'PY'
 import json, sys

@@ -532,6 +532,10 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
 
     s = settings or MCMCSettings()
     d = int(target.ndim)
+    if s.n_walkers < 2 * d:
+        # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
+        from dataclasses import replace
+        s = replace(s, n_walkers=2 * d)
     s.check(d)
     t0 = time.perf_counter()
     if start_mean is None:
