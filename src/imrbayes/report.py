@@ -685,8 +685,8 @@ def _section_experiments(s) -> str:
     has_est = any(isinstance(x.get("estimate"), dict) for x in per)
     nkeys = []
     for x in per:
-        for k in (x.get("nuisance") or {}):
-            if k not in nkeys:
+        for k, v in (x.get("nuisance") or {}).items():
+            if isinstance(v, dict) and k not in nkeys:       # quantities; "treatment" is a note
                 nkeys.append(k)
     if not per or not (has_est or nkeys):
         return ""
@@ -712,7 +712,8 @@ def _section_experiments(s) -> str:
                 f, _ = _disp(p, units)
                 r += [_ncell(_fnum(e.get("mean")) * f, ".4g"), _ncell(_fnum(e.get("sd")) * f, ".3g")]
         for k in nkeys:
-            e = (x.get("nuisance") or {}).get(k) or {}
+            e = (x.get("nuisance") or {}).get(k)
+            e = e if isinstance(e, dict) else {}
             _, f, _ = _NUISANCE.get(k, (k, 1.0, ""))
             r += [_ncell(_fnum(e.get("mean")) * f, ".4g"), _ncell(_fnum(e.get("sd")) * f, ".3g")]
         if eff:
