@@ -48,7 +48,7 @@ import numpy as np
 from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, rtps
 from imrbayes.ensemble.gn import gauss_newton
 from imrbayes.ensemble.hierarchical import likelihood_terms, random_effects
-from imrbayes.ensemble.likelihood import (frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
+from imrbayes.ensemble.likelihood import (check_choice, frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
                                           predict, record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
@@ -91,12 +91,7 @@ class En4DVarSettings:
         return self
 
     def check(self):
-        from imrbayes.ensemble.likelihood import LIKELIHOODS
-        if self.likelihood not in LIKELIHOODS:
-            raise InputError("likelihood", f"must be one of {', '.join(LIKELIHOODS)}, got {self.likelihood!r}")
-        if self.likelihood == "default" and (self.fusion or self.obs_weight):
-            raise InputError("fusion/obs_weight", "apply to --likelihood paper only (the default likelihood counts "
-                                                  "each sample once and fuses through a between-bubble layer)")
+        check_choice(self.likelihood, self.fusion, self.obs_weight)
         s = self.resolved()
         if self.n_ens < 3:
             raise InputError("n_ens", f"needs at least 3 members, got {self.n_ens}")

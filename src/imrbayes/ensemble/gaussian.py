@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Fusion", "fuse", "fuse_likelihoods", "rtps", "rtps_factors", "precision_weighted", "draw", "marginal_summary",
+__all__ = ["Fusion", "fuse", "likelihood_terms", "fuse_likelihoods", "rtps", "rtps_factors", "precision_weighted", "draw", "marginal_summary",
            "sym", "is_pd"]
 
 
@@ -90,6 +90,30 @@ def fuse(means, covs, prior_mean, prior_cov, margin: float = 1e-6) -> Fusion:
     return Fusion(mean, cov, c, bool(ok or N == 1), notes)
 
 
+def likelihood_terms(post_m, post_c, prior_m, prior_c, ridge: float = 1e-9):
+    """Per-experiment likelihood (Lambda_n (N, d, d), eta_n (N, d)) = posterior / the prior it
+    started from, projected onto the positive semi-definite cone (ensemble Gauss–Newton gives
+    H >= I, so this only removes round-off); ``ridge`` times the prior precision keeps Lambda_n
+    invertible in directions the data do not inform (it does not change eta_n). Returns
+    (Lam, eta, m_n, n_clipped) with m_n the likelihood's centre."""
+    post_m = np.atleast_2d(post_m)
+    N, d = post_m.shape
+    Lam, eta, mean = np.empty((N, d, d)), np.empty((N, d)), np.empty((N, d))
+    clipped = 0
+    for n in range(N):
+        Si = np.linalg.inv(sym(post_c[n]))
+        Qi = np.linalg.inv(sym(prior_c[n]))
+        lam, V = np.linalg.eigh(sym(Si - Qi))
+        clipped += int(np.sum(lam < 0))
+        ridge_n = ridge * float(np.max(np.abs(np.linalg.eigvalsh(Qi))))
+        L = sym((V * (np.maximum(lam, 0.0) + ridge_n)) @ V.T)
+        # the information Si m - Qi q, restricted to the directions the data inform
+        e = V @ np.where(lam > 0, V.T @ (Si @ post_m[n] - Qi @ prior_m[n]), 0.0)
+        Lam[n], eta[n] = L, e
+        mean[n] = np.linalg.lstsq(L, e, rcond=None)[0]
+    return Lam, eta, mean, clipped
+
+
 def fuse_likelihoods(post_m, post_c, prior_m, prior_c, chain_m, chain_c) -> Fusion:
     """Fuse experiments through their likelihoods: posterior / the prior each was computed from.
 
@@ -107,24 +131,11 @@ def fuse_likelihoods(post_m, post_c, prior_m, prior_c, chain_m, chain_c) -> Fusi
     previous posterior) and MIEnKS windows (each experiment's own inflated chain); there the
     original prior divided out N - 1 times is not what the posteriors contain.
     """
-    N, d = post_m.shape
     C_inv = np.linalg.inv(sym(chain_c))
-    Lam = C_inv.copy()
-    eta = C_inv @ chain_m
-    clipped = 0
-    for n in range(N):
-        Si = np.linalg.inv(sym(post_c[n]))
-        Qi = np.linalg.inv(sym(prior_c[n]))
-        lam, V = np.linalg.eigh(sym(Si - Qi))
-        clipped += int(np.sum(lam < 0))
-        Ln = (V * np.maximum(lam, 0.0)) @ V.T
-        Lam += Ln
-        # information of the clipped likelihood: Ln times the likelihood's own centre
-        eta += Si @ post_m[n] - Qi @ prior_m[n] if not np.any(lam < 0) else Ln @ np.linalg.lstsq(
-            sym(Si - Qi), Si @ post_m[n] - Qi @ prior_m[n], rcond=None)[0]
-    cov = sym(np.linalg.inv(sym(Lam)))
+    Ls, etas, _, clipped = likelihood_terms(post_m, post_c, prior_m, prior_c, ridge=0.0)
+    cov = sym(np.linalg.inv(sym(C_inv + Ls.sum(axis=0))))
     notes = [f"{clipped} negative eigenvalue(s) of window likelihoods clipped to 0"] if clipped else []
-    return Fusion(cov @ eta, cov, 1.0, clipped == 0, notes)
+    return Fusion(cov @ (C_inv @ chain_m + etas.sum(axis=0)), cov, 1.0, clipped == 0, notes)
 
 
 def rtps_factors(prior_anom, post_anom, a: float, tiny: float = 1e-12):

@@ -24,36 +24,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imrbayes.ensemble.gaussian import marginal_summary, sym
+from imrbayes.ensemble.gaussian import likelihood_terms, marginal_summary, sym
 
 __all__ = ["RandomEffects", "random_effects", "likelihood_terms"]
 
 _CHI2_95 = 3.841458820694124
 _TAU_MAX = 3.0          # a between-bubble sd of e^3 (20x) on a log axis: beyond any gel
-
-
-def likelihood_terms(post_m, post_c, prior_m, prior_c, ridge: float = 1e-9):
-    """Per-experiment likelihood (Lambda_n (N, d, d), eta_n (N, d)) = posterior / the prior it
-    started from, projected onto the positive semi-definite cone (ensemble Gauss–Newton gives
-    H >= I, so this only removes round-off); ``ridge`` times the prior precision keeps Lambda_n
-    invertible in directions the data do not inform. Returns (Lam, eta, m_n, n_clipped)."""
-    post_m = np.atleast_2d(post_m)
-    N, d = post_m.shape
-    Lam, eta, mean = np.empty((N, d, d)), np.empty((N, d)), np.empty((N, d))
-    clipped = 0
-    for n in range(N):
-        Si = np.linalg.inv(sym(post_c[n]))
-        Qi = np.linalg.inv(sym(prior_c[n]))
-        lam, V = np.linalg.eigh(sym(Si - Qi))
-        clipped += int(np.sum(lam < 0))
-        ridge_n = ridge * float(np.max(np.abs(np.linalg.eigvalsh(Qi))))
-        L = (V * (np.maximum(lam, 0.0) + ridge_n)) @ V.T
-        # the likelihood's centre: where Si m - Qi q points, restricted to the informed directions
-        e = Si @ post_m[n] - Qi @ prior_m[n]
-        m = np.linalg.solve(L, V @ (np.where(lam > 0, V.T @ e, 0.0)))
-        Lam[n], mean[n] = sym(L), m
-        eta[n] = L @ m
-    return Lam, eta, mean, clipped
 
 
 @dataclass

@@ -30,13 +30,24 @@ import math
 
 import numpy as np
 
-__all__ = ["LIKELIHOODS", "NUISANCES", "record_noise_sd", "simulate_shifted", "frame_operator", "predict", "whitening",
+__all__ = ["LIKELIHOODS", "NUISANCES", "check_choice", "record_noise_sd", "simulate_shifted", "frame_operator", "predict", "whitening",
            "effective_samples", "observation_model", "nuisance_summary", "nuisance_prior_sd"]
 
 #: ``default``: this module; ``paper``: the paper's averaged cost, sample-variance P_k, prior-corrected fusion.
 LIKELIHOODS = ("default", "paper")
 #: The nuisance quantities (a, delta, rho): relative Rmax error, time of the maximum [t*], log Req error.
 NUISANCES = ("rmax_rel", "t0_offset", "log_req")
+
+
+def check_choice(likelihood: str, fusion, obs_weight) -> None:
+    """The likelihood setting of a method, and that ``fusion``/``obs_weight`` (the paper's knobs)
+    are only set with ``likelihood="paper"``."""
+    from imrbayes.errors import InputError
+    if likelihood not in LIKELIHOODS:
+        raise InputError("likelihood", f"must be one of {', '.join(LIKELIHOODS)}, got {likelihood!r}")
+    if likelihood == "default" and (fusion or obs_weight):
+        raise InputError("fusion/obs_weight", "apply to --likelihood paper only (the default likelihood counts "
+                                              "each sample once and fuses through a between-bubble layer)")
 
 
 def nuisance_prior_sd(obs, n: int) -> np.ndarray:

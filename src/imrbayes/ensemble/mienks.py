@@ -102,7 +102,7 @@ from imrbayes.ensemble.gaussian import (Fusion, draw, fuse, fuse_likelihoods, ma
                                         rtps_factors)
 from imrbayes.ensemble.gn import gauss_newton
 from imrbayes.ensemble.hierarchical import likelihood_terms, random_effects
-from imrbayes.ensemble.likelihood import LIKELIHOODS, effective_samples, record_noise_sd, simulate_shifted
+from imrbayes.ensemble.likelihood import check_choice, effective_samples, record_noise_sd, simulate_shifted
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
 from imrbayes.ensemble.windows import mda_weights, n_windows, time_resolved, window_spans
@@ -155,11 +155,7 @@ class MIEnKSSettings:
         return self
 
     def check(self, n_steps: int):
-        if self.likelihood not in LIKELIHOODS:
-            raise InputError("likelihood", f"must be one of {', '.join(LIKELIHOODS)}, got {self.likelihood!r}")
-        if self.likelihood == "default" and (self.fusion or self.obs_weight):
-            raise InputError("fusion/obs_weight", "apply to --likelihood paper only (the default likelihood counts "
-                                                  "each sample once and fuses through a between-bubble layer)")
+        check_choice(self.likelihood, self.fusion, self.obs_weight)
         s = self.resolved()
         if self.n_ens < 3:
             raise InputError("n_ens", f"needs at least 3 members, got {self.n_ens}")
