@@ -321,6 +321,8 @@ def test_report_conclusion_shows_between_predictive_and_nuisance(runs, tmp_path)
 
 def test_report_conclusion_one_bubble_and_absent_keys(runs, tmp_path):
     run = _copy(runs, "en4dvar", tmp_path)
+    # a summary without the between-bubble layer (the paper likelihood, or an older run)
+    _edit_summary(run, lambda s: [s.pop(k, None) for k in ("between_experiments", "predictive")])
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     concl = _text(_section(html, "conclusion"))
     assert "Between bubbles: not estimated by this run; the per-experiment estimates span G " in concl
@@ -335,6 +337,7 @@ def test_report_says_when_the_data_say_little(runs, tmp_path):
 
     def wide(s):          # mu's posterior as wide as its prior (log-normal 0.209 +- 0.088 Pa s)
         s["estimate"]["mu"].update(mean=0.21, sd=0.085, hdi95=[0.09, 0.41])
+        s["estimate"]["G"].update(mean=7.0e3, sd=3.0e2, hdi95=[6.4e3, 7.6e3])     # and G well inside its prior
     _edit_summary(run, wide)
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     concl = _text(_section(html, "conclusion"))
