@@ -84,10 +84,10 @@ def test_fit_bar_counts_windows_times_experiments_from_the_start(tiny_ds, tmp_pa
                                   "--n-steps", "40", "--out", str(tmp_path / "fit")])
     assert r.exit_code == 0, r.output
     err = r.stderr
-    # 40 steps, L=10, h=5: 7 windows; 2 experiments
-    assert "14 units (7 windows x 2 experiments)" in err
+    # 40 steps, L=10, h=5: 7 windows; 2 experiments; the default likelihood's pilot pass, then the reported one
+    assert "28 units (2 passes x 7 windows x 2 experiments)" in err
     totals = {int(m) for m in re.findall(r"\d+/(\d+) units", err)}
-    assert totals == {14}, err                     # one total from the first draw to the last
-    assert "0/14 units" in err and "14/14 units" in err
+    assert totals == {28}, err                     # one total from the first draw to the last
+    assert "0/28 units" in err and "28/28 units" in err
     assert re.search(r"\[\d\d:\d\d<\d\d:\d\d\]", err), err     # elapsed < remaining (the ETA)
     assert "mienks window 7/7" in err

@@ -48,6 +48,9 @@ def planned_units(meth, settings, n_exp: int, n_steps: int) -> tuple:
         from imrbayes.ensemble.windows import n_windows
 
         nw = n_windows(n_steps, settings.L, settings.h)
+        if getattr(settings, "likelihood", "paper") == "default" and getattr(settings, "adapt", False):
+            # the default likelihood's pilot pass sets the noise level, then the reported pass
+            return 2 * nw * n_exp, f"2 passes x {nw} windows x {n_exp} experiments"
         return nw * n_exp, f"{nw} windows x {n_exp} experiments"
     if meth.name == "en4dvar":      # each experiment's cycles, then its fitted curves (fast)
         return 2 * n_exp, f"{n_exp} experiments, then their fitted curves"
