@@ -165,6 +165,41 @@ def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, 
     return rows
 
 
+def cpu_costs(fm, run_dir, fit_cache=None, seed: int = 0, n_draws: int = 64, repeat: int = 3) -> list[dict]:
+    """CPU time per log-posterior evaluation in every window, at parameter sets drawn from that
+    window's MCMC posterior of a finished ``fit --mcmc`` run (``run_dir/mcmc_chains/window_XXX.nc``),
+    on the targets of the verification case's MIEnKS fit (:func:`fitted_windows`). Process CPU time
+    (``time.process_time``), best of ``repeat``: run with ``NUMBA_NUM_THREADS=1`` it is the cost of
+    one core whatever else the shared machine runs (up to cache/SMT contention), so
+    sum(evaluations x CPU per evaluation) / cores projects the idle wall time of a run."""
+    import xarray as xr
+
+    from imrbayes.mcmc.fit import fit_window_specs
+
+    obs, space, res = fitted_windows(fm, seed, fit_cache)
+    out = []
+    for sp in fit_window_specs(fm, obs, space, res):
+        path = Path(run_dir) / "mcmc_chains" / f"window_{sp.index:03d}.nc"
+        if not path.is_file():
+            continue
+        with xr.open_datatree(path) as dt:
+            Z = np.stack([dt["posterior"][v].values.ravel() for v in sp.target.internal_names], axis=1)
+        Z = Z[np.linspace(0, Z.shape[0] - 1, n_draws).round().astype(int)]
+        tg = sp.target
+        tg.log_prob(Z[:2])
+        best_cpu, best_wall = np.inf, np.inf
+        for _ in range(repeat):
+            c0, t0 = time.process_time(), time.perf_counter()
+            tg.log_prob(Z)
+            best_cpu = min(best_cpu, time.process_time() - c0)
+            best_wall = min(best_wall, time.perf_counter() - t0)
+        out.append({"window": sp.index, "t_star": list(sp.t_star), "cpu_ms_per_eval": 1e3 * best_cpu / n_draws,
+                    "wall_ms_per_eval": 1e3 * best_wall / n_draws, "n_exp": tg.n_exp,
+                    "loadavg": list(os.getloadavg()), "numba_threads": os.environ.get("NUMBA_NUM_THREADS")})
+        print(out[-1], flush=True)
+    return out
+
+
 def whole_run(data, out, method: str = "mienks", extra=(), load_every: float = 30.0) -> dict:
     """The headline row: ``imrbayes fit DATA --method METHOD --mcmc`` as a subprocess (default
     settings unless ``extra`` says otherwise), its wall time, the CPU time of the process tree
@@ -252,7 +287,16 @@ def main():
                     help="time 'imrbayes fit DATA --method METHOD --mcmc --out OUT' (the headline row)")
     ap.add_argument("--method", default="mienks")
     ap.add_argument("--fit-args", nargs="*", default=[], help="extra arguments for --whole-run's fit")
+    ap.add_argument("--cpu-costs", default=None, metavar="RUN_DIR",
+                    help="CPU time per evaluation in every window of a finished fit --mcmc run (NUMBA_NUM_THREADS=1)")
     args = ap.parse_args()
+    if args.cpu_costs is not None:
+        fm = ForwardModel("nhkv", options=FORWARD[args.forward[0]])
+        rows = cpu_costs(fm, args.cpu_costs, args.fit_cache, seed=args.seed)
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(jsonable({"meta": {"cpu": machine_info()}, "cpu_costs": rows}), fh, indent=1)
+        return
     if args.whole_run is not None:
         row = whole_run(args.whole_run[0], args.whole_run[1], args.method, args.fit_args)
         print(json.dumps({k: v for k, v in row.items() if k not in ("windows", "cpu")}, indent=1, default=str))
