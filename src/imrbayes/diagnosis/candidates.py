@@ -1,7 +1,9 @@
 """The diagnosis candidates: one declaration per candidate mechanism, one registry.
 
-A candidate is a constitutive model that nests the baseline NHKV (G, mu) with a few extra fitted
-parameters (its *extension*), the mechanism it stands for, the rule that says whether a fitted
+A candidate is either a constitutive model that nests the baseline NHKV (G, mu) with a few extra
+fitted parameters (its *extension*; ``kind="material"``) or the baseline material on another bubble
+model (``kind="bubble"``: the bubble physics, not the gel, is what the data contradict), the
+mechanism it stands for, the rule that says whether a fitted
 extension points the way of that mechanism, and how synthetic data with the mechanism hidden are
 drawn. Everything else in :mod:`imrbayes.diagnosis` (the fits, the ranking, the synthetic data,
 figure and report labels, the command line's ``--candidates``) reads :data:`CANDIDATES`.
@@ -69,6 +71,10 @@ class CandidateSpec:
         gels). None: no generator (the mechanism is simulated by another candidate).
     default : in the default candidate set of ``diagnose``.
     label : the model's name in results, figures and reports (default: ``key``).
+    kind : ``material`` (the gel) or ``bubble`` (the bubble model).
+    forward_options : None, or ``forward_options(options)`` -> the ForwardOptions fields to change
+        from the baseline's ``options`` (dict), or None when the alternative does not apply to them
+        (e.g. the warm medium when the baseline already has it); the candidate then is left out.
     """
 
     key: str
@@ -82,6 +88,16 @@ class CandidateSpec:
     synthetic: Mapping | None = None
     default: bool = True
     label: str = ""
+    kind: str = "material"
+    forward_options: Callable | None = None
+
+    def options_for(self, options):
+        """The ForwardOptions this candidate runs on given the baseline's, or None (not applicable)."""
+        if self.forward_options is None:
+            return options
+        from dataclasses import replace
+        change = self.forward_options(options)
+        return None if change is None else replace(options, **change)
 
     @property
     def model(self) -> str:
@@ -137,12 +153,41 @@ DAMAGE = CandidateSpec(
     wrong_way="fitted a_G, a_mu >= 1: stiffening across collapses, not damage",
     synthetic={"a_G": Range(0.25, 0.5), "a_mu": Range(0.6, 1.0)})
 
+
+
+def _thermal_alternative(o):
+    """The heat and mass exchange of the bubble's contents, changed: a polytropic bubble -> the
+    thermal bubble (heat conduction in the gas, vapour); a thermal bubble -> the same with vapour
+    mass transfer switched (on <-> off). The warm medium (the gel's temperature field) would be the
+    natural alternative to a cold one, but our solver does not finish it on the default grid (too
+    many steps at every tried grid; docs/diagnosis.md), so it is not offered."""
+    if o.bubble == "polytropic":    # the polytropic options drop mass transfer; the thermal bubble keeps it
+        return {"bubble": "thermal", "integrator": None, "mass_transfer": bool(o.vapor)}
+    if o.vapor:
+        return {"mass_transfer": not o.mass_transfer}
+    return None
+
+
+def _compressible_alternative(o):
+    """The other compressible radial equation: Keller-Miksis (pressure form) <-> Gilmore (enthalpy,
+    Tait liquid: the liquid's compressibility at the high pressures of the collapse)."""
+    return {"gilmore": {"radial": "km"}}.get(o.radial, {"radial": "gilmore"})
+
+
+# Bubble-model alternatives: the baseline NHKV material (no extension) on other bubble physics.
+BUBBLE_THERMAL = CandidateSpec(
+    "bubble-thermal", "bubble-thermal", "nhkv", kind="bubble", forward_options=_thermal_alternative,
+    synthetic={})
+BUBBLE_COMPRESSIBILITY = CandidateSpec(
+    "bubble-gilmore", "bubble-compressibility", "nhkv", kind="bubble", forward_options=_compressible_alternative,
+    synthetic={})
+
 #: key -> candidate: the registry every other module reads.
-CANDIDATES = {c.key: c for c in (QKV, FUNG, ZENER, CARREAU, DAMAGE)}
+CANDIDATES = {c.key: c for c in (QKV, FUNG, ZENER, CARREAU, DAMAGE, BUBBLE_THERMAL, BUBBLE_COMPRESSIBILITY)}
 #: The candidates ``diagnose`` fits unless told otherwise.
 DEFAULT_CANDIDATES = tuple(k for k, c in CANDIDATES.items() if c.default)
-#: Every possible ``cause``.
-MECHANISMS = (BASELINE.mechanism, *dict.fromkeys(c.mechanism for c in CANDIDATES.values()), "unexplained")
+#: Every possible ``cause`` (``ambiguous``: the data cannot tell the top candidates apart).
+MECHANISMS = (BASELINE.mechanism, *dict.fromkeys(c.mechanism for c in CANDIDATES.values()), "unexplained", "ambiguous")
 
 
 def spec_of(key: str) -> CandidateSpec:

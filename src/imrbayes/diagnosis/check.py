@@ -14,13 +14,17 @@ Statistics of one dataset under the baseline (constant-parameter NHKV):
   true ones (and the chain's walk from the prior is a drift of its own): the bootstrap, which runs
   the same smoother on constant-parameter replicates, is what makes the number comparable.
 
-None of them has a known null distribution (residuals are correlated in time, P_k is estimated),
-so each is calibrated by a parametric bootstrap: B synthetic datasets of the same design (same
-Rmax, Req, number of experiments, independent Gaussian noise whose variance plus the spread of the
-baseline curves across experiments reproduces P_k at every sample) generated from
-the baseline fit, processed exactly as the data (P_k re-estimated as the across-experiment sample
-variance, the same fits). p-values are (1 + #{T_b >= T}) / (B + 1); the combined p-value is the
-bootstrap calibration of the smallest of them (so no Bonferroni factor is needed).
+The fits are those of ``fit``'s default likelihood (:mod:`imrbayes.diagnosis.lsq`: the record's
+own noise, tempering by the residuals' n_eff / K, each experiment's Rmax, Req and time of the
+maximum fitted as nuisances); ``misfit`` and ``phase_misfit`` divide by each record's own noise
+variance. None of the statistics has a known null distribution (residuals are correlated in time,
+the noise is estimated), so each is calibrated by a parametric bootstrap: B synthetic datasets of
+the same design generated from the baseline fit (each experiment at its fitted geometry and
+alignment; white noise of the record's sd *at the camera frames*, interpolated onto the grid as
+the data were -- or at the samples when the data are point values), processed exactly as the data
+(the nuisances start from the preprocessing values again, noise and tempering re-estimated, the
+same fits). p-values are (1 + #{T_b >= T}) / (B + 1); the combined p-value is the bootstrap
+calibration of the smallest of them (so no Bonferroni factor is needed).
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from imrbayes.data.noise import noise_variance
-from imrbayes.diagnosis.lsq import fit_map, predict
+from imrbayes.diagnosis.lsq import ObsModel, fit_map, frame_values
 from imrbayes.ensemble import Observations
 
 __all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift"]
@@ -61,13 +65,14 @@ def mienks_drift(base, obs, settings, seed: int = 0) -> tuple:
                "G_windows": np.exp(m[:, 0]).tolist(), "mu_windows": np.exp(m[:, 1]).tolist()}
 
 
-def window_drift(cand, obs, phases, full) -> tuple:
+def window_drift(cand, obs, phases, full, om=None) -> tuple:
     """Largest squared Mahalanobis distance between the (log G, log mu) of the whole-record fit
-    ``full`` and fits of ``cand`` to the 1st and 2nd collapse; returns (drift, fits)."""
+    ``full`` and fits of ``cand`` to the 1st and 2nd collapse (observation model ``om``); returns
+    (drift, fits)."""
     K1, K2 = phases.collapse_index(1), phases.collapse_index(2)
     fits = {"all": full}
     for name, K in (("collapse-1", K1), ("collapse-2", K2)):
-        fits[name] = fit_map(cand, obs, K=K, minima=phases.minima, starts=[full.z])
+        fits[name] = fit_map(cand, obs, K=K, minima=phases.minima, om=om, starts=[full.z], nu0=full.nu)
     keys = list(fits)
     drift = 0.0
     for i in range(len(keys)):
@@ -82,18 +87,23 @@ def window_drift(cand, obs, phases, full) -> tuple:
     return drift, fits
 
 
-def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0) -> dict:
+def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0, nuisances: bool = True) -> dict:
     """Window fits and the statistics of ``obs`` under the baseline candidate ``base`` (with
     ``mienks``, an :class:`~imrbayes.ensemble.mienks.MIEnKSSettings`, also ``mienks_drift``, or,
-    when it cannot be computed, ``mienks_error``: the one-line error)."""
-    full = fit_map(base, obs, minima=phases.minima, starts=starts)
-    drift, fits = window_drift(base, obs, phases, full)
-    r2 = (obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2 / obs.P[None, 1:]
+    when it cannot be computed, ``mienks_error``: the one-line error). The whole-record fit is made
+    twice: on the record's noise, then on the likelihood tempered at that fit (``om`` in the output,
+    the observation model every later fit of this dataset uses)."""
+    om0 = ObsModel.of(obs, nuisances=nuisances)
+    first = fit_map(base, obs, minima=phases.minima, om=om0, starts=starts)
+    om = om0.tempered(obs, first.fitted)
+    full = fit_map(base, obs, minima=phases.minima, om=om, starts=[first.z], nu0=first.nu)
+    drift, fits = window_drift(base, obs, phases, full, om)
+    r2 = (obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2 / om.noise_sd[:, None] ** 2
     per_phase = []
     for m in phases.masks():
         mm = m[1:]
         per_phase.append(float(np.nanmean(r2[:, mm])) if mm.any() else float("nan"))
-    out = {"fits": fits, "drift": drift, "misfit": float(np.nanmean(r2)),
+    out = {"fits": fits, "om": om, "drift": drift, "misfit": float(np.nanmean(r2)),
            "phase_misfit": float(np.nanmax(per_phase)), "phase_chi2": per_phase}
     if mienks is not None:
         try:
@@ -115,23 +125,47 @@ def _pvals(T, Tb):
     return (1.0 + np.sum(Tb >= T)) / (Tb.size + 1.0)
 
 
+def replicate(obs, Rf, sd, rng):
+    """A synthetic dataset of ``obs``'s design from the curves ``Rf`` (per experiment, R* at its
+    camera frames -- or at the grid's samples for point-value data -- :func:`lsq.frame_values`):
+    white noise of sd ``sd[e]`` added to every frame, the frames interpolated onto the grid as the
+    data were, the record's noise re-estimated from the noisy frames as preprocessing does (median
+    absolute fourth difference). Sample 0 keeps the data's value (the normalisation)."""
+    from imrbayes.data.preprocess import estimate_noise_sd
+    E, n = obs.n_exp, obs.n_samples
+    t = np.asarray(obs.t_star, dtype=float)
+    Y = np.empty((E, n))
+    noise_sd = np.empty(E)
+    for e in range(E):
+        yf = np.asarray(Rf[e], dtype=float) + sd[e] * rng.standard_normal(len(Rf[e]))
+        noise_sd[e] = estimate_noise_sd(yf)
+        if obs.frame_t is None:
+            Y[e] = yf
+            continue
+        tf = obs.frame_t[e]
+        ia = np.clip(np.searchsorted(tf, t, side="right") - 1, 0, tf.size - 2)
+        w = np.clip((t - tf[ia]) / (tf[ia + 1] - tf[ia]), 0.0, 1.0)
+        Y[e] = (1.0 - w) * yf[ia] + w * yf[ia + 1]
+    Y = np.maximum(Y, 1e-3)
+    Y[:, 0] = obs.R_star[:, 0]
+    P, _ = noise_variance(t, Y) if E >= 2 else (obs.P, None)
+    return Observations(t, Y, P, obs.rmax_m, obs.req_m, obs.t_collapse_star, list(obs.names), noise_sd=noise_sd,
+                        nuisance_sd=obs.nuisance_sd, t0_s=obs.t0_s, tc_s=obs.tc_s, frame_t=obs.frame_t)
+
+
 def bootstrap_unit(unit, rng) -> dict:
     """Unit ``bootstrap=007``: one replicate -- a synthetic dataset of the data's design from the
-    baseline curves ``R0`` with noise sd ``sd`` (drawn from the unit's own ``rng``), processed as the
-    data; returns its statistics. The baseline candidate is rebuilt from (options, physics, prior)."""
+    baseline fit's curves ``R0`` with the records' noise ``sd`` (:func:`replicate`, from the unit's own
+    ``rng``), processed as the data; returns its statistics. The baseline candidate is rebuilt from (options, physics, prior)."""
     from imrbayes.diagnosis.candidates import BASELINE
     from imrbayes.diagnosis.models import make_candidate
 
     d = unit.data
     obs = d["obs"]
     base = make_candidate(BASELINE.key, d["options"], d["physics"], d["prior"])
-    R0, sd = d["R0"], d["sd"]
-    Y = R0 + sd[None, :] * rng.standard_normal(R0.shape)
-    Y[:, 0] = 1.0
-    Y = np.maximum(Y, 1e-3)
-    P, _ = noise_variance(obs.t_star, Y) if obs.n_exp >= 2 else (obs.P, None)
-    ob = Observations(obs.t_star, Y, P, obs.rmax_m, obs.req_m, obs.t_collapse_star, list(obs.names))
-    st = statistics(base, ob, d["phases"], starts=[d["z0"]], mienks=d["mienks"], seed=int(d["seed"]))
+    ob = replicate(obs, d["R0"], d["sd"], rng)
+    st = statistics(base, ob, d["phases"], starts=[d["z0"]], mienks=d["mienks"], seed=int(d["seed"]),
+                    nuisances=d.get("nuisances", True))
     return {k: float(st.get(k, float("nan"))) for k in d["stats"]}
 
 
@@ -150,15 +184,13 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     from imrbayes.execution import Unit
 
     stats = STATS + (("mienks_drift",) if mienks is not None and "mienks_drift" in observed else ())
-    z0 = observed["fits"]["all"].z
-    R0 = predict(base, z0[None], obs, np.arange(obs.n_exp), phases.minima, obs.n_samples - 1)[0]
-    # measurement noise: P_k minus the across-experiment variance of the baseline curves (the part
-    # of the sample variance that Rmax/Req differences explain), floored at P_k / 4, so that the
-    # replicates' re-estimated P_k match the data's
-    spread = np.var(R0, axis=0, ddof=1) if obs.n_exp >= 2 else np.zeros_like(obs.P)
-    sd = np.sqrt(np.maximum(obs.P - spread, 0.25 * obs.P))
+    full = observed["fits"]["all"]
+    z0 = full.z
+    R0 = frame_values(base, z0, obs, phases.minima, full.nu)    # at every experiment's fitted geometry, alignment
+    sd = observed["om"].noise_sd
     build = build or {"options": base.fm.options, "physics": base.fm.physics, "prior": dict(base.space.prior_si)}
     common = {**build, "obs": obs, "phases": phases, "R0": R0, "sd": sd, "z0": z0, "stats": list(stats),
+              "nuisances": bool(np.any(observed["om"].nu_sd > 0)),
               "mienks": mienks if "mienks_drift" in stats else None}
     units = [Unit(f"bootstrap={b:03d}", {**common, "seed": seed + 1000 + b}) for b in range(B)]
     ex = execution or Execution(progress=False)

@@ -1,85 +1,207 @@
 """Joint weighted least squares (MAP) of one candidate over several experiments, with a Laplace
-posterior: minimise 1/2 sum_n sum_{k=1..K} (y_nk - R*_nk(z))^2 / P_k + 1/2 ||(z - m0)/s0||^2
-by Levenberg–Marquardt (forward-difference Jacobian in z, all members of an iteration in one
-forward batch). The Laplace covariance is (J^T J)^-1 of the whitened residuals at the optimum
-(sample 0, R* = 1 by construction, is never fitted). Residuals of a curve are correlated in time,
-so this posterior is optimistic; the diagnosis calibrates what it compares by a parametric
-bootstrap or by held-out prediction, not by these widths.
+posterior, on the default likelihood of ``fit`` (methods.md §7):
+
+    1/2 sum_n w_n^2 sum_{k=1..K} (y_nk - f_nk(z, nu_n))^2 + 1/2 ||(z - m0)/s0||^2 + 1/2 sum_n ||nu_n / s_n||^2
+
+* ``w_n = sqrt(alpha_n) / sigma_n``: sigma_n the record's own noise (raised to the residual's RMS of
+  the baseline fit where the model misses it), alpha_n = n_eff / K its residual autocorrelation's
+  tempering (:class:`ObsModel`, :mod:`imrbayes.ensemble.likelihood`);
+* ``nu_n = (a, delta, rho)`` experiment n's geometry and alignment nuisances (relative Rmax error,
+  time of the true maximum [t*], log Req error) with the preprocessing prior sd s_n, fitted with the
+  material parameters (``f`` is :func:`imrbayes.ensemble.likelihood.predict`'s time map: samples
+  before the maximum from the mirror image; camera data predicted at the frame times and
+  interpolated onto the grid as the data were);
+* Levenberg–Marquardt with a forward-difference Jacobian: one column per material coordinate, and
+  three batched columns for the nuisances (experiment n's residuals depend on its own nu_n only, so
+  one perturbation of coordinate j in every experiment fills the block diagonal).
+
+The Laplace covariance is (J^T J)^-1 at the optimum; its material block is marginal over the
+nuisances. Sample 0 (R* = 1 by construction) is never fitted.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["predict", "fit_map", "MapFit"]
+__all__ = ["ObsModel", "predict", "frame_values", "fit_map", "fit_nuisances", "MapFit"]
 
 FAIL_RESIDUAL = 1.0  # R* error assigned to a failed solve (per sample)
 MAX_STEPS = 20_000  # a member needing more integrator steps counts as failed (stiff corners of the prior)
+NU_STEP = 0.05      # nuisance finite-difference step [prior sd]
 
 
-def predict(cand, z, obs, idx, minima, K: int) -> np.ndarray:
-    """R* (M, len(idx), K+1) on samples 0..K for parameter sets z (M, d); NaN where a solve failed."""
+@dataclass
+class ObsModel:
+    """How one dataset's samples are compared with a prediction (per experiment n):
+    ``noise_sd`` (E,) the record's noise sd in R* (the check's statistics divide by it);
+    ``sd_used`` (E,) the sd of the likelihood (noise raised to the baseline's residual RMS);
+    ``alpha`` (E,) the tempering n_eff / K; ``nu_sd`` (E, 3) the nuisances' prior sd (0: held
+    fixed); ``frames`` per experiment the camera frame times t* (None: point values)."""
+
+    noise_sd: np.ndarray
+    sd_used: np.ndarray
+    alpha: np.ndarray
+    nu_sd: np.ndarray
+    frames: list | None = None
+    n_eff: np.ndarray | None = None
+    tau: np.ndarray | None = field(default=None)
+
+    @property
+    def weight(self) -> np.ndarray:
+        return np.sqrt(self.alpha) / self.sd_used
+
+    @classmethod
+    def of(cls, obs, nuisances: bool = True) -> "ObsModel":
+        """Record noise, no tempering yet; nuisances with their preprocessing prior (or fixed)."""
+        from imrbayes.ensemble.likelihood import nuisance_prior_sd, record_noise_sd
+        E = obs.n_exp
+        sd = np.array([record_noise_sd(obs, n) for n in range(E)])
+        nu_sd = np.array([nuisance_prior_sd(obs, n) for n in range(E)]) if nuisances else np.zeros((E, 3))
+        nu_sd = np.where(np.isfinite(nu_sd) & (nu_sd > 0), nu_sd, 0.0)
+        return cls(sd, sd.copy(), np.ones(E), nu_sd, None if obs.frame_t is None else list(obs.frame_t))
+
+    def tempered(self, obs, fitted) -> "ObsModel":
+        """The likelihood at the baseline fit ``fitted`` (E, n): each experiment's variance raised
+        to its residual's mean square, tempered by its residuals' n_eff / K."""
+        from imrbayes.ensemble.likelihood import observation_model
+        out = [observation_model(obs.R_star[n, 1:], fitted[n, 1:], float(self.noise_sd[n]) ** 2)
+               for n in range(obs.n_exp)]
+        return replace(self, sd_used=np.array([np.sqrt(o["var"]) for o in out]),
+                       alpha=np.array([o["alpha"] for o in out]),
+                       n_eff=np.array([o["effective_samples"] for o in out]),
+                       tau=np.array([o["autocorrelation_time"] for o in out]))
+
+    def take(self, idx) -> "ObsModel":
+        idx = np.atleast_1d(np.asarray(idx, dtype=int))
+        pick = (lambda a: None if a is None else np.asarray(a)[idx])
+        return ObsModel(self.noise_sd[idx], self.sd_used[idx], self.alpha[idx], self.nu_sd[idx],
+                        None if self.frames is None else [self.frames[i] for i in idx], pick(self.n_eff),
+                        pick(self.tau))
+
+    def describe(self) -> dict:
+        return {"noise_sd": self.noise_sd.tolist(), "sd_used": self.sd_used.tolist(), "alpha": self.alpha.tolist(),
+                "effective_samples": None if self.n_eff is None else self.n_eff.tolist(),
+                "nuisance_prior_sd": self.nu_sd.tolist(), "frames": self.frames is not None,
+                "note": "per experiment: the record's noise sd in R* (fourth differences / preprocessing), the sd "
+                        "used (raised to the baseline fit's residual RMS), the tempering alpha = n_eff/K (residual "
+                        "autocorrelation), the prior sd of (Rmax rel. error, t0 offset [t*], log Req error); the "
+                        "same observation model as `fit --likelihood default`"}
+
+
+def _times(obs, idx, K, frames):
+    """Per experiment the times to simulate (grid or frames) and the interpolation back to the grid."""
+    t = np.asarray(obs.t_star[:K + 1], dtype=float)
+    rows, ops = [], []
+    for e in idx:
+        if frames is None:
+            rows.append(t)
+            ops.append(None)
+            continue
+        tf = np.asarray(frames[e], dtype=float)
+        ia = np.clip(np.searchsorted(tf, t, side="right") - 1, 0, tf.size - 2)
+        w = np.clip((t - tf[ia]) / (tf[ia + 1] - tf[ia]), 0.0, 1.0)
+        last = int(ia.max()) + 2
+        rows.append(tf[:last])
+        ops.append((ia, w))
+    return rows, ops
+
+
+def predict(cand, z, obs, idx, minima, K: int, nu=None, frames=None) -> np.ndarray:
+    """R* (M, len(idx), K+1) on the data's samples 0..K for parameter sets z (M, d); ``nu`` the
+    nuisances (M, E, 3), (E, 3) or None (zero: the preprocessing geometry), ``frames`` per
+    experiment of ``obs`` the camera frame times (None: point values). NaN where a solve failed."""
+    return _predict(cand, z, obs, idx, minima, K, nu, frames)[0]
+
+
+def frame_values(cand, z, obs, minima, nu=None) -> list:
+    """Per experiment of ``obs``, R* at the camera frames its grid is interpolated from (or at the
+    grid's samples for point-value data), for one parameter set z (d,) and nuisances nu (E, 3)."""
+    E = obs.n_exp
+    _, R, rows = _predict(cand, np.asarray(z, dtype=float)[None], obs, np.arange(E), minima, obs.n_samples - 1,
+                          None if nu is None else np.asarray(nu, dtype=float)[None], obs.frame_t)
+    return [R[e, :rows[e].size].copy() for e in range(E)]
+
+
+def _predict(cand, z, obs, idx, minima, K, nu, frames):
     z = np.atleast_2d(np.asarray(z, dtype=float))
     idx = np.atleast_1d(np.asarray(idx, dtype=int))
     M, E = z.shape[0], idx.size
-    t = obs.t_star[:K + 1]
-    out = np.full((M, E, K + 1), np.nan)
-    fm = cand.fm
+    nu = np.zeros((M, E, 3)) if nu is None else np.broadcast_to(np.asarray(nu, dtype=float), (M, E, 3))
+    rows, ops = _times(obs, idx, K, frames)
+    m = max(r.size for r in rows)
+    a, delta, rho = nu[..., 0].ravel(), nu[..., 1].ravel(), nu[..., 2].ravel()     # member i*E + e
+    scale = 1.0 + a
+    bad = ~(scale > 0.5) | ~np.isfinite(a + delta + rho)
+    scale, delta, rho = np.where(bad, 1.0, scale), np.where(bad, 0.0, delta), np.where(bad, 0.0, rho)
+    T = np.empty((M * E, m))
+    for i in range(M):
+        for j, r in enumerate(rows):
+            T[i * E + j, :r.size] = r
+            T[i * E + j, r.size:] = r[-1]
+    S = np.abs(T - delta[:, None]) / scale[:, None]
+    order = np.argsort(S, axis=1, kind="stable")
+    S = np.take_along_axis(S, order, axis=1)
+    rmax = np.tile(obs.rmax_m[idx], M) * scale
+    req = np.tile(obs.req_m[idx], M) * np.exp(rho)
+    kw = {}
     if not cand.piecewise:
-        P = cand.forward_params(z)                                   # (M, 1, np)
-        P = np.repeat(P, E, axis=0)                                   # member m*E + e
-        rmax = np.tile(obs.rmax_m[idx], M)
-        req = np.tile(obs.req_m[idx], M)
-        with np.errstate(all="ignore"):
-            o = fm.simulate(P, rmax, req, t, max_steps=MAX_STEPS)
-        R = np.where(o.failed[:, None], np.nan, o.R_star)
-        out[:] = R.reshape(M, E, K + 1)
-        return out
-    # piecewise: each experiment breaks at its own collapses -> one batch with per-member break times
-    # (breaks_star (M*E, n_breaks)); experiments with fewer collapses inside the window are padded
-    # with breaks after the last output time, where the extra pieces never act.
-    brs = [[float(obs.t_star[m]) for m in minima[e] if 0 < m < K] for e in idx]
-    nb = max(len(b) for b in brs)
-    t_end = float(t[-1])
-    B = np.array([b + [t_end + 1.0 + i for i in range(nb - len(b))] for b in brs], dtype=float).reshape(E, nb)
-    P = np.repeat(cand.forward_params(z, n_pieces=nb + 1), E, axis=0)   # member m*E + e
-    rmax = np.tile(obs.rmax_m[idx], M)
-    req = np.tile(obs.req_m[idx], M)
+        P = np.repeat(cand.forward_params(z), E, axis=0)                  # (M*E, 1, np)
+    else:
+        # each experiment breaks at its own measured collapses (on the data's clock, mapped to the
+        # member's); experiments with fewer collapses in the window get breaks after its end
+        brs = [[float(obs.t_star[q]) for q in minima[e] if 0 < q < K] for e in idx]
+        nb = max(len(b) for b in brs)
+        t_end = float(np.max(S)) + 1.0
+        B = np.array([b + [np.nan] * (nb - len(b)) for b in brs], dtype=float).reshape(E, nb)
+        B = (np.tile(B, (M, 1)) - delta[:, None]) / scale[:, None]
+        pad = t_end + np.arange(nb)[None, :]
+        B = np.where(np.isfinite(B), B, pad)
+        B = np.maximum.accumulate(np.maximum(B, 1e-6), axis=1) + 1e-9 * np.arange(nb)[None, :]
+        P = np.repeat(cand.forward_params(z, n_pieces=nb + 1), E, axis=0)
+        kw["breaks_star"] = B
     with np.errstate(all="ignore"):
-        o = fm.simulate(P, rmax, req, t, breaks_star=np.tile(B, (M, 1)), max_steps=MAX_STEPS)
-    R = np.where(o.failed[:, None], np.nan, o.R_star)
-    out[:] = R.reshape(M, E, K + 1)
-    return out
+        o = cand.fm.simulate(P, rmax, req, S, max_steps=MAX_STEPS, **kw)
+    R = np.empty_like(o.R_star)
+    np.put_along_axis(R, order, o.R_star, axis=1)
+    R = np.where((o.failed | bad)[:, None], np.nan, R * scale[:, None])
+    out = np.empty((M, E, K + 1))
+    for i in range(M):
+        for j, op in enumerate(ops):
+            r = R[i * E + j]
+            out[i, j] = r[:K + 1] if op is None else (1.0 - op[1]) * r[op[0]] + op[1] * r[op[0] + 1]
+    return out, R, rows
 
 
 @dataclass
 class MapFit:
     key: str
-    z: np.ndarray
-    cov: np.ndarray
+    z: np.ndarray        # (d,) material MAP, internal coordinates
+    cov: np.ndarray      # (d, d) Laplace covariance, marginal over the nuisances
     cost: float
-    chi2: float          # data part of 2 * cost
+    chi2: float          # data part of 2 * cost (weighted)
     n_data: int
-    fitted: np.ndarray   # (E, K+1)
+    fitted: np.ndarray   # (E, K+1) prediction at the MAP (with the nuisances)
     K: int
     idx: np.ndarray
     n_iter: int
     converged: bool
+    nu: np.ndarray | None = None      # (E, 3) nuisance MAP
+    nu_sd: np.ndarray | None = None   # (E, 3) their Laplace sd
 
 
-def _residuals(R, y, wsq):
-    r = (y[None] - R[..., 1:]) * wsq[None, None, :]
+def _residuals(R, y, w):
+    r = (y[None] - R[..., 1:]) * w[None, :, None]
     bad = ~np.isfinite(r)
-    r[bad] = FAIL_RESIDUAL * np.broadcast_to(wsq[None, None, :], r.shape)[bad]
+    r[bad] = FAIL_RESIDUAL * np.broadcast_to(w[None, :, None], r.shape)[bad]
     return r.reshape(r.shape[0], -1)
 
 
-def grid_starts(cand, obs, idx, K, minima, P, extra_starts=(), n_best: int = 2, n_grid: int = 8,
+def grid_starts(cand, obs, idx, K, minima, om, nu0, extra_starts=(), n_best: int = 2, n_grid: int = 8,
                 n_random: int = 48, seed: int = 0) -> list:
     """Starting points: the best ``n_best`` of a log grid over (G, mu) (other parameters at their
-    prior mean), random prior draws (sd doubled) and ``extra_starts``, by the MAP cost."""
+    prior mean), random prior draws (sd 1.5x) and ``extra_starts``, by the MAP cost at ``nu0``."""
     rng = np.random.default_rng(seed)
     Gs = np.log(np.geomspace(300.0, 6e4, n_grid))
     mus = np.log(np.geomspace(0.005, 1.0, n_grid))
@@ -91,8 +213,7 @@ def grid_starts(cand, obs, idx, K, minima, P, extra_starts=(), n_best: int = 2, 
         parts.append(np.atleast_2d(np.asarray(extra_starts, dtype=float)))
     Z = np.vstack(parts)
     y = obs.R_star[idx, 1:K + 1]
-    wsq = 1.0 / np.sqrt(P[1:K + 1])
-    r = _residuals(predict(cand, Z, obs, idx, minima, K), y, wsq)
+    r = _residuals(predict(cand, Z, obs, idx, minima, K, nu0, om.frames), y, om.weight)
     cost = 0.5 * np.sum(r * r, axis=1) + 0.5 * np.sum(((Z - cand.prior_mean) / cand.prior_sd) ** 2, axis=1)
     order = np.argsort(cost)
     out = [Z[order[0]]]
@@ -106,34 +227,87 @@ def grid_starts(cand, obs, idx, K, minima, P, extra_starts=(), n_best: int = 2, 
     return out
 
 
-def fit_map(cand, obs, idx=None, K=None, minima=None, P=None, starts=None, max_iter: int = 40,
-            h: float = 0.01, tol: float = 1e-6, extra_starts=()) -> MapFit:
-    """MAP + Laplace fit of ``cand`` to experiments ``idx`` over samples 1..K (see module doc).
+def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None, starts=None, nu0=None,
+            max_iter: int = 40, h: float = 0.01, tol: float = 1e-6, extra_starts=(), fix_material: bool = False) -> MapFit:
+    """MAP + Laplace fit of ``cand`` to experiments ``idx`` over samples 1..K (module doc).
 
-    starts : list of internal starting points (default: the prior mean); the best optimum wins.
-    P : noise variances (n,) (default ``obs.P``).
+    om : the observation model (default :meth:`ObsModel.of` ``obs``: record noise, nuisances free);
+        indexed by experiment of ``obs`` (``idx`` picks from it).
+    starts : internal starting points of the material (default: grid + prior draws); the best wins.
+    nu0 : (E_all, 3) starting nuisances (default 0).
+    fix_material : fit the nuisances only, the material held at ``starts[0]``.
     """
     idx = np.arange(obs.n_exp) if idx is None else np.atleast_1d(np.asarray(idx, dtype=int))
     K = obs.n_samples - 1 if K is None else int(K)
-    P = obs.P if P is None else np.asarray(P, dtype=float)
+    om = ObsModel.of(obs) if om is None else om
+    E = idx.size
+    w = om.weight[idx]
+    s_nu = om.nu_sd[idx]                              # (E, 3)
+    active = s_nu > 0
+    jn = [j for j in range(3) if active[:, j].any()]  # nuisance coordinates with a column
     y = obs.R_star[idx, 1:K + 1]
-    wsq = 1.0 / np.sqrt(P[1:K + 1])
     m0, s0 = cand.prior_mean, cand.prior_sd
-    d = cand.d
+    d = 0 if fix_material else cand.d
+    nu_start = np.zeros((E, 3)) if nu0 is None else np.asarray(nu0, dtype=float)[idx].copy()
+    u_start = np.where(active, nu_start / np.where(active, s_nu, 1.0), 0.0)
     if starts is None:
-        starts = grid_starts(cand, obs, idx, K, minima, P, extra_starts)
+        starts = grid_starts(cand, obs, idx, K, minima, om, nu_start, extra_starts)
     starts = [np.asarray(s, dtype=float) for s in starts]
+    z_fixed = starts[0]
+    fr = om.frames
 
-    def full_res(Z):
-        R = predict(cand, Z, obs, idx, minima, K)
-        return np.hstack([_residuals(R, y, wsq), (Z - m0) / s0]), R
+    def res(Z, U):
+        """Z (M, d_all) material, U (M, E, 3) nuisances in prior-sd units -> (M, n_res), R."""
+        R = predict(cand, Z, obs, idx, minima, K, U * s_nu[None], fr)
+        parts = [_residuals(R, y, w)]
+        if d:
+            parts.append((Z - m0) / s0)
+        parts.append(U[:, active])
+        return np.hstack(parts), R
 
-    def lm(z, r, cost, Rz, lam, n_iter):
+    def pack(z, u):
+        return np.concatenate([z[:d], u[active]])
+
+    def unpack(x):
+        z = x[:d] if d else z_fixed
+        u = np.zeros((E, 3))
+        u[active] = x[d:]
+        return z, u
+
+    n_x = d + int(active.sum())
+    # column of the Jacobian for nuisance (e, j)
+    col = -np.ones((E, 3), dtype=int)
+    col[active] = d + np.arange(int(active.sum()))
+    n_y = E * K
+
+    def jacobian(z, u, r):
+        Zs = [z + h * np.eye(cand.d)[i] for i in range(d)]
+        Us = [u] * d
+        for j in jn:
+            du = np.zeros((E, 3))
+            du[:, j] = NU_STEP
+            Zs.append(z)
+            Us.append(u + du)
+        if not Zs:
+            return np.zeros((r.size, 0))
+        rp, _ = res(np.array(Zs), np.array(Us))
+        J = np.zeros((r.size, n_x))
+        for i in range(d):
+            J[:, i] = (rp[i] - r) / h
+        for q, j in enumerate(jn):
+            diff = (rp[d + q] - r) / NU_STEP
+            for e in range(E):
+                if active[e, j]:
+                    c = col[e, j]
+                    J[e * K:(e + 1) * K, c] = diff[e * K:(e + 1) * K]
+                    J[n_y + d + int(np.sum(active.ravel()[:e * 3 + j])), c] = 1.0
+        return J
+
+    def lm(x, r, cost, Rz, lam, n_iter):
         conv, it = False, 0
         for it in range(1, n_iter + 1):
-            Zp = z[None] + h * np.eye(d)
-            rp, _ = full_res(Zp)
-            J = (rp - r[None]).T / h                                     # (n_res, d)
+            z, u = unpack(x)
+            J = jacobian(z, u, r)
             A, g = J.T @ J, J.T @ r
             lams = lam * np.array([0.1, 1.0, 10.0])
             steps = []
@@ -141,14 +315,14 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, P=None, starts=None, max_i
                 try:
                     steps.append(-np.linalg.solve(A + lm_ * np.diag(np.diag(A) + 1e-9), g))
                 except np.linalg.LinAlgError:
-                    steps.append(np.zeros(d))
-            steps = np.array(steps)
-            rt, Rt = full_res(z[None] + steps)
+                    steps.append(np.zeros(n_x))
+            trials = [unpack(x + s) for s in steps]
+            rt, Rt = res(np.array([t[0] for t in trials]), np.array([t[1] for t in trials]))
             costs = 0.5 * np.einsum("ij,ij->i", rt, rt)
             k = int(np.argmin(costs))
             if costs[k] < cost:
                 rel = (cost - costs[k]) / max(cost, 1e-300)
-                z, r, cost, Rz = z + steps[k], rt[k], float(costs[k]), Rt[k]
+                x, r, cost, Rz = x + steps[k], rt[k], float(costs[k]), Rt[k]
                 lam = max(lams[k] * 0.3, 1e-7)
                 if rel < tol or np.max(np.abs(steps[k])) < 1e-5:
                     conv = True
@@ -158,26 +332,37 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, P=None, starts=None, max_i
                 if lam > 1e8:
                     conv = True
                     break
-        return [z, r, cost, Rz, lam, conv, it]
+        return [x, r, cost, Rz, lam, conv, it]
 
     # every start a few iterations, then only the best one to convergence
     states = []
-    for z0 in starts:
-        r_all, R = full_res(z0[None])
-        st = lm(z0.copy(), r_all[0], 0.5 * float(r_all[0] @ r_all[0]), R[0], 1e-2,
-                max_iter if len(starts) == 1 else min(6, max_iter))
-        states.append(st)
+    for z0 in (starts if d else starts[:1]):
+        x0 = pack(z0, u_start)
+        r0, R0 = res(z0[None], u_start[None])
+        states.append(lm(x0, r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2,
+                         max_iter if len(starts) == 1 or not d else min(6, max_iter)))
     best = min(states, key=lambda q: q[2])
-    if len(starts) > 1 and not best[5]:
+    if len(states) > 1 and not best[5]:
         it0 = best[6]
         best = lm(best[0], best[1], best[2], best[3], best[4], max(1, max_iter - it0))
         best[6] += it0
-    z, r, cost, Rz, _, conv, it = best
-    rp, _ = full_res(z[None] + h * np.eye(d))
-    J = (rp - r[None]).T / h
+    x, r, cost, Rz, _, conv, it = best
+    z, u = unpack(x)
+    J = jacobian(z, u, r)
     try:
-        cov = np.linalg.inv(J.T @ J)
+        C = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
-        cov = np.diag(s0 ** 2)
-    chi2 = float(np.sum(r[:-d] ** 2))
-    return MapFit(cand.key, z, cov, cost, chi2, int(y.size), Rz, K, idx, it, conv)
+        C = np.diag(np.concatenate([s0[:d] ** 2, np.ones(n_x - d)]))
+    cov = C[:d, :d] if d else np.zeros((cand.d, cand.d))
+    nu_sd = np.zeros((E, 3))
+    nu_sd[active] = np.sqrt(np.clip(np.diag(C)[d:], 0, None)) * s_nu[active]
+    chi2 = float(np.sum(r[:n_y] ** 2))
+    return MapFit(cand.key, np.asarray(z, dtype=float).copy(), cov, cost, chi2, int(y.size), Rz, K, idx, it, conv,
+                  u * s_nu, nu_sd)
+
+
+def fit_nuisances(cand, obs, idx, z, minima=None, om: ObsModel | None = None, K=None) -> MapFit:
+    """The nuisances of experiments ``idx`` with the material held at ``z`` (a new bubble's geometry
+    is measured, its material predicted: the held-out schemes use this)."""
+    return fit_map(cand, obs, idx=idx, K=K, minima=minima, om=om, starts=[np.asarray(z, dtype=float)],
+                   fix_material=True)

@@ -17,7 +17,7 @@ from imrbayes.ensemble.problem import ParamSpace
 from imrbayes.forward import ForwardModel
 from imrbayes.forward.constitutive import get_model
 
-__all__ = ["Candidate", "make_candidate", "candidate_space"]
+__all__ = ["Candidate", "make_candidate", "candidate_space", "applicable"]
 
 
 def candidate_space(spec: CandidateSpec, prior: dict | None = None) -> ParamSpace:
@@ -122,8 +122,18 @@ class Candidate:
 
 
 def make_candidate(key: str, options, physics=None, prior: dict | None = None) -> Candidate:
-    """The baseline (``nhkv``) or registered candidate ``key`` on a forward model with ``options``
-    (ForwardOptions) and ``physics``; ``prior``: (G, mu) prior overrides, name -> (mean, sd) SI."""
+    """The baseline (``nhkv``) or registered candidate ``key`` on a forward model with the baseline's
+    ``options`` (ForwardOptions; a bubble-model candidate changes them) and ``physics``; ``prior``:
+    (G, mu) prior overrides, name -> (mean, sd) SI. Raises ValueError when a bubble-model candidate
+    does not apply to ``options`` (:meth:`CandidateSpec.options_for`)."""
     spec = spec_of(key)
-    return Candidate(spec, candidate_space(spec, prior), ForwardModel(spec.forward_model, options=options,
+    opts = spec.options_for(options)
+    if opts is None:
+        raise ValueError(f"candidate {key} does not apply to the baseline's forward options")
+    return Candidate(spec, candidate_space(spec, prior), ForwardModel(spec.forward_model, options=opts,
                                                                       physics=physics))
+
+
+def applicable(key: str, options) -> bool:
+    """Whether candidate ``key`` has a forward model for the baseline's ``options``."""
+    return spec_of(key).options_for(options) is not None

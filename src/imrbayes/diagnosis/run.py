@@ -24,7 +24,6 @@ import numpy as np
 from imrbayes.diagnosis.candidates import BASELINE, DEFAULT_CANDIDATES
 from imrbayes.diagnosis.check import bootstrap_check, statistics, window_drift
 from imrbayes.diagnosis.heldout import elpd_compare, forecast, loeo, loglik_draws, paired
-from imrbayes.diagnosis.lsq import predict
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.errors import InputError
@@ -52,6 +51,9 @@ class DiagnoseSettings:
     mienks_drift: bool = True       # MIEnKS-MDA G(t), mu(t) slope statistic in the check
     mienks_n_ens: int = 16
     mienks_n_iter: int = 2
+    n_absorb: int = 3               # candidates (best first) whose mutual absorption is measured
+    tie_se: float = 2.0             # held-out differences within tie_se paired SEs are not decided
+    tie_chi2: float = 4.0           # nor in-sample fits within this tempered chi-square (2 x log-lik)
 
     @classmethod
     def quick(cls, **kw):
@@ -67,12 +69,30 @@ class Diagnosis:
     stats: dict = field(default_factory=dict)
 
 
-def _phase_misfit(obs, phases, fitted):
+def _phase_misfit(obs, phases, fitted, om):
+    """RMSE and chi2/n (each record's own noise variance) of every phase."""
     out = []
     for info, m in zip(phases.to_list(), phases.masks()):
         r = (obs.R_star[:, m] - fitted[:, m])
         out.append({**info, "rmse": float(np.sqrt(np.nanmean(r ** 2))),
-                    "chi2_norm": float(np.nanmean(r ** 2 / obs.P[None, m])), "n_samples": int(m.sum() * obs.n_exp)})
+                    "chi2_norm": float(np.nanmean(r ** 2 / om.noise_sd[:, None] ** 2)),
+                    "n_samples": int(m.sum() * obs.n_exp)})
+    return out
+
+
+def _nuisance_si(obs, fit) -> list:
+    """Per experiment the fitted geometry and alignment (SI, with the preprocessing values)."""
+    out = []
+    for e in range(obs.n_exp):
+        a, dl, rho = (float(v) for v in fit.nu[e])
+        sa, sd, sr = (float(v) for v in fit.nu_sd[e])
+        tc = float(obs.tc_s[e]) if np.isfinite(obs.tc_s[e]) else float("nan")
+        out.append({"name": obs.names[e], "rmax_rel": a, "t0_offset": dl, "log_req": rho,
+                    "rmax_m": {"preprocessing": float(obs.rmax_m[e]), "fitted": float(obs.rmax_m[e] * (1 + a)),
+                               "sd": float(obs.rmax_m[e] * sa)},
+                    "req_m": {"preprocessing": float(obs.req_m[e]), "fitted": float(obs.req_m[e] * np.exp(rho)),
+                              "sd": float(obs.req_m[e] * np.exp(rho) * sr)},
+                    "t0_offset_s": {"fitted": dl * tc, "sd": sd * tc}})
     return out
 
 
@@ -85,7 +105,8 @@ def candidate_unit(unit, rng) -> dict:
     d = unit.data
     c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
     extra = np.concatenate([d["z_base"], c.prior_mean[2:]])
-    return _asdict(fit_map(c, d["obs"], minima=d["phases"].minima, extra_starts=[extra]))
+    return _asdict(fit_map(c, d["obs"], minima=d["phases"].minima, om=d["om"], extra_starts=[extra],
+                           nu0=d["nu_base"]))
 
 
 def heldout_unit(unit, rng) -> dict:
@@ -95,10 +116,80 @@ def heldout_unit(unit, rng) -> dict:
     d = unit.data
     c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
     fit = MapFit(**d["fit"])
-    h = {"forecast": forecast(c, d["obs"], d["phases"], fit)}
+    h = {"forecast": forecast(c, d["obs"], d["phases"], fit, d["om"])}
     if d["loeo"]:
-        h["loeo"] = loeo(c, d["obs"], d["phases"], fit)
+        h["loeo"] = loeo(c, d["obs"], d["phases"], fit, d["om"])
     return h
+
+
+def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
+    """How much of one candidate's effect a refit of another absorbs: the data replaced by candidate
+    A's fitted curves (noise-free, at its fitted geometry), refitted with candidate B (from B's own
+    fit); the entry (A, B) is the RMS of the refit's residual divided by the records' noise sd
+    (<< 1: B reproduces A's curves within the noise, so this design cannot tell A from B) and
+    ``chi2`` the chi-square that refit leaves on ``om`` (the evidence against B were A true)."""
+    from dataclasses import replace as _replace
+
+    from imrbayes.diagnosis.lsq import fit_map
+
+    keys = list(cands)
+    M = np.zeros((len(keys), len(keys)))
+    C = np.zeros_like(M)
+    for i, a in enumerate(keys):
+        ya = np.array(fits[a].fitted, dtype=float)
+        ya[:, 0] = obs.R_star[:, 0]
+        oa = _replace(obs, R_star=ya)
+        for j, b in enumerate(keys):
+            if i == j:
+                continue
+            f = fit_map(cands[b], oa, minima=phases.minima, om=om, starts=[fits[b].z], nu0=fits[b].nu, max_iter=20)
+            r = (ya[:, 1:] - f.fitted[:, 1:])
+            M[i, j] = float(np.sqrt(np.nanmean(r ** 2 / om.noise_sd[:, None] ** 2)))
+            C[i, j] = float(np.nansum((om.weight ** 2)[:, None] * r ** 2))
+    return {"keys": keys, "matrix": M.tolist(), "chi2": C.tolist(),
+            "note": "row A: data = candidate A's fitted curves (no noise); column B: refit with candidate B; "
+                    "value: residual RMS / record noise sd (< 1: B absorbs A's effect to within the noise); chi2: "
+                    "the tempered chi-square of that refit"}
+
+
+def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, tie_se: float = 2.0,
+         tie_chi2: float = 4.0) -> tuple:
+    """The candidates the data cannot tell apart from the top one: (keys, reason). A contender
+    (not ruled out) ties with the top when neither held-out scheme separates them (paired
+    per-experiment RMSE difference within ``tie_se`` SEs) and either their in-sample fits differ by
+    less than ``tie_chi2`` in chi-square, or each absorbs the other's curves to within ``tie_chi2``
+    (``absorption``). The chi-squares use the likelihood tempered at the *top* candidate's fit
+    (``om`` -- were it the truth, its residuals would be the noise; the baseline's tempering, made
+    of its own model error, would shrink every difference)."""
+    from imrbayes.diagnosis.heldout import paired
+
+    ok = [d for d in candidates if not d.get("ruled_out")]
+    if not ok:
+        return [], ""
+    top = ok[0]["key"]
+    w2 = (om.weight ** 2)[:, None]
+    chi2 = {k: float(np.nansum(w2 * (obs.R_star[:, 1:] - fits[k].fitted[:, 1:]) ** 2)) for k in fits}
+    out, why = [top], []
+    A = {k: i for i, k in enumerate(absorption.get("keys", []))}
+    for d in ok[1:]:
+        k = d["key"]
+        sep = []
+        for sch in held.get(top, {}):
+            if sch in held.get(k, {}):
+                pd = paired(held[k][sch]["per_experiment"], held[top][sch]["per_experiment"])
+                if np.isfinite(pd["se"]) and pd["se"] > 0:
+                    sep.append(abs(pd["mean_diff"]) > tie_se * pd["se"])
+        if any(sep):
+            continue
+        close = abs(chi2[k] - chi2[top]) < tie_chi2
+        mutual = (k in A and top in A and absorption["chi2"][A[top]][A[k]] < tie_chi2
+                  and absorption["chi2"][A[k]][A[top]] < tie_chi2)
+        if close or mutual:
+            out.append(k)
+            why.append(f"{k}: held-out difference to {top} within {tie_se:g} SE; "
+                       + (f"in-sample chi-square within {tie_chi2:g} ({chi2[k] - chi2[top]:+.1f})" if close else
+                          f"each refits the other's curves to a chi-square < {tie_chi2:g}"))
+    return out, "; ".join(why)
 
 
 def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = None, seed: int = 0,
@@ -141,12 +232,15 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     if "mienks_error" in observed:
         warnings.append(f"mienks_drift left out of the check: {observed['mienks_error']}")
     full = observed["fits"]["all"]
+    om = observed["om"]
     tick(1)
     baseline = {"model": BASELINE.model, "method": "map", "estimate": base.estimate(full.z, full.cov),
                 "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2))),
                 "chi2_norm": observed["misfit"],
-                "misfit_by_phase": _phase_misfit(obs, phases, full.fitted),
-                "estimate_note": "MAP of all experiments jointly with a Laplace posterior (optimistic widths)"}
+                "misfit_by_phase": _phase_misfit(obs, phases, full.fitted, om),
+                "nuisance": _nuisance_si(obs, full),
+                "estimate_note": "MAP of all experiments jointly (each with its own Rmax, Req and time of the maximum "
+                                 "fitted) with a Laplace posterior on the tempered likelihood"}
     if s.baseline_method == "en4dvar":
         say("baseline En4D-Var")
         from imrbayes.ensemble import En4DVarSettings, fit_en4dvar
@@ -164,12 +258,17 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     base_key = BASELINE.key
     fits = {base_key: full}
     cands = {base_key: base}
-    common = {"options": options, "physics": physics, "prior": prior, "obs": obs, "phases": phases}
-    say(f"candidates {', '.join(s.candidates)}")
-    rep = ex.run([Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z}) for key in s.candidates],
+    common = {"options": options, "physics": physics, "prior": prior, "obs": obs, "phases": phases, "om": om}
+    from imrbayes.diagnosis.models import applicable
+    keys = [k for k in s.candidates if applicable(k, options)]
+    not_applicable = [k for k in s.candidates if k not in keys]
+    for k in not_applicable:
+        warnings.append(f"candidate {k} left out: it has no alternative to the baseline's forward options")
+    say(f"candidates {', '.join(keys)}")
+    rep = ex.run([Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z, "nu_base": full.nu}) for key in keys],
                  candidate_unit, seed, desc="diagnose candidates")
     failed_units = [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
-    for key in s.candidates:
+    for key in keys:
         if f"candidate={key}" in rep.results:
             fits[key] = MapFit(**rep.results[f"candidate={key}"])
             cands[key] = make_candidate(key, options, physics, prior)
@@ -186,8 +285,8 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
             cands.pop(key)
             fits.pop(key)
         tick(1)
-    kept = [k for k in s.candidates if k in cands]
-    lls = {k: loglik_draws(c, obs, phases, fits[k], s.n_draws, seed + 7) for k, c in cands.items()}
+    kept = [k for k in keys if k in cands]
+    lls = {k: loglik_draws(c, obs, phases, fits[k], s.n_draws, seed + 7, om=om) for k, c in cands.items()}
     elpd = elpd_compare(lls, base_key)
     schemes = [k for k in ("forecast", "loeo") if k in held[base_key] and np.isfinite(held[base_key][k]["rmse"])]
     candidates = []
@@ -196,11 +295,11 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         rel = {k: 1.0 - held[key][k]["rmse"] / held[base_key][k]["rmse"] for k in schemes}
         score = float(np.mean(list(rel.values()))) if rel else float("nan")
         candidates.append({
-            "model": c.spec.model, "key": key, "mechanism": c.mechanism,
+            "model": c.spec.model, "key": key, "mechanism": c.mechanism, "kind": c.spec.kind,
             "forward_model": c.forward_name, "estimate": c.estimate(f.z, f.cov),
             "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2))),
-            "chi2_norm": f.chi2 / f.n_data,
-            "misfit_by_phase": _phase_misfit(obs, phases, f.fitted),
+            "chi2_norm": float(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2 / om.noise_sd[:, None] ** 2)),
+            "misfit_by_phase": _phase_misfit(obs, phases, f.fitted, om),
             "heldout_rmse": held[key][schemes[0]]["rmse"] if schemes else float("nan"),
             "heldout_scheme": schemes[0] if schemes else None,
             "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held[base_key][k]["per_experiment"],
@@ -215,10 +314,22 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                                    -d["elpd_diff"]))
     for i, d in enumerate(candidates):
         d["rank"] = i + 1
+        d["ruled_out"] = ("" if d["consistent"] and d["score"] > 0 else
+                          d["consistency_note"] if not d["consistent"] else
+                          "no held-out gain over the baseline (score <= 0)")
+    absorption, tied, tie_reason = {}, [], ""
+    contenders = [d["key"] for d in candidates if not d["ruled_out"]][:s.n_absorb]
+    if check["verdict"] != "adequate" and contenders:
+        om_top = om.tempered(obs, fits[contenders[0]].fitted)
+        if len(contenders) >= 2:
+            say(f"absorption between {', '.join(contenders)}")
+            absorption = absorption_matrix({k: cands[k] for k in contenders}, {k: fits[k] for k in contenders},
+                                           obs, phases, om_top)
+        tied, tie_reason = ties(candidates, held, absorption, fits, obs, om_top, s.tie_se, s.tie_chi2)
     top = candidates[0] if candidates else None
     if top is not None:   # does the top candidate remove the baseline's drift and phase misfit?
         say(f"window drift of {top['key']}")
-        dr, wf = window_drift(cands[top["key"]], obs, phases, fits[top["key"]])
+        dr, wf = window_drift(cands[top["key"]], obs, phases, fits[top["key"]], om)
         top["removes_baseline_symptoms"] = {
             "drift_baseline": observed["drift"], "drift_extended": dr,
             "drift_note": "largest squared Mahalanobis distance of (log G, log mu) between fits to the 1st, 2nd "
@@ -228,11 +339,13 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
             "phase_chi2_baseline": [p["chi2_norm"] for p in baseline["misfit_by_phase"]],
             "phase_chi2_extended": [p["chi2_norm"] for p in top["misfit_by_phase"]]}
     if check["verdict"] == "adequate":
-        cause, ext = "none", None
+        cause, ext, tied = "none", None, []
     elif top is not None and top["score"] > 0 and top["consistent"]:
         cause, ext = top["mechanism"], top["model"]
+        if len({next(d["mechanism"] for d in candidates if d["key"] == k) for k in tied}) > 1:
+            cause = "ambiguous"
     else:
-        cause, ext = "unexplained", None
+        cause, ext, tied = "unexplained", None, []
     gain = {}
     if top is not None:
         sch = top["heldout_scheme"]
@@ -255,11 +368,14 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     baseline["elpd"] = elpd[base_key]
     result = {"baseline": baseline, "constant_parameter_check": check, "candidates": candidates,
               "cause": cause, "extended_model": ext, "gain": gain,
+              "candidates_tied": tied if cause == "ambiguous" else [],
+              "tie_reason": tie_reason if cause == "ambiguous" else "",
+              "absorption": absorption,
               "phases": phases.to_list(),
               "minima_t_star": phases.minima_t().tolist(),
               "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": seed,
+              "likelihood": om.describe(),
               "failed_units": failed_units, "warnings": warnings,
               "runtime_s": time.perf_counter() - t0}
-    curves = {k: predict(cands[k], fits[k].z[None], obs, np.arange(obs.n_exp), phases.minima,
-                         obs.n_samples - 1)[0] for k in cands}
+    curves = {k: fits[k].fitted for k in cands}
     return Diagnosis(result, obs, phases, curves, observed)
