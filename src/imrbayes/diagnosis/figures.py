@@ -97,14 +97,15 @@ def check_figure(d, path):
     extra = [p for p, ok in (("mienks", bool(mw.get("t_star_windows"))), ("windows", bool(we))) if ok]
     fig, ax = _grid(len(st) + len(extra), row_height=3.2)
     for a, (k, v) in zip(ax, st.items()):
-        b = np.asarray(v["bootstrap"], dtype=float)
+        b = np.asarray(v.get("bootstrap") or [], dtype=float)
         b = b[np.isfinite(b)]
         a.hist(b, bins=max(5, min(20, len(b) // 2 or 1)), color="0.7", label=f"bootstrap (B = {len(b)})")
-        a.axvline(v["observed"], color="C3", lw=2, label="observed")
+        if v.get("observed") is not None:
+            a.axvline(v["observed"], color="C3", lw=2, label="observed")
         xl, what = STAT_LABELS.get(k, (f"{k} [-]", k))
         a.set_xlabel(xl)
         a.set_ylabel("replicates [count]")
-        a.set_title(f"{k}: observed vs bootstrap, p = {v['p_value']:.3f}", fontsize=10)
+        a.set_title(f"{k}: observed vs bootstrap, p = {float(v.get('p_value', np.nan)):.3f}", fontsize=10)
         a.legend(fontsize=7, loc="best")
     rest = list(ax[len(st):])
     if "mienks" in extra:
