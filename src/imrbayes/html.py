@@ -13,7 +13,7 @@ from pathlib import Path
 
 from imrbayes.io import atomic_write_text
 
-__all__ = ["CSS", "PNG_MAGIC", "esc", "fmt", "num", "table", "is_png", "embed_png", "page", "write_page"]
+__all__ = ["CSS", "PNG_MAGIC", "esc", "fmt", "num", "pm", "table", "is_png", "embed_png", "page", "write_page"]
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -29,7 +29,9 @@ code{background:#f5f5f5;padding:0 2px}
 table.kv td:first-child{background:#f3f3f3;font-weight:bold;white-space:nowrap}
 .conclusion{border:2px solid #4a7;border-radius:6px;padding:4px 14px;background:#f6fbf7;margin:10px 0}
 .conclusion li{margin:3px 0}.caveat{color:#8a4b00}
-ul.plain{margin:2px 0;padding-left:18px}"""
+ul.plain{margin:2px 0;padding-left:18px}
+.verdict{border:2px solid #357;border-radius:6px;padding:6px 14px;background:#f4f7fb;margin:10px 0;font-size:15px}
+.verdict p{margin:5px 0}"""
 
 
 def esc(x) -> str:
@@ -111,3 +113,8 @@ def write_page(path, title: str, body: str) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     return atomic_write_text(path, page(title, body))
+
+
+def pm(x, se, spec=".2g") -> str:
+    """``"x ± se"`` (both with ``spec``; ``–`` for a missing number)."""
+    return f"{num(x, spec)} ± {num(se, spec)}"

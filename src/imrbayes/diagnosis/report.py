@@ -1,54 +1,315 @@
 """Self-contained ``report.html`` of a diagnosis (the shared page skeleton of :mod:`imrbayes.html`;
-figures embedded as base64 PNG)."""
+figures embedded as base64 PNG).
+
+Layout: the verdict first, in plain words (is the constant-parameter NHKV adequate, where does it
+miss, the cause or the tie, what the extended model gains on unseen data), then the evidence
+(baseline and misfit by phase, the bootstrap check, the candidates with why each was not chosen,
+absorption, G(t)/mu(t) signature, likelihood and nuisance parameters), each section with its
+figure. Keys added by later diagnoses (``candidates_tied``, ``tie_reason``, ``absorption``,
+``signature``, ``likelihood``, ``baseline.nuisance``, a candidate's ``kind`` and ``ruled_out``)
+are optional: a section whose key is absent is left out."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
-from imrbayes.html import embed_png, esc, fmt, table, write_page
+from imrbayes.html import embed_png, esc, num, pm, table, write_page
 
-__all__ = ["write_report"]
+__all__ = ["write_report", "verdict_sentences", "why_not"]
+
+#: cause -> what it means, in words (the sentence "The most likely cause is ...")
+CAUSE_WORDS = {
+    "strain-stiffening": "strain stiffening of the material (the qkv/Fung models add it)",
+    "viscoelastic-relaxation": "viscoelastic relaxation of the material (the Zener model adds it)",
+    "rate-dependent-viscosity": "rate-dependent (shear-thinning) viscosity (the Carreau model adds it)",
+    "damage-softening": "damage: the gel softens at every collapse (piecewise NHKV)",
+    "bubble-thermal": "the bubble, not the material: heat exchange of the gas with the surroundings "
+                      "(the thermal bubble model)",
+    "bubble-compressibility": "the bubble, not the material: compressibility of the surrounding liquid "
+                              "(acoustic radiation damping)",
+}
+SCHEME_WORDS = {"forecast": "forecast: fit to the first two collapses, predict the rest",
+                "loeo": "leave-one-experiment-out"}
+#: parameter -> (factor from SI, unit shown)
+_UNITS = {"G": (1e-3, "kPa"), "mu": (1.0, "Pa s"), "lambda1": (1e6, "µs"), "lambda2": (1e6, "µs"),
+          "lambda_c": (1e6, "µs")}
+_CAPTIONS = {
+    "residuals": "Top: measured R* = R/Rmax (dots) and the whole-record baseline fit (lines), one colour per "
+                 "experiment. Bottom: residuals in units of the noise sd; χ²/n per phase (≈ 1: the fit is at "
+                 "the noise level).",
+    "check": "Each check statistic on the data (red line) against its parametric bootstrap (grey: data simulated "
+             "from the fitted constant-parameter model and refitted); p = fraction of replicates at least as "
+             "extreme. Last panels: the MIEnKS-MDA window means G(t*), mu(t*), and the baseline refitted to "
+             "growing windows.",
+    "candidates": "Left: RMSE over experiments at each t* of every whole-record fit. Right: relative reduction of "
+                  "the held-out RMSE against the baseline per held-out scheme (> 0: the candidate predicts "
+                  "unseen data better).",
+    "absorption": "Row A: data simulated with candidate A's fit; column B: refitted with candidate B. Cell: "
+                  "residual RMS / noise sd. ≈ 1: B reproduces A's effect to within the noise, so the data "
+                  "cannot tell A from B.",
+    "signature": "G(t*) and mu(t*) of the data (MIEnKS-MDA windows, ±1 sd) against the band each candidate "
+                 "predicts for the same windows. A candidate whose band follows the data explains the drift.",
+}
+
+
+def _f(x, spec=".3g", missing="–") -> str:
+    if _finite(x) and not isinstance(x, bool):
+        x = float(x) + 0.0                              # -0.0 -> 0.0
+    return num(x, spec, missing)
+
+
+def _finite(x) -> bool:
+    try:
+        return math.isfinite(float(x))
+    except (TypeError, ValueError):
+        return False
+
+
+def _pct(x) -> str:
+    return f"{abs(float(x)) * 100:.2g} %" if _finite(x) else "–"
+
+
+def _rel(x) -> str:
+    """A relative reduction as a signed percentage (``+12 %``)."""
+    return f"{float(x) * 100:+.2g} %" if _finite(x) else "–"
+
+
+def _param(name, v) -> str:
+    f, u = _UNITS.get(name, (1.0, ""))
+    return f"{name} = {_f(float(v) * f if _finite(v) else v)}{' ' + u if u else ''}"
+
+
+def _phase_range(p) -> str:
+    t = p.get("t_star") or (None, None)
+    return f"{_f(t[0], '.2f')}–{_f(t[1], '.2f')}"
+
+
+def _scheme_key(g) -> str | None:
+    """The short name (``forecast``/``loeo``) of the gain's held-out scheme."""
+    for k, v in (g.get("by_scheme") or {}).items():
+        if v.get("scheme") == g.get("heldout_scheme"):
+            return k
+    return None
+
+
+def _names(r) -> dict:
+    return {c.get("key", c.get("model")): c.get("model", c.get("key")) for c in r.get("candidates", [])}
+
+
+def verdict_sentences(r: dict) -> list:
+    """The verdict of diagnosis.json's object ``r`` in 2-5 plain sentences (HTML-escaped)."""
+    chk = r["constant_parameter_check"]
+    ev = chk.get("evidence", {})
+    base = r["baseline"]
+    model = base.get("model") or "nhkv"
+    model = "NHKV" if model == "nhkv" else model
+    st = ev.get("statistics") or {}
+    adequate = chk.get("verdict") == "adequate"
+    out = []
+    pv = f"combined bootstrap p = {_f(ev.get('p_value'), '.3f')}, B = {ev.get('n_bootstrap', '?')} replicates"
+    if adequate:
+        out.append(f"A constant-parameter {esc(model)} model is <b>adequate</b> for these data: no check statistic "
+                   f"is unusual for data simulated from its own fit ({pv}, α = {_f(ev.get('alpha'), '.2g')}).")
+    else:
+        worst = min(st.items(), key=lambda kv: kv[1].get("p_value", 1.0)) if st else None
+        flag = (f"; the statistic that flags it most is {esc(worst[0])} (p = {_f(worst[1].get('p_value'), '.3f')})"
+                if worst else "")
+        out.append(f"A constant-parameter {esc(model)} model is <b>not adequate</b> for these data: the fit misses "
+                   f"more than the noise allows ({pv}, α = {_f(ev.get('alpha'), '.2g')}){flag}.")
+    ph = [p for p in base.get("misfit_by_phase", []) if _finite(p.get("chi2_norm"))]
+    if ph:
+        w = max(ph, key=lambda p: p["chi2_norm"])
+        others = [p["chi2_norm"] for p in ph if p is not w]
+        rest = (f" against {_f(min(others), '.2f')}–{_f(max(others), '.2f')} in the other phases"
+                if others else "")
+        out.append(f"Its worst misfit is in the {esc(w['phase'])} phase (t* {_phase_range(w)}): χ²/n = "
+                   f"{_f(w['chi2_norm'], '.2f')}{rest} (χ²/n ≈ 1 is a fit at the noise level).")
+    cause = r.get("cause")
+    names = _names(r)
+    g = r.get("gain") or {}
+    if cause == "ambiguous":
+        tied = [names.get(k, k) for k in r.get("candidates_tied") or []]
+        reason = r.get("tie_reason")
+        out.append(f"The cause is <b>ambiguous</b>: the data cannot decide between {esc(', '.join(tied) or '?')}"
+                   + (f" ({esc(reason)})" if reason else "") + ".")
+    elif cause in (None, "none"):
+        out.append("No extension is needed (cause: none)." if adequate
+                   else "No cause is named (cause: none).")
+    elif cause == "unexplained":
+        out.append("No candidate explains the misfit (cause: unexplained): none predicts held-out data better "
+                   "with a fit that points the way of its mechanism.")
+    else:
+        ext = r.get("extended_model") or g.get("candidate")
+        out.append(f"The most likely cause is <b>{esc(cause)}</b>: {esc(CAUSE_WORDS.get(cause, cause))}"
+                   + (f"; the extended model is {esc(ext)}" if ext else "") + ".")
+    if g and _finite(g.get("relative_reduction")):
+        rr = float(g["relative_reduction"])
+        sk = _scheme_key(g)
+        scheme = SCHEME_WORDS.get(sk, g.get("heldout_scheme") or "held-out")
+        pd = g.get("paired_difference") or {}
+        sig = ""
+        if _finite(pd.get("mean_diff")) and _finite(pd.get("se")) and float(pd["se"]) > 0:
+            z = float(pd["mean_diff"]) / float(pd["se"])
+            sig = (f"; paired difference {pm(pd['mean_diff'], pd['se'])} in R*, "
+                   + ("significant" if abs(z) >= 2 else "not significant") + f" at {abs(z):.1f} SE")
+        who = ("The extended model " if cause not in (None, "none", "unexplained", "ambiguous")
+               else "The best-ranked candidate, ")
+        s = (f"{who}{esc(g.get('candidate', ''))}{',' if who.endswith(', ') else ''} predicts held-out data {_pct(rr)} "
+             f"{'better' if rr > 0 else 'worse'} than the baseline (RMSE {_f(g.get('heldout_rmse_baseline'))} → "
+             f"{_f(g.get('heldout_rmse_extended'))}, {esc(scheme)}{sig})")
+        if _finite(g.get("elpd_diff")):
+            s += (f", and its expected log predictive density differs by {pm(g['elpd_diff'], g.get('elpd_se'), '.3g')}"
+                  " nats (PSIS-LOO; > 0 favours it)")
+        out.append(s + ".")
+    return out[:5]
+
+
+def why_not(c: dict, r: dict) -> str:
+    """Why candidate ``c`` is not the cause (plain text; ``"chosen"`` for the one that is)."""
+    if c.get("ruled_out"):
+        return c["ruled_out"]
+    if c.get("consistent") is False:
+        return c.get("consistency_note") or "the fit contradicts its mechanism"
+    sc = c.get("score")
+    if not _finite(sc):
+        return "no held-out score"
+    if float(sc) <= 0:
+        return f"held-out gain ≤ 0 (score {_rel(sc)})"
+    key = c.get("key", c.get("model"))
+    if r.get("cause") == "ambiguous" and key in (r.get("candidates_tied") or []):
+        return "tied: " + (r.get("tie_reason") or "the data cannot tell it from the others")
+    if c.get("model") == r.get("extended_model") or (r.get("cause") not in ("none", "unexplained", "ambiguous", None)
+                                                        and c.get("rank") == 1):
+        return "chosen"
+    if r.get("constant_parameter_check", {}).get("verdict") == "adequate":
+        return "not needed: the baseline is adequate"
+    return "lower held-out score than the chosen candidate"
+
+
+def _fig(figs: dict, stem: str) -> str:
+    p = figs.pop(stem, None)
+    return embed_png(p, caption=_CAPTIONS.get(stem)) if p is not None else ""
+
+
+def _candidates_table(r) -> str:
+    rows = []
+    for c in r.get("candidates", []):
+        why = why_not(c, r)
+        cls = "class='ok'" if why == "chosen" else ("class='undecided'" if why.startswith("tied") else "")
+        rows.append([
+            esc(c.get("rank", "")),
+            esc(c.get("model", c.get("key"))), esc(c.get("kind", "material")), esc(c.get("mechanism", "")),
+            (_f(c.get("rmse"), ".4g"), "class='n'"), (_f(c.get("heldout_rmse"), ".4g"), "class='n'"),
+            ", ".join(f"{esc(k)}: {_rel(v)}" for k, v in (c.get("relative_reduction") or {}).items()),
+            (pm(c.get("elpd_diff"), c.get("elpd_se"), ".3g"), "class='n'"),
+            esc(", ".join(_param(k, v.get("median")) for k, v in (c.get("estimate") or {}).items())),
+            (esc(why), cls)])
+    return table(["rank", "model", "kind", "mechanism", "RMSE (fit) [R*]", "held-out RMSE [R*]",
+                  "held-out RMSE reduction", "ELPD diff ± SE [nats]", "estimate (median)", "why not"], rows)
+
+
+def _absorption(r, figs) -> str:
+    ab = r.get("absorption") or {}
+    keys = ab.get("keys") or []
+    if not keys:
+        return ""
+    names = _names(r)
+    rows = [[f"<b>{esc(names.get(a, a))}</b>"] + [(_f(v, ".2f"), "class='n'") for v in row]
+            for a, row in zip(keys, ab.get("matrix") or [])]
+    note = f"<p class='note'>{esc(ab['note'])}</p>" if ab.get("note") else ""
+    return (f"<h2>Can one candidate absorb another's effect?</h2>"
+            f"<p>Residual RMS / noise sd when the data simulated with the row's fit are refitted with the column's "
+            f"model (≈ 1: the column absorbs the row's effect to within the noise).</p>"
+            f"{table(['simulated with ↓ / refit with →'] + [esc(names.get(k, k)) for k in keys], rows)}{note}"
+            f"{_fig(figs, 'absorption')}")
+
+
+def _signature(r, figs) -> str:
+    sig = r.get("signature") or {}
+    if not sig.get("predicted") and not sig.get("score"):
+        return ""
+    names = _names(r)
+    sc = sig.get("score") or {}
+    tab = table(["candidate", "signature score"],
+                [[esc(names.get(k, k)), (_f(v), "class='n'")] for k, v in sc.items()]) if sc else ""
+    note = f"<p class='note'>{esc(sig['note'])}</p>" if sig.get("note") else ""
+    return (f"<h2>Signature: G(t*), mu(t*) of the data against each candidate</h2>{tab}{note}"
+            f"{_fig(figs, 'signature')}")
+
+
+def _likelihood(r) -> str:
+    lk = r.get("likelihood") or {}
+    nu = r["baseline"].get("nuisance") or []
+    if not lk and not nu:
+        return ""
+    n = max(len(lk.get("noise_sd") or []), len(lk.get("alpha") or []), len(nu))
+    cols = []
+    if lk.get("noise_sd") is not None:
+        cols.append(("noise sd [R*]", lambda i: (lk["noise_sd"] + [None] * n)[i]))
+    if lk.get("alpha") is not None:
+        cols.append(("alpha", lambda i: (lk["alpha"] + [None] * n)[i]))
+    for k in (list(nu[0]) if nu else []):
+        cols.append((k, lambda i, k=k: (nu[i] if i < len(nu) else {}).get(k)))
+    rows = [[str(i + 1)] + [(_f(fn(i), ".3g"), "class='n'") for _, fn in cols] for i in range(n)]
+    note = f"<p class='note'>{esc(lk['note'])}</p>" if lk.get("note") else ""
+    return (f"<h2>Likelihood and nuisance parameters per experiment</h2>"
+            f"{table(['experiment'] + [esc(h) for h, _ in cols], rows)}{note}")
 
 
 def write_report(result: dict, figures: list, path, title: str = "imrbayes diagnose") -> Path:
     """Write the diagnosis ``result`` (diagnosis.json's object) and the PNG ``figures`` to ``path``
-    (atomically); returns ``path``."""
+    (atomically); returns ``path``. A figure goes into the section of its file name's stem
+    (residuals, check, candidates, absorption, signature); others at the end."""
     r = result
+    figs = {Path(p).stem: p for p in figures}
     chk = r["constant_parameter_check"]
     ev = chk["evidence"]
-    candidates = table(
-        ["rank", "model", "mechanism", "RMSE (fit)", "held-out RMSE", "relative held-out reduction",
-         "ELPD diff ± SE", "estimate (median)"],
-        [[c["rank"], esc(c["model"]), esc(c["mechanism"]), fmt(c["rmse"]), fmt(c["heldout_rmse"]),
-          ", ".join(f"{k}: {fmt(v, '+.1%')}" for k, v in c["relative_reduction"].items()),
-          f"{fmt(c['elpd_diff'], '.1f')} ± {fmt(c['elpd_se'], '.1f')}",
-          esc(", ".join(f"{k}={fmt(v['median'])}" for k, v in c["estimate"].items()))]
-         for c in r["candidates"]])
-    phases = table(["phase", "t*", "RMSE", "chi2/n"],
-                   [[esc(p["phase"]), f"{fmt(p['t_star'][0], '.3f')}–{fmt(p['t_star'][1], '.3f')}", fmt(p["rmse"]),
-                     fmt(p["chi2_norm"], ".2f")] for p in r["baseline"]["misfit_by_phase"]])
-    stats = table(["statistic", "observed", "bootstrap 5/50/95 %", "p"],
-                  [[k, fmt(v["observed"]), ", ".join(fmt(q) for q in v["bootstrap_q05_q50_q95"]),
-                    fmt(v["p_value"], ".3f")] for k, v in ev["statistics"].items()])
-    est = ", ".join(f"{k} = {fmt(v['mean'])} ± {fmt(v['sd'], '.2g')}" for k, v in r["baseline"]["estimate"].items())
+    base = r["baseline"]
+    verdict = "".join(f"<p>{s}</p>" for s in verdict_sentences(r))
+    phases = table(["phase", "t* [-]", "RMSE [R*]", "χ²/n [-]"],
+                   [[esc(p["phase"]), _phase_range(p), (_f(p.get("rmse"), ".4g"), "class='n'"),
+                     (_f(p.get("chi2_norm"), ".2f"), "class='n'")] for p in base.get("misfit_by_phase", [])])
+    stats = table(["statistic", "observed", "bootstrap 5 / 50 / 95 %", "p"],
+                  [[esc(k), (_f(v.get("observed"), ".4g"), "class='n'"),
+                    (" / ".join(_f(q, ".4g") for q in v.get("bootstrap_q05_q50_q95", [])), "class='n'"),
+                    (_f(v.get("p_value"), ".3f"), "class='n'")] for k, v in ev.get("statistics", {}).items()])
+    est = ", ".join(f"{_param(k, v.get('mean'))} (sd {_param(k, v.get('sd')).split(' = ')[1]})"
+                    for k, v in base.get("estimate", {}).items())
     g = r.get("gain") or {}
-    gains = "".join(f"<li>{esc(v['scheme'])}: baseline {fmt(v['baseline'])}, extended {fmt(v['extended'])} "
-                    f"({fmt(v['relative_reduction'], '+.1%')}; paired difference "
-                    f"{fmt(v['paired_vs_baseline']['mean_diff'])} ± {fmt(v['paired_vs_baseline']['se'])} SE)</li>"
-                    for v in g.get("by_scheme", {}).values())
-    imgs = "".join(embed_png(p, title=Path(p).stem) for p in figures)
+    gains = "".join(f"<li>{esc(k)} ({esc(v.get('scheme'))}): RMSE baseline "
+                    f"{_f(v.get('baseline'), '.4g')} → extended {_f(v.get('extended'), '.4g')} "
+                    f"({_rel(v.get('relative_reduction'))}; paired difference "
+                    f"{pm((v.get('paired_vs_baseline') or {}).get('mean_diff'), (v.get('paired_vs_baseline') or {}).get('se'))}"
+                    f" in R*)</li>" for k, v in (g.get("by_scheme") or {}).items())
+    gain = ""
+    if g:
+        gain = (f"<h2>Gain of {esc(g.get('candidate'))} on unseen data</h2><ul>{gains}"
+                f"<li>ELPD difference {pm(g.get('elpd_diff'), g.get('elpd_se'), '.3g')} nats: "
+                f"{esc(g.get('elpd_scheme', ''))}</li></ul>")
+    warn = r.get("warnings") or []
+    warn_html = ("<h2>Warnings</h2><ul>" + "".join(f"<li class='caveat'>{esc(w)}</li>" for w in warn) + "</ul>"
+                 if warn else "")
+    tied = r.get("candidates_tied") or []
     body = f"""<h1>{esc(title)}</h1>
-<p><b>Cause:</b> {esc(r['cause'])} &nbsp; <b>extended model:</b> {esc(r['extended_model'])}
-&nbsp; <b>constant-parameter check:</b> {esc(chk['verdict'])} (bootstrap p = {fmt(ev['p_value'], '.3f')},
-{ev['n_bootstrap']} replicates)</p>
-<h2>Baseline ({esc(r['baseline']['model'])}, {esc(r['baseline']['method'])})</h2><p>{est}; RMSE {fmt(r['baseline']['rmse'])}</p>
-{phases}
-<h2>Constant-parameter check</h2><p>{esc(ev['rule'])}</p>
+<div class='verdict'><h2 style='margin:4px 0'>Verdict</h2>{verdict}
+<p class='note'>cause: <b>{esc(r.get('cause'))}</b>; extended model: {esc(r.get('extended_model') or '–')}
+{('; tied: ' + esc(', '.join(tied))) if tied else ''}</p></div>
+<h2>Baseline fit ({esc(base.get('model'))}, {esc(base.get('method'))})</h2>
+<p>{est}; RMSE {_f(base.get('rmse'), '.4g')} in R*{('. ' + esc(base['estimate_note'])) if base.get('estimate_note') else ''}</p>
+<h3>Misfit by phase</h3>{phases}
+{_fig(figs, 'residuals')}
+<h2>Constant-parameter check: {esc(chk.get('verdict'))}</h2><p>{esc(ev.get('rule', ''))}</p>
 {stats}
-<h2>Candidates (ranked by held-out score)</h2>
-{candidates}
-<h2>Gain of {esc(g.get('candidate'))} on unseen data</h2><ul>{gains}
-<li>ELPD difference {fmt(g.get('elpd_diff'), '.1f')} ± {fmt(g.get('elpd_se'), '.1f')}: {esc(g.get('elpd_scheme'))}</li></ul>
-{imgs}
-<p class='note'>runtime {fmt(r.get('runtime_s'), '.0f')} s; seed {r.get('seed')}</p>"""
+{_fig(figs, 'check')}
+<h2>Candidates (ranked by held-out score) and why each was not chosen</h2>
+{_candidates_table(r)}
+{_fig(figs, 'candidates')}
+{gain}
+{_absorption(r, figs)}
+{_signature(r, figs)}
+{_likelihood(r)}
+{warn_html}
+{''.join(embed_png(p, title=stem) for stem, p in figs.items())}
+<p class='note'>runtime {_f(r.get('runtime_s'), '.0f')} s; seed {esc(r.get('seed'))}</p>"""
     return write_page(path, title, body)

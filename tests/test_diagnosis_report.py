@@ -1,0 +1,177 @@
+"""The ``imrbayes diagnose`` report (issue #21 item 7): the verdict first in plain words, then the
+evidence; candidates say why they were not chosen; optional keys of the rewritten diagnosis
+(ambiguous cause and its tie, absorption, signature, likelihood, nuisance, ruled-out candidates)
+each get their section; every figure is legible (no 1 x N strips).
+
+One small real polytropic run (module fixture, ~15 s) gives the result and the fits; the optional
+keys are laid on top of it."""
+
+import copy
+import html
+import re
+import struct
+
+import pytest
+
+from imrbayes.diagnosis import DiagnoseSettings, diagnose
+from imrbayes.diagnosis.figures import write_figures
+from imrbayes.diagnosis.report import verdict_sentences, why_not, write_report
+from imrbayes.diagnosis.synthetic import synthetic_obs
+from imrbayes.forward import ForwardOptions
+
+OPTS = ForwardOptions(bubble="polytropic")
+
+
+def png_size(path):
+    """(width, height) in pixels from the PNG header."""
+    with open(path, "rb") as fh:
+        head = fh.read(24)
+    return struct.unpack(">II", head[16:24])
+
+
+def text_of(path):
+    """The report's visible text (tags, styles and images stripped)."""
+    s = path.read_text()
+    s = re.sub(r"<style>.*?</style>", "", s, flags=re.S)
+    s = re.sub(r"<img [^>]*>", "", s)
+    return re.sub(r"\s+", " ", html.unescape(re.sub(r"<[^>]+>", " ", s)))
+
+
+@pytest.fixture(scope="module")
+def real():
+    obs = synthetic_obs("none", 11, OPTS, n_exp=3, noise_scale=0.5)[0]
+    s = DiagnoseSettings.quick(n_bootstrap=3, candidates=("qkv", "zener"), loeo=False, n_draws=20)
+    return diagnose(obs, OPTS, settings=s, seed=0)
+
+
+def with_optional_keys(result):
+    """``result`` with every optional key of the rewritten diagnosis: an ambiguous cause tied between
+    the two candidates, one ruled out, absorption, signature, likelihood and nuisance parameters."""
+    r = copy.deepcopy(result)
+    cands = r["candidates"]
+    keys = [c["key"] for c in cands]
+    r["constant_parameter_check"]["verdict"] = "inadequate"
+    r["constant_parameter_check"]["evidence"]["p_value"] = 0.012
+    r["cause"], r["extended_model"] = "ambiguous", None
+    r["candidates_tied"] = keys
+    r["tie_reason"] = "each absorbs the other's effect to within the noise"
+    for c in cands:
+        c["kind"] = "material"
+        c["ruled_out"] = ""
+        c["score"] = 0.05
+        c["consistent"] = True
+    cands.append({**copy.deepcopy(cands[0]), "key": "thermal", "model": "nhkv-thermal", "kind": "bubble",
+                  "mechanism": "bubble-thermal", "rank": len(cands) + 1,
+                  "ruled_out": "the thermal bubble barely changes the fit (Δχ²/n < 0.01)"})
+    r["gain"].update({"relative_reduction": 0.12, "paired_difference": {"mean_diff": 0.004, "se": 0.001},
+                      "elpd_diff": 12.5, "elpd_se": 4.0})
+    ak = keys + ["thermal"]
+    r["absorption"] = {"keys": ak, "matrix": [[1.0 + 0.4 * abs(i - j) for j in range(len(ak))]
+                                              for i in range(len(ak))],
+                       "note": "refits of one simulated data set per candidate"}
+    t = [0.4, 0.8, 1.2, 1.6, 2.0]
+    r["signature"] = {
+        "observed": {"t_star": t, "G": [7e3, 6.5e3, 6e3, 5.6e3, 5.5e3], "G_sd": [300] * 5,
+                     "mu": [0.15, 0.12, 0.1, 0.09, 0.088], "mu_sd": [0.01] * 5},
+        "predicted": {k: {"t_star": t, "G_mean": [6.2e3 - 100 * j * i for i in range(5)],
+                          "G_lo": [5.9e3 - 100 * j * i for i in range(5)],
+                          "G_hi": [6.5e3 - 100 * j * i for i in range(5)],
+                          "mu_mean": [0.1 - 0.005 * j * i for i in range(5)],
+                          "mu_lo": [0.09 - 0.005 * j * i for i in range(5)],
+                          "mu_hi": [0.11 - 0.005 * j * i for i in range(5)]} for j, k in enumerate(keys)},
+        "score": {k: 0.3 + 0.2 * j for j, k in enumerate(keys)},
+        "note": "fraction of the observed drift each candidate predicts"}
+    n = 3                                            # experiments of the fixture
+    r["likelihood"] = {"noise_sd": [0.011, 0.012, 0.010][:n], "alpha": [0.9, 1.0, 1.1][:n],
+                       "note": "per-experiment noise sd and correlation exponent"}
+    r["baseline"]["nuisance"] = [{"rmax_rel": 0.01 * i, "t0_offset": -0.002 * i, "log_req": -1.9} for i in range(n)]
+    return r
+
+
+def test_report_verdict_first_and_optional_sections(real, tmp_path):
+    d = copy.copy(real)
+    d.result = with_optional_keys(real.result)
+    figs = write_figures(d, tmp_path / "figures")
+    names = {p.name for p in figs}
+    assert {"residuals.png", "check.png", "candidates.png", "absorption.png", "signature.png"} <= names
+    for p in figs:
+        w, h = png_size(p)
+        assert w / h <= 2.2, (p.name, w, h)          # no strips
+        assert 700 <= w <= 1100, (p.name, w, h)      # legible at report width, not wider
+    page = tmp_path / "report.html"
+    write_report(d.result, figs, page)
+    txt = text_of(page)
+    # the verdict comes first, before any evidence section
+    assert txt.index("Verdict") < txt.index("Baseline fit") < txt.index("Candidates")
+    verdict = txt[txt.index("Verdict"):txt.index("Baseline fit")]
+    assert "not adequate" in verdict and "p = 0.012" in verdict
+    worst = max(d.result["baseline"]["misfit_by_phase"], key=lambda p: p["chi2_norm"])
+    assert f"worst misfit is in the {worst['phase']} phase" in verdict
+    assert "ambiguous" in verdict and "qkv" in verdict and "zener" in verdict
+    assert "each absorbs the other's effect" in verdict
+    assert "12 % better" in verdict and "0.004 ± 0.001 in R*" in verdict and "12.5 ± 4 nats" in verdict
+    # candidates say why not; the bubble candidate is ruled out with its reason
+    assert "why not" in txt and "nhkv-thermal" in txt and "barely changes the fit" in txt
+    assert "tied: each absorbs" in txt
+    # absorption, signature, likelihood sections with their tables and figures
+    assert "absorb another's effect" in txt and "residual RMS / noise sd" in txt
+    assert "Signature" in txt and "signature score" in txt
+    assert "noise sd [R*]" in txt and "rmax_rel" in txt and "t0_offset" in txt
+    assert page.read_text().count("data:image/png;base64,") == len(figs)
+
+
+def test_report_without_optional_keys(real, tmp_path):
+    """The result as the diagnosis writes it today: no optional section, no absorption/signature figure."""
+    figs = write_figures(real, tmp_path / "figures")
+    assert [p.name for p in figs] == ["residuals.png", "check.png", "candidates.png"]
+    assert png_size(figs[1])[0] / png_size(figs[1])[1] <= 2.2       # the bootstrap check is a grid
+    page = write_report(real.result, figs, tmp_path / "report.html")
+    txt = text_of(page)
+    assert "Verdict" in txt and "Signature" not in txt and "absorb another" not in txt
+    assert all(why_not(c, real.result) for c in real.result["candidates"])
+
+
+def _minimal(cause, **extra):
+    phases = [{"phase": "first-collapse", "t_star": [0.0, 0.9], "rmse": 0.015, "chi2_norm": 1.0},
+              {"phase": "third-collapse", "t_star": [1.4, 1.9], "rmse": 0.05, "chi2_norm": 4.59}]
+    r = {"baseline": {"model": "nhkv", "misfit_by_phase": phases},
+         "constant_parameter_check": {"verdict": "inadequate", "evidence": {
+             "p_value": 0.01, "n_bootstrap": 39, "alpha": 0.05,
+             "statistics": {"misfit": {"p_value": 0.01}, "drift": {"p_value": 0.2}}}},
+         "candidates": [{"key": "zener", "model": "zener", "rank": 1, "score": 0.31, "consistent": True}],
+         "cause": cause, "extended_model": "zener" if cause == "viscoelastic-relaxation" else None,
+         "gain": {"candidate": "zener", "heldout_scheme": "fit to t* <= 1.4, predict t* > 1.4",
+                  "heldout_rmse_baseline": 0.0691, "heldout_rmse_extended": 0.0479, "relative_reduction": 0.31,
+                  "paired_difference": {"mean_diff": 0.022, "se": 0.006},
+                  "by_scheme": {"forecast": {"scheme": "fit to t* <= 1.4, predict t* > 1.4"}},
+                  "elpd_diff": 326.0, "elpd_se": 110.0}}
+    r.update(extra)
+    return r
+
+
+@pytest.mark.parametrize("cause, words", [
+    ("viscoelastic-relaxation", "most likely cause is viscoelastic-relaxation"),
+    ("bubble-thermal", "the bubble, not the material"),
+    ("bubble-compressibility", "compressibility of the surrounding liquid"),
+    ("unexplained", "No candidate explains"),
+    ("ambiguous", "cannot decide between zener, qkv"),
+])
+def test_verdict_sentences_name_cause_phase_and_gain(cause, words):
+    r = _minimal(cause, candidates_tied=["zener", "qkv"], tie_reason="equal held-out scores")
+    s = verdict_sentences(r)
+    assert 2 <= len(s) <= 5
+    text = html.unescape(re.sub(r"<[^>]+>", "", " ".join(s)))
+    assert "not adequate" in text and "p = 0.010" in text and "B = 39" in text and "misfit (p = 0.010)" in text
+    assert "third-collapse phase (t* 1.40–1.90): χ²/n = 4.59" in text
+    assert words in text
+    assert "31 % better" in text and "0.022 ± 0.006 in R*" in text and "significant at 3.7 SE" in text
+    assert "forecast" in text and "326 ± 110 nats" in text
+
+
+def test_why_not():
+    r = _minimal("viscoelastic-relaxation")
+    assert why_not({"ruled_out": "no effect", "score": 0.5}, r) == "no effect"
+    assert why_not({"consistent": False, "consistency_note": "alpha <= 0", "score": 0.5}, r) == "alpha <= 0"
+    assert why_not({"consistent": True, "ruled_out": "", "score": -0.02}, r).startswith("held-out gain ≤ 0")
+    assert why_not(r["candidates"][0], r) == "chosen"
+    assert why_not({"score": float("nan")}, r) == "no held-out score"
