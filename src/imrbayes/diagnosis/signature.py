@@ -26,8 +26,8 @@ Choices
 * **Cheap smoother** (16 members, 2 Gauss-Newton iterations, the paper's windows L = 35, h = 5):
   as ``mienks_drift``. Measured on a 5-experiment, 121-sample record (18 windows, 4320 member
   runs, numba compiled): ~0.9 s per smoother run with the polytropic bubble (2-6 s when other work
-  shares the two cores), ~25 s with the thermal bubble; the default likelihood doubles both (2.8 s
-  polytropic). A diagnosis costs (1 + n_rep x candidates) smoother runs: with 4 replicates and 5
+  shares the two cores), ~25 s with the thermal bubble; the default likelihood adds its pilot pass (2.8 s
+  polytropic measured). A diagnosis costs (1 + n_rep x candidates) smoother runs: with 4 replicates and 5
   candidates ~20 s polytropic, ~9 min thermal.
 * **Replicates** ``n_rep = 4``: the smallest number with a usable spread (3 degrees of freedom)
   and a leave-one-out tail probability; cost per candidate = n_rep smoother runs plus n_rep
