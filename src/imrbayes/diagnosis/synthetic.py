@@ -88,8 +88,9 @@ class Design:
     noise : radius noise, :func:`imrbayes.data.synthetic.parse_noise` syntax (``"2um"``: Gaussian,
         sd 2 µm on every frame, the maximum included; ``"2um+paper"`` adds the paper's model).
     pre_max : frames recorded before the maximum (the growth, taken as the mirror of the collapse).
-    t_end_star : end of each record after the true maximum [t*] (3.3: 3-4 collapses, a little more
-        than the analysis grid's t* = 3 so that the estimated maximum's shift never truncates it).
+    t_end_star : end of each record after the true maximum [t*] (default 4: 3-4 collapses and some
+        tail, past the analysis grid's t* = 3 so that the estimated maximum's shift never truncates it;
+        Req is estimated from the record's last 20 frames, as for measured data).
     rmax_um : (mean, sd) of the bubbles' Rmax [µm] (normal, clipped to mean +- 3 sd).
     ratio : (mean, sd) of Rmax/Req (normal, clipped to mean +- 3 sd and >= 2).
     scatter : bubble-to-bubble material scatter, name -> relative sd (log-normal around the
@@ -102,7 +103,7 @@ class Design:
     frame_s: float = 1e-6
     noise: str = "2um"
     pre_max: int = 6
-    t_end_star: float = 3.3
+    t_end_star: float = 4.0
     rmax_um: tuple = (300.0, 30.0)
     ratio: tuple = (7.5, 0.4)
     scatter: Mapping = field(default_factory=dict)
@@ -120,7 +121,8 @@ class Design:
 #: (the paper's Phantom) with a few frames per collapse.
 DESIGNS = {
     "1Mfps-2um-5": Design(),
-    "270kfps-2um-3": Design("270kfps-2um-3", n_exp=3, frame_s=1 / 270e3, noise="2um", pre_max=2, t_end_star=3.6),
+    # a coarse camera: ~8 frames per t* unit, records long enough for 20 tail frames after the collapses
+    "270kfps-2um-3": Design("270kfps-2um-3", n_exp=3, frame_s=1 / 270e3, noise="2um", pre_max=2, t_end_star=8.0),
     "2Mfps-4um-8": Design("2Mfps-4um-8", n_exp=8, frame_s=0.5e-6, noise="4um", pre_max=10),
     "1Mfps-1um-5-scatterG": Design("1Mfps-1um-5-scatterG", n_exp=5, frame_s=1e-6, noise="1um", pre_max=6,
                                    scatter={"G": 0.1}),
@@ -164,6 +166,8 @@ _METHOD_KEYS = ("bubble", "medium")
 #: integrator steps allowed per synthetic solve: the warm medium takes ~1.8e5 (its medium diffusion
 #: limits the explicit part's step) on the default grid, more on finer ones
 MAX_STEPS = 2_000_000
+#: at most this many times ``n_exp`` bubbles are recorded to get ``n_exp`` the preprocessing accepts
+MAX_BUBBLE_FACTOR = 4
 
 
 def fine_options(options):
@@ -257,6 +261,15 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
     ``imrbayes diagnose`` defaults) and :meth:`Observations.from_preprocessed`: Rmax, the time of
     the maximum and Req are estimated from the noisy frames (Req from the record's tail), and the
     Observations carry noise_sd, nuisance_sd, t0_s, tc_s and frame_t as for a dataset read from disk.
+    A record the preprocessing refuses (at coarse frame rates a damped bubble's small rebound may be
+    missed) is discarded and another bubble recorded, as a lab would (numbered on, listed in
+    ``truth["discarded"]``; at most ``MAX_BUBBLE_FACTOR * n_exp`` bubbles).
+
+    truth : mechanism, model (candidate key), theta (material), seed, design, noise, fitted_forward
+    and data_forward (ForwardOptions dicts), forward_overrides (what differs), experiments (per
+    recorded bubble: true rmax_m, req_m, t_max_s in the camera clock, tc_s, phase_s, noise sd,
+    parameters after scatter, breaks_star of a piecewise material), names (kept, in the order of
+    ``obs``), rmax_m / req_m / t_max_s (kept, in that order), discarded, warnings.
     """
     from imrbayes.data import synthetic as syn
     from imrbayes.data.pipeline import preprocess_dataset
@@ -279,34 +292,49 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
     rng = np.random.default_rng(seed)
     theta = {n: r.draw(rng) for n, r in {**BASELINE_TRUTH, **cand.spec.synthetic}.items()}
     n = int(d.n_exp)
-    rmax = _draw_clipped(rng, d.rmax_um[0], d.rmax_um[1], n) * 1e-6
-    ratio = _draw_clipped(rng, d.ratio[0], d.ratio[1], n, low=2.0)
-    req = rmax / ratio
+    n_max = n * MAX_BUBBLE_FACTOR
     uc = physics.velocity_scale
-    tc = rmax / uc
-    phases = syn.draw_phases(seed, n, d.frame_s, True)
-    per_exp = syn.draw_scatter(seed, theta, dict(d.scatter), n) if d.scatter else [dict(theta)] * n
+    phases = syn.draw_phases(seed, n_max, d.frame_s, True)
+    per_exp = syn.draw_scatter(seed, theta, dict(d.scatter), n_max) if d.scatter else [dict(theta)] * n_max
     noise_d = syn.parse_noise(d.noise)
-    exps, truth_exp = [], []
-    for i in range(n):
-        name = f"exp_{i + 1:03d}"
-        ts = syn.camera_times(float(tc[i]), d.frame_s, d.t_end_star, d.pre_max * d.frame_s, float(phases[i]))
-        Rs, breaks = _clean_record(cand, fm, per_exp[i], float(rmax[i]), float(req[i]), ts)
-        Rn, redrawn = syn.noisy(ts, Rs, noise_d, rng, rmax_m=float(rmax[i]))
-        t_s = (ts - ts[0]) * tc[i]
-        exps.append(Experiment(name, t_s, Rn * rmax[i], source=f"synthetic:{mechanism}:{seed}:{name}"))
-        sd = syn.noise_sd(ts, Rs, noise_d, float(rmax[i]))
-        truth_exp.append({"name": name, "rmax_m": float(rmax[i]), "req_m": float(req[i]),
-                          "rmax_over_req": float(ratio[i]), "t_max_s": float(-ts[0] * tc[i]),
-                          "tc_s": float(tc[i]), "phase_s": float(phases[i]), "n_frames": int(ts.size),
-                          "noise_sd_m": float(np.median(sd) * rmax[i]),
-                          "noise_sd_at_max_r_star": float(syn.noise_sd(np.zeros(1), np.ones(1), noise_d,
-                                                                       float(rmax[i]))[0]),
-                          "n_redrawn_nonpositive": int(redrawn), "parameters": per_exp[i],
-                          "breaks_star": breaks})
-    ds = Dataset(f"camera-{mechanism}-{seed}", "<synthetic>", "synthetic-camera", exps,
-                 material=f"synthetic ({mechanism})", physics=physics.to_dict())
-    pre = preprocess_dataset(ds, dt_star=d.dt_star, n_steps=d.n_steps, skip_failed=True)
+    exps, truth_exp, discarded = [], [], []
+    want, recorded = n, 0
+    while True:
+        # the lab records ``want`` more bubbles; records the preprocessing refuses are discarded and
+        # replaced (e.g. a damped bubble at 270 kfps whose rebound no frame resolves)
+        rmax = _draw_clipped(rng, d.rmax_um[0], d.rmax_um[1], want) * 1e-6
+        ratio = _draw_clipped(rng, d.ratio[0], d.ratio[1], want, low=2.0)
+        for j in range(want):
+            i = recorded + j
+            rm, rq, tc = float(rmax[j]), float(rmax[j] / ratio[j]), float(rmax[j] / uc)
+            name = f"exp_{i + 1:03d}"
+            ts = syn.camera_times(tc, d.frame_s, d.t_end_star, d.pre_max * d.frame_s, float(phases[i]))
+            Rs, breaks = _clean_record(cand, fm, per_exp[i], rm, rq, ts)
+            Rn, redrawn = syn.noisy(ts, Rs, noise_d, rng, rmax_m=rm)
+            exps.append(Experiment(name, (ts - ts[0]) * tc, Rn * rm, source=f"synthetic:{mechanism}:{seed}:{name}"))
+            sd = syn.noise_sd(ts, Rs, noise_d, rm)
+            truth_exp.append({"name": name, "rmax_m": rm, "req_m": rq, "rmax_over_req": float(ratio[j]),
+                              "t_max_s": float(-ts[0] * tc), "tc_s": tc, "phase_s": float(phases[i]),
+                              "n_frames": int(ts.size), "noise_sd_m": float(np.median(sd) * rm),
+                              "noise_sd_at_max_r_star": float(syn.noise_sd(np.zeros(1), np.ones(1), noise_d, rm)[0]),
+                              "n_redrawn_nonpositive": int(redrawn), "parameters": per_exp[i],
+                              "breaks_star": breaks})
+        recorded += want
+        ds = Dataset(f"camera-{mechanism}-{seed}", "<synthetic>", "synthetic-camera", exps,
+                     material=f"synthetic ({mechanism})", physics=physics.to_dict())
+        pre = preprocess_dataset(ds, dt_star=d.dt_star, n_steps=d.n_steps, skip_failed=True)
+        if pre.skipped:
+            bad = {s["name"] for s in pre.skipped}
+            why = {sk["name"]: sk["error"] for sk in pre.skipped}
+            discarded += [{**e, "error": why[e["name"]]} for e in truth_exp if e["name"] in bad]
+            exps = [e for e in exps if e.name not in bad]
+            truth_exp = [e for e in truth_exp if e["name"] not in bad]
+            want = n - len(exps)
+            if recorded + want > n_max:
+                raise RuntimeError(f"{len(discarded)} of {len(exps) + len(discarded)} synthetic records refused by "
+                                   f"the preprocessing (design {d.name}); first: {discarded[0]['error']}")
+            continue
+        break
     obs = Observations.from_preprocessed(pre)
     kept = {e["name"]: e for e in truth_exp}
     truth = {"mechanism": mechanism, "model": key, "theta": theta, "seed": seed, "design": d.to_dict(),
@@ -315,7 +343,7 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
              "experiments": truth_exp, "names": list(obs.names),
              "rmax_m": [kept[nm]["rmax_m"] for nm in obs.names], "req_m": [kept[nm]["req_m"] for nm in obs.names],
              "t_max_s": [kept[nm]["t_max_s"] for nm in obs.names],
-             "skipped": pre.skipped, "warnings": pre.warnings}
+             "discarded": discarded, "warnings": pre.warnings}
     return obs, truth
 
 
