@@ -1,5 +1,10 @@
 """Synthetic datasets with a hidden mechanism (tests, ``scripts/diagnosis_confusion.py``).
 
+Two generators: :func:`synthetic_obs` (R* on the analysis grid, noise added there, true Rmax and Req
+known; the older tests) and :func:`camera_obs` (camera frames processed exactly as measured data, by
+a finer forward model than the fitted one, with :data:`DESIGNS` and the bubble classes; see there).
+The rest of this docstring is about :func:`synthetic_obs`.
+
 Parameters are drawn (seeded) from realistic ranges: G 3-12 kPa, mu 0.04-0.15 Pa s (log-uniform),
 Rmax ~ N(300, 30) µm, Rmax/Req ~ N(7.5, 0.4) (methods.md §6), and the mechanism's own parameters
 from its candidate's ``synthetic`` ranges (:mod:`imrbayes.diagnosis.candidates`), where the effect
@@ -131,12 +136,24 @@ DESIGNS = {
 }
 
 # Bubble classes: the data come from the baseline NHKV material with a different *bubble* model than
-# the fitted one (forward-option overrides of the fitted options). Effect sizes (RMS of R*(with) -
-# R*(without), same material and geometry, t* <= 3, in units of the 2 µm noise sd; measured by
-# ``bubble_effect`` on seeds 0-4, see the module's test and docs/diagnosis.md):
-#   bubble-thermal,         fitted polytropic -> data thermal:   see BUBBLE_EFFECT below
-#   bubble-thermal,         fitted thermal    -> data warm medium: see BUBBLE_EFFECT below
-#   bubble-compressibility, fitted km         -> data gilmore:    see BUBBLE_EFFECT below
+# the fitted one (forward-option overrides of the fitted options, :data:`BUBBLE_GENERATORS`).
+# Effect sizes, measured with ``bubble_effect`` (noise-free, same material and geometry, t* <= 3,
+# 3 bubbles of the default design, RMS of R*(class) - R*(none) over t* and bubbles, in units of a
+# 2 µm noise sd; seeds 0-4 unless said):
+#   bubble-thermal, fitted polytropic -> data thermal:   43-54 sd (86-108 µm RMS, max 180-250 µm)
+#   bubble-thermal, fitted thermal -> data warm medium:  15-22 sd (31-44 µm RMS, max 114-154 µm;
+#       seeds 0-1 only: the warm medium is step-limited, ~1.8e5 steps and 10-50 s per bubble, and its
+#       first rebound is ~30 % higher than the cold medium's, which looks large for water-like gels:
+#       worth checking in the forward model before trusting this class)
+#   bubble-compressibility, km -> gilmore (polytropic): 0.6-2.0 sd (1.2-3.9 µm RMS, max 5-27 µm)
+#   bubble-compressibility, km -> gilmore (thermal):    0.25-1.6 sd (0.5-3.2 µm RMS, max 3-28 µm)
+# Compressibility matters only at the violent collapses (low mu) and is at the noise level; after a
+# refit of (G, mu) (polytropic, 2 µm, 5 bubbles, seeds 0-2) the RMS residual on the analysis grid is
+# 1.9-2.3 noise sd against 1.9-2.0 for ``none`` (mu absorbs it, ~-7 %): practically undetectable, so
+# its right answer is arguably ``none``. A realistic strength knob would be a design with less noise
+# (1 µm) and violent bubbles (mu 0.02-0.05 Pa s, Rmax/Req 9-10). The thermal class after the refit:
+# 3.1-4.7 sd (clearly detectable). (Constant-NHKV data refit to ~2 sd, not 1: interpolation of the
+# frames across the collapses and the estimated maximum add misfit beyond the frame noise.)
 
 
 def _bubble_thermal(options) -> dict:
