@@ -1,13 +1,32 @@
-"""Confusion matrix of ``imrbayes diagnose``: hidden mechanism x seeds on synthetic polytropic data.
+"""Confusion matrix and false-alarm rate of ``imrbayes diagnose`` on camera-style synthetic data.
 
-    .venv/bin/python scripts/diagnosis_confusion.py --seeds 3 --noise 0.5 --workers 2 \
-        --json docs/figures/diagnosis/confusion.json --md docs/diagnosis-confusion.md
+    .venv/bin/python scripts/diagnosis_confusion.py --seeds 5 --nulls 20 --out runs/confusion
+    .venv/bin/python scripts/diagnosis_confusion.py --out runs/confusion --summarize-only
+    .venv/bin/python scripts/diagnosis_confusion.py --classes none --seeds 1 --nulls 0 --quick \\
+        --forward bubble=polytropic --out /tmp/conf      # a smoke test
 
-Every dataset: 5 experiments, parameters drawn from the realistic ranges of
-``imrbayes.diagnosis.synthetic`` (seed = 1000 * mechanism index + s; mechanisms: those with a
-synthetic generator in ``imrbayes.diagnosis.candidates``, in registry order), quick settings
-without LOEO.
-Writes a JSON of every run and a markdown table (rows: hidden mechanism, columns: found cause).
+Data: :func:`imrbayes.diagnosis.synthetic.camera_obs`: records made like a camera's (frames, a
+random sub-frame phase, noise at every frame, growth before the maximum, bubble-to-bubble scatter of
+Rmax and Rmax/Req), by a finer forward model than the fitted one, then preprocessed exactly as
+measured data (Rmax, time of the maximum and Req estimated from the noisy frames).
+
+* Classes (rows of the matrix): ``none``, every material mechanism with a generator
+  (:data:`imrbayes.diagnosis.synthetic.GENERATORS`) and the bubble classes (``bubble-thermal``,
+  ``bubble-compressibility``: baseline NHKV gel, another bubble model than the fitted one). Seed of
+  run s of class c: 1000 * (index of c in ``camera_mechanisms()``) + s; design ``--design``.
+* Nulls: ``--nulls N`` constant-NHKV datasets cycling through :data:`DESIGNS` (seed 900000 + i):
+  the false-alarm rate is (verdict ``inadequate``) / N.
+* Scoring: the right answer of a class is its mechanism when ``diagnose`` can name it (a ``cause`` in
+  :data:`imrbayes.diagnosis.MECHANISMS`), else ``unexplained`` (a bubble class before the diagnosis
+  has bubble candidates). A run scores 1 when ``cause`` is right, 1/2 when ``cause`` is
+  ``ambiguous`` and the right mechanism is among ``candidates_tied``, else 0. Hit rates carry Wilson
+  95 % intervals (the score form, which accepts the half credits; equal to
+  ``scipy.stats.binomtest(k, n).proportion_ci(method="wilson")`` for whole k).
+
+Resumable: each run is written to ``OUT/runs/<class>__s<seed>.json`` or
+``OUT/nulls/null__<i>__<design>.json`` as soon as it finishes; a rerun skips finished runs (runs that
+raised are written with ``status: error`` and retried). The summary (``OUT/summary.json``,
+``OUT/summary.md``) is written at the end, or alone with ``--summarize-only``.
 """
 
 from __future__ import annotations
@@ -15,84 +34,282 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import json
+import math
+import os
+import shlex
+import sys
 import time
+import traceback
 from pathlib import Path
 
-import numpy as np
-
-from imrbayes.diagnosis import MECHANISMS
-from imrbayes.diagnosis.synthetic import GENERATORS
-
-MECHS = list(GENERATORS)
+NULL_SEED = 900_000
 
 
-def one(args):
-    mech, seed, noise, n_boot = args
-    from imrbayes.diagnosis import DiagnoseSettings, diagnose
-    from imrbayes.diagnosis.synthetic import synthetic_obs
-    from imrbayes.forward import ForwardOptions
+def _classes():
+    from imrbayes.diagnosis.synthetic import camera_mechanisms
 
-    opts = ForwardOptions(bubble="polytropic")
+    return list(camera_mechanisms())
+
+
+def _mechanisms():
+    from imrbayes.diagnosis import MECHANISMS
+
+    return tuple(MECHANISMS)
+
+
+def expected_cause(cls: str, mechanisms=None) -> str:
+    """The right ``cause`` for data of class ``cls`` (module docstring)."""
+    mechanisms = _mechanisms() if mechanisms is None else mechanisms
+    return cls if cls in mechanisms else "unexplained"
+
+
+def _tied_mechanisms(tied) -> list:
+    """``candidates_tied`` as mechanisms (entries may be candidate keys or mechanisms)."""
+    from imrbayes.diagnosis.candidates import BASELINE, CANDIDATES
+
+    keys = {BASELINE.key: BASELINE.mechanism, **{k: c.mechanism for k, c in CANDIDATES.items()}}
+    out = []
+    for t in tied or []:
+        if isinstance(t, dict):
+            t = t.get("mechanism") or t.get("candidate") or t.get("key")
+        out.append(keys.get(t, t))
+    return out
+
+
+def score(row: dict, mechanisms=None) -> float:
+    """1 right, 1/2 ambiguous with the right mechanism among the tied, else 0."""
+    want = expected_cause(row["class"], mechanisms)
+    if row.get("cause") == want:
+        return 1.0
+    if row.get("cause") == "ambiguous" and want in _tied_mechanisms(row.get("candidates_tied")):
+        return 0.5
+    return 0.0
+
+
+def is_alarm(row: dict) -> bool:
+    """A null run raised an alarm: the constant-parameter check says ``inadequate`` (or, with no
+    verdict recorded, a cause other than ``none``)."""
+    v = row.get("verdict")
+    return v == "inadequate" if v is not None else row.get("cause") != "none"
+
+
+def wilson(k: float, n: int, conf: float = 0.95) -> tuple:
+    """Wilson score interval of a proportion k/n (k may carry half credits)."""
+    from scipy.stats import norm
+
+    if n <= 0:
+        return (math.nan, math.nan)
+    z = float(norm.ppf(0.5 + conf / 2))
+    p = k / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z / den * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+# ------------------------------------------------------------------ one run
+
+def _jsonable(x):
+    from imrbayes.io import jsonable
+
+    return jsonable(x)
+
+
+def run_one(job: dict) -> dict:
+    """Generate, diagnose, write ``job["path"]``; returns the row."""
     t0 = time.perf_counter()
-    obs, truth = synthetic_obs(mech, seed, opts, noise_scale=noise)
-    d = diagnose(obs, opts, settings=DiagnoseSettings.quick(loeo=False, n_bootstrap=n_boot), seed=seed)
-    r = d.result
-    g = r.get("gain") or {}
-    return {"hidden": mech, "seed": seed, "truth": truth["theta"], "found": r["cause"],
-            "verdict": r["constant_parameter_check"]["verdict"],
-            "p_value": r["constant_parameter_check"]["evidence"]["p_value"],
-            "top": g.get("candidate"), "heldout_rmse_baseline": g.get("heldout_rmse_baseline"),
-            "heldout_rmse_extended": g.get("heldout_rmse_extended"),
-            "relative_reduction": g.get("relative_reduction"), "elpd_diff": g.get("elpd_diff"),
-            "elpd_se": g.get("elpd_se"),
-            "statistics": {k: {"observed": v["observed"], "p_value": v["p_value"],
-                               "bootstrap_q05_q50_q95": v["bootstrap_q05_q50_q95"]}
-                           for k, v in r["constant_parameter_check"]["evidence"]["statistics"].items()},
-            "runtime_s": time.perf_counter() - t0}
+    row = {k: job[k] for k in ("kind", "class", "seed", "design", "forward")}
+    try:
+        from imrbayes.diagnosis import DiagnoseSettings, diagnose
+        from imrbayes.diagnosis.synthetic import camera_obs
+        from imrbayes.forward import ForwardOptions
+
+        opts = ForwardOptions.from_dict(job["forward"], source="--forward")
+        obs, truth = camera_obs(job["class"], job["seed"], opts, design=job["design"])
+        kw = {"loeo": job["loeo"]}
+        if job.get("n_bootstrap"):
+            kw["n_bootstrap"] = job["n_bootstrap"]
+        settings = DiagnoseSettings.quick(**kw) if job["quick"] else DiagnoseSettings(**kw)
+        r = diagnose(obs, opts, settings=settings, seed=job["seed"]).result
+        check = r.get("constant_parameter_check") or {}
+        row.update(status="ok", cause=r.get("cause"), candidates_tied=r.get("candidates_tied"),
+                   verdict=check.get("verdict"), p_value=(check.get("evidence") or {}).get("p_value"),
+                   gain=r.get("gain"), truth=truth, result=r)
+    except Exception as exc:  # recorded, retried on the next run
+        row.update(status="error", cause="error", error=f"{type(exc).__name__}: {exc}",
+                   traceback=traceback.format_exc())
+    row["runtime_s"] = time.perf_counter() - t0
+    path = Path(job["path"])
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(_jsonable(row), indent=1) + "\n")
+    os.replace(tmp, path)
+    return row
 
 
-def table(rows) -> str:
-    found = list(MECHANISMS)            # every possible cause
-    lines = ["| hidden \\ found | " + " | ".join(found) + " | mean held-out RMSE reduction (top candidate) |",
-             "|---" * (len(found) + 2) + "|"]
-    for m in MECHS:
-        rr = [r for r in rows if r["hidden"] == m]
-        if not rr:
-            continue
-        cnt = [sum(r["found"] == f for r in rr) for f in found]
-        red = np.nanmean([r["relative_reduction"] if r["relative_reduction"] is not None else np.nan for r in rr])
-        lines.append(f"| {m} | " + " | ".join(str(c) for c in cnt) + f" | {red:+.1%} |")
-    return "\n".join(lines)
+def jobs_for(a, classes, designs) -> list:
+    runs, nulls = Path(a.out) / "runs", Path(a.out) / "nulls"
+    all_classes = _classes()
+    fwd = dict(kv.split("=", 1) for kv in a.forward)
+    common = {"forward": fwd, "quick": a.quick, "loeo": a.loeo, "n_bootstrap": a.n_bootstrap}
+    jobs = []
+    for c in classes:
+        for s in range(a.seed_offset, a.seed_offset + a.seeds):
+            seed = 1000 * all_classes.index(c) + s
+            jobs.append({"kind": "class", "class": c, "seed": seed, "design": a.design,
+                         "path": str(runs / f"{c}__s{seed}.json"), **common})
+    for i in range(a.nulls):
+        d = designs[i % len(designs)]
+        jobs.append({"kind": "null", "class": "none", "seed": NULL_SEED + i, "design": d,
+                     "path": str(nulls / f"null__{i:03d}__{d}.json"), **common})
+    return jobs
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--seed-offset", type=int, default=0, help="first seed index s (seed = 1000 * mechanism + s)")
-    ap.add_argument("--noise", type=float, default=0.5)
-    ap.add_argument("--n-bootstrap", type=int, default=19)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--mechanisms", default=",".join(MECHS))
-    ap.add_argument("--json", type=Path, default=Path("docs/figures/diagnosis/confusion.json"))
-    ap.add_argument("--md", type=Path, default=Path("docs/diagnosis-confusion.md"))
-    a = ap.parse_args()
-    mechs = [m for m in a.mechanisms.split(",") if m]
-    jobs = [(m, 1000 * MECHS.index(m) + s, a.noise, a.n_bootstrap) for m in mechs for s in range(a.seed_offset, a.seed_offset + a.seeds)]
-    rows = []
-    with cf.ProcessPoolExecutor(a.workers) as ex:
-        for r in ex.map(one, jobs):
-            rows.append(r)
-            print(f"{r['hidden']:>26} seed {r['seed']:5d}: {r['found']:<26} p={r['p_value']:.3f} "
-                  f"gain {r['relative_reduction'] if r['relative_reduction'] is not None else float('nan'):+.1%} "
-                  f"({r['runtime_s']:.0f} s)", flush=True)
-    a.json.parent.mkdir(parents=True, exist_ok=True)
-    a.json.write_text(json.dumps(rows, indent=1) + "\n")
-    md = (f"# diagnose: confusion matrix on synthetic data\n\nGenerated by `scripts/diagnosis_confusion.py "
-          f"--seeds {a.seeds} --seed-offset {a.seed_offset} --noise {a.noise} --n-bootstrap {a.n_bootstrap}` (polytropic forward model, 5 "
-          f"experiments, paper noise x {a.noise}, quick settings without LOEO; held-out = fit to the 2nd "
-          f"collapse, predict the rest).\n\n" + table(rows) + "\n")
-    a.md.write_text(md)
-    print(table(rows))
+def _finished(path: str) -> bool:
+    try:
+        return json.loads(Path(path).read_text()).get("status") == "ok"
+    except (OSError, ValueError):
+        return False
+
+
+# ------------------------------------------------------------------ summary
+
+def load_rows(out: Path) -> tuple:
+    def read(folder):
+        rows = []
+        for p in sorted((out / folder).glob("*.json")):
+            try:
+                rows.append(json.loads(p.read_text()))
+            except ValueError:
+                continue
+        return rows
+    return read("runs"), read("nulls")
+
+
+def summarize(rows: list, nulls: list, mechanisms=None, command: str = "") -> dict:
+    """Confusion matrix, per-class hit rates and the false-alarm rate (module docstring)."""
+    mechanisms = tuple(_mechanisms() if mechanisms is None else mechanisms)
+    done = [r for r in rows if r.get("status") == "ok"]
+    classes = list(dict.fromkeys(r["class"] for r in done))
+    found = list(mechanisms)
+    for extra in ("ambiguous", "unexplained"):
+        if extra not in found:
+            found.append(extra)
+    for r in done:
+        if r.get("cause") not in found:
+            found.append(r.get("cause"))
+    matrix = {c: {f: sum(r.get("cause") == f for r in done if r["class"] == c) for f in found} for c in classes}
+    per_class = {}
+    for c in classes:
+        rr = [r for r in done if r["class"] == c]
+        k = sum(score(r, mechanisms) for r in rr)
+        per_class[c] = {"expected": expected_cause(c, mechanisms), "n": len(rr), "score": k,
+                        "hit_rate": k / len(rr), "wilson95": list(wilson(k, len(rr))),
+                        "n_half_credit": sum(score(r, mechanisms) == 0.5 for r in rr)}
+    nd = [r for r in nulls if r.get("status") == "ok"]
+    alarms = sum(is_alarm(r) for r in nd)
+    by_design = {}
+    for r in nd:
+        b = by_design.setdefault(r["design"], {"n": 0, "alarms": 0})
+        b["n"] += 1
+        b["alarms"] += int(is_alarm(r))
+    return {"command": command, "found_columns": found, "matrix": matrix, "per_class": per_class,
+            "nulls": {"n": len(nd), "alarms": alarms, "false_alarm_rate": alarms / len(nd) if nd else None,
+                      "wilson95": list(wilson(alarms, len(nd))) if nd else None, "by_design": by_design,
+                      "causes": {c: sum(r.get("cause") == c for r in nd) for c in dict.fromkeys(r.get("cause") for r in nd)}},
+            "errors": [{"class": r["class"], "seed": r["seed"], "error": r.get("error")}
+                       for r in rows + nulls if r.get("status") != "ok"],
+            "scoring": "1 if cause is the expected one; 1/2 if cause is 'ambiguous' and the expected mechanism is "
+                       "among candidates_tied; else 0. Expected: the class's mechanism if diagnose can name it, "
+                       "else 'unexplained'. Wilson 95 % score intervals."}
+
+
+def markdown(s: dict) -> str:
+    f = s["found_columns"]
+    out = ["# diagnose: confusion matrix on camera-style synthetic data", "",
+           f"Command: `{s['command']}`", "", "Rows: hidden class; columns: the diagnosis's `cause`.", "",
+           "| truth \\ found | " + " | ".join(f) + " | expected | hit rate [Wilson 95 %] |",
+           "|---" * (len(f) + 3) + "|"]
+    for c, row in s["matrix"].items():
+        pc = s["per_class"][c]
+        lo, hi = pc["wilson95"]
+        out.append(f"| {c} | " + " | ".join(str(row[x]) for x in f) +
+                   f" | {pc['expected']} | {pc['score']:g}/{pc['n']} = {pc['hit_rate']:.2f} [{lo:.2f}, {hi:.2f}] |")
+    n = s["nulls"]
+    out += ["", f"Scoring: {s['scoring']}", ""]
+    if n["n"]:
+        lo, hi = n["wilson95"]
+        out.append(f"False alarms on constant-NHKV nulls: {n['alarms']}/{n['n']} = {n['false_alarm_rate']:.2f} "
+                   f"[{lo:.2f}, {hi:.2f}] (Wilson 95 %).")
+        out += ["", "| design | nulls | alarms |", "|---|---|---|"]
+        out += [f"| {d} | {b['n']} | {b['alarms']} |" for d, b in n["by_design"].items()]
+    else:
+        out.append("No null runs.")
+    if s["errors"]:
+        out += ["", f"Runs that raised ({len(s['errors'])}):", ""]
+        out += [f"- {e['class']} seed {e['seed']}: {e['error']}" for e in s["errors"]]
+    return "\n".join(out) + "\n"
+
+
+def write_summary(out: Path, command: str) -> dict:
+    rows, nulls = load_rows(out)
+    s = summarize(rows, nulls, command=command)
+    (out / "summary.json").write_text(json.dumps(s, indent=1) + "\n")
+    md = markdown(s)
+    (out / "summary.md").write_text(md)
+    print(md)
+    return s
+
+
+def main(argv=None):
+    from imrbayes.diagnosis.synthetic import DESIGNS
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=int, default=5, help="runs per class (default 5)")
+    ap.add_argument("--seed-offset", type=int, default=0, help="first run index s (seed = 1000 * class + s)")
+    ap.add_argument("--classes", default="", help="comma-separated classes (default: all: "
+                                                  + ", ".join(_classes()) + ")")
+    ap.add_argument("--nulls", type=int, default=20, help="constant-NHKV null datasets cycling through DESIGNS")
+    ap.add_argument("--design", default=next(iter(DESIGNS)), choices=list(DESIGNS), help="design of the class runs")
+    ap.add_argument("--out", type=Path, default=Path("runs/diagnosis-confusion"))
+    ap.add_argument("--quick", action="store_true", help="DiagnoseSettings.quick (no LOEO unless --loeo)")
+    ap.add_argument("--loeo", action=argparse.BooleanOptionalAction, default=None,
+                    help="leave-one-experiment-out (default: on, off with --quick)")
+    ap.add_argument("--n-bootstrap", type=int, default=None)
+    ap.add_argument("--forward", action="append", default=[], metavar="KEY=VALUE",
+                    help="fitted forward option (e.g. bubble=polytropic); repeatable")
+    ap.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    ap.add_argument("--summarize-only", action="store_true")
+    a = ap.parse_args(argv)
+    command = shlex.join([Path(sys.argv[0]).name if argv is None else "diagnosis_confusion.py",
+                          *(sys.argv[1:] if argv is None else argv)])
+    if a.loeo is None:
+        a.loeo = not a.quick
+    if any("=" not in kv for kv in a.forward):
+        ap.error("--forward takes KEY=VALUE")
+    a.out.mkdir(parents=True, exist_ok=True)
+    if not a.summarize_only:
+        classes = [c.strip() for c in a.classes.split(",") if c.strip()] or _classes()
+        bad = [c for c in classes if c not in _classes()]
+        if bad:
+            ap.error(f"unknown class(es) {bad}; known: {_classes()}")
+        (a.out / "runs").mkdir(exist_ok=True)
+        (a.out / "nulls").mkdir(exist_ok=True)
+        jobs = jobs_for(a, classes, list(DESIGNS))
+        todo = [j for j in jobs if not _finished(j["path"])]
+        print(f"{len(jobs)} runs, {len(jobs) - len(todo)} already done, {len(todo)} to go", flush=True)
+
+        def report(r):
+            print(f"{r['kind']:>5} {r['class']:>26} seed {r['seed']:6d} {r['design']:>22}: "
+                  f"{r.get('cause')!s:<24} verdict {r.get('verdict')} p={r.get('p_value')} ({r['runtime_s']:.0f} s)"
+                  + (f" {r.get('error')}" if r.get("status") != "ok" else ""), flush=True)
+        if a.workers <= 1:
+            for j in todo:
+                report(run_one(j))
+        else:
+            with cf.ProcessPoolExecutor(a.workers) as ex:
+                for fut in cf.as_completed([ex.submit(run_one, j) for j in todo]):
+                    report(fut.result())
+    write_summary(a.out, command)
 
 
 if __name__ == "__main__":

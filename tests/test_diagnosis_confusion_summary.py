@@ -1,0 +1,109 @@
+"""scripts/diagnosis_confusion.py: the summary's arithmetic on hand-made run files (no diagnosis run)."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+from scipy.stats import binomtest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def conf():
+    spec = importlib.util.spec_from_file_location("diagnosis_confusion", ROOT / "scripts" / "diagnosis_confusion.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _write(folder: Path, name: str, **row):
+    folder.mkdir(parents=True, exist_ok=True)
+    base = {"kind": "class", "seed": 0, "design": "1Mfps-2um-5", "forward": {}, "status": "ok", "runtime_s": 1.0}
+    (folder / f"{name}.json").write_text(json.dumps({**base, **row}))
+
+
+@pytest.fixture
+def out(tmp_path):
+    runs, nulls = tmp_path / "runs", tmp_path / "nulls"
+    ss = "strain-stiffening"
+    _write(runs, "a", **{"class": ss, "cause": ss})
+    _write(runs, "b", **{"class": ss, "cause": "ambiguous", "candidates_tied": ["qkv", "zener"]})      # keys
+    _write(runs, "c", **{"class": ss, "cause": "ambiguous",
+                         "candidates_tied": ["viscoelastic-relaxation", "rate-dependent-viscosity"]})
+    _write(runs, "d", **{"class": ss, "cause": "none"})
+    _write(runs, "e", **{"class": "bubble-thermal", "cause": "unexplained"})
+    _write(runs, "f", **{"class": "bubble-thermal", "cause": "none"})
+    for i, c in enumerate(["none", "none", "damage-softening"]):
+        _write(runs, f"n{i}", **{"class": "none", "cause": c})
+    _write(runs, "err", **{"class": "none", "cause": "error", "status": "error", "error": "RuntimeError: boom"})
+    for i, v in enumerate(["adequate", "inadequate", "adequate", "adequate", "inadequate"]):
+        _write(nulls, f"null{i}", **{"kind": "null", "class": "none", "seed": 900000 + i, "verdict": v,
+                                     "design": ["A", "B"][i % 2], "cause": "none" if v == "adequate" else "unexplained"})
+    return tmp_path
+
+
+def test_wilson_matches_scipy(conf):
+    for k, n in [(0, 5), (2, 5), (5, 5), (7, 20), (1, 1)]:
+        ci = binomtest(k, n).proportion_ci(confidence_level=0.95, method="wilson")
+        assert conf.wilson(k, n) == pytest.approx((ci.low, ci.high), abs=1e-12)
+    lo, hi = conf.wilson(1.5, 4)                    # half credits: between the neighbours' intervals
+    assert conf.wilson(1, 4)[0] < lo < conf.wilson(2, 4)[0] and conf.wilson(1, 4)[1] < hi < conf.wilson(2, 4)[1]
+
+
+def test_half_credit_only_when_the_truth_is_tied(conf):
+    assert conf.expected_cause("bubble-thermal") == "unexplained"
+    assert conf.expected_cause("strain-stiffening") == "strain-stiffening"
+    row = {"class": "strain-stiffening", "cause": "ambiguous"}
+    assert conf.score({**row, "candidates_tied": ["qkv", "carreau"]}) == 0.5
+    assert conf.score({**row, "candidates_tied": ["strain-stiffening", "damage-softening"]}) == 0.5
+    assert conf.score({**row, "candidates_tied": ["zener", "carreau"]}) == 0.0
+    assert conf.score({**row, "candidates_tied": None}) == 0.0
+    assert conf.score({"class": "none", "cause": "none"}) == 1.0
+
+
+def test_summary(conf, out):
+    s = conf.write_summary(out, "diagnosis_confusion.py --out X")
+    pc = s["per_class"]
+    assert pc["strain-stiffening"]["n"] == 4 and pc["strain-stiffening"]["score"] == 1.5
+    assert pc["strain-stiffening"]["n_half_credit"] == 1
+    assert pc["strain-stiffening"]["wilson95"] == pytest.approx(list(conf.wilson(1.5, 4)))
+    assert pc["bubble-thermal"]["hit_rate"] == 0.5 and pc["bubble-thermal"]["expected"] == "unexplained"
+    assert pc["none"]["n"] == 3 and pc["none"]["score"] == 2            # the error run is not counted
+    m = s["matrix"]
+    assert m["strain-stiffening"]["ambiguous"] == 2 and m["strain-stiffening"]["none"] == 1
+    assert m["none"]["damage-softening"] == 1
+    assert {"ambiguous", "unexplained"} <= set(s["found_columns"])
+    n = s["nulls"]
+    assert (n["n"], n["alarms"], n["false_alarm_rate"]) == (5, 2, 0.4)
+    ci = binomtest(2, 5).proportion_ci(method="wilson")
+    assert n["wilson95"] == pytest.approx([ci.low, ci.high])
+    assert n["by_design"] == {"A": {"n": 3, "alarms": 1}, "B": {"n": 2, "alarms": 1}}
+    assert s["errors"] == [{"class": "none", "seed": 0, "error": "RuntimeError: boom"}]
+    md = (out / "summary.md").read_text()
+    assert "diagnosis_confusion.py --out X" in md and "2/5 = 0.40" in md and "1.5/4 = 0.38" in md
+    assert json.loads((out / "summary.json").read_text())["nulls"]["alarms"] == 2
+
+
+def test_summarize_only_and_resume(conf, out, capsys):
+    conf.main(["--out", str(out), "--summarize-only"])
+    assert "False alarms" in capsys.readouterr().out
+    assert (out / "summary.md").exists()
+    assert conf._finished(str(out / "runs" / "a.json")) and not conf._finished(str(out / "runs" / "err.json"))
+    assert not conf._finished(str(out / "runs" / "missing.json"))
+
+
+def test_jobs(conf, tmp_path):
+    import argparse
+
+    a = argparse.Namespace(out=tmp_path, forward=["bubble=polytropic"], quick=True, loeo=False, n_bootstrap=None,
+                           seeds=2, seed_offset=0, design="1Mfps-2um-5", nulls=7)
+    designs = ["A", "B", "C"]
+    jobs = conf.jobs_for(a, ["none", "bubble-thermal"], designs)
+    cls = [j for j in jobs if j["kind"] == "class"]
+    nul = [j for j in jobs if j["kind"] == "null"]
+    k = conf._classes().index("bubble-thermal")
+    assert [j["seed"] for j in cls] == [0, 1, 1000 * k, 1000 * k + 1]
+    assert [j["design"] for j in nul] == ["A", "B", "C", "A", "B", "C", "A"]
+    assert len({j["path"] for j in jobs}) == len(jobs) and cls[0]["forward"] == {"bubble": "polytropic"}
