@@ -51,6 +51,8 @@ class DiagnoseSettings:
     mienks_drift: bool = True       # MIEnKS-MDA G(t), mu(t) slope statistic in the check
     mienks_n_ens: int = 16
     mienks_n_iter: int = 2
+    signature: bool = True          # the MIEnKS G(t), mu(t) signature of the data and of every contender
+    signature_n_rep: int = 4        # replicates per candidate for its predicted signature
     n_absorb: int = 3               # candidates (best first) whose mutual absorption is measured
     tie_se: float = 2.0             # held-out differences within tie_se paired SEs are not decided
     tie_chi2: float = 4.0           # nor in-sample fits within this tempered chi-square (2 x log-lik)
@@ -120,6 +122,34 @@ def heldout_unit(unit, rng) -> dict:
     if d["loeo"]:
         h["loeo"] = loeo(c, d["obs"], d["phases"], fit, d["om"])
     return h
+
+
+def _signature(s, base, cands, fits, keys, obs, phases, om, seed, say, warnings) -> dict:
+    """The observed MIEnKS signature and each candidate's predicted one (:mod:`signature`); the
+    replicates are the check's camera-style replicates of that candidate's fit."""
+    from imrbayes.diagnosis.check import replicate
+    from imrbayes.diagnosis.lsq import frame_values
+    from imrbayes.diagnosis.signature import (SignatureSettings, observed_signature, predicted_signature,
+                                              signature_result)
+
+    ss = SignatureSettings(n_rep=s.signature_n_rep)
+    why = ss.skip_reason(obs)
+    if why:
+        warnings.append(why)
+        return {}
+    say(f"MIEnKS signature of the data and of {', '.join(keys)}")
+    try:
+        with np.errstate(all="ignore"):
+            observed = observed_signature(base.fm, obs, ss, seed=seed + 11)
+            predicted = {}
+            for k in keys:
+                Rf = frame_values(cands[k], fits[k].z, obs, phases.minima, fits[k].nu)
+                predicted[k] = predicted_signature(lambda rng, Rf=Rf: replicate(obs, Rf, om.noise_sd, rng), base.fm,
+                                                   ss, seed=seed + 13)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
+        warnings.append(f"MIEnKS signature left out: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+        return {}
+    return signature_result(observed, predicted)
 
 
 def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
@@ -326,7 +356,25 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
             absorption = absorption_matrix({k: cands[k] for k in contenders}, {k: fits[k] for k in contenders},
                                            obs, phases, om_top)
         tied, tie_reason = ties(candidates, held, absorption, fits, obs, om_top, s.tie_se, s.tie_chi2)
+    signature = {}
+    if s.signature and check["verdict"] != "adequate" and contenders:
+        signature = _signature(s, base, cands, fits, [base_key, *dict.fromkeys(contenders + tied)], obs, phases, om,
+                               seed, say, warnings)
     top = candidates[0] if candidates else None
+    mech = {d["key"]: d["mechanism"] for d in candidates}
+    if len({mech[k] for k in tied}) > 1 and signature.get("score"):
+        # the signature is an instrument the held-out schemes did not use: it settles a tie when one
+        # tied candidate reproduces the observed G(t), mu(t) clearly (2x) better than every other
+        sc = {k: signature["score"].get(k) for k in tied}
+        sc = {k: v for k, v in sc.items() if v is not None and np.isfinite(v)}
+        if len(sc) == len(tied):
+            best = min(sc, key=sc.get)
+            if all(sc[best] * 2.0 <= v for k, v in sc.items() if k != best):
+                tie_reason += f"; settled by the MIEnKS signature ({best} score {sc[best]:.2f}, next " \
+                              f"{min(v for k, v in sc.items() if k != best):.2f})"
+                signature["settled_tie"] = {"tied": list(tied), "chosen": best}
+                top = next(d for d in candidates if d["key"] == best)
+                tied = [best]
     if top is not None:   # does the top candidate remove the baseline's drift and phase misfit?
         say(f"window drift of {top['key']}")
         dr, wf = window_drift(cands[top["key"]], obs, phases, fits[top["key"]], om)
@@ -342,7 +390,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         cause, ext, tied = "none", None, []
     elif top is not None and top["score"] > 0 and top["consistent"]:
         cause, ext = top["mechanism"], top["model"]
-        if len({next(d["mechanism"] for d in candidates if d["key"] == k) for k in tied}) > 1:
+        if len({mech[k] for k in tied}) > 1:
             cause = "ambiguous"
     else:
         cause, ext, tied = "unexplained", None, []
@@ -371,6 +419,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
               "candidates_tied": tied if cause == "ambiguous" else [],
               "tie_reason": tie_reason if cause == "ambiguous" else "",
               "absorption": absorption,
+              "signature": signature,
               "phases": phases.to_list(),
               "minima_t_star": phases.minima_t().tolist(),
               "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": seed,
