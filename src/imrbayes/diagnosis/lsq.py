@@ -6,13 +6,15 @@ posterior, on the default likelihood of ``fit`` (methods.md §7):
 * ``w_n = sqrt(alpha_n) / sigma_n``: sigma_n the record's own noise (raised to the residual's RMS of
   the baseline fit where the model misses it), alpha_n = n_eff / K its residual autocorrelation's
   tempering (:class:`ObsModel`, :mod:`imrbayes.ensemble.likelihood`);
-* ``nu_n = (a, delta, rho)`` experiment n's geometry and alignment nuisances (relative Rmax error,
-  time of the true maximum [t*], log Req error) with the preprocessing prior sd s_n, fitted with the
-  material parameters (``f`` is :func:`imrbayes.ensemble.likelihood.predict`'s time map: samples
+* ``nu_n = (a, delta, rho, b_G, b_mu)`` experiment n's geometry and alignment nuisances (relative
+  Rmax error, time of the true maximum [t*], log Req error) with the preprocessing prior sd s_n, and
+  its own material offsets (log G, log mu of this bubble minus the shared values: bubble-to-bubble
+  scatter of the gel, a random effect with prior sd ``re_sd``), fitted with the shared material
+  parameters (``f`` is :func:`imrbayes.ensemble.likelihood.predict`'s time map: samples
   before the maximum from the mirror image; camera data predicted at the frame times and
   interpolated onto the grid as the data were);
 * Levenberg–Marquardt with a forward-difference Jacobian: one column per material coordinate, and
-  three batched columns for the nuisances (experiment n's residuals depend on its own nu_n only, so
+  five batched columns for the nuisances (experiment n's residuals depend on its own nu_n only, so
   one perturbation of coordinate j in every experiment fills the block diagonal).
 
 The Laplace covariance is (J^T J)^-1 at the optimum; its material block is marginal over the
@@ -30,6 +32,9 @@ __all__ = ["ObsModel", "predict", "frame_values", "fit_map", "fit_nuisances", "M
 FAIL_RESIDUAL = 1.0  # R* error assigned to a failed solve (per sample)
 MAX_STEPS = 20_000  # a member needing more integrator steps counts as failed (stiff corners of the prior)
 NU_STEP = 0.05      # nuisance finite-difference step [prior sd]
+#: prior sd of each bubble's log G and log mu offset from the gel's: a fixed prior for the
+#: bubble-to-bubble scatter (not estimated here; ``fit``'s random-effects layer estimates it)
+RE_SD = (0.15, 0.15)
 
 
 @dataclass
@@ -37,8 +42,8 @@ class ObsModel:
     """How one dataset's samples are compared with a prediction (per experiment n):
     ``noise_sd`` (E,) the record's noise sd in R* (the check's statistics divide by it);
     ``sd_used`` (E,) the sd of the likelihood (noise raised to the baseline's residual RMS);
-    ``alpha`` (E,) the tempering n_eff / K; ``nu_sd`` (E, 3) the nuisances' prior sd (0: held
-    fixed); ``frames`` per experiment the camera frame times t* (None: point values)."""
+    ``alpha`` (E,) the tempering n_eff / K; ``nu_sd`` (E, 5) the nuisances' prior sd (0: held
+    fixed): Rmax, t0, Req, then the bubble's log G and log mu offsets; ``frames`` per experiment the camera frame times t* (None: point values)."""
 
     noise_sd: np.ndarray
     sd_used: np.ndarray
@@ -53,13 +58,16 @@ class ObsModel:
         return np.sqrt(self.alpha) / self.sd_used
 
     @classmethod
-    def of(cls, obs, nuisances: bool = True) -> "ObsModel":
-        """Record noise, no tempering yet; nuisances with their preprocessing prior (or fixed)."""
+    def of(cls, obs, nuisances: bool = True, random_effects=RE_SD) -> "ObsModel":
+        """Record noise, no tempering yet; nuisances with their preprocessing prior (or fixed);
+        ``random_effects`` the prior sd of each bubble's (log G, log mu) offset (None: none; with one
+        experiment there is no scatter to speak of, so none)."""
         from imrbayes.ensemble.likelihood import nuisance_prior_sd, record_noise_sd
         E = obs.n_exp
         sd = np.array([record_noise_sd(obs, n) for n in range(E)])
         nu_sd = np.array([nuisance_prior_sd(obs, n) for n in range(E)]) if nuisances else np.zeros((E, 3))
-        nu_sd = np.where(np.isfinite(nu_sd) & (nu_sd > 0), nu_sd, 0.0)
+        re = np.zeros((E, 2)) if random_effects is None or E < 2 else np.tile(np.asarray(random_effects, float), (E, 1))
+        nu_sd = np.hstack([np.where(np.isfinite(nu_sd) & (nu_sd > 0), nu_sd, 0.0), re])
         return cls(sd, sd.copy(), np.ones(E), nu_sd, None if obs.frame_t is None else list(obs.frame_t))
 
     def tempered(self, obs, fitted) -> "ObsModel":
@@ -73,6 +81,13 @@ class ObsModel:
                        n_eff=np.array([o["effective_samples"] for o in out]),
                        tau=np.array([o["autocorrelation_time"] for o in out]))
 
+    def without_random_effects(self) -> "ObsModel":
+        """The same with every bubble's material offset held at 0 (a new bubble's material is the
+        gel's prediction)."""
+        nu_sd = self.nu_sd.copy()
+        nu_sd[:, 3:] = 0.0
+        return replace(self, nu_sd=nu_sd)
+
     def take(self, idx) -> "ObsModel":
         idx = np.atleast_1d(np.asarray(idx, dtype=int))
         pick = (lambda a: None if a is None else np.asarray(a)[idx])
@@ -84,10 +99,12 @@ class ObsModel:
         return {"noise_sd": self.noise_sd.tolist(), "sd_used": self.sd_used.tolist(), "alpha": self.alpha.tolist(),
                 "effective_samples": None if self.n_eff is None else self.n_eff.tolist(),
                 "nuisance_prior_sd": self.nu_sd.tolist(), "frames": self.frames is not None,
+                "random_effects_sd": self.nu_sd[0, 3:].tolist() if self.nu_sd.shape[0] else [],
                 "note": "per experiment: the record's noise sd in R* (fourth differences / preprocessing), the sd "
                         "used (raised to the baseline fit's residual RMS), the tempering alpha = n_eff/K (residual "
-                        "autocorrelation), the prior sd of (Rmax rel. error, t0 offset [t*], log Req error); the "
-                        "same observation model as `fit --likelihood default`"}
+                        "autocorrelation), the prior sd of (Rmax rel. error, t0 offset [t*], log Req error, the "
+                        "bubble's log G and log mu offsets from the gel's); the observation model of `fit "
+                        "--likelihood default`, with a fixed-sd random effect per bubble"}
 
 
 def _times(obs, idx, K, frames):
@@ -110,14 +127,15 @@ def _times(obs, idx, K, frames):
 
 def predict(cand, z, obs, idx, minima, K: int, nu=None, frames=None) -> np.ndarray:
     """R* (M, len(idx), K+1) on the data's samples 0..K for parameter sets z (M, d); ``nu`` the
-    nuisances (M, E, 3), (E, 3) or None (zero: the preprocessing geometry), ``frames`` per
+    nuisances (M, E, q), (E, q) or None (zero: the preprocessing geometry and no material offset;
+    q = 3 or 5, :class:`ObsModel`), ``frames`` per
     experiment of ``obs`` the camera frame times (None: point values). NaN where a solve failed."""
     return _predict(cand, z, obs, idx, minima, K, nu, frames)[0]
 
 
 def frame_values(cand, z, obs, minima, nu=None) -> list:
     """Per experiment of ``obs``, R* at the camera frames its grid is interpolated from (or at the
-    grid's samples for point-value data), for one parameter set z (d,) and nuisances nu (E, 3)."""
+    grid's samples for point-value data), for one parameter set z (d,) and nuisances nu (E, q)."""
     E = obs.n_exp
     _, R, rows = _predict(cand, np.asarray(z, dtype=float)[None], obs, np.arange(E), minima, obs.n_samples - 1,
                           None if nu is None else np.asarray(nu, dtype=float)[None], obs.frame_t)
@@ -128,10 +146,16 @@ def _predict(cand, z, obs, idx, minima, K, nu, frames):
     z = np.atleast_2d(np.asarray(z, dtype=float))
     idx = np.atleast_1d(np.asarray(idx, dtype=int))
     M, E = z.shape[0], idx.size
-    nu = np.zeros((M, E, 3)) if nu is None else np.broadcast_to(np.asarray(nu, dtype=float), (M, E, 3))
+    if nu is None:
+        nu = np.zeros((M, E, 3))
+    nu = np.asarray(nu, dtype=float)
+    nu = np.broadcast_to(nu, (M, E, nu.shape[-1]))
+    zz = np.repeat(z, E, axis=0)                                          # member i*E + e
+    if nu.shape[-1] > 3:     # the bubble's own (log G, log mu)
+        zz[:, :2] += nu[..., 3:5].reshape(M * E, 2)
     rows, ops = _times(obs, idx, K, frames)
     m = max(r.size for r in rows)
-    a, delta, rho = nu[..., 0].ravel(), nu[..., 1].ravel(), nu[..., 2].ravel()     # member i*E + e
+    a, delta, rho = nu[..., 0].ravel(), nu[..., 1].ravel(), nu[..., 2].ravel()
     scale = 1.0 + a
     bad = ~(scale > 0.5) | ~np.isfinite(a + delta + rho)
     scale, delta, rho = np.where(bad, 1.0, scale), np.where(bad, 0.0, delta), np.where(bad, 0.0, rho)
@@ -147,7 +171,7 @@ def _predict(cand, z, obs, idx, minima, K, nu, frames):
     req = np.tile(obs.req_m[idx], M) * np.exp(rho)
     kw = {}
     if not cand.piecewise:
-        P = np.repeat(cand.forward_params(z), E, axis=0)                  # (M*E, 1, np)
+        P = cand.forward_params(zz)                                       # (M*E, 1, np)
     else:
         # each experiment breaks at its own measured collapses (on the data's clock, mapped to the
         # member's); experiments with fewer collapses in the window get breaks after its end
@@ -159,7 +183,7 @@ def _predict(cand, z, obs, idx, minima, K, nu, frames):
         pad = t_end + np.arange(nb)[None, :]
         B = np.where(np.isfinite(B), B, pad)
         B = np.maximum.accumulate(np.maximum(B, 1e-6), axis=1) + 1e-9 * np.arange(nb)[None, :]
-        P = np.repeat(cand.forward_params(z, n_pieces=nb + 1), E, axis=0)
+        P = cand.forward_params(zz, n_pieces=nb + 1)
         kw["breaks_star"] = B
     with np.errstate(all="ignore"):
         o = cand.fm.simulate(P, rmax, req, S, max_steps=MAX_STEPS, **kw)
@@ -187,8 +211,8 @@ class MapFit:
     idx: np.ndarray
     n_iter: int
     converged: bool
-    nu: np.ndarray | None = None      # (E, 3) nuisance MAP
-    nu_sd: np.ndarray | None = None   # (E, 3) their Laplace sd
+    nu: np.ndarray | None = None      # (E, q) nuisance MAP (ObsModel: Rmax, t0, Req, log G and log mu offsets)
+    nu_sd: np.ndarray | None = None   # (E, q) their Laplace sd
 
 
 def _residuals(R, y, w):
@@ -234,7 +258,7 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     om : the observation model (default :meth:`ObsModel.of` ``obs``: record noise, nuisances free);
         indexed by experiment of ``obs`` (``idx`` picks from it).
     starts : internal starting points of the material (default: grid + prior draws); the best wins.
-    nu0 : (E_all, 3) starting nuisances (default 0).
+    nu0 : (E_all, q) starting nuisances (default 0).
     fix_material : fit the nuisances only, the material held at ``starts[0]``.
     """
     idx = np.arange(obs.n_exp) if idx is None else np.atleast_1d(np.asarray(idx, dtype=int))
@@ -242,13 +266,17 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     om = ObsModel.of(obs) if om is None else om
     E = idx.size
     w = om.weight[idx]
-    s_nu = om.nu_sd[idx]                              # (E, 3)
+    s_nu = om.nu_sd[idx]                              # (E, q)
+    q = s_nu.shape[1]
     active = s_nu > 0
-    jn = [j for j in range(3) if active[:, j].any()]  # nuisance coordinates with a column
+    jn = [j for j in range(q) if active[:, j].any()]  # nuisance coordinates with a column
     y = obs.R_star[idx, 1:K + 1]
     m0, s0 = cand.prior_mean, cand.prior_sd
     d = 0 if fix_material else cand.d
-    nu_start = np.zeros((E, 3)) if nu0 is None else np.asarray(nu0, dtype=float)[idx].copy()
+    nu_start = np.zeros((E, q))
+    if nu0 is not None:
+        n0 = np.asarray(nu0, dtype=float)[idx]
+        nu_start[:, :min(q, n0.shape[1])] = n0[:, :q]
     u_start = np.where(active, nu_start / np.where(active, s_nu, 1.0), 0.0)
     if starts is None:
         starts = grid_starts(cand, obs, idx, K, minima, om, nu_start, extra_starts)
@@ -270,13 +298,13 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
 
     def unpack(x):
         z = x[:d] if d else z_fixed
-        u = np.zeros((E, 3))
+        u = np.zeros((E, q))
         u[active] = x[d:]
         return z, u
 
     n_x = d + int(active.sum())
     # column of the Jacobian for nuisance (e, j)
-    col = -np.ones((E, 3), dtype=int)
+    col = -np.ones((E, q), dtype=int)
     col[active] = d + np.arange(int(active.sum()))
     n_y = E * K
 
@@ -284,7 +312,7 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         Zs = [z + h * np.eye(cand.d)[i] for i in range(d)]
         Us = [u] * d
         for j in jn:
-            du = np.zeros((E, 3))
+            du = np.zeros((E, q))
             du[:, j] = NU_STEP
             Zs.append(z)
             Us.append(u + du)
@@ -294,13 +322,13 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         J = np.zeros((r.size, n_x))
         for i in range(d):
             J[:, i] = (rp[i] - r) / h
-        for q, j in enumerate(jn):
-            diff = (rp[d + q] - r) / NU_STEP
+        for i_j, j in enumerate(jn):
+            diff = (rp[d + i_j] - r) / NU_STEP
             for e in range(E):
                 if active[e, j]:
                     c = col[e, j]
                     J[e * K:(e + 1) * K, c] = diff[e * K:(e + 1) * K]
-                    J[n_y + d + int(np.sum(active.ravel()[:e * 3 + j])), c] = 1.0
+                    J[n_y + c, c] = 1.0
         return J
 
     def lm(x, r, cost, Rz, lam, n_iter):
@@ -354,7 +382,7 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     except np.linalg.LinAlgError:
         C = np.diag(np.concatenate([s0[:d] ** 2, np.ones(n_x - d)]))
     cov = C[:d, :d] if d else np.zeros((cand.d, cand.d))
-    nu_sd = np.zeros((E, 3))
+    nu_sd = np.zeros((E, q))
     nu_sd[active] = np.sqrt(np.clip(np.diag(C)[d:], 0, None)) * s_nu[active]
     chi2 = float(np.sum(r[:n_y] ** 2))
     return MapFit(cand.key, np.asarray(z, dtype=float).copy(), cov, cost, chi2, int(y.size), Rz, K, idx, it, conv,
@@ -362,7 +390,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
 
 
 def fit_nuisances(cand, obs, idx, z, minima=None, om: ObsModel | None = None, K=None) -> MapFit:
-    """The nuisances of experiments ``idx`` with the material held at ``z`` (a new bubble's geometry
-    is measured, its material predicted: the held-out schemes use this)."""
+    """The geometry and alignment of experiments ``idx`` with the material held at ``z`` and no
+    material offset (a new bubble's geometry is measured, its material predicted: the held-out
+    schemes use this)."""
+    om = (ObsModel.of(obs) if om is None else om).without_random_effects()
     return fit_map(cand, obs, idx=idx, K=K, minima=minima, om=om, starts=[np.asarray(z, dtype=float)],
                    fix_material=True)

@@ -86,20 +86,25 @@ def _nuisance_si(obs, fit) -> list:
     """Per experiment the fitted geometry and alignment (SI, with the preprocessing values)."""
     out = []
     for e in range(obs.n_exp):
-        a, dl, rho = (float(v) for v in fit.nu[e])
-        sa, sd, sr = (float(v) for v in fit.nu_sd[e])
+        a, dl, rho = (float(v) for v in fit.nu[e][:3])
+        sa, sd, sr = (float(v) for v in fit.nu_sd[e][:3])
+        re = [float(v) for v in fit.nu[e][3:5]] if fit.nu.shape[1] > 3 else [0.0, 0.0]
         tc = float(obs.tc_s[e]) if np.isfinite(obs.tc_s[e]) else float("nan")
         out.append({"name": obs.names[e], "rmax_rel": a, "t0_offset": dl, "log_req": rho,
                     "rmax_m": {"preprocessing": float(obs.rmax_m[e]), "fitted": float(obs.rmax_m[e] * (1 + a)),
                                "sd": float(obs.rmax_m[e] * sa)},
                     "req_m": {"preprocessing": float(obs.req_m[e]), "fitted": float(obs.req_m[e] * np.exp(rho)),
                               "sd": float(obs.req_m[e] * np.exp(rho) * sr)},
-                    "t0_offset_s": {"fitted": dl * tc, "sd": sd * tc}})
+                    "t0_offset_s": {"fitted": dl * tc, "sd": sd * tc},
+                    "log_G_offset": re[0], "log_mu_offset": re[1]})
     return out
 
 
 def candidate_unit(unit, rng) -> dict:
-    """Unit ``candidate=<key>``: the MAP + Laplace fit of one candidate to the whole record."""
+    """Unit ``candidate=<key>``: the MAP + Laplace fit of one candidate to the whole record, on the
+    likelihood tempered at its own fit (as the baseline's: fitted on the records' noise, tempered
+    at that fit, refitted) -- the baseline's tempering is made of the baseline's model error and
+    would damp exactly the features a candidate explains. Returns {"fit", "sd_used", "alpha"}."""
     from dataclasses import asdict as _asdict
 
     from imrbayes.diagnosis.lsq import fit_map
@@ -107,8 +112,12 @@ def candidate_unit(unit, rng) -> dict:
     d = unit.data
     c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
     extra = np.concatenate([d["z_base"], c.prior_mean[2:]])
-    return _asdict(fit_map(c, d["obs"], minima=d["phases"].minima, om=d["om"], extra_starts=[extra],
-                           nu0=d["nu_base"]))
+    obs, om0, minima = d["obs"], d["om0"], d["phases"].minima
+    first = fit_map(c, obs, minima=minima, om=om0, extra_starts=[extra], nu0=d["nu_base"])
+    om = om0.tempered(obs, first.fitted)
+    f = fit_map(c, obs, minima=minima, om=om, starts=[first.z], nu0=first.nu)
+    return {"fit": _asdict(f), "sd_used": om.sd_used.tolist(), "alpha": om.alpha.tolist(),
+            "effective_samples": om.n_eff.tolist()}
 
 
 def heldout_unit(unit, rng) -> dict:
@@ -187,7 +196,7 @@ def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, ti
     """The candidates the data cannot tell apart from the top one: (keys, reason). A contender
     (not ruled out) ties with the top when neither held-out scheme separates them (paired
     per-experiment RMSE difference within ``tie_se`` SEs) and either their in-sample fits differ by
-    less than ``tie_chi2`` in chi-square, or each absorbs the other's curves to within ``tie_chi2``
+    less than ``tie_chi2`` in AIC (chi-square + 2 x material parameters), or each absorbs the other's curves to within ``tie_chi2``
     (``absorption``). The chi-squares use the likelihood tempered at the *top* candidate's fit
     (``om`` -- were it the truth, its residuals would be the noise; the baseline's tempering, made
     of its own model error, would shrink every difference)."""
@@ -198,7 +207,10 @@ def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, ti
         return [], ""
     top = ok[0]["key"]
     w2 = (om.weight ** 2)[:, None]
-    chi2 = {k: float(np.nansum(w2 * (obs.R_star[:, 1:] - fits[k].fitted[:, 1:]) ** 2)) for k in fits}
+    # AIC: the chi-square plus twice the number of fitted material parameters (a more flexible
+    # candidate's better in-sample fit is no evidence by itself)
+    chi2 = {k: float(np.nansum(w2 * (obs.R_star[:, 1:] - fits[k].fitted[:, 1:]) ** 2)) + 2.0 * len(fits[k].z)
+            for k in fits}
     out, why = [top], []
     A = {k: i for i, k in enumerate(absorption.get("keys", []))}
     for d in ok[1:]:
@@ -217,7 +229,7 @@ def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, ti
         if close or mutual:
             out.append(k)
             why.append(f"{k}: held-out difference to {top} within {tie_se:g} SE; "
-                       + (f"in-sample chi-square within {tie_chi2:g} ({chi2[k] - chi2[top]:+.1f})" if close else
+                       + (f"in-sample AIC within {tie_chi2:g} ({chi2[k] - chi2[top]:+.1f})" if close else
                           f"each refits the other's curves to a chi-square < {tie_chi2:g}"))
     return out, "; ".join(why)
 
@@ -288,7 +300,11 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     base_key = BASELINE.key
     fits = {base_key: full}
     cands = {base_key: base}
-    common = {"options": options, "physics": physics, "prior": prior, "obs": obs, "phases": phases, "om": om}
+    from dataclasses import replace as _replace
+
+    om0 = _replace(om, sd_used=om.noise_sd.copy(), alpha=np.ones(obs.n_exp), n_eff=None, tau=None)
+    oms = {BASELINE.key: om}          # each model's own observation model (tempered at its own fit)
+    common = {"options": options, "physics": physics, "prior": prior, "obs": obs, "phases": phases, "om0": om0}
     from imrbayes.diagnosis.models import applicable
     keys = [k for k in s.candidates if applicable(k, options)]
     not_applicable = [k for k in s.candidates if k not in keys]
@@ -300,11 +316,15 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     failed_units = [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
     for key in keys:
         if f"candidate={key}" in rep.results:
-            fits[key] = MapFit(**rep.results[f"candidate={key}"])
+            res_k = rep.results[f"candidate={key}"]
+            fits[key] = MapFit(**res_k["fit"])
+            oms[key] = _replace(om, sd_used=np.asarray(res_k["sd_used"]), alpha=np.asarray(res_k["alpha"]),
+                                n_eff=np.asarray(res_k["effective_samples"]))
             cands[key] = make_candidate(key, options, physics, prior)
         tick(1)
     say("held-out predictions")
-    rep = ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "loeo": s.loeo})
+    rep = ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
+                                          "loeo": s.loeo})
                   for key in cands], heldout_unit, seed, desc="diagnose held-out fits")
     failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
     if f"heldout={base_key}" not in rep.results:
@@ -350,7 +370,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     absorption, tied, tie_reason = {}, [], ""
     contenders = [d["key"] for d in candidates if not d["ruled_out"]][:s.n_absorb]
     if check["verdict"] != "adequate" and contenders:
-        om_top = om.tempered(obs, fits[contenders[0]].fitted)
+        om_top = oms[contenders[0]]
         if len(contenders) >= 2:
             say(f"absorption between {', '.join(contenders)}")
             absorption = absorption_matrix({k: cands[k] for k in contenders}, {k: fits[k] for k in contenders},
@@ -377,7 +397,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                 tied = [best]
     if top is not None:   # does the top candidate remove the baseline's drift and phase misfit?
         say(f"window drift of {top['key']}")
-        dr, wf = window_drift(cands[top["key"]], obs, phases, fits[top["key"]], om)
+        dr, wf = window_drift(cands[top["key"]], obs, phases, fits[top["key"]], oms[top["key"]])
         top["removes_baseline_symptoms"] = {
             "drift_baseline": observed["drift"], "drift_extended": dr,
             "drift_note": "largest squared Mahalanobis distance of (log G, log mu) between fits to the 1st, 2nd "
