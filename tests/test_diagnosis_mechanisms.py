@@ -1,50 +1,65 @@
-"""imrbayes diagnose: hide an effect in synthetic polytropic data and require finding it.
+"""imrbayes diagnose on camera-style data: hide an effect and require finding it; hide nothing and
+require no alarm.
 
-Each dataset: 5 experiments, parameters drawn (seeded) from realistic ranges
-(imrbayes.diagnosis.synthetic), paper noise times 0.5; quick settings (19 bootstrap replicates).
-The full mechanisms x seeds confusion matrix is ``scripts/diagnosis_confusion.py`` (slow test below).
+Each dataset comes from :func:`imrbayes.diagnosis.synthetic.camera_obs`: frames at a camera rate
+with a random sub-frame phase, noise on every frame (the maximum included), Rmax, the time of the
+maximum and Req *estimated* by the preprocessing, and data made by a finer forward model than the
+fitted one. The material and the hidden mechanism's parameters are drawn inside (seeded) from the
+realistic ranges of :mod:`imrbayes.diagnosis.candidates`. Quick settings (19 bootstrap replicates,
+no LOEO, no MIEnKS drift). The full classes x seeds confusion matrix and the 20-dataset false-alarm
+rate are ``scripts/diagnosis_confusion.py`` (docs/diagnosis.md).
 """
 
 import numpy as np
 import pytest
 
 from imrbayes.diagnosis import DiagnoseSettings, diagnose
-from imrbayes.diagnosis.synthetic import synthetic_obs
+from imrbayes.diagnosis.synthetic import camera_obs
 from imrbayes.forward import ForwardOptions
 
 OPTS = ForwardOptions(bubble="polytropic")
-NOISE = 0.5
 
 
-def _run(mechanism, seed, **kw):
-    obs, truth = synthetic_obs(mechanism, seed, OPTS, noise_scale=NOISE)
-    d = diagnose(obs, OPTS, settings=DiagnoseSettings.quick(loeo=False, **kw), seed=seed)
+def _run(mechanism, seed, design=None, **kw):
+    obs, truth = camera_obs(mechanism, seed, OPTS, design=design)
+    s = DiagnoseSettings.quick(loeo=False, mienks_drift=False, **kw)
+    d = diagnose(obs, OPTS, settings=s, seed=seed)
     return d.result, truth
 
 
-def test_constant_nhkv_is_adequate():
-    r, truth = _run("none", 11)
+@pytest.mark.parametrize("design,seed", [("1Mfps-2um-5", 11), ("270kfps-2um-3", 12), ("2Mfps-4um-8", 13)])
+def test_constant_nhkv_is_adequate(design, seed):
+    """No alarm on constant-parameter data of three different designs, and the baseline's estimate
+    near the truth (the geometry is estimated, not given)."""
+    r, truth = _run("none", seed, design)
     assert r["constant_parameter_check"]["verdict"] == "adequate", r["constant_parameter_check"]["evidence"]["p_value"]
     assert r["cause"] == "none"
     assert r["extended_model"] is None
     est = r["baseline"]["estimate"]
-    assert abs(np.log(est["G"]["median"] / truth["theta"]["G"])) < 0.5
-    assert abs(np.log(est["mu"]["median"] / truth["theta"]["mu"])) < 0.5
+    assert abs(np.log(est["G"]["median"] / truth["theta"]["G"])) < 0.25
+    assert abs(np.log(est["mu"]["median"] / truth["theta"]["mu"])) < 0.25
 
 
-@pytest.mark.parametrize("mechanism,seed", [("strain-stiffening", 3), ("damage-softening", 5)])
-def test_hidden_mechanism_is_found(mechanism, seed):
+@pytest.mark.parametrize("mechanism,seed", [("strain-stiffening", 3), ("bubble-thermal", 4)])
+def test_hidden_cause_is_found(mechanism, seed):
+    """A material mechanism and a bubble-model cause (thermal bubble behind a polytropic fit)."""
     r, truth = _run(mechanism, seed)
     assert r["constant_parameter_check"]["verdict"] == "inadequate"
-    assert r["cause"] == mechanism, [(c["mechanism"], c["score"]) for c in r["candidates"]]
+    assert r["cause"] == mechanism or (r["cause"] == "ambiguous" and any(
+        c["mechanism"] == mechanism for c in r["candidates"] if c["key"] in r["candidates_tied"])), \
+        [(c["key"], c["score"]) for c in r["candidates"]]
     g = r["gain"]
     assert g["heldout_rmse_extended"] < g["heldout_rmse_baseline"]
     assert g["relative_reduction"] > 0
-    assert g["elpd_diff"] > 0
+    if mechanism == "bubble-thermal":          # the right bubble model gives back the material
+        top = next(c for c in r["candidates"] if c["key"] == "bubble-thermal")
+        assert abs(np.log(top["estimate"]["G"]["median"] / truth["theta"]["G"])) < 0.3
+        assert abs(np.log(top["estimate"]["mu"]["median"] / truth["theta"]["mu"])) < 0.3
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("mechanism,seed", [("viscoelastic-relaxation", 7), ("rate-dependent-viscosity", 9)])
+@pytest.mark.parametrize("mechanism,seed", [("viscoelastic-relaxation", 7), ("rate-dependent-viscosity", 9),
+                                            ("damage-softening", 5)])
 def test_hidden_mechanism_is_found_more(mechanism, seed):
     r, truth = _run(mechanism, seed)
     assert r["cause"] == mechanism, [(c["mechanism"], c["score"]) for c in r["candidates"]]

@@ -207,7 +207,7 @@ def data_options(options, mechanism: str, truth_options=None):
     if changes and any(k in changes for k in _METHOD_KEYS):
         # the integrator and its default tolerances depend on the bubble model: pick them afresh
         src = options if truth_options is None else truth_options
-        new = replace(src, **changes, integrator=None, rtol=None, atol=None)
+        new = replace(src, **{**changes, "integrator": None, "rtol": None, "atol": None})
         # the warm medium already runs on another integrator than the fit (and costs ~10-50 s a bubble
         # on the default grid): it is not refined further
         return fine_options(new) if truth_options is None and new.medium == "cold" else new
