@@ -119,3 +119,13 @@ def test_a_registered_candidate_needs_nothing_else(monkeypatch):
     P = c.forward_params(np.log([[6e3, 0.05, 2e-6, 3e-7]]))
     assert P.shape == (1, 1, 4) and np.allclose(P[0, 0], [6e3, 0.05, 2e-6, 3e-7])
     assert spec.consistent({"lambda1": 1e-6, "lambda2": 1e-7}) == (True, "")
+
+
+def test_sequential_bootstrap_stops_only_when_no_rejection_is_possible():
+    from imrbayes.diagnosis.check import adequate_already
+    # B = 39, alpha = 0.05: two exceedances on every statistic give p >= 3/40 = 0.075 whatever follows
+    assert adequate_already([2, 5, 3], 39, 0.05)
+    assert not adequate_already([1, 5, 3], 39, 0.05)      # one statistic still at p >= 2/40 = 0.05
+    assert not adequate_already([3, 3], 99, 0.05)         # p >= 4/100 = 0.04 could still reject
+    assert adequate_already([5, 6], 99, 0.05)
+    assert not adequate_already([], 39, 0.05)

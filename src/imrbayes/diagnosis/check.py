@@ -169,8 +169,17 @@ def bootstrap_unit(unit, rng) -> dict:
     return {k: float(st.get(k, float("nan"))) for k in d["stats"]}
 
 
+def adequate_already(n_exceed, B: int, alpha: float, min_exceed: int = 2) -> bool:
+    """Whether the check is decided ``adequate`` before all B replicates are in: every statistic
+    already exceeded (>=) by ``n_exceed[k]`` replicates, each at least ``min_exceed``, so every
+    final p-value is at least (1 + min n_exceed) / (B + 1) > alpha."""
+    m = min(n_exceed) if len(n_exceed) else 0
+    return m >= min_exceed and (1.0 + m) / (B + 1.0) > alpha
+
+
 def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 0, alpha: float = 0.05,
-                    progress=None, mienks=None, execution=None, build: dict | None = None) -> dict:
+                    progress=None, mienks=None, execution=None, build: dict | None = None,
+                    first_batch: int = 10, min_exceed: int = 2) -> dict:
     """Verdict ``adequate``/``inadequate`` with the evidence (see module doc); ``mienks``: the
     MIEnKS settings the observed ``mienks_drift`` was computed with (None: not used).
 
@@ -196,8 +205,22 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     ex = execution or Execution(progress=False)
     if progress is not None and ex.bar is None:
         ex = dataclasses.replace(ex, progress=lambda done, total: progress(1))
-    rep = ex.run(units, bootstrap_unit, seed, desc="diagnose bootstrap")
-    boot = {k: [rep.results.get(f"bootstrap={b:03d}", {}).get(k, float("nan")) for b in range(B)] for k in stats}
+    # sequential: a first batch, then the rest only when the verdict is still open. Every
+    # statistic already exceeded by >= min_exceed replicates of the batch has a final p of at least
+    # (1 + min_exceed) / (B + 1) whatever the rest give, and the calibrated min-p is at least the
+    # smallest of them (a replicate beyond the data on a statistic has a p no larger than the
+    # data's on it): with that bound above alpha the data are adequate and the rest is not run.
+    first = units[:min(B, first_batch)] if first_batch else units
+    rep = ex.run(first, bootstrap_unit, seed, desc="diagnose bootstrap")
+    results = dict(rep.results)
+    n_exc = [sum(1 for r in results.values() if not (r.get(k, np.inf) < observed[k])) for k in stats]
+    stopped = len(first) < B and adequate_already(n_exc, B, alpha, min_exceed)
+    if len(first) < B and not stopped:
+        rep = ex.run(units[len(first):], bootstrap_unit, seed, desc="diagnose bootstrap")
+        results.update(rep.results)
+    if stopped:
+        B = len(first)
+    boot = {k: [results.get(f"bootstrap={b:03d}", {}).get(k, float("nan")) for b in range(B)] for k in stats}
     p = {k: float(_pvals(observed[k], boot[k])) for k in stats}
     # calibrate min-p: p-values of every bootstrap replicate against the others
     bmat = np.array([boot[k] for k in stats])            # (n_stats, B)
@@ -207,6 +230,10 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     minp = min(p.values())
     p_comb = float((1.0 + np.sum(minp_b <= minp)) / (B + 1.0))
     ev = {"n_bootstrap": B, "alpha": alpha, "p_value": p_comb,
+          "sequential": {"first_batch": len(first), "n_planned": len(units), "stopped_early": bool(stopped),
+                         "rule": f"stop after the first {len(first)} replicates when every statistic is exceeded by "
+                                 f">= {min_exceed} of them and (1 + that count) / (B + 1) > alpha (the verdict "
+                                 "cannot become inadequate); p_value is then the p of the replicates run"},
           "rule": f"inadequate when the bootstrap-calibrated smallest p-value of ({', '.join(stats)}) "
                   "is <= alpha",
           "statistics": {}}
