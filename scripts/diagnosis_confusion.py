@@ -151,7 +151,7 @@ def jobs_for(a, classes, designs) -> list:
     all_classes = _classes()
     fwd = dict(kv.split("=", 1) for kv in a.forward)
     common = {"forward": fwd, "quick": a.quick, "loeo": a.loeo, "n_bootstrap": a.n_bootstrap,
-              "mienks_drift": a.mienks_drift}
+              "mienks_drift": getattr(a, "mienks_drift", True)}
     jobs = []
     for c in classes:
         for s in range(a.seed_offset, a.seed_offset + a.seeds):

@@ -110,7 +110,7 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
                       force=bool(force), resume=bool(resume))
     if options.bubble == "thermal" and not quiet:
         click.echo(f"imrbayes: note: thermal bubble, scheme={options.scheme}; a diagnosis needs "
-                   "O(1e5) solves (~15 min for 5 experiments). For exploration use --quick, --forward "
+                   "O(1e5) solves (tens of minutes for 5 experiments on 2 cores). For exploration use --quick, --forward "
                    "bubble=polytropic, --experiments and --no-loeo.", err=True)
     show = (not quiet) and sys.stderr.isatty()
     bar = None

@@ -128,20 +128,25 @@ def _pvals(T, Tb):
 def replicate(obs, Rf, sd, rng):
     """A synthetic dataset of ``obs``'s design from the curves ``Rf`` (per experiment, R* at its
     camera frames -- or at the grid's samples for point-value data -- :func:`lsq.frame_values`):
-    white noise of sd ``sd[e]`` added to every frame, the frames interpolated onto the grid as the
-    data were, the record's noise re-estimated from the noisy frames as preprocessing does (median
-    absolute fourth difference). Sample 0 keeps the data's value (the normalisation)."""
-    from imrbayes.data.preprocess import estimate_noise_sd
+    white noise of sd ``sd[e]`` added to every frame after the maximum, the frames interpolated onto
+    the grid as the data were (the first, the maximum itself, is the normalisation's anchor: R* = 1
+    without noise, as in the preprocessing); the replicate's record noise is the sd it was made
+    with. (Re-estimating it from the frames the grid needs, as a first version did, inflates it at
+    coarse frame rates -- the collapse's own fourth differences count as noise over a short stretch,
+    while the data's estimate runs over the whole record with its quiet tail -- and made the data's
+    chi-square look too large: false alarms on a 270 kfps design.)"""
     E, n = obs.n_exp, obs.n_samples
     t = np.asarray(obs.t_star, dtype=float)
     Y = np.empty((E, n))
     noise_sd = np.empty(E)
     for e in range(E):
         yf = np.asarray(Rf[e], dtype=float) + sd[e] * rng.standard_normal(len(Rf[e]))
-        noise_sd[e] = estimate_noise_sd(yf)
+        noise_sd[e] = sd[e]
         if obs.frame_t is None:
             Y[e] = yf
             continue
+        if obs.frame_t[e][0] == 0.0:
+            yf[0] = 1.0
         tf = obs.frame_t[e]
         ia = np.clip(np.searchsorted(tf, t, side="right") - 1, 0, tf.size - 2)
         w = np.clip((t - tf[ia]) / (tf[ia + 1] - tf[ia]), 0.0, 1.0)
