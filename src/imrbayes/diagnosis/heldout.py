@@ -131,7 +131,10 @@ def elpd_compare(lls: dict, baseline: str = BASELINE.key) -> dict:
             if k == baseline:
                 out[k]["elpd_diff"], out[k]["elpd_se"] = 0.0, 0.0
                 continue
-            cmp = az.compare({baseline: trees[baseline], k: trees[k]})
             out[k]["elpd_diff"] = float(out[k]["elpd"] - out[baseline]["elpd"])   # extended - baseline
-            out[k]["elpd_se"] = float(cmp["dse"].max())
+            try:
+                cmp = az.compare({baseline: trees[baseline], k: trees[k]})
+                out[k]["elpd_se"] = float(cmp["dse"].max())
+            except ValueError:    # e.g. a difference of 0 with SE 0: az.compare's rounding fails on the NaN
+                out[k]["elpd_se"] = float("nan")
     return out
