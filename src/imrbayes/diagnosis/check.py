@@ -135,6 +135,7 @@ def replicate(obs, Rf, sd, rng):
     coarse frame rates -- the collapse's own fourth differences count as noise over a short stretch,
     while the data's estimate runs over the whole record with its quiet tail -- and made the data's
     chi-square look too large: false alarms on a 270 kfps design.)"""
+    from imrbayes.ensemble.likelihood import frame_operator
     E, n = obs.n_exp, obs.n_samples
     t = np.asarray(obs.t_star, dtype=float)
     Y = np.empty((E, n))
@@ -147,9 +148,7 @@ def replicate(obs, Rf, sd, rng):
             continue
         if obs.frame_t[e][0] == 0.0:
             yf[0] = 1.0
-        tf = obs.frame_t[e]
-        ia = np.clip(np.searchsorted(tf, t, side="right") - 1, 0, tf.size - 2)
-        w = np.clip((t - tf[ia]) / (tf[ia + 1] - tf[ia]), 0.0, 1.0)
+        _, ia, w = frame_operator(obs.frame_t[e], t)
         Y[e] = (1.0 - w) * yf[ia] + w * yf[ia + 1]
     Y = np.maximum(Y, 1e-3)
     Y[:, 0] = obs.R_star[:, 0]

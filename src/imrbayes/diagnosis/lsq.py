@@ -109,6 +109,7 @@ class ObsModel:
 
 def _times(obs, idx, K, frames):
     """Per experiment the times to simulate (grid or frames) and the interpolation back to the grid."""
+    from imrbayes.ensemble.likelihood import frame_operator
     t = np.asarray(obs.t_star[:K + 1], dtype=float)
     rows, ops = [], []
     for e in idx:
@@ -116,11 +117,8 @@ def _times(obs, idx, K, frames):
             rows.append(t)
             ops.append(None)
             continue
-        tf = np.asarray(frames[e], dtype=float)
-        ia = np.clip(np.searchsorted(tf, t, side="right") - 1, 0, tf.size - 2)
-        w = np.clip((t - tf[ia]) / (tf[ia + 1] - tf[ia]), 0.0, 1.0)
-        last = int(ia.max()) + 2
-        rows.append(tf[:last])
+        tf, ia, w = frame_operator(frames[e], t)
+        rows.append(tf)
         ops.append((ia, w))
     return rows, ops
 
