@@ -167,6 +167,8 @@ def _predict(cand, z, obs, idx, minima, K, nu, frames):
     S = np.take_along_axis(S, order, axis=1)
     rmax = np.tile(obs.rmax_m[idx], M) * scale
     req = np.tile(obs.req_m[idx], M) * np.exp(rho)
+    bad |= ~(req < rmax)             # a step that puts Req above Rmax: a failed member, not an error
+    req = np.where(bad, 0.5 * rmax, req)
     kw = {}
     if not cand.piecewise:
         P = cand.forward_params(zz)                                       # (M*E, 1, np)
