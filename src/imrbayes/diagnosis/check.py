@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from imrbayes.data.noise import noise_variance
-from imrbayes.diagnosis.lsq import ObsModel, fit_map, frame_values
+from imrbayes.diagnosis.lsq import ObsModel, fit_map, fit_tempered, frame_values
 from imrbayes.ensemble import Observations
 
 __all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift"]
@@ -93,10 +93,7 @@ def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0, nuisa
     when it cannot be computed, ``mienks_error``: the one-line error). The whole-record fit is made
     twice: on the record's noise, then on the likelihood tempered at that fit (``om`` in the output,
     the observation model every later fit of this dataset uses)."""
-    om0 = ObsModel.of(obs, nuisances=nuisances)
-    first = fit_map(base, obs, minima=phases.minima, om=om0, starts=starts)
-    om = om0.tempered(obs, first.fitted)
-    full = fit_map(base, obs, minima=phases.minima, om=om, starts=[first.z], nu0=first.nu)
+    full, om = fit_tempered(base, obs, phases.minima, ObsModel.of(obs, nuisances=nuisances), starts=starts)
     drift, fits = window_drift(base, obs, phases, full, om)
     r2 = (obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2 / om.noise_sd[:, None] ** 2
     per_phase = []

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["ObsModel", "predict", "frame_values", "fit_map", "fit_nuisances", "MapFit"]
+__all__ = ["ObsModel", "predict", "frame_values", "fit_map", "fit_tempered", "fit_nuisances", "MapFit"]
 
 FAIL_RESIDUAL = 1.0  # R* error assigned to a failed solve (per sample)
 MAX_STEPS = 20_000  # a member needing more integrator steps counts as failed (stiff corners of the prior)
@@ -387,6 +387,15 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     chi2 = float(np.sum(r[:n_y] ** 2))
     return MapFit(cand.key, np.asarray(z, dtype=float).copy(), cov, cost, chi2, int(y.size), Rz, K, idx, it, conv,
                   u * s_nu, nu_sd)
+
+
+def fit_tempered(cand, obs, minima, om0: ObsModel, **kw) -> tuple:
+    """``fit``'s two-step fit of one model: on the records' noise (``om0``), then on the likelihood
+    tempered at that fit, from its optimum. Returns (MapFit, the tempered ObsModel); ``kw`` go to
+    the first :func:`fit_map` (starts, extra_starts, nu0)."""
+    first = fit_map(cand, obs, minima=minima, om=om0, **kw)
+    om = om0.tempered(obs, first.fitted)
+    return fit_map(cand, obs, minima=minima, om=om, starts=[first.z], nu0=first.nu), om
 
 
 def fit_nuisances(cand, obs, idx, z, minima=None, om: ObsModel | None = None, K=None) -> MapFit:

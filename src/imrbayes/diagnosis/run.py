@@ -108,15 +108,13 @@ def candidate_unit(unit, rng) -> dict:
     would damp exactly the features a candidate explains. Returns {"fit", "sd_used", "alpha"}."""
     from dataclasses import asdict as _asdict
 
-    from imrbayes.diagnosis.lsq import fit_map
+    from imrbayes.diagnosis.lsq import fit_tempered
 
     d = unit.data
     c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
     extra = np.concatenate([d["z_base"], c.prior_mean[2:]])
     obs, om0, minima = d["obs"], d["om0"], d["phases"].minima
-    first = fit_map(c, obs, minima=minima, om=om0, extra_starts=[extra], nu0=d["nu_base"])
-    om = om0.tempered(obs, first.fitted)
-    f = fit_map(c, obs, minima=minima, om=om, starts=[first.z], nu0=first.nu)
+    f, om = fit_tempered(c, obs, minima, om0, extra_starts=[extra], nu0=d["nu_base"])
     return {"fit": _asdict(f), "sd_used": om.sd_used.tolist(), "alpha": om.alpha.tolist(),
             "effective_samples": om.n_eff.tolist()}
 
