@@ -122,10 +122,44 @@ def test_a_registered_candidate_needs_nothing_else(monkeypatch):
 
 
 def test_sequential_bootstrap_stops_only_when_no_rejection_is_possible():
-    from imrbayes.diagnosis.check import adequate_already
-    # B = 39, alpha = 0.05: two exceedances on every statistic give p >= 3/40 = 0.075 whatever follows
-    assert adequate_already([2, 5, 3], 39, 0.05)
-    assert not adequate_already([1, 5, 3], 39, 0.05)      # one statistic still at p >= 2/40 = 0.05
-    assert not adequate_already([3, 3], 99, 0.05)         # p >= 4/100 = 0.04 could still reject
-    assert adequate_already([5, 6], 99, 0.05)
-    assert not adequate_already([], 39, 0.05)
+    from imrbayes.diagnosis.check import adequate_already, combined_p_value
+    # B = 39, alpha = 0.05: two replicates above the data on every statistic give p >= 3/40 whatever follows
+    assert adequate_already(2, 39, 0.05)
+    assert not adequate_already(1, 39, 0.05)             # p >= 2/40 = 0.05 could still reject
+    assert not adequate_already(3, 99, 0.05)             # p >= 4/100
+    assert adequate_already(5, 99, 0.05)
+    assert not adequate_already(0, 19, 0.05)
+    # the bound the rule relies on, on random pools with ties and missing replicates
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        S, B = rng.integers(1, 5), rng.integers(5, 40)
+        X = np.round(rng.standard_normal((S, B + 1)), 1)
+        X[:, 1:][rng.random((S, B)) < 0.05] = np.nan
+        n_dom = int(np.sum(np.all(~(X[:, 1:] < X[:, :1]), axis=0)))
+        p, _ = combined_p_value(X[:, 0], X[:, 1:])
+        assert p >= (1 + n_dom) / (B + 1) - 1e-12
+
+
+def test_combined_p_value_is_a_level_alpha_test_and_keeps_power():
+    """Exchangeable pools of three correlated statistics: the combined p-value rejects at most
+    alpha of the time (B = 19: exactly 1/20 in expectation; the first version, which calibrated
+    the data's min-p with denominator B + 1 against the replicates' with B, rejected ~3x that).
+    A dataset above every replicate on two of the three is rejected."""
+    from imrbayes.diagnosis.check import combined_p_value
+
+    rng = np.random.default_rng(0)
+    L = np.linalg.cholesky(np.array([[1.0, 0.2, 0.2], [0.2, 1.0, 0.8], [0.2, 0.8, 1.0]]))
+    n, B, rej = 6000, 19, 0
+    for _ in range(n):
+        X = L @ rng.standard_normal((3, B + 1))
+        p, p_each = combined_p_value(X[:, 0], X[:, 1:])
+        assert 1.0 / (B + 1) <= p <= 1.0 and np.all(p_each >= 1.0 / (B + 1))
+        rej += p <= 0.05
+    z = 3.29                                     # a 99.9 % Wilson interval of the rejection rate holds 0.05
+    ph = rej / n
+    half = z * np.sqrt(ph * (1 - ph) / n + z * z / (4 * n * n))
+    lo, hi = (ph + z * z / (2 * n) - half) / (1 + z * z / n), (ph + z * z / (2 * n) + half) / (1 + z * z / n)
+    assert lo <= 0.05 <= hi
+    boot = L @ rng.standard_normal((3, B))
+    data = np.array([0.0, boot[1].max() + 0.1, boot[2].max() + 0.1])
+    assert combined_p_value(data, boot)[0] <= 0.05

@@ -23,8 +23,16 @@ the same design generated from the baseline fit (each experiment at its fitted g
 alignment; white noise of the record's sd *at the camera frames*, interpolated onto the grid as
 the data were -- or at the samples when the data are point values), processed exactly as the data
 (the nuisances start from the preprocessing values again, noise and tempering re-estimated, the
-same fits). p-values are (1 + #{T_b >= T}) / (B + 1); the combined p-value is the bootstrap
-calibration of the smallest of them (so no Bonferroni factor is needed).
+same fits). Each statistic's p-value is (1 + #{T_b >= T}) / (B + 1). They are combined by the
+nonparametric combination of dependent tests (Pesarin & Salmaso 2010, Fisher's combining function):
+the data and the B replicates form one exchangeable pool; in it every member gets its own p-value
+per statistic (its rank among the B + 1), the combined statistic C = -sum log p, and the combined
+p-value is #{members with C >= the data's C} / (B + 1). Under the null this is exactly a rank test
+at any B. (A first version calibrated the smallest p-value against leave-one-out p-values of the
+replicates, whose denominator B made the data's p = 1/(B+1) beat every replicate's 1/B: the data
+extreme on *any one* statistic was then rejected, ~3 alpha with three statistics -- 4 false
+alarms in 20 camera-style nulls, measured. With the pool the same 20 nulls give none, and the
+mechanisms' detections are kept: docs/diagnosis.md.)
 """
 
 from __future__ import annotations
@@ -35,7 +43,7 @@ from imrbayes.data.noise import noise_variance
 from imrbayes.diagnosis.lsq import ObsModel, fit_map, fit_tempered, frame_values
 from imrbayes.ensemble import Observations
 
-__all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift"]
+__all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift", "combined_p_value", "adequate_already"]
 
 STATS = ("drift", "misfit", "phase_misfit")
 
@@ -170,17 +178,32 @@ def bootstrap_unit(unit, rng) -> dict:
     return {k: float(st.get(k, float("nan"))) for k in d["stats"]}
 
 
-def adequate_already(n_exceed, B: int, alpha: float, min_exceed: int = 2) -> bool:
-    """Whether the check is decided ``adequate`` before all B replicates are in: every statistic
-    already exceeded (>=) by ``n_exceed[k]`` replicates, each at least ``min_exceed``, so every
-    final p-value is at least (1 + min n_exceed) / (B + 1) > alpha."""
-    m = min(n_exceed) if len(n_exceed) else 0
-    return m >= min_exceed and (1.0 + m) / (B + 1.0) > alpha
+def combined_p_value(observed, boot) -> tuple:
+    """Nonparametric (Fisher) combination of the statistics ``observed`` (S,) against the replicates
+    ``boot`` (S, B) (module doc); returns (combined p, the data's p per statistic (S,)). A replicate
+    without a statistic (NaN) counts against rejection: its value is taken as +inf."""
+    X = np.column_stack([np.asarray(observed, dtype=float), np.asarray(boot, dtype=float).reshape(len(observed), -1)])
+    X = np.where(np.isfinite(X), X, np.inf)
+    n = X.shape[1]
+    # p of every pool member on every statistic: the share of the pool at or above it (itself included)
+    P = (X[:, None, :] >= X[:, :, None]).sum(axis=2) / n            # (S, n)
+    C = -np.log(P).sum(axis=0)
+    # members with the same ranks in another order tie mathematically; a tolerance keeps the sums'
+    # rounding from breaking such ties in the data's favour (measured: 6 % rejections instead of 5)
+    return float(np.sum(C >= C[0] - 1e-9 * max(1.0, abs(C[0]))) / n), P[:, 0]
+
+
+def adequate_already(n_dominating: int, B: int, alpha: float) -> bool:
+    """Whether the check is decided ``adequate`` before all B replicates are in: ``n_dominating``
+    replicates at or above the data on *every* statistic have, in any final pool, a combined
+    statistic at or above the data's, so the combined p-value is at least (1 + n_dominating) / (B + 1);
+    decided when that bound exceeds ``alpha``."""
+    return (1.0 + int(n_dominating)) / (B + 1.0) > alpha
 
 
 def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 0, alpha: float = 0.05,
                     progress=None, mienks=None, execution=None, build: dict | None = None,
-                    first_batch: int = 10, min_exceed: int = 2) -> dict:
+                    first_batch: int = 10) -> dict:
     """Verdict ``adequate``/``inadequate`` with the evidence (see module doc); ``mienks``: the
     MIEnKS settings the observed ``mienks_drift`` was computed with (None: not used).
 
@@ -206,37 +229,31 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     ex = execution or Execution(progress=False)
     if progress is not None and ex.bar is None:
         ex = dataclasses.replace(ex, progress=lambda done, total: progress(1))
-    # sequential: a first batch, then the rest only when the verdict is still open. Every
-    # statistic already exceeded by >= min_exceed replicates of the batch has a final p of at least
-    # (1 + min_exceed) / (B + 1) whatever the rest give, and the calibrated min-p is at least the
-    # smallest of them (a replicate beyond the data on a statistic has a p no larger than the
-    # data's on it): with that bound above alpha the data are adequate and the rest is not run.
+    # sequential: a first batch, then the rest only when the verdict is still open. A replicate at or
+    # above the data on every statistic keeps the combined p-value at (1 + their number) / (B + 1) or
+    # more whatever the rest give (adequate_already): with that bound above alpha the data are
+    # adequate and the rest is not run.
     first = units[:min(B, first_batch)] if first_batch else units
     rep = ex.run(first, bootstrap_unit, seed, desc="diagnose bootstrap")
     results = dict(rep.results)
-    n_exc = [sum(1 for r in results.values() if not (r.get(k, np.inf) < observed[k])) for k in stats]
-    stopped = len(first) < B and adequate_already(n_exc, B, alpha, min_exceed)
+    n_dom = sum(1 for r in results.values() if all(not (r.get(k, np.inf) < observed[k]) for k in stats))
+    stopped = len(first) < B and adequate_already(n_dom, B, alpha)
     if len(first) < B and not stopped:
         rep = ex.run(units[len(first):], bootstrap_unit, seed, desc="diagnose bootstrap")
         results.update(rep.results)
     if stopped:
         B = len(first)
     boot = {k: [results.get(f"bootstrap={b:03d}", {}).get(k, float("nan")) for b in range(B)] for k in stats}
-    p = {k: float(_pvals(observed[k], boot[k])) for k in stats}
-    # calibrate min-p: p-values of every bootstrap replicate against the others
-    bmat = np.array([boot[k] for k in stats])            # (n_stats, B)
-    pb = np.array([[(1.0 + np.sum(np.delete(bmat[i], j) >= bmat[i, j])) / B for j in range(B)]
-                   for i in range(len(stats))])
-    minp_b = pb.min(axis=0)
-    minp = min(p.values())
-    p_comb = float((1.0 + np.sum(minp_b <= minp)) / (B + 1.0))
+    p_comb, p_each = combined_p_value([observed[k] for k in stats], [boot[k] for k in stats])
+    p = dict(zip(stats, map(float, p_each)))
     ev = {"n_bootstrap": B, "alpha": alpha, "p_value": p_comb,
           "sequential": {"first_batch": len(first), "n_planned": len(units), "stopped_early": bool(stopped),
-                         "rule": f"stop after the first {len(first)} replicates when every statistic is exceeded by "
-                                 f">= {min_exceed} of them and (1 + that count) / (B + 1) > alpha (the verdict "
-                                 "cannot become inadequate); p_value is then the p of the replicates run"},
-          "rule": f"inadequate when the bootstrap-calibrated smallest p-value of ({', '.join(stats)}) "
-                  "is <= alpha",
+                         "n_dominating": int(n_dom),
+                         "rule": f"stop after the first {len(first)} replicates when (1 + the number of them at or "
+                                 "above the data on every statistic) / (B + 1) > alpha (the verdict cannot become "
+                                 "inadequate); p_value is then that of the replicates run"},
+          "rule": f"inadequate when the combined p-value of ({', '.join(stats)}) is <= alpha: Fisher's "
+                  "nonparametric combination, the data ranked in the pool of data and replicates",
           "statistics": {}}
     for k in stats:
         q = np.quantile(boot[k], [0.05, 0.5, 0.95]).tolist()
