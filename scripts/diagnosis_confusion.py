@@ -2,6 +2,7 @@
 
     .venv/bin/python scripts/diagnosis_confusion.py --seeds 5 --nulls 20 --out runs/confusion
     .venv/bin/python scripts/diagnosis_confusion.py --out runs/confusion --summarize-only
+    .venv/bin/python scripts/diagnosis_confusion.py --rescore-from runs/old --out runs/new --summarize-only
     .venv/bin/python scripts/diagnosis_confusion.py --classes none --seeds 1 --nulls 0 --quick \\
         --forward bubble=polytropic --out /tmp/conf      # a smoke test
 
@@ -27,6 +28,13 @@ Resumable: each run is written to ``OUT/runs/<class>__s<seed>.json`` or
 ``OUT/nulls/null__<i>__<design>.json`` as soon as it finishes; a rerun skips finished runs (runs that
 raised are written with ``status: error`` and retried). The summary (``OUT/summary.json``,
 ``OUT/summary.md``) is written at the end, or alone with ``--summarize-only``.
+
+``--rescore-from DIR``: rows of an earlier run whose diagnosis code differs only in how the check's
+p-values are combined (the statistics and their bootstrap replicates, stored in every row, are the
+same) get the current verdict (:func:`imrbayes.diagnosis.check.combined_p_value`) and are written to
+OUT. A verdict that becomes ``adequate`` makes the cause ``none`` (what ``diagnose`` does: exact); one
+that becomes ``inadequate`` cannot be completed from the row (the candidates' comparison was not
+run): the row is written as an error, which the next run of OUT recomputes.
 """
 
 from __future__ import annotations
@@ -172,6 +180,47 @@ def _finished(path: str) -> bool:
         return False
 
 
+def rescore_row(row: dict) -> dict:
+    """``row`` with the check's verdict recomputed by the current combination (module doc)."""
+    from imrbayes.diagnosis.check import combined_p_value
+
+    if row.get("status") != "ok":
+        return row
+    check = row["result"]["constant_parameter_check"]
+    ev = check["evidence"]
+    st = ev["statistics"]
+    keys = list(st)
+    p, p_each = combined_p_value([st[k]["observed"] for k in keys], [st[k]["bootstrap"] for k in keys])
+    verdict = "inadequate" if p <= ev["alpha"] else "adequate"
+    out = {**row, "p_value": p, "verdict": verdict,
+           "rescored": {"p_value_before": row.get("p_value"), "verdict_before": row.get("verdict"),
+                        "cause_before": row.get("cause"), "rule": "combined_p_value (Fisher, pool of data and "
+                                                                  "replicates)"}}
+    if verdict == row.get("verdict"):
+        return out
+    if verdict == "adequate":
+        out.update(cause="none", candidates_tied=[])
+        return out
+    out.update(status="error", cause="error",
+               error="rescoring turned the verdict to inadequate; the candidates' comparison needs a rerun")
+    return out
+
+
+def rescore(src: Path, out: Path) -> int:
+    """Rescore every row of ``src`` into ``out`` (rows already finished in ``out`` are kept)."""
+    n = 0
+    for folder in ("runs", "nulls"):
+        (out / folder).mkdir(parents=True, exist_ok=True)
+        for path in sorted((src / folder).glob("*.json")):
+            dest = out / folder / path.name
+            if _finished(str(dest)):
+                continue
+            row = rescore_row(json.loads(path.read_text()))
+            dest.write_text(json.dumps(_jsonable(row), indent=1) + "\n")
+            n += 1
+    return n
+
+
 # ------------------------------------------------------------------ summary
 
 def load_rows(out: Path) -> tuple:
@@ -251,6 +300,33 @@ def markdown(s: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+def compact_row(row: dict) -> dict:
+    """One run as committed under docs/figures/diagnosis/ (the check's statistics with every replicate's
+    value, so the combination can be recomputed; the verdict, cause, tie, gain and truth)."""
+    r = row.get("result") or {}
+    ev = (r.get("constant_parameter_check") or {}).get("evidence") or {}
+    st = {k: {"observed": v["observed"], "bootstrap": v.get("bootstrap"), "p": v.get("p_value"),
+              "q05_q50_q95": v.get("bootstrap_q05_q50_q95")} for k, v in (ev.get("statistics") or {}).items()}
+    g = row.get("gain") or {}
+    return {"class": row["class"], "seed": row["seed"], "design": row["design"], "status": row.get("status"),
+            "verdict": row.get("verdict"), "cause": row.get("cause"), "p_value": row.get("p_value"),
+            "candidates_tied": row.get("candidates_tied"), "score": score(row) if row.get("status") == "ok" else None,
+            "truth": {"theta": (row.get("truth") or {}).get("theta")},
+            "gain": {k: g.get(k) for k in ("candidate", "relative_reduction", "paired_difference", "elpd_diff", "elpd_se") if k in g},
+            "statistics": st, "sequential": ev.get("sequential"), "runtime_s": row.get("runtime_s"),
+            **({"rescored": row["rescored"]} if "rescored" in row else {}),
+            **({"error": row.get("error")} if row.get("status") != "ok" else {})}
+
+
+def export(out: Path, dest: Path, command: str, code: str) -> None:
+    """Write OUT's class and null rows, compact, to ``dest``_{classes,nulls}.json."""
+    rows, nulls = load_rows(out)
+    for kind, rr in (("classes", rows), ("nulls", nulls)):
+        if rr:
+            Path(f"{dest}_{kind}.json").write_text(json.dumps(
+                {"command": command, "code": code, "rows": [compact_row(r) for r in rr]}, indent=1) + "\n")
+
+
 def write_summary(out: Path, command: str) -> dict:
     rows, nulls = load_rows(out)
     s = summarize(rows, nulls, command=command)
@@ -282,6 +358,11 @@ def main(argv=None):
                     help="fitted forward option (e.g. bubble=polytropic); repeatable")
     ap.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     ap.add_argument("--summarize-only", action="store_true")
+    ap.add_argument("--export", type=Path, default=None, metavar="PREFIX",
+                    help="also write the rows, compact, to PREFIX_classes.json and PREFIX_nulls.json")
+    ap.add_argument("--code", default="", help="with --export: the code version the rows were made with")
+    ap.add_argument("--rescore-from", type=Path, default=None, metavar="DIR",
+                    help="copy DIR's rows into OUT with the check's verdict recomputed (module doc)")
     a = ap.parse_args(argv)
     command = shlex.join([Path(sys.argv[0]).name if argv is None else "diagnosis_confusion.py",
                           *(sys.argv[1:] if argv is None else argv)])
@@ -290,6 +371,11 @@ def main(argv=None):
     if any("=" not in kv for kv in a.forward):
         ap.error("--forward takes KEY=VALUE")
     a.out.mkdir(parents=True, exist_ok=True)
+    if a.summarize_only and a.rescore_from is None and (a.out / "summary.json").exists():
+        # keep the command that made the rows (a summary alone does not change them)
+        command = json.loads((a.out / "summary.json").read_text()).get("command") or command
+    if a.rescore_from is not None:
+        print(f"rescored {rescore(a.rescore_from, a.out)} rows of {a.rescore_from}", flush=True)
     if not a.summarize_only:
         classes = [c.strip() for c in a.classes.split(",") if c.strip()] or _classes()
         bad = [c for c in classes if c not in _classes()]
@@ -313,6 +399,8 @@ def main(argv=None):
                 for fut in cf.as_completed([ex.submit(run_one, j) for j in todo]):
                     report(fut.result())
     write_summary(a.out, command)
+    if a.export is not None:
+        export(a.out, a.export, command, a.code)
 
 
 if __name__ == "__main__":
