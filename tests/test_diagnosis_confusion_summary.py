@@ -108,3 +108,30 @@ def test_jobs(conf, tmp_path):
     assert [j["seed"] for j in cls] == [0, 1, 1000 * k, 1000 * k + 1]
     assert [j["design"] for j in nul] == ["A", "B", "C", "A", "B", "C", "A"]
     assert len({j["path"] for j in jobs}) == len(jobs) and cls[0]["forward"] == {"bubble": "polytropic"}
+
+
+def _check_row(observed, boot, verdict, cause):
+    stats = {k: {"observed": o, "bootstrap": b} for k, o, b in zip(("drift", "misfit", "phase_misfit"), observed, boot)}
+    return {"kind": "null", "class": "none", "seed": 1, "design": "1Mfps-2um-5", "status": "ok", "verdict": verdict,
+            "cause": cause, "candidates_tied": ["zener", "damage"], "p_value": 0.05,
+            "result": {"constant_parameter_check": {"evidence": {"alpha": 0.05, "statistics": stats}}}}
+
+
+def test_rescore_recomputes_the_verdict_from_the_stored_replicates(conf, tmp_path):
+    """A null that topped one statistic of three (the first combination's false alarm) is adequate
+    under the pooled combination, cause none; one above every replicate on all three stays inadequate;
+    one that would turn inadequate is left for a rerun."""
+    boot = [[float(i) for i in range(19)]] * 3
+    one_high = conf.rescore_row(_check_row([100.0, 9.5, 9.5], boot, "inadequate", "ambiguous"))
+    assert one_high["verdict"] == "adequate" and one_high["cause"] == "none" and one_high["candidates_tied"] == []
+    assert one_high["rescored"]["cause_before"] == "ambiguous" and one_high["p_value"] > 0.05
+    all_high = conf.rescore_row(_check_row([100.0, 100.0, 100.0], boot, "inadequate", "damage-softening"))
+    assert all_high["verdict"] == "inadequate" and all_high["cause"] == "damage-softening"
+    assert all_high["p_value"] == pytest.approx(1 / 20)
+    flipped = conf.rescore_row(_check_row([100.0, 100.0, 100.0], boot, "adequate", "none"))
+    assert flipped["status"] == "error" and "rerun" in flipped["error"]
+    src = tmp_path / "old"
+    (src / "nulls").mkdir(parents=True)
+    (src / "nulls" / "null__000.json").write_text(json.dumps(_check_row([100.0, 9.5, 9.5], boot, "inadequate", "x")))
+    assert conf.rescore(src, tmp_path / "new") == 1
+    assert json.loads((tmp_path / "new" / "nulls" / "null__000.json").read_text())["verdict"] == "adequate"
