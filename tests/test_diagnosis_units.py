@@ -163,3 +163,38 @@ def test_combined_p_value_is_a_level_alpha_test_and_keeps_power():
     boot = L @ rng.standard_normal((3, B))
     data = np.array([0.0, boot[1].max() + 0.1, boot[2].max() + 0.1])
     assert combined_p_value(data, boot)[0] <= 0.05
+
+
+def test_ties_when_the_held_out_schemes_disagree():
+    """The top candidate wins only when a scheme separates in its favour and none in the
+    contender's; schemes that disagree (real data: stiff PA, forecast for the thermal bubble, LOEO
+    for a Zener) tie them; no separation falls back to the in-sample AIC."""
+    from types import SimpleNamespace
+
+    from imrbayes.diagnosis.lsq import ObsModel
+    from imrbayes.diagnosis.run import ties
+
+    rng = np.random.default_rng(0)
+    E, n = 8, 21
+    t = np.arange(n) * 0.05
+    obs = Observations(t, 1.0 + 0.01 * rng.standard_normal((E, n)), np.full(n, 1e-4), np.full(E, 3e-4),
+                       np.full(E, 4e-5), noise_sd=np.full(E, 0.01))
+    om = ObsModel.of(obs, nuisances=False, random_effects=None)
+    far = {k: SimpleNamespace(fitted=np.ones((E, n)) + off, z=np.zeros(2)) for k, off in (("a", 0.0), ("b", 0.05))}
+    base = 0.05 + 0.001 * rng.standard_normal(E)
+
+    def held(dforecast, dloeo):      # per-experiment RMSEs: a at base, b shifted (> 0: b worse)
+        jit = 0.0005 * rng.standard_normal(E)
+        return {"a": {"forecast": {"per_experiment": base.tolist()}, "loeo": {"per_experiment": base.tolist()}},
+                "b": {"forecast": {"per_experiment": (base + dforecast + jit).tolist()},
+                      "loeo": {"per_experiment": (base + dloeo - jit).tolist()}}}
+    cands = [{"key": "a", "ruled_out": ""}, {"key": "b", "ruled_out": ""}]
+    assert ties(cands, held(0.01, 0.01), {}, far, obs, om)[0] == ["a"]              # a better on both
+    assert ties(cands, held(0.01, 0.0), {}, far, obs, om)[0] == ["a"]               # one scheme, for a
+    tied, why = ties(cands, held(0.01, -0.01), {}, far, obs, om)                    # they disagree
+    assert tied == ["a", "b"] and "disagree" in why
+    tied, why = ties(cands, held(0.0, -0.01), {}, far, obs, om)                     # only for the lower one
+    assert tied == ["a", "b"] and "ranked lower" in why
+    assert ties(cands, held(0.0, 0.0), {}, far, obs, om)[0] == ["a"]                # AIC far apart
+    near = {"a": far["a"], "b": SimpleNamespace(fitted=far["a"].fitted + 1e-4, z=np.zeros(2))}
+    assert ties(cands, held(0.0, 0.0), {}, near, obs, om)[0] == ["a", "b"]          # AIC within 4

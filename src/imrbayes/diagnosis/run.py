@@ -192,13 +192,18 @@ def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
 
 def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, tie_se: float = 2.0,
          tie_chi2: float = 4.0) -> tuple:
-    """The candidates the data cannot tell apart from the top one: (keys, reason). A contender
-    (not ruled out) ties with the top when neither held-out scheme separates them (paired
-    per-experiment RMSE difference within ``tie_se`` SEs) and either their in-sample fits differ by
-    less than ``tie_chi2`` in AIC (chi-square + 2 x material parameters), or each absorbs the other's curves to within ``tie_chi2``
-    (``absorption``). The chi-squares use the likelihood tempered at the *top* candidate's fit
-    (``om`` -- were it the truth, its residuals would be the noise; the baseline's tempering, made
-    of its own model error, would shrink every difference)."""
+    """The candidates the data cannot tell apart from the top one: (keys, reason).
+
+    Per held-out scheme, the paired per-experiment RMSE difference between a contender (not ruled
+    out) and the top one separates them when it exceeds ``tie_se`` SEs. The top one wins when some
+    scheme separates in its favour and none in the contender's. The two tie when the schemes
+    disagree (one favours each, or the only separating scheme favours the lower-ranked contender:
+    the ranking is the mean over schemes, so it can put a candidate first that a scheme rejects).
+    With no scheme separating them, they tie when their in-sample fits differ by less than
+    ``tie_chi2`` in AIC (chi-square + 2 x material parameters), or each absorbs the other's curves to
+    within ``tie_chi2`` (``absorption``). The chi-squares use the likelihood tempered at the *top*
+    candidate's fit (``om`` -- were it the truth, its residuals would be the noise; the baseline's
+    tempering, made of its own model error, would shrink every difference)."""
     from imrbayes.diagnosis.heldout import paired
 
     ok = [d for d in candidates if not d.get("ruled_out")]
@@ -214,13 +219,23 @@ def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, ti
     A = {k: i for i, k in enumerate(absorption.get("keys", []))}
     for d in ok[1:]:
         k = d["key"]
-        sep = []
+        for_top, for_k = [], []
         for sch in held.get(top, {}):
             if sch in held.get(k, {}):
-                pd = paired(held[k][sch]["per_experiment"], held[top][sch]["per_experiment"])
+                pd = paired(held[k][sch]["per_experiment"], held[top][sch]["per_experiment"])  # > 0: top better
                 if np.isfinite(pd["se"]) and pd["se"] > 0:
-                    sep.append(abs(pd["mean_diff"]) > tie_se * pd["se"])
-        if any(sep):
+                    if pd["mean_diff"] > tie_se * pd["se"]:
+                        for_top.append(f"{sch} {pd['mean_diff'] / pd['se']:+.1f} SE")
+                    elif pd["mean_diff"] < -tie_se * pd["se"]:
+                        for_k.append(f"{sch} {pd['mean_diff'] / pd['se']:+.1f} SE")
+        if for_k:
+            out.append(k)
+            why.append(f"{k}: the held-out schemes disagree ({', '.join(for_top + for_k)}; > 0 favours {top})"
+                       if for_top else
+                       f"{k}: better than {top} on {', '.join(for_k)} (> 0 would favour {top}), ranked lower "
+                       "on the mean over schemes")
+            continue
+        if for_top:
             continue
         close = abs(chi2[k] - chi2[top]) < tie_chi2
         mutual = (k in A and top in A and absorption["chi2"][A[top]][A[k]] < tie_chi2
