@@ -231,16 +231,17 @@ def signature_figure(result, path):
             a.fill_between(tt, np.asarray(pr[f"{p}_lo"], float) * f, np.asarray(pr[f"{p}_hi"], float) * f,
                            color=c, alpha=0.2, lw=0)
             a.plot(tt, np.asarray(pr[f"{p}_mean"], float) * f, "-", color=c, lw=1.5,
-                   label=f"{names.get(k, k)} (predicted mean, band)" if p == "G" else None)
+                   label=f"{names.get(k, k)}: predicted" if p == "G" else None)
         if ob.get(p) is not None:
             yv = np.asarray(ob[p], float) * f
             err = np.asarray(ob.get(f"{p}_sd"), float) * f if ob.get(f"{p}_sd") is not None else None
             a.errorbar(ob["t_star"], yv, yerr=err, fmt="o", color="k", ms=4, capsize=2,
-                       label="observed (MIEnKS windows)" if p == "G" else None)
+                       label="data: MIEnKS windows" if p == "G" else None)
         a.set_xlabel(r"window centre $t^*$ [-]")
         a.set_ylabel(lab)
         a.set_title(f"{'shear modulus G' if p == 'G' else 'viscosity mu'}(t*): data vs candidates", fontsize=10)
-    fig.legend(loc="outside lower center", ncol=min(4, len(pred) + 1), fontsize=8)
+    fig.legend(loc="outside lower center", ncol=min(3, len(pred) + 1), fontsize=8,
+               title="lines, bands: each fit's replicates through the smoother (geometric mean, 80 % prediction band)", title_fontsize=8)
     save(fig, path)
 
 
