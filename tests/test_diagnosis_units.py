@@ -198,3 +198,28 @@ def test_ties_when_the_held_out_schemes_disagree():
     assert ties(cands, held(0.0, 0.0), {}, far, obs, om)[0] == ["a"]                # AIC far apart
     near = {"a": far["a"], "b": SimpleNamespace(fitted=far["a"].fitted + 1e-4, z=np.zeros(2))}
     assert ties(cands, held(0.0, 0.0), {}, near, obs, om)[0] == ["a", "b"]          # AIC within 4
+
+
+def test_phases_find_the_small_rebounds_of_a_viscous_bubble_above_the_noise():
+    """Rebounds 0.04-0.09 R* high (mu 0.15 Pa s) under 0.007 R* noise: the per-record prominence
+    (4 noise sd) finds the first two collapses where a fixed 0.1 R* found at most one, and the
+    noise makes no collapse of its own."""
+    from scipy.signal import find_peaks
+
+    from imrbayes.diagnosis.phases import prominences
+
+    base = make_candidate("nhkv", OPTS)
+    R = predict(base, np.log([[4e3, 0.15]]), _obs(np.ones((3, T.size))), np.arange(3), None, 120)[0]
+    rng = np.random.default_rng(1)
+    sd = 0.007
+    Y = R + sd * rng.standard_normal(R.shape)
+    Y[:, 0] = 1.0
+    obs = Observations(T, Y, np.full(T.size, sd ** 2), RMAX, REQ, noise_sd=np.full(3, sd))
+    assert np.allclose(prominences(obs), 4 * sd)
+    ph = phases_of(obs)
+    coarse = phases_of(obs, prominence=0.1)
+    for i in range(3):
+        true_min, prom = find_peaks(-R[i], prominence=0.01)
+        assert prom["prominences"][1] < 0.1                      # the second collapse is a small one
+        assert abs(ph.minima[i, 0] - true_min[0]) <= 2 and abs(ph.minima[i, 1] - true_min[1]) <= 3
+    assert coarse.minima.shape[1] < ph.minima.shape[1] or np.any(coarse.minima[:, -1] != ph.minima[:, 1])

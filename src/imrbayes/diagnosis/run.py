@@ -272,6 +272,9 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     base = make_candidate(BASELINE.key, options, physics, prior)
     say("baseline fits (whole record, to the 1st and 2nd collapse)")
     warnings = []               # what the diagnosis left out, one line each (diagnosis.json, stderr)
+    if phases.minima.shape[1] < 2 or phases.collapse_index(2) <= phases.collapse_index(1):
+        warnings.append("only one collapse found in the records (minima of prominence >= 4 noise sd): the "
+                        "'2nd collapse' window and the forecast scheme end just after the first collapse")
     mk = None
     if s.mienks_drift:
         from imrbayes.ensemble.mienks import MIEnKSSettings
