@@ -124,12 +124,6 @@ def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0, nuisa
     return out
 
 
-def _pvals(T, Tb):
-    Tb = np.asarray(Tb, dtype=float)
-    Tb = np.where(np.isfinite(Tb), Tb, np.inf)      # a replicate without the statistic counts against rejection
-    return (1.0 + np.sum(Tb >= T)) / (Tb.size + 1.0)
-
-
 def replicate(obs, Rf, sd, rng):
     """A synthetic dataset of ``obs``'s design from the curves ``Rf`` (per experiment, R* at its
     camera frames -- or at the grid's samples for point-value data -- :func:`lsq.frame_values`):

@@ -82,8 +82,7 @@ NOISE_PROMINENCE, MIN_PROMINENCE, FALLBACK_PROMINENCE = 4.0, 0.02, 0.1
 
 def prominences(obs) -> np.ndarray:
     """Per experiment, the prominence a minimum needs (module doc) [R*]."""
-    sd = np.asarray(getattr(obs, "noise_sd", None) if getattr(obs, "noise_sd", None) is not None
-                    else np.full(obs.n_exp, np.nan), dtype=float)
+    sd = np.asarray(obs.noise_sd, dtype=float)         # NaN where unknown (Observations fills it)
     return np.where(np.isfinite(sd) & (sd > 0), np.maximum(MIN_PROMINENCE, NOISE_PROMINENCE * sd),
                     FALLBACK_PROMINENCE)
 
