@@ -41,6 +41,7 @@ class DiagnoseSettings:
 
     n_bootstrap: int = 39
     bootstrap_first_batch: int = 10  # sequential check: the rest only if these leave the verdict open (0: all B)
+    bootstrap_fits: str = "full"    # replicates' fits: "linearised" reuses one Jacobian (polytropic only: docs/diagnosis.md)
     candidates: tuple = DEFAULT_CANDIDATES
     baseline_method: str = "en4dvar"
     loeo: bool = True
@@ -311,7 +312,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         warnings += [f"baseline En4D-Var: {w}" for w in en.warnings]
     say(f"constant-parameter check ({s.n_bootstrap} bootstrap replicates)")
     check = bootstrap_check(base, obs, phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
-                            first_batch=s.bootstrap_first_batch,
+                            first_batch=s.bootstrap_first_batch, replicate_fits=s.bootstrap_fits,
                             progress=tick, mienks=mk, execution=ex,
                             build={"options": options, "physics": physics, "prior": prior})
     # candidates

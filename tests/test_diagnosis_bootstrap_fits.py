@@ -1,0 +1,71 @@
+"""The check's fits: nuisance basins (restarts) and the bootstrap replicates' simplified
+Gauss-Newton fits (one Jacobian at the generating point), against the full procedure and against
+fits started at the replicate's known truth."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imrbayes.data import load_dataset, preprocess_dataset
+from imrbayes.data.noise import noise_variance
+from imrbayes.diagnosis import check, lsq
+from imrbayes.diagnosis.models import make_candidate
+from imrbayes.diagnosis.phases import phases_of
+from imrbayes.diagnosis.synthetic import camera_obs
+from imrbayes.ensemble import Observations
+from imrbayes.forward import ForwardOptions
+
+POLY = ForwardOptions(bubble="polytropic")
+STIFF = Path(__file__).resolve().parents[2] / "shared" / "data" / "lic" / "estrada2018_stiffPA_270kfps"
+
+
+def _baseline_and_replicate(obs, seed):
+    base = make_candidate("nhkv", POLY)
+    phases = phases_of(obs, 3)
+    observed = check.statistics(base, obs, phases)
+    full = observed["fits"]["all"]
+    R0 = lsq.frame_values(base, full.z, obs, phases.minima, full.nu)
+    rep = check.replicate(obs, R0, observed["om"].noise_sd, np.random.default_rng(seed))
+    return base, phases, observed, full, rep
+
+
+@pytest.mark.skipif(not STIFF.is_dir(), reason="shared data (../shared/data/lic) not present")
+def test_restarts_find_the_nuisance_basin_of_the_truth():
+    # a replicate of 5 stiff-PA bubbles (270 kfps) from their polytropic baseline fit: its truth is
+    # known; a joint fit from the preprocessing's nuisances (0) alone ended with one bubble in another
+    # basin at 3x the truth-started fit's cost (measured: 596 vs 201)
+    pre = preprocess_dataset(load_dataset(str(STIFF)), skip_failed=True)
+    obs = Observations.from_preprocessed(pre).take(range(5))
+    obs.P = noise_variance(obs.t_star, obs.R_star)[0]
+    base, phases, observed, full, rep = _baseline_and_replicate(obs, 100)
+    om0 = lsq.ObsModel.of(rep)
+    truth = lsq.fit_map(base, rep, minima=phases.minima, om=om0, starts=[full.z], nu0=full.nu)
+    f = lsq.fit_map(base, rep, minima=phases.minima, om=om0, restarts=True)
+    assert f.cost <= truth.cost * 1.005, (f.cost, truth.cost)
+    sd = np.sqrt(np.diag(truth.cov))
+    assert np.all(np.abs(f.z - truth.z) < 0.1 * sd)
+    # the replicates' simplified Gauss-Newton fit from the truth lands there too
+    lin = lsq.Linearisation.at(base, obs, phases.minima, full.z, full.nu, observed["om"])
+    g = lsq.fit_linearised(base, rep, lin, minima=phases.minima, om=om0)
+    assert g.converged and g.cost <= truth.cost * 1.005
+    assert np.all(np.abs(g.z - truth.z) < 0.1 * sd)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_linearised_replicates_give_the_full_fits_statistics(seed):
+    obs, _ = camera_obs("none", seed, POLY, design="270kfps-2um-3")
+    base, phases, observed, full, rep = _baseline_and_replicate(obs, seed)
+    lin = lsq.Linearisation.at(base, obs, phases.minima, full.z, full.nu, observed["om"])
+    assert lin.usable()
+    a = check.statistics(base, rep, phases, starts=[full.z])
+    b = check.statistics(base, rep, phases, starts=[full.z], lin=lin)
+    assert b["misfit"] == pytest.approx(a["misfit"], rel=2e-3)
+    assert b["phase_misfit"] == pytest.approx(a["phase_misfit"], rel=5e-3)
+    assert b["drift"] == pytest.approx(a["drift"], rel=0.05, abs=0.05)
+    sd = np.sqrt(np.diag(a["fits"]["all"].cov))
+    for k in a["fits"]:
+        assert np.all(np.abs(b["fits"][k].z - a["fits"][k].z) < 0.1 * np.sqrt(np.diag(a["fits"][k].cov))), k
+    assert np.all(np.abs(b["fits"]["all"].z - a["fits"]["all"].z) < 0.1 * sd)
+    # the cost: one prediction per iteration instead of a Jacobian and three trials
+    assert all(f.converged for f in b["fits"].values())
