@@ -45,6 +45,12 @@ def test_restarts_find_the_nuisance_basin_of_the_truth():
     assert f.cost <= truth.cost * 1.005, (f.cost, truth.cost)
     sd = np.sqrt(np.diag(truth.cov))
     assert np.all(np.abs(f.z - truth.z) < 0.1 * sd)
+    # a held-out bubble's geometry (material held, no offset): from 0 with restarts as good as from
+    # the truth's geometry
+    held = lsq.fit_nuisances(base, rep, np.arange(5), full.z, minima=phases.minima, om=om0)
+    ref = lsq.fit_map(base, rep, minima=phases.minima, om=om0.without_random_effects(), starts=[full.z],
+                      nu0=np.where(np.arange(5) < 3, full.nu, 0.0), fix_material=True)
+    assert held.cost <= ref.cost * 1.005, (held.cost, ref.cost)
     # the replicates' simplified Gauss-Newton fit from the truth lands there too
     lin = lsq.Linearisation.at(base, obs, phases.minima, full.z, full.nu, observed["om"])
     g = lsq.fit_linearised(base, rep, lin, minima=phases.minima, om=om0)

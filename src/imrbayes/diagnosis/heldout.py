@@ -51,7 +51,7 @@ def loeo(cand, obs, phases, full_fit, om=None) -> dict:
     for e in range(obs.n_exp):
         rest = np.array([i for i in range(obs.n_exp) if i != e])
         f = fit_map(cand, obs, idx=rest, minima=phases.minima, om=om, starts=[full_fit.z], nu0=full_fit.nu)
-        g = fit_nuisances(cand, obs, [e], f.z, minima=phases.minima, om=om)
+        g = fit_nuisances(cand, obs, [e], f.z, minima=phases.minima, om=om, nu0=full_fit.nu)
         per.append(float(_rmse_rows(g.fitted[0, 1:], obs.R_star[e, 1:])))
     per = np.array(per)
     return {"scheme": "leave one experiment out (fit N_exp - 1 experiments, predict the left-out one)",

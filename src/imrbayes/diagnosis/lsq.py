@@ -252,9 +252,9 @@ def grid_starts(cand, obs, idx, K, minima, om, nu0, extra_starts=(), n_best: int
     return out
 
 
-def nuisance_restarts(cand, obs, idx, K, minima, om: ObsModel, z, nu, spread: float = 2.0, max_iter: int = 10):
+def nuisance_restarts(cand, obs, idx, K, minima, om: ObsModel, z, nu, levels=(-2.0, 2.0), max_iter: int = 10):
     """Per experiment of ``idx`` the best nuisances, material held at ``z``, over fits started from
-    ``nu`` (E, q), from 0 and from +-``spread`` prior sd along each free coordinate. The
+    ``nu`` (E, q), from 0 and from each of ``levels`` prior sd along each free coordinate. The
     experiments' nuisances are independent given the material, so every start of every experiment
     is one stacked nuisance-only fit (one batch of forward solves). Returns (nu (E, q), the
     experiments whose objective fell).
@@ -270,9 +270,9 @@ def nuisance_restarts(cand, obs, idx, K, minima, om: ObsModel, z, nu, spread: fl
     starts = [nu, np.zeros((E, q))]
     for j in range(q):
         if np.any(s_nu[:, j] > 0):
-            for sgn in (-1.0, 1.0):
+            for lv in levels:
                 st = np.zeros((E, q))
-                st[:, j] = sgn * spread * s_nu[:, j]
+                st[:, j] = lv * s_nu[:, j]
                 starts.append(st)
     S = len(starts)
     rows = np.tile(idx, S)
@@ -457,13 +457,27 @@ def fit_tempered(cand, obs, minima, om0: ObsModel, **kw) -> tuple:
     return fit_map(cand, obs, minima=minima, om=om, starts=[first.z], nu0=first.nu), om
 
 
-def fit_nuisances(cand, obs, idx, z, minima=None, om: ObsModel | None = None, K=None) -> MapFit:
+def fit_nuisances(cand, obs, idx, z, minima=None, om: ObsModel | None = None, K=None, nu0=None) -> MapFit:
     """The geometry and alignment of experiments ``idx`` with the material held at ``z`` and no
     material offset (a new bubble's geometry is measured, its material predicted: the held-out
-    schemes use this)."""
+    schemes use this). Started from ``nu0`` ((E_all, q), default 0), 0 and +-1, +-2 prior sd along
+    each coordinate, the best basin per experiment (:func:`nuisance_restarts`: the objective is
+    multimodal, and a left-out bubble aligned in the wrong basin would count against the model)."""
     om = (ObsModel.of(obs) if om is None else om).without_random_effects()
-    return fit_map(cand, obs, idx=idx, K=K, minima=minima, om=om, starts=[np.asarray(z, dtype=float)],
-                   fix_material=True)
+    idx = np.atleast_1d(np.asarray(idx, dtype=int))
+    K = obs.n_samples - 1 if K is None else int(K)
+    q = om.nu_sd.shape[1]
+    start = np.zeros((obs.n_exp, q))
+    if nu0 is not None:
+        n0 = np.asarray(nu0, dtype=float)
+        start[:, :min(q, n0.shape[1])] = n0[:, :q]
+    start[:, 3:] = 0.0
+    start = np.where(om.nu_sd > 0, start, 0.0)
+    z = np.asarray(z, dtype=float)
+    if np.any(om.nu_sd[idx] > 0):
+        best, _ = nuisance_restarts(cand, obs, idx, K, minima, om, z, start[idx], levels=(-2.0, -1.0, 1.0, 2.0))
+        start[idx] = best
+    return fit_map(cand, obs, idx=idx, K=K, minima=minima, om=om, starts=[z], nu0=start, fix_material=True)
 
 
 @dataclass
@@ -525,8 +539,9 @@ def fit_linearised(cand, obs, lin: Linearisation, K=None, minima=None, om: ObsMo
     Converged when the Gauss-Newton model predicts less than ``tol`` nats of the objective left to
     gain with a Jacobian taken at the point itself (taken when the fixed one's prediction falls
     below ``tol`` or its steps stall; it also gives the Laplace covariance, as fit_map's does).
-    Falls back to :func:`fit_map` from where it stands when a prediction fails or the iteration
-    does not converge in ``max_iter`` (so the result is never worse than the full procedure's)."""
+    A stall with that Jacobian (no step lowers the objective) is its noise floor and also ends the
+    iteration, as in fit_map. Falls back to :func:`fit_map` from where it stands when a prediction
+    fails or the iteration does not end in ``max_iter``."""
     E = obs.n_exp
     idx = np.arange(E)
     K = obs.n_samples - 1 if K is None else int(K)
@@ -598,6 +613,9 @@ def fit_linearised(cand, obs, lin: Linearisation, K=None, minima=None, om: ObsMo
                     break
             else:
                 if fresh:
+                    # no step along a Jacobian taken here lowers the objective: its numerical noise
+                    # floor (the thermal solver's tolerance leaves ~0.1 nats); fit_map stops there too
+                    conv = True
                     break
                 J = refresh(x)
                 if J is None:
