@@ -9,7 +9,7 @@ import pytest
 
 from imrbayes.data import load_dataset, preprocess_dataset
 from imrbayes.data.noise import noise_variance
-from imrbayes.diagnosis import check, lsq
+from imrbayes.diagnosis import check, linearised, lsq
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.diagnosis.synthetic import camera_obs
@@ -52,8 +52,8 @@ def test_restarts_find_the_nuisance_basin_of_the_truth():
                       nu0=np.where(np.arange(5) < 3, full.nu, 0.0), fix_material=True)
     assert held.cost <= ref.cost * 1.005, (held.cost, ref.cost)
     # the replicates' simplified Gauss-Newton fit from the truth lands there too
-    lin = lsq.Linearisation.at(base, obs, phases.minima, full.z, full.nu, observed["om"])
-    g = lsq.fit_linearised(base, rep, lin, minima=phases.minima, om=om0)
+    lin = linearised.Linearisation.at(base, obs, phases.minima, full.z, full.nu, observed["om"])
+    g = linearised.fit_linearised(base, rep, lin, minima=phases.minima, om=om0)
     assert g.converged and g.cost <= truth.cost * 1.005
     assert np.all(np.abs(g.z - truth.z) < 0.1 * sd)
 
@@ -62,7 +62,7 @@ def test_restarts_find_the_nuisance_basin_of_the_truth():
 def test_linearised_replicates_give_the_full_fits_statistics(seed):
     obs, _ = camera_obs("none", seed, POLY, design="270kfps-2um-3")
     base, phases, observed, full, rep = _baseline_and_replicate(obs, seed)
-    lin = lsq.Linearisation.at(base, obs, phases.minima, full.z, full.nu, observed["om"])
+    lin = linearised.Linearisation.at(base, obs, phases.minima, full.z, full.nu, observed["om"])
     assert lin.usable()
     a = check.statistics(base, rep, phases, starts=[full.z])
     b = check.statistics(base, rep, phases, starts=[full.z], lin=lin)

@@ -40,7 +40,8 @@ from __future__ import annotations
 import numpy as np
 
 from imrbayes.data.noise import noise_variance
-from imrbayes.diagnosis.lsq import Linearisation, ObsModel, fit_linearised, fit_map, fit_tempered, frame_values
+from imrbayes.diagnosis.linearised import Linearisation, fit_linearised
+from imrbayes.diagnosis.lsq import ObsModel, fit_map, fit_tempered, frame_values
 from imrbayes.ensemble import Observations
 
 __all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift", "combined_p_value", "adequate_already"]
