@@ -132,34 +132,26 @@ def fit_linearised(cand, obs, lin: Linearisation, K=None, minima=None, om: ObsMo
     if np.all(np.isfinite(r)):
         for it in range(1, max_iter + 1):
             step = -pinv @ r
-            # stop when the Gauss-Newton model predicts less than ``tol`` nats to gain -- first with
-            # the generating point's Jacobian, then confirmed with one taken here
-            if 0.5 * float(np.sum((J @ step) ** 2)) < tol:
-                if fresh:
-                    conv = True
-                    break
-                J = refresh(x)
-                if J is None:
-                    break
-                pinv, fresh = np.linalg.pinv(J), True
+            # done when the Gauss-Newton model predicts less than ``tol`` nats to gain, or no step
+            # lowers the objective (its numerical noise floor: the thermal solver's tolerance leaves
+            # ~0.1 nats; fit_map stops there too) -- each confirmed with a Jacobian taken here
+            accepted = False
+            if 0.5 * float(np.sum((J @ step) ** 2)) >= tol:
+                for frac in (1.0, 0.5, 0.25):
+                    rt, Rt = res(x + frac * step)
+                    ct = 0.5 * float(rt @ rt)
+                    if np.all(np.isfinite(rt)) and ct < cost:
+                        x, r, R, cost, fresh, accepted = x + frac * step, rt, Rt, ct, False, True
+                        break
+            if accepted:
                 continue
-            for frac in (1.0, 0.5, 0.25):
-                rt, Rt = res(x + frac * step)
-                ct = 0.5 * float(rt @ rt)
-                if np.all(np.isfinite(rt)) and ct < cost:
-                    break
-            else:
-                if fresh:
-                    # no step along a Jacobian taken here lowers the objective: its numerical noise
-                    # floor (the thermal solver's tolerance leaves ~0.1 nats); fit_map stops there too
-                    conv = True
-                    break
-                J = refresh(x)
-                if J is None:
-                    break
-                pinv, fresh = np.linalg.pinv(J), True
-                continue
-            x, r, R, cost, fresh = x + frac * step, rt, Rt, ct, False
+            if fresh:
+                conv = True
+                break
+            J = refresh(x)
+            if J is None:
+                break
+            pinv, fresh = np.linalg.pinv(J), True
     zz, u = x[:d], np.zeros((E, q))
     u[active] = x[d:]
     if not conv:
