@@ -106,15 +106,19 @@ def fit_linearised(cand, obs, lin: Linearisation, K=None, minima=None, om: ObsMo
         J[n_y + d:, d:] = np.eye(n_a)
         return J
 
-    def refresh(x):
-        zz, u = x[:d], np.zeros((E, q))
+    def unpack(x):
+        """(material z, nuisances u in prior sd (E, q)) of the iterate x."""
+        u = np.zeros((E, q))
         u[active] = x[d:]
+        return x[:d], u
+
+    def refresh(x):
+        zz, u = unpack(x)
         L = Linearisation.at(cand, obs, minima, zz, u * s_nu, om, K=K)
         return jacobian(L) if L.usable() else None
 
     def res(x):
-        zz, u = x[:d], np.zeros((E, q))
-        u[active] = x[d:]
+        zz, u = unpack(x)
         R = predict(cand, zz[None], obs, idx, minima, K, (u * s_nu)[None], om.frames)
         r = np.concatenate([((y - R[0, :, 1:]) * w[:, None]).ravel(), (zz - m0) / s0, u[active]])
         return r, R[0]
@@ -152,8 +156,7 @@ def fit_linearised(cand, obs, lin: Linearisation, K=None, minima=None, om: ObsMo
             if J is None:
                 break
             pinv, fresh = np.linalg.pinv(J), True
-    zz, u = x[:d], np.zeros((E, q))
-    u[active] = x[d:]
+    zz, u = unpack(x)
     if not conv:
         f = fit_map(cand, obs, K=K, minima=minima, om=om, starts=[zz], nu0=u * s_nu)
         f.n_iter += it
