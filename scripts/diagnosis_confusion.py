@@ -134,7 +134,9 @@ def run_one(job: dict) -> dict:
 
         opts = ForwardOptions.from_dict(job["forward"], source="--forward")
         obs, truth = camera_obs(job["class"], job["seed"], opts, design=job["design"])
-        kw = {"loeo": job["loeo"], "mienks_drift": job.get("mienks_drift", True)}
+        kw = {"loeo": job["loeo"]}
+        if job.get("mienks_drift") is not None:
+            kw["mienks_drift"] = job["mienks_drift"]
         if job.get("n_bootstrap"):
             kw["n_bootstrap"] = job["n_bootstrap"]
         settings = DiagnoseSettings.quick(**kw) if job["quick"] else DiagnoseSettings(**kw)
@@ -159,7 +161,7 @@ def jobs_for(a, classes, designs) -> list:
     all_classes = _classes()
     fwd = dict(kv.split("=", 1) for kv in a.forward)
     common = {"forward": fwd, "quick": a.quick, "loeo": a.loeo, "n_bootstrap": a.n_bootstrap,
-              "mienks_drift": getattr(a, "mienks_drift", True)}
+              "mienks_drift": getattr(a, "mienks_drift", None)}
     jobs = []
     for c in classes:
         for s in range(a.seed_offset, a.seed_offset + a.seeds):
@@ -348,8 +350,9 @@ def main(argv=None):
     ap.add_argument("--nulls", type=int, default=20, help="constant-NHKV null datasets cycling through DESIGNS")
     ap.add_argument("--design", default=next(iter(DESIGNS)), choices=list(DESIGNS), help="design of the class runs")
     ap.add_argument("--out", type=Path, default=Path("runs/diagnosis-confusion"))
-    ap.add_argument("--mienks-drift", action=argparse.BooleanOptionalAction, default=True,
-                    help="the MIEnKS drift statistic in the check (default on; off roughly halves the bootstrap)")
+    ap.add_argument("--mienks-drift", action=argparse.BooleanOptionalAction, default=None,
+                    help="the MIEnKS drift statistic in the check (default: DiagnoseSettings', off; on roughly "
+                         "doubles the bootstrap)")
     ap.add_argument("--quick", action="store_true", help="DiagnoseSettings.quick (no LOEO unless --loeo)")
     ap.add_argument("--loeo", action=argparse.BooleanOptionalAction, default=None,
                     help="leave-one-experiment-out (default: on, off with --quick)")

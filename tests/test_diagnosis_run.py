@@ -28,10 +28,10 @@ def test_failed_mienks_drift_is_reported(case, monkeypatch):
     """The MIEnKS drift statistic that cannot be computed (settings the record cannot hold; the
     smoother failing on the data) is left out of the check with a warning naming the error."""
     if case == "settings":
-        s, expect = DiagnoseSettings.quick(mienks_n_ens=2, **SMALL), "at least 3 members"
+        s, expect = DiagnoseSettings.quick(mienks_n_ens=2, mienks_drift=True, **SMALL), "at least 3 members"
     else:
         monkeypatch.setattr(check_mod, "mienks_drift", _lost_every_member)
-        s, expect = DiagnoseSettings.quick(**SMALL), "ensemble members survived"
+        s, expect = DiagnoseSettings.quick(mienks_drift=True, **SMALL), "ensemble members survived"
     r = diagnose(_obs(), OPTS, settings=s, seed=0).result
     assert "mienks_drift" not in r["constant_parameter_check"]["evidence"]["statistics"]
     hits = [w for w in r["warnings"] if "mienks_drift" in w]
@@ -59,3 +59,55 @@ def test_en4dvar_baseline_resumes_from_its_checkpoint(tmp_path, monkeypatch):
     assert en4dvar, [desc for desc, _ in ex.reports]
     assert all(rep.n_computed == 0 and rep.n_resumed == obs.n_exp for rep in en4dvar)
     assert r["baseline"]["method"] == "en4dvar" and set(r["baseline"]["estimate"]) >= {"G", "mu"}
+
+
+class _Spec:
+    def __init__(self, ok):
+        self.ok = ok
+
+    def consistent(self, medians):
+        return self.ok, "" if self.ok else "fitted alpha <= 0"
+
+
+class _Cand:
+    def __init__(self, ok):
+        self.spec = _Spec(ok)
+
+    def estimate(self, z, cov):
+        return {"G": {"median": 1.0}}
+
+
+class _Fit:
+    z, cov = None, None
+
+
+def test_loeo_runs_for_the_baseline_and_the_candidates_in_contention():
+    """Leave-one-experiment-out for the baseline and each consistent candidate whose forecast beats
+    the baseline's; not for an inconsistent one, one the forecast puts behind, or one whose forecast
+    failed -- unless every model is asked for, or the baseline's own forecast is undefined."""
+    held = {"nhkv": {"forecast": {"rmse": 0.05}}, "better": {"forecast": {"rmse": 0.04}},
+            "worse": {"forecast": {"rmse": 0.06}}, "inconsistent": {"forecast": {"rmse": 0.03}},
+            "failed": {"forecast": {"rmse": float("nan")}}}
+    cands = {"nhkv": _Cand(True), "better": _Cand(True), "worse": _Cand(True), "inconsistent": _Cand(False),
+             "failed": _Cand(True), "no-forecast-unit": _Cand(True)}
+    fits = {k: _Fit() for k in cands}
+    assert run_mod.loeo_keys(held, fits, cands, "nhkv") == ["nhkv", "better"]
+    assert run_mod.loeo_keys(held, fits, cands, "nhkv", loeo_all=True) == ["nhkv", "better", "worse",
+                                                                           "inconsistent", "failed"]
+    held["nhkv"]["forecast"]["rmse"] = float("nan")    # a record too short to forecast: LOEO for all
+    assert run_mod.loeo_keys(held, fits, cands, "nhkv") == ["nhkv", "better", "worse", "inconsistent", "failed"]
+
+
+def test_diagnose_reports_loeo_where_it_ran():
+    """A run with LOEO: the baseline has both schemes; every candidate has LOEO exactly when the
+    rule gives it, a note when not, and its score averages only the schemes it has."""
+    s = DiagnoseSettings.quick(**{**SMALL, "candidates": ("qkv", "zener"), "loeo": True})
+    r = diagnose(synthetic_obs("strain-stiffening", 3, OPTS, n_exp=3, noise_scale=0.5)[0], OPTS,
+                 settings=s, seed=0).result
+    base = r["baseline"]["heldout"]
+    assert set(base) == {"forecast", "loeo"} and len(base["loeo"]["per_experiment"]) == 3
+    for c in r["candidates"]:
+        in_contention = c["consistent"] and c["heldout"]["forecast"]["rmse"] < base["forecast"]["rmse"]
+        assert ("loeo" in c["heldout"]) == in_contention, c["key"]
+        assert set(c["relative_reduction"]) == set(c["heldout"])
+        assert bool(c["loeo_note"]) == (not in_contention)

@@ -36,21 +36,29 @@ class DiagnoseSettings:
     """n_bootstrap: synthetic replicates of the check (>= 19 for a 5 % test); candidates: keys of
     :data:`imrbayes.diagnosis.candidates.CANDIDATES` (default: those marked ``default``);
     baseline_method: ``en4dvar`` (also runs En4D-Var on the baseline and reports it) or ``map``;
-    loeo: run leave-one-experiment-out; n_draws: Laplace draws for the ELPD; alpha: level of the
+    loeo: run leave-one-experiment-out for the baseline and every candidate the forecast scheme leaves
+    in contention (consistent, positive forecast gain; ``loeo_all``: every candidate); n_draws: Laplace draws for the ELPD; alpha: level of the
     check; en4dvar_*: its settings."""
 
-    n_bootstrap: int = 39
+    # 19 replicates: the smallest B at which a 5 % rank test can reject (p = 1/20), and the B of the
+    # measured confusion matrix and false-alarm rate (docs/diagnosis.md); 39 only sharpens the p-value
+    # and doubles the check's cost, the largest share of a thermal diagnosis
+    n_bootstrap: int = 19
     bootstrap_first_batch: int = 10  # sequential check: the rest only if these leave the verdict open (0: all B)
     bootstrap_fits: str = "full"    # replicates' fits: "linearised" reuses one Jacobian (polytropic only: docs/diagnosis.md)
     candidates: tuple = DEFAULT_CANDIDATES
     baseline_method: str = "en4dvar"
     loeo: bool = True
+    loeo_all: bool = False
     n_draws: int = 100
     alpha: float = 0.05
     en4dvar_n_ens: int = 48
     en4dvar_n_runs: int = 3
     max_collapses: int = 3
-    mienks_drift: bool = True       # MIEnKS-MDA G(t), mu(t) slope statistic in the check
+    # MIEnKS-MDA G(t), mu(t) slope statistic in the check: off by default -- half of every thermal
+    # replicate's cost, and the measured power and false alarms were obtained without it; the same
+    # smoother still gives the signature that ranks the contenders (``signature``)
+    mienks_drift: bool = False
     mienks_n_ens: int = 16
     mienks_n_iter: int = 2
     signature: bool = True          # the MIEnKS G(t), mu(t) signature of the data and of every contender
@@ -121,16 +129,34 @@ def candidate_unit(unit, rng) -> dict:
 
 
 def heldout_unit(unit, rng) -> dict:
-    """Unit ``heldout=<key>``: the held-out fits of one model (forecast; leave-one-experiment-out)."""
+    """Unit ``heldout=<key>`` (the forecast) or ``loeo=<key>`` (leave-one-experiment-out): the
+    held-out fits of one model by the schemes in ``unit.data["schemes"]``."""
     from imrbayes.diagnosis.lsq import MapFit
 
     d = unit.data
     c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
     fit = MapFit(**d["fit"])
-    h = {"forecast": forecast(c, d["obs"], d["phases"], fit, d["om"])}
-    if d["loeo"]:
-        h["loeo"] = loeo(c, d["obs"], d["phases"], fit, d["om"])
-    return h
+    scheme = {"forecast": forecast, "loeo": loeo}
+    return {k: scheme[k](c, d["obs"], d["phases"], fit, d["om"]) for k in d["schemes"]}
+
+
+def loeo_keys(held: dict, fits: dict, cands: dict, base_key: str, loeo_all: bool = False) -> list:
+    """The models that get leave-one-experiment-out: the baseline and every candidate the forecast
+    leaves in contention -- physically consistent at its whole-record fit and with a forecast RMSE
+    below the baseline's (``loeo_all``: every model). A candidate the forecast puts behind the
+    baseline cannot become the cause on LOEO alone unless LOEO is that much better, and LOEO costs
+    N_exp fits per model, the largest share of the held-out step."""
+    out = [base_key]
+    rb = held[base_key]["forecast"]["rmse"]
+    for k in cands:
+        if k == base_key or k not in held:
+            continue
+        c, f = cands[k], fits[k]
+        ok, _ = c.spec.consistent({n: e["median"] for n, e in c.estimate(f.z, f.cov).items()})
+        rk = held[k]["forecast"]["rmse"]
+        if loeo_all or not np.isfinite(rb) or (ok and np.isfinite(rk) and rk < rb):
+            out.append(k)
+    return out
 
 
 def _signature(s, base, cands, fits, keys, obs, phases, om, seed, say, warnings) -> dict:
@@ -341,14 +367,27 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                                 n_eff=np.asarray(res_k["effective_samples"]))
             cands[key] = make_candidate(key, options, physics, prior)
         tick(1)
-    say("held-out predictions")
+    say("held-out predictions (forecast)")
     rep = ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
-                                          "loeo": s.loeo})
+                                          "schemes": ["forecast"]})
                   for key in cands], heldout_unit, seed, desc="diagnose held-out fits")
     failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
     if f"heldout={base_key}" not in rep.results:
         raise RuntimeError(f"the baseline's held-out fits failed ({rep.failures[f'heldout={base_key}'].error})")
     held = {key: rep.results[f"heldout={key}"] for key in cands if f"heldout={key}" in rep.results}
+    loeo_run = loeo_keys(held, fits, cands, base_key, s.loeo_all) if s.loeo else []
+    if loeo_run:
+        say(f"held-out predictions (leave one experiment out: {', '.join(loeo_run)})")
+        rep = ex.run([Unit(f"loeo={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
+                                           "schemes": ["loeo"]})
+                      for key in loeo_run], heldout_unit, seed, desc="diagnose leave-one-out fits")
+        failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
+        for key in loeo_run:
+            if f"loeo={key}" in rep.results:
+                held[key].update(rep.results[f"loeo={key}"])
+        if "loeo" not in held[base_key]:   # without the baseline's LOEO no candidate's can be compared
+            for key in held:
+                held[key].pop("loeo", None)
     for key in list(cands):
         if key not in held:
             cands.pop(key)
@@ -361,7 +400,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     candidates = []
     for key in kept:
         c, f = cands[key], fits[key]
-        rel = {k: 1.0 - held[key][k]["rmse"] / held[base_key][k]["rmse"] for k in schemes}
+        rel = {k: 1.0 - held[key][k]["rmse"] / held[base_key][k]["rmse"] for k in schemes if k in held[key]}
         score = float(np.mean(list(rel.values()))) if rel else float("nan")
         candidates.append({
             "model": c.spec.model, "key": key, "mechanism": c.mechanism, "kind": c.spec.kind,
@@ -371,6 +410,9 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
             "misfit_by_phase": _phase_misfit(obs, phases, f.fitted, om),
             "heldout_rmse": held[key][schemes[0]]["rmse"] if schemes else float("nan"),
             "heldout_scheme": schemes[0] if schemes else None,
+            "loeo_note": "" if "loeo" in held[key] or "loeo" not in schemes else
+                         "leave-one-experiment-out not run: the forecast leaves it out of contention "
+                         "(inconsistent, or no forecast gain over the baseline)",
             "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held[base_key][k]["per_experiment"],
                                                                           held[key][k]["per_experiment"])}
                         for k in held[key]},
@@ -444,7 +486,8 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                 "by_scheme": {k: {"scheme": held[base_key][k]["scheme"], "baseline": held[base_key][k]["rmse"],
                                   "extended": held[top["key"]][k]["rmse"],
                                   "relative_reduction": top["relative_reduction"][k],
-                                  "paired_vs_baseline": top["heldout"][k]["paired_vs_baseline"]} for k in schemes},
+                                  "paired_vs_baseline": top["heldout"][k]["paired_vs_baseline"]}
+                              for k in schemes if k in top["heldout"]},
                 "elpd_diff": top["elpd_diff"], "elpd_se": top["elpd_se"],
                 "elpd_scheme": ("PSIS-LOO (az.loo) of the Laplace posterior of the whole-record fit, leaving out one "
                                 + ("experiment (log-likelihood summed over time)"
