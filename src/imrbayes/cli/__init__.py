@@ -77,9 +77,9 @@ class _Group(click.Group):
         with formatter.section("Runtimes"):
             formatter.write_text("inspect, simulate, report, compare: seconds. fit: seconds (pimr) to minutes "
                                  "(imr, en4dvar, mienks); fit --mcmc: minutes per window with "
-                                 "--forward bubble=polytropic, hours with the thermal bubble. diagnose: ~30 min "
-                                 "for 5 experiments with the thermal bubble (~22 with --quick --no-loeo; a few "
-                                 "with --forward bubble=polytropic --quick). validate --suite quick: minutes.")
+                                 "--forward bubble=polytropic, hours with the thermal bubble. diagnose: ~18 min "
+                                 "for 5 experiments with the thermal bubble (a few with --forward "
+                                 "bubble=polytropic --quick). validate --suite quick: minutes.")
 
     def invoke(self, ctx):
         try:

@@ -63,9 +63,10 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     prediction, and the gain of the extended model (RMSE in R* = R/Rmax, ELPD in nats). SI units for
     all parameters.
 
-    Runtime (measured on 2 cores): 5 bubbles with the default thermal bubble ~29 min at default
-    settings (the bootstrap ~13 of them), ~22 min with --quick --no-loeo; 20 bubbles with --forward
-    bubble=polytropic and --quick ~25 min on one core; --experiments, --no-loeo and --workers cut it. Writes diagnosis.json,
+    Runtime (measured on 2 cores): 5 bubbles with the default thermal bubble ~18 min at default
+    settings; 20 bubbles with --forward bubble=polytropic and --quick ~25 min on one core;
+    --experiments and --no-loeo cut it (--workers helps only where cores are idle: the forward model
+    already spreads its batches over the cores). Writes diagnosis.json,
     report.html and figures."""
     t_start = time.perf_counter()
     from imrbayes.data import load_dataset, preprocess_dataset
