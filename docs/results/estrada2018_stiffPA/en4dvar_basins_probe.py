@@ -1,14 +1,16 @@
-"""Per experiment: En4D-Var's own posterior mean (material + Rmax, t0, Req) vs a single-bubble MAP
+"""Usage (repository root): python docs/results/estrada2018_stiffPA/en4dvar_basins_probe.py thermal N_ITER N_RUNS [N_ENS] [--no-map].
+
+Per experiment: En4D-Var's own posterior mean (material + Rmax, t0, Req) vs a single-bubble MAP
 with nuisance restarts, both scored by the nuisance-corrected RMSE to the record."""
 import sys, time, numpy as np
 from imrbayes.data import load_dataset, preprocess_dataset
-from imrbayes.ensemble import Observations, En4DVarSettings, fit_en4dvar, ParamSpace
+from imrbayes.ensemble import Observations, En4DVarSettings, fit_en4dvar
 from imrbayes.forward import ForwardOptions
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.diagnosis.models import make_candidate, BASELINE
 from imrbayes.diagnosis.lsq import fit_map, ObsModel, predict
 from imrbayes.data.noise import noise_variance
-ds = load_dataset("/work/shared/data/lic/estrada2018_stiffPA_270kfps")
+ds = load_dataset("../shared/data/lic/estrada2018_stiffPA_270kfps")  # from the repository root
 obs = Observations.from_preprocessed(preprocess_dataset(ds, skip_failed=True)).take([0, 1, 2, 3, 4])
 obs.P = noise_variance(obs.t_star, obs.R_star)[0]
 opts = ForwardOptions.from_dict({"bubble": sys.argv[1]})
