@@ -204,14 +204,24 @@ def _whitened(evaluate, W):
 
 def en4dvar_post_unit(unit: Unit, rng) -> dict:
     """After the fusion, one experiment: R* at the fused median and at its own posterior mean, and
-    at every posterior draw (for the pointwise log-likelihood)."""
+    at every posterior draw (for the pointwise log-likelihood) -- with the default likelihood at the
+    experiment's inferred Rmax, time of the maximum and Req (``nu``, their posterior mean) and
+    through its camera frames, as the fit saw the record; else at the preprocessing geometry."""
     d = unit.data
     runner = runner_for(d)
     before = (runner.n_member_runs, runner.n_failed)
     pts = d["points"]
     n = pts.shape[0]
-    out = runner.simulate(pts, np.full(n, d["rmax"]), np.full(n, d["req"]), d["t_eval"])
-    return {"R_star": out.R_star, **runner.counts_since(before)}
+    if d.get("nu") is None:
+        out = runner.simulate(pts, np.full(n, d["rmax"]), np.full(n, d["req"]), d["t_eval"])
+        R = out.R_star
+    else:
+        nu = np.tile(np.asarray(d["nu"], dtype=np.float64), (n, 1))
+        t = d["t_eval"]
+        R0, _ = predict(runner, pts, d["rmax"], d["req"], t[:1], nu)
+        R1, _ = predict(runner, pts, d["rmax"], d["req"], t[1:], nu, d.get("frames"))
+        R = np.hstack([R0, R1])
+    return {"R_star": R, **runner.counts_since(before)}
 
 
 def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: int = 0,
@@ -313,7 +323,10 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
         pts = [fused_si, space.to_si(post_mean[i])[None, :]] + ([space.to_si(Zd)] if want_ll else [])
         post_units.append(Unit(unit_id(post="fit", exp=n), {"spec": spec, "runner": token, "t_eval": t_eval,
                                                              "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
-                                                             "points": np.vstack(pts)}))
+                                                             "points": np.vstack(pts),
+                                                             "nu": R[i]["nu_mean"] if default else None,
+                                                             "frames": None if obs.frame_t is None or not default
+                                                             else frame_operator(obs.frame_t[n], t_eval[1:])}))
     prep = ex.run(post_units, en4dvar_post_unit, seed, desc="en4dvar fitted curves")
     fitted = np.full_like(obs.R_star, np.nan)
     own = np.full_like(obs.R_star, np.nan)
@@ -396,7 +409,9 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
                "failed_units": failed_units, "experiments_used": [obs.names[n] for n in ok],
                "gauss_newton": "normalised anomalies: H = I + (1/N_t) sum Y'^T P^-1 Y', grad = w - ...; identical "
                                "iterates to the paper's (N_En - 1) form with unnormalised anomalies",
-               "fitted_curve": "forward run at the fused posterior median exp(mean of log parameters)"}
+               "fitted_curve": "forward run at the fused posterior median exp(mean of log parameters)"
+                               + (", each experiment at its inferred Rmax, time of the maximum and Req (posterior "
+                                  "mean) and through its camera frames" if default else "")}
     estimate = gaussian_estimate(space, est_mean, est_cov)
     if hier is not None:
         h = hier.summaries(space)
