@@ -47,7 +47,7 @@ import numpy as np
 
 from imrbayes.ensemble.gaussian import draw, fuse, fuse_likelihoods, rtps
 from imrbayes.ensemble.gn import gauss_newton
-from imrbayes.ensemble.hierarchical import likelihood_terms, random_effects
+from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, random_effects
 from imrbayes.ensemble.likelihood import (check_choice, frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
                                           predict, record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
@@ -419,6 +419,15 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
         details.update({"between_experiments": h["between_experiments"], "predictive": h["predictive"],
                         "random_effects": hier.to_dict(), "pooled_mean_internal": fus.mean.tolist(),
                         "pooled_cov_internal": fus.cov.tolist()})
+        loo = leave_one_out(Lam, eta, space.prior_mean, space.prior_cov, names=space.names)
+        if loo is not None:
+            details["leave_one_bubble_out"] = loo
+            from scipy.stats import binomtest
+            for name, k in loo["n_inside"].items():
+                if binomtest(k, loo["n"]).proportion_ci(method="wilson").high < loo["level"]:
+                    warnings.append(f"{name}: leaving one bubble out, the others' {loo['level']:.0%} predictive "
+                                    f"holds its own estimate in only {k} of {loo['n']} (the scatter model is too "
+                                    "narrow for these bubbles; details['leave_one_bubble_out'])")
     whiten = offsets = None
     if default:
         whiten = np.full((n_exp, K, K), np.nan)

@@ -26,7 +26,7 @@ import numpy as np
 
 from imrbayes.ensemble.gaussian import likelihood_terms, marginal_summary, sym
 
-__all__ = ["RandomEffects", "random_effects", "likelihood_terms"]
+__all__ = ["RandomEffects", "random_effects", "likelihood_terms", "leave_one_out"]
 
 _CHI2_95 = 3.841458820694124
 _TAU_MAX = 3.0          # a between-bubble sd of e^3 (20x) on a log axis: beyond any gel
@@ -122,12 +122,13 @@ def _crossing(f, a: float, b: float) -> float:
     return float(optimize.brentq(f, pts[j], pts[j + 1], xtol=1e-4))
 
 
-def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None) -> RandomEffects:
+def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None, intervals: bool = True) -> RandomEffects:
     """Gel-level mean, between-bubble sd and predictive from per-experiment likelihoods (module doc).
 
     Lam (N, d, d), eta (N, d): each experiment's likelihood precision and information (internal
     coordinates); m (N, d) its centre (default Lam^-1 eta); prior_mean (d,), prior_cov (d, d);
-    names: parameter names for the notes.
+    names: parameter names for the notes; ``intervals=False`` skips tau's profile intervals (NaN),
+    most of the cost.
     """
     from scipy import optimize
 
@@ -170,9 +171,9 @@ def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None) -> Rando
         x0 = np.log(np.maximum(tau[others], 1e-3))
         return -optimize.minimize(f, x0, method="L-BFGS-B", bounds=[(lo, hi)] * len(others)).fun
 
-    ci = np.empty((d, 2))
+    ci = np.full((d, 2), np.nan)
     notes = []
-    for i in range(d):
+    for i in range(d if intervals else 0):
         # the interval's ends: where the profile drops 3.84/2 below its maximum, each side of tau_hat
         def excess(t, i=i):
             return 2.0 * (ll_hat - profile(i, t)) - _CHI2_95
@@ -188,3 +189,39 @@ def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None) -> Rando
         ci[i] = [lo_end, hi_end]
     pred = sym(cov + np.diag(tau ** 2))
     return RandomEffects(mu, cov, tau, ci, pred, mu0, cov0, float(ll_hat - ll0), N, notes)
+
+
+def leave_one_out(Lam, eta, prior_mean, prior_cov, names=None, prob: float = 0.95) -> dict | None:
+    """Leave-one-bubble-out check of the predictive for a new bubble: for every experiment n, the
+    random-effects fit of the others, and whether n's own estimate -- the mean of the prior times
+    its likelihood, what that bubble alone would report -- lies in the others' central ``prob``
+    predictive interval (per parameter, on the internal axes: log for positive parameters). If the
+    model of the scatter is right, about ``prob`` of the bubbles do (less the spread of each
+    bubble's own estimate, which the predictive does not include: a slightly conservative check).
+
+    Lam (N, d, d), eta (N, d) as in :func:`random_effects`; needs N >= 3 (the others must estimate
+    a scatter). Returns {"n", "n_inside" (per parameter), "inside" (N lists), "z" (N lists: own
+    estimate minus the others' predictive mean, in predictive sd), "level", "note"} or None."""
+    from scipy import stats
+
+    Lam = np.asarray(Lam, dtype=np.float64)
+    eta = np.asarray(eta, dtype=np.float64)
+    N, d = eta.shape
+    if N < 3:
+        return None
+    m0 = np.asarray(prior_mean, dtype=np.float64)
+    C0i = np.linalg.inv(sym(prior_cov))
+    z = np.empty((N, d))
+    for n in range(N):
+        keep = [j for j in range(N) if j != n]
+        re = random_effects(Lam[keep], eta[keep], m0, prior_cov, intervals=False)
+        own_cov = np.linalg.inv(sym(C0i + Lam[n]))
+        own = own_cov @ (C0i @ m0 + eta[n])
+        z[n] = (own - re.mean) / np.sqrt(np.maximum(np.diag(re.predictive_cov), 1e-300))
+    q = float(stats.norm.ppf(0.5 + prob / 2.0))
+    inside = np.abs(z) <= q
+    labels = list(names) if names is not None else [f"p{i}" for i in range(d)]
+    return {"n": int(N), "level": prob, "n_inside": dict(zip(labels, inside.sum(axis=0).astype(int).tolist())),
+            "inside": inside.tolist(), "z": z.tolist(), "parameters": labels,
+            "note": f"each experiment's own estimate (prior x its likelihood) against the central {prob:.0%} "
+                    "predictive interval of the random-effects fit of the others (internal axes)"}
