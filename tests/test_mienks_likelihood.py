@@ -159,3 +159,14 @@ def test_default_on_synthetic_records_with_known_truth():
         # the experiment's own estimate (prior x its window likelihoods over the record): G within 3 sd
         assert abs(p["estimate"]["G"]["mean"] - TRUTH["G"]) < 3 * p["estimate"]["G"]["sd"], p["estimate"]["G"]
         assert p["estimate"]["mu"]["mean"] == pytest.approx(TRUTH["mu"], rel=0.05)
+    # leave one bubble out: three records of one gel, each inside the others' predictive
+    loo = res.details["leave_one_bubble_out"]
+    assert loo["n"] == 3 and loo["parameters"] == ["G", "mu"]
+    assert np.asarray(loo["z"]).shape == (3, 2)
+    # z is the own estimate against the others' predictive: its sign follows the own estimates
+    # (the truth has no scatter, so with 3 records a bubble can sit a few sd out: no count asserted)
+    own = np.log([[p["estimate"][k]["mean"] for k in ("G", "mu")] for p in summ["per_experiment"]])
+    for n in range(3):
+        others = np.delete(own, n, axis=0).mean(axis=0)
+        big = np.abs(own[n] - others) > 0.01
+        assert np.all(np.sign(np.asarray(loo["z"][n])[big]) == np.sign(own[n] - others)[big]), (n, loo["z"])

@@ -196,8 +196,10 @@ def leave_one_out(Lam, eta, prior_mean, prior_cov, names=None, prob: float = 0.9
     random-effects fit of the others, and whether n's own estimate -- the mean of the prior times
     its likelihood, what that bubble alone would report -- lies in the others' central ``prob``
     predictive interval (per parameter, on the internal axes: log for positive parameters). If the
-    model of the scatter is right, about ``prob`` of the bubbles do (less the spread of each
-    bubble's own estimate, which the predictive does not include: a slightly conservative check).
+    model of the scatter is right, about ``prob`` of the bubbles do when the scatter is large
+    against each bubble's own uncertainty; the predictive does not include that uncertainty, so
+    with little scatter (or few bubbles) the check flags more than 1 - ``prob`` (as #19 defines it:
+    the own estimate, not its interval, against the others' predictive).
 
     Lam (N, d, d), eta (N, d) as in :func:`random_effects`; needs N >= 3 (the others must estimate
     a scatter). Returns {"n", "n_inside" (per parameter), "inside" (N lists), "z" (N lists: own

@@ -101,7 +101,7 @@ import numpy as np
 from imrbayes.ensemble.gaussian import (Fusion, draw, fuse, fuse_likelihoods, marginal_summary, precision_weighted,
                                         rtps_factors)
 from imrbayes.ensemble.gn import gauss_newton
-from imrbayes.ensemble.hierarchical import likelihood_terms, random_effects
+from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, random_effects
 from imrbayes.ensemble.likelihood import check_choice, effective_samples, record_noise_sd, simulate_shifted
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
@@ -685,6 +685,10 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                                                           "record (constant parameters) with the parameter prior; "
                                                           "top-level between_experiments is this; predictive is the "
                                                           "aggregate estimate widened by its between-bubble sd"}})
+        loo = leave_one_out(Lam_r, eta_r, space.prior_mean, space.prior_cov, names=space.names)
+        if loo is not None:
+            loo["note"] += "; each experiment's window likelihoods summed over the record"
+            details["leave_one_bubble_out"] = loo
         Pi0 = np.linalg.inv(space.prior_cov)
         for g in range(G):
             entry = {"name": obs.names[g]}
