@@ -65,7 +65,7 @@ def simulate(folder: Path, seed: int, family: str, bubble: str) -> dict:
     return json.loads((folder / "truth.json").read_text())
 
 
-def one_seed(seed: int, family: str, bubble: str, likelihoods) -> dict:
+def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None) -> dict:
     fm = ForwardModel("nhkv", options={"bubble": bubble})
     row = {"seed": seed}
     with tempfile.TemporaryDirectory() as tmp:
@@ -77,7 +77,8 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods) -> dict:
     bubbles = {n: np.array([e["parameters"][n] for e in truth["experiments"]]) for n in TRUTH}
     for lk in likelihoods:
         t0 = time.perf_counter()
-        res = fit_en4dvar(fm, obs, space, En4DVarSettings(likelihood=lk, n_draws=1, loglik=False), seed=seed)
+        res = fit_en4dvar(fm, obs, space, En4DVarSettings(**{"likelihood": lk, "n_draws": 1, "loglik": False,
+                                                             **(settings or {})}), seed=seed)
         r = {"runtime_s": time.perf_counter() - t0}
         for n, true in TRUTH.items():
             e = res.estimate[n]
@@ -121,6 +122,18 @@ def summarise(rows, likelihoods) -> dict:
     return out
 
 
+def _setting(kv: str):
+    key, sep, val = kv.partition("=")
+    if not sep or not key:
+        raise SystemExit(f"--set {kv!r}: expected KEY=VALUE")
+    for cast in (int, float):
+        try:
+            return key, cast(val)
+        except ValueError:
+            pass
+    return key, val
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
@@ -129,18 +142,21 @@ def main(argv=None):
     ap.add_argument("--bubble", choices=["polytropic", "thermal"], default="polytropic")
     ap.add_argument("--likelihoods", default="default,paper")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="an En4DVarSettings field (integer, float or text), e.g. screen=0; repeatable")
     a = ap.parse_args(argv)
     lks = [x for x in a.likelihoods.split(",") if x]
+    settings = dict(_setting(kv) for kv in a.set)
     rows, failures = [], []
     prev = json.loads(a.json.read_text()) if a.json and a.json.exists() else {}
     done = {r["seed"]: r for r in prev.get("rows", []) if prev.get("family") == a.family and prev.get("bubble") == a.bubble
-            and all(lk in r for lk in lks)}
+            and prev.get("settings", {}) == settings and all(lk in r for lk in lks)}
     for seed in range(a.first_seed, a.first_seed + a.seeds):
         if seed in done:                 # an interrupted run loses nothing it finished
             rows.append(done[seed])
             continue
         try:
-            rows.append(one_seed(seed, a.family, a.bubble, lks))
+            rows.append(one_seed(seed, a.family, a.bubble, lks, settings))
         except Exception as exc:        # a failed seed is reported, never silently dropped
             failures.append({"seed": seed, "error": f"{type(exc).__name__}: {exc}"[:300]})
             print(f"seed {seed}: FAILED ({failures[-1]['error']})", flush=True)
@@ -153,7 +169,7 @@ def main(argv=None):
         if a.json:
             a.json.parent.mkdir(parents=True, exist_ok=True)
             a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "truth": TRUTH, "rows": rows,
-                                          "failures": failures, "summary": summarise(rows, lks)}, indent=1))
+                                          "settings": settings, "failures": failures, "summary": summarise(rows, lks)}, indent=1))
     summ = summarise(rows, lks)
     print(f"\n{a.family} family, {len(rows)} seeds ({len(failures)} failed), bubble {a.bubble}")
     print(f"{'likelihood':<10} {'param':<5} {'coverage':>9} {'Wilson 95%':>15} {'bias':>8} {'scatter':>8} "
@@ -167,7 +183,7 @@ def main(argv=None):
                   f"{s.get('between_coverage', float('nan')):>12.2f} {s.get('predictive_fraction', float('nan')):>10.2f}")
     if a.json:
         a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "truth": TRUTH, "rows": rows,
-                                      "failures": failures, "summary": summ}, indent=1))
+                                      "settings": settings, "failures": failures, "summary": summ}, indent=1))
 
 
 if __name__ == "__main__":

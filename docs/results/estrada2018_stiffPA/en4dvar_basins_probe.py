@@ -1,4 +1,5 @@
-"""Usage (repository root): python docs/results/estrada2018_stiffPA/en4dvar_basins_probe.py thermal N_ITER N_RUNS [N_ENS] [--no-map].
+"""Usage (repository root): python docs/results/estrada2018_stiffPA/en4dvar_basins_probe.py thermal N_ITER N_RUNS [N_ENS] [--no-map]
+[--screen=S (default 0: start at the prior mean)] [--seed=K].
 
 Per experiment: En4D-Var's own posterior mean (material + Rmax, t0, Req) vs a single-bubble MAP
 with nuisance restarts, both scored by the nuisance-corrected RMSE to the record."""
@@ -17,7 +18,7 @@ opts = ForwardOptions.from_dict({"bubble": sys.argv[1]})
 phases = phases_of(obs, 3)
 base = make_candidate(BASELINE.key, opts)
 t = time.time()
-en = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(n_ens=int(sys.argv[4]) if len(sys.argv)>4 else 48, n_iter=int(sys.argv[2]), n_runs=int(sys.argv[3]), loglik=False, n_draws=1), seed=0)
+en = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(n_ens=int(sys.argv[4]) if len(sys.argv)>4 else 48, n_iter=int(sys.argv[2]), n_runs=int(sys.argv[3]), loglik=False, n_draws=1, screen=int(next((a.split("=")[1] for a in sys.argv if a.startswith("--screen=")), 0))), seed=int(next((a.split("=")[1] for a in sys.argv if a.startswith("--seed=")), 0)))
 print("en4dvar", round(time.time() - t, 1), "s", {k: round(v["median"], 4) for k, v in en.estimate.items()}, flush=True)
 om = ObsModel.of(obs, random_effects=None)
 K = obs.n_samples - 1

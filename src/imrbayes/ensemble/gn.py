@@ -104,7 +104,7 @@ def _sqrt_inv(H):
 
 def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw: int = 5,
                  min_valid: int | None = None, project: bool = True, transform: bool = True,
-                 backtrack: bool = True) -> GNResult:
+                 backtrack: bool = True, max_iter: int | None = None, rtol: float = 0.01) -> GNResult:
     """Run the ensemble Gauss–Newton analysis for G groups at once.
 
     Parameters
@@ -125,6 +125,11 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
     backtrack : when an iterate's cost exceeds the best so far, the next evaluation is halfway
         back towards the best iterate (no extra forward runs); the posterior is always the
         Gauss–Newton update from the best evaluated iterate.
+    max_iter : iterate past ``n_iter`` (up to ``max_iter`` evaluations) for every group whose last
+        accepted iterate still lowered the cost by more than ``rtol`` (relative): on stiff
+        records (tiny noise, large misfit) five iterations stop far from the optimum, and where
+        they stop depends on the draws. Default: exactly ``n_iter``. Converged groups drop out of
+        the batch; ``cost`` then has ``max_iter`` columns, NaN after a group's last evaluation.
     """
     E0 = np.array(E0, dtype=np.float64)
     G, N, d = E0.shape
@@ -166,8 +171,9 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
     xbar = E0.mean(axis=1)                                  # (G, d)
     A = (E0 - xbar[:, None, :]) / sq                        # (G, N, d)
     w = np.zeros((G, N))
-    cost = np.full((G, n_iter), np.nan)
-    nfail = np.zeros((G, n_iter), dtype=int)
+    n_max = n_iter if max_iter is None else max(n_iter, int(max_iter))
+    cost = np.full((G, n_max), np.nan)
+    nfail = np.zeros((G, n_max), dtype=int)
     stopped = np.zeros(G, dtype=bool)
     active = np.ones(G, dtype=bool)
     H = np.broadcast_to(np.eye(N), (G, N, N)).copy()
@@ -177,7 +183,7 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
     w_upd = np.zeros((G, N))
     n_back = np.zeros(G, dtype=int)
     ybar_last = np.full((G, m), np.nan)
-    for it in range(n_iter):
+    for it in range(n_max):
         if it > 0:
             act = np.flatnonzero(active)
             if act.size == 0:
@@ -212,9 +218,14 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
                 # the step increased the cost: go back halfway towards the best iterate
                 w[g] = w_best[g] + 0.5 * (w[g] - w_best[g])
                 n_back[g] += 1
+                if it >= n_iter - 1:            # past n_iter a step that fails ends the group's iterations
+                    active[g] = False
                 continue
+            prev = best[g]
             best[g] = c
             w_best[g] = w[g]
+            # past n_iter, a group stops once its accepted cost no longer falls by rtol
+            done = it >= n_iter - 1 and (it == n_max - 1 or not (prev - c) > rtol * abs(c))
             grad = w[g] - Yp @ (Wt[g] * d_in)
             Hg = np.eye(N) + (Yp * Wt[g]) @ Yp.T
             H[g] = Hg
@@ -223,6 +234,8 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
             if transform:
                 T[g] = _sqrt_inv(Hg)[1]
             ybar_last[g] = ybar
+            if done:
+                active[g] = False
     w = w_upd
     Hi, Hs = _sqrt_inv(H)
     mean = xbar + np.einsum("gnd,gn->gd", A, w)
