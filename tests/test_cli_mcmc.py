@@ -202,7 +202,7 @@ def test_sigkill_mid_window_then_resume_gives_the_uninterrupted_chains(syn, tmp_
         with h5py.File(h5, "r") as f:
             its = [int(f[f"window_00/chain_{c}"].attrs["iteration"]) for c in range(2) if f"window_00/chain_{c}" in f]
         assert its and max(its) < 1200
-    except OSError:
+    except (OSError, KeyError):         # h5py raises either for a file cut mid-write
         pass
     done = subprocess.run(_mcmc_cmd(syn, out, "--resume"), capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
