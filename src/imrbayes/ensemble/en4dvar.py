@@ -59,7 +59,7 @@ estimate is the log-normal marginal of the fused Gaussian.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 
@@ -109,7 +109,6 @@ class En4DVarSettings:
     def resolved(self) -> "En4DVarSettings":
         """The settings with the likelihood's own choices filled in (``paper``: averaged cost and the
         prior-corrected fusion unless set)."""
-        from dataclasses import replace
         if self.likelihood == "paper":
             return replace(self, fusion=self.fusion or "prior", obs_weight=self.obs_weight or "mean")
         return self
@@ -253,7 +252,6 @@ def posterior_cost(evaluate, y, Z, mean, cov):
 
 def take_group(res, g: int):
     """Group g of a :class:`~imrbayes.ensemble.gn.GNResult`, as a one-group result."""
-    from dataclasses import fields, replace
     return replace(res, **{f.name: getattr(res, f.name)[g:g + 1] for f in fields(res)
                            if getattr(res, f.name) is not None})
 

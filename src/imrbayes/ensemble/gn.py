@@ -225,7 +225,7 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
             best[g] = c
             w_best[g] = w[g]
             # past n_iter, a group stops once its accepted cost no longer falls by rtol
-            done = it >= n_iter - 1 and (it == n_max - 1 or not (prev - c) > rtol * abs(c))
+            done = it >= n_iter - 1 and not (prev - c) > rtol * abs(c)
             grad = w[g] - Yp @ (Wt[g] * d_in)
             Hg = np.eye(N) + (Yp * Wt[g]) @ Yp.T
             H[g] = Hg
