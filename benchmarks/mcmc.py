@@ -5,6 +5,8 @@
 its wall time, the CPU time of the process tree and the load average during it (the 2-core machine
 is shared), and per window: steps, evaluations, stop reason, R-hat, bulk/tail ESS, ESS per second,
 quadrature cost. This replaces the 18-window projection of earlier versions with the measurement.
+``--collect RUN_DIR`` gives the same per-window rows for a run that was interrupted (from its
+checkpointed units, with each unit's wall time).
 
 **Sweep** (``--sweep MOVES@WALKERS ... --sweep-windows 0 6 12 --fit-cache fit.pkl``): each move
 mixture x walker count sampled to convergence on the targets ``fit --mcmc`` builds from a MIEnKS-MDA
@@ -240,27 +242,59 @@ def whole_run(data, out, method: str = "mienks", extra=(), load_every: float = 3
         row["total_runtime_s"] = s.get("total_runtime_s")
     if comp.is_file():
         c = json.loads(comp.read_text())
-        wins = []
-        for e in c["windows"]:
-            m = e["mcmc"]
-            smp = m.get("sampler", {})
-            ess = min(min(m["ess_bulk"].values()), min(m["ess_tail"].values()))
-            q = e.get("quadrature") or {}
-            wins.append({"window": e["index"], "t_star": e["t_star"], "agree": e["agree"],
-                         "converged": m["converged"], "stop_reason": smp.get("stop_reason"),
-                         "n_steps": smp.get("n_steps"), "n_evals": e.get("n_evals"), "runtime_s": e.get("runtime_s"),
-                         "tau_max": smp.get("tau_max"), "n_over_tau": smp.get("n_steps_over_tau"),
-                         "rhat_max": max(m["rhat"].values()), "ess_bulk_min": min(m["ess_bulk"].values()),
-                         "ess_tail_min": min(m["ess_tail"].values()),
-                         "ess_per_s": ess / e["runtime_s"] if e.get("runtime_s") else None,
-                         "quadrature_evals": q.get("n_evals"), "quadrature_s": q.get("runtime_s"),
-                         "quadrature_within_mc_error": (q.get("vs_mcmc") or {}).get("within_mc_error")})
-        row["windows"] = wins
+        row["windows"] = [_window_row(e) for e in c["windows"]]
         row["overall"] = {k: c["overall"].get(k) for k in ("n_windows", "n_agree", "n_disagree", "n_undecided",
                                                            "all_converged")}
-        row["mcmc_evals"] = int(sum(w["n_evals"] or 0 for w in wins))
-        row["quadrature_evals"] = int(sum(w["quadrature_evals"] or 0 for w in wins))
+    else:       # an interrupted run: the windows it finished, from their checkpointed units
+        row.update(collect_units(out))
+    if row.get("windows"):
+        row["mcmc_evals"] = int(sum(w["n_evals"] or 0 for w in row["windows"]))
+        row["quadrature_evals"] = int(sum(w["quadrature_evals"] or 0 for w in row["windows"]))
     return row
+
+
+def _window_row(e: dict) -> dict:
+    """One window of compare.json (or of its checkpointed unit) as a benchmark row."""
+    m = e["mcmc"]
+    smp = m.get("sampler", {})
+    ess = min(min(m["ess_bulk"].values()), min(m["ess_tail"].values()))
+    q = e.get("quadrature") or {}
+    return {"window": e["index"], "t_star": e["t_star"], "agree": e["agree"],
+            "converged": m["converged"], "stop_reason": smp.get("stop_reason"),
+            "n_steps": smp.get("n_steps"), "n_evals": e.get("n_evals"), "runtime_s": e.get("runtime_s"),
+            "tau_max": smp.get("tau_max"), "n_over_tau": smp.get("n_steps_over_tau"),
+            "rhat_max": max(m["rhat"].values()), "ess_bulk_min": min(m["ess_bulk"].values()),
+            "ess_tail_min": min(m["ess_tail"].values()),
+            "ess_per_s": ess / e["runtime_s"] if e.get("runtime_s") else None,
+            "kl_sym": e.get("kl_sym"), "w2": e.get("w2"), "kl_sample": e.get("kl_sample"),
+            "ensemble_mean": (e.get("ensemble") or {}).get("mean"), "ensemble_sd": (e.get("ensemble") or {}).get("sd"),
+            "mcmc_mean": m.get("mean"), "mcmc_sd": m.get("sd"), "quadrature_mean": q.get("mean"),
+            "quadrature_sd": q.get("sd"),
+            "quadrature_evals": q.get("n_evals"), "quadrature_s": q.get("runtime_s"),
+            "quadrature_within_mc_error": (q.get("vs_mcmc") or {}).get("within_mc_error")}
+
+
+def collect_units(out) -> dict:
+    """What an interrupted ``fit --mcmc`` run finished: the fit's runtime (summary.json) and, per
+    finished window, its row from the checkpointed unit ``mcmc=NNN`` (with the unit's own wall
+    time, ``unit_s``). ``python benchmarks/mcmc.py --collect RUN_DIR``."""
+    from imrbayes.execution.store import decode_value
+
+    out = Path(out)
+    res = {"interrupted": not (out / "compare.json").is_file()}
+    if (out / "summary.json").is_file():
+        res["fit_runtime_s"] = json.loads((out / "summary.json").read_text()).get("runtime_s")
+    wins = []
+    for f in sorted((out / "units").glob("mcmc=*.npz")):
+        with np.load(f, allow_pickle=False) as npz:
+            doc = json.loads(str(npz["__json__"][()]))
+            value = decode_value(doc["value"], npz)
+        w = _window_row(value["entry"])
+        w["unit_s"] = doc["meta"]["seconds"]
+        wins.append(w)
+    res["windows"] = wins
+    res["mcmc_unit_s_total"] = float(sum(w["unit_s"] for w in wins))
+    return res
 
 
 def main():
@@ -287,6 +321,8 @@ def main():
                     help="time 'imrbayes fit DATA --method METHOD --mcmc --out OUT' (the headline row)")
     ap.add_argument("--method", default="mienks")
     ap.add_argument("--fit-args", nargs="*", default=[], help="extra arguments for --whole-run's fit")
+    ap.add_argument("--collect", default=None, metavar="RUN_DIR",
+                    help="the windows an interrupted (or finished) fit --mcmc run finished, from its units")
     ap.add_argument("--cpu-costs", default=None, metavar="RUN_DIR",
                     help="CPU time per evaluation in every window of a finished fit --mcmc run (NUMBA_NUM_THREADS=1)")
     args = ap.parse_args()
@@ -296,6 +332,21 @@ def main():
         if args.json:
             with open(args.json, "w") as fh:
                 json.dump(jsonable({"meta": {"cpu": machine_info()}, "cpu_costs": rows}), fh, indent=1)
+        return
+    if args.collect is not None:
+        row = {"run": args.collect, **collect_units(args.collect), "cpu": machine_info()}
+        print(f"fit {row.get('fit_runtime_s') or float('nan'):.0f} s; {len(row['windows'])} windows finished, "
+              f"{row['mcmc_unit_s_total']:.0f} s of MCMC")
+        print(f"{'window':>6} {'t*':>13} {'s':>6} {'evals':>6} {'steps':>5} {'tau':>5} {'R-hat':>6} {'ESS':>5} "
+              f"{'agree':>6} {'KL':>6} {'W2':>5}")
+        for w in row["windows"]:
+            print(f"{w['window']:>6} {w['t_star'][0]:>6.3f}-{w['t_star'][1]:<6.3f} {w['unit_s']:>6.0f} {w['n_evals']:>6} "
+                  f"{w['n_steps']:>5} {w['tau_max']:>5.1f} {w['rhat_max']:>6.3f} "
+                  f"{min(w['ess_bulk_min'], w['ess_tail_min']):>5.0f} {str(w['agree']):>6} {w['kl_sym']:>6.2f} "
+                  f"{w['w2']:>5.2f}")
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(jsonable({"meta": {"cpu": machine_info()}, "collected_run": row}), fh, indent=1)
         return
     if args.whole_run is not None:
         row = whole_run(args.whole_run[0], args.whole_run[1], args.method, args.fit_args)

@@ -8,7 +8,8 @@ default ones, so the fitted model is not the generating one bit for bit. Preproc
 default (local fit of the maximum, estimated noise, Req from the tail); nothing of the truth is
 passed to the fit.
 
-For each seed and each likelihood (``default``, ``paper``) En4D-Var is fitted and we record
+For each seed and each likelihood (``default``, ``paper``) En4D-Var (``--method mienks``: MIEnKS-MDA,
+its aggregate estimate, and also each window's) is fitted and we record
 whether the 95 % interval of the gel-level estimate holds the truth (G, mu), the relative error,
 and, for the ``scatter`` family (``--scatter G=SD --scatter mu=SD``), whether the between-bubble
 sd's 95 % interval holds the true relative sd and the fraction of the bubbles' true parameters
@@ -19,6 +20,7 @@ cost). Usage:
 
     python validation/camera_calibration.py --seeds 20 --family camera --json validation/results/camera.json
     python validation/camera_calibration.py --seeds 20 --family scatter --json validation/results/camera_scatter.json
+    python validation/camera_calibration.py --seeds 20 --method mienks --likelihoods default --json validation/results/camera_mienks.json
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from imrbayes.data import load_dataset, preprocess_dataset
-from imrbayes.ensemble import En4DVarSettings, Observations, ParamSpace, fit_en4dvar
+from imrbayes.ensemble import En4DVarSettings, MIEnKSSettings, Observations, ParamSpace, fit_en4dvar, fit_mienks
 from imrbayes.forward import ForwardModel
 
 TRUTH = {"G": 5200.0, "mu": 0.065}
@@ -65,7 +67,7 @@ def simulate(folder: Path, seed: int, family: str, bubble: str) -> dict:
     return json.loads((folder / "truth.json").read_text())
 
 
-def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None) -> dict:
+def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, method: str = "en4dvar") -> dict:
     fm = ForwardModel("nhkv", options={"bubble": bubble})
     row = {"seed": seed}
     with tempfile.TemporaryDirectory() as tmp:
@@ -77,9 +79,16 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None) ->
     bubbles = {n: np.array([e["parameters"][n] for e in truth["experiments"]]) for n in TRUTH}
     for lk in likelihoods:
         t0 = time.perf_counter()
-        res = fit_en4dvar(fm, obs, space, En4DVarSettings(**{"likelihood": lk, "n_draws": 1, "loglik": False,
-                                                             **(settings or {})}), seed=seed)
+        if method == "mienks":
+            res = fit_mienks(fm, obs, space, MIEnKSSettings(**{"likelihood": lk, "n_draws": 1, **(settings or {})}),
+                             seed=seed)
+        else:
+            res = fit_en4dvar(fm, obs, space, En4DVarSettings(**{"likelihood": lk, "n_draws": 1, "loglik": False,
+                                                                 **(settings or {})}), seed=seed)
         r = {"runtime_s": time.perf_counter() - t0}
+        if res.windows and len(res.windows) > 1:     # MIEnKS-MDA: does each window's estimate hold the truth?
+            r["windows"] = {n: [bool(w[n]["hdi95"][0] <= true <= w[n]["hdi95"][1]) for w in res.windows]
+                            for n, true in TRUTH.items()}
         for n, true in TRUTH.items():
             e = res.estimate[n]
             r[n] = {"mean": e["mean"], "sd": e["sd"], "hdi95": e["hdi95"],
@@ -117,6 +126,15 @@ def summarise(rows, likelihoods) -> dict:
             p = [r[lk][n]["predictive_holds"] for r in rows if "predictive_holds" in r[lk][n]]
             if p:
                 s[n]["predictive_fraction"] = float(np.mean(p))
+            wins = [r[lk]["windows"][n] for r in rows if "windows" in r[lk]]
+            if wins:       # per window index, over the seeds (records of a seed may hold a window more or less)
+                n_w = min(len(w) for w in wins)
+                cov_w = np.mean(np.array([w[:n_w] for w in wins], dtype=float), axis=0)
+                s[n]["window_coverage"] = cov_w.tolist()
+                s[n]["window_coverage_min"] = float(cov_w.min())
+                flat = [c for w in wins for c in w]
+                s[n]["window_coverage_all"] = float(np.mean(flat))
+                s[n]["window_coverage_all_wilson95"] = wilson(int(np.sum(flat)), len(flat))
         s["mean_runtime_s"] = float(np.mean([r[lk]["runtime_s"] for r in rows]))
         out[lk] = s
     return out
@@ -141,22 +159,24 @@ def main(argv=None):
     ap.add_argument("--family", choices=["camera", "scatter"], default="camera")
     ap.add_argument("--bubble", choices=["polytropic", "thermal"], default="polytropic")
     ap.add_argument("--likelihoods", default="default,paper")
+    ap.add_argument("--method", choices=["en4dvar", "mienks"], default="en4dvar")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="an En4DVarSettings field (integer, float or text), e.g. screen=0; repeatable")
+                    help="a settings field of the method (integer, float or text), e.g. screen=0; repeatable")
     a = ap.parse_args(argv)
     lks = [x for x in a.likelihoods.split(",") if x]
     settings = dict(_setting(kv) for kv in a.set)
     rows, failures = [], []
     prev = json.loads(a.json.read_text()) if a.json and a.json.exists() else {}
     done = {r["seed"]: r for r in prev.get("rows", []) if prev.get("family") == a.family and prev.get("bubble") == a.bubble
-            and prev.get("settings", {}) == settings and all(lk in r for lk in lks)}
+            and prev.get("settings", {}) == settings and prev.get("method", "en4dvar") == a.method
+            and all(lk in r for lk in lks)}
     for seed in range(a.first_seed, a.first_seed + a.seeds):
         if seed in done:                 # an interrupted run loses nothing it finished
             rows.append(done[seed])
             continue
         try:
-            rows.append(one_seed(seed, a.family, a.bubble, lks, settings))
+            rows.append(one_seed(seed, a.family, a.bubble, lks, settings, a.method))
         except Exception as exc:        # a failed seed is reported, never silently dropped
             failures.append({"seed": seed, "error": f"{type(exc).__name__}: {exc}"[:300]})
             print(f"seed {seed}: FAILED ({failures[-1]['error']})", flush=True)
@@ -168,10 +188,10 @@ def main(argv=None):
             for lk in lks), flush=True)
         if a.json:
             a.json.parent.mkdir(parents=True, exist_ok=True)
-            a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "truth": TRUTH, "rows": rows,
-                                          "settings": settings, "failures": failures, "summary": summarise(rows, lks)}, indent=1))
+            a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "method": a.method, "truth": TRUTH,
+                                          "rows": rows, "settings": settings, "failures": failures, "summary": summarise(rows, lks)}, indent=1))
     summ = summarise(rows, lks)
-    print(f"\n{a.family} family, {len(rows)} seeds ({len(failures)} failed), bubble {a.bubble}")
+    print(f"\n{a.family} family, {a.method}, {len(rows)} seeds ({len(failures)} failed), bubble {a.bubble}")
     print(f"{'likelihood':<10} {'param':<5} {'coverage':>9} {'Wilson 95%':>15} {'bias':>8} {'scatter':>8} "
           f"{'post sd':>8} {'between cov':>12} {'pred frac':>10}")
     for lk in lks:
@@ -181,9 +201,13 @@ def main(argv=None):
             print(f"{lk:<10} {n:<5} {s['coverage']:>9.2f} {f'[{w[0]:.2f}, {w[1]:.2f}]':>15} {s['mean_rel_error']:>+8.3f} "
                   f"{(s['sd_rel_error'] or float('nan')):>8.3f} {s['mean_rel_sd']:>8.3f} "
                   f"{s.get('between_coverage', float('nan')):>12.2f} {s.get('predictive_fraction', float('nan')):>10.2f}")
+            if "window_coverage" in s:
+                w = s["window_coverage_all_wilson95"]
+                print(f"{'':<16} windows: coverage {s['window_coverage_all']:.2f} [{w[0]:.2f}, {w[1]:.2f}] over all, "
+                      f"lowest window {s['window_coverage_min']:.2f} ({len(s['window_coverage'])} windows)")
     if a.json:
-        a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "truth": TRUTH, "rows": rows,
-                                      "settings": settings, "failures": failures, "summary": summ}, indent=1))
+        a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "method": a.method, "truth": TRUTH,
+                                      "rows": rows, "settings": settings, "failures": failures, "summary": summ}, indent=1))
 
 
 if __name__ == "__main__":
