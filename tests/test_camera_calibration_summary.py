@@ -1,0 +1,52 @@
+"""validation/camera_calibration.py's summary on hand-made rows: coverage with its Wilson interval,
+and MIEnKS-MDA's per-window coverage over seeds whose records hold different numbers of windows."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "validation" / "camera_calibration.py"
+
+
+@pytest.fixture(scope="module")
+def cal():
+    spec = importlib.util.spec_from_file_location("camera_calibration", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _row(seed, covers_g, windows_g, mean_g=5200.0):
+    est = lambda m, c: {"mean": m, "sd": 0.1 * m, "hdi95": [0.8 * m, 1.2 * m], "covers": c,  # noqa: E731
+                        "rel_error": m / 5200.0 - 1}
+    return {"seed": seed, "default": {"runtime_s": 1.0, "G": est(mean_g, covers_g), "mu": est(0.065, True),
+                                      "windows": {"G": windows_g, "mu": [True] * len(windows_g)}}}
+
+
+def test_wilson_interval_matches_the_closed_form(cal):
+    lo, hi = cal.wilson(18, 20)
+    # Wilson score interval of 18/20 at z = 1.96 (Agresti & Coull 1998): [0.699, 0.972]
+    assert lo == pytest.approx(0.6990, abs=1e-3) and hi == pytest.approx(0.9721, abs=1e-3)
+    assert cal.wilson(20, 20)[1] == pytest.approx(1.0)
+
+
+def test_window_coverage_per_index_and_over_all(cal):
+    rows = [_row(0, True, [True, True, False]), _row(1, False, [True, False, True, True]),
+            _row(2, True, [False, True, True])]
+    s = cal.summarise(rows, ["default"])["default"]
+    assert s["G"]["coverage"] == pytest.approx(2 / 3)
+    # per window index over the seeds, truncated to the fewest windows (3)
+    assert s["G"]["window_coverage"] == pytest.approx([2 / 3, 2 / 3, 2 / 3])
+    assert s["G"]["window_coverage_min"] == pytest.approx(2 / 3)
+    # over every (seed, window) pair: 7 of 10
+    assert s["G"]["window_coverage_all"] == pytest.approx(0.7)
+    assert s["G"]["window_coverage_all_wilson95"] == pytest.approx(cal.wilson(7, 10))
+    assert s["mu"]["window_coverage_all"] == pytest.approx(1.0)
+
+
+def test_en4dvar_rows_have_no_window_entry(cal):
+    rows = [_row(0, True, [])]
+    del rows[0]["default"]["windows"]
+    s = cal.summarise(rows, ["default"])["default"]
+    assert "window_coverage" not in s["G"] and s["G"]["coverage"] == 1.0
