@@ -13,7 +13,12 @@ seeds, the mean posterior sd (relative) and how many seeds land within 5 % of th
 reported with a 95 % Wilson interval. Windows of one data set are not independent, so the
 per-window coverage's interval is too narrow; the per-seed fraction is reported beside it.
 
-Usage: python validation/calibration.py [--seeds 20] [--json out.json]
+``--methods en4dvar_default mienks_default`` runs the realistic-data default likelihood instead
+(methods.md §7: every sample once, record noise, nuisances inferred, residual tempering,
+random-effects fusion) on the same design: the issue-#19 check "the paper's verification design:
+coverage 90-99 %". The other methods are the paper's settings.
+
+Usage: python validation/calibration.py [--seeds 20] [--methods M ...] [--json out.json]
 """
 
 from __future__ import annotations
@@ -33,7 +38,8 @@ from imrbayes.validation.suite import TRUTH, verification_data
 
 
 METHODS = ("en4dvar", "en4dvar_sum", "en4dvar_sum_known_noise", "en4dvar_sum_pooled", "mienks",
-           "mienks_mda_pooled", "imr")
+           "mienks_mda_pooled", "imr", "en4dvar_default", "mienks_default")
+PAPER_METHODS = METHODS[:7]
 
 
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple:
@@ -52,31 +58,45 @@ def covers(est: dict, name: str) -> bool:
     return bool(lo <= TRUTH[name] <= hi)
 
 
-def one_seed(fm, space, seed: int) -> dict:
+def one_seed(fm, space, seed: int, methods=PAPER_METHODS) -> dict:
     obs = verification_data(fm, seed)
-    clean = verification_data(fm, seed, noise=False)
-    row = {"seed": seed}
-    en = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False, likelihood="paper"), seed=seed)
-    row["en4dvar"] = {n: covers(en.estimate, n) for n in TRUTH}
-    # the plain likelihood (obs_weight=sum) with the estimated P_k, and with the true noise variance
-    sm = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum", likelihood="paper"), seed=seed)
-    row["en4dvar_sum"] = {n: covers(sm.estimate, n) for n in TRUTH}
-    known = dataclasses.replace(obs, P=np.maximum(paper_sigma(clean.t_star, clean.R_star[0]) ** 2, obs.P.min()))
-    sk = fit_en4dvar(fm, known, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum", likelihood="paper"), seed=seed)
-    row["en4dvar_sum_known_noise"] = {n: covers(sk.estimate, n) for n in TRUTH}
-    pooled = dataclasses.replace(obs, P=noise_variance(obs.t_star, obs.R_star, method="pooled")[0])
-    sp = fit_en4dvar(fm, pooled, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum", likelihood="paper"), seed=seed)
-    row["en4dvar_sum_pooled"] = {n: covers(sp.estimate, n) for n in TRUTH}
-    mp = fit_mienks(fm, pooled, space, MIEnKSSettings(n_draws=1, obs_weight="mda"), seed=seed)
-    row["mienks_mda_pooled"] = {n: covers(mp.estimate, n) for n in TRUTH}
-    row["mienks_mda_pooled_windows"] = {n: [covers(w, n) for w in mp.windows] for n in TRUTH}
-    mi = fit_mienks(fm, obs, space, MIEnKSSettings(), seed=seed)
-    row["mienks"] = {n: covers(mi.estimate, n) for n in TRUTH}
-    row["mienks_windows"] = {n: [covers(w, n) for w in mi.windows] for n in TRUTH}
-    im = fit_imr(fm, obs, space, IMRSettings(n_G=40, n_mu=25), seed=seed)
-    row["imr"] = {n: covers(im.estimate, n) for n in TRUTH}
-    fits = (("en4dvar", en), ("en4dvar_sum", sm), ("en4dvar_sum_known_noise", sk), ("en4dvar_sum_pooled", sp),
-            ("mienks", mi), ("mienks_mda_pooled", mp), ("imr", im))
+    row, fits = {"seed": seed}, []
+
+    def en4dvar(data, **kw):
+        return fit_en4dvar(fm, data, space, En4DVarSettings(n_draws=1, loglik=False, **kw), seed=seed)
+
+    def mienks(name, data, **kw):
+        res = fit_mienks(fm, data, space, MIEnKSSettings(n_draws=1, **kw), seed=seed)
+        row[f"{name}_windows"] = {n: [covers(w, n) for w in res.windows] for n in TRUTH}
+        return res
+
+    for m in methods:
+        if m == "en4dvar":
+            res = en4dvar(obs, likelihood="paper")
+        elif m == "en4dvar_sum":     # the plain likelihood (obs_weight=sum) with the estimated P_k
+            res = en4dvar(obs, obs_weight="sum", likelihood="paper")
+        elif m == "en4dvar_sum_known_noise":
+            clean = verification_data(fm, seed, noise=False)
+            known = dataclasses.replace(obs, P=np.maximum(paper_sigma(clean.t_star, clean.R_star[0]) ** 2, obs.P.min()))
+            res = en4dvar(known, obs_weight="sum", likelihood="paper")
+        elif m == "en4dvar_sum_pooled":
+            pooled = dataclasses.replace(obs, P=noise_variance(obs.t_star, obs.R_star, method="pooled")[0])
+            res = en4dvar(pooled, obs_weight="sum", likelihood="paper")
+        elif m == "mienks_mda_pooled":
+            pooled = dataclasses.replace(obs, P=noise_variance(obs.t_star, obs.R_star, method="pooled")[0])
+            res = mienks(m, pooled, obs_weight="mda", likelihood="paper")
+        elif m == "mienks":
+            res = mienks(m, obs, likelihood="paper")
+        elif m == "imr":
+            res = fit_imr(fm, obs, space, IMRSettings(n_G=40, n_mu=25), seed=seed)
+        elif m == "en4dvar_default":
+            res = en4dvar(obs, likelihood="default")
+        elif m == "mienks_default":
+            res = mienks(m, obs, likelihood="default")
+        else:
+            raise SystemExit(f"unknown method {m!r}; choose from {', '.join(METHODS)}")
+        row[m] = {n: covers(res.estimate, n) for n in TRUTH}
+        fits.append((m, res))
     row["estimates"] = {m: {n: r.estimate[n]["mean"] for n in TRUTH} for m, r in fits}
     row["sds"] = {m: {n: r.estimate[n]["sd"] for n in TRUTH} for m, r in fits}
     return row
@@ -97,7 +117,8 @@ def summarise(rows: list) -> dict:
                     mean_relative_error=float(rel.mean()), scatter_relative=float(rel.std(ddof=1)),
                     mean_sd_relative=float(np.mean([r["sds"][method][n] / TRUTH[n] for r in rows])),
                     within_5_percent=int(np.sum(np.abs(rel) < 0.05)))
-    for key, n in [(k, n) for k in ("mienks_windows", "mienks_mda_pooled_windows") for n in TRUTH]:
+    for key, n in [(k, n) for k in ("mienks_windows", "mienks_mda_pooled_windows", "mienks_default_windows")
+                   for n in TRUTH]:
         if key not in rows[0]:
             continue
         flags = [c for r in rows for c in r[key][n]]
@@ -113,17 +134,19 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=100, help="seeds first-seed .. first-seed + seeds - 1")
+    ap.add_argument("--methods", nargs="+", default=list(PAPER_METHODS), choices=list(METHODS))
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     fm = ForwardModel("nhkv", options={"bubble": "polytropic"})
     space = ParamSpace.for_model(fm.constitutive)
     rows, t0 = [], time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.seeds):
-        rows.append(one_seed(fm, space, seed))
+        rows.append(one_seed(fm, space, seed, args.methods))
         print(f"seed {seed}: " + " ".join(f"{m}:{''.join('y' if rows[-1][m][n] else 'n' for n in TRUTH)}"
-                                           for m in METHODS)
-              + f" windows G {np.mean(rows[-1]['mienks_windows']['G']):.2f} mu {np.mean(rows[-1]['mienks_windows']['mu']):.2f}",
-              flush=True)
+                                           for m in args.methods)
+              + "".join(f" {k} G {np.mean(rows[-1][k]['G']):.2f} mu {np.mean(rows[-1][k]['mu']):.2f}"
+                        for k in rows[-1] if k.endswith("_windows")), flush=True)
+        _write(args, rows, t0)
     summary = summarise(rows)
     print(f"\n{'interval':<28} {'covered':>8} {'coverage':>9} {'95 % (Wilson)':>16} {'bias':>7} {'scatter':>8} "
           f"{'mean sd':>8} {'<5 %':>5}")
@@ -132,9 +155,15 @@ def main(argv=None):
                  f"{v['within_5_percent']:5d}") if "scatter_relative" in v else ""
         print(f"{key:<28} {v['covered']:>4}/{v['n']:<4} {v['coverage']:9.3f}   [{v['wilson95'][0]:.3f}, "
               f"{v['wilson95'][1]:.3f}]" + extra)
-    result = {"case": "methods.md §5 design, polytropic bubble, paper noise and settings, IMR 40 x 25 grid",
+    return _write(args, rows, t0)
+
+
+def _write(args, rows, t0) -> dict:
+    """The result so far (written after every seed: an interrupted run keeps the seeds it finished)."""
+    result = {"case": "methods.md §5 design, polytropic bubble, paper noise; paper settings unless the method's "
+                      "name ends in _default (the default likelihood); IMR 40 x 25 grid", "methods": args.methods,
               "truth": TRUTH, "seeds": [r["seed"] for r in rows], "runtime_s": time.perf_counter() - t0,
-              "summary": summary, "rows": rows}
+              "summary": summarise(rows), "rows": rows}
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(result, fh, indent=1)
