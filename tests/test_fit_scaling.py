@@ -194,7 +194,7 @@ class _Failing:
         return self.inner.propagate(state, params, t_end, t_eval)
 
     def simulate(self, params, rmax_m, req_m, t_star):
-        if np.all(np.asarray(rmax_m) == self.rmax):
+        if np.all(np.asarray(rmax_m) == self.rmax) and self.t_from <= 0.0:      # a simulation starts at t* = 0
             raise FloatingPointError("injected failure")
         return self.inner.simulate(params, rmax_m, req_m, t_star)
 

@@ -41,18 +41,20 @@ Likelihood ``default`` (methods.md §7)
   the record noise and alpha = 1). One noise level and one tempering per experiment over the whole
   record (a window of 35 correlated samples is too short to estimate an autocorrelation time);
   the pilot doubles the cost.
-* **Time of the maximum** (§7.3): inferred, not fixed. Window 0's members carry an offset delta
-  (t*) of the maximum, drawn from N(0, s_t^2) with s_t the preprocessing standard error
-  (``Observations.nuisance_sd[:, 1]``) and analysed with the parameters: member m's R* at data time
-  t is R*(|t - delta_m|) (before its maximum, the mirror image; as En4D-Var), and it is handed off
-  with its state at data time t_h (its own time t_h - delta_m), so every later window starts on the
-  data's clock and the timing error lives on in the handed-off state, which later analyses update.
-  Inferring it in the ensemble rather than integrating it out to first order: an offset of a frame
-  near the collapse is far outside a linear model, and window 0 is the only place where the offset
-  is a separate quantity (afterwards it is part of the state). Its window-0 posterior is reported
-  as ``per_experiment[].nuisance.t0_s``. **Rmax and Req are not inferred** (they would need each
-  member's own time scale, i.e. its own clock, in every window): they stay at the preprocessing
-  estimates, and ``nuisance`` says so (posterior = prior).
+* **Geometry and alignment** (§7.3): inferred, not fixed. Window 0's members carry the nuisances
+  of :mod:`imrbayes.ensemble.likelihood`: the relative Rmax error a, the time of the maximum delta
+  (t*) and rho = log(Req / Req_hat), drawn from the preprocessing prior and analysed with the
+  parameters (En4D-Var's observation model: member m is a bubble of maximum radius
+  Rmax_hat (1 + a_m) whose maximum is at data time delta_m; before it, the mirror image). Each
+  member is handed off with its state at data time t_h, converted to the data's units (R* times
+  1 + a_m; every other state variable is scaled by p8 or sqrt(p8/rho), not by Rmax, so the
+  conversion is exact), and every later window runs all members on the data's clock with their
+  own Req: a and delta live on in the state (later analyses update them as state), rho stays an
+  augmented column analysed in every window (it sets the elastic equilibrium). Inferring them in
+  the ensemble rather than to first order: an offset of a frame near the collapse is far outside a
+  linear model, and a fixed Rmax or Req that is off by a few per cent is read as material physics
+  (with them fixed, the per-bubble estimates scattered more than their sds allowed: a spurious
+  between-bubble sd). The posteriors are reported as ``per_experiment[].nuisance``.
 * **Across bubbles** (§7.4), in every window: each experiment's window likelihood (its posterior
   divided by the prior its window started from,
   :func:`imrbayes.ensemble.hierarchical.likelihood_terms`) enters the random-effects layer
@@ -66,9 +68,9 @@ Likelihood ``default`` (methods.md §7)
 * ``FitResult.window_posteriors`` (what ``--mcmc`` samples): the window's density with no
   between-bubble scatter (the pooled, product-rule Gaussian ``pooled_mean_internal``): the chained
   prior and ``whiten`` W_n = diag(sqrt(beta_jk alpha_n / sigma_n^2)), each experiment started from
-  its mean handed-off state; in window 0 the density fixes the time of the maximum at the
-  preprocessing estimate (the ensemble's z-marginal integrates it: a difference of the same kind as
-  En4D-Var's).
+  its mean handed-off state and Req (``start_req_m``); in window 0 the density fixes the geometry
+  and the time of the maximum at the preprocessing estimates (the ensemble's z-marginal integrates
+  them: a difference of the same kind as En4D-Var's).
 
 Likelihood ``paper`` (the paper's settings, reproduced exactly)
 ----------------------------------------------------------------
@@ -102,7 +104,7 @@ from imrbayes.ensemble.gaussian import (Fusion, draw, fuse, fuse_likelihoods, ma
                                         rtps_factors)
 from imrbayes.ensemble.gn import gauss_newton
 from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, random_effects
-from imrbayes.ensemble.likelihood import check_choice, effective_samples, record_noise_sd, simulate_shifted
+from imrbayes.ensemble.likelihood import check_choice, effective_samples, nuisance_prior_sd, predict, record_noise_sd
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
 from imrbayes.ensemble.windows import mda_weights, n_windows, time_resolved, window_spans
@@ -200,30 +202,38 @@ def mienks_unit(unit: Unit, rng) -> dict:
     """One window of one experiment (methods.md §4, steps 2, 4, 5): Gauss–Newton analysis of the
     augmented ensemble, RTPS, hand-off to the next window (failed members redrawn; the analysis is
     rejected, and the window prior handed on, when too few members survive). Window 0 starts from
-    the state at the maximum radius with parameters drawn from the prior; with ``t0_sd`` > 0
-    (default likelihood) its members also carry the time of the maximum (an offset in t*, drawn
-    from N(0, t0_sd^2) and analysed with the parameters; module doc), which is dropped after the
-    hand-off."""
+    the state at the maximum radius with parameters drawn from the prior.
+
+    Default likelihood (``carry_req``): every member also carries rho = log(Req / Req_hat), analysed
+    with the parameters in every window, and window 0's members carry the relative Rmax error a and
+    the time of the maximum delta (t*), drawn from N(0, diag(nuis_sd^2)) (``nuis_sd`` = sds of
+    (a, delta, rho), :func:`imrbayes.ensemble.likelihood.nuisance_prior_sd`) and analysed with the
+    parameters (module doc). Columns: state, parameters, [rho], [a, delta (window 0)]; a and delta
+    are dropped after the hand-off, where they live on in the state."""
     d = unit.data
     space, s = d["space"], d["settings"]
     runner = runner_for(d)
     before = (runner.n_member_runs, runner.n_failed)
     t, a, b, a2, last = d["t"], int(d["a"]), int(d["b"]), int(d["a2"]), bool(d["last"])
     rmax, req, N, dp = float(d["rmax"]), float(d["req"]), int(s.n_ens), space.n
-    t0_sd = float(d.get("t0_sd", 0.0) or 0.0)
+    carry = bool(d.get("carry_req", False))
+    n_carry = 1 if carry else 0                     # rho after the parameters (default likelihood)
     E = d["E"]
-    n_aug = 0                                       # extra columns after the parameters (window 0: the offset)
+    n_aug = 0                                       # window 0 (default likelihood): a and delta after rho
     if E is None:
         st0 = runner.fm.initial_state(np.full(N, rmax), np.full(N, req))
         ns = st0.y.shape[1]
-        n_aug = 1 if t0_sd > 0 else 0
-        E = np.empty((N, ns + dp + n_aug))
+        n_aug = 2 if carry else 0
+        E = np.zeros((N, ns + dp + n_carry + n_aug))
         E[:, :ns] = st0.y
         E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov, N)
-        if n_aug:
-            E[:, ns + dp] = t0_sd * rng.standard_normal(N)
+        if carry:
+            sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
+            E[:, ns + dp] = sd_rho * rng.standard_normal(N)
+            E[:, ns + dp + 1] = sd_a * rng.standard_normal(N)
+            E[:, ns + dp + 2] = sd_delta * rng.standard_normal(N)
     E = np.array(E, dtype=np.float64)
-    ns = E.shape[1] - dp - n_aug
+    ns = E.shape[1] - dp - n_carry - n_aug
     t_eval = t[a:b + 1]
     # The analysis sees log p_b instead of p_b (``log_pressure``): near a collapse the members' p_b
     # spans orders of magnitude, and a linear update of p_b itself drives most of them negative.
@@ -257,47 +267,60 @@ def mienks_unit(unit: Unit, rng) -> dict:
         failed = ~ok
         if ok.any():
             m = int(ok.sum())
-            st = BatchState(Z[ok, :ns].copy(), t0, np.full(m, rmax), np.full(m, req))
+            reqs = req * np.exp(Z[ok, ns + dp]) if carry else np.full(m, req)
+            st = BatchState(Z[ok, :ns].copy(), t0, np.full(m, rmax), reqs)
             out = runner.propagate(st, space.to_si(Z[ok, ns:ns + dp]), t1, t_ev)
             R[ok], Y[ok] = out.R_star, out.end.y
             failed[ok] = out.failed | ~np.all(np.isfinite(out.R_star), axis=1) | ~np.all(np.isfinite(out.end.y), axis=1)
         return R, Y, failed
 
-    def propagate_offset(Z, t_ev, t_hand=None):
-        """Window 0 with the time of the maximum augmented: member m's maximum is at t* = Z[m, -1]
-        on the data's clock (every member starts from the same maximum state, so the state block
-        carries no spread). R* at ``t_ev`` (samples before a member's maximum from the mirror image,
-        :func:`imrbayes.ensemble.likelihood.simulate_shifted`), and with ``t_hand`` each member's
-        state at data time t_hand (its own time t_hand - offset; one short run per member)."""
+    def propagate_window0(Z, t_ev, t_hand=None):
+        """Window 0 with the nuisances augmented: member m is a bubble of maximum radius
+        Rmax_hat (1 + a_m) and Req_hat e^rho_m whose maximum is at t* = delta_m on the data's clock.
+        R* at ``t_ev`` (:func:`imrbayes.ensemble.likelihood.predict`, En4D-Var's observation model),
+        and with ``t_hand`` each member's state at data time t_hand, in the data's units (its own
+        run to (t_hand - delta_m) / (1 + a_m), then R* times 1 + a_m: every other state variable
+        is scaled by p8 or sqrt(p8/rho), not by Rmax, so later windows run all members on one
+        clock with their own Req)."""
         Z = from_analysis(Z)
         M = Z.shape[0]
-        ok = np.all(np.isfinite(Z[:, ns:]), axis=1)
+        k = ns + dp
+        nu = np.stack([Z[:, k + 1], Z[:, k + 2], Z[:, k]], axis=1)          # (a, delta, rho)
+        ok = np.all(np.isfinite(Z[:, ns:]), axis=1) & (1.0 + nu[:, 0] > 0.5)
         R = np.full((M, len(t_ev)), np.nan)
         Y = Z[:, :ns].copy()
         failed = ~ok
         if ok.any():
             idx = np.flatnonzero(ok)
             th = space.to_si(Z[idx, ns:ns + dp])
-            Rk, fk = simulate_shifted(runner, th, np.full(idx.size, rmax), np.full(idx.size, req), t_ev,
-                                      Z[idx, ns + dp])
+            Rk, fk = predict(runner, th, rmax, req, t_ev, nu[idx])
             R[idx] = Rk
             failed[idx] = fk
             if t_hand is not None:
-                st0 = runner.fm.initial_state(np.full(1, rmax), np.full(1, req))
-                for i, m in enumerate(idx):
-                    T = max(float(t_hand) - float(Z[m, ns + dp]), 0.0)
-                    out = runner.propagate(st0, th[i:i + 1], T, np.array([T]))
-                    Y[m] = out.end.y[0]
-                    failed[m] |= bool(out.failed[0]) or not np.all(np.isfinite(out.end.y[0]))
+                scale, req_m = 1.0 + nu[idx, 0], req * np.exp(nu[idx, 2])
+                T = np.maximum((float(t_hand) - nu[idx, 1]) / scale, 0.0)
+                groups = [np.arange(idx.size)] if np.ptp(nu[idx], axis=0).max() == 0 else \
+                    [np.array([i]) for i in range(idx.size)]      # one batch when the members share the geometry
+                for grp in groups:
+                    i0 = int(grp[0])
+                    if req_m[i0] >= rmax * scale[i0]:
+                        failed[idx[grp]] = True
+                        continue
+                    st0 = runner.fm.initial_state(np.full(grp.size, rmax * scale[i0]), np.full(grp.size, req_m[i0]))
+                    out = runner.propagate(st0, th[grp], float(T[i0]), np.array([T[i0]]))
+                    y = np.array(out.end.y, dtype=np.float64)
+                    y[:, 0] *= scale[i0]
+                    Y[idx[grp]] = y
+                    failed[idx[grp]] |= out.failed | ~np.all(np.isfinite(y), axis=1)
         return R, Y, failed
 
     if n_aug:
         def evaluate(groups, Z):
-            R, _, failed = propagate_offset(np.asarray(Z, dtype=np.float64), t_eval)
+            R, _, failed = propagate_window0(np.asarray(Z, dtype=np.float64), t_eval)
             return R, failed
 
         def handoff(Z):
-            return propagate_offset(Z, t[a:a2 + 1], t[a2])
+            return propagate_window0(Z, t[a:a2 + 1], t[a2])
     else:
         def evaluate(groups, Z):
             R, _, failed = propagate(np.asarray(Z, dtype=np.float64), t[a], t[b], t_eval)
@@ -330,7 +353,7 @@ def mienks_unit(unit: Unit, rng) -> dict:
         rejected = True
     with np.errstate(invalid="ignore"):
         seg = np.nanmean(np.where(failed[:, None], np.nan, Rseg), axis=0)
-    E_next = to_analysis(np.concatenate([Ynew, Ea[:, ns:ns + dp]], axis=1))   # the offset is not handed on
+    E_next = to_analysis(np.concatenate([Ynew, Ea[:, ns:ns + dp + n_carry]], axis=1))   # a, delta are not handed on
     n_fail = int(failed.sum())
     n_red = _redraw_failed(E_next[None], failed[None], rng) if (n_fail and not last) else 0
     E_next = from_analysis(E_next)                  # handed on as physical states
@@ -342,16 +365,21 @@ def mienks_unit(unit: Unit, rng) -> dict:
            "n_redrawn_handoff": int(n_red), "stopped": bool(res.stopped[0]), "rejected": rejected,
            "n_invalid_analysed": n_invalid, "n_failed_analysed": n_failed_analysed, "invalid_why": invalid_why,
            "cost": res.cost[0], "state_size": int(ns), **runner.counts_since(before)}
-    if n_aug:
+    if carry:
         k = ns + dp
-        out["offset"] = {"mean": float(res.mean[0, k]), "sd": float(np.sqrt(max(res.cov[0, k, k], 0.0))),
-                         "prior_sd": t0_sd, "rejected": rejected}
+        sd = np.sqrt(np.maximum(np.diag(res.cov[0]), 0.0))
+        out["log_req"] = {"mean": float(res.mean[0, k]), "sd": float(sd[k]), "rejected": rejected}
+    if n_aug:
+        out["offset"] = {"mean": float(res.mean[0, k + 2]), "sd": float(sd[k + 2]), "rejected": rejected}
+        out["rmax_rel"] = {"mean": float(res.mean[0, k + 1]), "sd": float(sd[k + 1]), "rejected": rejected}
     return out
 
 
-def _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, tag, progress, nw):
+def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw):
     """Run every window's units in order (one per alive experiment, :func:`mienks_unit`) and collect
-    their results; ``weight_for(j, g, a, b)`` gives experiment g's observation weights in window j.
+    their results; ``weight_for(j, g, a, b)`` gives experiment g's observation weights in window j;
+    ``nuis_sd`` (G, 3): prior sds of each experiment's nuisances (a, delta, rho) (default likelihood;
+    None: the paper's, no nuisances).
     The fusion does not feed back into the ensembles, so it is done afterwards
     (:func:`fit_mienks`). ``tag``: leading parts of the unit ids (e.g. ``{"pass": "pilot"}``).
     Returns a dict of per-window lists."""
@@ -361,24 +389,31 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, tag, progress, nw):
     handoff = {g: None for g in range(G)}             # each experiment's ensemble entering the next window
     failed_units = []
     ns = None
-    out = {"results": [], "ok": [], "lost": [], "start_means": [], "warnings": [], "failed_units": failed_units,
-           "alive": alive}
+    dp = base["space"].n
+    out = {"results": [], "ok": [], "lost": [], "start_means": [], "start_req": [], "warnings": [],
+           "failed_units": failed_units, "alive": alive}
     for j, (a, b) in enumerate(spans):
         last = j == nw - 1
         warn = []
         if j == 0:
             out["start_means"].append(np.array(base["fm"].initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64))
+            out["start_req"].append(np.asarray(obs.req_m, dtype=np.float64).copy())
         else:
             q = np.full((G, ns), np.nan)
+            rq = np.full(G, np.nan)
             for g in alive:
-                q[g] = np.asarray(handoff[g], dtype=np.float64)[:, :ns].mean(axis=0)
+                Eg = np.asarray(handoff[g], dtype=np.float64)
+                q[g] = Eg[:, :ns].mean(axis=0)
+                rq[g] = obs.req_m[g] * (np.exp(Eg[:, ns + dp].mean()) if nuis_sd is not None else 1.0)
             out["start_means"].append(q)
+            out["start_req"].append(rq)
         a2 = b if last else a + s.h
         units = [Unit(unit_id(**tag, window=j, exp=g),
                       {"spec": base["spec"], "runner": base["runner"], "space": base["space"], "settings": s, "t": t,
                        "a": int(a), "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
                        "req": float(obs.req_m[g]), "y": obs.R_star[g, a:b + 1], "weight": weight_for(j, g, a, b),
-                       "E": handoff[g], **({"t0_sd": float(t0_sd[g])} if j == 0 and t0_sd is not None else {})})
+                       "E": handoff[g], **({"carry_req": True} if nuis_sd is not None else {}),
+                       **({"nuis_sd": [float(x) for x in nuis_sd[g]]} if j == 0 and nuis_sd is not None else {})})
                  for g in alive]
         label = "".join(f" ({v})" for v in tag.values())
         desc = f"mienks window {j + 1}/{nw}{label}"
@@ -483,7 +518,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         beta = beta.copy()
         beta[:, 0] = 0.0                 # sample 0 is R* = 1 by construction (the maximum): no information
         noise_var = np.array([record_noise_sd(obs, g) ** 2 for g in range(G)])
-        t0_sd = np.asarray(obs.nuisance_sd, dtype=np.float64)[:, 1]
+        nuis_sd = np.stack([nuisance_prior_sd(obs, g) for g in range(G)])      # (a, delta, rho)
         var, alpha = noise_var.copy(), np.ones(G)
         pilot_failed = []
         if s.adapt:
@@ -491,7 +526,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             # noise level and tempering for the pass that is reported (module doc)
             def w_pilot(j, g, a, b):
                 return beta[j, a:b + 1] / noise_var[g]
-            pil = _sweep(ex, base, obs, s, spans, seed, w_pilot, t0_sd, {"pass": "pilot"}, progress, nw)
+            pil = _sweep(ex, base, obs, s, spans, seed, w_pilot, nuis_sd, {"pass": "pilot"}, progress, nw)
             for w in pil["warnings"]:
                 warnings.extend(w)
             pilot_failed = pil["failed_units"]
@@ -508,7 +543,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         tag = {}
         if s.adapt:
             tag = {"noise": hashlib.sha1(np.concatenate([var, alpha]).astype("<f8").tobytes()).hexdigest()[:8]}
-        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, t0_sd, tag, progress, nw)
+        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw)
     else:
         pilot_failed = []
 
@@ -576,9 +611,12 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                                    "sigma_n^2)) (the MDA weights are inside W_n; weight holds beta_jk)",
                     "gaussian": "pooled over experiments (no between-bubble scatter)", "L": 1,
                     "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}
-            if j == 0 and np.any(t0_sd > 0):
-                desc["nuisance"] = ("the ensemble also analysed each experiment's time of the maximum; this density "
-                                    "fixes it at the preprocessing estimate")
+            if j == 0:
+                desc["nuisance"] = ("the ensemble also analysed each experiment's Rmax, Req and time of the maximum; "
+                                    "this density fixes them at the preprocessing estimates")
+            else:
+                desc["nuisance"] = ("each experiment runs with its handed-off ensemble's mean Req (start_req_m); the "
+                                    "ensemble kept analysing Req")
             wpost = beta[j, a:b + 1]
         else:
             desc = {"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
@@ -587,7 +625,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             wpost = beta[j, a:b + 1] / average
         posteriors.append(WindowPosterior(
             index=j, start=int(a), samples=(int(a), int(b)), mean=fus.mean, cov=fus.cov, prior_mean=prior_m,
-            prior_cov=prior_c, weight=wpost, start_state=start_j, description=desc, whiten=whiten))
+            prior_cov=prior_c, weight=wpost, start_state=start_j, description=desc, whiten=whiten,
+            start_req_m=sw["start_req"][j] if default else None))
         rejected = []
         for g, r in zip(ok, R):
             if r["rejected"]:
@@ -663,8 +702,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                       "by alpha = n_eff/K (integrated autocorrelation time of that residual)"
                       if s.adapt else "each record's noise sd (preprocessing, else fourth differences); no tempering"),
             "mda": "beta_jk = 1/|I(k)|: the weights of every sample over the windows holding it sum to one",
-            "nuisances": "time of the maximum analysed in window 0's augmented ensemble (prior sd from "
-                         "preprocessing); Rmax and Req not inferred (fixed at the preprocessing estimates)",
+            "nuisances": "Rmax and the time of the maximum analysed in window 0's augmented ensemble, log Req in "
+                         "every window's (prior sds from preprocessing)",
             "fusion": "random effects across experiments in every window (gel-level mean, between-bubble sd, "
                       "predictive); the gel mean's prior chained from the previous window (RTPS)"}
         # the record: each experiment's likelihood summed over the windows (each sample counted once;
@@ -702,8 +741,10 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             else:
                 entry["failed"] = True
             entry["likelihood"] = lik_info[g]
-            entry["nuisance"] = _nuisance(obs, g, sw["results"][0][sw["ok"][0].index(g)].get("offset")
-                                          if g in sw["ok"][0] else None)
+            w0 = sw["results"][0][sw["ok"][0].index(g)] if g in sw["ok"][0] else {}
+            last_j = max((j for j in range(nw) if g in sw["ok"][j]), default=None)
+            wl = sw["results"][last_j][sw["ok"][last_j].index(g)] if last_j is not None else {}
+            entry["nuisance"] = _nuisance(obs, g, w0.get("rmax_rel"), w0.get("offset"), wl.get("log_req"))
             per.append(entry)
     else:
         details["likelihood"] = {"name": "paper", "noise": f"P_k of preprocessing (beta_jk / {average} cost)",
@@ -722,23 +763,37 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         runtime_s=time.perf_counter() - t0c, warnings=warnings, window_posteriors=posteriors)
 
 
-def _nuisance(obs, g: int, offset) -> dict:
-    """``per_experiment[].nuisance`` (SI): the time of the maximum from window 0's augmented
-    ensemble (``offset`` in t*, None: not analysed); Rmax and Req as preprocessing gave them."""
+def _nuisance(obs, g: int, rmax_rel, offset, log_req) -> dict:
+    """``per_experiment[].nuisance`` (SI): Rmax and the time of the maximum from window 0's
+    augmented ensemble (``rmax_rel`` = a, ``offset`` = delta [t*]), Req from the last window the
+    experiment took part in (``log_req`` = rho, analysed in every window); None: not analysed."""
     sd = np.asarray(obs.nuisance_sd[g], dtype=np.float64)
     rmax, req, t0, tc = float(obs.rmax_m[g]), float(obs.req_m[g]), float(obs.t0_s[g]), float(obs.tc_s[g])
-    fixed = "not inferred: fixed at the preprocessing estimate (posterior = prior)"
-    out = {"rmax_m": {"prior_mean": rmax, "prior_sd": rmax * sd[0], "mean": rmax, "sd": rmax * sd[0],
-                      "treatment": fixed},
-           "req_m": {"prior_mean": req, "prior_sd": sd[2], "mean": req, "sd": sd[2], "treatment": fixed}}
+    none = "not analysed (window 0 failed): the preprocessing estimate"
+
+    def rej(x):
+        return " (analysis rejected: the prior)" if x.get("rejected") else ""
+    out = {}
+    if rmax_rel is None:
+        out["rmax_m"] = {"prior_mean": rmax, "prior_sd": rmax * sd[0], "mean": rmax, "sd": rmax * sd[0], "treatment": none}
+    else:
+        out["rmax_m"] = {"prior_mean": rmax, "prior_sd": rmax * sd[0], "mean": rmax * (1.0 + rmax_rel["mean"]),
+                         "sd": rmax * rmax_rel["sd"], "treatment": "analysed with the parameters in window 0's "
+                                                                   "augmented ensemble" + rej(rmax_rel)}
+    if log_req is None:
+        out["req_m"] = {"prior_mean": req, "prior_sd": sd[2], "mean": req, "sd": sd[2], "treatment": none}
+    else:
+        m, v = log_req["mean"], log_req["sd"] ** 2
+        out["req_m"] = {"prior_mean": req, "prior_sd": sd[2], "mean": req * float(np.exp(m + 0.5 * v)),
+                        "sd": req * float(np.sqrt(np.expm1(v) * np.exp(2 * m + v))), "log_mean": m, "log_sd": log_req["sd"],
+                        "treatment": "log Req analysed with the parameters in every window (the last one's posterior)"
+                                     + rej(log_req)}
     if offset is None:
-        out["t0_s"] = {"prior_mean": t0, "prior_sd": tc * sd[1], "mean": t0, "sd": tc * sd[1],
-                       "treatment": "not analysed (no preprocessing uncertainty, or window 0 failed)"}
+        out["t0_s"] = {"prior_mean": t0, "prior_sd": tc * sd[1], "mean": t0, "sd": tc * sd[1], "treatment": none}
     else:
         out["t0_s"] = {"prior_mean": t0, "prior_sd": tc * sd[1], "mean": t0 + tc * offset["mean"],
                        "sd": tc * offset["sd"], "offset_star": offset["mean"], "offset_sd_star": offset["sd"],
-                       "treatment": "analysed with the parameters in window 0's augmented ensemble"
-                                    + (" (analysis rejected: the prior)" if offset.get("rejected") else "")}
+                       "treatment": "analysed with the parameters in window 0's augmented ensemble" + rej(offset)}
     return out
 
 

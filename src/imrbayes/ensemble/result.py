@@ -53,6 +53,9 @@ class WindowPosterior:
     frames : list or None
         Per experiment, how the grid values interpolate camera frames
         (:func:`imrbayes.ensemble.likelihood.frame_operator`); the prediction is interpolated alike.
+    start_req_m : (n_exp,) or None
+        The equilibrium radius [m] each experiment's start state goes with (MIEnKS-MDA's default
+        likelihood analyses Req: the handed-off ensemble's mean); None: the preprocessing's.
     """
 
     index: int
@@ -70,6 +73,7 @@ class WindowPosterior:
     nuisance_mean: np.ndarray | None = None
     nuisance_post_sd: np.ndarray | None = None
     frames: list | None = None
+    start_req_m: np.ndarray | None = None
 
     def start_gaussian(self, prior: bool = False):
         """(mean, cov) over the sampled coordinates: the parameters' Gaussian (or prior), then every

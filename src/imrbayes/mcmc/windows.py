@@ -76,8 +76,8 @@ def window_specs(model, obs, space, posteriors, *, indices=None, box_sd: float =
         rows = np.flatnonzero(valid)
         if rows.size == 0:
             raise InputError("start_state", f"window {w.index}: no experiment has a valid start state")
-        start = BatchState(q[rows].copy(), float(t[w.start]), np.asarray(obs.rmax_m, float)[rows],
-                           np.asarray(obs.req_m, float)[rows])
+        req = np.asarray(obs.req_m if w.start_req_m is None else w.start_req_m, float)
+        start = BatchState(q[rows].copy(), float(t[w.start]), np.asarray(obs.rmax_m, float)[rows], req[rows])
         prior = space.with_prior(w.prior_mean, w.prior_cov, box_sd)
         nuisance_sd = None if w.nuisance_sd is None else np.asarray(w.nuisance_sd, float)[rows]
         tg = WindowTarget(model, start, t[a:b + 1], np.asarray(obs.R_star)[rows, a:b + 1], np.asarray(obs.P)[a:b + 1],
