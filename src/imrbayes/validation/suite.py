@@ -110,9 +110,28 @@ def case_mienks(suite, fm, out, seed):
             "figures": f}
 
 
+#: a window is decided by its data when the gel-level posterior sd of every parameter (log scale)
+#: is at most this fraction of the parameter prior's: the prior then weighs at most 25 % in its mean
+DECIDED_SD_RATIO = 0.5
+
+
+def prior_dominated(res, space) -> list:
+    """Indices of MIEnKS-MDA windows the parameter prior still dominates (posterior sd above
+    :data:`DECIDED_SD_RATIO` of the prior's for some parameter, internal coordinates): there the
+    posterior mean is pulled towards the prior mean by more than a quarter of the way, and a truth
+    far out in the prior's tail cannot be inside the window's interval whatever the method does."""
+    sd0 = np.sqrt(np.diag(space.prior_cov))
+    return [w["index"] for w in res.windows
+            if np.any(np.sqrt(np.diag(np.asarray(w["cov_internal"]))) > DECIDED_SD_RATIO * sd0)]
+
+
 def case_second_truth(suite, fm, out, seed):
-    """En4D-Var and MIEnKS-MDA on a second synthetic case (G 2 kPa, mu 0.05 Pa s, Rmax/Req 9),
-    with the verification case's criteria."""
+    """En4D-Var and MIEnKS-MDA on a second synthetic case (G 2 kPa, mu 0.05 Pa s, Rmax/Req 9: 2.3
+    and 3.3 prior sds below the paper prior's means, log scale), default likelihood. Criteria
+    (issue #19): each method's gel-level estimate within 10 % of the truth with the truth inside
+    its 95 % interval; MIEnKS-MDA's windows decided by their data (:func:`prior_dominated`) hold
+    the truth in >= 90 % of cases and stay within 2 sd of the aggregate. The prior-dominated
+    windows are reported, not judged."""
     tr = TRUTH_2
     obs = verification_data(fm, seed, truth=tr, ratio=RATIO_2)
     space = ParamSpace.for_model(fm.constitutive)
@@ -120,21 +139,32 @@ def case_second_truth(suite, fm, out, seed):
     rel = {n: en.estimate[n]["mean"] / tr[n] - 1.0 for n in tr}
     plain = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum", likelihood="paper"), seed=seed)
     mi = fit_mienks(fm, obs, space, MIEnKSSettings(n_draws=1), seed=seed)
-    inside = {n: [_within(w, n, tr) for w in mi.windows] for n in tr}
-    dev = {n: [abs(w[n]["mean"] - mi.estimate[n]["mean"]) / w[n]["sd"] for w in mi.windows] for n in tr}
-    ok_en = all(_within(en.estimate, n, tr) for n in tr) and all(abs(v) < 0.15 for v in rel.values())
-    ok_mi = all(np.mean(v) >= 0.9 for v in inside.values()) and all(max(v) < 2.0 for v in dev.values())
+    rel_mi = {n: mi.estimate[n]["mean"] / tr[n] - 1.0 for n in tr}
+    dominated = prior_dominated(mi, space)
+    decided = [w for w in mi.windows if w["index"] not in dominated]
+    inside = {n: [_within(w, n, tr) for w in decided] for n in tr}
+    dev = {n: [abs(w[n]["mean"] - mi.estimate[n]["mean"]) / w[n]["sd"] for w in decided] for n in tr}
+    ok_en = all(_within(en.estimate, n, tr) for n in tr) and all(abs(v) < 0.10 for v in rel.values())
+    ok_mi = (all(_within(mi.estimate, n, tr) for n in tr) and all(abs(v) < 0.10 for v in rel_mi.values())
+             and len(decided) >= len(mi.windows) // 2
+             and all(np.mean(v) >= 0.9 for v in inside.values()) and all(max(v) < 2.0 for v in dev.values()))
     f = [str(figs.time_resolved_figure(mi, out / "second_truth_mienks_parameters.png"))]
     return {"passed": bool(ok_en and ok_mi),
-            "criteria": "G 2 kPa, mu 0.05 Pa s, Rmax/Req 9: En4D-Var truth inside the 95% HDI and |mean/truth - 1| "
-                        "< 15%; MIEnKS truth inside >= 90% of the windows' 95% HDIs, every window mean within 2 sd "
-                        "of the aggregate",
+            "criteria": "G 2 kPa, mu 0.05 Pa s, Rmax/Req 9, default likelihood: En4D-Var and MIEnKS-MDA gel-level "
+                        "truth inside the 95% HDI and |mean/truth - 1| < 10%; MIEnKS windows decided by their data "
+                        f"(posterior sd <= {DECIDED_SD_RATIO} prior sd, at least half the windows): truth inside >= 90% "
+                        "of their 95% HDIs, every one within 2 sd of the aggregate",
             "metrics": {"truth": tr, "rmax_over_req": RATIO_2, "en4dvar": {"estimate": en.estimate, "relative_error": rel},
                         "en4dvar_obs_weight_sum": _summary(plain.estimate, tr),
-                        "mienks": {"estimate": mi.estimate,
-                                   "windows_containing_truth": {n: int(sum(v)) for n, v in inside.items()},
-                                   "n_windows": len(mi.windows),
-                                   "max_window_deviation_sd": {n: float(max(v)) for n, v in dev.items()}}},
+                        "mienks": {"estimate": mi.estimate, "relative_error": rel_mi,
+                                   "prior_dominated_windows": dominated,
+                                   "windows_containing_truth": {n: int(sum(_within(w, n, tr) for w in mi.windows))
+                                                                for n in tr},
+                                   "decided_windows_containing_truth": {n: int(sum(v)) for n, v in inside.items()},
+                                   "n_windows": len(mi.windows), "n_decided": len(decided),
+                                   "max_window_deviation_sd": {n: float(max(v)) for n, v in dev.items()},
+                                   "window_means": {n: [w[n]["mean"] for w in mi.windows] for n in tr},
+                                   "window_sds": {n: [w[n]["sd"] for w in mi.windows] for n in tr}}},
             "figures": f}
 
 
