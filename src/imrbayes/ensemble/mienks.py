@@ -104,7 +104,8 @@ from imrbayes.ensemble.gaussian import (Fusion, draw, fuse, fuse_likelihoods, ma
                                         rtps_factors)
 from imrbayes.ensemble.gn import gauss_newton
 from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, random_effects
-from imrbayes.ensemble.likelihood import check_choice, effective_samples, nuisance_prior_sd, predict, record_noise_sd
+from imrbayes.ensemble.likelihood import (check_choice, effective_samples, nuisance_prior_sd, nuisance_summary, predict,
+                                          record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
 from imrbayes.ensemble.windows import mda_weights, n_windows, time_resolved, window_spans
@@ -764,36 +765,23 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
 
 
 def _nuisance(obs, g: int, rmax_rel, offset, log_req) -> dict:
-    """``per_experiment[].nuisance`` (SI): Rmax and the time of the maximum from window 0's
-    augmented ensemble (``rmax_rel`` = a, ``offset`` = delta [t*]), Req from the last window the
-    experiment took part in (``log_req`` = rho, analysed in every window); None: not analysed."""
-    sd = np.asarray(obs.nuisance_sd[g], dtype=np.float64)
-    rmax, req, t0, tc = float(obs.rmax_m[g]), float(obs.req_m[g]), float(obs.t0_s[g]), float(obs.tc_s[g])
-    none = "not analysed (window 0 failed): the preprocessing estimate"
-
-    def rej(x):
-        return " (analysis rejected: the prior)" if x.get("rejected") else ""
-    out = {}
-    if rmax_rel is None:
-        out["rmax_m"] = {"prior_mean": rmax, "prior_sd": rmax * sd[0], "mean": rmax, "sd": rmax * sd[0], "treatment": none}
-    else:
-        out["rmax_m"] = {"prior_mean": rmax, "prior_sd": rmax * sd[0], "mean": rmax * (1.0 + rmax_rel["mean"]),
-                         "sd": rmax * rmax_rel["sd"], "treatment": "analysed with the parameters in window 0's "
-                                                                   "augmented ensemble" + rej(rmax_rel)}
-    if log_req is None:
-        out["req_m"] = {"prior_mean": req, "prior_sd": sd[2], "mean": req, "sd": sd[2], "treatment": none}
-    else:
-        m, v = log_req["mean"], log_req["sd"] ** 2
-        out["req_m"] = {"prior_mean": req, "prior_sd": sd[2], "mean": req * float(np.exp(m + 0.5 * v)),
-                        "sd": req * float(np.sqrt(np.expm1(v) * np.exp(2 * m + v))), "log_mean": m, "log_sd": log_req["sd"],
-                        "treatment": "log Req analysed with the parameters in every window (the last one's posterior)"
-                                     + rej(log_req)}
-    if offset is None:
-        out["t0_s"] = {"prior_mean": t0, "prior_sd": tc * sd[1], "mean": t0, "sd": tc * sd[1], "treatment": none}
-    else:
-        out["t0_s"] = {"prior_mean": t0, "prior_sd": tc * sd[1], "mean": t0 + tc * offset["mean"],
-                       "sd": tc * offset["sd"], "offset_star": offset["mean"], "offset_sd_star": offset["sd"],
-                       "treatment": "analysed with the parameters in window 0's augmented ensemble" + rej(offset)}
+    """``per_experiment[].nuisance`` (SI, :func:`imrbayes.ensemble.likelihood.nuisance_summary`, as
+    En4D-Var's): Rmax and the time of the maximum from window 0's augmented ensemble (``rmax_rel`` =
+    a, ``offset`` = delta [t*]), Req from the last window the experiment took part in (``log_req`` =
+    rho, analysed in every window); None: not analysed (the preprocessing estimate and its sd)."""
+    prior = nuisance_prior_sd(obs, g)
+    post = (rmax_rel, offset, log_req)
+    mean = [0.0 if x is None else x["mean"] for x in post]
+    sd = [p if x is None else x["sd"] for x, p in zip(post, prior)]
+    out = nuisance_summary(mean, sd, prior, float(obs.rmax_m[g]), float(obs.req_m[g]), float(obs.t0_s[g]),
+                           float(obs.tc_s[g]))
+    del out["treatment"]
+    where = {"rmax_m": "analysed with the parameters in window 0's augmented ensemble",
+             "t0_s": "analysed with the parameters in window 0's augmented ensemble",
+             "req_m": "log Req analysed with the parameters in every window (the last one's posterior)"}
+    for key, x in zip(("rmax_m", "t0_s", "req_m"), post):
+        out[key]["treatment"] = ("not analysed (window 0 failed): the preprocessing estimate" if x is None else
+                                 where[key] + (" (analysis rejected: the prior)" if x.get("rejected") else ""))
     return out
 
 
