@@ -31,3 +31,24 @@ def test_bad_shape_is_refused():
     fm = ForwardModel("nhkv")
     with pytest.raises(InputError):
         fm.simulate(np.array([[5e3, 0.05]] * 2), np.full(2, 3e-4), np.full(2, 4e-5), np.ones((3, 5)))
+
+
+def test_one_compiled_signature_per_entry_point():
+    """Shared or per-member times, one member or many, polytropic or thermal: the kernel sees one
+    argument type per entry point. A second type (a read-only view, say) would be compiled in the
+    calling process instead of loaded from the cache the compiling child wrote, and its results
+    differ in the last bits from another process's (codegen.py) -- resumed runs would not match."""
+    for bubble in ("polytropic", "thermal"):
+        fm = ForwardModel("nhkv", options={"bubble": bubble})
+        theta = np.array([[5e3, 0.05], [8e3, 0.1]])
+        rmax, req = np.array([300e-6, 320e-6]), np.array([40e-6, 38e-6])
+        base = np.linspace(0.05, 0.5, 5)
+        fm.simulate(theta, rmax, req, base)
+        fm.simulate(theta[:1], rmax[:1], req[:1], base)
+        fm.simulate(theta, rmax, req, np.stack([base, base * 1.01]))
+        st = fm.initial_state(rmax[:1], req[:1])
+        fm.propagate(st, theta[:1], 0.5, base)
+        fm.propagate(st, np.repeat(theta[:1, None, :], 2, axis=1), 0.5, base, breaks_star=np.array([0.2]))
+        Runner(fm).simulate(theta, rmax, req, base)
+    assert len(fm.kernel.integrate_batch.signatures) == 1, fm.kernel.integrate_batch.signatures
+    assert len(fm.kernel.integrate_batch_parallel.signatures) <= 1, fm.kernel.integrate_batch_parallel.signatures

@@ -262,7 +262,7 @@ class ForwardModel:
         ph = self.physics
         nd = self.constitutive.nondimensionalise(table, rho=ph.rho, p8=ph.p8, uc=ph.velocity_scale,
                                                  rmax_m=np.asarray(rmax_m)[:, None])
-        return np.ascontiguousarray(nd)
+        return np.array(nd, dtype=float, order="C")     # writable: see the note on ``te`` in propagate
 
     # ------------------------------------------------------------------ propagation
     def propagate(self, state: BatchState, params, t_end: float, t_eval=None, *, breaks_star=None,
@@ -289,12 +289,14 @@ class ForwardModel:
         if t_eval.size and (np.any(np.diff(t_eval, axis=-1) < 0) or np.min(t_eval) < t0 - 1e-12
                             or np.max(t_eval) > t_end + 1e-12 or not np.all(np.isfinite(t_eval))):
             raise InputError("t_eval", "output times must be increasing and inside [t0, t_end]")
-        te = np.ascontiguousarray(np.broadcast_to(t_eval, (n, t_eval.shape[-1])))
+        # Always a writable C copy: a read-only broadcast view is another numba type, which would be
+        # compiled in this process rather than loaded from the cache the child wrote (codegen.py).
+        te = np.array(np.broadcast_to(t_eval, (n, t_eval.shape[-1])), dtype=float, order="C")
         breaks = np.atleast_1d(np.asarray([] if breaks_star is None else breaks_star, dtype=float))
         if breaks.ndim > 2 or (breaks.ndim == 2 and breaks.shape[0] != n):
             raise InputError("breaks_star", f"expected (n_breaks,) or ({n}, n_breaks) break times, got shape "
                              f"{breaks.shape}")
-        breaks = np.ascontiguousarray(np.broadcast_to(breaks, (n, breaks.shape[-1])))
+        breaks = np.array(np.broadcast_to(breaks, (n, breaks.shape[-1])), dtype=float, order="C")
         if not np.all(np.isfinite(breaks)) or np.any(np.diff(breaks, axis=1) <= 0):
             raise InputError("breaks_star", "break times must be finite and strictly increasing")
         P = self._parameter_table(params, n, state.rmax_m)
@@ -307,7 +309,7 @@ class ForwardModel:
         o = self.options
         integrate = self.kernel.integrate_batch_parallel if (self.parallel and n > 1) else self.kernel.integrate_batch
         Y, R, status, nsteps, nrej = integrate(
-            np.ascontiguousarray(state.y, dtype=float), t0, t_end, te, G, P, breaks, self._flags,
+            np.array(state.y, dtype=float, order="C"), t0, t_end, te, G, P, breaks, self._flags,
             self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols,
             self._radau)
         end = BatchState(Y, t_end, state.rmax_m.copy(), state.req_m.copy())
