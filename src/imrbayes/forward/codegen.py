@@ -74,10 +74,8 @@ def _compile_in_child(module_name: str, marker: Path) -> None:
 _CHILD_ENV = "IMRBAYES_KERNEL_CHILD"   # set in the compiling child, which must not start another
 
 
-def kernel_module(module_name: str):
-    """The kernel module for the constitutive model implemented in ``module_name``."""
-    if module_name in _LOADED:
-        return _LOADED[module_name]
+def _kernel_source(module_name: str) -> tuple:
+    """Write (once) the kernel module's source for ``module_name``; returns (module name, path)."""
     plugin = importlib.import_module(module_name)
     # numba does not notice edits of the modules a cached function calls into, so the file name
     # hashes the template, the shared modules it imports and every constitutive module (models
@@ -99,6 +97,28 @@ def kernel_module(module_name: str):
         with os.fdopen(fd, "w") as fh:
             fh.write(src)
         os.replace(tmp, path)  # atomic: concurrent processes never see half a file
+    return name, path
+
+
+def precompile(module_names=None, workers: int | None = None) -> None:
+    """Compile the kernels of several constitutive models (default: all registered), ``workers``
+    child processes at a time (default: one per CPU). A model's first compile takes about a
+    minute, one CPU; already compiled kernels cost nothing."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from imrbayes.forward.constitutive.base import REGISTRY
+
+    names = list(REGISTRY.values()) if module_names is None else list(module_names)
+    paths = [_kernel_source(m)[1] for m in names]
+    with ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
+        list(pool.map(lambda mp: _compile_in_child(mp[0], mp[1].with_suffix(".compiled")), zip(names, paths)))
+
+
+def kernel_module(module_name: str):
+    """The kernel module for the constitutive model implemented in ``module_name``."""
+    if module_name in _LOADED:
+        return _LOADED[module_name]
+    name, path = _kernel_source(module_name)
     if not os.environ.get(_CHILD_ENV):
         _compile_in_child(module_name, path.with_suffix(".compiled"))
     spec = importlib.util.spec_from_file_location(name, path)
