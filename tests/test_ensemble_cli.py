@@ -184,3 +184,20 @@ def test_validate_mcmc_agreement_case(tmp_path):
     assert res.exit_code == 0, res.output
     m = json.loads((out / "validation.json").read_text())["cases"][0]["metrics"]
     assert m["n_checked"] >= 3
+
+
+def test_fit_names_the_constants_and_where_they_came_from(dataset, tmp_path):
+    """G rests on the gel's density (docs/results.md 2a''): the run says which constants it used."""
+    args = ["--method", "imr", "--model", "nhkv", "--set", "n_G=11", "--set", "n_mu=9"]
+    res = _fit([dataset, *args, "--out", tmp_path / "a"])
+    assert "rho 1064 kg/m^3 (default)" in res.output and "kappa 1.47 (default)" in res.output
+    d = tmp_path / "data"
+    d.mkdir()
+    for f in dataset.iterdir():
+        (d / f.name).write_bytes(f.read_bytes())
+    meta = json.loads((d / "meta.json").read_text())
+    meta["physics"] = {"rho": 998.2}
+    (d / "meta.json").write_text(json.dumps(meta))
+    res = _fit([d, *args, "--out", tmp_path / "b"])
+    assert "rho 998.2 kg/m^3 (meta.json)" in res.output and "S 0.07 N/m (default)" in res.output
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["forward"]["physics"]["rho"] == 998.2

@@ -253,6 +253,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
             click.echo(f"imrbayes: warning: {w}", err=True)
         click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(res.estimate)}; "
                    f"rmse {res.rmse:.4g}; {res.runtime_s:.1f} s")
+        click.echo(constants_line(fm.physics, ds.physics or {}))
         extra = ", mcmc.nc, compare.json" if compare is not None else ""
         click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}{extra} and {len(written)} figure(s)")
         if compare is not None:
@@ -318,3 +319,16 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     if compare is not None:
         written += list(compare.get("figures", []))
     return written
+
+
+def constants_line(physics, given: dict) -> str:
+    """One line naming the constants an estimate of G rests on and where each came from: on the
+    stiff-PA data, rho 998.2 instead of 1064 kg/m^3 alone lowers G by 30 % (docs/results.md 2a'')."""
+    parts = []
+    for key, label, unit in (("rho", "rho", "kg/m^3"), ("p8", "p8", "Pa"), ("surface_tension", "S", "N/m"),
+                             ("kappa", "kappa", "")):
+        src = "meta.json" if key in given else "default"
+        parts.append(f"{label} {getattr(physics, key):g}{' ' + unit if unit else ''} ({src})")
+    return ("constants: " + ", ".join(parts) + "; defaults are IMRv2's, meta.json \"physics\" sets them "
+            "(G depends on rho: docs/results.md 2a'')")
+
