@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Stiff PA (20 bubbles): standard IMR (grid least squares, 61 x 38, per-bubble optima), one of
 # IMR v1's choices at a time (docs/results.md, "2a''"). Run from the repository root; ~45 min on
-# 2 cores. Writes /tmp/s19/of_<variant>/ and the table of collect.py.
+# 2 cores, with the virtual environment active (. .venv/bin/activate). Writes /tmp/s19/of_<variant>/
+# and the table of collect.py.
 set -euo pipefail
 mkdir -p /tmp/s19
 python docs/results/estrada2018_stiffPA/onefactor/make_variants.py
