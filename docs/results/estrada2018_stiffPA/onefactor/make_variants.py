@@ -2,7 +2,7 @@
 import json, shutil
 from pathlib import Path
 import numpy as np, pandas as pd
-SRC = Path("/work/shared/data/lic/estrada2018_stiffPA_270kfps")
+SRC = Path("../shared/data/lic/estrada2018_stiffPA_270kfps")
 meta = json.loads((SRC / "meta.json").read_text())
 def variant(name, physics=None, req=False):
     out = Path("/tmp/s19") / name

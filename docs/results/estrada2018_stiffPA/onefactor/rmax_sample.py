@@ -7,7 +7,7 @@ from imrbayes.ensemble.imr import IMRSettings, fit_imr
 from imrbayes.forward import ForwardModel
 out = {}
 for method in ("sample", "local-fit"):
-    pre = preprocess_dataset(load_dataset("/work/shared/data/lic/estrada2018_stiffPA_270kfps"), rmax_method=method,
+    pre = preprocess_dataset(load_dataset("../shared/data/lic/estrada2018_stiffPA_270kfps"), rmax_method=method,
                              skip_failed=True)
     fm = ForwardModel("nhkv")
     obs = Observations.from_preprocessed(pre)
