@@ -20,6 +20,24 @@ def _strip(obj, drop=("runtime_s", "total_runtime_s", "command", "execution", "f
     return obj
 
 
+def _assert_same(a, b, path="", rtol=1e-4, atol=1e-9):
+    """Same keys, strings and decisions exactly; floats to ``rtol`` (round-off grown through fits:
+    the same diagnose compiled for another CPU moves its numbers by up to ~1.4e-6 relative, and CI
+    has seen a run and its resume on worker processes differ at that level)."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for k in a:
+            _assert_same(a[k], b[k], f"{path}/{k}", rtol, atol)
+    elif isinstance(a, list):
+        assert len(a) == len(b), path
+        for i, (u, v) in enumerate(zip(a, b)):
+            _assert_same(u, v, f"{path}[{i}]", rtol, atol)
+    elif isinstance(a, float) and isinstance(b, float):
+        assert a == pytest.approx(b, rel=rtol, abs=atol, nan_ok=True), (path, a, b)
+    else:
+        assert a == b, (path, a, b)
+
+
 def _run(*args, expect=0):
     res = CliRunner().invoke(main, [str(a) for a in args])
     assert res.exit_code == expect, res.output
@@ -48,7 +66,7 @@ def test_diagnose_resume_on_two_processes_gives_the_same_diagnosis(gel, tmp_path
     _run(*args, "--resume", "--workers", "2")
     again = json.loads((out / "diagnosis.json").read_text())
     assert (again["execution"]["n_computed"], again["execution"]["n_resumed"]) == (2, 3)
-    assert _strip(again) == _strip(ref)
+    _assert_same(_strip(again), _strip(ref))
     res = _run(*args[:-1], "--resume", "--seed", "3", expect=2)     # another configuration: refused
     assert "cannot resume" in res.output and len(res.output.strip().splitlines()) == 1
 

@@ -25,6 +25,7 @@ import re
 import subprocess
 import sys
 import tempfile
+import warnings
 from pathlib import Path
 
 _TEMPLATE = Path(__file__).with_name("_kernel_template.py")
@@ -69,6 +70,12 @@ def _compile_in_child(module_name: str, marker: Path) -> None:
         with os.fdopen(fd, "w") as fh:
             fh.write(stamp)
         os.replace(tmp, marker)
+    else:
+        # Said aloud: this process then compiles for itself, and its in-memory code may differ in
+        # the last bits from the cached code other processes load (a run and its resume on workers).
+        tail = (done.stderr or "").strip().splitlines()[-1:] or ["no output"]
+        warnings.warn(f"compiling {module_name}'s kernel in a child process failed (exit {done.returncode}: "
+                      f"{tail[0]}); compiling in this process", RuntimeWarning, stacklevel=2)
 
 
 _CHILD_ENV = "IMRBAYES_KERNEL_CHILD"   # set in the compiling child, which must not start another
