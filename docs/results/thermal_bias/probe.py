@@ -1,0 +1,237 @@
+"""Where does the thermal camera design's mu (and G) bias come from? (issue #19, docs/results.md)
+
+For each seed, the camera family's data exactly as validation/camera_calibration.py draws them
+(thermal bubble, rtol 1e-9), then En4D-Var with the default settings under variants that hand the
+fit one piece of the truth at a time:
+
+  default     nothing of the truth (the calibration's row)
+  req         each experiment's true Req in place of the preprocessing's estimate (same stated sd)
+  req_fixed   true Req, its sd ~0 (Req not a free nuisance)
+  quiet       the same design with 10x less noise (0.002 R*): a deterministic bias survives it
+
+Usage: python docs/results/thermal_bias/probe.py SEED [SEED ...] [--variants a,b] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "validation"))
+import camera_calibration as cc  # noqa: E402
+
+from imrbayes.data import load_dataset, preprocess_dataset  # noqa: E402
+from imrbayes.ensemble import En4DVarSettings, Observations, ParamSpace, fit_en4dvar  # noqa: E402
+from imrbayes.forward import ForwardModel  # noqa: E402
+
+
+def simulate(folder: Path, seed: int, noise: float) -> dict:
+    import subprocess
+    cmd = [sys.executable, "-m", "imrbayes.cli", "simulate", "--model", "nhkv",
+           "--param", f"G={cc.TRUTH['G']}", "--param", f"mu={cc.TRUTH['mu']}", "--rmax", "320e-6:45e-6",
+           "--ratio", "7.9:0.45", "--n-exp", "6", "--noise", str(noise) if noise > 0 else "none", "--frame-s", "1e-6", "--phase", "random",
+           "--pre-max-s", "5e-6", "--no-req-in-meta", "--t-end", "3.6", "--seed", str(seed), "--out", str(folder),
+           "--forward", "bubble=thermal", "--forward", "rtol=1e-9", "--forward", "atol=1e-11"]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    return json.loads((folder / "truth.json").read_text())
+
+
+def run(seed: int, variant: str) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "data"
+        truth = simulate(folder, seed, 0.002 if variant == "quiet" else 0.02)
+        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    true_req = np.array([e["req_m"] for e in truth["experiments"]])
+    req_err = obs.req_m / true_req - 1
+    if variant in ("req", "req_fixed"):
+        obs.req_m = true_req.copy()
+    if variant == "req_fixed":
+        obs.nuisance_sd[:, 2] = 0.0
+    fm = ForwardModel("nhkv", options={"bubble": "thermal"})
+    space = ParamSpace.for_model(fm.constitutive)
+    t0 = time.perf_counter()
+    res = fit_en4dvar(fm, obs, space, En4DVarSettings(n_draws=1, loglik=False), seed=seed)
+    row = {"seed": seed, "variant": variant, "runtime_s": time.perf_counter() - t0,
+           "req_preprocessing_rel_error": req_err.tolist()}
+    for n, true in cc.TRUTH.items():
+        e = res.estimate[n]
+        row[n] = {"rel_error": e["mean"] / true - 1, "rel_sd": e["sd"] / true,
+                  "covers": bool(e["hdi95"][0] <= true <= e["hdi95"][1])}
+    nu = res.per_experiment or []
+    row["req_fitted_rel_error"] = [p["nuisance"]["req_m"]["mean"] / r - 1
+                                   for p, r in zip(nu, true_req) if "nuisance" in p]
+    return row
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("seeds", type=int, nargs="+")
+    ap.add_argument("--variants", default="default,req,req_fixed,quiet")
+    ap.add_argument("--json", type=Path)
+    a = ap.parse_args(argv)
+    rows = json.loads(a.json.read_text()) if a.json and a.json.exists() else []
+    done = {(r["seed"], r["variant"]) for r in rows}
+    for seed in a.seeds:
+        for v in a.variants.split(","):
+            if (seed, v) in done:
+                continue
+            r = run(seed, v)
+            rows.append(r)
+            print(f"seed {seed} {v:10s} G {r['G']['rel_error']:+.3f} ({r['G']['rel_sd']:.3f}) "
+                  f"mu {r['mu']['rel_error']:+.3f} ({r['mu']['rel_sd']:.3f})  Req pre "
+                  f"{np.mean(r['req_preprocessing_rel_error']):+.3f} fit "
+                  f"{np.mean(r['req_fitted_rel_error']) if r['req_fitted_rel_error'] else float('nan'):+.3f}"
+                  f"  {r['runtime_s']:.0f} s", flush=True)
+            if a.json:
+                a.json.write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
+
+
+def map_fit(seed: int, noise: float = 0.02, random_effects=None) -> dict:
+    """The deterministic MAP (diagnose's Levenberg–Marquardt, same nuisances, no tempering, no
+    random effects by default) on the same data: is the bias the likelihood's or the ensemble's?"""
+    from imrbayes.diagnosis.lsq import ObsModel, fit_map
+    from imrbayes.diagnosis.models import make_candidate
+    from imrbayes.diagnosis.phases import phases_of
+    from imrbayes.forward import ForwardOptions
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "data"
+        truth = simulate(folder, seed, noise)
+        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"))
+    om = ObsModel.of(obs, random_effects=random_effects)
+    t0 = time.perf_counter()
+    f = fit_map(cand, obs, K=K, minima=phases_of(obs).minima, om=om)
+    true_req = np.array([e["req_m"] for e in truth["experiments"]])
+    row = {"seed": seed, "variant": f"map_noise{noise}", "runtime_s": time.perf_counter() - t0,
+           "z": f.z.tolist(), "cov": f.cov.tolist(), "converged": bool(f.converged),
+           "req_fitted_rel_error": (obs.req_m * np.exp(f.nu[:, 2]) / true_req - 1).tolist()}
+    G, mu = float(np.exp(f.z[0])), float(np.exp(f.z[1]))
+    row["G"] = {"rel_error": G / cc.TRUTH["G"] - 1, "rel_sd": float(np.sqrt(f.cov[0, 0]))}
+    row["mu"] = {"rel_error": mu / cc.TRUTH["mu"] - 1, "rel_sd": float(np.sqrt(f.cov[1, 1]))}
+    return row
+
+
+def profile_grid(seed: int, noise: float = 0.02, g_rel=(0.8, 1.5, 11), mu_rel=(0.85, 1.25, 9)) -> dict:
+    """The (G, mu) posterior on a grid, nuisances profiled out (refitted at every point), the
+    paper prior added: its mean and 95 % region against the MAP's Laplace interval."""
+    from imrbayes.diagnosis.lsq import ObsModel, fit_map
+    from imrbayes.diagnosis.models import make_candidate
+    from imrbayes.diagnosis.phases import phases_of
+    from imrbayes.forward import ForwardOptions
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "data"
+        simulate(folder, seed, noise)
+        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"))
+    om = ObsModel.of(obs, random_effects=None)
+    minima = phases_of(obs).minima
+    gs = np.log(cc.TRUTH["G"] * np.linspace(*g_rel))
+    ms = np.log(cc.TRUTH["mu"] * np.linspace(*mu_rel))
+    m0, s0 = cand.prior_mean, cand.prior_sd
+    logp = np.zeros((gs.size, ms.size))
+    nu = None
+    for i, lg in enumerate(gs):
+        for j, lm in enumerate(ms):
+            z = np.array([lg, lm])
+            f = fit_map(cand, obs, K=K, minima=minima, om=om, starts=[z], fix_material=True, nu0=nu)
+            logp[i, j] = -f.cost - 0.5 * float(np.sum(((z - m0) / s0) ** 2))
+    p = np.exp(logp - logp.max())
+    p /= p.sum()
+    G, M = np.meshgrid(np.exp(gs), np.exp(ms), indexing="ij")
+    mean = {"G": float((p * G).sum()), "mu": float((p * M).sum())}
+    # the highest-density region holding 95 %: is the truth's cell inside it?
+    order = np.sort(p.ravel())[::-1]
+    level = order[np.searchsorted(np.cumsum(order), 0.95)]
+    ti, tj = int(np.argmin(np.abs(gs - np.log(cc.TRUTH["G"])))), int(np.argmin(np.abs(ms - np.log(cc.TRUTH["mu"]))))
+    return {"seed": seed, "noise": noise, "G_grid": np.exp(gs).tolist(), "mu_grid": np.exp(ms).tolist(),
+            "logp": logp.tolist(), "mean": mean, "truth_in_hpd95": bool(p[ti, tj] >= level),
+            "mean_rel_error": {k: mean[k] / cc.TRUTH[k] - 1 for k in mean},
+            "delta_logp_truth": float(logp.max() - logp[ti, tj])}
+
+
+def where_it_wins(seed: int, noise: float = 0.02) -> dict:
+    """Weighted residual sums of squares at the MAP and at the truth (nuisances refitted, with
+    restarts), by phase of the record: where do the data prefer the biased material?"""
+    from imrbayes.diagnosis.lsq import ObsModel, fit_map
+    from imrbayes.diagnosis.models import make_candidate
+    from imrbayes.diagnosis.phases import phases_of
+    from imrbayes.forward import ForwardOptions
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "data"
+        simulate(folder, seed, noise)
+        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"))
+    om = ObsModel.of(obs, random_effects=None)
+    ph = phases_of(obs)
+    fmap = fit_map(cand, obs, K=K, minima=ph.minima, om=om, restarts=True)
+    zt = np.log([cc.TRUTH["G"], cc.TRUTH["mu"]])
+    ftru = fit_map(cand, obs, K=K, minima=ph.minima, om=om, starts=[zt], fix_material=True, nu0=fmap.nu,
+                   restarts=True)
+    y = obs.R_star[:, 1:K + 1]
+    w = om.weight[:, None]
+    t = obs.t_star[1:K + 1]
+    edges = [0.0, 0.8, 1.0, 1.5, 2.0, 3.0 + 1e-9]
+    out = {"seed": seed, "map_rel": (np.exp(fmap.z) / np.array([cc.TRUTH["G"], cc.TRUTH["mu"]]) - 1).tolist(),
+           "cost_map": fmap.cost, "cost_truth": ftru.cost, "by_phase": []}
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (t >= lo) & (t < hi)
+        rm = ((y - fmap.fitted[:, 1:]) * w)[:, sel]
+        rt = ((y - ftru.fitted[:, 1:]) * w)[:, sel]
+        out["by_phase"].append({"t_star": [lo, hi], "ssr_map": float(np.sum(rm ** 2)),
+                                "ssr_truth": float(np.sum(rt ** 2)),
+                                "mean_resid_map": float(np.mean(rm / w)), "mean_resid_truth": float(np.mean(rt / w))})
+    out["nu_map"] = fmap.nu.tolist()
+    out["nu_truth"] = ftru.nu.tolist()
+    return out
+
+
+def map_oracle_geometry(seed: int, noise: float = 0.02) -> dict:
+    """MAP of (G, mu) alone with every experiment's Rmax, time of the maximum and Req at their true
+    values (nuisances fixed there): is the bias in the material likelihood or in the nuisances?"""
+    from dataclasses import replace as _replace
+
+    from imrbayes.diagnosis.lsq import ObsModel, fit_map
+    from imrbayes.diagnosis.models import make_candidate
+    from imrbayes.diagnosis.phases import phases_of
+    from imrbayes.forward import ForwardOptions
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "data"
+        truth = simulate(folder, seed, noise)
+        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    ex = truth["experiments"]
+    a = np.array([e["rmax_m"] for e in ex]) / obs.rmax_m - 1
+    delta = (np.array([e["t_max_s"] for e in ex]) - obs.t0_s) / obs.tc_s
+    rho = np.log(np.array([e["req_m"] for e in ex]) / obs.req_m)
+    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"))
+    om = ObsModel.of(obs, random_effects=None)
+    nu0 = np.column_stack([a, delta, rho])
+    om_fixed = _replace(om, nu_sd=np.zeros_like(om.nu_sd))
+    rows = {}
+    for name, o, n0 in (("nuisances free", om, None), ("geometry at truth", om_fixed, nu0)):
+        f = fit_map(cand, obs, K=K, minima=phases_of(obs).minima, om=o, nu0=n0)
+        rows[name] = {"rel_error": (np.exp(f.z) / np.array([cc.TRUTH["G"], cc.TRUTH["mu"]]) - 1).tolist(),
+                      "rel_sd": np.sqrt(np.diag(f.cov)).tolist(), "cost": f.cost}
+    return {"seed": seed, "noise": noise, "true_nuisances": nu0.tolist(), **rows}
