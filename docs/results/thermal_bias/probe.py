@@ -28,6 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "validation"))
 import camera_calibration as cc  # noqa: E402
 
 from imrbayes.data import load_dataset, preprocess_dataset  # noqa: E402
+from imrbayes.diagnosis.lsq import ObsModel, fit_map, predict  # noqa: E402
+from imrbayes.diagnosis.phases import phases_of  # noqa: E402
 from imrbayes.ensemble import En4DVarSettings, Observations, ParamSpace, fit_en4dvar  # noqa: E402
 from imrbayes.forward import ForwardModel  # noqa: E402
 
@@ -41,6 +43,26 @@ def simulate(folder: Path, seed: int, noise: float) -> dict:
            "--forward", "bubble=thermal", "--forward", "rtol=1e-9", "--forward", "atol=1e-11"]
     subprocess.run(cmd, check=True, capture_output=True, text=True)
     return json.loads((folder / "truth.json").read_text())
+
+
+def records(seed: int, noise: float):
+    """The calibration's six records for ``seed`` at ``noise`` [R*], preprocessed as ``fit`` does:
+    (Observations, truth.json, the raw Dataset, K = the last sample at t* <= 3)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "data"
+        truth = simulate(folder, seed, noise)
+        ds = load_dataset(folder)
+        pre = preprocess_dataset(ds, skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    return obs, truth, ds, int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+
+
+def thermal_candidate(prior=None):
+    """The baseline (NHKV) on the default thermal forward model; ``prior``: (G, mu) overrides."""
+    from imrbayes.diagnosis.models import make_candidate
+    from imrbayes.forward import ForwardOptions
+
+    return make_candidate("nhkv", ForwardOptions(bubble="thermal"), prior=dict(prior) if prior else None)
 
 
 def run(seed: int, variant: str) -> dict:
@@ -101,18 +123,8 @@ if __name__ == "__main__":
 def map_fit(seed: int, noise: float = 0.02, random_effects=None) -> dict:
     """The deterministic MAP (diagnose's Levenberg–Marquardt, same nuisances, no tempering, no
     random effects by default) on the same data: is the bias the likelihood's or the ensemble's?"""
-    from imrbayes.diagnosis.lsq import ObsModel, fit_map
-    from imrbayes.diagnosis.models import make_candidate
-    from imrbayes.diagnosis.phases import phases_of
-    from imrbayes.forward import ForwardOptions
-
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp) / "data"
-        truth = simulate(folder, seed, noise)
-        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
-    obs = Observations.from_preprocessed(pre)
-    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
-    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"))
+    obs, truth, ds, K = records(seed, noise)
+    cand = thermal_candidate()
     om = ObsModel.of(obs, random_effects=random_effects)
     t0 = time.perf_counter()
     f = fit_map(cand, obs, K=K, minima=phases_of(obs).minima, om=om)
@@ -129,18 +141,8 @@ def map_fit(seed: int, noise: float = 0.02, random_effects=None) -> dict:
 def profile_grid(seed: int, noise: float = 0.02, g_rel=(0.8, 1.5, 11), mu_rel=(0.85, 1.25, 9)) -> dict:
     """The (G, mu) posterior on a grid, nuisances profiled out (refitted at every point), the
     paper prior added: its mean and 95 % region against the MAP's Laplace interval."""
-    from imrbayes.diagnosis.lsq import ObsModel, fit_map
-    from imrbayes.diagnosis.models import make_candidate
-    from imrbayes.diagnosis.phases import phases_of
-    from imrbayes.forward import ForwardOptions
-
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp) / "data"
-        simulate(folder, seed, noise)
-        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
-    obs = Observations.from_preprocessed(pre)
-    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
-    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"))
+    obs, truth, ds, K = records(seed, noise)
+    cand = thermal_candidate()
     om = ObsModel.of(obs, random_effects=None)
     minima = phases_of(obs).minima
     gs = np.log(cc.TRUTH["G"] * np.linspace(*g_rel))
@@ -170,18 +172,8 @@ def profile_grid(seed: int, noise: float = 0.02, g_rel=(0.8, 1.5, 11), mu_rel=(0
 def where_it_wins(seed: int, noise: float = 0.02) -> dict:
     """Weighted residual sums of squares at the MAP and at the truth (nuisances refitted, with
     restarts), by phase of the record: where do the data prefer the biased material?"""
-    from imrbayes.diagnosis.lsq import ObsModel, fit_map
-    from imrbayes.diagnosis.models import make_candidate
-    from imrbayes.diagnosis.phases import phases_of
-    from imrbayes.forward import ForwardOptions
-
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp) / "data"
-        simulate(folder, seed, noise)
-        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
-    obs = Observations.from_preprocessed(pre)
-    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
-    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"))
+    obs, truth, ds, K = records(seed, noise)
+    cand = thermal_candidate()
     om = ObsModel.of(obs, random_effects=None)
     ph = phases_of(obs)
     fmap = fit_map(cand, obs, K=K, minima=ph.minima, om=om, restarts=True)
@@ -206,54 +198,14 @@ def where_it_wins(seed: int, noise: float = 0.02) -> dict:
     return out
 
 
-def map_oracle_geometry(seed: int, noise: float = 0.02) -> dict:
-    """MAP of (G, mu) alone with every experiment's Rmax, time of the maximum and Req at their true
-    values (nuisances fixed there): is the bias in the material likelihood or in the nuisances?"""
-    from dataclasses import replace as _replace
-
-    from imrbayes.diagnosis.lsq import ObsModel, fit_map
-    from imrbayes.diagnosis.models import make_candidate
-    from imrbayes.diagnosis.phases import phases_of
-    from imrbayes.forward import ForwardOptions
-
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp) / "data"
-        truth = simulate(folder, seed, noise)
-        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
-    obs = Observations.from_preprocessed(pre)
-    ex = truth["experiments"]
-    a = np.array([e["rmax_m"] for e in ex]) / obs.rmax_m - 1
-    delta = (np.array([e["t_max_s"] for e in ex]) - obs.t0_s) / obs.tc_s
-    rho = np.log(np.array([e["req_m"] for e in ex]) / obs.req_m)
-    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
-    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"))
-    om = ObsModel.of(obs, random_effects=None)
-    nu0 = np.column_stack([a, delta, rho])
-    om_fixed = _replace(om, nu_sd=np.zeros_like(om.nu_sd))
-    rows = {}
-    for name, o, n0 in (("nuisances free", om, None), ("geometry at truth", om_fixed, nu0)):
-        f = fit_map(cand, obs, K=K, minima=phases_of(obs).minima, om=o, nu0=n0)
-        rows[name] = {"rel_error": (np.exp(f.z) / np.array([cc.TRUTH["G"], cc.TRUTH["mu"]]) - 1).tolist(),
-                      "rel_sd": np.sqrt(np.diag(f.cov)).tolist(), "cost": f.cost}
-    return {"seed": seed, "noise": noise, "true_nuisances": nu0.tolist(), **rows}
-
-
 def frames_vs_grid(seed: int, noise: float = 0.02, prior=None, frames: bool = True) -> list:
     """Each experiment alone, MAP (G, mu and its three nuisances) on (a) the pipeline's grid (frames
     interpolated onto dt* = 0.025, the model put through the same interpolation) and (b) the camera
     frames themselves as point values: does the grid's interpolation bias the material?"""
-    from imrbayes.diagnosis.lsq import ObsModel, fit_map
     from imrbayes.diagnosis.models import make_candidate
-    from imrbayes.diagnosis.phases import phases_of
     from imrbayes.forward import ForwardOptions
 
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp) / "data"
-        simulate(folder, seed, noise)
-        ds = load_dataset(folder)
-        pre = preprocess_dataset(ds, skip_failed=True)
-    obs = Observations.from_preprocessed(pre)
-    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+    obs, truth, ds, K = records(seed, noise)
     cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"), prior=prior)
     truth = np.array([cc.TRUTH["G"], cc.TRUTH["mu"]])
     out = []
@@ -284,18 +236,8 @@ def single_lr(seed: int, noise: float = 0.02, prior=(("G", (6000.0, 60000.0)), (
     the true material (nuisances refitted with restarts from the MAP's): 2 * (cost(truth) -
     cost(MAP)) against chi2(2) says whether the truth is inside the likelihood-ratio region even
     when it is many Laplace sds from the MAP (a likelihood far from quadratic)."""
-    from imrbayes.diagnosis.lsq import ObsModel, fit_map
-    from imrbayes.diagnosis.models import make_candidate
-    from imrbayes.diagnosis.phases import phases_of
-    from imrbayes.forward import ForwardOptions
-
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp) / "data"
-        simulate(folder, seed, noise)
-        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
-    obs = Observations.from_preprocessed(pre)
-    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
-    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"), prior=dict(prior) if prior else None)
+    obs, truth, ds, K = records(seed, noise)
+    cand = thermal_candidate(prior)
     truth = np.array([cc.TRUTH["G"], cc.TRUTH["mu"]])
     zt = np.log(truth)
     out = []
@@ -322,18 +264,8 @@ def single_is(seed: int, noise: float = 0.02, n_draws: int = 1000, rounds: int =
     refitted ``rounds`` times to the weighted draws (all rounds' draws pooled at the end, each with
     its own proposal density). Posterior mean and 95 % equal-tailed intervals of G and mu against the
     Laplace ones: does the non-Gaussian posterior cover the truth where the Gaussian does not?"""
-    from imrbayes.diagnosis.lsq import ObsModel, fit_map, predict
-    from imrbayes.diagnosis.models import make_candidate
-    from imrbayes.diagnosis.phases import phases_of
-    from imrbayes.forward import ForwardOptions
-
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp) / "data"
-        simulate(folder, seed, noise)
-        pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
-    obs = Observations.from_preprocessed(pre)
-    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
-    cand = make_candidate("nhkv", ForwardOptions(bubble="thermal"), prior=dict(prior) if prior else None)
+    obs, truth, ds, K = records(seed, noise)
+    cand = thermal_candidate(prior)
     truth = np.array([cc.TRUTH["G"], cc.TRUTH["mu"]])
     rng = np.random.default_rng(seed)
     out = []
