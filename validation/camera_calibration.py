@@ -106,12 +106,32 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, me
                 r[n]["predictive_holds"] = float(np.mean((bubbles[n] >= lo) & (bubbles[n] <= hi)))
         rec = (res.details.get("record_random_effects") or {}).get("estimate")
         if rec:          # MIEnKS-MDA: the record-level estimate beside the window aggregate
-            r["record"] = {n: {"mean": rec[n]["mean"], "sd": rec[n]["sd"], "hdi95": rec[n]["hdi95"],
-                               "covers": bool(rec[n]["hdi95"][0] <= true <= rec[n]["hdi95"][1]),
-                               "rel_error": rec[n]["mean"] / true - 1} for n, true in TRUTH.items()}
+            r["record"] = _scored(rec)
+        alts = res.details.get("alternative_estimates") or {}
+        if alts:         # e.g. bubble_posterior=sampled: the ensembles' Gaussians, the sampled fusion
+            r["alternatives"] = {name: _scored(est) for name, est in alts.items()}
         r["effective_samples"] = res.details.get("likelihood", {}).get("effective_samples")
         row[lk] = r
     return row
+
+
+def _scored(est: dict) -> dict:
+    """An estimate (name -> {mean, sd, hdi95}) against the truth."""
+    return {n: {"mean": est[n]["mean"], "sd": est[n]["sd"], "hdi95": est[n]["hdi95"],
+                "covers": bool(est[n]["hdi95"][0] <= true <= est[n]["hdi95"][1]),
+                "rel_error": est[n]["mean"] / true - 1} for n, true in TRUTH.items()}
+
+
+def _coverage_table(rec: list) -> dict:
+    out = {}
+    for n in TRUTH:
+        k = sum(x[n]["covers"] for x in rec)
+        err = np.array([x[n]["rel_error"] for x in rec])
+        out[n] = {"coverage": k / len(rec), "coverage_wilson95": wilson(k, len(rec)), "n_seeds": len(rec),
+                  "mean_rel_error": float(err.mean()), "sd_rel_error": float(err.std(ddof=1)) if len(rec) > 1 else None,
+                  "mean_rel_sd": float(np.mean([x[n]["sd"] / x[n]["mean"] for x in rec])),
+                  "within_10pct": int(np.sum(np.abs(err) <= 0.10))}
+    return out
 
 
 def summarise(rows, likelihoods) -> dict:
@@ -143,15 +163,11 @@ def summarise(rows, likelihoods) -> dict:
                 s[n]["window_coverage_all_wilson95"] = wilson(int(np.sum(flat)), len(flat))
         rec = [r[lk]["record"] for r in rows if "record" in r[lk]]
         if rec:          # MIEnKS-MDA's record-level estimate (each experiment's window likelihoods summed)
-            s["record"] = {}
-            for n in TRUTH:
-                k = sum(x[n]["covers"] for x in rec)
-                err = np.array([x[n]["rel_error"] for x in rec])
-                s["record"][n] = {"coverage": k / len(rec), "coverage_wilson95": wilson(k, len(rec)), "n_seeds": len(rec),
-                                  "mean_rel_error": float(err.mean()),
-                                  "sd_rel_error": float(err.std(ddof=1)) if len(rec) > 1 else None,
-                                  "mean_rel_sd": float(np.mean([x[n]["sd"] / x[n]["mean"] for x in rec])),
-                                  "within_10pct": int(np.sum(np.abs(err) <= 0.10))}
+            s["record"] = _coverage_table(rec)
+        names = sorted({a for r in rows for a in r[lk].get("alternatives", {})})
+        if names:
+            s["alternatives"] = {a: _coverage_table([r[lk]["alternatives"][a] for r in rows
+                                                    if a in r[lk].get("alternatives", {})]) for a in names}
         s["mean_runtime_s"] = float(np.mean([r[lk]["runtime_s"] for r in rows]))
         out[lk] = s
     return out
@@ -235,10 +251,12 @@ def main(argv=None):
                 w = s["window_coverage_all_wilson95"]
                 print(f"{'':<16} windows: coverage {s['window_coverage_all']:.2f} [{w[0]:.2f}, {w[1]:.2f}] over all, "
                       f"lowest window {s['window_coverage_min']:.2f} ({len(s['window_coverage'])} windows)")
-            if "record" in summ[lk]:
-                x = summ[lk]["record"][n]
+            others = ([("record-level", summ[lk]["record"])] if "record" in summ[lk] else []) + \
+                list(summ[lk].get("alternatives", {}).items())
+            for label, tab in others:
+                x = tab[n]
                 w = x["coverage_wilson95"]
-                print(f"{'':<16} record-level: coverage {x['coverage']:.2f} [{w[0]:.2f}, {w[1]:.2f}], bias "
+                print(f"{'':<16} {label}: coverage {x['coverage']:.2f} [{w[0]:.2f}, {w[1]:.2f}], bias "
                       f"{x['mean_rel_error']:+.3f}, scatter {(x['sd_rel_error'] or float('nan')):.3f}, post sd {x['mean_rel_sd']:.3f}")
     if a.json:
         a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "method": a.method, "truth": TRUTH,

@@ -52,6 +52,16 @@ observation of variance P_k (the plain Gaussian likelihood, as IMR's least squar
 five records, is itself noisy (E[1/P_k] = 2/sigma^2 for four degrees of freedom); with the true
 noise variance the coverage is 90 % (G) and 85 % (mu).
 
+Sampled bubble posteriors (``bubble_posterior="sampled"``, default likelihood only): after the
+last cycle, each experiment's posterior of its parameters and nuisances under the original prior is
+sampled by adaptive importance sampling from the ensemble's Gaussian
+(:func:`imrbayes.ensemble.sampled.adaptive_importance`, ``is_rounds`` x ``is_draws`` forward runs
+per experiment), and the sampled moments replace the ensemble's in the fusion. Why: on thermal
+camera records one bubble's posterior is a skewed ridge that the ensemble's Gaussian makes too
+narrow and too high, so the fused estimate was confidently wrong (docs/results.md, "Why the
+thermal rows miss"). ``details["alternative_estimates"]`` then also holds the ensembles' Gaussian
+fusion and the samples fused as densities (:func:`imrbayes.ensemble.sampled.fuse_draws`).
+
 Positive parameters live in log space throughout, so nothing is clipped; the reported SI
 estimate is the log-normal marginal of the fused Gaussian.
 """
@@ -69,6 +79,7 @@ from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, rand
 from imrbayes.ensemble.likelihood import (check_choice, frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
                                           predict, record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
+from imrbayes.ensemble.sampled import WeightedDraws, adaptive_importance, fuse_draws, weighted_quantiles
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
                                       si_covariance)
 from imrbayes.errors import InputError
@@ -89,7 +100,10 @@ class En4DVarSettings:
     screen: prior draws screened for the first cycle's centre (0 = start at the prior mean);
     max_iter: Gauss-Newton iterations per cycle past ``n_iter`` while the cost still falls by 1 %
     (:func:`~imrbayes.ensemble.gn.gauss_newton`); both default likelihood only: ``paper`` keeps the
-    paper's start and its fixed ``n_iter``.
+    paper's start and its fixed ``n_iter``. bubble_posterior (default likelihood only): ``gaussian``
+    (the last cycle's ensemble) or ``sampled`` (each experiment's posterior of parameters and
+    nuisances by adaptive importance sampling from that Gaussian, ``is_rounds`` x ``is_draws``
+    forward runs per experiment; see the module doc).
     """
 
     n_ens: int = 48
@@ -105,6 +119,9 @@ class En4DVarSettings:
     likelihood: str = "default"
     screen: int = 96
     max_iter: int = 15
+    bubble_posterior: str = "gaussian"
+    is_draws: int = 1000
+    is_rounds: int = 4
 
     def resolved(self) -> "En4DVarSettings":
         """The settings with the likelihood's own choices filled in (``paper``: averaged cost and the
@@ -132,6 +149,13 @@ class En4DVarSettings:
             raise InputError("max_iter", f"must be at least n_iter ({self.n_iter}), got {self.max_iter}")
         if self.screen < 0:
             raise InputError("screen", f"must be 0 (off) or a number of prior draws, got {self.screen}")
+        if self.bubble_posterior not in ("gaussian", "sampled"):
+            raise InputError("bubble_posterior", f"must be 'gaussian' or 'sampled', got {self.bubble_posterior!r}")
+        if self.bubble_posterior == "sampled" and s.likelihood != "default":
+            raise InputError("bubble_posterior", "'sampled' needs the default likelihood (the paper's keeps the ensemble)")
+        if self.is_draws < 50 or self.is_rounds < 1:
+            raise InputError("is_draws/is_rounds", f"need at least 50 draws and one round, got {self.is_draws}, "
+                                                   f"{self.is_rounds}")
 
 
 def fit_window(obs, K: int, obs_weight: str = "mean"):
@@ -228,9 +252,26 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         cycles[0]["screen"] = screen_info
     qa = res.prior_anoms[0]
     pm, pc, qm, qc = res.mean[0], res.cov[0], res.prior_ensemble[0].mean(axis=0), qa.T @ qa
+    sampled = None
+    if default and s.bubble_posterior == "sampled":
+        # the posterior under the original prior (parameters and nuisances), sampled from the
+        # ensemble's Gaussian; its moments replace the ensemble's and the prior is the original one
+        m0 = np.concatenate([space.prior_mean, np.zeros(k)])
+        C0 = np.block([[space.prior_cov, np.zeros((n_p, k))], [np.zeros((k, n_p)), np.diag(nu_sd[active] ** 2)]])
+        ev_final = ev
+
+        def log_target(Z):
+            return -posterior_cost(ev_final, y, Z, m0, C0)
+        dr = adaptive_importance(log_target, pm, pc, rng, n_draws=s.is_draws, rounds=s.is_rounds)
+        pm, pc, qm, qc = dr.mean, dr.cov, m0, C0
+        thin = dr.thinned(2000, rng)
+        sampled = {"ess": dr.ess, "n_draws": int(dr.x.shape[0]), "x": thin.x[:, :n_p], "w": thin.w}
     # the parameters' marginals (the nuisances are reported per experiment)
     out = {"mean": pm[:n_p], "cov": pc[:n_p, :n_p], "prior_mean": qm[:n_p], "prior_cov": qc[:n_p, :n_p],
-           "stopped": bool(res.stopped[0]), "cycles": cycles}
+           "stopped": bool(res.stopped[0]), "cycles": cycles, "sampled": sampled}
+    if sampled is not None:
+        out["ensemble_mean"], out["ensemble_cov"] = res.mean[0][:n_p], res.cov[0][:n_p, :n_p]
+        out["ensemble_prior_mean"], out["ensemble_prior_cov"] = res.prior_ensemble[0].mean(axis=0)[:n_p], (qa.T @ qa)[:n_p, :n_p]
     if default:
         nu_mean, nu_sd_post = np.zeros(3), np.zeros(3)
         nu_mean[active] = pm[n_p:]
@@ -365,7 +406,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
             progress(c + 1)
     post_mean = np.stack([r["mean"] for r in R])
     post_cov = np.stack([r["cov"] for r in R])
-    hier = None
+    hier = alternatives = None
     if default:
         Lam, eta, _, n_clip = likelihood_terms(post_mean, post_cov, np.stack([r["prior_mean"] for r in R]),
                                                np.stack([r["prior_cov"] for r in R]))
@@ -378,6 +419,8 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
         own_mean = np.stack([C @ (np.linalg.solve(space.prior_cov, space.prior_mean) + e)
                              for C, e in zip(own_cov, eta)])
         post_mean, post_cov = own_mean, own_cov
+        if s.bubble_posterior == "sampled":
+            alternatives = _sampled_alternatives(R, space, hier, np.random.default_rng((seed, 19)))
     elif s.fusion == "prior":
         fus = fuse(post_mean, post_cov, space.prior_mean, space.prior_cov)
     else:
@@ -491,6 +534,9 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
                                + (", each experiment at its inferred Rmax, time of the maximum and Req (posterior "
                                   "mean) and through its camera frames" if default else "")}
     estimate = gaussian_estimate(space, est_mean, est_cov)
+    if alternatives is not None:
+        details["sampled"] = alternatives.pop("info")
+        details["alternative_estimates"] = alternatives
     if hier is not None:
         h = hier.summaries(space)
         estimate = h["estimate"]
@@ -522,6 +568,39 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
         runtime_s=time.perf_counter() - t0, warnings=warnings,
         window_posteriors=[fitting_window_posterior(fm, obs, space, K, s.obs_weight or "sum", fus.mean, fus.cov,
                                                     whiten, offsets)])
+
+
+def _draws_estimate(space, dr: WeightedDraws) -> dict:
+    """SI mean, sd and equal-tailed 95 % interval of each parameter from weighted draws of z."""
+    out = {}
+    for i, name in enumerate(space.names):
+        v = np.exp(dr.x[:, i]) if space.positive[i] else dr.x[:, i]
+        m = float(dr.w @ v)
+        lo, hi = weighted_quantiles(v, dr.w, [0.025, 0.975])
+        out[name] = {"mean": m, "sd": float(np.sqrt(dr.w @ (v - m) ** 2)), "hdi95": [float(lo), float(hi)],
+                     "interval": "equal-tailed 95 %"}
+    return out
+
+
+def _sampled_alternatives(R, space, hier, rng) -> dict:
+    """With ``bubble_posterior="sampled"``: the gel-level estimate two other ways, for comparison
+    (details["alternative_estimates"]): from the ensembles' Gaussians (what ``gaussian`` reports),
+    and from the sampled posteriors themselves (not their moments) at the fitted between-bubble sd
+    (:func:`~imrbayes.ensemble.sampled.fuse_draws`)."""
+    Lam_e, eta_e, _, _ = likelihood_terms(np.stack([r["ensemble_mean"] for r in R]), np.stack([r["ensemble_cov"] for r in R]),
+                                          np.stack([r["ensemble_prior_mean"] for r in R]),
+                                          np.stack([r["ensemble_prior_cov"] for r in R]))
+    ens = random_effects(Lam_e, eta_e, space.prior_mean, space.prior_cov, names=space.names, intervals=False)
+    draws = [WeightedDraws(r["sampled"]["x"], r["sampled"]["w"], float(r["sampled"]["ess"])) for r in R]
+    T = np.nan_to_num(hier.tau) ** 2
+    fused = fuse_draws(draws, space.prior_mean, space.prior_cov, T, hier.mean, hier.cov, rng)
+    return {"ensemble_gaussian": ens.summaries(space)["estimate"], "sampled_fusion": _draws_estimate(space, fused),
+            "info": {"ess_per_experiment": [float(r["sampled"]["ess"]) for r in R],
+                     "draws_per_experiment": [int(r["sampled"]["n_draws"]) for r in R], "fusion_ess": fused.ess,
+                     "note": "each experiment's posterior of parameters and nuisances by adaptive importance "
+                             "sampling (multivariate t proposals from the ensemble's Gaussian); the reported "
+                             "estimate fuses these posteriors' moments; alternative_estimates: the ensembles' "
+                             "Gaussians, and the sampled posteriors fused as kernel densities"}}
 
 
 def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov, whiten=None,
