@@ -50,3 +50,34 @@ def test_en4dvar_rows_have_no_window_entry(cal):
     del rows[0]["default"]["windows"]
     s = cal.summarise(rows, ["default"])["default"]
     assert "window_coverage" not in s["G"] and s["G"]["coverage"] == 1.0
+
+
+def _file(tmp_path, name, rows, cal, settings=None):
+    for r in rows:                       # En4D-Var rows: no windows
+        r["default"].pop("windows", None)
+    p = tmp_path / name
+    cal._write(p, {"family": "camera", "bubble": "thermal", "method": "en4dvar", "settings": settings or {}},
+               rows, [], ["default"])
+    return p
+
+
+def test_merge_unites_seed_ranges_run_apart(cal, tmp_path):
+    a = _file(tmp_path, "a.json", [_row(0, True, []), _row(1, False, [])], cal)
+    b = _file(tmp_path, "b.json", [_row(2, True, []), _row(1, False, [])], cal)   # seed 1 in both, the same
+    out = tmp_path / "all.json"
+    m = cal.merge([b, a], out)
+    assert [r["seed"] for r in m["rows"]] == [0, 1, 2]
+    import json
+    d = json.loads(out.read_text())
+    assert d["summary"]["default"]["G"]["coverage"] == pytest.approx(2 / 3)
+    assert d["settings"] == {} and d["bubble"] == "thermal"
+
+
+def test_merge_refuses_another_design_or_a_conflicting_seed(cal, tmp_path):
+    a = _file(tmp_path, "a.json", [_row(0, True, [])], cal)
+    other = _file(tmp_path, "o.json", [_row(1, True, [])], cal, settings={"bubble_posterior": "sampled"})
+    with pytest.raises(SystemExit, match="another design"):
+        cal.merge([a, other], None)
+    clash = _file(tmp_path, "c.json", [_row(0, False, [])], cal)
+    with pytest.raises(SystemExit, match="seed 0 differs"):
+        cal.merge([a, clash], None)

@@ -21,6 +21,9 @@ cost). Usage:
     python validation/camera_calibration.py --seeds 20 --family camera --json validation/results/camera.json
     python validation/camera_calibration.py --seeds 20 --family scatter --json validation/results/camera_scatter.json
     python validation/camera_calibration.py --seeds 20 --method mienks --likelihoods default --json validation/results/camera_mienks.json
+
+Seed ranges can run in parallel processes (``--first-seed``, ``--seeds``, one ``--json`` each) and be
+united afterwards: ``--merge a.json b.json --json all.json``.
 """
 
 from __future__ import annotations
@@ -185,6 +188,62 @@ def _setting(kv: str):
     return key, val
 
 
+def _write(path: Path, meta: dict, rows: list, failures: list, lks) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({**meta, "truth": TRUTH, "rows": rows, "failures": failures,
+                                "summary": summarise(rows, lks)}, indent=1))
+
+
+def merge(paths, out: Path | None) -> dict:
+    """One calibration file from several runs of the same design (e.g. seed ranges run in parallel
+    processes): rows united by seed. Runs of another family, bubble, method or settings are refused,
+    and so is a seed that two files report differently."""
+    meta, rows, failures, lks = None, {}, [], None
+    for p in paths:
+        d = json.loads(Path(p).read_text())
+        m = {"family": d["family"], "bubble": d["bubble"], "method": d.get("method", "en4dvar"),
+             "settings": d.get("settings", {})}
+        if meta is None:
+            meta, lks = m, [k for k in d["summary"]]
+        elif m != meta:
+            raise SystemExit(f"{p}: another design than the first file ({m} vs {meta})")
+        for r in d["rows"]:
+            if r["seed"] in rows and rows[r["seed"]] != r:
+                raise SystemExit(f"{p}: seed {r['seed']} differs from another file's")
+            rows[r["seed"]] = r
+        failures += [f for f in d.get("failures", []) if f["seed"] not in rows]
+    merged = [rows[k] for k in sorted(rows)]
+    if out is not None:
+        _write(out, meta, merged, failures, lks)
+    _print_table(meta["family"], meta["method"], meta["bubble"], merged, failures, lks)
+    return {"meta": meta, "rows": merged, "failures": failures, "likelihoods": lks}
+
+
+def _print_table(family, method, bubble, rows, failures, lks) -> None:
+    summ = summarise(rows, lks)
+    print(f"\n{family} family, {method}, {len(rows)} seeds ({len(failures)} failed), bubble {bubble}")
+    print(f"{'likelihood':<10} {'param':<5} {'coverage':>9} {'Wilson 95%':>15} {'bias':>8} {'scatter':>8} "
+          f"{'post sd':>8} {'between cov':>12} {'pred frac':>10}")
+    for lk in lks:
+        for n in TRUTH:
+            s = summ[lk][n]
+            w = s["coverage_wilson95"]
+            print(f"{lk:<10} {n:<5} {s['coverage']:>9.2f} {f'[{w[0]:.2f}, {w[1]:.2f}]':>15} {s['mean_rel_error']:>+8.3f} "
+                  f"{(s['sd_rel_error'] or float('nan')):>8.3f} {s['mean_rel_sd']:>8.3f} "
+                  f"{s.get('between_coverage', float('nan')):>12.2f} {s.get('predictive_fraction', float('nan')):>10.2f}")
+            if "window_coverage" in s:
+                w = s["window_coverage_all_wilson95"]
+                print(f"{'':<16} windows: coverage {s['window_coverage_all']:.2f} [{w[0]:.2f}, {w[1]:.2f}] over all, "
+                      f"lowest window {s['window_coverage_min']:.2f} ({len(s['window_coverage'])} windows)")
+            others = ([("record-level", summ[lk]["record"])] if "record" in summ[lk] else []) + \
+                list(summ[lk].get("alternatives", {}).items())
+            for label, tab in others:
+                x = tab[n]
+                w = x["coverage_wilson95"]
+                print(f"{'':<16} {label}: coverage {x['coverage']:.2f} [{w[0]:.2f}, {w[1]:.2f}], bias "
+                      f"{x['mean_rel_error']:+.3f}, scatter {(x['sd_rel_error'] or float('nan')):.3f}, post sd {x['mean_rel_sd']:.3f}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
@@ -198,7 +257,13 @@ def main(argv=None):
                     help="a settings field of the method (integer, float or text), e.g. screen=0; repeatable")
     ap.add_argument("--prior", action="append", default=[], metavar="NAME=MEAN:SD",
                     help="a parameter prior other than the paper's (SI), e.g. mu=0.209:2; repeatable")
+    ap.add_argument("--merge", nargs="+", type=Path, default=None, metavar="FILE",
+                    help="no fits: unite the rows of these result files (the same design, e.g. seed ranges run in "
+                         "parallel) into --json and print the table")
     a = ap.parse_args(argv)
+    if a.merge:
+        merge(a.merge, a.json)
+        return
     prior = {}
     for kv in a.prior:
         name, _, ms = kv.partition("=")
@@ -211,6 +276,7 @@ def main(argv=None):
     settings = dict(_setting(kv) for kv in a.set)
     if prior:
         settings = {**settings, "prior": {k: list(v) for k, v in prior.items()}}     # kept apart in the JSON
+    meta = {"family": a.family, "bubble": a.bubble, "method": a.method, "settings": settings}
     rows, failures = [], []
     prev = json.loads(a.json.read_text()) if a.json and a.json.exists() else {}
     done = {r["seed"]: r for r in prev.get("rows", []) if prev.get("family") == a.family and prev.get("bubble") == a.bubble
@@ -233,34 +299,10 @@ def main(argv=None):
             f"mu {r[lk]['mu']['mean']:.4f} [{r[lk]['mu']['hdi95'][0]:.4f}, {r[lk]['mu']['hdi95'][1]:.4f}]"
             for lk in lks), flush=True)
         if a.json:
-            a.json.parent.mkdir(parents=True, exist_ok=True)
-            a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "method": a.method, "truth": TRUTH,
-                                          "rows": rows, "settings": settings, "failures": failures, "summary": summarise(rows, lks)}, indent=1))
-    summ = summarise(rows, lks)
-    print(f"\n{a.family} family, {a.method}, {len(rows)} seeds ({len(failures)} failed), bubble {a.bubble}")
-    print(f"{'likelihood':<10} {'param':<5} {'coverage':>9} {'Wilson 95%':>15} {'bias':>8} {'scatter':>8} "
-          f"{'post sd':>8} {'between cov':>12} {'pred frac':>10}")
-    for lk in lks:
-        for n in TRUTH:
-            s = summ[lk][n]
-            w = s["coverage_wilson95"]
-            print(f"{lk:<10} {n:<5} {s['coverage']:>9.2f} {f'[{w[0]:.2f}, {w[1]:.2f}]':>15} {s['mean_rel_error']:>+8.3f} "
-                  f"{(s['sd_rel_error'] or float('nan')):>8.3f} {s['mean_rel_sd']:>8.3f} "
-                  f"{s.get('between_coverage', float('nan')):>12.2f} {s.get('predictive_fraction', float('nan')):>10.2f}")
-            if "window_coverage" in s:
-                w = s["window_coverage_all_wilson95"]
-                print(f"{'':<16} windows: coverage {s['window_coverage_all']:.2f} [{w[0]:.2f}, {w[1]:.2f}] over all, "
-                      f"lowest window {s['window_coverage_min']:.2f} ({len(s['window_coverage'])} windows)")
-            others = ([("record-level", summ[lk]["record"])] if "record" in summ[lk] else []) + \
-                list(summ[lk].get("alternatives", {}).items())
-            for label, tab in others:
-                x = tab[n]
-                w = x["coverage_wilson95"]
-                print(f"{'':<16} {label}: coverage {x['coverage']:.2f} [{w[0]:.2f}, {w[1]:.2f}], bias "
-                      f"{x['mean_rel_error']:+.3f}, scatter {(x['sd_rel_error'] or float('nan')):.3f}, post sd {x['mean_rel_sd']:.3f}")
+            _write(a.json, meta, rows, failures, lks)
+    _print_table(a.family, a.method, a.bubble, rows, failures, lks)
     if a.json:
-        a.json.write_text(json.dumps({"family": a.family, "bubble": a.bubble, "method": a.method, "truth": TRUTH,
-                                      "rows": rows, "settings": settings, "failures": failures, "summary": summ}, indent=1))
+        _write(a.json, meta, rows, failures, lks)
 
 
 if __name__ == "__main__":

@@ -101,8 +101,8 @@ def _load_config(path) -> dict:
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Method setting (en4dvar: n_ens, n_iter, n_runs, rtps, t_end [t*], fusion=likelihood|prior, "
                    "obs_weight=mean|sum, bubble_posterior=gaussian|sampled (sampled: each bubble's posterior by importance "
-                   "sampling, is_rounds x is_draws more forward runs per bubble; its calibration on thermal "
-                   "camera data: docs/results.md); "
+                   "sampling, is_rounds x is_draws more forward runs per bubble, under the prior widened "
+                   "is_prior_widen times; its calibration on camera data: docs/results.md); "
                    "mienks: L, h [samples], n_ens, n_iter, rtps, likelihood=default|paper, adapt (default likelihood: "
                    "pilot pass), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
                    "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "

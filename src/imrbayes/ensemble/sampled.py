@@ -155,11 +155,13 @@ def _mixture_terms(draws: WeightedDraws, prior_mean, prior_cov, T, eps: float):
 
 
 def fuse_draws(draws, prior_mean, prior_cov, T, start_mean, start_cov, rng, n_draws: int = 1000,
-               rounds: int = 3, max_kernel_draws: int = 2000, eps: float = 0.05) -> WeightedDraws:
+               rounds: int = 3, max_kernel_draws: int = 2000, eps: float = 0.05,
+               draw_prior=None) -> WeightedDraws:
     """The gel-level mean mu | data, T from every experiment's weighted posterior draws.
 
     draws: list of :class:`WeightedDraws` (internal coordinates), each drawn under the prior
-    N(prior_mean, prior_cov), which is also mu's prior; T (d,): between-bubble variances tau^2
+    N(prior_mean, prior_cov), which is also mu's prior, unless ``draw_prior`` = (mean, cov) names
+    the (working) prior they were drawn under; T (d,): between-bubble variances tau^2
     (zeros: one common theta, the product rule); start_mean, start_cov: a Gaussian approximation
     of the answer (the Gaussian fusion), the first proposal (its sd doubled); eps: the weight of
     each experiment's Gaussian in its density (:func:`_mixture_terms`).
@@ -167,7 +169,9 @@ def fuse_draws(draws, prior_mean, prior_cov, T, start_mean, start_cov, rng, n_dr
     prior_mean = np.asarray(prior_mean, dtype=np.float64)
     P0 = np.linalg.inv(sym(prior_cov))
     T = np.asarray(T, dtype=np.float64)
-    terms = [_mixture_terms(dr.thinned(max_kernel_draws, rng), prior_mean, prior_cov, T, eps) for dr in draws]
+    dm0, dc0 = (prior_mean, prior_cov) if draw_prior is None else (np.asarray(draw_prior[0], dtype=np.float64),
+                                                                    draw_prior[1])
+    terms = [_mixture_terms(dr.thinned(max_kernel_draws, rng), dm0, dc0, T, eps) for dr in draws]
 
     def log_target(mu):
         dm = mu - prior_mean
