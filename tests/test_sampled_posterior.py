@@ -80,3 +80,33 @@ def test_fusing_skewed_draws_differs_from_fusing_their_moments():
     assert abs(gauss_mean - exact_mean) > 0.08                # the moments' Gaussian is off ...
     assert abs(dr.mean[0] - exact_mean) < 0.3 * abs(gauss_mean - exact_mean)   # ... the sampled fusion is not
     assert abs(np.sqrt(dr.cov[0, 0]) - exact_sd) < 0.25 * exact_sd
+
+
+def test_draws_under_a_wider_working_prior_fuse_to_the_same_exact_answer():
+    """Bubbles sampled under a working prior 3x wider than the gel prior (what En4D-Var's
+    ``is_prior_widen`` does): ``fuse_draws`` with ``draw_prior`` divides the working prior out and
+    applies the gel prior once -- the exact product-rule answer under the gel prior."""
+    rng = np.random.default_rng(12)
+    d, n = 2, 4000
+    m0, C0 = np.array([1.5, -1.0]), 0.25 * np.eye(d)          # a gel prior whose bulk is off the data
+    Cw = 9.0 * C0                                               # the working prior: sd x 3
+    Lam, eta, draws = [], [], []
+    for _ in range(5):
+        A = rng.normal(size=(d, d))
+        Ln = 0.5 * (A @ A.T) + 1.0 * np.eye(d)
+        mn = rng.normal(0.0, 0.3, d)
+        Pc = np.linalg.inv(np.linalg.inv(Cw) + Ln)
+        pm = Pc @ (np.linalg.solve(Cw, m0) + Ln @ mn)
+        draws.append(WeightedDraws(rng.multivariate_normal(pm, Pc, n), np.full(n, 1.0 / n), float(n)))
+        Lam.append(Ln)
+        eta.append(Ln @ mn)
+    Lam, eta = np.array(Lam), np.array(eta)
+    m = np.linalg.solve(Lam, eta[..., None])[..., 0]
+    T = np.zeros(d)
+    mu, cov, _ = _conditional(Lam, m, T, m0, np.linalg.inv(C0))
+    sd = np.sqrt(np.diag(cov))
+    right = fuse_draws(draws, m0, C0, T, mu + 0.1, 2.0 * cov, rng, n_draws=2000, draw_prior=(m0, Cw))
+    np.testing.assert_allclose(right.mean, mu, atol=0.2 * sd.min())
+    np.testing.assert_allclose(np.sqrt(np.diag(right.cov)), sd, rtol=0.1)
+    # (taking the gel prior for the draws' prior instead is not even defined here: these posteriors
+    # are wider than that prior, so posterior / prior has no Gaussian likelihood -- fuse_draws raises)
