@@ -271,8 +271,14 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
                        [np.zeros((k, n_p)), np.diag(nu_sd[active] ** 2)]])
         ev_final = ev
 
+        chunk = 4 * s.n_ens
+
         def log_target(Z):
-            return -posterior_cost(ev_final, y, Z, m0, C0)
+            # in batches: a signal (Ctrl-C, SIGTERM) is handled between them, not after a whole
+            # round of thermal solves (members are independent: the same numbers up to round-off,
+            # ~1e-9 relative after the proposal refits)
+            return np.concatenate([-posterior_cost(ev_final, y, Z[i:i + chunk], m0, C0)
+                                   for i in range(0, Z.shape[0], chunk)])
         dr = adaptive_importance(log_target, pm, pc, rng, n_draws=s.is_draws, rounds=s.is_rounds)
         pm, pc, qm, qc = dr.mean, dr.cov, m0, C0
         thin = dr.thinned(2000, rng)
