@@ -81,3 +81,10 @@ def test_merge_refuses_another_design_or_a_conflicting_seed(cal, tmp_path):
     clash = _file(tmp_path, "c.json", [_row(0, False, [])], cal)
     with pytest.raises(SystemExit, match="seed 0 differs"):
         cal.merge([a, clash], None)
+
+
+def test_merge_names_a_file_that_is_not_a_result(cal, tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(SystemExit, match="bad.json: not a calibration result file"):
+        cal.merge([bad], None)

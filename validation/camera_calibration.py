@@ -200,9 +200,12 @@ def merge(paths, out: Path | None) -> dict:
     and so is a seed that two files report differently."""
     meta, rows, failures, lks = None, {}, [], None
     for p in paths:
-        d = json.loads(Path(p).read_text())
-        m = {"family": d["family"], "bubble": d["bubble"], "method": d.get("method", "en4dvar"),
-             "settings": d.get("settings", {})}
+        try:
+            d = json.loads(Path(p).read_text())
+            m = {"family": d["family"], "bubble": d["bubble"], "method": d.get("method", "en4dvar"),
+                 "settings": d.get("settings", {})}
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise SystemExit(f"{p}: not a calibration result file ({type(exc).__name__}: {exc})")
         if meta is None:
             meta, lks = m, [k for k in d["summary"]]
         elif m != meta:
@@ -211,7 +214,9 @@ def merge(paths, out: Path | None) -> dict:
             if r["seed"] in rows and rows[r["seed"]] != r:
                 raise SystemExit(f"{p}: seed {r['seed']} differs from another file's")
             rows[r["seed"]] = r
-        failures += [f for f in d.get("failures", []) if f["seed"] not in rows]
+        failures += d.get("failures", [])
+    # a seed that failed in one run and finished in another counts as finished
+    failures = list({f["seed"]: f for f in failures if f["seed"] not in rows}.values())
     merged = [rows[k] for k in sorted(rows)]
     if out is not None:
         _write(out, meta, merged, failures, lks)
