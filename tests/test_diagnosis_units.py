@@ -223,3 +223,25 @@ def test_phases_find_the_small_rebounds_of_a_viscous_bubble_above_the_noise():
         assert prom["prominences"][1] < 0.1                      # the second collapse is a small one
         assert abs(ph.minima[i, 0] - true_min[0]) <= 2 and abs(ph.minima[i, 1] - true_min[1]) <= 3
     assert coarse.minima.shape[1] < ph.minima.shape[1] or np.any(coarse.minima[:, -1] != ph.minima[:, 1])
+
+
+def test_newton_decrement_stop_leaves_nothing_to_gain(monkeypatch):
+    """zener on constant-NHKV data, where log lambda1 is a flat direction: the fit with the
+    prior-sd trust region and the Newton-decrement stop ends where a fit continued from it without
+    either (and a 1e-12 relative tolerance) gains < 0.01 in cost and moves (G, mu) by < 0.15 of
+    their posterior sd -- the stop ends a crawl, not the search."""
+    import imrbayes.diagnosis.lsq as lsq
+    base = make_candidate("nhkv", OPTS)
+    z = np.log([5e3, 0.07])
+    R = predict(base, z[None], _obs(np.ones((3, T.size))), np.arange(3), None, 120)[0]
+    rng = np.random.default_rng(3)
+    obs = _obs(R + 0.004 * rng.standard_normal(R.shape), P=0.004 ** 2)
+    zener = make_candidate("zener", OPTS)
+    fast = fit_map(zener, obs, starts=[np.concatenate([z, [np.log(1e-6)]])])
+    monkeypatch.setattr(lsq, "TRUST_SD", np.inf)
+    monkeypatch.setattr(lsq, "NEWTON_DECREMENT", 0.0)
+    more = fit_map(zener, obs, starts=[fast.z], tol=1e-12, max_iter=80)
+    assert fast.converged
+    assert fast.cost - more.cost < 0.01, (fast.cost, more.cost)
+    sd = np.sqrt(np.diag(more.cov))[:2]
+    assert np.all(np.abs(fast.z[:2] - more.z[:2]) < 0.15 * sd), (np.exp(fast.z), np.exp(more.z))

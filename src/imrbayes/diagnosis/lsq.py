@@ -33,6 +33,13 @@ __all__ = ["ObsModel", "predict", "frame_values", "fit_map", "fit_tempered", "fi
 FAIL_RESIDUAL = 1.0  # R* error assigned to a failed solve (per sample)
 MAX_STEPS = 20_000  # a member needing more integrator steps counts as failed (stiff corners of the prior)
 NU_STEP = 0.05      # nuisance finite-difference step [prior sd]
+#: longest trial step of the material coordinates [prior sd]: a coordinate the data barely see (a
+#: relaxation time near the NHKV limit) has Marquardt damping ~ its prior precision only, and steps of
+#: 2-7 prior sd there sent the trial solves to far-off, slow parameter sets (docs/diagnosis.md, Runtime)
+TRUST_SD = 2.0
+#: stop when the Gauss-Newton model predicts less than this decrease of the cost (log-density
+#: units; 1e-3 is a move of ~0.05 posterior sd): the crawl along a flat direction buys nothing
+NEWTON_DECREMENT = 1e-3
 #: prior sd of each bubble's log G and log mu offset from the gel's: a fixed prior for the
 #: bubble-to-bubble scatter (not estimated here; ``fit``'s random-effects layer estimates it)
 RE_SD = (0.15, 0.15)
@@ -376,17 +383,30 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
                     J[n_y + c, c] = 1.0
         return J
 
+    step_scale = np.concatenate([s0[:d], np.full(n_x - d, np.inf)])   # material steps in prior sd
+
+    def capped(step):
+        m = np.max(np.abs(step) / step_scale) if d else 0.0
+        return step * (TRUST_SD / m) if m > TRUST_SD else step
+
     def lm(x, r, cost, Rz, lam, n_iter):
-        conv, it = False, 0
+        conv, it, J_x = False, 0, None
         for it in range(1, n_iter + 1):
             z, u = unpack(x)
             J = jacobian(z, u, r)
             A, g = J.T @ J, J.T @ r
+            try:
+                decrement = 0.5 * float(g @ np.linalg.solve(A + 1e-12 * np.diag(np.diag(A) + 1e-9), g))
+            except np.linalg.LinAlgError:
+                decrement = np.inf
+            if decrement < NEWTON_DECREMENT:
+                conv, J_x = True, J
+                break
             lams = lam * np.array([0.1, 1.0, 10.0])
             steps = []
             for lm_ in lams:
                 try:
-                    steps.append(-np.linalg.solve(A + lm_ * np.diag(np.diag(A) + 1e-9), g))
+                    steps.append(capped(-np.linalg.solve(A + lm_ * np.diag(np.diag(A) + 1e-9), g)))
                 except np.linalg.LinAlgError:
                     steps.append(np.zeros(n_x))
             trials = [unpack(x + s) for s in steps]
@@ -405,7 +425,7 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
                 if lam > 1e8:
                     conv = True
                     break
-        return [x, r, cost, Rz, lam, conv, it]
+        return [x, r, cost, Rz, lam, conv, it, J_x]
 
     # every start a few iterations, then only the best one to convergence
     states = []
@@ -430,9 +450,10 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
             it0 = best[6]
             best = lm(pack(z, u_new), r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2, max_iter)
             best[6] += it0
-    x, r, cost, Rz, _, conv, it = best
+    x, r, cost, Rz, _, conv, it, J = best
     z, u = unpack(x)
-    J = jacobian(z, u, r)
+    if J is None:
+        J = jacobian(z, u, r)
     try:
         C = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
