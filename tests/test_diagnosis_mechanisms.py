@@ -40,10 +40,17 @@ def test_constant_nhkv_is_adequate(design, seed):
     assert abs(np.log(est["mu"]["median"] / truth["theta"]["mu"])) < 0.25
 
 
+# each hidden cause against the alternatives it is most often taken for (docs/diagnosis.md: damage and
+# zener tie with stiffening; zener with lambda1 -> 0 and Gilmore stand in for missing bubble physics);
+# every candidate against every class is the confusion matrix's job (scripts/diagnosis_confusion.py)
+RIVALS = {"strain-stiffening": ("qkv", "zener", "damage"),
+          "bubble-thermal": ("bubble-thermal", "bubble-gilmore", "zener", "qkv")}
+
+
 @pytest.mark.parametrize("mechanism,seed", [("strain-stiffening", 3), ("bubble-thermal", 4)])
 def test_hidden_cause_is_found(mechanism, seed):
     """A material mechanism and a bubble-model cause (thermal bubble behind a polytropic fit)."""
-    r, truth = _run(mechanism, seed)
+    r, truth = _run(mechanism, seed, candidates=RIVALS[mechanism])
     assert r["constant_parameter_check"]["verdict"] == "inadequate"
     assert r["cause"] == mechanism or (r["cause"] == "ambiguous" and any(
         c["mechanism"] == mechanism for c in r["candidates"] if c["key"] in r["candidates_tied"])), \

@@ -181,3 +181,28 @@ def test_scheduler_address_connects_to_a_running_cluster(dask_local, reference):
         report = run_units(UNITS, toy_bubble, seed=SEED, executor=ex, progress=False)
     same(report.results, reference.results)
     assert dask_local.client.status == "running"  # closing our client leaves the cluster up
+
+
+def test_dask_gather_exits_after_an_interruption_print_nothing_other_loop_errors_do(caplog):
+    """SIGTERM during ``future.result()`` leaves distributed's gather waiters ending in ``AllExit``
+    that nobody awaits; asyncio printed their traceback (the 'never a traceback' rule). The loop's
+    handler drops exactly those and passes every other exception on."""
+    import asyncio
+    import logging
+    from types import SimpleNamespace
+
+    from distributed.client import AllExit
+
+    from imrbayes.execution.backends import _quiet_gather_exits
+
+    loop = asyncio.new_event_loop()
+    try:
+        _quiet_gather_exits(SimpleNamespace(loop=SimpleNamespace(asyncio_loop=loop)))
+        with caplog.at_level(logging.ERROR, logger="asyncio"):
+            loop.call_exception_handler({"message": "Task exception was never retrieved", "exception": AllExit()})
+            assert caplog.records == []
+            loop.call_exception_handler({"message": "Task exception was never retrieved",
+                                         "exception": ValueError("a real error")})
+        assert len(caplog.records) == 1 and "a real error" in caplog.text
+    finally:
+        loop.close()
