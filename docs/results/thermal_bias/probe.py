@@ -385,3 +385,163 @@ def fused_is(path: Path, n_grid: int = 241) -> dict:
                      "gaussian": {"rel_error": math.exp(mg[j] - zt[j]) - 1, "covers": bool(abs(mg[j] - zt[j]) <= 1.96 * sdg),
                                   "sd_log": sdg}}
     return out
+
+
+def map_true_nuisances(seed: int, noise: float = 0.02, hold=("rmax", "t0", "req")) -> dict:
+    """The joint MAP (shared G, mu; :func:`map_fit`) with the nuisances named in ``hold`` held at
+    each experiment's *true* value (from truth.json) instead of inferred: is the noise-driven bias
+    the material's own (it survives with every nuisance known) or the price of estimating the
+    geometry per bubble (it goes when they are held at the truth)?"""
+    from imrbayes.diagnosis import lsq
+
+    obs, truth, ds, K = records(seed, noise)
+    ex = truth["experiments"]
+    rmax_t = np.array([e["rmax_m"] for e in ex])
+    req_t = np.array([e["req_m"] for e in ex])
+    tmax_t = np.array([e["t_max_s"] for e in ex])
+    # the nuisance coordinates of lsq._predict at the truth: Rmax scale, t* shift, log Req ratio
+    offset = np.stack([rmax_t / obs.rmax_m - 1.0, (tmax_t - obs.t0_s) / obs.tc_s, np.log(req_t / obs.req_m)], axis=1)
+    cols = [j for j, name in enumerate(("rmax", "t0", "req")) if name in hold]
+    keep = np.zeros_like(offset)
+    keep[:, cols] = offset[:, cols]
+    om = ObsModel.of(obs, random_effects=None)
+    om.nu_sd[:, cols] = 0.0
+    plain = lsq.predict
+
+    def shifted(cand, z, o, idx, minima, K_, nu=None, frames=None):
+        idx = np.atleast_1d(np.asarray(idx, dtype=int))
+        M = np.atleast_2d(z).shape[0]
+        base = np.zeros((M, idx.size, 3)) if nu is None else np.broadcast_to(np.asarray(nu, float), (M, idx.size, np.asarray(nu).shape[-1])).copy()
+        base[..., :3] += keep[idx][None]
+        return plain(cand, z, o, idx, minima, K_, base, frames)
+
+    cand = thermal_candidate()
+    t0 = time.perf_counter()
+    lsq.predict = shifted
+    try:
+        f = fit_map(cand, obs, K=K, minima=phases_of(obs).minima, om=om)
+    finally:
+        lsq.predict = plain
+    row = {"seed": seed, "variant": "map_true_" + "_".join(hold) if hold else "map_free", "noise": noise,
+           "runtime_s": time.perf_counter() - t0, "z": f.z.tolist(), "converged": bool(f.converged),
+           "preprocessing_offset": offset.tolist()}
+    for j, name in enumerate(("G", "mu")):
+        row[name] = {"rel_error": float(np.exp(f.z[j])) / cc.TRUTH[name] - 1, "rel_sd": float(np.sqrt(f.cov[j, j]))}
+    return row
+
+
+def map_req_prior(seed: int, noise: float = 0.02, widen: float = 3.0) -> dict:
+    """The joint MAP (:func:`map_fit`) with each experiment's Req prior sd ``widen`` times the
+    preprocessing's: does the data pull Req (and with it G) back when the prior lets it?"""
+    obs, truth, ds, K = records(seed, noise)
+    req_t = np.array([e["req_m"] for e in truth["experiments"]])
+    om = ObsModel.of(obs, random_effects=None)
+    om.nu_sd[:, 2] *= widen
+    cand = thermal_candidate()
+    t0 = time.perf_counter()
+    f = fit_map(cand, obs, K=K, minima=phases_of(obs).minima, om=om)
+    row = {"seed": seed, "variant": f"map_req_sd_x{widen:g}", "noise": noise, "runtime_s": time.perf_counter() - t0,
+           "z": f.z.tolist(), "converged": bool(f.converged), "req_prior_sd_log": om.nu_sd[:, 2].tolist(),
+           "req_preprocessing_rel_error": (obs.req_m / req_t - 1).tolist(),
+           "req_fitted_rel_error": (obs.req_m * np.exp(f.nu[:, 2]) / req_t - 1).tolist()}
+    for j, name in enumerate(("G", "mu")):
+        row[name] = {"rel_error": float(np.exp(f.z[j])) / cc.TRUTH[name] - 1, "rel_sd": float(np.sqrt(f.cov[j, j]))}
+    return row
+
+
+def nuisance_logdet(cand, obs, K, minima, om, z, nu) -> np.ndarray:
+    """Per experiment, log det of the Gauss–Newton Hessian of the cost in the nuisances (prior-sd
+    units, prior rows included) at material ``z`` and nuisances ``nu`` (E, q): what Laplace's
+    integral over each bubble's geometry adds to -log p(data | z) beyond the profile cost."""
+    from imrbayes.diagnosis.lsq import NU_STEP
+    s_nu = om.nu_sd
+    E, q = s_nu.shape
+    act = [j for j in range(3) if np.any(s_nu[:, j] > 0)]
+    u = np.where(s_nu > 0, nu / np.where(s_nu > 0, s_nu, 1.0), 0.0)
+    w = om.weight
+    def r_of(U):
+        R = predict(cand, np.repeat(np.asarray(z)[None], U.shape[0], 0), obs, np.arange(E), minima, K, U * s_nu[None], om.frames)
+        return (obs.R_star[None, :, 1:K + 1] - R[..., 1:]) * w[None, :, None]
+    base = r_of(u[None])[0]
+    Us = []
+    for j in act:
+        du = np.zeros((E, q))
+        du[:, j] = NU_STEP
+        Us.append(u + du)
+    rp = r_of(np.array(Us))
+    out = np.zeros(E)
+    for e in range(E):
+        J = np.stack([(rp[i, e] - base[e]) / NU_STEP for i in range(len(act))], axis=1)
+        H = J.T @ J + np.eye(len(act))
+        out[e] = np.linalg.slogdet(H)[1]
+    return out
+
+
+def laplace_points(seed: int, noise: float = 0.02, points=None) -> list:
+    """Profile cost (nuisances refitted, from restarts) and its Laplace correction 0.5 sum_e log det
+    H_e at the joint MAP and at the truth (or ``points``, relative (G, mu) factors): does
+    integrating the geometry out, instead of maximising over it, move the preference?"""
+    obs, truth, ds, K = records(seed, noise)
+    cand = thermal_candidate()
+    om = ObsModel.of(obs, random_effects=None)
+    minima = phases_of(obs).minima
+    f = fit_map(cand, obs, K=K, minima=minima, om=om, restarts=True)
+    zt = np.log([cc.TRUTH["G"], cc.TRUTH["mu"]])
+    pts = [("map", f.z)] + [("truth", zt)] + [(f"x{g:g},{m:g}", zt + np.log([g, m])) for g, m in (points or [])]
+    rows = []
+    for name, z in pts:
+        fz = fit_map(cand, obs, K=K, minima=minima, om=om, starts=[z], fix_material=True, nu0=f.nu, restarts=True)
+        ld = nuisance_logdet(cand, obs, K, minima, om, z, fz.nu)
+        prior = 0.5 * float(np.sum(((z - cand.prior_mean[:2]) / cand.prior_sd[:2]) ** 2))
+        rows.append({"seed": seed, "point": name, "rel": (np.exp(z - zt) - 1).tolist(), "profile_cost": fz.cost + prior,
+                     "half_logdet": 0.5 * float(ld.sum()), "half_logdet_per_exp": (0.5 * ld).tolist(),
+                     "adjusted_cost": fz.cost + prior + 0.5 * float(ld.sum())})
+        print(seed, name, np.round(np.exp(z - zt) - 1, 3), f"profile {fz.cost + prior:.2f}  +0.5logdet {0.5 * ld.sum():.2f}  adjusted {rows[-1]['adjusted_cost']:.2f}", flush=True)
+    return rows
+
+
+def noise_draws(seed: int, draws=range(10), noise: float = 0.02, save: Path | None = None) -> list:
+    """One design (seed ``seed``'s geometry, phases and truth, simulated without noise), ``draws``
+    independent noise realisations of ``noise`` R* added to its frames: the joint MAP (:func:`map_fit`)
+    of each. Their mean error is the design's bias, their scatter the estimator's real sd (against the
+    Laplace sd each fit states): is a seed's large error its design's or its noise draw's?"""
+    import pandas as pd
+
+    rows = json.loads(save.read_text()) if save is not None and save.exists() else []
+    done = {r["draw"] for r in rows if r["seed"] == seed and r["noise"] == noise}
+    with tempfile.TemporaryDirectory() as tmp:
+        clean = Path(tmp) / "clean"
+        truth = simulate(clean, seed, 0.0)
+        rmax_t = {e["file"] if "file" in e else f"exp_{i + 1:03d}.csv": e["rmax_m"] for i, e in enumerate(truth["experiments"])}
+        cand = thermal_candidate()
+        for d in draws:
+            if d in done:
+                continue
+            rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(7, int(d))))
+            noisy = Path(tmp) / f"noisy{d}"
+            noisy.mkdir()
+            for f in clean.iterdir():
+                if f.suffix == ".csv":
+                    df = pd.read_csv(f)
+                    R = df["R_m"].to_numpy()
+                    sd = noise * rmax_t[f.name]
+                    out = R + sd * rng.standard_normal(R.size)
+                    while np.any(out <= 0):
+                        bad = out <= 0
+                        out[bad] = R[bad] + sd * rng.standard_normal(int(bad.sum()))
+                    df["R_m"] = out
+                    df.to_csv(noisy / f.name, index=False)
+                else:
+                    (noisy / f.name).write_bytes(f.read_bytes())
+            obs = Observations.from_preprocessed(preprocess_dataset(load_dataset(noisy), skip_failed=True))
+            K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+            t0 = time.perf_counter()
+            fm = fit_map(cand, obs, K=K, minima=phases_of(obs).minima, om=ObsModel.of(obs, random_effects=None), restarts=True)
+            row = {"seed": seed, "draw": int(d), "noise": noise, "runtime_s": time.perf_counter() - t0}
+            for j, name in enumerate(("G", "mu")):
+                row[name] = {"rel_error": float(np.exp(fm.z[j])) / cc.TRUTH[name] - 1, "rel_sd": float(np.sqrt(fm.cov[j, j]))}
+            rows.append(row)
+            print(seed, d, f"G {row['G']['rel_error']:+.3f} ({row['G']['rel_sd']:.3f}) mu {row['mu']['rel_error']:+.3f} ({row['mu']['rel_sd']:.3f})", flush=True)
+            if save is not None:
+                save.write_text(json.dumps(rows, indent=1))
+    return rows
