@@ -545,3 +545,55 @@ def noise_draws(seed: int, draws=range(10), noise: float = 0.02, save: Path | No
             if save is not None:
                 save.write_text(json.dumps(rows, indent=1))
     return rows
+
+
+def model_tail_req(fm, ds, pre, obs, params: dict, rmax_m=None, n_tail: int = 20, iterations: int = 3) -> np.ndarray:
+    """Each experiment's Req corrected by the forward model's own tail: the preprocessing's Req is
+    the mean of the record's last ``n_tail`` frames, and a thermal bubble's tail still lies above
+    its Req there; Req_hat / c with c = (model's mean R over the same frames) / (its Req), iterated
+    (c depends on Req a little). ``params`` the material (SI), ``rmax_m`` per experiment (default
+    the preprocessing's). Returns (E,) [m]."""
+    out = np.empty(obs.n_exp)
+    rmax = obs.rmax_m if rmax_m is None else np.asarray(rmax_m, dtype=float)
+    for i, (exp, e) in enumerate(zip(ds.experiments, pre.experiments)):
+        tail_t = (exp.t_s[exp.t_s.size - n_tail:] - e.t0_s) / e.tc_s
+        req = e.req_m
+        for _ in range(iterations):
+            R = fm.simulate_radius(params, rmax_m=float(rmax[i]), req_m=req, t_star=tail_t)
+            req = e.req_m / float(np.mean(R) * rmax[i] / req)
+        out[i] = req
+    return out
+
+
+def two_pass_req(seed: int, noise: float = 0.02) -> dict:
+    """The joint MAP (:func:`map_fit`), then each Req corrected by the model's tail at that MAP's
+    material and Rmax (:func:`model_tail_req`), then the MAP again from the first one's optimum:
+    what the model-tail Req buys without knowing the truth."""
+    from imrbayes.forward import ForwardModel
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "data"
+        truth = simulate(folder, seed, noise)
+        ds = load_dataset(folder)
+        pre = preprocess_dataset(ds, skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+    req_t = np.array([e["req_m"] for e in truth["experiments"]])
+    cand = thermal_candidate()
+    minima = phases_of(obs).minima
+    fm = ForwardModel("nhkv", options={"bubble": "thermal"})
+    t0 = time.perf_counter()
+    f1 = fit_map(cand, obs, K=K, minima=minima, om=ObsModel.of(obs, random_effects=None), restarts=True)
+    G1, mu1 = np.exp(f1.z)
+    req2 = model_tail_req(fm, ds, pre, obs, {"G": float(G1), "mu": float(mu1)}, rmax_m=obs.rmax_m * (1 + f1.nu[:, 0]))
+    o2 = obs.take(np.arange(obs.n_exp))
+    o2.req_m = req2
+    nu0 = f1.nu.copy()
+    nu0[:, 2] = np.log(obs.req_m / req2) + f1.nu[:, 2]       # the same fitted Req, in the new prior's coordinate
+    f2 = fit_map(cand, o2, K=K, minima=minima, om=ObsModel.of(o2, random_effects=None), starts=[f1.z], nu0=nu0, restarts=True)
+    row = {"seed": seed, "noise": noise, "runtime_s": time.perf_counter() - t0,
+           "req_pre_rel_error": (obs.req_m / req_t - 1).tolist(), "req_model_tail_rel_error": (req2 / req_t - 1).tolist()}
+    for tag, f, o in (("pass1", f1, obs), ("pass2", f2, o2)):
+        row[tag] = {"req_fit_rel_error": (o.req_m * np.exp(f.nu[:, 2]) / req_t - 1).tolist()}
+        for j, name in enumerate(("G", "mu")):
+            row[tag][name] = {"rel_error": float(np.exp(f.z[j])) / cc.TRUTH[name] - 1, "rel_sd": float(np.sqrt(f.cov[j, j]))}
+    return row

@@ -30,7 +30,9 @@ class ExperimentSummary:
     ``t_collapse_s``: first collapse measured from the maximum; ``t_last_star``: end of the record.
     ``req_sd_m`` is NaN when Req was given without an uncertainty. ``noise_sd_m``: the record's
     noise sd estimated from its fourth differences; ``t0_sd_s``, ``rmax_sd_m``: standard errors of
-    the maximum's time and radius (NaN unless ``rmax_method="local-fit"``).
+    the maximum's time and radius (NaN unless ``rmax_method="local-fit"``). ``req_tail_t_star``: t*
+    of the frames whose mean is ``req_m`` (empty when Req was given), so that a method can compare
+    the model's own mean over the same frames (a tail that has not settled lies above Req).
     """
 
     name: str
@@ -55,6 +57,7 @@ class ExperimentSummary:
     noise_sd_m: float = math.nan
     t0_sd_s: float = math.nan
     rmax_sd_m: float = math.nan
+    req_tail_t_star: list = field(default_factory=list)
 
     @property
     def ratio(self) -> float:
@@ -298,12 +301,14 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
     except pp.RecordTooShort as exc:
         raise InputError(exp.source, f"experiment {exp.name!r}: {exc}")
     tc = pp.time_scale_s(mx.rmax_m, rho, p8)
+    req_tail = []
     if exp.req_m is not None:
         req, req_sd, req_se, req_src = exp.req_m, (math.nan if exp.req_sd_m is None else exp.req_sd_m), \
             math.nan, exp.req_source or "given"
     else:
         est = pp.estimate_req(R, col.index, n_tail, noise_sd_m=noise_sd)
         req, req_sd, req_se = est.req_m, est.sd_m, est.se_m
+        req_tail = ((np.asarray(t[est.start_index:], dtype=float) - mx.t_s) / pp.time_scale_s(mx.rmax_m, rho, p8)).tolist()
         req_src = f"mean of last {est.n} samples"
         if est.warning:
             warnings.append(est.warning)
@@ -326,5 +331,5 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
         req_sd_m=req_sd, req_se_m=req_se, req_source=req_src, t_collapse_s=col.t_s - mx.t_s,
         t_collapse_star=(col.t_s - mx.t_s) / tc, r_collapse_star=col.r_m / mx.rmax_m,
         collapse_method=col.method, t_last_star=t_last, n_steps_available=n_avail,
-        warnings=warnings, noise_sd_m=noise_sd, t0_sd_s=mx.t_sd_s, rmax_sd_m=mx.rmax_sd_m)
+        warnings=warnings, noise_sd_m=noise_sd, t0_sd_s=mx.t_sd_s, rmax_sd_m=mx.rmax_sd_m, req_tail_t_star=req_tail)
     return summary, (ts, Rs)

@@ -79,6 +79,7 @@ from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, rand
 from imrbayes.ensemble.likelihood import (check_choice, frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
                                           predict, record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
+from imrbayes.ensemble.req_tail import model_tail_req
 from imrbayes.ensemble.sampled import WeightedDraws, adaptive_importance, fuse_draws, weighted_quantiles
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
                                       si_covariance)
@@ -105,7 +106,10 @@ class En4DVarSettings:
     nuisances by adaptive importance sampling from that Gaussian, ``is_rounds`` x ``is_draws``
     forward runs per experiment; see the module doc); is_prior_widen: the sampling's working prior
     on the parameters is the parameter prior with its sd (in z) times this factor, divided out
-    again before the fusion (which applies the parameter prior once).
+    again before the fusion (which applies the parameter prior once). req_tail (default likelihood
+    only): ``mean`` (each Req's prior centred on the preprocessing's tail mean) or ``model`` (fit
+    once, centre each Req where the model's own mean over the same frames matches the data's at that
+    fit's estimate, fit again: :mod:`imrbayes.ensemble.req_tail`; twice the cost).
     """
 
     n_ens: int = 48
@@ -125,6 +129,7 @@ class En4DVarSettings:
     is_draws: int = 1000
     is_rounds: int = 4
     is_prior_widen: float = 3.0
+    req_tail: str = "mean"
 
     def resolved(self) -> "En4DVarSettings":
         """The settings with the likelihood's own choices filled in (``paper``: averaged cost and the
@@ -156,6 +161,10 @@ class En4DVarSettings:
             raise InputError("bubble_posterior", f"must be 'gaussian' or 'sampled', got {self.bubble_posterior!r}")
         if self.bubble_posterior == "sampled" and s.likelihood != "default":
             raise InputError("bubble_posterior", "'sampled' needs the default likelihood (the paper's keeps the ensemble)")
+        if self.req_tail not in ("mean", "model"):
+            raise InputError("req_tail", f"must be 'mean' or 'model', got {self.req_tail!r}")
+        if self.req_tail == "model" and s.likelihood != "default":
+            raise InputError("req_tail", "'model' needs the default likelihood (the paper's takes Req as known)")
         if not (np.isfinite(self.is_prior_widen) and self.is_prior_widen >= 1.0):
             raise InputError("is_prior_widen", f"must be a number >= 1, got {self.is_prior_widen!r}")
         if self.is_draws < 50 or self.is_rounds < 1:
@@ -377,10 +386,36 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     s = settings or En4DVarSettings()
     s.check()
     s = s.resolved()
-    default = s.likelihood == "default"
-    t0 = time.perf_counter()
     ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
+    if s.req_tail != "model":
+        return _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex)
+    t0 = time.perf_counter()
+    first = _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex)
+    theta = np.array([first.estimate[nm]["mean"] for nm in space.names])
+    rmax = np.array([p["nuisance"]["rmax_m"]["mean"] if "nuisance" in p else r
+                     for p, r in zip(first.per_experiment, obs.rmax_m)])
+    obs2, factor = model_tail_req(runner, obs, theta, rmax)
+    res = _fit_en4dvar(fm, obs2, space, s, seed, runner, progress, ex, tag={"req": "model"})
+    res.details["req_tail"] = {
+        "method": "model", "factor": factor.tolist(), "req_tail_mean_m": obs.req_m.tolist(),
+        "req_prior_mean_m": obs2.req_m.tolist(),
+        "first_pass_estimate": {nm: first.estimate[nm]["mean"] for nm in space.names},
+        "note": "each Req's prior centred where the model's mean over the frames the preprocessing averaged "
+                "equals the data's (model at the first pass's estimate and Rmax); the estimate is the second pass"}
+    # the first pass is the req_tail=mean fit of the same data: kept beside the reported one
+    res.details.setdefault("alternative_estimates", {})["req_tail_mean"] = {nm: first.estimate[nm] for nm in space.names}
+    res.details["member_runs"] += first.details["member_runs"]
+    res.runtime_s = time.perf_counter() - t0
+    return res
+
+
+def _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag=None) -> FitResult:
+    """:func:`fit_en4dvar` with Req's prior as ``obs`` has it; ``tag`` a prefix of the unit ids (a
+    second pass must not reuse the first's checkpoints)."""
+    tag = tag or {}
+    default = s.likelihood == "default"
+    t0 = time.perf_counter()
     spec, token = fm_spec(fm), register_runner(runner)
     rng = np.random.default_rng(seed)                   # the fused posterior's draws (units have their own)
     K = last_index(obs, s.t_end)
@@ -389,7 +424,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     n_exp = obs.n_exp
     base = {"spec": spec, "runner": token, "space": space, "settings": s, "t_eval": t_eval}
     noise_var = [record_noise_sd(obs, n) ** 2 for n in range(n_exp)]
-    rep = ex.run([Unit(unit_id(exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
+    rep = ex.run([Unit(unit_id(**tag, exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
                                         "y": y[n], "weight": weight, "noise_var": noise_var[n],
                                         "nuisance_sd": nuisance_prior_sd(obs, n),
                                         "frames": None if obs.frame_t is None else
@@ -399,7 +434,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     failed_units = []
     ok = []
     for n in range(n_exp):
-        uid = unit_id(exp=n)
+        uid = unit_id(**tag, exp=n)
         if uid in rep.results:
             ok.append(n)
         else:
@@ -408,7 +443,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
             warnings.append(f"experiment {obs.names[n]!r} failed ({err}); left out of the fusion")
     if not ok:
         raise RuntimeError(f"every experiment failed (e.g. {failed_units[0]['error']})")
-    R = [rep.results[unit_id(exp=n)] for n in ok]
+    R = [rep.results[unit_id(**tag, exp=n)] for n in ok]
     member_runs = sum(int(r["member_runs"]) for r in R)
     failed_runs = sum(int(r["failed_member_runs"]) for r in R)
     cycles = []
@@ -459,7 +494,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     post_units = []
     for i, n in enumerate(ok):
         pts = [fused_si, space.to_si(post_mean[i])[None, :]] + ([space.to_si(Zd)] if want_ll else [])
-        post_units.append(Unit(unit_id(post="fit", exp=n), {"spec": spec, "runner": token, "t_eval": t_eval,
+        post_units.append(Unit(unit_id(**tag, post="fit", exp=n), {"spec": spec, "runner": token, "t_eval": t_eval,
                                                              "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
                                                              "points": np.vstack(pts),
                                                              "nu": R[i]["nu_mean"] if default else None,
@@ -470,7 +505,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     own = np.full_like(obs.R_star, np.nan)
     Yd = np.full((s.n_draws, n_exp, K), np.nan)
     for n in ok:
-        uid = unit_id(post="fit", exp=n)
+        uid = unit_id(**tag, post="fit", exp=n)
         if uid not in prep.results:
             err = prep.failures[uid].error
             failed_units.append({"unit": uid, "experiment": obs.names[n], "error": err})
@@ -662,7 +697,7 @@ class En4DVar(InferenceMethod):
             # (iterations past n_iter up to max_iter are not counted: the bar is an estimate)
             if s.screen:    # the screen, and at most one more start in cycle 1 (scored by one run per start)
                 n += (s.screen + 1 + s.n_iter * s.n_ens + 2) * n_exp
-        return n
+        return 2 * n if getattr(s, "req_tail", "mean") == "model" else n
 
     @staticmethod
     def figures(obs, res, fdir):

@@ -63,6 +63,9 @@ class Observations:
     frame_t : list of ndarray or None
         Per experiment, the camera frame times t* whose linear interpolation gave ``R_star``
         (:attr:`imrbayes.data.Preprocessed.frame_t_star`); None: the grid values are point values.
+    req_tail_t : list of ndarray or None
+        Per experiment, t* of the frames whose mean is ``req_m`` (empty: Req given, not measured);
+        None: unknown.
     """
 
     t_star: np.ndarray
@@ -77,6 +80,7 @@ class Observations:
     t0_s: np.ndarray | None = None
     tc_s: np.ndarray | None = None
     frame_t: list | None = None
+    req_tail_t: list | None = None
 
     def __post_init__(self):
         self.t_star = np.asarray(self.t_star, dtype=np.float64)
@@ -103,6 +107,10 @@ class Observations:
             self.frame_t = [np.asarray(f, dtype=np.float64) for f in self.frame_t]
             if len(self.frame_t) != n_exp or any(f.size < 2 or np.any(np.diff(f) <= 0) for f in self.frame_t):
                 raise InputError("observations", "frame_t needs increasing frame times for every experiment")
+        if self.req_tail_t is not None:
+            self.req_tail_t = [np.asarray(f, dtype=np.float64).reshape(-1) for f in self.req_tail_t]
+            if len(self.req_tail_t) != n_exp:
+                raise InputError("observations", "req_tail_t needs one entry per experiment")
         if n != self.t_star.size:
             raise InputError("observations", f"R_star has {n} samples per experiment, t_star {self.t_star.size}")
         if n < 2 or np.any(np.diff(self.t_star) <= 0):
@@ -130,7 +138,8 @@ class Observations:
         nuis = np.stack([rmax_se / rmax, col("t0_sd_s") / tc, col("req_sd_m")], axis=1)
         return cls(pre.t_star, pre.R_star, pre.P, rmax, pre.req_m, pre.t_collapse_star, list(pre.names),
                    noise_sd=noise_m / rmax, nuisance_sd=nuis, t0_s=col("t0_s"), tc_s=tc,
-                   frame_t=list(getattr(pre, "frame_t_star", []) or []) or None)
+                   frame_t=list(getattr(pre, "frame_t_star", []) or []) or None,
+                   req_tail_t=[list(getattr(e, "req_tail_t_star", []) or []) for e in ex])
 
     @property
     def n_exp(self) -> int:
@@ -150,7 +159,8 @@ class Observations:
         return Observations(self.t_star, self.R_star[idx], self.P, self.rmax_m[idx], self.req_m[idx],
                             self.t_collapse_star[idx], [self.names[i] for i in idx], self.noise_sd[idx],
                             self.nuisance_sd[idx], self.t0_s[idx], self.tc_s[idx],
-                            None if self.frame_t is None else [self.frame_t[i] for i in idx])
+                            None if self.frame_t is None else [self.frame_t[i] for i in idx],
+                            None if self.req_tail_t is None else [self.req_tail_t[i] for i in idx])
 
 
 def _sym(a):
