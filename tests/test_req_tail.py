@@ -74,3 +74,17 @@ def test_en4dvar_req_tail_model_runs_two_passes_and_says_so():
         En4DVarSettings(req_tail="fit").check()
     with pytest.raises(InputError, match="default likelihood"):
         En4DVarSettings(likelihood="paper", req_tail="model").check()
+
+
+def test_req_tail_model_without_measured_tails_is_one_pass():
+    """Every Req given (no frames averaged): the first pass is the answer, and it says so."""
+    opts = ForwardOptions(bubble="polytropic")
+    obs, truth = camera_obs("none", 2, opts, n_exp=2)
+    obs.req_tail_t = [np.empty(0), np.empty(0)]
+    base = make_candidate(BASELINE.key, opts)
+    st = dict(n_ens=12, n_runs=1, n_iter=2, max_iter=2, screen=0, loglik=False, n_draws=1)
+    one = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0)
+    plain = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st), seed=0)
+    assert one.details["req_tail"]["factor"] == [1.0, 1.0] and "one pass" in one.details["req_tail"]["note"]
+    assert one.estimate["G"]["mean"] == plain.estimate["G"]["mean"]
+    assert one.details["member_runs"] == plain.details["member_runs"]

@@ -396,6 +396,11 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     rmax = np.array([p["nuisance"]["rmax_m"]["mean"] if "nuisance" in p else r
                      for p, r in zip(first.per_experiment, obs.rmax_m)])
     obs2, factor = model_tail_req(runner, obs, theta, rmax)
+    if np.all(factor == 1.0):
+        first.details["req_tail"] = {"method": "model", "factor": factor.tolist(),
+                                     "note": "no experiment's Req came from its record's tail (given, or no tail "
+                                             "measured): nothing to re-centre, one pass"}
+        return first
     res = _fit_en4dvar(fm, obs2, space, s, seed, runner, progress, ex, tag={"req": "model"})
     res.details["req_tail"] = {
         "method": "model", "factor": factor.tolist(), "req_tail_mean_m": obs.req_m.tolist(),
