@@ -45,16 +45,18 @@ def simulate(folder: Path, seed: int, noise: float) -> dict:
     return json.loads((folder / "truth.json").read_text())
 
 
-def records(seed: int, noise: float):
+def records(seed: int, noise: float, with_pre: bool = False):
     """The calibration's six records for ``seed`` at ``noise`` [R*], preprocessed as ``fit`` does:
-    (Observations, truth.json, the raw Dataset, K = the last sample at t* <= 3)."""
+    (Observations, truth.json, the raw Dataset, K = the last sample at t* <= 3), and the
+    Preprocessed last if ``with_pre``."""
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "data"
         truth = simulate(folder, seed, noise)
         ds = load_dataset(folder)
         pre = preprocess_dataset(ds, skip_failed=True)
     obs = Observations.from_preprocessed(pre)
-    return obs, truth, ds, int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+    out = (obs, truth, ds, int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1)
+    return out + (pre,) if with_pre else out
 
 
 def thermal_candidate(prior=None):
@@ -570,13 +572,7 @@ def two_pass_req(seed: int, noise: float = 0.02) -> dict:
     material and Rmax (:func:`model_tail_req`), then the MAP again from the first one's optimum:
     what the model-tail Req buys without knowing the truth."""
     from imrbayes.forward import ForwardModel
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp) / "data"
-        truth = simulate(folder, seed, noise)
-        ds = load_dataset(folder)
-        pre = preprocess_dataset(ds, skip_failed=True)
-    obs = Observations.from_preprocessed(pre)
-    K = int(np.searchsorted(obs.t_star, 3.0 + 1e-9)) - 1
+    obs, truth, ds, K, pre = records(seed, noise, with_pre=True)
     req_t = np.array([e["req_m"] for e in truth["experiments"]])
     cand = thermal_candidate()
     minima = phases_of(obs).minima
