@@ -308,7 +308,7 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
     else:
         est = pp.estimate_req(R, col.index, n_tail, noise_sd_m=noise_sd)
         req, req_sd, req_se = est.req_m, est.sd_m, est.se_m
-        req_tail = ((np.asarray(t[est.start_index:], dtype=float) - mx.t_s) / pp.time_scale_s(mx.rmax_m, rho, p8)).tolist()
+        req_tail = ((np.asarray(t[est.start_index:], dtype=float) - mx.t_s) / tc).tolist()
         req_src = f"mean of last {est.n} samples"
         if est.warning:
             warnings.append(est.warning)
