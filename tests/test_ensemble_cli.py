@@ -104,6 +104,11 @@ def test_config_file_and_command_line_precedence(dataset, tmp_path):
     (["--method", "en4dvar", "--set", "n_ens=x"], "n_ens"),
     (["--method", "en4dvar", "--set", "rtps=2"], "rtps"),
     (["--method", "mienks", "--set", "L=500"], "window length"),
+    (["--method", "mienks", "--set", "h=40"], "exceeds the window length"),
+    (["--method", "en4dvar", "--set", "req_tail=bogus"], "req_tail"),
+    (["--method", "en4dvar", "--set", "n_iter=0"], "n_iter"),
+    (["--method", "en4dvar", "--set", "t_end=0.01"], "t_end"),
+    (["--method", "pimr", "--set", "kappa=3"], "kappa"),
     (["--method", "imr", "--forward", "bubble=steam"], "bubble"),
     (["--method", "imr", "--prior", "G=6e3"], "--prior"),
     (["--method", "imr", "--model", "nosuchmodel"], "nosuchmodel"),
@@ -114,6 +119,7 @@ def test_bad_input_exit_2(dataset, tmp_path, args, needle):
     res = CliRunner().invoke(main, ["fit", str(dataset), "--out", str(tmp_path / "x"), *args])
     assert res.exit_code == 2, res.output
     assert needle in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "x").exists(), "a refused run must leave no output folder behind"
 
 
 def test_missing_data_exit_2(tmp_path):

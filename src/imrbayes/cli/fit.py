@@ -218,6 +218,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
                       physics_overrides=ds.physics or None)
     obs = Observations.from_preprocessed(pre)
     space = ParamSpace.for_model(fm.constitutive, prior)
+    meth.check_settings(s, obs)                # before any output: a refused --set leaves no folder behind
     if mcmc_s is not None:
         mcmc_s.check(space.n)                  # before the fit: a bad walker count must not cost a fit
     out = prepare_out(Path(out) if out is not None else None, f"fit-{method}", ds.name, protect=Path(data),

@@ -694,6 +694,11 @@ class En4DVar(InferenceMethod):
     fit = staticmethod(fit_en4dvar)
 
     @staticmethod
+    def check_settings(settings, obs):
+        settings.check()
+        last_index(obs, settings.t_end)
+
+    @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         s = settings        # cycles x iterations x members, then the fitted curves and the draws
         n = s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)

@@ -333,6 +333,11 @@ class IMR(InferenceMethod):
     fit = staticmethod(fit_imr)
 
     @staticmethod
+    def check_settings(settings, obs):
+        settings.check()
+        fit_indices(obs, settings.window, settings.collapse_prominence)
+
+    @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         return settings.n_G * settings.n_mu * n_exp + n_exp      # the grid, then the fitted curves
 

@@ -9,6 +9,7 @@ scipy's ``OdeSolver``. The class is never instantiated: its attributes are the d
 >>> m = METHODS["en4dvar"]
 >>> s = m.settings_class(n_ens=32)
 >>> res = m.fit(fm, obs, space, s, seed=0, runner=runner, execution=execution)   # FitResult
+>>> m.check_settings(s, obs)                                                    # InputError if refused
 >>> m.n_forward_runs(s, obs.n_exp, obs.n_samples - 1)                            # progress bar total
 >>> m.figures(obs, res, out / "figures")                                         # [Path, ...]
 """
@@ -52,6 +53,15 @@ class InferenceMethod:
         progress=, execution=) -> FitResult``; ``execution`` (:class:`imrbayes.execution.Execution`)
         says where its units run and are checkpointed."""
         raise NotImplementedError
+
+    @staticmethod
+    def check_settings(settings, obs) -> None:
+        """Raise :class:`~imrbayes.errors.InputError` for settings the fit would refuse on these
+        :class:`~imrbayes.ensemble.Observations` -- called by the CLI before it writes anything, so
+        that a bad ``--set`` costs no output folder. Default: the settings' own ``check()``, if any."""
+        check = getattr(settings, "check", None)
+        if check is not None:
+            check()
 
     @staticmethod
     def n_forward_runs(settings, n_exp: int, n_steps: int) -> int:

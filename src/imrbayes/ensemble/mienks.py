@@ -796,6 +796,10 @@ class MIEnKS(InferenceMethod):
     fit = staticmethod(fit_mienks)
 
     @staticmethod
+    def check_settings(settings, obs):
+        settings.check(obs.n_samples - 1)
+
+    @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         s = settings        # per window: the Gauss-Newton iterations and the hand-off, every member
         passes = 2 if (s.likelihood == "default" and s.adapt) else 1     # the default likelihood's pilot

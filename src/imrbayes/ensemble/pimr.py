@@ -149,9 +149,8 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
     if tuple(names[:2]) != ("G", "mu") or len(names) != 2:
         raise InputError("--method pimr", f"pIMR's closed form is for Kelvin–Voigt models with (G, mu); "
                                           f"model parameters are {list(names)}")
+    PIMR.check_settings(s, obs)
     tm = np.asarray(obs.t_collapse_star, dtype=float)
-    if not np.all(np.isfinite(tm) & (tm > 0)):
-        raise InputError("data", "pIMR needs the measured first-collapse time of every experiment")
     q = _groups(fm, obs.rmax_m, obs.req_m, s.kappa)
     Gg = np.linspace(s.G_min, s.G_max, s.n_G)
     mg = np.linspace(s.mu_min, s.mu_max, s.n_mu)
@@ -317,6 +316,14 @@ class PIMR(InferenceMethod):
     label = "pIMR (collapse-time closed form)"
     settings_class = PIMRSettings
     fit = staticmethod(fit_pimr)
+
+    @staticmethod
+    def check_settings(settings, obs):
+        tm = np.asarray(obs.t_collapse_star, dtype=float)
+        if not np.all(np.isfinite(tm) & (tm > 0)):
+            raise InputError("data", "pIMR needs the measured first-collapse time of every experiment")
+        if settings.kappa is not None and not 0.5 <= float(settings.kappa) < 11.0 / 6.0:
+            raise InputError("kappa", f"the contents factor needs 0.5 <= kappa < 11/6, got {settings.kappa}")
 
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
