@@ -179,3 +179,20 @@ def test_compiled_kernel_is_cached_across_processes(tmp_path):
     assert runs[0]["R"] == runs[1]["R"]
     assert len(list((tmp_path / "kernels").glob("imrbayes_kernel_nhkv_*.py"))) == 1
     assert len(list((tmp_path / "kernels").glob("imrbayes_kernel_nhkv_*.compiled"))) == 1
+
+
+def test_kernel_source_is_written_once_and_never_replaced(tmp_path):
+    """numba keys its cache index by the source file's modification time: a second process that
+    rewrote an existing kernel source (same text, new mtime) would make the first one's cache look
+    stale and its kernel be compiled in memory. ``write_once`` creates the file or leaves it alone."""
+    from imrbayes.forward.codegen import write_once
+
+    path = tmp_path / "kernel.py"
+    assert write_once(path, "x = 1\n") is True
+    os.utime(path, (1.0e9, 1.0e9))
+    before = path.stat()
+    assert write_once(path, "x = 2\n") is False
+    after = path.stat()
+    assert path.read_text() == "x = 1\n"
+    assert (after.st_mtime_ns, after.st_ino) == (before.st_mtime_ns, before.st_ino)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kernel.py"]      # no temporary left behind

@@ -100,11 +100,34 @@ def _kernel_source(module_name: str) -> tuple:
     path = directory / f"{name}.py"
     if not path.exists():
         directory.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
-        with os.fdopen(fd, "w") as fh:
-            fh.write(src)
-        os.replace(tmp, path)  # atomic: concurrent processes never see half a file
+        write_once(path, src)
     return name, path
+
+
+def write_once(path: Path, text: str) -> bool:
+    """Create ``path`` with ``text`` unless it exists; True if this call created it.
+
+    Atomic and never overwrites: numba's cache index is keyed by the source file's modification
+    time, so a second process that replaced the file (same text, new mtime) while the first one's
+    child was compiling or its main process loading would make that process's cache look stale
+    and compile the kernel in memory -- the last-bit differences the module doc is about."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        try:
+            os.link(tmp, path)     # fails if the file exists: concurrent writers cannot replace it
+        except FileExistsError:
+            return False
+        except OSError:            # a file system without hard links: replace, as atomically as it allows
+            if path.exists():
+                return False
+            os.replace(tmp, path)
+            return True
+        return True
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def precompile(module_names=None, workers: int | None = None) -> None:
