@@ -93,6 +93,11 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, me
         if res.windows and len(res.windows) > 1:     # MIEnKS-MDA: does each window's estimate hold the truth?
             r["windows"] = {n: [bool(w[n]["hdi95"][0] <= true <= w[n]["hdi95"][1]) for w in res.windows]
                             for n, true in TRUTH.items()}
+            # the window means themselves: a constant truth must not come back as a trend
+            r["window_rel_error"] = {n: [w[n]["mean"] / true - 1 for w in res.windows] for n, true in TRUTH.items()}
+            r["window_prior_dominated"] = [bool(w.get("prior_dominated", False)) for w in res.windows]
+            r["window_prior_weight"] = {n: [w["prior_weight"][n] for w in res.windows if "prior_weight" in w]
+                                        for n in TRUTH}
         for n, true in TRUTH.items():
             e = res.estimate[n]
             r[n] = {"mean": e["mean"], "sd": e["sd"], "hdi95": e["hdi95"],
@@ -164,6 +169,30 @@ def summarise(rows, likelihoods) -> dict:
                 flat = [c for w in wins for c in w]
                 s[n]["window_coverage_all"] = float(np.mean(flat))
                 s[n]["window_coverage_all_wilson95"] = wilson(int(np.sum(flat)), len(flat))
+            errs = [r[lk]["window_rel_error"][n] for r in rows if "window_rel_error" in r[lk]]
+            if errs:       # the mean window trajectory over seeds, and its apparent trend (truth: none)
+                n_w = min(len(e) for e in errs)
+                E = np.array([e[:n_w] for e in errs])
+                third = max(1, n_w // 3)
+                drop = E[:, :third].mean(axis=1) - E[:, -third:].mean(axis=1)
+                s[n]["window_rel_error_mean"] = E.mean(axis=0).tolist()
+                s[n]["early_minus_late"] = {"mean": float(drop.mean()), "se": float(drop.std(ddof=1) / np.sqrt(len(drop)))
+                                            if len(drop) > 1 else None, "windows_per_third": third}
+                doms = [r[lk]["window_prior_dominated"][:n_w] for r in rows if "window_prior_dominated" in r[lk]]
+                if len(doms) == len(errs):     # the same over the windows the data decide (the prior < 25 %)
+                    D = np.array(doms, dtype=bool)
+                    drops = []
+                    for e, d in zip(E, D):
+                        dec = e[~d]
+                        if dec.size >= 2:
+                            k = max(1, dec.size // 3)
+                            drops.append(dec[:k].mean() - dec[-k:].mean())
+                    s[n]["prior_dominated_fraction"] = D.mean(axis=0).tolist()
+                    s[n]["decided_rel_error_mean"] = float(E[~D].mean()) if (~D).any() else None
+                    s[n]["dominated_rel_error_mean"] = float(E[D].mean()) if D.any() else None
+                    if len(drops) > 1:
+                        s[n]["decided_early_minus_late"] = {"mean": float(np.mean(drops)), "n_seeds": len(drops),
+                                                            "se": float(np.std(drops, ddof=1) / np.sqrt(len(drops)))}
         rec = [r[lk]["record"] for r in rows if "record" in r[lk]]
         if rec:          # MIEnKS-MDA's record-level estimate (each experiment's window likelihoods summed)
             s["record"] = _coverage_table(rec)
@@ -240,6 +269,18 @@ def _print_table(family, method, bubble, rows, failures, lks) -> None:
                 w = s["window_coverage_all_wilson95"]
                 print(f"{'':<16} windows: coverage {s['window_coverage_all']:.2f} [{w[0]:.2f}, {w[1]:.2f}] over all, "
                       f"lowest window {s['window_coverage_min']:.2f} ({len(s['window_coverage'])} windows)")
+            if "early_minus_late" in s:
+                d = s["early_minus_late"]
+                traj = ", ".join(f"{x:+.2f}" for x in s["window_rel_error_mean"])
+                print(f"{'':<16} window means / truth - 1: {traj}; first third - last third "
+                      f"{d['mean']:+.3f} +- {(d['se'] or float('nan')):.3f} (truth: constant)")
+            if "prior_dominated_fraction" in s:
+                dd = s.get("decided_early_minus_late") or {}
+                frac = ", ".join(f"{x:.2f}" for x in s["prior_dominated_fraction"])
+                print(f"{'':<16} prior-dominated (per window, fraction of seeds): {frac}; mean error decided "
+                      f"{(s['decided_rel_error_mean'] if s['decided_rel_error_mean'] is not None else float('nan')):+.3f}, "
+                      f"dominated {(s['dominated_rel_error_mean'] if s['dominated_rel_error_mean'] is not None else float('nan')):+.3f}; "
+                      f"decided windows' first - last third {dd.get('mean', float('nan')):+.3f} +- {dd.get('se', float('nan')):.3f}")
             others = ([("record-level", summ[lk]["record"])] if "record" in summ[lk] else []) + \
                 list(summ[lk].get("alternatives", {}).items())
             for label, tab in others:

@@ -108,7 +108,8 @@ from imrbayes.ensemble.likelihood import (check_choice, effective_samples, nuisa
                                           record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
-from imrbayes.ensemble.windows import mda_weights, n_windows, time_resolved, window_spans
+from imrbayes.ensemble.windows import (PRIOR_WEIGHT_LIMIT, chained_prior_weight, mda_weights, n_windows,
+                                       prior_dominated_note, time_resolved, window_spans)
 from imrbayes.errors import InputError
 from imrbayes.execution import Execution, Unit, unit_id
 from imrbayes.forward import BatchState, Runner, fm_spec, register_runner, runner_for
@@ -564,6 +565,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     posteriors = []                                   # WindowPosterior per window: what --mcmc checks
     average = s.L if s.obs_weight == "mean" else 1    # the weight's 1/L (paper)
     lik_terms = {g: [] for g in range(G)}             # default: every window's likelihood of each experiment
+    influence = np.eye(len(space.names))              # the parameter prior mean's weight in the window means
     for j, (a, b) in enumerate(spans):
         ok, R, lost = sw["ok"][j], sw["results"][j], sw["lost"][j]
         warnings.extend(sw["warnings"][j])
@@ -576,6 +578,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             # random effects on the experiments' window likelihoods, the gel mean's prior chained
             # from the previous window (RTPS); the pooled (no scatter) Gaussian is the density's
             Lam, eta, _, n_clip = likelihood_terms(pm, pc, qm, qc)
+            window_prior_c = chain_c
             hier = random_effects(Lam, eta, chain_m, chain_c)
             for i, g in enumerate(ok):
                 lik_terms[g].append((Lam[i], eta[i]))
@@ -604,6 +607,9 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             est_m, est_c = fus.mean, fus.cov
         win_mean.append(est_m)
         win_cov.append(est_c)
+        chained = default or s.fusion != "prior"
+        influence = chained_prior_weight(influence if chained else np.eye(len(space.names)), est_c,
+                                         prior_c if not default else window_prior_c)
         start_j = sw["start_means"][j]
         entering = np.isfinite(start_j).all(axis=1)
         if default:
@@ -648,8 +654,11 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         with np.errstate(invalid="ignore"), _warnings.catch_warnings():
             _warnings.simplefilter("ignore", RuntimeWarning)
             cost = np.nanmean(np.stack([r["cost"] for r in R]), axis=0)
+        weight = np.diag(influence)
         windows.append({"index": j, "t_star": [float(t[a]), float(t[b])], "samples": [int(a), int(b)],
                         **gaussian_estimate(space, est_m, est_c),
+                        "prior_weight": {nm: float(x) for nm, x in zip(space.names, weight)},
+                        "prior_dominated": bool(np.any(weight > PRIOR_WEIGHT_LIMIT)),
                         "cov": si_covariance(space, est_m, est_c).tolist(),
                         "mean_internal": est_m.tolist(), "cov_internal": est_c.tolist(), **extra,
                         "fusion": fus.to_dict(), "n_failed_iterations": n_failed_iter.tolist(),
@@ -664,6 +673,9 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                         "per_experiment": [{"name": obs.names[g], "mean_internal": pm[i].tolist(),
                                             "sd_internal": np.sqrt(np.diag(pc[i])).tolist()}
                                            for i, g in enumerate(ok)]})
+    note = prior_dominated_note(windows, space.names)
+    if note:
+        warnings.append(note)
     win_mean, win_cov = np.array(win_mean), np.array(win_cov)
     tr_m, tr_c, covered = time_resolved(win_mean, win_cov, n_steps, s.L, s.h)
     tr = [{"t_star": float(t[k]), "sample": int(k), **gaussian_estimate(space, tr_m[k], tr_c[k])}
@@ -682,6 +694,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         tr_group[f"{nm}_sd"] = np.array([x[nm]["sd"] for x in tr])
         tr_group[f"{nm}_hdi95"] = np.array([x[nm]["hdi95"] for x in tr])
     details = {"settings": asdict(s), "n_windows": nw, "spans": spans.tolist(),
+               "prior_dominated_windows": [w["index"] for w in windows if w["prior_dominated"]],
                "member_runs": member_runs, "failed_member_runs": failed_runs,
                "failed_units": failed_units, "experiments_used": [obs.names[g] for g in alive],
                "failed_members": total_fail, "redrawn_members": total_redraw, "state_size": ns,

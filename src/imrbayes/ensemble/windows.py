@@ -13,7 +13,64 @@ import numpy as np
 from imrbayes.ensemble.gaussian import precision_weighted
 from imrbayes.errors import InputError
 
-__all__ = ["n_windows", "window_spans", "coverage", "mda_weights", "time_resolved"]
+__all__ = ["n_windows", "window_spans", "coverage", "mda_weights", "time_resolved", "DECIDED_SD_RATIO",
+           "PRIOR_WEIGHT_LIMIT", "prior_sd_ratio", "chained_prior_weight", "prior_dominated_note"]
+
+#: A window is decided by its data when every parameter's posterior sd (internal, log scale) is at
+#: most this fraction of the parameter prior's: in one Gaussian update the prior then carries at
+#: most (0.5)^2 = 25 % of the posterior mean's weight (the validation suite's criterion).
+DECIDED_SD_RATIO = 0.5
+
+#: The product's rule: a window is prior-dominated when the parameter prior's mean still carries
+#: more than this weight in the window's posterior mean -- through the chain of window priors, not
+#: only through its own width (:func:`chained_prior_weight`). Above it, a run of such windows
+#: followed by decided ones looks like a trend on constant-parameter data (docs/results.md,
+#: "Spurious trends from the prior").
+PRIOR_WEIGHT_LIMIT = 0.25
+
+
+def prior_sd_ratio(cov_internal, prior_cov) -> np.ndarray:
+    """(n_p,) posterior sd / parameter-prior sd of one window, internal coordinates."""
+    return np.sqrt(np.diag(np.asarray(cov_internal, dtype=float)) / np.diag(np.asarray(prior_cov, dtype=float)))
+
+
+def chained_prior_weight(influence, post_cov, window_prior_cov) -> np.ndarray:
+    """The parameter prior mean's influence on this window's posterior mean, (n_p, n_p).
+
+    In a Gaussian update the posterior mean is W m_prior + (I - W) m_data with W = C_post
+    C_prior^-1; a window's prior is the previous window's posterior (MIEnKS-MDA's chain), so the
+    parameter prior's mean reaches window j through W_j W_(j-1) ... W_0. ``influence`` is that
+    product up to the previous window (identity before the first; the parameter prior itself when
+    the windows are not chained); returns it for this window. Its diagonal is each parameter's
+    prior weight: the fraction of the prior mean's offset from the truth that the window mean keeps."""
+    W = np.asarray(post_cov, dtype=float) @ np.linalg.inv(np.asarray(window_prior_cov, dtype=float))
+    return W @ np.asarray(influence, dtype=float)
+
+
+def prior_dominated_note(windows, names) -> str | None:
+    """One sentence naming the windows the prior dominates (``window["prior_weight"]`` above
+    :data:`PRIOR_WEIGHT_LIMIT` for some parameter), or None when the data decide every window."""
+    dom = [w for w in windows if w.get("prior_dominated")]
+    if not dom:
+        return None
+    by = {nm: [w["index"] for w in dom if w["prior_weight"][nm] > PRIOR_WEIGHT_LIMIT] for nm in names}
+    which = "; ".join(f"{nm} in window(s) {_ranges(ix)}" for nm, ix in by.items() if ix)
+    a, b = min(w["t_star"][0] for w in dom), max(w["t_star"][1] for w in dom)
+    return (f"{len(dom)} of {len(windows)} windows (t* {a:.2f}-{b:.2f}) are prior-dominated -- {which}: the "
+            f"parameter prior's mean carries more than {PRIOR_WEIGHT_LIMIT:.0%} of those window means (directly "
+            "or through the chain of window priors), so read no trend into them "
+            "(summary.json windows[].prior_weight)")
+
+
+def _ranges(ix) -> str:
+    out, start = [], None
+    for k, i in enumerate(ix):
+        if start is None:
+            start = i
+        if k + 1 == len(ix) or ix[k + 1] != i + 1:
+            out.append(f"{start}" if start == i else f"{start}-{i}")
+            start = None
+    return ", ".join(out)
 
 
 def n_windows(n_steps: int, L: int, h: int) -> int:
