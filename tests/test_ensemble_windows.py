@@ -61,3 +61,31 @@ def test_bad_windows():
         n_windows(120, 35, 0)
     with pytest.raises(InputError):
         n_windows(20, 35, 5)
+
+
+def test_chained_prior_weight_is_the_prior_means_exact_share_in_a_linear_gaussian_chain():
+    """Three chained Gaussian updates of a 2-parameter state with direct observations y_j ~ N(theta,
+    R_j) (each window's prior = the previous posterior, inflated as RTPS would): the posterior mean
+    is linear in the parameter prior's mean, and its derivative is the product of C_post C_prior^-1
+    that :func:`chained_prior_weight` accumulates -- checked by moving the prior mean."""
+    from imrbayes.ensemble.windows import chained_prior_weight
+
+    rng = np.random.default_rng(3)
+    P0 = np.array([[1.0, 0.3], [0.3, 2.0]])
+    Rs = [np.diag([0.5, 4.0]), np.diag([0.2, 1.0]), np.diag([1.0, 0.3])]
+    ys = [rng.normal(size=2) for _ in Rs]
+
+    def run(m0):
+        m, P, infl = m0, P0, np.eye(2)
+        for y, R in zip(ys, Rs):
+            C = np.linalg.inv(np.linalg.inv(P) + np.linalg.inv(R))
+            m_new = C @ (np.linalg.solve(P, m) + np.linalg.solve(R, y))
+            infl = chained_prior_weight(infl, C, P)
+            m, P = m_new, 1.5 * C            # the next window's prior: this posterior, inflated
+        return m, infl
+
+    m_a, infl = run(np.zeros(2))
+    for e in np.eye(2):
+        m_b, _ = run(e)
+        assert np.allclose(m_b - m_a, infl @ e, atol=1e-12)
+    assert np.all(np.diag(infl) > 0) and np.all(np.diag(infl) < 1)

@@ -80,6 +80,21 @@ def test_time_resolved_figure_has_prior_band_us_axis_strain_rate_and_barely_move
     assert fig.legends and all(ax.get_legend() is None for ax in fig.axes)
 
 
+def test_time_resolved_figure_hatches_the_prior_dominated_windows_when_reported(captured, tmp_path):
+    """Results that report ``windows[].prior_dominated`` (the chained prior weight) hatch exactly
+    those windows, whatever their width says."""
+    res = _mienks_result()
+    for w in res.windows:
+        w["prior_dominated"] = w["index"] in (0, 3)
+        w["prior_weight"] = {"G": 0.3 if w["prior_dominated"] else 0.01, "mu": 0.01}
+    efig.time_resolved_figure(res, tmp_path / "p.png")
+    fig = captured[0]
+    assert "prior-dominated window (prior weight > 25 %)" in _texts(fig)
+    hatched = [p for ax in fig.axes for p in ax.patches if p.get_hatch()]
+    spans = {(round(float(p.get_x()), 3), round(float(p.get_x() + p.get_width()), 3)) for p in hatched}
+    assert spans == {(0.0, 0.25), (0.375, 1.0)}, spans
+
+
 def test_fit_figure_legend_off_the_data_and_screen_sized(captured, tmp_path):
     res = _mienks_result(n_exp=6)
     obs = SimpleNamespace(n_exp=6, t_star=0.025 * np.arange(41), R_star=res.fitted + 0.01, names=[f"e{i}" for i in range(6)],

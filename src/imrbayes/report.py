@@ -623,8 +623,14 @@ def _section_conclusion(run) -> str:
     if barely:
         spans = ", ".join(f"{esc(w.get('index'))} (t* {_span(w.get('t_star'))})" for w in barely)
         items.append(f"<span class='caveat'>Window{'s' if len(barely) > 1 else ''} {spans}: the data barely moved "
-                     f"the prior (posterior ≥ {100 * SAYS_LITTLE:.0f} % of its width; hatched in the parameters "
-                     "figure).</span>")
+                     f"the prior (posterior ≥ {100 * SAYS_LITTLE:.0f} % of its width).</span>")
+    dominated = [w for w in wins if isinstance(w, dict) and w.get("prior_dominated")]
+    if dominated:
+        spans = ", ".join(f"{esc(w.get('index'))} (t* {_span(w.get('t_star'))})" for w in dominated)
+        items.append(f"<span class='caveat'>Prior-dominated window{'s' if len(dominated) > 1 else ''} {spans}: the "
+                     "parameter prior's mean keeps more than 25 % of the weight in these window means (directly or "
+                     "through the chain of window priors; a linearised lower bound), so a trend that starts in them "
+                     "is not evidence of time-dependent material (hatched in the parameters figure).</span>")
     per = s.get("per_experiment") or []
     if any(isinstance(x, dict) and x.get("nuisance") for x in per):
         items.append("Rmax, Req and the time origin were estimated per experiment with the material (nuisance "

@@ -164,8 +164,8 @@ def _merged_spans(spans) -> list:
 
 def time_resolved_figure(result, path, obs=None):
     """Time-resolved G(t), mu(t): mean and 95 % band against t* (a µs axis on top when the time scale
-    is known), the per-window estimates (mean ± 2 sd), the prior's 95 % band, windows the data
-    barely moved hatched; below, the wall strain rate |-2Ṙ/R| [1/s] of the fitted curves on a log
+    is known), the per-window estimates (mean ± 2 sd), the prior's 95 % band, prior-dominated windows
+    hatched (``windows[].prior_dominated``; older results: windows the data barely moved); below, the wall strain rate |-2Ṙ/R| [1/s] of the fitted curves on a log
     axis, which maps every time to the rate the gel saw then."""
     names = list(result.param_names)
     tc = _time_scale(result, obs)
@@ -182,7 +182,11 @@ def time_resolved_figure(result, path, obs=None):
     tr = result.time_resolved
     t = np.array([x["t_star"] for x in tr])
     prior = _prior_band(result, names)
-    moved = barely_moved(result, names)
+    windows = result.windows or []
+    if windows and all("prior_dominated" in w for w in windows):
+        moved, hatch_label = [bool(w["prior_dominated"]) for w in windows], "prior-dominated window (prior weight > 25 %)"
+    else:                       # results written before windows reported their prior weight
+        moved, hatch_label = barely_moved(result, names), "data barely moved the prior"
     for ax, nm in zip(axes, names):
         sc, lab = scale(nm), label(nm)
         if nm in prior:
@@ -191,7 +195,7 @@ def time_resolved_figure(result, path, obs=None):
         for k, (a, b) in enumerate(_merged_spans([w["t_star"] for w, little in zip(result.windows or [], moved)
                                                    if little])):
             ax.axvspan(a, b, facecolor="none", edgecolor="0.7", hatch="//", lw=0, zorder=0,
-                       label="data barely moved the prior" if k == 0 else None)
+                       label=hatch_label if k == 0 else None)
         m = np.array([x[nm]["mean"] for x in tr]) * sc
         lo = np.array([x[nm]["hdi95"][0] for x in tr]) * sc
         hi = np.array([x[nm]["hdi95"][1] for x in tr]) * sc
