@@ -339,8 +339,8 @@ def test_report_conclusion_one_bubble_and_absent_keys(runs, tmp_path):
 def test_report_says_when_the_data_say_little(runs, tmp_path):
     run = _copy(runs, "en4dvar", tmp_path)
 
-    def wide(s):          # mu's posterior as wide as its prior (the default: log-normal 0.198 +- 0.339 Pa s)
-        s["estimate"]["mu"].update(mean=0.19, sd=0.31, hdi95=[0.008, 0.86])
+    def wide(s):          # mu's posterior as wide as its prior (log-normal 0.209 +- 0.088 Pa s)
+        s["estimate"]["mu"].update(mean=0.21, sd=0.085, hdi95=[0.09, 0.41])
         s["estimate"]["G"].update(mean=7.0e3, sd=3.0e2, hdi95=[6.4e3, 7.6e3])     # and G well inside its prior
     _edit_summary(run, wide)
     html = _report(run, "--quiet") and (run / "report.html").read_text()

@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from imrbayes.ensemble import (PAPER_PRIOR, En4DVarSettings, IMRSettings, MIEnKSSettings, ParamSpace, fit_en4dvar, fit_imr,
+from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, ParamSpace, fit_en4dvar, fit_imr,
                                fit_mienks)
 from imrbayes.data.noise import noise_variance, paper_sigma
 from imrbayes.forward import ForwardModel
@@ -60,17 +60,13 @@ def covers(est: dict, name: str) -> bool:
 
 def one_seed(fm, space, seed: int, methods=PAPER_METHODS) -> dict:
     obs = verification_data(fm, seed)
-    paper_space = ParamSpace.for_model(fm.constitutive, base=PAPER_PRIOR)
     row, fits = {"seed": seed}, []
 
-    def prior_for(kw):          # the paper's settings include the paper's prior
-        return paper_space if kw.get("likelihood") == "paper" else space
-
     def en4dvar(data, **kw):
-        return fit_en4dvar(fm, data, prior_for(kw), En4DVarSettings(n_draws=1, loglik=False, **kw), seed=seed)
+        return fit_en4dvar(fm, data, space, En4DVarSettings(n_draws=1, loglik=False, **kw), seed=seed)
 
     def mienks(name, data, **kw):
-        res = fit_mienks(fm, data, prior_for(kw), MIEnKSSettings(n_draws=1, **kw), seed=seed)
+        res = fit_mienks(fm, data, space, MIEnKSSettings(n_draws=1, **kw), seed=seed)
         row[f"{name}_windows"] = {n: [covers(w, n) for w in res.windows] for n in TRUTH}
         return res
 

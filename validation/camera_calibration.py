@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from imrbayes.data import load_dataset, preprocess_dataset
-from imrbayes.ensemble import PAPER_PRIOR, En4DVarSettings, MIEnKSSettings, Observations, ParamSpace, fit_en4dvar, fit_mienks
+from imrbayes.ensemble import En4DVarSettings, MIEnKSSettings, Observations, ParamSpace, fit_en4dvar, fit_mienks
 from imrbayes.forward import ForwardModel
 
 TRUTH = {"G": 5200.0, "mu": 0.065}
@@ -79,12 +79,10 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, me
         truth = simulate(folder, seed, family, bubble)
         pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
     obs = Observations.from_preprocessed(pre)
-    spaces = {lk: ParamSpace.for_model(fm.constitutive, prior=prior, base=PAPER_PRIOR if lk == "paper" else None)
-              for lk in likelihoods}           # the paper's settings include the paper's prior
+    space = ParamSpace.for_model(fm.constitutive, prior=prior)
     bubbles = {n: np.array([e["parameters"][n] for e in truth["experiments"]]) for n in TRUTH}
     for lk in likelihoods:
         t0 = time.perf_counter()
-        space = spaces[lk]
         if method == "mienks":
             res = fit_mienks(fm, obs, space, MIEnKSSettings(**{"likelihood": lk, "n_draws": 1, **(settings or {})}),
                              seed=seed)
@@ -304,7 +302,7 @@ def main(argv=None):
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a settings field of the method (integer, float or text), e.g. screen=0; repeatable")
     ap.add_argument("--prior", action="append", default=[], metavar="NAME=MEAN:SD",
-                    help="a parameter prior other than the default (SI), e.g. mu=0.209:2; repeatable")
+                    help="a parameter prior other than the paper's (SI), e.g. mu=0.209:2; repeatable")
     ap.add_argument("--merge", nargs="+", type=Path, default=None, metavar="FILE",
                     help="no fits: unite the rows of these result files (the same design, e.g. seed ranges run in "
                          "parallel) into --json and print the table")

@@ -111,8 +111,7 @@ def _load_config(path) -> dict:
                    "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
                    "repeatable.")
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",
-              help="Prior mean and sd in SI units (G [Pa], mu [Pa s]) [default: G=6e3:2.8e3, mu=0.198:0.339, a "
-                   "log-normal with median 0.1 Pa s; --likelihood paper: the paper's mu=0.209:0.088].")
+              help="Prior mean and sd in SI units (G [Pa], mu [Pa s]) [default: G=6e3:2.8e3, mu=0.209:0.088].")
 @click.option("--workers", type=int, default=None,
               help="Worker processes for the units (imr, en4dvar: experiments; mienks: the experiments of each "
                    "window) [default: 1: in this process].")
@@ -218,9 +217,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     fm = ForwardModel(model, options=ForwardOptions.from_dict(fopts, source="forward options"),
                       physics_overrides=ds.physics or None)
     obs = Observations.from_preprocessed(pre)
-    from imrbayes.ensemble import PAPER_PRIOR
-    paper = getattr(s, "likelihood", "default") == "paper"      # the paper's settings include its prior
-    space = ParamSpace.for_model(fm.constitutive, prior, base=PAPER_PRIOR if paper else None)
+    space = ParamSpace.for_model(fm.constitutive, prior)
     meth.check_settings(s, obs)                # before any output: a refused --set leaves no folder behind
     if mcmc_s is not None:
         mcmc_s.check(space.n)                  # before the fit: a bad walker count must not cost a fit

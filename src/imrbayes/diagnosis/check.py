@@ -42,7 +42,7 @@ import numpy as np
 from imrbayes.data.noise import noise_variance
 from imrbayes.diagnosis.linearised import Linearisation, fit_linearised
 from imrbayes.diagnosis.lsq import ObsModel, fit_map, fit_tempered, frame_values
-from imrbayes.ensemble import PAPER_PRIOR, Observations
+from imrbayes.ensemble import Observations
 
 __all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift", "combined_p_value", "adequate_already"]
 
@@ -55,7 +55,7 @@ def mienks_drift(base, obs, settings, seed: int = 0) -> tuple:
     from imrbayes.ensemble import ParamSpace
     from imrbayes.ensemble.mienks import fit_mienks
 
-    sp = ParamSpace.for_model(base.fm.constitutive, base=PAPER_PRIOR)
+    sp = ParamSpace.for_model(base.fm.constitutive)
     with np.errstate(all="ignore"):
         r = fit_mienks(base.fm, obs, sp, settings, seed=seed)
     m = np.array([w["mean_internal"] for w in r.windows])[:, :2]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imrbayes.diagnosis.candidates import BASELINE, CandidateSpec, spec_of
-from imrbayes.ensemble.problem import PAPER_PRIOR, ParamSpace
+from imrbayes.ensemble.problem import ParamSpace
 from imrbayes.forward import ForwardModel
 from imrbayes.forward.constitutive import get_model
 
@@ -24,7 +24,7 @@ def candidate_space(spec: CandidateSpec, prior: dict | None = None) -> ParamSpac
     """(G, mu) as :meth:`ParamSpace.for_model` of the baseline gives them (``prior``: name -> (mean, sd) SI,
     default the paper's), then the spec's extension with its own prior (given in z, so it has no
     ``prior_si`` entry)."""
-    base = ParamSpace.for_model(get_model(BASELINE.forward_model), prior, base=PAPER_PRIOR)
+    base = ParamSpace.for_model(get_model(BASELINE.forward_model), prior)
     ext = spec.extension
     return ParamSpace(base.names + tuple(e.name for e in ext),
                       np.concatenate([base.positive, np.array([e.log for e in ext], dtype=bool)]),

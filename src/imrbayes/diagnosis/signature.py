@@ -83,7 +83,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imrbayes.ensemble import PAPER_PRIOR, Observations, ParamSpace
+from imrbayes.ensemble import Observations, ParamSpace
 from imrbayes.ensemble.mienks import MIEnKSSettings, fit_mienks
 from imrbayes.errors import InputError
 
@@ -137,7 +137,7 @@ def _settings(settings) -> SignatureSettings:
 
 
 def _space(fm, space):
-    sp = space or ParamSpace.for_model(fm.constitutive, base=PAPER_PRIOR)
+    sp = space or ParamSpace.for_model(fm.constitutive)
     missing = [p for p in PARAMS if p not in sp.names]
     if missing:
         raise InputError("signature", f"the baseline model needs parameters {PARAMS}, has {tuple(sp.names)}")

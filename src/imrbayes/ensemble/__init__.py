@@ -7,7 +7,7 @@ forward-run count, figures, whether MCMC can check its posterior); :data:`METHOD
 that the CLI, the report and the MCMC layer ask. Adding a method: one module, one line below.
 
 >>> obs = Observations.from_preprocessed(pre)
->>> space = ParamSpace.for_model(fm.constitutive)          # default prior, log G / log mu
+>>> space = ParamSpace.for_model(fm.constitutive)          # paper prior, log G / log mu
 >>> res = fit_en4dvar(fm, obs, space, En4DVarSettings(), seed=0)
 >>> res = METHODS["en4dvar"].fit(fm, obs, space, En4DVarSettings(), seed=0)     # the same, by name
 """
@@ -17,12 +17,12 @@ from imrbayes.ensemble.imr import IMR, IMRSettings, fit_imr
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.mienks import MIEnKS, MIEnKSSettings, fit_mienks
 from imrbayes.ensemble.pimr import PIMR, PIMRSettings, fit_pimr
-from imrbayes.ensemble.problem import DEFAULT_PRIOR, PAPER_PRIOR, Observations, ParamSpace
+from imrbayes.ensemble.problem import PAPER_PRIOR, Observations, ParamSpace
 from imrbayes.ensemble.result import FitResult, WindowPosterior
 
 #: name -> method (:class:`InferenceMethod` subclass), in the order the CLI lists them
 METHODS = {m.name: m for m in (IMR, PIMR, En4DVar, MIEnKS)}
 
-__all__ = ["METHODS", "InferenceMethod", "Observations", "ParamSpace", "PAPER_PRIOR", "DEFAULT_PRIOR", "FitResult", "WindowPosterior",
+__all__ = ["METHODS", "InferenceMethod", "Observations", "ParamSpace", "PAPER_PRIOR", "FitResult", "WindowPosterior",
            "fit_imr", "fit_pimr", "fit_en4dvar", "fit_mienks", "IMR", "PIMR", "En4DVar", "MIEnKS",
            "IMRSettings", "PIMRSettings", "En4DVarSettings", "MIEnKSSettings"]

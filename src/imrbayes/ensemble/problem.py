@@ -13,14 +13,9 @@ Conventions (all methods)
 * Positive parameters (``Parameter.positive``; G and mu for NHKV) are inferred in **log space**:
   the internal coordinate is ``z = log(theta / 1 SI unit)``. Nothing is ever clipped; a Gaussian
   in z is a log-normal in theta. Parameters that may be negative are used as they are.
-* Priors are given as a mean and sd in SI units (the paper's: G 6 +- 2.8 kPa, mu 0.209 +- 0.088
+* The paper's priors are given as a mean and sd in SI units (G 6 +- 2.8 kPa, mu 0.209 +- 0.088
   Pa s). For a positive parameter they become the log-normal with that mean and sd:
   ``s^2 = log(1 + (sd/mean)^2)``, ``m = log(mean) - s^2/2`` (moment matching).
-* The default prior (:data:`DEFAULT_PRIOR`) keeps the paper's G and widens mu to a log-normal with
-  median 0.1 Pa s and 95 % within 0.010-0.99 Pa s: the paper's mu prior (95 % within 0.087-0.43
-  Pa s) excludes the viscosities of most of the gels in our real data and pulled every estimate
-  of a 0.065 Pa s truth up (docs/results.md, "The default prior"). ``--likelihood paper`` and
-  ``diagnose`` keep :data:`PAPER_PRIOR`.
 """
 
 from __future__ import annotations
@@ -32,15 +27,11 @@ import numpy as np
 
 from imrbayes.errors import InputError
 
-__all__ = ["Observations", "ParamSpace", "PAPER_PRIOR", "DEFAULT_PRIOR"]
+__all__ = ["Observations", "ParamSpace", "PAPER_PRIOR"]
 
 #: Prior of methods.md §3 (mean, sd) in SI units; parameters not listed use the model default
-#: with a 50 % sd. ``--likelihood paper`` and ``diagnose`` use it.
+#: with a 50 % sd.
 PAPER_PRIOR = {"G": (6.0e3, 2.8e3), "mu": (0.209, 0.088)}
-
-#: The default prior (mean, sd) in SI units: the paper's G; mu log-normal with median 0.100 Pa s and
-#: log-sd 1.17 (95 % within 0.010-0.99 Pa s), i.e. mean 0.198 and sd 0.339 Pa s.
-DEFAULT_PRIOR = {"G": (6.0e3, 2.8e3), "mu": (0.198, 0.339)}
 
 
 @dataclass
@@ -250,12 +241,10 @@ class ParamSpace:
         return len(self.names)
 
     @classmethod
-    def for_model(cls, constitutive, prior: dict | None = None, box_sd: float = 10.0,
-                  base: dict | None = None) -> "ParamSpace":
-        """From a ``ConstitutiveModel``; ``prior`` maps name -> (mean, sd) in SI and overrides
-        ``base`` (default :data:`DEFAULT_PRIOR`; :data:`PAPER_PRIOR` for the paper's settings), else
-        the model default with a 50 % sd; uncorrelated."""
-        prior = {**(DEFAULT_PRIOR if base is None else base), **(prior or {})}
+    def for_model(cls, constitutive, prior: dict | None = None, box_sd: float = 10.0) -> "ParamSpace":
+        """From a ``ConstitutiveModel``; ``prior`` maps name -> (mean, sd) in SI (default
+        :data:`PAPER_PRIOR`, else the model default with a 50 % sd), uncorrelated."""
+        prior = {**PAPER_PRIOR, **(prior or {})}
         names, pos, means, sds, si = [], [], [], [], {}
         for p in constitutive.parameters:
             mean, sd = prior.get(p.name, (p.default, 0.5 * abs(p.default) if p.default else 1.0))

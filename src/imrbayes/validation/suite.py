@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from imrbayes.data.noise import noise_variance, paper_sigma
-from imrbayes.ensemble import (PAPER_PRIOR, En4DVarSettings, IMRSettings, MIEnKSSettings, Observations, ParamSpace,
-                               fit_en4dvar, fit_imr, fit_mienks)
+from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, Observations, ParamSpace, fit_en4dvar,
+                               fit_imr, fit_mienks)
 from imrbayes.ensemble import figures as figs
 from imrbayes.ensemble.gaussian import fuse
 from imrbayes.ensemble.pimr import collapse_time
@@ -66,12 +66,11 @@ def _within(est, name, truth=None):
 def case_en4dvar(suite, fm, out, seed):
     obs = verification_data(fm, seed)
     s = En4DVarSettings(n_draws=1, loglik=False, likelihood="paper")
-    paper = ParamSpace.for_model(fm.constitutive, base=PAPER_PRIOR)      # the paper's settings, its prior too
-    res = fit_en4dvar(fm, obs, paper, s, seed=seed)
+    res = fit_en4dvar(fm, obs, ParamSpace.for_model(fm.constitutive), s, seed=seed)
     rel = {n: res.estimate[n]["mean"] / TRUTH[n] - 1.0 for n in TRUTH}
     ok = all(_within(res.estimate, n) for n in TRUTH) and all(abs(v) < 0.15 for v in rel.values())
     # the plain likelihood (every sample counted once), reported beside the paper's averaged cost
-    plain = fit_en4dvar(fm, obs, paper,
+    plain = fit_en4dvar(fm, obs, ParamSpace.for_model(fm.constitutive),
                         En4DVarSettings(n_draws=1, loglik=False, obs_weight="sum", likelihood="paper"), seed=seed)
     f = [str(figs.experiments_figure(res, out / "en4dvar_experiments.png"))]
     return {"passed": ok, "criteria": "truth inside the fused 95% HDI of G and mu, and |mean/truth - 1| < 15%",
@@ -245,7 +244,7 @@ def case_mcmc_agreement(suite, fm, out, seed):
     from imrbayes.mcmc.fit import fit_window_specs, run_fit_mcmc
 
     obs = verification_data(fm, seed)
-    space = ParamSpace.for_model(fm.constitutive, base=PAPER_PRIOR)
+    space = ParamSpace.for_model(fm.constitutive)
     # the paper's density: the MCMC target does not sample the default likelihood's ``whiten`` yet
     res = fit_mienks(fm, obs, space, MIEnKSSettings(n_draws=1, likelihood="paper"), seed=seed)
     wins = MCMC_WINDOWS[suite]
