@@ -69,7 +69,18 @@ def test_fit_every_method(dataset, tmp_path, method, sets):
     if method == "mienks":
         assert len(summary["windows"]) == 5
         w = summary["windows"][0]
-        assert set(w) >= {"index", "t_star", "G", "mu", "cov"} and np.shape(w["cov"]) == (2, 2)
+        assert set(w) >= {"index", "t_star", "G", "mu", "cov", "prior_weight", "prior_dominated"}
+        assert np.shape(w["cov"]) == (2, 2)
+        # the prior's share of each window mean: in [0, 1], and the warning names exactly the flagged windows
+        from imrbayes.ensemble.windows import PRIOR_WEIGHT_LIMIT
+        for x in summary["windows"]:
+            # a share of the prior mean's offset (the diagonal of a product of gains: a correlated pair can
+            # make it slightly negative, never above 1)
+            assert all(-0.05 <= v <= 1.0 for v in x["prior_weight"].values()), x["prior_weight"]
+            assert x["prior_dominated"] == (max(x["prior_weight"].values()) > PRIOR_WEIGHT_LIMIT)
+        flagged = [x["index"] for x in summary["windows"] if x["prior_dominated"]]
+        assert summary["details"]["prior_dominated_windows"] == flagged
+        assert ("prior-dominated" in res.output) == bool(flagged)
         assert summary["time_resolved"][0]["t_star"] == 0.0 and "G" in summary["time_resolved"][0]
     dt = az.from_netcdf(out / "posterior.nc")
     assert {"posterior", "observed_data"} <= set(dt.children)

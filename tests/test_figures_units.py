@@ -89,7 +89,7 @@ def test_time_resolved_figure_hatches_the_prior_dominated_windows_when_reported(
         w["prior_weight"] = {"G": 0.3 if w["prior_dominated"] else 0.01, "mu": 0.01}
     efig.time_resolved_figure(res, tmp_path / "p.png")
     fig = captured[0]
-    assert "prior-dominated window (prior weight > 25 %)" in _texts(fig)
+    assert "prior-dominated window (prior weight > 5%)" in _texts(fig)
     hatched = [p for ax in fig.axes for p in ax.patches if p.get_hatch()]
     spans = {(round(float(p.get_x()), 3), round(float(p.get_x() + p.get_width()), 3)) for p in hatched}
     assert spans == {(0.0, 0.25), (0.375, 1.0)}, spans

@@ -179,7 +179,7 @@ def summarise(rows, likelihoods) -> dict:
                 s[n]["early_minus_late"] = {"mean": float(drop.mean()), "se": float(drop.std(ddof=1) / np.sqrt(len(drop)))
                                             if len(drop) > 1 else None, "windows_per_third": third}
                 doms = [r[lk]["window_prior_dominated"][:n_w] for r in rows if "window_prior_dominated" in r[lk]]
-                if len(doms) == len(errs):     # the same over the windows the data decide (the prior < 25 %)
+                if len(doms) == len(errs):     # the same over the windows not flagged prior-dominated
                     D = np.array(doms, dtype=bool)
                     drops = []
                     for e, d in zip(E, D):

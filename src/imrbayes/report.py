@@ -27,6 +27,7 @@ from pathlib import Path
 
 from imrbayes import __version__
 from imrbayes.ensemble import METHODS
+from imrbayes.ensemble.windows import PRIOR_WEIGHT_LIMIT
 from imrbayes.errors import InputError
 from imrbayes.html import embed_png, esc, is_png, num, table, write_page
 from imrbayes.io import read_json
@@ -628,7 +629,7 @@ def _section_conclusion(run) -> str:
     if dominated:
         spans = ", ".join(f"{esc(w.get('index'))} (t* {_span(w.get('t_star'))})" for w in dominated)
         items.append(f"<span class='caveat'>Prior-dominated window{'s' if len(dominated) > 1 else ''} {spans}: the "
-                     "parameter prior's mean keeps more than 25 % of the weight in these window means (directly or "
+                     f"parameter prior's mean keeps more than {PRIOR_WEIGHT_LIMIT:.0%} of the weight in these window means (directly or "
                      "through the chain of window priors; a linearised lower bound), so a trend that starts in them "
                      "is not evidence of time-dependent material (hatched in the parameters figure).</span>")
     per = s.get("per_experiment") or []

@@ -184,7 +184,9 @@ def time_resolved_figure(result, path, obs=None):
     prior = _prior_band(result, names)
     windows = result.windows or []
     if windows and all("prior_dominated" in w for w in windows):
-        moved, hatch_label = [bool(w["prior_dominated"]) for w in windows], "prior-dominated window (prior weight > 25 %)"
+        from imrbayes.ensemble.windows import PRIOR_WEIGHT_LIMIT
+        moved = [bool(w["prior_dominated"]) for w in windows]
+        hatch_label = f"prior-dominated window (prior weight > {PRIOR_WEIGHT_LIMIT:.0%})"
     else:                       # results written before windows reported their prior weight
         moved, hatch_label = barely_moved(result, names), "data barely moved the prior"
     for ax, nm in zip(axes, names):
