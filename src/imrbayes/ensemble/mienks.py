@@ -578,7 +578,6 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             # random effects on the experiments' window likelihoods, the gel mean's prior chained
             # from the previous window (RTPS); the pooled (no scatter) Gaussian is the density's
             Lam, eta, _, n_clip = likelihood_terms(pm, pc, qm, qc)
-            window_prior_c = chain_c
             hier = random_effects(Lam, eta, chain_m, chain_c)
             for i, g in enumerate(ok):
                 lik_terms[g].append((Lam[i], eta[i]))
@@ -607,9 +606,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             est_m, est_c = fus.mean, fus.cov
         win_mean.append(est_m)
         win_cov.append(est_c)
-        chained = default or s.fusion != "prior"
-        influence = chained_prior_weight(influence if chained else np.eye(len(space.names)), est_c,
-                                         prior_c if not default else window_prior_c)
+        # prior_c is the prior this window used: the chain's, or the parameter prior when not chained
+        influence = chained_prior_weight(influence if s.fusion != "prior" else np.eye(len(space.names)), est_c, prior_c)
         start_j = sw["start_means"][j]
         entering = np.isfinite(start_j).all(axis=1)
         if default:

@@ -13,13 +13,8 @@ import numpy as np
 from imrbayes.ensemble.gaussian import precision_weighted
 from imrbayes.errors import InputError
 
-__all__ = ["n_windows", "window_spans", "coverage", "mda_weights", "time_resolved", "DECIDED_SD_RATIO",
-           "PRIOR_WEIGHT_LIMIT", "prior_sd_ratio", "chained_prior_weight", "prior_dominated_note"]
-
-#: A window is decided by its data when every parameter's posterior sd (internal, log scale) is at
-#: most this fraction of the parameter prior's: in one Gaussian update the prior then carries at
-#: most (0.5)^2 = 25 % of the posterior mean's weight (the validation suite's criterion).
-DECIDED_SD_RATIO = 0.5
+__all__ = ["n_windows", "window_spans", "coverage", "mda_weights", "time_resolved", "PRIOR_WEIGHT_LIMIT",
+           "chained_prior_weight", "prior_dominated_note"]
 
 #: The product's rule: a window is prior-dominated when the parameter prior's mean still carries
 #: more than this weight in the window's posterior mean -- through the chain of window priors, not
@@ -29,11 +24,6 @@ DECIDED_SD_RATIO = 0.5
 #: understated the pull of windows 1-2 by 3-8x on the camera calibration (20 seeds); at 5 %
 #: windows 0-1 are flagged on every seed there and window 2 on 12 of 20.
 PRIOR_WEIGHT_LIMIT = 0.05
-
-
-def prior_sd_ratio(cov_internal, prior_cov) -> np.ndarray:
-    """(n_p,) posterior sd / parameter-prior sd of one window, internal coordinates."""
-    return np.sqrt(np.diag(np.asarray(cov_internal, dtype=float)) / np.diag(np.asarray(prior_cov, dtype=float)))
 
 
 def chained_prior_weight(influence, post_cov, window_prior_cov) -> np.ndarray:
