@@ -2,6 +2,7 @@
 and MIEnKS-MDA's per-window coverage over seeds whose records hold different numbers of windows."""
 
 import importlib.util
+import math
 from pathlib import Path
 
 import pytest
@@ -88,3 +89,20 @@ def test_merge_names_a_file_that_is_not_a_result(cal, tmp_path):
     bad.write_text("{not json")
     with pytest.raises(SystemExit, match="bad.json: not a calibration result file"):
         cal.merge([bad], None)
+
+
+def test_window_medians_separate_a_narrowing_log_normal_from_a_trend(cal):
+    # windows whose medians sit at the truth while the log-normal mean exp(s^2/2) - 1 shrinks with
+    # the window's log sd (0.45 -> 0.05): the means show a decline, the medians none
+    sds = [0.45, 0.3, 0.15, 0.05, 0.05, 0.05]
+    rows = []
+    for seed in range(3):
+        r = _row(seed, True, [True] * len(sds))
+        r["default"]["window_rel_error"] = {n: [math.exp(s * s / 2) - 1 for s in sds] for n in ("G", "mu")}
+        r["default"]["window_rel_error_median"] = {n: [0.0] * len(sds) for n in ("G", "mu")}
+        rows.append(r)
+    s = cal.summarise(rows, ["default"])["default"]["G"]
+    first, last = sum(math.exp(x * x / 2) - 1 for x in sds[:2]) / 2, math.exp(0.05 ** 2 / 2) - 1
+    assert s["early_minus_late"]["mean"] == pytest.approx(first - last)
+    assert s["median_early_minus_late"]["mean"] == pytest.approx(0.0, abs=1e-15)
+    assert s["window_median_rel_error_mean"] == pytest.approx([0.0] * len(sds))
