@@ -22,6 +22,9 @@ cost). Usage:
     python validation/camera_calibration.py --seeds 20 --family scatter --json validation/results/camera_scatter.json
     python validation/camera_calibration.py --seeds 20 --method mienks --likelihoods default --json validation/results/camera_mienks.json
 
+Probes of the design (not the camera family itself): ``--geometry given`` writes the true Rmax and
+Req into meta.json, so the fit takes them as known; ``--phase 0`` puts a frame at every maximum.
+
 Seed ranges can run in parallel processes (``--first-seed``, ``--seeds``, one ``--json`` each) and be
 united afterwards: ``--merge a.json b.json --json all.json``.
 """
@@ -58,11 +61,15 @@ def wilson(k: int, n: int, z: float = 1.959964) -> list:
     return [c - h, c + h]
 
 
-def simulate(folder: Path, seed: int, family: str, bubble: str) -> dict:
+def simulate(folder: Path, seed: int, family: str, bubble: str, design: dict | None = None) -> dict:
+    """Write one seed's data set; ``design`` may give ``geometry="given"`` (the true Rmax and Req in
+    meta.json, so that the fit takes them as known) and ``phase="0"`` (a frame at every maximum)."""
+    design = design or {}
     cmd = [sys.executable, "-m", "imrbayes.cli", "simulate", "--model", "nhkv",
            "--param", f"G={TRUTH['G']}", "--param", f"mu={TRUTH['mu']}", "--rmax", "320e-6:45e-6",
-           "--ratio", "7.9:0.45", "--n-exp", "6", "--noise", "0.02", "--frame-s", "1e-6", "--phase", "random",
-           "--pre-max-s", "5e-6", "--no-req-in-meta", "--t-end", "3.6", "--seed", str(seed), "--out", str(folder),
+           "--ratio", "7.9:0.45", "--n-exp", "6", "--noise", "0.02", "--frame-s", "1e-6",
+           "--phase", design.get("phase", "random"), "--pre-max-s", "5e-6",
+           "--req-in-meta" if design.get("geometry") == "given" else "--no-req-in-meta", "--t-end", "3.6", "--seed", str(seed), "--out", str(folder),
            "--forward", f"bubble={bubble}", "--forward", "rtol=1e-9", "--forward", "atol=1e-11"]
     if family == "scatter":
         cmd += ["--scatter", f"G={SCATTER}", "--scatter", f"mu={SCATTER}"]
@@ -71,12 +78,12 @@ def simulate(folder: Path, seed: int, family: str, bubble: str) -> dict:
 
 
 def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, method: str = "en4dvar",
-             prior: dict | None = None) -> dict:
+             prior: dict | None = None, design: dict | None = None) -> dict:
     fm = ForwardModel("nhkv", options={"bubble": bubble})
     row = {"seed": seed}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "data"
-        truth = simulate(folder, seed, family, bubble)
+        truth = simulate(folder, seed, family, bubble, design)
         pre = preprocess_dataset(load_dataset(folder), skip_failed=True)
     obs = Observations.from_preprocessed(pre)
     space = ParamSpace.for_model(fm.constitutive, prior=prior)
@@ -99,6 +106,13 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, me
             # shrinks as the windows sharpen -- a decline of the means that is not in the medians
             r["window_rel_error_median"] = {n: [w[n]["median"] / true - 1 for w in res.windows]
                                             for n, true in TRUTH.items()}
+            # the pooled (no between-bubble scatter) window estimate and the mean of the bubbles' own
+            # chains: which part of a window's error the combination of the bubbles adds
+            r["window_rel_error_pooled"] = {n: [math.exp(w["pooled_mean_internal"][i]) / true - 1 for w in res.windows]
+                                            for i, (n, true) in enumerate(TRUTH.items()) if "pooled_mean_internal" in res.windows[0]}
+            r["window_rel_error_bubbles"] = {
+                n: [float(np.mean([math.exp(e["mean_internal"][i]) for e in w["per_experiment"]])) / true - 1
+                    for w in res.windows] for i, (n, true) in enumerate(TRUTH.items())}
             r["window_prior_dominated"] = [bool(w.get("prior_dominated", False)) for w in res.windows]
             r["window_prior_weight"] = {n: [w["prior_weight"][n] for w in res.windows if "prior_weight" in w]
                                         for n in TRUTH}
@@ -173,6 +187,11 @@ def summarise(rows, likelihoods) -> dict:
                 flat = [c for w in wins for c in w]
                 s[n]["window_coverage_all"] = float(np.mean(flat))
                 s[n]["window_coverage_all_wilson95"] = wilson(int(np.sum(flat)), len(flat))
+            for kind in ("pooled", "bubbles"):
+                E = [r[lk][f"window_rel_error_{kind}"][n] for r in rows if n in r[lk].get(f"window_rel_error_{kind}", {})]
+                if E:
+                    n_w = min(len(e) for e in E)
+                    s[n][f"window_{kind}_rel_error_mean"] = np.array([e[:n_w] for e in E]).mean(axis=0).tolist()
             med = [r[lk]["window_rel_error_median"][n] for r in rows if "window_rel_error_median" in r[lk]]
             if med:        # the same trajectory and trend for the window medians
                 n_w = min(len(e) for e in med)
@@ -246,7 +265,7 @@ def merge(paths, out: Path | None) -> dict:
         try:
             d = json.loads(Path(p).read_text())
             m = {"family": d["family"], "bubble": d["bubble"], "method": d.get("method", "en4dvar"),
-                 "settings": d.get("settings", {})}
+                 "settings": d.get("settings", {}), **({"design": d["design"]} if d.get("design") else {})}
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise SystemExit(f"{p}: not a calibration result file ({type(exc).__name__}: {exc})")
         if meta is None:
@@ -288,6 +307,10 @@ def _print_table(family, method, bubble, rows, failures, lks) -> None:
                 traj = ", ".join(f"{x:+.2f}" for x in s["window_rel_error_mean"])
                 print(f"{'':<16} window means / truth - 1: {traj}; first third - last third "
                       f"{d['mean']:+.3f} +- {(d['se'] or float('nan')):.3f} (truth: constant)")
+            for kind, label in (("pooled", "pooled window medians"), ("bubbles", "bubbles' own chains (mean)")):
+                if f"window_{kind}_rel_error_mean" in s:
+                    traj = ", ".join(f"{x:+.2f}" for x in s[f"window_{kind}_rel_error_mean"])
+                    print(f"{'':<16} {label} / truth - 1: {traj}")
             if "median_early_minus_late" in s:
                 d = s["median_early_minus_late"]
                 traj = ", ".join(f"{x:+.2f}" for x in s["window_median_rel_error_mean"])
@@ -322,6 +345,10 @@ def main(argv=None):
                     help="a settings field of the method (integer, float or text), e.g. screen=0; repeatable")
     ap.add_argument("--prior", action="append", default=[], metavar="NAME=MEAN:SD",
                     help="a parameter prior other than the paper's (SI), e.g. mu=0.209:2; repeatable")
+    ap.add_argument("--geometry", choices=["estimated", "given"], default="estimated",
+                    help="given: the true Rmax and Req in meta.json (the fit takes them as known)")
+    ap.add_argument("--phase", choices=["random", "0"], default="random",
+                    help="the camera's sub-frame phase (0: a frame at every maximum)")
     ap.add_argument("--merge", nargs="+", type=Path, default=None, metavar="FILE",
                     help="no fits: unite the rows of these result files (the same design, e.g. seed ranges run in "
                          "parallel) into --json and print the table")
@@ -341,11 +368,15 @@ def main(argv=None):
     settings = dict(_setting(kv) for kv in a.set)
     if prior:
         settings = {**settings, "prior": {k: list(v) for k, v in prior.items()}}     # kept apart in the JSON
-    meta = {"family": a.family, "bubble": a.bubble, "method": a.method, "settings": settings}
+    design = {k: v for k, v in {"geometry": a.geometry, "phase": a.phase}.items()
+              if v != {"geometry": "estimated", "phase": "random"}[k]}
+    meta = {"family": a.family, "bubble": a.bubble, "method": a.method, "settings": settings,
+            **({"design": design} if design else {})}
     rows, failures = [], []
     prev = json.loads(a.json.read_text()) if a.json and a.json.exists() else {}
     done = {r["seed"]: r for r in prev.get("rows", []) if prev.get("family") == a.family and prev.get("bubble") == a.bubble
             and prev.get("settings", {}) == settings and prev.get("method", "en4dvar") == a.method
+            and prev.get("design", {}) == design
             and all(lk in r for lk in lks)}
     for seed in range(a.first_seed, a.first_seed + a.seeds):
         if seed in done:                 # an interrupted run loses nothing it finished
@@ -353,7 +384,7 @@ def main(argv=None):
             continue
         try:
             rows.append(one_seed(seed, a.family, a.bubble, lks, {k: v for k, v in settings.items() if k != "prior"},
-                                 a.method, prior or None))
+                                 a.method, prior or None, design))
         except Exception as exc:        # a failed seed is reported, never silently dropped
             failures.append({"seed": seed, "error": f"{type(exc).__name__}: {exc}"[:300]})
             print(f"seed {seed}: FAILED ({failures[-1]['error']})", flush=True)
