@@ -22,8 +22,9 @@ cost). Usage:
     python validation/camera_calibration.py --seeds 20 --family scatter --json validation/results/camera_scatter.json
     python validation/camera_calibration.py --seeds 20 --method mienks --likelihoods default --json validation/results/camera_mienks.json
 
-Probes of the design (not the camera family itself): ``--geometry given`` writes the true Rmax and
-Req into meta.json, so the fit takes them as known; ``--phase 0`` puts a frame at every maximum.
+Probes of the design (not the camera family itself): ``--req given`` writes the true Req into
+meta.json, so the fit takes it as known (Rmax and the time of the maximum are estimated either
+way); ``--phase 0`` puts a frame at every maximum.
 
 Seed ranges can run in parallel processes (``--first-seed``, ``--seeds``, one ``--json`` each) and be
 united afterwards: ``--merge a.json b.json --json all.json``.
@@ -62,14 +63,15 @@ def wilson(k: int, n: int, z: float = 1.959964) -> list:
 
 
 def simulate(folder: Path, seed: int, family: str, bubble: str, design: dict | None = None) -> dict:
-    """Write one seed's data set; ``design`` may give ``geometry="given"`` (the true Rmax and Req in
-    meta.json, so that the fit takes them as known) and ``phase="0"`` (a frame at every maximum)."""
+    """Write one seed's data set; ``design`` may give ``req="given"`` (the true Req in meta.json, so
+    that the fit takes it as known; Rmax and the time of the maximum are estimated either way) and
+    ``phase="0"`` (a frame at every maximum)."""
     design = design or {}
     cmd = [sys.executable, "-m", "imrbayes.cli", "simulate", "--model", "nhkv",
            "--param", f"G={TRUTH['G']}", "--param", f"mu={TRUTH['mu']}", "--rmax", "320e-6:45e-6",
            "--ratio", "7.9:0.45", "--n-exp", "6", "--noise", "0.02", "--frame-s", "1e-6",
            "--phase", design.get("phase", "random"), "--pre-max-s", "5e-6",
-           "--req-in-meta" if design.get("geometry") == "given" else "--no-req-in-meta", "--t-end", "3.6", "--seed", str(seed), "--out", str(folder),
+           "--req-in-meta" if design.get("req") == "given" else "--no-req-in-meta", "--t-end", "3.6", "--seed", str(seed), "--out", str(folder),
            "--forward", f"bubble={bubble}", "--forward", "rtol=1e-9", "--forward", "atol=1e-11"]
     if family == "scatter":
         cmd += ["--scatter", f"G={SCATTER}", "--scatter", f"mu={SCATTER}"]
@@ -345,8 +347,8 @@ def main(argv=None):
                     help="a settings field of the method (integer, float or text), e.g. screen=0; repeatable")
     ap.add_argument("--prior", action="append", default=[], metavar="NAME=MEAN:SD",
                     help="a parameter prior other than the paper's (SI), e.g. mu=0.209:2; repeatable")
-    ap.add_argument("--geometry", choices=["estimated", "given"], default="estimated",
-                    help="given: the true Rmax and Req in meta.json (the fit takes them as known)")
+    ap.add_argument("--req", choices=["estimated", "given"], default="estimated",
+                    help="given: the true Req in meta.json (the fit takes it as known)")
     ap.add_argument("--phase", choices=["random", "0"], default="random",
                     help="the camera's sub-frame phase (0: a frame at every maximum)")
     ap.add_argument("--merge", nargs="+", type=Path, default=None, metavar="FILE",
@@ -368,8 +370,8 @@ def main(argv=None):
     settings = dict(_setting(kv) for kv in a.set)
     if prior:
         settings = {**settings, "prior": {k: list(v) for k, v in prior.items()}}     # kept apart in the JSON
-    design = {k: v for k, v in {"geometry": a.geometry, "phase": a.phase}.items()
-              if v != {"geometry": "estimated", "phase": "random"}[k]}
+    design = {k: v for k, v in {"req": a.req, "phase": a.phase}.items()
+              if v != {"req": "estimated", "phase": "random"}[k]}
     meta = {"family": a.family, "bubble": a.bubble, "method": a.method, "settings": settings,
             **({"design": design} if design else {})}
     rows, failures = [], []
