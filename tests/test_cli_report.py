@@ -443,3 +443,28 @@ def test_report_flags_a_gel_level_estimate_outside_the_experiments(runs, tmp_pat
     _edit_summary(run, lambda s: s["estimate"]["G"].update(mean=low))
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     assert "outside every experiment" not in _text(_section(html, "conclusion"))
+
+
+def test_report_warns_that_an_inferred_req_can_make_mu_windows_decline(runs, tmp_path):
+    """MIEnKS-MDA with Req inferred from the tail (docs/results.md: the mu windows of a constant gel fall
+    and the aggregate is ~10 % high): the conclusion says so; with Req given (prior sd 0), or for a
+    method with one window, it does not."""
+    key = "Req was estimated from each record's tail and inferred window by window"
+    run = _copy(runs, "mienks", tmp_path)
+    s = json.loads((run / "summary.json").read_text())
+    assert len(s["windows"]) > 1
+    assert all(e["nuisance"]["req_m"]["prior_sd"] == 0 for e in s["per_experiment"])     # simulate gives Req
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    assert key not in _text(_section(html, "conclusion"))
+
+    def inferred(s):
+        for e in s["per_experiment"]:
+            e["nuisance"]["req_m"]["prior_sd"] = 0.04 * e["nuisance"]["req_m"]["prior_mean"]
+    _edit_summary(run, inferred)
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    assert key in _text(_section(html, "conclusion"))
+    one = _copy(runs, "en4dvar", tmp_path)
+    _edit_summary(one, lambda s: [e.update(nuisance={"req_m": {"prior_mean": 3e-5, "prior_sd": 1e-6}})
+                                  for e in s["per_experiment"]])
+    html = _report(one, "--quiet") and (one / "report.html").read_text()
+    assert key not in _text(_section(html, "conclusion"))
