@@ -463,6 +463,10 @@ def test_report_warns_that_an_inferred_req_can_make_mu_windows_decline(runs, tmp
     _edit_summary(run, inferred)
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     assert key in _text(_section(html, "conclusion"))
+    _edit_summary(run, lambda s: s.setdefault("details", {}).update(req_prior={"method": "en4dvar"}))
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    concl = _text(_section(html, "conclusion"))
+    assert key not in concl and "prior came from a whole-record En4D-Var fit" in concl
     one = _copy(runs, "en4dvar", tmp_path)
     _edit_summary(one, lambda s: [e.update(nuisance={"req_m": {"prior_mean": 3e-5, "prior_sd": 1e-6}})
                                   for e in s["per_experiment"]])

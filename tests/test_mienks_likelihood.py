@@ -220,3 +220,34 @@ def test_default_infers_rmax_and_req():
     err = abs(res.estimate["mu"]["mean"] / TRUTH["mu"] - 1)
     assert err < 0.1
     assert err < abs(res_fixed.estimate["mu"]["mean"] / TRUTH["mu"] - 1)
+
+
+def test_req_prior_from_a_whole_record_en4dvar_fit():
+    """``req_prior="en4dvar"``: the records' Req is 12 % above the stated one (prior sd 15 %). Each
+    estimated Req's prior becomes its whole-record En4D-Var posterior -- closer to the true Req than
+    the stated value and narrower than the stated sd -- and the windows start from it (the nuisance
+    report's prior); a Req given as known (sd 0) is left alone. Refused for the paper likelihood."""
+    with pytest.raises(InputError, match="req_prior"):
+        MIEnKSSettings(req_prior="tail").check(120)
+    with pytest.raises(InputError, match="default likelihood only"):
+        MIEnKSSettings(req_prior="en4dvar", likelihood="paper").check(120)
+    fm, o = observations(n_exp=2, n_steps=60)
+    s_true, f_req = 0.97, 1.12
+    t = o.t_star
+    rmax_t, req_t = o.rmax_m * s_true, o.req_m * f_req
+    Y = fm.simulate({"G": np.full(2, TRUTH["G"]), "mu": np.full(2, TRUTH["mu"])}, rmax_t, req_t, t / s_true).R_star
+    Y = Y * s_true + 0.004 * np.random.default_rng(7).standard_normal(Y.shape)
+    Y[:, 0] = 1.0
+    sd = np.column_stack([np.full(2, 0.03), np.zeros(2), [0.15 * o.req_m[0], 0.0]])     # experiment 2: Req given
+    obs = Observations(t, Y, np.full(t.size, 0.004 ** 2), o.rmax_m, o.req_m, noise_sd=np.full(2, 0.004),
+                       nuisance_sd=sd, t0_s=np.zeros(2), tc_s=np.full(2, 30e-6))
+    st = MIEnKSSettings(n_ens=24, n_iter=3, L=20, h=10, n_draws=3, adapt=False, req_prior="en4dvar")
+    res = fit_mienks(fm, obs, space(fm), st, seed=2)
+    info = res.details["req_prior"]
+    assert info["experiments"] == [obs.names[0]]
+    assert abs(info["req_m"][0] - req_t[0]) < 0.5 * abs(o.req_m[0] - req_t[0])
+    assert 0 < info["req_sd_m"][0] < 0.15 * o.req_m[0]
+    assert info["req_m"][1] == o.req_m[1] and info["req_sd_m"][1] == 0.0
+    summ = summary_dict(res, obs, seed=2)
+    assert summ["per_experiment"][0]["nuisance"]["req_m"]["prior_mean"] == pytest.approx(info["req_m"][0])
+    assert summ["per_experiment"][1]["nuisance"]["req_m"]["prior_sd"] == 0.0

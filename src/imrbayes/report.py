@@ -638,7 +638,11 @@ def _section_conclusion(run) -> str:
                      "parameters): see Experiments.")
         req_inferred = any(_fnum(((x.get("nuisance") or {}).get("req_m") or {}).get("prior_sd")) > 0
                            for x in per if isinstance(x, dict))
-        if len(wins) > 1 and req_inferred:
+        req_from_fit = ((s.get("details") or {}).get("req_prior") or {}).get("method") == "en4dvar"
+        if len(wins) > 1 and req_from_fit:
+            items.append("Each estimated Req's prior came from a whole-record En4D-Var fit of the same data "
+                         "(req_prior=en4dvar), so the early windows start from the Req the record's tail decides.")
+        elif len(wins) > 1 and req_inferred:
             # measured on camera-style synthetic records of a constant gel (docs/results.md, "Where the
             # decline of the decided windows comes from", 20 seeds): with Req inferred the mu windows fell
             # and the aggregate was G +17 %, mu +12 %; with the true Req given, flat and G +4 %, mu +1 %

@@ -55,6 +55,10 @@ Likelihood ``default`` (methods.md §7)
   linear model, and a fixed Rmax or Req that is off by a few per cent is read as material physics
   (with them fixed, the per-bubble estimates scattered more than their sds allowed: a spurious
   between-bubble sd). The posteriors are reported as ``per_experiment[].nuisance``.
+  ``req_prior="en4dvar"`` replaces each estimated Req's prior (the record's tail mean) by its
+  whole-record En4D-Var posterior, fitted first (:func:`req_prior_from_en4dvar`): the windows see
+  the tail, where Req is decided, only at the end, and an uncertain Req lets the early windows' mu
+  slide along the Req-mu ridge (docs/results.md).
 * **Across bubbles** (§7.4), in every window: each experiment's window likelihood (its posterior
   divided by the prior its window started from,
   :func:`imrbayes.ensemble.hierarchical.likelihood_terms`) enters the random-effects layer
@@ -133,7 +137,9 @@ class MIEnKSSettings:
     original prior, :func:`imrbayes.ensemble.gaussian.fuse`), the observation weight
     ``beta_jk / L`` (``mean``) or ``beta_jk`` (``mda``). ``adapt`` (default likelihood): a pilot pass
     sets each record's noise level and tempering from its residual (False: the record's noise, no
-    tempering, one pass)."""
+    tempering, one pass). ``req_prior`` (default likelihood): where each experiment's Req prior comes
+    from -- ``preprocessing`` (the record's tail) or ``en4dvar`` (the Req posterior of a whole-record
+    En4D-Var fit of the same data, run first; see :func:`req_prior_from_en4dvar`)."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -149,6 +155,7 @@ class MIEnKSSettings:
     log_pressure: bool = True
     likelihood: str = "default"
     adapt: bool = True
+    req_prior: str = "preprocessing"
 
     def resolved(self) -> "MIEnKSSettings":
         """The settings with the likelihood's own choices filled in (``paper``: ``chain`` fusion and
@@ -173,6 +180,10 @@ class MIEnKSSettings:
             raise InputError("fusion", f"must be 'chain' or 'prior', got {s.fusion!r}")
         if s.likelihood == "paper" and s.obs_weight not in ("mean", "mda"):
             raise InputError("obs_weight", f"must be 'mean' or 'mda', got {s.obs_weight!r}")
+        if self.req_prior not in ("preprocessing", "en4dvar"):
+            raise InputError("req_prior", f"must be 'preprocessing' or 'en4dvar', got {self.req_prior!r}")
+        if self.req_prior != "preprocessing" and s.likelihood != "default":
+            raise InputError("req_prior", "applies to the default likelihood only (the paper's has no Req nuisance)")
         if self.h > self.L:
             raise InputError("h", f"the shift h = {self.h} exceeds the window length L = {self.L}: samples would be skipped")
         n_windows(n_steps, self.L, self.h)
@@ -487,6 +498,39 @@ def _noise_model(obs, fitted, noise_var):
     return np.array(var), np.array(alpha), info
 
 
+def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution):
+    """(Observations with each estimated Req's prior replaced by its whole-record En4D-Var posterior
+    [mean, sd], details). Why: the smoother's windows see Req only through the data before them and
+    its prior, while the record's tail, where Req is decided, comes last; with the tail-mean prior (sd
+    ~3-4 % on camera records) the early windows slide along the Req-mu ridge and their mu stays high
+    (docs/results.md: with the true Req given the aggregate bias fell from G +17 %, mu +12 % to +4 %,
+    +1 %). The data inform Req twice (the En4D-Var fit, then the windows): an empirical-Bayes
+    approximation, measured rather than exact. A Req given in meta.json (prior sd 0) is kept."""
+    from dataclasses import replace
+
+    from imrbayes.ensemble.en4dvar import En4DVarSettings, _fit_en4dvar
+    e4s = En4DVarSettings(n_draws=1, loglik=False)
+    e4s.check()
+    e4 = _fit_en4dvar(fm, obs, space, e4s.resolved(), seed, runner, None, execution, tag={"req_prior": "en4dvar"})
+    req = np.array(obs.req_m, dtype=np.float64).copy()
+    sd = np.array(obs.nuisance_sd, dtype=np.float64).copy()
+    names = list(obs.names)
+    used = []
+    for e in e4.per_experiment:
+        q = (e.get("nuisance") or {}).get("req_m")
+        g = names.index(e["name"]) if e.get("name") in names else None
+        if g is None or q is None or not sd[g, 2] > 0 or not (np.isfinite(q["mean"]) and q["sd"] > 0):
+            continue
+        req[g], sd[g, 2] = float(q["mean"]), float(q["sd"])
+        used.append(names[g])
+    info = {"method": "en4dvar", "experiments": used, "preprocessing_req_m": np.asarray(obs.req_m).tolist(),
+            "preprocessing_req_sd_m": np.asarray(obs.nuisance_sd)[:, 2].tolist(), "req_m": req.tolist(),
+            "req_sd_m": sd[:, 2].tolist(), "en4dvar_estimate": {nm: e4.estimate[nm]["mean"] for nm in space.names},
+            "en4dvar_member_runs": int(e4.details.get("member_runs", 0)),
+            "note": "each estimated Req's prior is its whole-record En4D-Var posterior (mean, sd), run first"}
+    return replace(obs, req_m=req, nuisance_sd=sd), info
+
+
 def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int = 0,
                runner: Runner | None = None, progress=None, execution=None) -> FitResult:
     """Run MIEnKS-MDA over every window (see module doc); ``progress(j)`` after window j (of each pass).
@@ -513,6 +557,9 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     nw = spans.shape[0]
     G = obs.n_exp
     t = obs.t_star
+    req_info = None
+    if default and s.req_prior == "en4dvar":
+        obs, req_info = req_prior_from_en4dvar(fm, obs, space, seed, runner, ex)
     base = {"spec": spec, "runner": token, "space": space, "fm": fm}
     warnings = []
     lik_info = None
@@ -700,6 +747,9 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                "parameter_space": space.describe(), "rmse": rmse(fitted, obs.R_star, mask),
                "mda": "beta_jk = 1/|I(k)|, window cost 1/(2L) sum_k beta_jk ||.||^2_{P_k}",
                "fitted_curve": "ensemble-mean R* of the handed-off (RTPS-inflated) posterior ensembles"}
+    if req_info is not None:
+        details["req_prior"] = req_info
+        details["member_runs"] += req_info["en4dvar_member_runs"]
     per = []
     if default:
         details["mda"] = ("beta_jk = 1/|I(k)| (sample 0, the maximum, excluded), window cost 1/2 sum_k beta_jk "
