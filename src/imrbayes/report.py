@@ -647,7 +647,7 @@ def _section_conclusion(run) -> str:
             # decline of the decided windows comes from", 20 seeds): with Req inferred the mu windows fell
             # and the aggregate was G +17 %, mu +12 %; with the true Req given, flat and G +4 %, mu +1 %
             items.append("<span class='caveat'>Req was estimated from each record's tail and inferred window by "
-                         "window: on camera-style synthetic records of a constant gel that alone made the windows' mu "
+                         "window (its prior sd > 0): on camera-style synthetic records of a constant gel that alone made the windows' mu "
                          "fall through the record and the aggregate G and mu 10-20 % high (with the true Req given: "
                          "flat, both within 5 %). A decline of mu(t) of that size is not evidence of time-dependent "
                          "material; where Req was measured, give it in meta.json (Req_m, Req_sd_m).</span>")
