@@ -189,11 +189,10 @@ def test_shared_clock_state_is_the_bubble_of_its_own_geometry():
         np.testing.assert_allclose(shared.R_star[0] * rmax, own, rtol=0, atol=1e-9 * rmax)
 
 
-def test_default_infers_rmax_and_req():
-    """Records of bubbles whose true Rmax and Req differ from the stated ones (Rmax 3 % low, Req
-    12 % high; the radii are normalised by the stated Rmax, the clock is the stated one): the
-    ensembles place Req and Rmax near the truth (closer than the stated values, within 3 sd), and
-    mu is recovered; with both fixed at the stated values the same records give a worse mu."""
+def _misplaced_geometry(req_sd_frac):
+    """(fm, obs, truth radii, stated radii) for records of bubbles whose true Rmax is 3 % below and
+    Req 12 % above the stated ones (radii normalised by the stated Rmax, the stated clock); Req's
+    prior sd is ``req_sd_frac`` (per experiment) of the stated Req, Rmax's 3 %."""
     fm, o = observations(n_exp=2, n_steps=60)
     s_true, f_req = 0.97, 1.12
     t = o.t_star
@@ -201,9 +200,19 @@ def test_default_infers_rmax_and_req():
     Y = fm.simulate({"G": np.full(2, TRUTH["G"]), "mu": np.full(2, TRUTH["mu"])}, rmax_t, req_t, t / s_true).R_star
     Y = Y * s_true + 0.004 * np.random.default_rng(7).standard_normal(Y.shape)
     Y[:, 0] = 1.0
-    sd = np.column_stack([np.full(2, 0.03), np.zeros(2), 0.15 * o.req_m])
+    sd = np.column_stack([np.full(2, 0.03), np.zeros(2), np.asarray(req_sd_frac, dtype=float) * o.req_m])
     obs = Observations(t, Y, np.full(t.size, 0.004 ** 2), o.rmax_m, o.req_m, noise_sd=np.full(2, 0.004),
                        nuisance_sd=sd, t0_s=np.zeros(2), tc_s=np.full(2, 30e-6))
+    return fm, obs, rmax_t, req_t, o
+
+
+def test_default_infers_rmax_and_req():
+    """Records of bubbles whose true Rmax and Req differ from the stated ones (Rmax 3 % low, Req
+    12 % high; the radii are normalised by the stated Rmax, the clock is the stated one): the
+    ensembles place Req and Rmax near the truth (closer than the stated values, within 3 sd), and
+    mu is recovered; with both fixed at the stated values the same records give a worse mu."""
+    fm, obs, rmax_t, req_t, o = _misplaced_geometry(0.15)
+    t, Y = obs.t_star, obs.R_star
     st = MIEnKSSettings(n_ens=24, n_iter=3, L=20, h=10, n_draws=3, adapt=False)
     res = fit_mienks(fm, obs, space(fm), st, seed=2)
     summ = summary_dict(res, obs, seed=2)
@@ -231,16 +240,7 @@ def test_req_prior_from_a_whole_record_en4dvar_fit():
         MIEnKSSettings(req_prior="tail").check(120)
     with pytest.raises(InputError, match="default likelihood only"):
         MIEnKSSettings(req_prior="en4dvar", likelihood="paper").check(120)
-    fm, o = observations(n_exp=2, n_steps=60)
-    s_true, f_req = 0.97, 1.12
-    t = o.t_star
-    rmax_t, req_t = o.rmax_m * s_true, o.req_m * f_req
-    Y = fm.simulate({"G": np.full(2, TRUTH["G"]), "mu": np.full(2, TRUTH["mu"])}, rmax_t, req_t, t / s_true).R_star
-    Y = Y * s_true + 0.004 * np.random.default_rng(7).standard_normal(Y.shape)
-    Y[:, 0] = 1.0
-    sd = np.column_stack([np.full(2, 0.03), np.zeros(2), [0.15 * o.req_m[0], 0.0]])     # experiment 2: Req given
-    obs = Observations(t, Y, np.full(t.size, 0.004 ** 2), o.rmax_m, o.req_m, noise_sd=np.full(2, 0.004),
-                       nuisance_sd=sd, t0_s=np.zeros(2), tc_s=np.full(2, 30e-6))
+    fm, obs, _, req_t, o = _misplaced_geometry([0.15, 0.0])             # experiment 2: Req given
     st = MIEnKSSettings(n_ens=24, n_iter=3, L=20, h=10, n_draws=3, adapt=False, req_prior="en4dvar")
     res = fit_mienks(fm, obs, space(fm), st, seed=2)
     info = res.details["req_prior"]
