@@ -162,6 +162,17 @@ def _coverage_table(rec: list) -> dict:
     return out
 
 
+def _trend(errs):
+    """Per-seed window errors (lists, truncated to the fewest windows) -> (array (seeds, windows),
+    the mean trajectory, first third - last third with its standard error over seeds)."""
+    n_w = min(len(e) for e in errs)
+    E = np.array([e[:n_w] for e in errs])
+    third = max(1, n_w // 3)
+    drop = E[:, :third].mean(axis=1) - E[:, -third:].mean(axis=1)
+    return E, E.mean(axis=0).tolist(), {"mean": float(drop.mean()), "windows_per_third": third,
+                                        "se": float(drop.std(ddof=1) / np.sqrt(len(drop))) if len(drop) > 1 else None}
+
+
 def summarise(rows, likelihoods) -> dict:
     out = {}
     for lk in likelihoods:
@@ -192,27 +203,14 @@ def summarise(rows, likelihoods) -> dict:
             for kind in ("pooled", "bubbles"):
                 E = [r[lk][f"window_rel_error_{kind}"][n] for r in rows if n in r[lk].get(f"window_rel_error_{kind}", {})]
                 if E:
-                    n_w = min(len(e) for e in E)
-                    s[n][f"window_{kind}_rel_error_mean"] = np.array([e[:n_w] for e in E]).mean(axis=0).tolist()
+                    s[n][f"window_{kind}_rel_error_mean"] = _trend(E)[1]
             med = [r[lk]["window_rel_error_median"][n] for r in rows if "window_rel_error_median" in r[lk]]
             if med:        # the same trajectory and trend for the window medians
-                n_w = min(len(e) for e in med)
-                E = np.array([e[:n_w] for e in med])
-                third = max(1, n_w // 3)
-                drop = E[:, :third].mean(axis=1) - E[:, -third:].mean(axis=1)
-                s[n]["window_median_rel_error_mean"] = E.mean(axis=0).tolist()
-                s[n]["median_early_minus_late"] = {
-                    "mean": float(drop.mean()), "windows_per_third": third,
-                    "se": float(drop.std(ddof=1) / np.sqrt(len(drop))) if len(drop) > 1 else None}
+                _, s[n]["window_median_rel_error_mean"], s[n]["median_early_minus_late"] = _trend(med)
             errs = [r[lk]["window_rel_error"][n] for r in rows if "window_rel_error" in r[lk]]
             if errs:       # the mean window trajectory over seeds, and its apparent trend (truth: none)
-                n_w = min(len(e) for e in errs)
-                E = np.array([e[:n_w] for e in errs])
-                third = max(1, n_w // 3)
-                drop = E[:, :third].mean(axis=1) - E[:, -third:].mean(axis=1)
-                s[n]["window_rel_error_mean"] = E.mean(axis=0).tolist()
-                s[n]["early_minus_late"] = {"mean": float(drop.mean()), "se": float(drop.std(ddof=1) / np.sqrt(len(drop)))
-                                            if len(drop) > 1 else None, "windows_per_third": third}
+                E, s[n]["window_rel_error_mean"], s[n]["early_minus_late"] = _trend(errs)
+                n_w = E.shape[1]
                 doms = [r[lk]["window_prior_dominated"][:n_w] for r in rows if "window_prior_dominated" in r[lk]]
                 if len(doms) == len(errs):     # the same over the windows not flagged prior-dominated
                     D = np.array(doms, dtype=bool)
