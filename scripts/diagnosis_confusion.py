@@ -191,6 +191,10 @@ def rescore_row(row: dict) -> dict:
     check = row["result"]["constant_parameter_check"]
     ev = check["evidence"]
     st = ev["statistics"]
+    if ev.get("p_value_kind") == "bound":     # decided after the first batch by a bound, not by ranks
+        return {**row, "rescored": {"p_value_before": row.get("p_value"), "verdict_before": row.get("verdict"),
+                                    "cause_before": row.get("cause"),
+                                    "rule": "kept: decided inadequate early (check.inadequate_already)"}}
     keys = list(st)
     p, p_each = combined_p_value([st[k]["observed"] for k in keys], [st[k]["bootstrap"] for k in keys])
     verdict = "inadequate" if p <= ev["alpha"] else "adequate"

@@ -130,6 +130,11 @@ def test_rescore_recomputes_the_verdict_from_the_stored_replicates(conf, tmp_pat
     assert all_high["p_value"] == pytest.approx(1 / 20)
     flipped = conf.rescore_row(_check_row([100.0, 100.0, 100.0], boot, "adequate", "none"))
     assert flipped["status"] == "error" and "rerun" in flipped["error"]
+    early = _check_row([0.5, 1e4, 1e4], [b[:10] for b in boot], "inadequate", "damage-softening")
+    early["p_value"] = 3e-8
+    early["result"]["constant_parameter_check"]["evidence"]["p_value_kind"] = "bound"
+    kept = conf.rescore_row(early)                      # decided early by a bound: ten ranks would say 1/11
+    assert kept["verdict"] == "inadequate" and kept["p_value"] == 3e-8 and "kept" in kept["rescored"]["rule"]
     src = tmp_path / "old"
     (src / "nulls").mkdir(parents=True)
     (src / "nulls" / "null__000.json").write_text(json.dumps(_check_row([100.0, 9.5, 9.5], boot, "inadequate", "x")))

@@ -175,3 +175,21 @@ def test_why_not():
     assert why_not({"consistent": True, "ruled_out": "", "score": -0.02}, r).startswith("held-out gain ≤ 0")
     assert why_not(r["candidates"][0], r) == "chosen"
     assert why_not({"score": float("nan")}, r) == "no held-out score"
+
+
+def test_verdict_of_a_check_decided_early_states_the_bound():
+    """A check stopped after its first replicates (check.inadequate_already) shows Cantelli's bound
+    and how far out the data lie, not a rank p-value it did not compute; the run's stages are listed."""
+    r = _minimal("damage-softening")
+    ev = r["constant_parameter_check"]["evidence"]
+    ev.update(p_value=3 / (1 + 1271.0 ** 2), p_value_kind="bound", n_bootstrap=10, p_value_rank=1 / 11,
+              sequential={"first_batch": 10, "n_planned": 19, "stopped_early": True, "decided": "inadequate",
+                          "z_first_batch": {"misfit": 1271.0, "phase_misfit": 2058.3}})
+    text = html.unescape(re.sub(r"<[^>]+>", "", " ".join(verdict_sentences(r))))
+    assert "not adequate" in text and "phase_misfit lies 2.06e+03 replicate sd above the mean of the first 10" in text
+    assert "p ≤ 1.9e-06 by Cantelli's inequality" in text and "remaining 9 replicates were not run" in text
+    assert "flags it most" not in text                  # per-statistic ranks of 10 replicates say nothing here
+    from imrbayes.diagnosis.report import _stages
+    assert _stages({"stage_seconds": [{"stage": "constant-parameter check (19 bootstrap replicates)", "seconds": 180.4},
+                                      {"stage": "candidates qkv", "seconds": 12.0}]}) == \
+        " (constant-parameter check 180 s, candidates qkv 12 s)"

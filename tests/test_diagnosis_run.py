@@ -111,3 +111,45 @@ def test_diagnose_reports_loeo_where_it_ran():
         assert ("loeo" in c["heldout"]) == in_contention, c["key"]
         assert set(c["relative_reduction"]) == set(c["heldout"])
         assert bool(c["loeo_note"]) == (not in_contention)
+
+
+@pytest.mark.parametrize("case", ["far", "holed", "dominated"])
+def test_bootstrap_stops_after_the_first_batch_only_when_decided(case, monkeypatch):
+    """Replicates whose misfit sits far below the data's decide 'inadequate' after the first batch
+    (10 of 19 run, p-value Cantelli's bound); with one of them failed the other 9 run and the rank
+    test decides (the failure counting against rejection); replicates above the data everywhere decide 'adequate' after 10 (as before)."""
+    import numpy as np
+
+    calls = []
+
+    def fake_unit(unit, rng):
+        calls.append(unit.unit_id)
+        if case == "dominated":
+            return {"drift": 1e9, "misfit": 1e9, "phase_misfit": 1e9}
+        if case == "holed" and unit.unit_id == "bootstrap=003":
+            raise RuntimeError("replicate fit failed")
+        return {"drift": float(rng.exponential(1e-3)), "misfit": 1e-6 * (1 + 0.01 * rng.standard_normal()),
+                "phase_misfit": 1e-6 * (1 + 0.01 * rng.standard_normal())}
+
+    monkeypatch.setattr(check_mod, "bootstrap_unit", fake_unit)
+    s = DiagnoseSettings.quick(**{**SMALL, "n_bootstrap": 19})
+    r = diagnose(_obs(), OPTS, settings=s, seed=0).result
+    chk = r["constant_parameter_check"]
+    ev = chk["evidence"]
+    stages = [d["stage"] for d in r["stage_seconds"]]
+    assert stages[0].startswith("baseline fits") and any(m.startswith("constant-parameter check") for m in stages)
+    assert all(d["seconds"] >= 0 for d in r["stage_seconds"])
+    if case == "far":
+        assert len(calls) == 10 and ev["n_bootstrap"] == 10 and ev["sequential"]["decided"] == "inadequate"
+        z = max(ev["sequential"]["z_first_batch"].values())
+        assert chk["verdict"] == "inadequate" and ev["p_value_kind"] == "bound"
+        assert ev["p_value"] == pytest.approx(3 / (1 + z ** 2)) and ev["p_value_rank"] == pytest.approx(1 / 11)
+        assert check_mod.p_value_text(ev).startswith("p ≤ ")
+    elif case == "holed":
+        assert len(calls) == 19 and ev["n_bootstrap"] == 19 and ev["sequential"]["decided"] is None
+        # the failed replicate counts against rejection (+inf): p = 2/20, as before the early stop
+        assert ev["p_value_kind"] == "rank" and ev["p_value"] == pytest.approx(0.10) and chk["verdict"] == "adequate"
+        assert np.isnan(ev["statistics"]["misfit"]["bootstrap"][3])
+    else:
+        assert len(calls) == 10 and ev["sequential"]["decided"] == "adequate" and chk["verdict"] == "adequate"
+        assert check_mod.p_value_text(ev) == f"p = {ev['p_value']:.3f}"

@@ -1,6 +1,7 @@
 """Pieces of the diagnosis: phases from minima, candidate nesting, LM fit, ELPD comparison."""
 
 import numpy as np
+import pytest
 
 from imrbayes.diagnosis.heldout import elpd_compare
 from imrbayes.diagnosis.lsq import fit_map, predict
@@ -245,3 +246,34 @@ def test_newton_decrement_stop_leaves_nothing_to_gain(monkeypatch):
     assert fast.cost - more.cost < 0.01, (fast.cost, more.cost)
     sd = np.sqrt(np.diag(more.cov))[:2]
     assert np.all(np.abs(fast.z[:2] - more.z[:2]) < 0.15 * sd), (np.exp(fast.z), np.exp(more.z))
+
+
+def test_inadequate_decided_early_only_far_beyond_every_replicate():
+    """The early 'inadequate' stop: never on data drawn like the replicates (chi-square means, and
+    a heavy-tailed log-normal statistic whose sample sd is often far below the true one: the rate
+    stays under Cantelli's 2 x 0.25 %), always on data hundreds of replicate sd out (real records:
+    270-32 000); a missing replicate or an extreme drift alone decides nothing."""
+    from imrbayes.diagnosis.check import STATS, Z_DECIDED, inadequate_already
+
+    rng = np.random.default_rng(5)
+    n, hits = 20000, {"chi2": 0, "lognormal": 0}
+    for _ in range(n):
+        X = rng.chisquare(600, size=(2, 11)) / 600                    # data first, then 10 replicates
+        L = np.exp(rng.standard_normal((2, 11)))
+        for name, Y in (("chi2", X), ("lognormal", L)):
+            obs = {"misfit": Y[0, 0], "phase_misfit": Y[1, 0], "drift": 0.0}
+            boot = {"misfit": Y[0, 1:], "phase_misfit": Y[1, 1:], "drift": np.zeros(10)}
+            hits[name] += inadequate_already(obs, boot, STATS, 0.05)[0]
+    assert hits["chi2"] == 0
+    assert hits["lognormal"] / n <= 2 / (1 + Z_DECIDED ** 2), hits
+    boot = {"misfit": 0.6 + 0.05 * rng.standard_normal(10), "phase_misfit": 0.7 + 0.05 * rng.standard_normal(10),
+            "drift": rng.exponential(0.2, 10)}
+    z_want = (40.0 - boot["misfit"].mean()) / boot["misfit"].std(ddof=1)
+    decided, bound, z = inadequate_already({"misfit": 40.0, "phase_misfit": 0.7, "drift": 0.1}, boot, STATS, 0.05)
+    assert decided and z["misfit"] == pytest.approx(z_want) and bound == pytest.approx(3 / (1 + z_want ** 2))
+    assert not inadequate_already({"misfit": 0.6, "phase_misfit": 0.7, "drift": 1e6}, boot, STATS, 0.05)[0]
+    holed = {**boot, "misfit": np.r_[boot["misfit"][:9], np.nan]}
+    assert not inadequate_already({"misfit": 40.0, "phase_misfit": 0.7, "drift": 0.1}, holed, STATS, 0.05)[0]
+    # just inside the threshold: not decided
+    near = boot["misfit"].mean() + 0.99 * Z_DECIDED * boot["misfit"].std(ddof=1)
+    assert not inadequate_already({"misfit": near, "phase_misfit": 0.7, "drift": 0.1}, boot, STATS, 0.05)[0]

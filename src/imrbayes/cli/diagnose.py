@@ -171,9 +171,11 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     write_json(out / "diagnosis.json", res)
     write_report(res, figs, out / "report.html", title=f"imrbayes diagnose: {ds.name}")
     if not quiet:
+        from imrbayes.diagnosis.check import p_value_text
+
         chk = res["constant_parameter_check"]
         g = res.get("gain") or {}
-        click.echo(f"constant-parameter check: {chk['verdict']} (p = {chk['evidence']['p_value']:.3f}); "
+        click.echo(f"constant-parameter check: {chk['verdict']} ({p_value_text(chk['evidence'])}); "
                    f"cause: {res['cause']}; extended model: {res['extended_model']}")
         if g:
             click.echo(f"held-out RMSE ({g.get('candidate')}, {g.get('heldout_scheme')}): baseline "

@@ -33,6 +33,14 @@ replicates, whose denominator B made the data's p = 1/(B+1) beat every replicate
 extreme on *any one* statistic was then rejected, ~3 alpha with three statistics -- 4 false
 alarms in 20 camera-style nulls, measured. With the pool the same 20 nulls give none, and the
 mechanisms' detections are kept: docs/diagnosis.md.)
+
+The replicates run in two batches (:func:`bootstrap_check`): after the first (10 of 19), the check
+stops ``adequate`` when replicates at or above the data on every statistic already keep the
+p-value above alpha (:func:`adequate_already`, exact), and ``inadequate`` when the data lie above
+every replicate and at least 20 of their sd above their mean on a chi-square-like statistic
+(:func:`inadequate_already`; the reported p-value is then Cantelli's distribution-free bound,
+S / (1 + z^2), not a rank). The second stop adds at most that bound (0.25 % per statistic at the
+replicates' true moments) to the test's size.
 """
 
 from __future__ import annotations
@@ -44,9 +52,20 @@ from imrbayes.diagnosis.linearised import Linearisation, fit_linearised
 from imrbayes.diagnosis.lsq import ObsModel, fit_map, fit_tempered, frame_values
 from imrbayes.ensemble import Observations
 
-__all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift", "combined_p_value", "adequate_already"]
+__all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift", "combined_p_value", "adequate_already",
+           "inadequate_already", "p_value_text"]
 
 STATS = ("drift", "misfit", "phase_misfit")
+#: statistics that may decide "inadequate" after the first batch: means of squared residuals over
+#: hundreds of samples, whose replicates are tight and light-tailed (the drift statistics are not:
+#: a Mahalanobis distance between window fits has a heavy right tail)
+DECIDE_STATS = ("misfit", "phase_misfit")
+#: distance of the data beyond the first batch's mean, in the batch's sd, that decides "inadequate".
+#: Cantelli's one-sided inequality bounds a replicate's chance to lie that far out by 1/(1 + Z^2) =
+#: 0.25 % whatever the distribution (at the true moments); 20 leaves room for ten replicates'
+#: sample sd (below half the true sd with probability ~1 % for chi-square-like statistics).
+#: Real records lie 270-32 000 sd out (docs/diagnosis.md), the undecided cases within a few.
+Z_DECIDED = 20.0
 
 
 def mienks_drift(base, obs, settings, seed: int = 0) -> tuple:
@@ -210,6 +229,42 @@ def adequate_already(n_dominating: int, B: int, alpha: float) -> bool:
     return (1.0 + int(n_dominating)) / (B + 1.0) > alpha
 
 
+def inadequate_already(observed: dict, boot: dict, stats, alpha: float, z_decided: float = Z_DECIDED) -> tuple:
+    """Whether the check is decided ``inadequate`` from the first replicates alone: the data lie
+    beyond every one of them and at least ``z_decided`` of their sd above their mean on one of
+    :data:`DECIDE_STATS` (``observed``: statistic -> value; ``boot``: statistic -> replicate values).
+    Returns (decided, p_bound, z per statistic). ``p_bound`` = S / (1 + z^2) (Cantelli's bound at
+    the replicates' moments, Bonferroni over the S statistics of the check) is what such a datum's
+    p-value can at most be; a missing replicate (NaN) decides nothing, as in the rank test."""
+    zs, bound = {}, 1.0
+    for k in (k for k in DECIDE_STATS if k in stats):
+        b = np.asarray(boot[k], dtype=float)
+        obs_k = float(observed[k])
+        if b.size < 5 or not np.all(np.isfinite(b)) or not np.isfinite(obs_k):
+            continue
+        sd = float(np.std(b, ddof=1))
+        if not sd > 0.0:
+            continue
+        z = (obs_k - float(np.mean(b))) / sd
+        zs[k] = z
+        if obs_k > b.max() and z >= z_decided:
+            bound = min(bound, len(stats) / (1.0 + z * z))
+    return bool(bound <= alpha and bound < 1.0), float(bound), zs
+
+
+def p_value_text(ev: dict) -> str:
+    """The check's p-value as a reader should see it (``ev``: the check's ``evidence``): ``p = 0.050``
+    from the rank test, ``p <= 6.1e-09 (Cantelli bound, 10 replicates)`` when decided early."""
+    p = ev.get("p_value")
+    try:
+        p = float(p)
+    except (TypeError, ValueError):
+        return "p = –"
+    if ev.get("p_value_kind") == "bound":
+        return f"p ≤ {p:.2g} (Cantelli bound, {ev.get('n_bootstrap', '?')} replicates)"
+    return f"p = {p:.3f}"
+
+
 def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 0, alpha: float = 0.05,
                     progress=None, mienks=None, execution=None, build: dict | None = None,
                     first_batch: int = 10, replicate_fits: str = "full") -> dict:
@@ -258,26 +313,42 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     # above the data on every statistic keeps the combined p-value at (1 + their number) / (B + 1) or
     # more whatever the rest give (adequate_already): with that bound above alpha the data are
     # adequate and the rest is not run.
+    # Symmetrically, data far beyond every first replicate on a chi-square-like statistic cannot be
+    # made adequate by the rest except at odds below Cantelli's bound (inadequate_already): the
+    # real records lie hundreds of replicate sd out, and the other half of the check is not run.
     first = units[:min(B, first_batch)] if first_batch else units
     rep = ex.run(first, bootstrap_unit, seed, desc="diagnose bootstrap")
     results = dict(rep.results)
     n_dom = sum(1 for r in results.values() if all(not (r.get(k, np.inf) < observed[k]) for k in stats))
-    stopped = len(first) < B and adequate_already(n_dom, B, alpha)
-    if len(first) < B and not stopped:
+    first_boot = {k: [results.get(u.unit_id, {}).get(k, float("nan")) for u in first] for k in stats}
+    decided = None
+    if len(first) < B and adequate_already(n_dom, B, alpha):
+        decided = "adequate"
+    else:
+        bad, p_bound, z_first = inadequate_already(observed, first_boot, stats, alpha)
+        if len(first) < B and bad:
+            decided = "inadequate"
+    if len(first) < B and decided is None:
         rep = ex.run(units[len(first):], bootstrap_unit, seed, desc="diagnose bootstrap")
         results.update(rep.results)
-    if stopped:
+    if decided is not None:
         B = len(first)
     boot = {k: [results.get(f"bootstrap={b:03d}", {}).get(k, float("nan")) for b in range(B)] for k in stats}
     p_comb, p_each = combined_p_value([observed[k] for k in stats], [boot[k] for k in stats])
     p = dict(zip(stats, map(float, p_each)))
-    ev = {"n_bootstrap": B, "alpha": alpha, "p_value": p_comb,
+    ev = {"n_bootstrap": B, "alpha": alpha, "p_value": p_bound if decided == "inadequate" else p_comb,
+          "p_value_kind": "bound" if decided == "inadequate" else "rank",
+          "p_value_rank": p_comb,
           "replicate_fits": "full" if lin is None else "linearised",
-          "sequential": {"first_batch": len(first), "n_planned": len(units), "stopped_early": bool(stopped),
-                         "n_dominating": int(n_dom),
+          "sequential": {"first_batch": len(first), "n_planned": len(units), "stopped_early": decided is not None,
+                         "decided": decided, "n_dominating": int(n_dom),
+                         "z_first_batch": {k: float(v) for k, v in z_first.items()} if decided != "adequate" else {},
                          "rule": f"stop after the first {len(first)} replicates when (1 + the number of them at or "
                                  "above the data on every statistic) / (B + 1) > alpha (the verdict cannot become "
-                                 "inadequate); p_value is then that of the replicates run"},
+                                 "inadequate), or when the data lie above all of them and >= "
+                                 f"{Z_DECIDED:g} of their sd above their mean on {' or '.join(DECIDE_STATS)} "
+                                 "(inadequate: p_value is then the bound S / (1 + z^2), Cantelli's inequality with "
+                                 "Bonferroni over the S statistics; p_value_rank the rank test of the replicates run)"},
           "rule": f"inadequate when the combined p-value of ({', '.join(stats)}) is <= alpha: Fisher's "
                   "nonparametric combination, the data ranked in the pool of data and replicates",
           "statistics": {}}
@@ -296,4 +367,4 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     if "mienks" in observed:
         ev["mienks_windows"] = {**observed["mienks"], "settings": {"n_ens": mienks.n_ens, "n_iter": mienks.n_iter,
                                                                    "L": mienks.L, "h": mienks.h}}
-    return {"verdict": "inadequate" if p_comb <= alpha else "adequate", "evidence": ev}
+    return {"verdict": "inadequate" if ev["p_value"] <= alpha else "adequate", "evidence": ev}

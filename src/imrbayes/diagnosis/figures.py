@@ -134,8 +134,11 @@ def check_figure(d, path):
         a.set_xticklabels([f"{n}\n(t* ≤ {we[n].get('t_star_end', float('nan')):.2f})" for n in names], fontsize=8)
         a.set_xlabel("fitted window")
         a.set_title(f"{d.result['baseline'].get('model', 'baseline')} fit per window (±1 sd)", fontsize=10)
-    fig.suptitle(f"constant-parameter check: {chk['verdict']} (combined bootstrap p = {ev['p_value']:.3f}, "
-                 f"B = {ev.get('n_bootstrap', '?')})", fontsize=11)
+    from imrbayes.diagnosis.check import p_value_text
+
+    pv = (f"combined bootstrap p = {ev['p_value']:.3f}, B = {ev.get('n_bootstrap', '?')}"
+          if ev.get("p_value_kind") != "bound" else p_value_text(ev))
+    fig.suptitle(f"constant-parameter check: {chk['verdict']} ({pv})", fontsize=11)
     save(fig, path)
 
 

@@ -53,6 +53,24 @@ _CAPTIONS = {
 }
 
 
+def _early_inadequate(ev: dict) -> str:
+    """The check decided after its first replicates (check.inadequate_already), in words."""
+    sq = ev.get("sequential") or {}
+    z = sq.get("z_first_batch") or {}
+    k = max(z, key=z.get) if z else None
+    far = (f"the data's {esc(k)} lies {_f(z[k], '.3g')} replicate sd above the mean of the first "
+           f"{ev.get('n_bootstrap', '?')} replicates and above all of them" if k else "")
+    return (f"{far}: p ≤ {_f(ev.get('p_value'), '.2g')} by Cantelli's inequality, so the remaining "
+            f"{int(sq.get('n_planned', 0)) - int(ev.get('n_bootstrap', 0))} replicates were not run")
+
+
+def _stages(r: dict) -> str:
+    """' (baseline fits 205 s, ...)': where the runtime went, stage by stage."""
+    st = [d for d in r.get("stage_seconds") or [] if _finite(d.get("seconds"))]
+    return (" (" + ", ".join(f"{esc(str(d.get('stage', '')).split(' (')[0])} {float(d['seconds']):.0f} s" for d in st)
+            + ")") if st else ""
+
+
 def _f(x, spec=".3g", missing="–") -> str:
     if _finite(x) and not isinstance(x, bool):
         x = float(x) + 0.0                              # -0.0 -> 0.0
@@ -107,14 +125,15 @@ def verdict_sentences(r: dict) -> list:
     st = ev.get("statistics") or {}
     adequate = chk.get("verdict") == "adequate"
     out = []
-    pv = f"combined bootstrap p = {_f(ev.get('p_value'), '.3f')}, B = {ev.get('n_bootstrap', '?')} replicates"
+    pv = (f"combined bootstrap p = {_f(ev.get('p_value'), '.3f')}, B = {ev.get('n_bootstrap', '?')} replicates"
+          if ev.get("p_value_kind") != "bound" else _early_inadequate(ev))
     if adequate:
         out.append(f"A constant-parameter {esc(model)} model is <b>adequate</b> for these data: no check statistic "
                    f"is unusual for data simulated from its own fit ({pv}, α = {_f(ev.get('alpha'), '.2g')}).")
     else:
         worst = min(st.items(), key=lambda kv: kv[1].get("p_value", 1.0)) if st else None
         flag = (f"; the statistic that flags it most is {esc(worst[0])} (p = {_f(worst[1].get('p_value'), '.3f')})"
-                if worst else "")
+                if worst and ev.get("p_value_kind") != "bound" else "")
         out.append(f"A constant-parameter {esc(model)} model is <b>not adequate</b> for these data: the fit misses "
                    f"more than the noise allows ({pv}, α = {_f(ev.get('alpha'), '.2g')}){flag}.")
     ph = [p for p in base.get("misfit_by_phase", []) if _finite(p.get("chi2_norm"))]
@@ -311,5 +330,5 @@ def write_report(result: dict, figures: list, path, title: str = "imrbayes diagn
 {_likelihood(r)}
 {warn_html}
 {''.join(embed_png(p, title=stem) for stem, p in figs.items())}
-<p class='note'>runtime {_f(r.get('runtime_s'), '.0f')} s; seed {esc(r.get('seed'))}</p>"""
+<p class='note'>runtime {_f(r.get('runtime_s'), '.0f')} s{_stages(r)}; seed {esc(r.get('seed'))}</p>"""
     return write_page(path, title, body)

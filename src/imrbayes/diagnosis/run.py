@@ -293,7 +293,12 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     s = settings or DiagnoseSettings()
     ex = execution or Execution(progress=False)
     t0 = time.perf_counter()
-    say = log or (lambda msg: None)
+    marks = []                  # (stage message, start time): diagnosis.json's stage_seconds
+    _log = log or (lambda msg: None)
+
+    def say(msg):
+        marks.append((msg, time.perf_counter()))
+        _log(msg)
     tick = progress or (lambda n=1: None)
     phases = phases_of(obs, s.max_collapses)
     base = make_candidate(BASELINE.key, options, physics, prior)
@@ -508,5 +513,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
               "likelihood": om.describe(),
               "failed_units": failed_units, "warnings": warnings,
               "runtime_s": time.perf_counter() - t0}
+    ends = [t for _, t in marks[1:]] + [time.perf_counter()]
+    result["stage_seconds"] = [{"stage": m, "seconds": float(e - t)} for (m, t), e in zip(marks, ends)]
     curves = {k: fits[k].fitted for k in cands}
     return Diagnosis(result, obs, phases, curves, observed)
