@@ -99,13 +99,25 @@ def check_figure(d, path):
     for a, (k, v) in zip(ax, st.items()):
         b = np.asarray(v.get("bootstrap") or [], dtype=float)
         b = b[np.isfinite(b)]
-        a.hist(b, bins=max(5, min(20, len(b) // 2 or 1)), color="0.7", label=f"bootstrap (B = {len(b)})")
+        nb = max(5, min(20, len(b) // 2 or 1))
+        o = v.get("observed")
+        # data tens to thousands of times the replicates' values (real records): on a linear axis the
+        # replicates' bars are thinner than a pixel, so the axis becomes logarithmic
+        far = (o is not None and b.size and np.all(b > 0) and np.isfinite(o)
+               and float(o) > 10.0 * float(b.max()))
+        if far:
+            a.set_xscale("log")
+            nb = np.geomspace(b.min() / 1.2, b.max() * 1.2, nb + 1)
+        a.hist(b, bins=nb, color="0.7", label=f"bootstrap (B = {len(b)})")
         if v.get("observed") is not None:
             a.axvline(v["observed"], color="C3", lw=2, label="observed")
         xl, what = STAT_LABELS.get(k, (f"{k} [-]", k))
-        a.set_xlabel(xl)
+        a.set_xlabel(xl + (" (log axis)" if far else ""))
         a.set_ylabel("replicates [count]")
-        a.set_title(f"{k}: observed vs bootstrap, p = {float(v.get('p_value', np.nan)):.3f}", fontsize=10)
+        z = ((ev.get("sequential") or {}).get("z_first_batch") or {}).get(k)
+        a.set_title(f"{k}: observed vs bootstrap, p = {float(v.get('p_value', np.nan)):.3f}"
+                    + (f"\n{z:.3g} sd of the first replicates beyond their mean" if z is not None and np.isfinite(z) and z > 3 else ""),
+                    fontsize=10)
         a.legend(fontsize=7, loc="best")
     rest = list(ax[len(st):])
     if "mienks" in extra:
