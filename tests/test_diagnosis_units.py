@@ -251,8 +251,8 @@ def test_newton_decrement_stop_leaves_nothing_to_gain(monkeypatch):
 def test_inadequate_decided_early_only_far_beyond_every_replicate():
     """The early 'inadequate' stop: never on data drawn like the replicates (chi-square means, and
     a heavy-tailed log-normal statistic whose sample sd is often far below the true one: the rate
-    stays under Cantelli's 2 x 0.25 %), always on data hundreds of replicate sd out (real records:
-    270-32 000); a missing replicate or an extreme drift alone decides nothing."""
+    stays under Cantelli's 2 x 0.25 %), always on data hundreds of replicate sd out (thermal fits
+    of real records: 400-32 000); a missing replicate or an extreme drift alone decides nothing."""
     from imrbayes.diagnosis.check import STATS, Z_DECIDED, inadequate_already
 
     rng = np.random.default_rng(5)

@@ -64,7 +64,7 @@ DECIDE_STATS = ("misfit", "phase_misfit")
 #: Cantelli's one-sided inequality bounds a replicate's chance to lie that far out by 1/(1 + Z^2) =
 #: 0.25 % whatever the distribution (at the true moments); 20 leaves room for ten replicates'
 #: sample sd (below half the true sd with probability ~1 % for chi-square-like statistics).
-#: Real records lie 270-32 000 sd out (docs/diagnosis.md), the undecided cases within a few.
+#: Thermal fits of real records lie 400-32 000 sd out (docs/diagnosis.md, Runtime).
 Z_DECIDED = 20.0
 
 
