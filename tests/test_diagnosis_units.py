@@ -238,7 +238,11 @@ def test_newton_decrement_stop_leaves_nothing_to_gain(monkeypatch):
     rng = np.random.default_rng(3)
     obs = _obs(R + 0.004 * rng.standard_normal(R.shape), P=0.004 ** 2)
     zener = make_candidate("zener", OPTS)
-    fast = fit_map(zener, obs, starts=[np.concatenate([z, [np.log(1e-6)]])])
+    path = []
+    fast = fit_map(zener, obs, starts=[np.concatenate([z, [np.log(1e-6)]])], trace=path)
+    # the trace (one start): one row per iteration, the cost never rising
+    assert len(path) == fast.n_iter and [r["it"] for r in path] == list(range(1, fast.n_iter + 1))
+    assert np.all(np.diff([r["cost"] for r in path]) <= 0.0) and path[-1]["cost"] >= fast.cost
     monkeypatch.setattr(lsq, "TRUST_SD", np.inf)
     monkeypatch.setattr(lsq, "NEWTON_DECREMENT", 0.0)
     more = fit_map(zener, obs, starts=[fast.z], tol=1e-12, max_iter=80)

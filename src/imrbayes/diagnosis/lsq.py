@@ -302,7 +302,7 @@ def nuisance_restarts(cand, obs, idx, K, minima, om: ObsModel, z, nu, levels=(-2
 
 def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None, starts=None, nu0=None,
             max_iter: int = 40, h: float = 0.01, tol: float = 1e-6, extra_starts=(), fix_material: bool = False,
-            restarts: bool = False) -> MapFit:
+            restarts: bool = False, trace: list | None = None) -> MapFit:
     """MAP + Laplace fit of ``cand`` to experiments ``idx`` over samples 1..K (module doc).
 
     om : the observation model (default :meth:`ObsModel.of` ``obs``: record noise, nuisances free);
@@ -312,6 +312,8 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     fix_material : fit the nuisances only, the material held at ``starts[0]``.
     restarts : after convergence, look for better nuisance basins per experiment
         (:func:`nuisance_restarts`) and refit jointly from them (up to twice).
+    trace : a list that receives one dict per Levenberg-Marquardt iteration (cost, Newton
+        decrement, damping, accepted, the material at the iterate) -- for studying the fit's path.
     """
     idx = np.arange(obs.n_exp) if idx is None else np.atleast_1d(np.asarray(idx, dtype=int))
     K = obs.n_samples - 1 if K is None else int(K)
@@ -399,6 +401,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
                 decrement = 0.5 * float(g @ np.linalg.solve(A + 1e-12 * np.diag(np.diag(A) + 1e-9), g))
             except np.linalg.LinAlgError:
                 decrement = np.inf
+            if trace is not None:
+                trace.append({"it": it, "cost": float(cost), "decrement": float(decrement), "lam": float(lam),
+                              "z": np.asarray(z, dtype=float).tolist()})
             if decrement < NEWTON_DECREMENT:
                 conv, J_x = True, J
                 break
