@@ -281,3 +281,23 @@ def test_inadequate_decided_early_only_far_beyond_every_replicate():
     # just inside the threshold: not decided
     near = boot["misfit"].mean() + 0.99 * Z_DECIDED * boot["misfit"].std(ddof=1)
     assert not inadequate_already({"misfit": near, "phase_misfit": 0.7, "drift": 0.1}, boot, STATS, 0.05)[0]
+
+
+def test_grid_starts_try_a_given_start_once():
+    """A given start (the baseline optimum a candidate's fit starts from) that the screen also ranks
+    best is fitted once, not twice (measured on stiff PA: qkv's and carreau's first stage ran the
+    same six iterations twice); one the screen does not rank first is still added."""
+    from imrbayes.diagnosis.lsq import ObsModel, grid_starts
+
+    base = make_candidate("nhkv", OPTS)
+    z = np.log([5e3, 0.07])
+    R = predict(base, z[None], _obs(np.ones((3, T.size))), np.arange(3), None, 120)[0]
+    obs = _obs(R + 0.004 * np.random.default_rng(0).standard_normal(R.shape), P=0.004 ** 2)
+    om = ObsModel.of(obs, nuisances=False)
+    qkv = make_candidate("qkv", OPTS)
+    best = np.concatenate([z, qkv.prior_mean[2:]])
+    st = grid_starts(qkv, obs, np.arange(3), 120, None, om, None, extra_starts=[best])
+    assert np.array_equal(st[0], best) and sum(np.array_equal(s, best) for s in st) == 1 and len(st) == 2
+    far = np.concatenate([np.log([4e4, 0.6]), qkv.prior_mean[2:]])
+    st = grid_starts(qkv, obs, np.arange(3), 120, None, om, None, extra_starts=[far])
+    assert np.array_equal(st[-1], far) and not np.array_equal(st[0], far) and len(st) == 3

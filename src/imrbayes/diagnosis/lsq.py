@@ -254,8 +254,10 @@ def grid_starts(cand, obs, idx, K, minima, om, nu0, extra_starts=(), n_best: int
             break
         if np.max(np.abs(Z[i, :2] - out[0][:2])) > 0.3:   # a different basin in (G, mu)
             out.append(Z[i])
-    for s in extra_starts:        # always try the given starts (e.g. the baseline optimum)
-        out.append(np.asarray(s, dtype=float))
+    for s in extra_starts:        # always try the given starts (e.g. the baseline optimum) -- once:
+        s = np.asarray(s, dtype=float)  # when one is also the screen's best, a second copy repeats its fit
+        if not any(np.array_equal(s, o) for o in out):
+            out.append(s)
     return out
 
 
