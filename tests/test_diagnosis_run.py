@@ -138,7 +138,7 @@ def test_bootstrap_stops_after_the_first_batch_only_when_decided(case, monkeypat
     ev = chk["evidence"]
     stages = [d["stage"] for d in r["stage_seconds"]]
     assert stages[0].startswith("baseline fits") and any(m.startswith("constant-parameter check") for m in stages)
-    assert all(d["seconds"] >= 0 for d in r["stage_seconds"])
+    assert all(d["seconds"] >= 0 and d["cpu_seconds"] >= 0 for d in r["stage_seconds"])
     if case == "far":
         assert len(calls) == 10 and ev["n_bootstrap"] == 10 and ev["sequential"]["decided"] == "inadequate"
         z = max(ev["sequential"]["z_first_batch"].values())

@@ -293,11 +293,14 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     s = settings or DiagnoseSettings()
     ex = execution or Execution(progress=False)
     t0 = time.perf_counter()
-    marks = []                  # (stage message, start time): diagnosis.json's stage_seconds
+    # (stage message, wall and CPU time at its start): diagnosis.json's stage_seconds; CPU / wall
+    # says whether a stage keeps both cores busy (the forward batches' threads count; units run by
+    # worker processes (--workers, --scheduler) do not)
+    marks = []
     _log = log or (lambda msg: None)
 
     def say(msg):
-        marks.append((msg, time.perf_counter()))
+        marks.append((msg, time.perf_counter(), time.process_time()))
         _log(msg)
     tick = progress or (lambda n=1: None)
     phases = phases_of(obs, s.max_collapses)
@@ -513,7 +516,8 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
               "likelihood": om.describe(),
               "failed_units": failed_units, "warnings": warnings,
               "runtime_s": time.perf_counter() - t0}
-    ends = [t for _, t in marks[1:]] + [time.perf_counter()]
-    result["stage_seconds"] = [{"stage": m, "seconds": float(e - t)} for (m, t), e in zip(marks, ends)]
+    ends = [(t, c) for _, t, c in marks[1:]] + [(time.perf_counter(), time.process_time())]
+    result["stage_seconds"] = [{"stage": m, "seconds": float(e[0] - t), "cpu_seconds": float(e[1] - c)}
+                               for (m, t, c), e in zip(marks, ends)]
     curves = {k: fits[k].fitted for k in cands}
     return Diagnosis(result, obs, phases, curves, observed)
