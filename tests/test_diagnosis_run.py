@@ -139,6 +139,7 @@ def test_bootstrap_stops_after_the_first_batch_only_when_decided(case, monkeypat
     stages = [d["stage"] for d in r["stage_seconds"]]
     assert stages[0].startswith("baseline fits") and any(m.startswith("constant-parameter check") for m in stages)
     assert all(d["seconds"] >= 0 and d["cpu_seconds"] >= 0 for d in r["stage_seconds"])
+    assert not any("cannot find" in w for w in r["warnings"])     # 19 replicates can reject at 5 %
     if case == "far":
         assert len(calls) == 10 and ev["n_bootstrap"] == 10 and ev["sequential"]["decided"] == "inadequate"
         z = max(ev["sequential"]["z_first_batch"].values())
@@ -153,3 +154,12 @@ def test_bootstrap_stops_after_the_first_batch_only_when_decided(case, monkeypat
     else:
         assert len(calls) == 10 and ev["sequential"]["decided"] == "adequate" and chk["verdict"] == "adequate"
         assert check_mod.p_value_text(ev) == f"p = {ev['p_value']:.3f}"
+
+
+def test_too_few_replicates_to_reject_are_named():
+    """With B replicates a rank test's smallest p-value is 1/(B+1): below 19 at 5 % the check can
+    never say inadequate, and the diagnosis says so (a user lowering --n-bootstrap to save time)."""
+    r = diagnose(_obs(), OPTS, settings=DiagnoseSettings.quick(**SMALL), seed=0).result
+    hits = [w for w in r["warnings"] if "cannot find the constant-parameter model inadequate" in w]
+    assert len(hits) == 1 and "1/3 > alpha = 0.05" in hits[0] and "at least 19 replicates" in hits[0]
+    assert r["constant_parameter_check"]["verdict"] == "adequate"

@@ -307,6 +307,10 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     base = make_candidate(BASELINE.key, options, physics, prior)
     say("baseline fits (whole record, to the 1st and 2nd collapse)")
     warnings = []               # what the diagnosis left out, one line each (diagnosis.json, stderr)
+    if 1.0 / (s.n_bootstrap + 1) > s.alpha:
+        warnings.append(f"n_bootstrap = {s.n_bootstrap}: the check's smallest possible p-value is 1/{s.n_bootstrap + 1}"
+                        f" > alpha = {s.alpha:g}, so it cannot find the constant-parameter model inadequate; use at "
+                        f"least {int(np.ceil(1.0 / s.alpha - 1.0 - 1e-9))} replicates")
     if phases.minima.shape[1] < 2 or phases.collapse_index(2) <= phases.collapse_index(1):
         warnings.append("only one collapse found in the records (minima of prominence >= 4 noise sd): the "
                         "'2nd collapse' window and the forecast scheme end just after the first collapse")
