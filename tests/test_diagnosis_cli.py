@@ -21,8 +21,11 @@ def test_diagnose_cli_writes_contract(tmp_path):
     for key in ("baseline", "constant_parameter_check", "candidates", "cause", "extended_model", "gain", "warnings"):
         assert key in d
     assert d["baseline"]["model"] == "nhkv" and d["baseline"]["misfit_by_phase"]
-    assert d["constant_parameter_check"]["verdict"] in ("adequate", "inadequate")
+    assert d["constant_parameter_check"]["verdict"] == "adequate"      # 2 replicates cannot reject ...
+    assert "--n-bootstrap 2: fewer than 19 replicates cannot reject" in r.output     # ... said up front
+    assert any("cannot find the constant-parameter model inadequate" in w for w in d["warnings"])
     assert d["candidates"][0]["mechanism"] == "strain-stiffening"
+    assert [s["stage"].split(" ")[0] for s in d["stage_seconds"]][:3] == ["baseline", "constant-parameter", "candidates"]
     for k in ("heldout_rmse", "elpd_diff", "elpd_se", "estimate"):
         assert k in d["candidates"][0]
     html = (out / "report.html").read_text()
