@@ -1,6 +1,8 @@
 """diagnose's bookkeeping: a statistic left out of the check is reported, and the En4D-Var
 baseline is checkpointed with the other units (small polytropic runs, no candidates)."""
 
+import json
+
 import pytest
 
 import imrbayes.diagnosis.check as check_mod
@@ -39,7 +41,8 @@ def test_failed_mienks_drift_is_reported(case, monkeypatch):
 
 
 def test_en4dvar_baseline_resumes_from_its_checkpoint(tmp_path, monkeypatch):
-    """An interrupted diagnose reads the finished En4D-Var units back from its run store."""
+    """An interrupted diagnose reads the finished baseline fits (unit ``observed``) and En4D-Var
+    units back from its run store, and ends where an uninterrupted run ends."""
     obs = _obs()
     s = DiagnoseSettings.quick(baseline_method="en4dvar", en4dvar_n_ens=6, en4dvar_n_runs=1, mienks_drift=False,
                                **SMALL)
@@ -59,6 +62,14 @@ def test_en4dvar_baseline_resumes_from_its_checkpoint(tmp_path, monkeypatch):
     assert en4dvar, [desc for desc, _ in ex.reports]
     assert all(rep.n_computed == 0 and rep.n_resumed == obs.n_exp for rep in en4dvar)
     assert r["baseline"]["method"] == "en4dvar" and set(r["baseline"]["estimate"]) >= {"G", "mu"}
+    fits = [rep for desc, rep in ex.reports if desc == "diagnose baseline fits"]
+    assert len(fits) == 1 and fits[0].n_computed == 0 and fits[0].n_resumed == 1
+    whole = diagnose(obs, OPTS, settings=s, seed=0).result       # no store, nothing interrupted
+    same = lambda a, b: json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)   # NaN == NaN
+    for k in ("estimate_map", "chi2_norm", "misfit_by_phase", "nuisance"):
+        assert same(r["baseline"][k], whole["baseline"][k]), k
+    assert same(r["constant_parameter_check"]["evidence"]["statistics"],
+                whole["constant_parameter_check"]["evidence"]["statistics"])
 
 
 class _Spec:

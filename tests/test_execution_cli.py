@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from imrbayes.cli import main
 
 
-def _strip(obj, drop=("runtime_s", "total_runtime_s", "command", "execution", "figures")):
+def _strip(obj, drop=("runtime_s", "total_runtime_s", "stage_seconds", "command", "execution", "figures")):
     """The computed numbers only (timings, paths and execution counts removed), recursively."""
     if isinstance(obj, dict):
         return {k: _strip(v, drop) for k, v in obj.items() if k not in drop}
@@ -59,13 +59,14 @@ def test_diagnose_resume_on_two_processes_gives_the_same_diagnosis(gel, tmp_path
             "--forward", "bubble=polytropic", "--quiet"]
     _run(*args)
     ref = json.loads((out / "diagnosis.json").read_text())
-    assert ref["execution"]["n_units"] == 5 and ref["failed_units"] == []     # 2 bootstrap, 1 candidate, 2 held-out
+    # the baseline fits, 2 bootstrap, 1 candidate, 2 held-out
+    assert ref["execution"]["n_units"] == 6 and ref["failed_units"] == []
     assert json.loads((out / "run.json").read_text())["config"]["command"] == "diagnose"
     (out / "units" / "candidate=qkv.npz").unlink()                  # as if killed before they finished
     (out / "units" / "bootstrap=001.npz").unlink()
     _run(*args, "--resume", "--workers", "2")
     again = json.loads((out / "diagnosis.json").read_text())
-    assert (again["execution"]["n_computed"], again["execution"]["n_resumed"]) == (2, 3)
+    assert (again["execution"]["n_computed"], again["execution"]["n_resumed"]) == (2, 4)
     _assert_same(_strip(again), _strip(ref))
     res = _run(*args[:-1], "--resume", "--seed", "3", expect=2)     # another configuration: refused
     assert "cannot resume" in res.output and len(res.output.strip().splitlines()) == 1

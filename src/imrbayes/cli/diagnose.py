@@ -86,10 +86,6 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         if n_bootstrap < 1:
             raise InputError("--n-bootstrap", f"must be at least 1, got {n_bootstrap}")
         kw["n_bootstrap"] = int(n_bootstrap)
-        if n_bootstrap < 19 and not quiet:     # said again, with the numbers, among the run's warnings
-            click.echo(f"imrbayes: note: --n-bootstrap {n_bootstrap}: fewer than 19 replicates cannot reject at "
-                       "alpha = 0.05 (smallest p-value 1/(B+1)); the check will say adequate whatever the data",
-                       err=True)
     if candidates:
         keys = tuple(c.strip() for c in candidates.split(",") if c.strip())
         bad = [k for k in keys if k not in CANDIDATES]
@@ -150,6 +146,10 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
                             retry_failed=retry_failed, quiet=True) as execution:
             t_stage = time.perf_counter()
+            if s.n_bootstrap < 19 and not quiet:     # said again, with the numbers, among the run's warnings
+                click.echo(f"imrbayes: note: --n-bootstrap {s.n_bootstrap}: fewer than 19 replicates cannot reject "
+                           "at alpha = 0.05 (smallest p-value 1/(B+1)); the check will say adequate whatever the data",
+                           err=True)
 
             def stage(msg):             # off a terminal (logs, batch jobs): one line per stage, with the time
                 click.echo(f"imrbayes: diagnose [{time.perf_counter() - t_stage:6.0f} s] {msg}", err=True)
