@@ -55,6 +55,8 @@ def test_hidden_cause_is_found(mechanism, seed):
     assert r["cause"] == mechanism or (r["cause"] == "ambiguous" and any(
         c["mechanism"] == mechanism for c in r["candidates"] if c["key"] in r["candidates_tied"])), \
         [(c["key"], c["score"]) for c in r["candidates"]]
+    sig = r["signature"]                           # its units ran: the data's and every contender's signature
+    assert sig["observed"]["t_star"] and "nhkv" in sig["score"] and set(sig["predicted"]) == set(sig["score"])
     g = r["gain"]
     assert g["heldout_rmse_extended"] < g["heldout_rmse_baseline"]
     assert g["relative_reduction"] > 0

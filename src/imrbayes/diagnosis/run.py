@@ -182,32 +182,49 @@ def loeo_keys(held: dict, fits: dict, cands: dict, base_key: str, loeo_all: bool
     return out
 
 
-def _signature(s, base, cands, fits, keys, obs, phases, om, seed, say, warnings) -> dict:
-    """The observed MIEnKS signature and each candidate's predicted one (:mod:`signature`); the
-    replicates are the check's camera-style replicates of that candidate's fit."""
+def signature_unit(unit, rng) -> dict:
+    """Unit ``signature=observed`` (the MIEnKS signature of the data) or ``signature=<key>`` (the
+    signature distribution candidate ``key``'s fit predicts: the check's camera-style replicates of
+    its curves through the same smoother)."""
     from imrbayes.diagnosis.check import replicate
-    from imrbayes.diagnosis.lsq import frame_values
-    from imrbayes.diagnosis.signature import (SignatureSettings, observed_signature, predicted_signature,
-                                              signature_result)
+    from imrbayes.diagnosis.lsq import MapFit, frame_values
+    from imrbayes.diagnosis.signature import SignatureSettings, observed_signature, predicted_signature
 
-    ss = SignatureSettings(n_rep=s.signature_n_rep)
-    why = ss.skip_reason(obs)
+    d = unit.data
+    base = make_candidate(BASELINE.key, d["options"], d["physics"], d["prior"])
+    ss = SignatureSettings(n_rep=d["n_rep"])
+    obs, seed = d["obs"], int(d["seed"])
+    with np.errstate(all="ignore"):
+        if d["key"] is None:
+            return observed_signature(base.fm, obs, ss, seed=seed + 11)
+        cand = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
+        fit = MapFit(**d["fit"])
+        Rf = frame_values(cand, fit.z, obs, d["phases"].minima, fit.nu)
+        return predicted_signature(lambda r: replicate(obs, Rf, d["noise_sd"], r), base.fm, ss, seed=seed + 13)
+
+
+def _signature(s, fits, keys, obs, phases, om, seed, say, warnings, ex, build) -> dict:
+    """The observed MIEnKS signature and each candidate's predicted one (:mod:`signature`), one
+    checkpointed unit each (:func:`signature_unit`); a failed one leaves the signature out with a
+    warning naming the error."""
+    from imrbayes.diagnosis.signature import SignatureSettings, signature_result
+    from imrbayes.execution import Unit
+
+    why = SignatureSettings(n_rep=s.signature_n_rep).skip_reason(obs)
     if why:
         warnings.append(why)
         return {}
     say(f"MIEnKS signature of the data and of {', '.join(keys)}")
-    try:
-        with np.errstate(all="ignore"):
-            observed = observed_signature(base.fm, obs, ss, seed=seed + 11)
-            predicted = {}
-            for k in keys:
-                Rf = frame_values(cands[k], fits[k].z, obs, phases.minima, fits[k].nu)
-                predicted[k] = predicted_signature(lambda rng, Rf=Rf: replicate(obs, Rf, om.noise_sd, rng), base.fm,
-                                                   ss, seed=seed + 13)
-    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:
-        warnings.append(f"MIEnKS signature left out: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+    common = {**build, "obs": obs, "phases": phases, "n_rep": s.signature_n_rep, "seed": seed,
+              "noise_sd": om.noise_sd}
+    units = [Unit("signature=observed", {**common, "key": None})]
+    units += [Unit(f"signature={k}", {**common, "key": k, "fit": asdict(fits[k])}) for k in keys]
+    rep = ex.run(units, signature_unit, seed, desc="diagnose signature")
+    if rep.failures:
+        f = next(iter(rep.failures.values()))
+        warnings.append(f"MIEnKS signature left out: {f.error}")
         return {}
-    return signature_result(observed, predicted)
+    return signature_result(rep.results["signature=observed"], {k: rep.results[f"signature={k}"] for k in keys})
 
 
 def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
@@ -479,8 +496,8 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         tied, tie_reason = ties(candidates, held, absorption, fits, obs, om_top, s.tie_se, s.tie_chi2)
     signature = {}
     if s.signature and check["verdict"] != "adequate" and contenders:
-        signature = _signature(s, base, cands, fits, [base_key, *dict.fromkeys(contenders + tied)], obs, phases, om,
-                               seed, say, warnings)
+        signature = _signature(s, fits, [base_key, *dict.fromkeys(contenders + tied)], obs, phases, om, seed, say,
+                               warnings, ex, {"options": options, "physics": physics, "prior": prior})
     top = candidates[0] if candidates else None
     mech = {d["key"]: d["mechanism"] for d in candidates}
     if len({mech[k] for k in tied}) > 1 and signature.get("score"):
