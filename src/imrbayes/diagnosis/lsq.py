@@ -503,6 +503,10 @@ def fit_nuisances(cand, obs, idx, z, minima=None, om: ObsModel | None = None, K=
     start = np.where(om.nu_sd > 0, start, 0.0)
     z = np.asarray(z, dtype=float)
     if np.any(om.nu_sd[idx] > 0):
-        best, _ = nuisance_restarts(cand, obs, idx, K, minima, om, z, start[idx], levels=(-2.0, -1.0, 1.0, 2.0))
+        # the restarts only pick each bubble's basin (the fit below converges from it): three iterations
+        # per start pick the same basins as ten on stiff PA's leave-one-out folds (5 of 5; left-out
+        # RMSE identical in 4, 4e-4 relative in 1) for 35 % fewer solves (2472 -> 1614)
+        best, _ = nuisance_restarts(cand, obs, idx, K, minima, om, z, start[idx], levels=(-2.0, -1.0, 1.0, 2.0),
+                                    max_iter=3)
         start[idx] = best
     return fit_map(cand, obs, idx=idx, K=K, minima=minima, om=om, starts=[z], nu0=start, fix_material=True)
