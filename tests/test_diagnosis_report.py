@@ -191,5 +191,9 @@ def test_verdict_of_a_check_decided_early_states_the_bound():
     assert "flags it most" not in text                  # per-statistic ranks of 10 replicates say nothing here
     from imrbayes.diagnosis.report import _stages
     assert _stages({"stage_seconds": [{"stage": "constant-parameter check (19 bootstrap replicates)", "seconds": 180.4},
-                                      {"stage": "candidates qkv", "seconds": 12.0}]}) == \
-        " (constant-parameter check 180 s, candidates qkv 12 s)"
+                                      {"stage": "candidates qkv", "seconds": 12.0},
+                                      {"stage": "held-out predictions (forecast)", "seconds": 54.0},
+                                      {"stage": "held-out predictions (leave one experiment out: nhkv, damage)",
+                                       "seconds": 160.2}]}) == \
+        (" (constant-parameter check 180 s, candidates qkv 12 s, held-out predictions (forecast) 54 s, "
+         "held-out predictions (leave one experiment out) 160 s)")

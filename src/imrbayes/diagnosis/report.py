@@ -66,8 +66,14 @@ def _early_inadequate(ev: dict) -> str:
 
 def _stages(r: dict) -> str:
     """' (baseline fits 205 s, ...)': where the runtime went, stage by stage."""
+    def label(msg: str) -> str:    # "held-out predictions (leave one experiment out: nhkv)" -> "... (leave one experiment out)"
+        head, _, paren = msg.partition(" (")
+        if not paren or paren[:1].isdigit():         # "(19 bootstrap replicates)", "(whole record, ...)"
+            return head
+        return f"{head} ({paren.split(':')[0].split(',')[0].rstrip(')')})"
+
     st = [d for d in r.get("stage_seconds") or [] if _finite(d.get("seconds"))]
-    return (" (" + ", ".join(f"{esc(str(d.get('stage', '')).split(' (')[0])} {float(d['seconds']):.0f} s" for d in st)
+    return (" (" + ", ".join(f"{esc(label(str(d.get('stage', ''))))} {float(d['seconds']):.0f} s" for d in st)
             + ")") if st else ""
 
 
