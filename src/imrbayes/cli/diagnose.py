@@ -71,6 +71,7 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     t_start = time.perf_counter()
     from imrbayes.data import load_dataset, preprocess_dataset
     from imrbayes.diagnosis import DiagnoseSettings, diagnose
+    from imrbayes.diagnosis.check import min_replicates
     from imrbayes.diagnosis.figures import write_figures
     from imrbayes.diagnosis.report import write_report
     from imrbayes.ensemble import Observations
@@ -146,10 +147,10 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
                             retry_failed=retry_failed, quiet=True) as execution:
             t_stage = time.perf_counter()
-            if s.n_bootstrap < 19 and not quiet:     # said again, with the numbers, among the run's warnings
-                click.echo(f"imrbayes: note: --n-bootstrap {s.n_bootstrap}: fewer than 19 replicates cannot reject "
-                           "at alpha = 0.05 (smallest p-value 1/(B+1)); the check will say adequate whatever the data",
-                           err=True)
+            if s.n_bootstrap < min_replicates(s.alpha) and not quiet:     # again among the run's warnings
+                click.echo(f"imrbayes: note: --n-bootstrap {s.n_bootstrap}: fewer than {min_replicates(s.alpha)} "
+                           f"replicates cannot reject at alpha = {s.alpha:g} (smallest p-value 1/(B+1)); the check "
+                           "will say adequate whatever the data", err=True)
 
             def stage(msg):             # off a terminal (logs, batch jobs): one line per stage, with the time
                 click.echo(f"imrbayes: diagnose [{time.perf_counter() - t_stage:6.0f} s] {msg}", err=True)

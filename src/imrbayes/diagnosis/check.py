@@ -53,7 +53,7 @@ from imrbayes.diagnosis.lsq import ObsModel, fit_map, fit_tempered, frame_values
 from imrbayes.ensemble import Observations
 
 __all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift", "combined_p_value", "adequate_already",
-           "inadequate_already", "p_value_text"]
+           "inadequate_already", "p_value_text", "min_replicates"]
 
 STATS = ("drift", "misfit", "phase_misfit")
 #: statistics that may decide "inadequate" after the first batch: means of squared residuals over
@@ -221,6 +221,12 @@ def combined_p_value(observed, boot) -> tuple:
     return float(np.sum(C >= C[0] - 1e-9 * max(1.0, abs(C[0]))) / n), P[:, 0]
 
 
+def min_replicates(alpha: float) -> int:
+    """The fewest replicates with which the rank test can reject at ``alpha``: its smallest p-value
+    is 1 / (B + 1) (19 at 5 %)."""
+    return int(np.ceil(1.0 / alpha - 1.0 - 1e-9))
+
+
 def adequate_already(n_dominating: int, B: int, alpha: float) -> bool:
     """Whether the check is decided ``adequate`` before all B replicates are in: ``n_dominating``
     replicates at or above the data on *every* statistic have, in any final pool, a combined
@@ -249,7 +255,7 @@ def inadequate_already(observed: dict, boot: dict, stats, alpha: float, z_decide
         zs[k] = z
         if obs_k > b.max() and z >= z_decided:
             bound = min(bound, len(stats) / (1.0 + z * z))
-    return bool(bound <= alpha and bound < 1.0), float(bound), zs
+    return bool(bound <= alpha), float(bound), zs
 
 
 def p_value_text(ev: dict) -> str:
@@ -321,13 +327,10 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     results = dict(rep.results)
     n_dom = sum(1 for r in results.values() if all(not (r.get(k, np.inf) < observed[k]) for k in stats))
     first_boot = {k: [results.get(u.unit_id, {}).get(k, float("nan")) for u in first] for k in stats}
+    bad, p_bound, z_first = inadequate_already(observed, first_boot, stats, alpha)
     decided = None
-    if len(first) < B and adequate_already(n_dom, B, alpha):
-        decided = "adequate"
-    else:
-        bad, p_bound, z_first = inadequate_already(observed, first_boot, stats, alpha)
-        if len(first) < B and bad:
-            decided = "inadequate"
+    if len(first) < B:
+        decided = "adequate" if adequate_already(n_dom, B, alpha) else "inadequate" if bad else None
     if len(first) < B and decided is None:
         rep = ex.run(units[len(first):], bootstrap_unit, seed, desc="diagnose bootstrap")
         results.update(rep.results)

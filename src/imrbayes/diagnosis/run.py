@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from imrbayes.diagnosis.candidates import BASELINE, DEFAULT_CANDIDATES
-from imrbayes.diagnosis.check import bootstrap_check, statistics, window_drift
+from imrbayes.diagnosis.check import bootstrap_check, min_replicates, statistics, window_drift
 from imrbayes.diagnosis.heldout import elpd_compare, forecast, loeo, loglik_draws, paired
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
@@ -347,10 +347,10 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     base = make_candidate(BASELINE.key, options, physics, prior)
     say("baseline fits (whole record, to the 1st and 2nd collapse)")
     warnings = []               # what the diagnosis left out, one line each (diagnosis.json, stderr)
-    if 1.0 / (s.n_bootstrap + 1) > s.alpha:
+    if s.n_bootstrap < min_replicates(s.alpha):
         warnings.append(f"n_bootstrap = {s.n_bootstrap}: the check's smallest possible p-value is 1/{s.n_bootstrap + 1}"
                         f" > alpha = {s.alpha:g}, so it cannot find the constant-parameter model inadequate; use at "
-                        f"least {int(np.ceil(1.0 / s.alpha - 1.0 - 1e-9))} replicates")
+                        f"least {min_replicates(s.alpha)} replicates")
     if phases.minima.shape[1] < 2 or phases.collapse_index(2) <= phases.collapse_index(1):
         warnings.append("only one collapse found in the records (minima of prominence >= 4 noise sd): the "
                         "'2nd collapse' window and the forecast scheme end just after the first collapse")
@@ -366,8 +366,8 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         except InputError as exc:   # settings this record cannot hold (e.g. a window longer than it)
             warnings.append(f"mienks_drift left out of the check: {exc}")
             mk = None
-    rep = ex.run([Unit("observed", {"options": options, "physics": physics, "prior": prior, "obs": obs,
-                                    "phases": phases, "mienks": mk, "seed": seed})],
+    build = {"options": options, "physics": physics, "prior": prior}      # what a unit rebuilds its models from
+    rep = ex.run([Unit("observed", {**build, "obs": obs, "phases": phases, "mienks": mk, "seed": seed})],
                  observed_unit, seed, desc="diagnose baseline fits")
     if "observed" not in rep.results:
         raise RuntimeError(f"the baseline's fits to the data failed ({rep.failures['observed'].error})")
@@ -397,7 +397,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     check = bootstrap_check(base, obs, phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
                             first_batch=s.bootstrap_first_batch, replicate_fits=s.bootstrap_fits,
                             progress=tick, mienks=mk, execution=ex,
-                            build={"options": options, "physics": physics, "prior": prior})
+                            build=build)
     # candidates
     base_key = BASELINE.key
     fits = {base_key: full}
@@ -406,7 +406,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
 
     om0 = _replace(om, sd_used=om.noise_sd.copy(), alpha=np.ones(obs.n_exp), n_eff=None, tau=None)
     oms = {BASELINE.key: om}          # each model's own observation model (tempered at its own fit)
-    common = {"options": options, "physics": physics, "prior": prior, "obs": obs, "phases": phases, "om0": om0}
+    common = {**build, "obs": obs, "phases": phases, "om0": om0}
     from imrbayes.diagnosis.models import applicable
     keys = [k for k in s.candidates if applicable(k, options)]
     not_applicable = [k for k in s.candidates if k not in keys]
@@ -497,7 +497,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     signature = {}
     if s.signature and check["verdict"] != "adequate" and contenders:
         signature = _signature(s, fits, [base_key, *dict.fromkeys(contenders + tied)], obs, phases, om, seed, say,
-                               warnings, ex, {"options": options, "physics": physics, "prior": prior})
+                               warnings, ex, build)
     top = candidates[0] if candidates else None
     mech = {d["key"]: d["mechanism"] for d in candidates}
     if len({mech[k] for k in tied}) > 1 and signature.get("score"):
