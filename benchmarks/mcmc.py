@@ -127,22 +127,28 @@ def fitted_windows(fm, seed: int = 0, cache: str | None = None):
 
 
 def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, n_chains: int = 4,
-          init_scale: float = 2.0) -> list[dict]:
+          init_scale: float = 2.0, quadrature: bool = False, settings: dict | None = None) -> list[dict]:
     """Move mixture x walker count by the cost of a converged run: each configuration samples the
     MIEnKS window's exact target (started from the window's ensemble Gaussian, over-dispersed by
     ``init_scale``) with the stop rule; reported: steps and evaluations to convergence, tau, min
     bulk/tail ESS at the stop and ESS per evaluation (= per forward solve of all experiments),
-    wall time and the load average around it (the machine is shared)."""
+    wall time and the load average around it (the machine is shared). ``quadrature``: also the
+    window's exact grid posterior (once per window) and, per row, whether the draws agree with it
+    within their Monte-Carlo error (``quadrature.compare_to_mcmc``) -- a cheap move that samples the
+    wrong density would show here. ``settings``: further :class:`MCMCSettings` fields."""
     from imrbayes.mcmc.fit import fit_window_specs
+    from imrbayes.mcmc.quadrature import compare_to_mcmc, grid_posterior
+    from imrbayes.mcmc.sampler import walker_major
 
     obs, space, res = fitted_windows(fm, seed, fit_cache)
     rows = []
     for j in windows:
         (sp,) = fit_window_specs(fm, obs, space, res, windows=[j])
+        grid = grid_posterior(sp.target, sp.ens_mean, sp.ens_cov) if quadrature and sp.target.ndim == 2 else None
         for moves, W in configs:
             tg = sp.target
-            s = MCMCSettings(n_walkers=W, n_steps=cap, n_chains=n_chains, moves=moves, init_scale=init_scale,
-                             loglik=False)
+            s = MCMCSettings(**{"n_walkers": W, "n_steps": cap, "n_chains": n_chains, "moves": moves,
+                                "init_scale": init_scale, "loglik": False, **(settings or {})})
             load0 = os.getloadavg()
             e0, t0 = tg.n_evals, time.perf_counter()
             run = run_mcmc(tg, sp.ens_mean, sp.ens_cov, s, seed=seed)
@@ -158,12 +164,20 @@ def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, 
                    "ess_tail_min": last.get("ess_tail_min"), "ess_per_1k_evals": 1e3 * ess / max(1, evals),
                    "acceptance": float(run.acceptance.mean()), "wall_s": wall,
                    "ms_per_member_run": 1e3 * wall / max(1, evals * tg.n_exp),
-                   "loadavg_before": list(load0), "loadavg_after": list(os.getloadavg())}
+                   "loadavg_before": list(load0), "loadavg_after": list(os.getloadavg()),
+                   "settings": settings or {}}
+            if grid is not None:
+                vs = compare_to_mcmc(grid, walker_major(run.chain, run.burn, run.thin))
+                row["quadrature"] = {"within_mc_error": vs["within_mc_error"], "mean_z": vs["mean_z"],
+                                     "sd_z": vs["sd_z"], "sd_ratio": vs["sd_ratio"]}
             rows.append(row)
             print(f"w{j:02d} {moves:<22} W={W:<3} {row['stop_reason']:<9} n={run.n_steps:<5} evals={evals:<7} "
                   f"tau={run.tau_max:6.1f} Wtau={row['walkers_x_tau']:6.0f} R={row['rhat_max']:.4f} "
                   f"ESS b/t={row['ess_bulk_min']:.0f}/{row['ess_tail_min']:.0f} ESS/1k={row['ess_per_1k_evals']:.1f} "
-                  f"acc={row['acceptance']:.2f} wall={wall:.1f}s load={load0[0]:.2f}", flush=True)
+                  f"acc={row['acceptance']:.2f} wall={wall:.1f}s load={load0[0]:.2f}"
+                  + (f" quad ok={row['quadrature']['within_mc_error']} "
+                     f"z={max(abs(v) for v in [*row['quadrature']['mean_z'].values(), *row['quadrature']['sd_z'].values()]):.1f}"
+                     if "quadrature" in row else ""), flush=True)
     return rows
 
 
@@ -314,6 +328,10 @@ def main():
                     help="measure move mixtures x walker counts to convergence on the fit's windows "
                          "(--sweep-windows), e.g. stretch@8 de@8 'de:0.8,snooker:0.2'@16")
     ap.add_argument("--sweep-windows", type=int, nargs="+", default=[0])
+    ap.add_argument("--sweep-quadrature", action="store_true",
+                    help="also compare each sweep row with the window's exact grid posterior")
+    ap.add_argument("--sweep-set", nargs="*", default=None, metavar="FIELD=VALUE",
+                    help="further MCMCSettings for the sweep, e.g. indep_scale=2 (numbers only)")
     ap.add_argument("--fit-cache", default=None, help="pickle of the MIEnKS fit (reused when present)")
     ap.add_argument("--cap", type=int, default=5000)
     ap.add_argument("--init-scale", type=float, default=2.0)
@@ -362,7 +380,8 @@ def main():
         fm = ForwardModel("nhkv", options=FORWARD[fkey])
         configs = [(c.rsplit("@", 1)[0], int(c.rsplit("@", 1)[1])) for c in args.sweep]
         rows = sweep(fm, args.sweep_windows, configs, seed=args.seed, cap=args.cap, fit_cache=args.fit_cache,
-                     n_chains=args.chains, init_scale=args.init_scale)
+                     n_chains=args.chains, init_scale=args.init_scale, quadrature=args.sweep_quadrature,
+                     settings={k: float(v) for k, v in (kv.split("=", 1) for kv in args.sweep_set)} if args.sweep_set else None)
         if args.json:
             meta = {"cpu": machine_info(), "forward": fkey, "options": fm.options.to_dict(), "seed": args.seed,
                     "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "

@@ -29,7 +29,8 @@ jumping ahead (at most doubling the length) to where the tau rule or the ESS wou
 replayed from the HDF5 file on resume and a resumed run stops where the uninterrupted one did.
 
 Moves (``moves``): a weighted mixture of emcee moves named ``stretch``, ``de`` (differential
-evolution), ``snooker`` (the DE snooker, corrected: :func:`snooker_move`), ``walk``, e.g.
+evolution), ``snooker`` (the DE snooker, corrected: :func:`snooker_move`), ``walk``, ``indep``
+(independence Metropolis-Hastings from a Student-t on the start Gaussian: :func:`independence_move`), e.g.
 ``"de:0.8,snooker:0.2"`` (docs/mcmc.md: the choice was measured by ESS per forward solve).
 
 Sampling is seeded: ensemble c uses ``emcee.State(p0_c, random_state=RandomState(seed_c).get_state())``
@@ -83,7 +84,7 @@ def _hdf_backend(path, name, read_only=False):
 
 #: emcee moves by name (``MCMCSettings.moves``). ``snooker`` is :func:`snooker_move` (the corrected
 #: DE snooker), not emcee 3.1.6's ``DESnookerMove``, which does not sample the target (docs/mcmc.md).
-MOVE_NAMES = ("stretch", "de", "snooker", "walk")
+MOVE_NAMES = ("stretch", "de", "snooker", "walk", "indep")
 
 #: stop reasons reported in ``MCMCRun.stop`` / ``diagnostics()["stop_reason"]``
 STOP_REASONS = ("converged", "cap", "fixed")
@@ -147,12 +148,47 @@ def snooker_move(gammas: float = 1.7):
     return _Snooker()
 
 
-def emcee_moves(spec: str) -> list:
-    """emcee move objects with weights for ``EnsembleSampler(moves=...)``."""
+def independence_move(center, cov, scale: float = 1.5, dof: float = 4.0):
+    """Independence Metropolis-Hastings as an emcee move: every walker proposes a fresh draw from a
+    fixed multivariate Student-t (``dof`` degrees of freedom, location ``center`` (d,), scale matrix
+    ``scale**2 cov`` (d, d), internal coordinates), accepted with the ratio of proposal densities.
+
+    The proposal does not depend on the chain, so the move leaves any target invariant whatever
+    ``center`` and ``cov`` are; they decide only its efficiency. Placed on the ensemble smoother's
+    Gaussian (the start), a window that is close to Gaussian is sampled with an autocorrelation time
+    of a few steps, where differential evolution needs 7-10 (docs/mcmc.md); the t's tails keep the
+    ratio p/q bounded when the Gaussian is too narrow or off-centre, and the DE moves mixed with it
+    still explore what the proposal covers poorly.
+    """
+    import emcee
+
+    m = np.asarray(center, dtype=np.float64).ravel()
+    d = m.size
+    L = float(scale) * np.linalg.cholesky(0.5 * (np.asarray(cov, float) + np.asarray(cov, float).T))
+    nu = float(dof)
+
+    def log_q(x):                                       # up to a constant: the constant cancels
+        u = np.linalg.solve(L, (np.atleast_2d(x) - m).T)
+        return -0.5 * (nu + d) * np.log1p(np.sum(u * u, axis=0) / nu)
+
+    def propose(x0, random):
+        k = x0.shape[0]
+        z = random.standard_normal((k, d))
+        w = np.sqrt(nu / random.chisquare(nu, size=k))
+        q = m + (z * w[:, None]) @ L.T
+        return q, log_q(x0) - log_q(q)
+
+    return emcee.moves.MHMove(propose, ndim=d)
+
+
+def emcee_moves(spec: str, center=None, cov=None, indep_scale: float = 1.5, indep_dof: float = 4.0) -> list:
+    """emcee move objects with weights for ``EnsembleSampler(moves=...)``; ``indep`` needs ``center``
+    and ``cov`` (the start Gaussian, :func:`independence_move`)."""
     import emcee
 
     make = {"stretch": emcee.moves.StretchMove, "de": emcee.moves.DEMove, "snooker": snooker_move,
-            "walk": emcee.moves.WalkMove}
+            "walk": emcee.moves.WalkMove,
+            "indep": lambda: independence_move(center, cov, indep_scale, indep_dof)}
     return [(make[n](), w) for n, w in parse_moves(spec)]
 
 
@@ -173,6 +209,8 @@ class MCMCSettings:
     max_draws : most draws kept per ensemble in the DataTree (thinning is increased to respect it).
     init_scale : start spread, in units of the start covariance's standard deviations (> 1:
         over-dispersed).
+    indep_scale, indep_dof : the ``indep`` move's Student-t proposal: scale (in start sd) and degrees
+        of freedom (:func:`independence_move`).
     tau_rule : the chain should be at least ``tau_rule`` tau long (emcee's advice: 50).
     lockstep : share forward batches between the ensembles (threads); False runs them one by one.
     loglik : recompute the pointwise log-likelihood of the kept draws for the DataTree.
@@ -193,6 +231,8 @@ class MCMCSettings:
     thin: int | None = None
     max_draws: int = 1000
     init_scale: float = 2.0
+    indep_scale: float = 1.5
+    indep_dof: float = 4.0
     tau_rule: float = 50.0
     lockstep: bool = True
     loglik: bool = True
@@ -221,6 +261,10 @@ class MCMCSettings:
             raise InputError("thin", f"must be >= 1, got {self.thin}")
         if not self.init_scale > 0:
             raise InputError("init_scale", "must be positive")
+        if not (math.isfinite(self.indep_scale) and self.indep_scale > 0):
+            raise InputError("indep_scale", f"must be positive, got {self.indep_scale}")
+        if not (math.isfinite(self.indep_dof) and self.indep_dof > 0):
+            raise InputError("indep_dof", f"must be positive, got {self.indep_dof}")
         moves = parse_moves(self.moves)
         if any(n in ("de", "snooker") for n, _ in moves) and self.n_walkers < 6:
             raise InputError("n_walkers", f"differential-evolution moves need >= 6 walkers (3 per half: "
@@ -592,7 +636,7 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             states[c] = emcee.State(P0[c], log_prob=LP[c],
                                     random_state=np.random.RandomState(seeds[c]).get_state())
 
-    moves = emcee_moves(s.moves)
+    moves = emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof)
     samplers = [None] * C
     route = [None] * C                  # the batcher each ensemble's log-prob calls go through (None: direct)
     lengths = list(done)
