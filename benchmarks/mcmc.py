@@ -381,7 +381,7 @@ def main():
         configs = [(c.rsplit("@", 1)[0], int(c.rsplit("@", 1)[1])) for c in args.sweep]
         rows = sweep(fm, args.sweep_windows, configs, seed=args.seed, cap=args.cap, fit_cache=args.fit_cache,
                      n_chains=args.chains, init_scale=args.init_scale, quadrature=args.sweep_quadrature,
-                     settings={k: float(v) for k, v in (kv.split("=", 1) for kv in args.sweep_set)} if args.sweep_set else None)
+                     settings={k: (int(v) if v.isdigit() else float(v)) for k, v in (kv.split("=", 1) for kv in args.sweep_set)} if args.sweep_set else None)
         if args.json:
             meta = {"cpu": machine_info(), "forward": fkey, "options": fm.options.to_dict(), "seed": args.seed,
                     "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "

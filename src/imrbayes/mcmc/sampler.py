@@ -148,6 +148,30 @@ def snooker_move(gammas: float = 1.7):
     return _Snooker()
 
 
+class _StudentTProposal:
+    """Independence proposal from a multivariate Student-t; ``place`` moves it (between steps)."""
+
+    def __init__(self, center, cov, scale: float, dof: float):
+        self.scale, self.nu = float(scale), float(dof)
+        self.place(center, cov)
+
+    def place(self, center, cov):
+        self.m = np.asarray(center, dtype=np.float64).ravel()
+        cov = np.asarray(cov, dtype=np.float64).reshape(self.m.size, self.m.size)
+        self.L = self.scale * np.linalg.cholesky(0.5 * (cov + cov.T))
+
+    def log_q(self, x):                                 # up to a constant: the constant cancels
+        u = np.linalg.solve(self.L, (np.atleast_2d(x) - self.m).T)
+        return -0.5 * (self.nu + self.m.size) * np.log1p(np.sum(u * u, axis=0) / self.nu)
+
+    def __call__(self, x0, random):
+        k, d = x0.shape[0], self.m.size
+        z = random.standard_normal((k, d))
+        w = np.sqrt(self.nu / random.chisquare(self.nu, size=k))
+        q = self.m + (z * w[:, None]) @ self.L.T
+        return q, self.log_q(x0) - self.log_q(q)
+
+
 def independence_move(center, cov, scale: float = 1.5, dof: float = 4.0):
     """Independence Metropolis-Hastings as an emcee move: every walker proposes a fresh draw from a
     fixed multivariate Student-t (``dof`` degrees of freedom, location ``center`` (d,), scale matrix
@@ -158,27 +182,15 @@ def independence_move(center, cov, scale: float = 1.5, dof: float = 4.0):
     Gaussian (the start), a window that is close to Gaussian is sampled with an autocorrelation time
     of a few steps, where differential evolution needs 7-10 (docs/mcmc.md); the t's tails keep the
     ratio p/q bounded when the Gaussian is too narrow or off-centre, and the DE moves mixed with it
-    still explore what the proposal covers poorly.
+    still explore what the proposal covers poorly. ``move.proposal.place(center, cov)`` re-places it
+    between steps (``MCMCSettings.indep_adapt``).
     """
     import emcee
 
-    m = np.asarray(center, dtype=np.float64).ravel()
-    d = m.size
-    L = float(scale) * np.linalg.cholesky(0.5 * (np.asarray(cov, float) + np.asarray(cov, float).T))
-    nu = float(dof)
-
-    def log_q(x):                                       # up to a constant: the constant cancels
-        u = np.linalg.solve(L, (np.atleast_2d(x) - m).T)
-        return -0.5 * (nu + d) * np.log1p(np.sum(u * u, axis=0) / nu)
-
-    def propose(x0, random):
-        k = x0.shape[0]
-        z = random.standard_normal((k, d))
-        w = np.sqrt(nu / random.chisquare(nu, size=k))
-        q = m + (z * w[:, None]) @ L.T
-        return q, log_q(x0) - log_q(q)
-
-    return emcee.moves.MHMove(propose, ndim=d)
+    prop = _StudentTProposal(center, cov, scale, dof)
+    move = emcee.moves.MHMove(prop, ndim=prop.m.size)
+    move.proposal = prop
+    return move
 
 
 def emcee_moves(spec: str, center=None, cov=None, indep_scale: float = 1.5, indep_dof: float = 4.0) -> list:
@@ -211,6 +223,8 @@ class MCMCSettings:
         over-dispersed).
     indep_scale, indep_dof : the ``indep`` move's Student-t proposal: scale (in start sd) and degrees
         of freedom (:func:`independence_move`).
+    indep_adapt : 0, or the step at which each ensemble moves its ``indep`` proposal once to the
+        mean and covariance of its own draws in the second half of the steps so far (then fixed).
     tau_rule : the chain should be at least ``tau_rule`` tau long (emcee's advice: 50).
     lockstep : share forward batches between the ensembles (threads); False runs them one by one.
     loglik : recompute the pointwise log-likelihood of the kept draws for the DataTree.
@@ -233,6 +247,7 @@ class MCMCSettings:
     init_scale: float = 2.0
     indep_scale: float = 1.5
     indep_dof: float = 4.0
+    indep_adapt: int = 0
     tau_rule: float = 50.0
     lockstep: bool = True
     loglik: bool = True
@@ -265,6 +280,8 @@ class MCMCSettings:
             raise InputError("indep_scale", f"must be positive, got {self.indep_scale}")
         if not (math.isfinite(self.indep_dof) and self.indep_dof > 0):
             raise InputError("indep_dof", f"must be positive, got {self.indep_dof}")
+        if not (self.indep_adapt == 0 or 4 <= self.indep_adapt < self.n_steps):
+            raise InputError("indep_adapt", f"must be 0 (never) or a step in [4, n_steps), got {self.indep_adapt}")
         moves = parse_moves(self.moves)
         if any(n in ("de", "snooker") for n, _ in moves) and self.n_walkers < 6:
             raise InputError("n_walkers", f"differential-evolution moves need >= 6 walkers (3 per half: "
@@ -636,7 +653,9 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             states[c] = emcee.State(P0[c], log_prob=LP[c],
                                     random_state=np.random.RandomState(seeds[c]).get_state())
 
-    moves = emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof)
+    # one move list per ensemble: an adapted independence proposal must see only its own ensemble
+    moves = [emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof) for _ in range(C)]
+    placed = [False] * C
     samplers = [None] * C
     route = [None] * C                  # the batcher each ensemble's log-prob calls go through (None: direct)
     lengths = list(done)
@@ -644,25 +663,42 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
     bar = _progress_bar(progress, sum(max(0, s.n_steps - n) for n in done))
     bar_lock = threading.Lock()
 
+    def place_proposal(c):
+        """Once ensemble c holds ``indep_adapt`` steps: its independence proposal moves to the mean
+        and covariance of its own draws in the second half of them (a replay on resume). One
+        adaptation at a fixed step leaves every later step a fixed, target-invariant kernel."""
+        n_a = int(s.indep_adapt)
+        if not n_a or placed[c] or lengths[c] < n_a:
+            return
+        x = np.asarray(backends[c].get_chain()[n_a // 2:n_a], dtype=np.float64).reshape(-1, d)
+        cov = np.cov(x.T).reshape(d, d) + 1e-12 * np.diag(np.diag(start_cov))
+        for mv, _ in moves[c]:
+            if hasattr(mv, "proposal"):
+                mv.proposal.place(x.mean(axis=0), cov)
+        placed[c] = True
+
     def run_one(c, upto, batcher):
         """Advance ensemble c to ``upto`` steps in total."""
-        k = upto - lengths[c]
         try:
-            if k <= 0:
+            if upto <= lengths[c]:
                 return
             route[c] = batcher
             if samplers[c] is None:
                 fn = lambda x, c=c: route[c].call(c, x) if route[c] is not None else target.log_prob(x)  # noqa: E731
-                samplers[c] = emcee.EnsembleSampler(W, d, fn, vectorize=True, backend=backends[c], moves=moves)
+                samplers[c] = emcee.EnsembleSampler(W, d, fn, vectorize=True, backend=backends[c], moves=moves[c])
                 if states[c] is None:
                     states[c] = samplers[c].get_last_sample()
-            for st in samplers[c].sample(states[c], iterations=k, store=True,
-                                         skip_initial_state_check=lengths[c] > 0):
-                states[c] = st
-                lengths[c] += 1
-                if bar is not None:
-                    with bar_lock:
-                        bar.update(1)
+            place_proposal(c)
+            stops = [n for n in (int(s.indep_adapt),) if lengths[c] < n < upto] + [upto]
+            for stop in stops:
+                for st in samplers[c].sample(states[c], iterations=stop - lengths[c], store=True,
+                                             skip_initial_state_check=lengths[c] > 0):
+                    states[c] = st
+                    lengths[c] += 1
+                    if bar is not None:
+                        with bar_lock:
+                            bar.update(1)
+                place_proposal(c)
         finally:
             if batcher is not None:
                 batcher.leave()
