@@ -188,7 +188,7 @@ def _conv(**kw):
 
 
 def test_stops_on_convergence_and_the_answer_is_right():
-    """Default settings (DE + snooker, 8 walkers, over-dispersed start): sampling stops at the first
+    """Default settings (independence t + DE, 8 walkers, over-dispersed start): sampling stops at the first
     check where R-hat, bulk/tail ESS and the tau rule hold -- well before the cap --, the stop point
     is trustworthy (50 tau by the tau of a 4x longer run), and the draws reproduce the exact
     Gaussian within their Monte-Carlo error."""
@@ -199,7 +199,7 @@ def test_stops_on_convergence_and_the_answer_is_right():
     assert d["stop_reason"] == "converged" and not d["cap_hit"] and d["stop_rule"] == "converged"
     assert run.n_steps < 3000 and d["checks"][-1]["ok"] and d["checks"][-1]["n"] == run.n_steps
     assert all(not c["ok"] for c in d["checks"][:-1])
-    assert d["moves"] == "de:0.8,snooker:0.2"
+    assert d["moves"] == "indep:0.7,de:0.3"
     # the last check diagnosed exactly the draws compare.json sees
     dt = run.to_datatree()
     s = mcmc_summary(dt, ["x0", "x1"])
@@ -366,3 +366,15 @@ def test_adapted_independence_proposal_samples_the_target_and_resumes_identicall
     assert 0 < emcee.backends.HDFBackend(str(path), name="w/chain_0", read_only=True).iteration < 50
     res = run_mcmc(GaussianTarget(MEAN, COV), m0, c0, _conv(**kw), seed=4, backend=path, name="w")
     np.testing.assert_array_equal(res.chain, ref.chain)
+
+
+def test_a_coordinate_that_never_moved_has_infinite_tau_and_the_run_still_ends():
+    """An ensemble none of whose proposals were accepted (a badly placed independence proposal in a
+    short run) has a constant chain: tau is infinite (not NaN), burn-in keeps the second half."""
+    from imrbayes.mcmc.sampler import burn_thin, integrated_tau
+
+    chain = np.ones((40, 8, 2))
+    chain[:, :, 1] += np.random.default_rng(0).standard_normal((40, 8))
+    tau = integrated_tau(chain)
+    assert np.isinf(tau[0]) and np.isfinite(tau[1])
+    assert burn_thin(40, float(np.max(tau)), MCMCSettings(), 8) == (20, 1)

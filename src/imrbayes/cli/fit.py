@@ -131,13 +131,14 @@ def _load_config(path) -> dict:
 @click.option("--mcmc", is_flag=True, default=None,
               help="Also sample every window's posterior with emcee and compare it with the ensemble's Gaussian "
                    "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures. Slow: "
-                   "256,000 likelihood evaluations per window with the defaults: minutes per window with "
-                   "--forward bubble=polytropic, hours with the thermal bubble (fewer with --mcmc-windows or "
-                   "--mcmc-set n_steps=...).")
+                   "sampling stops on convergence, typically after 7,000-15,000 likelihood evaluations per window: "
+                   "about a minute per window with --forward bubble=polytropic, several with the thermal bubble "
+                   "(fewer windows with --mcmc-windows).")
 @click.option("--mcmc-set", "mcmc_settings", multiple=True, metavar="KEY=VALUE",
-              help="emcee setting: n_walkers, n_steps, n_chains (independent ensembles), burn, thin, max_draws, "
-                   "init_scale, tau_rule, lockstep, loglik [default: 32 walkers x 2000 steps x 4 ensembles]; "
-                   "repeatable.")
+              help="emcee setting: n_walkers, n_chains (independent ensembles), n_steps (hard cap), moves, "
+                   "indep_scale, indep_dof, indep_adapt, min_steps, rhat_max, ess_min, tau_rule, burn, thin, "
+                   "max_draws, init_scale, lockstep, loglik [default: 4 ensembles x 8 walkers, stopped when "
+                   "R-hat <= 1.01, bulk and tail ESS >= 400 and >= 50 tau, cap 5000 steps]; repeatable.")
 @click.option("--mcmc-windows", default=None, metavar="all|J,K,...",
               help="Windows to sample with --mcmc (indices from 0) [default: all].")
 @click.option("--quiet", is_flag=True, default=None, help="Print nothing but errors.")

@@ -31,7 +31,9 @@ replayed from the HDF5 file on resume and a resumed run stops where the uninterr
 Moves (``moves``): a weighted mixture of emcee moves named ``stretch``, ``de`` (differential
 evolution), ``snooker`` (the DE snooker, corrected: :func:`snooker_move`), ``walk``, ``indep``
 (independence Metropolis-Hastings from a Student-t on the start Gaussian: :func:`independence_move`), e.g.
-``"de:0.8,snooker:0.2"`` (docs/mcmc.md: the choice was measured by ESS per forward solve).
+``"indep:0.7,de:0.3"`` (the default since 2026-11-27, with ``indep_adapt`` = 50: each ensemble's
+independence proposal re-placed once on its own draws; before, ``"de:0.8,snooker:0.2"``). The
+choice is measured by evaluations to convergence and ESS per forward solve (docs/mcmc.md).
 
 Sampling is seeded: ensemble c uses ``emcee.State(p0_c, random_state=RandomState(seed_c).get_state())``
 with seeds spawned from ``seed`` by ``numpy.random.SeedSequence``. With an HDF5 file every step of
@@ -216,7 +218,7 @@ class MCMCSettings:
         docstring) or ``"fixed"`` (exactly ``n_steps``).
     min_steps : first convergence check (steps); check_tau : later checks every ``check_tau`` tau.
     rhat_max, ess_min : the criteria (max R-hat; min bulk and tail ESS), as ``compare.THRESHOLDS``.
-    moves : emcee move mixture, e.g. ``"de:0.8,snooker:0.2"`` or ``"stretch"`` (:func:`parse_moves`).
+    moves : emcee move mixture, e.g. ``"indep:0.7,de:0.3"`` (default) or ``"stretch"`` (:func:`parse_moves`).
     burn, thin : steps discarded / kept every ``thin`` steps; None = automatic (module docstring).
     max_draws : most draws kept per ensemble in the DataTree (thinning is increased to respect it).
     init_scale : start spread, in units of the start covariance's standard deviations (> 1:
@@ -224,7 +226,8 @@ class MCMCSettings:
     indep_scale, indep_dof : the ``indep`` move's Student-t proposal: scale (in start sd) and degrees
         of freedom (:func:`independence_move`).
     indep_adapt : 0, or the step at which each ensemble moves its ``indep`` proposal once to the
-        mean and covariance of its own draws in the second half of the steps so far (then fixed).
+        mean and covariance of its own draws in the second half of the steps so far (then fixed;
+        default 50, before the first convergence check at ``min_steps`` = 100).
     tau_rule : the chain should be at least ``tau_rule`` tau long (emcee's advice: 50).
     lockstep : share forward batches between the ensembles (threads); False runs them one by one.
     loglik : recompute the pointwise log-likelihood of the kept draws for the DataTree.
@@ -240,14 +243,14 @@ class MCMCSettings:
     check_tau: float = 5.0
     rhat_max: float = 1.01
     ess_min: float = 400.0
-    moves: str = "de:0.8,snooker:0.2"
+    moves: str = "indep:0.7,de:0.3"
     burn: int | None = None
     thin: int | None = None
     max_draws: int = 1000
     init_scale: float = 2.0
     indep_scale: float = 1.5
     indep_dof: float = 4.0
-    indep_adapt: int = 0
+    indep_adapt: int = 50
     tau_rule: float = 50.0
     lockstep: bool = True
     loglik: bool = True
@@ -280,8 +283,8 @@ class MCMCSettings:
             raise InputError("indep_scale", f"must be positive, got {self.indep_scale}")
         if not (math.isfinite(self.indep_dof) and self.indep_dof > 0):
             raise InputError("indep_dof", f"must be positive, got {self.indep_dof}")
-        if not (self.indep_adapt == 0 or 4 <= self.indep_adapt < self.n_steps):
-            raise InputError("indep_adapt", f"must be 0 (never) or a step in [4, n_steps), got {self.indep_adapt}")
+        if not (self.indep_adapt == 0 or self.indep_adapt >= 4):
+            raise InputError("indep_adapt", f"must be 0 (never) or a step >= 4, got {self.indep_adapt}")
         moves = parse_moves(self.moves)
         if any(n in ("de", "snooker") for n, _ in moves) and self.n_walkers < 6:
             raise InputError("n_walkers", f"differential-evolution moves need >= 6 walkers (3 per half: "
@@ -293,14 +296,19 @@ def integrated_tau(chain) -> np.ndarray:
     never raising (the estimate is returned even for chains shorter than 50 tau)."""
     import emcee
 
-    return np.asarray(emcee.autocorr.integrated_time(np.asarray(chain), tol=0, quiet=True), dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tau = np.asarray(emcee.autocorr.integrated_time(np.asarray(chain), tol=0, quiet=True), dtype=np.float64)
+    return np.where(np.isnan(tau), np.inf, tau)          # a coordinate that never moved: no finite tau
 
 
 def burn_thin(n: int, tau_max: float, s: "MCMCSettings", n_walkers: int) -> tuple:
-    """(burn, thin) of a chain of n steps (module docstring; the same at every check and at the end)."""
-    burn = s.burn if s.burn is not None else int(min(n // 2, max(n // 4, math.ceil(3 * tau_max))))
+    """(burn, thin) of a chain of n steps (module docstring; the same at every check and at the end;
+    a chain without a finite tau keeps its second half, unthinned)."""
+    finite = math.isfinite(tau_max)
+    burn = s.burn if s.burn is not None else (int(min(n // 2, max(n // 4, math.ceil(3 * tau_max)))) if finite
+                                              else n // 2)
     burn = min(burn, n - 1)
-    thin = s.thin if s.thin is not None else max(1, int(tau_max // 2))
+    thin = s.thin if s.thin is not None else (max(1, int(tau_max // 2)) if finite else 1)
     thin = max(thin, math.ceil((n - burn) / max(1, s.max_draws // n_walkers)))        # at most max_draws per chain
     return int(burn), int(thin)
 
