@@ -1,7 +1,7 @@
 """emcee benchmark: the whole ``fit --mcmc`` run (headline), the move/walker sweep, one window.
 
 **Headline** (``--whole-run DATA OUT [--method mienks|en4dvar]``): ``imrbayes fit DATA --method M
---mcmc`` with the default settings (stop on convergence, DE + snooker, 4 x 8 walkers, quadrature),
+--mcmc`` with the default settings (stop on convergence, the default moves, 4 x 8 walkers, quadrature),
 its wall time, the CPU time of the process tree and the load average during it (the 2-core machine
 is shared), and per window: steps, evaluations, stop reason, R-hat, bulk/tail ESS, ESS per second,
 quadrature cost. This replaces the 18-window projection of earlier versions with the measurement.
