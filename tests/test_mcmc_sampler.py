@@ -237,14 +237,19 @@ def test_hard_cap_is_reported_and_makes_the_comparison_undecided():
 
 
 def test_stop_rule_lockstep_equals_sequential_and_resume_stops_at_the_same_step(tmp_path):
-    ref = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _conv(), seed=7, backend=tmp_path / "ref.h5", name="w")
+    import emcee
+
+    counted = GaussianTarget(MEAN, COV)
+    ref = run_mcmc(counted, MEAN, COV, _conv(), seed=7, backend=tmp_path / "ref.h5", name="w")
     seq = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _conv(lockstep=False), seed=7)
     np.testing.assert_array_equal(ref.chain, seq.chain)
     assert ref.stop["reason"] == "converged" and len(ref.stop["checks"]) >= 2
     path = tmp_path / "cut.h5"
-    with pytest.raises(Interrupted):           # interrupted after the first check, mid-chunk
-        run_mcmc(GaussianTarget(MEAN, COV, fail_after=3 * (ref.stop["checks"][0]["n"] + 20)), MEAN, COV, _conv(),
+    with pytest.raises(Interrupted):           # one batched call per round: cut at 3/4 of the rounds
+        run_mcmc(GaussianTarget(MEAN, COV, fail_after=3 * counted.n_calls // 4), MEAN, COV, _conv(),
                  seed=7, backend=path, name="w")
+    cut = emcee.backends.HDFBackend(str(path), name="w/chain_0", read_only=True).iteration
+    assert ref.stop["checks"][0]["n"] < cut < ref.n_steps          # after the first check, before the end
     res = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _conv(), seed=7, backend=path, name="w")
     np.testing.assert_array_equal(res.chain, ref.chain)
     assert [c["n"] for c in res.stop["checks"]] == [c["n"] for c in ref.stop["checks"]]
@@ -350,7 +355,7 @@ def test_adapted_independence_proposal_samples_the_target_and_resumes_identicall
     sd = np.sqrt(np.diag(COV))
     m0, c0 = MEAN + 3 * sd, 0.3 * COV
     kw = {"moves": "indep:0.7,de:0.3", "indep_adapt": 50}
-    fixed = run_mcmc(GaussianTarget(MEAN, COV), m0, c0, _conv(moves="indep:0.7,de:0.3"), seed=1)
+    fixed = run_mcmc(GaussianTarget(MEAN, COV), m0, c0, _conv(moves="indep:0.7,de:0.3", indep_adapt=0), seed=1)
     run = run_mcmc(GaussianTarget(MEAN, COV), m0, c0, _conv(**kw), seed=1)
     assert run.stop["reason"] == "converged" and run.n_steps < 0.5 * fixed.n_steps, (run.n_steps, fixed.n_steps)
     long = run_mcmc(GaussianTarget(MEAN, COV), m0, c0, _conv(n_steps=3000, stop="fixed", **kw), seed=1)
