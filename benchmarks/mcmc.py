@@ -126,6 +126,18 @@ def fitted_windows(fm, seed: int = 0, cache: str | None = None):
     return obs, space, res
 
 
+def _max_abs_z(vs: dict) -> float:
+    """Largest |z| of a ``compare_to_mcmc`` result's means and sds."""
+    return max(abs(v) for v in [*vs["mean_z"].values(), *vs["sd_z"].values()])
+
+
+def _setting_values(pairs) -> dict | None:
+    """``["indep_adapt=50", "indep_scale=2"]`` -> ``{"indep_adapt": 50, "indep_scale": 2.0}``."""
+    if not pairs:
+        return None
+    return {k: (int(v) if v.isdigit() else float(v)) for k, v in (kv.split("=", 1) for kv in pairs)}
+
+
 def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, n_chains: int = 4,
           init_scale: float = 2.0, quadrature: bool = False, settings: dict | None = None) -> list[dict]:
     """Move mixture x walker count by the cost of a converged run: each configuration samples the
@@ -175,8 +187,7 @@ def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, 
                   f"tau={run.tau_max:6.1f} Wtau={row['walkers_x_tau']:6.0f} R={row['rhat_max']:.4f} "
                   f"ESS b/t={row['ess_bulk_min']:.0f}/{row['ess_tail_min']:.0f} ESS/1k={row['ess_per_1k_evals']:.1f} "
                   f"acc={row['acceptance']:.2f} wall={wall:.1f}s load={load0[0]:.2f}"
-                  + (f" quad ok={row['quadrature']['within_mc_error']} "
-                     f"z={max(abs(v) for v in [*row['quadrature']['mean_z'].values(), *row['quadrature']['sd_z'].values()]):.1f}"
+                  + (f" quad ok={row['quadrature']['within_mc_error']} z={_max_abs_z(row['quadrature']):.1f}"
                      if "quadrature" in row else ""), flush=True)
     return rows
 
@@ -381,7 +392,7 @@ def main():
         configs = [(c.rsplit("@", 1)[0], int(c.rsplit("@", 1)[1])) for c in args.sweep]
         rows = sweep(fm, args.sweep_windows, configs, seed=args.seed, cap=args.cap, fit_cache=args.fit_cache,
                      n_chains=args.chains, init_scale=args.init_scale, quadrature=args.sweep_quadrature,
-                     settings={k: (int(v) if v.isdigit() else float(v)) for k, v in (kv.split("=", 1) for kv in args.sweep_set)} if args.sweep_set else None)
+                     settings=_setting_values(args.sweep_set))
         if args.json:
             meta = {"cpu": machine_info(), "forward": fkey, "options": fm.options.to_dict(), "seed": args.seed,
                     "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "

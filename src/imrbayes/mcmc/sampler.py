@@ -697,7 +697,8 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                 if states[c] is None:
                     states[c] = samplers[c].get_last_sample()
             place_proposal(c)
-            stops = [n for n in (int(s.indep_adapt),) if lengths[c] < n < upto] + [upto]
+            n_a = int(s.indep_adapt)
+            stops = ([n_a] if lengths[c] < n_a < upto else []) + [upto]
             for stop in stops:
                 for st in samplers[c].sample(states[c], iterations=stop - lengths[c], store=True,
                                              skip_initial_state_check=lengths[c] > 0):
