@@ -77,6 +77,17 @@ def test_only_two_parameters():
     with pytest.raises(InputError, match="2 parameters"):
         grid_posterior(T3(np.zeros(3), np.eye(3)))
 
+@pytest.mark.parametrize("scale,passes", [(1.0, 1), (0.25, 2)])
+def test_grid_placed_without_the_coarse_search(scale, passes):
+    """``locate=False`` (as ``fit --mcmc`` places the grid on converged draws' moments): one 41 x 41
+    pass when the frame is right; a frame 4x too narrow is widened until the edge holds, with the
+    same exact answer."""
+    g = grid_posterior(GaussianTarget(MEAN, COV), MEAN + 0.01, scale ** 2 * COV, locate=False, k=7.5, n=41)
+    np.testing.assert_allclose(g.mean, MEAN, atol=1e-6)
+    np.testing.assert_allclose(g.cov, COV, rtol=1e-5)
+    assert [r["stage"] for r in g.rounds] == ["fine"] * passes and g.edge_mass < 1e-5
+    assert g.n_evals == 41 * 41 if passes == 1 else g.n_evals > 41 * 41
+
 
 def test_compare_to_mcmc_can_fail():
     """Exact draws agree within MC error; draws with a 5 % too small sd do not (MCSE at n = 40 000:

@@ -19,7 +19,8 @@ COV = np.array([[0.04, 0.018], [0.018, 0.09]])
 
 def _toy(n_steps=400, **kw):
     """The settings before issue #20 (fixed length, stretch move, start at the given spread)."""
-    return MCMCSettings(**{"n_walkers": 16, "n_steps": n_steps, "stop": "fixed", "moves": "stretch", "init_scale": 1.0,
+    return MCMCSettings(**{"n_walkers": 16, "n_steps": n_steps, "n_chains": 4, "stop": "fixed", "moves": "stretch",
+                           "init_scale": 1.0,
                            **kw})
 
 
@@ -109,7 +110,20 @@ def test_polytropic_window_recovers_truth():
     z0 = np.log([6.5e3, 0.1])
     run = run_mcmc(tg, z0, np.diag([0.1, 0.1]) ** 2, MCMCSettings(n_walkers=8, n_steps=300, max_draws=240, stop="fixed"),
                    seed=0)
+    e0 = tg.n_evals
     dt = run.to_datatree(tg)
+    assert tg.n_evals == e0                    # every kept draw was evaluated by emcee: no forward solve
+    # the remembered predictions give what a fresh target computes from scratch
+    fresh = fitting_window_target(fm, obs, paper_prior(), weight="plain")
+    draws = np.concatenate([dt["posterior"]["log_G"].values[..., None], dt["posterior"]["log_mu"].values[..., None]],
+                           axis=-1).reshape(-1, 2)
+    np.testing.assert_allclose(dt["log_likelihood"]["R"].values.reshape(draws.shape[0], 2, 40),
+                               fresh.pointwise(draws), rtol=1e-12, atol=0)
+    assert fresh.n_evals == draws.shape[0]
+    # a memo too small for one batch still gives the same numbers (forward solves instead)
+    fresh.forget()
+    fresh.memo_bytes = 0
+    np.testing.assert_array_equal(fresh.pointwise(draws[:10]), dt["log_likelihood"]["R"].values.reshape(-1, 2, 40)[:10])
     assert dt["log_likelihood"]["R"].dims == ("chain", "draw", "experiment", "time")
     assert dt["log_likelihood"]["R"].shape[2:] == (2, 40)
     assert dt["observed_data"]["R"].shape == (2, 40)
@@ -117,7 +131,7 @@ def test_polytropic_window_recovers_truth():
     for name, z in (("log_G", np.log(TRUTH["G"])), ("log_mu", np.log(TRUTH["mu"]))):
         assert s.loc[name, "eti99_lb"] < z < s.loc[name, "eti99_ub"], (name, s.loc[name].to_dict())
     assert s["r_hat"].max() < 1.05
-    assert run.n_evals >= 4 * 8 * 300
+    assert run.n_evals >= run.n_chains * 8 * 300
     loo = az.loo(dt)
     assert np.isfinite(loo.elpd)
 
@@ -257,7 +271,7 @@ def test_stop_rule_lockstep_equals_sequential_and_resume_stops_at_the_same_step(
     # a finished run read back: the replayed schedule stops at the same step, nothing is sampled
     again = GaussianTarget(MEAN, COV)
     res2 = run_mcmc(again, MEAN, COV, _conv(), seed=7, backend=tmp_path / "ref.h5", name="w")
-    assert again.n_evals == 0 and res2.steps_run == [0] * 4
+    assert again.n_evals == 0 and res2.steps_run == [0] * res2.n_chains
     np.testing.assert_array_equal(res2.chain, ref.chain)
 
 

@@ -100,7 +100,7 @@ class GridPosterior:
                         "center": self.center.tolist(), "basis": self.basis.tolist()},
                "edge_mass": self.edge_mass, "edge_ok": bool(self.edge_mass <= self.edge_tol),
                "resolution_error": self.resolution_error,
-               "n_evals": self.n_evals, "n_failed": self.n_failed}
+               "n_evals": self.n_evals, "n_failed": self.n_failed, "rounds": self.rounds}
         if contour:
             out["hdr95"]["contour_internal"] = [np.round(c, 6).tolist() for c in self.hdr95_contour]
         return out
@@ -206,13 +206,15 @@ def _quantile(x, p, q, s):
 
 
 def grid_posterior(target, center=None, cov=None, *, n: int = 33, k: float = 6.0, n_coarse: int = 13,
-                   k_coarse: float = 8.0, edge_tol: float = 1e-5, max_rounds: int = 6, batch: int = 512
-                   ) -> GridPosterior:
+                   k_coarse: float = 8.0, edge_tol: float = 1e-5, max_rounds: int = 6, batch: int = 512,
+                   locate: bool = True) -> GridPosterior:
     """The posterior of a two-parameter ``target`` on a grid (module docstring).
 
     center, cov : a Gaussian roughly where the posterior is (e.g. the ensemble's, in internal
         coordinates; default: the target's prior). It only places the grid.
     n, k : fine grid points per axis and half-width in sd of the coarse posterior.
+    locate : run the coarse stage; False starts the fine stage in the frame of (center, cov) --
+        for a Gaussian already close to the posterior's moments, e.g. converged MCMC draws'.
     n_coarse, k_coarse : the same for the coarse stage (in sd of the frame's Gaussian).
     edge_tol : most mass allowed in the outer tenth of the fine grid's half-width.
     batch : parameter sets per ``log_prob`` call (times the experiments per forward batch).
@@ -239,7 +241,7 @@ def grid_posterior(target, center=None, cov=None, *, n: int = 33, k: float = 6.0
         return L, u, Z, lp
 
     # ---- coarse stage: find and resolve the posterior
-    for _ in range(max_rounds):
+    for _ in range(max_rounds if locate else 0):
         L, u, Z, lp = run(m, C, k_coarse, n_coarse)
         w = _weights(lp)
         mc, Cc = grid_moments(Z, w)
@@ -258,8 +260,9 @@ def grid_posterior(target, center=None, cov=None, *, n: int = 33, k: float = 6.0
         m, C = mc, Cc
         break
     else:
-        raise RuntimeError(f"quadrature: the coarse grid did not settle in {max_rounds} rounds "
-                           f"(edge mass {edge:.2g}, {s_min / h:.2f} cells per sd)")
+        if locate:
+            raise RuntimeError(f"quadrature: the coarse grid did not settle in {max_rounds} rounds "
+                               f"(edge mass {edge:.2g}, {s_min / h:.2f} cells per sd)")
 
     # ---- fine stage in the frame of the coarse moments
     kk, nn = float(k), int(n)

@@ -1,6 +1,6 @@
 """emcee sampling of a window target: independent ensembles, stop on convergence, HDF5 resume, ArviZ output.
 
-:func:`run_mcmc` runs ``n_chains`` (>= 4 by default) *independent* emcee ensembles of
+:func:`run_mcmc` runs ``n_chains`` (2 by default, at least 2) *independent* emcee ensembles of
 ``n_walkers`` walkers each, every ensemble from its own seed and its own start drawn from
 N(start_mean, init_scale^2 start_cov) (typically the ensemble smoother's Gaussian posterior,
 over-dispersed by ``init_scale`` = 2 so that R-hat can see chains that have not forgotten their
@@ -213,7 +213,9 @@ class MCMCSettings:
     n_walkers : walkers per ensemble (even, >= 2 d; default 8: docs/mcmc.md, ESS per forward solve).
     n_steps : ``stop="converged"``: the hard cap on steps per ensemble; ``stop="fixed"``: the total
         steps per ensemble (a resumed run continues to it).
-    n_chains : independent ensembles (>= 2; 4 by default; R-hat is computed across them).
+    n_chains : independent ensembles (>= 2; 2 by default; R-hat is computed across them). The stop
+        rule's 50 tau fixes the steps, so the cost is n_chains x n_walkers x ~50 tau: two ensembles
+        halve it while their ESS (~600 at the stop) still clears 400 (docs/mcmc.md).
     stop : ``"converged"`` (stop at the first check where the convergence criteria hold, module
         docstring) or ``"fixed"`` (exactly ``n_steps``).
     min_steps : first convergence check (steps); check_tau : later checks every ``check_tau`` tau.
@@ -237,7 +239,7 @@ class MCMCSettings:
 
     n_walkers: int = 8
     n_steps: int = 5000
-    n_chains: int = 4
+    n_chains: int = 2
     stop: str = "converged"
     min_steps: int = 100
     check_tau: float = 5.0

@@ -126,6 +126,29 @@ class WindowTarget:
             raise InputError("window", f"{len(self.frames)} frame operators for {n_exp} experiments")
         if (self.nuisance_used.any() or self.frames is not None) and self.t0 != 0.0:
             raise InputError("window", "nuisances need a window that starts at the maximum (t* = 0)")
+        # predictions kept for :meth:`pointwise`: emcee's kept draws are points it has evaluated,
+        # so the log-likelihood group costs no forward solve (oldest entries dropped beyond the budget)
+        self.memo_bytes = 64 * 2 ** 20
+        self._memo: dict = {}
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_memo"] = {}
+        return state
+
+    def forget(self) -> None:
+        """Drop the predictions kept for :meth:`pointwise`."""
+        self._memo = {}
+
+    def _remember(self, Z, R, failed) -> None:
+        per = max(1, R[0].nbytes if R.shape[0] else 1)
+        cap = int(self.memo_bytes // per)
+        if cap < 1:
+            return
+        for z, r, f in zip(Z, R, failed):
+            self._memo[z.tobytes()] = (r.copy(), bool(f))
+        while len(self._memo) > cap:
+            del self._memo[next(iter(self._memo))]
 
     # ------------------------------------------------------------------ description
     @property
@@ -206,6 +229,20 @@ class WindowTarget:
             failed[idx] = bad
         self.n_evals += n
         self.n_failed += int(failed.sum())
+        self._remember(Z, R, failed)
+        return R, failed
+
+    def _predict_remembered(self, Z):
+        """:meth:`predict`, taking the rows already evaluated from the memo (bit-identical: the same
+        arrays the log-density used)."""
+        hits = [self._memo.get(z.tobytes()) for z in Z]
+        miss = np.array([h is None for h in hits], dtype=bool)
+        R = np.empty((Z.shape[0], self.n_exp, self.t_eval.size))
+        failed = np.zeros(Z.shape[0], dtype=bool)
+        if miss.any():
+            R[miss], failed[miss] = self.predict(Z[miss])
+        for i in np.flatnonzero(~miss):
+            R[i], failed[i] = hits[i]
         return R, failed
 
     def log_likelihood(self, Z) -> np.ndarray:
@@ -254,7 +291,7 @@ class WindowTarget:
         out = np.empty((Z.shape[0], self.n_exp, int(cols.sum())))
         per = max(1, chunk // self.n_exp)
         for a in range(0, Z.shape[0], per):
-            R, failed = self.predict(Z[a:a + per])
+            R, failed = self._predict_remembered(Z[a:a + per])
             w = self.weight[:, cols]
             with np.errstate(divide="ignore", invalid="ignore"):
                 if self.whiten is not None:
