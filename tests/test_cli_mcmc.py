@@ -35,7 +35,8 @@ def window0(syn, tmp_path_factory):
     """MIEnKS-MDA and MCMC of its window 0 (exact target: every member starts at the maximum)."""
     out = tmp_path_factory.mktemp("mcmc") / "run"
     res = _run("fit", syn, *MIENKS, *FWD, "--mcmc", "--mcmc-windows", "0", "--mcmc-set", "n_walkers=16",
-               "--mcmc-set", "n_steps=2000", "--mcmc-set", "n_chains=4", "--out", out, "--seed", 1)
+               "--mcmc-set", "n_steps=2000", "--mcmc-set", "n_chains=4", "--mcmc-set", "quadrature=true",
+               "--out", out, "--seed", 1)
     return out, res
 
 
@@ -88,13 +89,15 @@ def test_resume_reads_finished_windows_back(window0, syn, tmp_path):
     out, _ = window0
     before = json.loads((out / "compare.json").read_text())
     res = _run("fit", syn, *MIENKS, *FWD, "--mcmc", "--mcmc-windows", "0", "--mcmc-set", "n_walkers=16",
-               "--mcmc-set", "n_steps=2000", "--mcmc-set", "n_chains=4", "--out", out, "--seed", 1, "--resume")
+               "--mcmc-set", "n_steps=2000", "--mcmc-set", "n_chains=4", "--mcmc-set", "quadrature=true",
+               "--out", out, "--seed", 1, "--resume")
     assert "0 computed" in res.output
     after = json.loads((out / "compare.json").read_text())
     assert after["windows"][0]["kl_sym"] == before["windows"][0]["kl_sym"]
     # other MCMC settings are another run: refused, not mixed
     bad = _run("fit", syn, *MIENKS, *FWD, "--mcmc", "--mcmc-windows", "0", "--mcmc-set", "n_walkers=16",
-               "--mcmc-set", "n_steps=2100", "--mcmc-set", "n_chains=4", "--out", out, "--seed", 1, "--resume",
+               "--mcmc-set", "n_steps=2100", "--mcmc-set", "n_chains=4", "--mcmc-set", "quadrature=true",
+               "--out", out, "--seed", 1, "--resume",
                expect=2)
     assert "n_steps" in bad.output
 
