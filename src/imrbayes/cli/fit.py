@@ -131,10 +131,10 @@ def _load_config(path) -> dict:
 @click.option("--mcmc", is_flag=True, default=None,
               help="Also sample every window's posterior with emcee and compare it with the ensemble's Gaussian "
                    "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures. Slow: "
-                   "sampling stops on convergence, typically after 5,000-15,000 likelihood evaluations per window "
-                   "(more with nuisances): minutes per window with --forward bubble=polytropic, several times that "
-                   "with the thermal bubble -- about an hour or more for the 18 windows of a MIEnKS-MDA run "
-                   "(fewer windows with --mcmc-windows).")
+                   "sampling stops on convergence, typically after 2,000-5,000 likelihood evaluations per window "
+                   "(many more with nuisances): seconds per window with --forward bubble=polytropic, 0.5-3 min "
+                   "with the thermal bubble -- about 25 min on 2 cores for the 18 windows of a 5-experiment "
+                   "MIEnKS-MDA run, its fit included (fewer windows with --mcmc-windows).")
 @click.option("--mcmc-set", "mcmc_settings", multiple=True, metavar="KEY=VALUE",
               help="emcee setting: n_walkers, n_chains (independent ensembles), n_steps (hard cap), moves, "
                    "indep_scale, indep_dof, indep_adapt, min_steps, rhat_max, ess_min, tau_rule, burn, thin, "
