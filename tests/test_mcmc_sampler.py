@@ -124,6 +124,11 @@ def test_polytropic_window_recovers_truth():
     fresh.forget()
     fresh.memo_bytes = 0
     np.testing.assert_array_equal(fresh.pointwise(draws[:10]), dt["log_likelihood"]["R"].values.reshape(-1, 2, 40)[:10])
+    # a budget of five predictions keeps the last five, and the answer is the same
+    fresh.memo_bytes = 5 * fresh.n_exp * fresh.t_eval.size * 8
+    fresh.pointwise(draws[:10])
+    assert len(fresh._memo) == 5
+    np.testing.assert_array_equal(fresh.pointwise(draws[:10]), dt["log_likelihood"]["R"].values.reshape(-1, 2, 40)[:10])
     assert dt["log_likelihood"]["R"].dims == ("chain", "draw", "experiment", "time")
     assert dt["log_likelihood"]["R"].shape[2:] == (2, 40)
     assert dt["observed_data"]["R"].shape == (2, 40)

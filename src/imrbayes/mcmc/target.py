@@ -39,6 +39,8 @@ Batching: :meth:`WindowTarget.log_prob` takes ``(n, d)`` and runs all n x N_exp 
 
 from __future__ import annotations
 
+from collections import OrderedDict
+
 import numpy as np
 
 from imrbayes.ensemble.problem import ParamSpace
@@ -129,16 +131,16 @@ class WindowTarget:
         # predictions kept for :meth:`pointwise`: emcee's kept draws are points it has evaluated,
         # so the log-likelihood group costs no forward solve (oldest entries dropped beyond the budget)
         self.memo_bytes = 64 * 2 ** 20
-        self._memo: dict = {}
+        self._memo = OrderedDict()
 
     def __getstate__(self):
         state = dict(self.__dict__)
-        state["_memo"] = {}
+        state["_memo"] = OrderedDict()
         return state
 
     def forget(self) -> None:
         """Drop the predictions kept for :meth:`pointwise`."""
-        self._memo = {}
+        self._memo = OrderedDict()
 
     def _remember(self, Z, R, failed) -> None:
         per = max(1, R[0].nbytes if R.shape[0] else 1)
@@ -147,8 +149,8 @@ class WindowTarget:
             return
         for z, r, f in zip(Z, R, failed):
             self._memo[z.tobytes()] = (r.copy(), bool(f))
-        while len(self._memo) > cap:
-            del self._memo[next(iter(self._memo))]
+        while len(self._memo) > cap:                 # O(1) per entry (a plain dict's front scan is not)
+            self._memo.popitem(last=False)
 
     # ------------------------------------------------------------------ description
     @property
