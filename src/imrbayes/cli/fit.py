@@ -213,7 +213,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     if mcmc:
         from imrbayes.mcmc import MCMCSettings
         mcmc_s = method_settings(MCMCSettings, mcmc_cfg, {**key_values(cfg.get("mcmc_set", []), "--config mcmc_set"),
-                                                    **key_values(mcmc_settings, "--mcmc-set")})
+                                                    **key_values(mcmc_settings, "--mcmc-set")}, "--mcmc-set")
     ds = load_dataset(data, camera=camera)
     pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, noise=noise, skip_failed=True)
     fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **key_values(forward, "--forward")}

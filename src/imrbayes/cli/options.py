@@ -209,12 +209,12 @@ def coerce_setting(cls, name, value, source):
     return v
 
 
-def method_settings(cls, table: dict, cli: dict):
+def method_settings(cls, table: dict, cli: dict, option: str = "--set"):
     kwargs = {}
     for k, v in (table or {}).items():
         kwargs[k.replace("-", "_")] = coerce_setting(cls, k.replace("-", "_"), v, "--config")
     for k, v in cli.items():
-        kwargs[k] = coerce_setting(cls, k, v, "--set")
+        kwargs[k] = coerce_setting(cls, k, v, option)
     return cls(**kwargs)
 
 
