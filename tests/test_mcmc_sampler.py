@@ -402,3 +402,21 @@ def test_a_coordinate_that_never_moved_has_infinite_tau_and_the_run_still_ends()
     tau = integrated_tau(chain)
     assert np.isinf(tau[0]) and np.isfinite(tau[1])
     assert burn_thin(40, float(np.max(tau)), MCMCSettings(), 8) == (20, 1)
+
+
+def test_log_reports_every_check_and_the_cap():
+    """Without a terminal the run reports each convergence check (criteria against thresholds) and
+    says when it stops at the cap unconverged."""
+    lines = []
+    s = MCMCSettings(n_walkers=8, n_steps=120, min_steps=40, ess_min=1e6)      # ESS can never be met: the cap
+    run = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, s, seed=1, name="window_00", log=lines.append)
+    assert run.stop["reason"] == "cap"
+    checks = [ln for ln in lines if "steps" in ln and "R-hat" in ln]
+    assert len(checks) == len(run.stop["checks"]) >= 2
+    assert checks[0].startswith("window_00: 40 steps") and "not yet:" in checks[0]
+    assert all("ess_bulk" in ln.split("not yet:")[1] for ln in checks)
+    assert "evaluations" in checks[0] and "(>= 1e+06)" in checks[0]
+    assert lines[-1].startswith("window_00: stopped at the cap of 120 steps, not converged")
+    ok = []
+    run = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, MCMCSettings(n_walkers=8, n_steps=3000), seed=1, log=ok.append)
+    assert run.stop["reason"] == "converged" and ok[-1].endswith("-- converged")

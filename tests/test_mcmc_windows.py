@@ -150,3 +150,21 @@ def test_specs_from_the_smoothers_handed_off_states(fitted):
     cut[2] = dataclasses.replace(posts[2], start_state=q)
     sp2 = window_specs(fm, obs, space, cut, indices=[2])[0]
     assert sp2.target.start.n == obs.R_star.shape[0] - 1 and sp2.target.y.shape[0] == obs.R_star.shape[0] - 1
+
+
+def test_cost_warning_names_windows_with_many_coordinates():
+    """Before sampling, a window with many sampled coordinates (each experiment's nuisances) is
+    announced with its size and what the cap means; a two-parameter window is not."""
+    from types import SimpleNamespace
+
+    from imrbayes.mcmc.fit import MANY_COORDINATES, cost_warnings
+
+    def spec(index, d, n_exp):
+        return SimpleNamespace(index=index, target=SimpleNamespace(ndim=d, prior=SimpleNamespace(n=2), n_exp=n_exp))
+
+    s = MCMCSettings()
+    out = cost_warnings([spec(0, 2, 5), spec(1, 19, 6), spec(2, MANY_COORDINATES - 1, 2)], s)
+    assert len(out) == 1
+    w = out[0]
+    assert w.startswith("MCMC window 1 samples 19 coordinates (2 parameters and 17 nuisances of 6 experiments")
+    assert f"{s.n_chains} x 38 walkers x {s.n_steps} steps = {s.n_chains * 38 * s.n_steps:,}" in w

@@ -256,7 +256,8 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
             n_win = n_win if mcmc_windows is None else len([w for w in mcmc_windows if w < n_win]) or 1
             plan(execution.bar, n_win, "emcee windows")
             compare = run_fit_mcmc(fm, obs, space, res, out, mcmc_s, seed, execution=execution, runner=runner,
-                                   windows=mcmc_windows)
+                                   windows=mcmc_windows,
+                                   warn=None if quiet else (lambda w: click.echo(f"imrbayes: warning: {w}", err=True)))
         exec_summary = execution.summary()
     written = _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
                          data, exec_summary, t_start, quiet=quiet, compare=compare)

@@ -27,6 +27,7 @@ compare entry as ``quadrature``): ensemble Gaussian, MCMC and quadrature side by
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -95,8 +96,12 @@ def mcmc_window_unit(unit, rng) -> dict:
     target = _rebuild_target(d["target"], runner_for(d))
     settings = MCMCSettings(**d["settings"])
     j = int(d["index"])
+    log = None
+    if d.get("log"):                     # no terminal for a bar: one line per convergence check
+        def log(line):
+            print(f"imrbayes: emcee {line}", file=sys.stderr, flush=True)
     run = run_mcmc(target, d["start_mean"], d["start_cov"], settings, seed=window_seed(int(d["seed"]), j),
-                   backend=d["backend"], name=f"window_{j:02d}", progress=d["progress"])
+                   backend=d["backend"], name=f"window_{j:02d}", progress=d["progress"], log=log)
     tree = run.to_datatree(target, loglik=settings.loglik)
     tree.attrs["ensemble_json"] = _json({"mean_internal": d["ens_mean"], "cov_internal": d["ens_cov"],
                                          "t_star": list(d["t_star"]), "state_source": d["state_source"]})
@@ -180,8 +185,31 @@ def _plain(obj):
     return json.loads(json.dumps(jsonable(obj)))
 
 
+#: Above this many sampled coordinates a window's chains are slow to mix: a measured 19-coordinate
+#: En4D-Var window (six camera bubbles' nuisances) had tau 149-179 steps and stopped at the
+#: 5000-step cap unconverged (docs/mcmc.md, "En4D-Var's check on camera data").
+MANY_COORDINATES = 8
+
+
+def cost_warnings(specs, s: MCMCSettings) -> list:
+    """What to expect of windows with many sampled coordinates, before they are sampled."""
+    out = []
+    for sp in specs:
+        tg = sp.target
+        d, n_par = int(tg.ndim), int(tg.prior.n)
+        W = max(s.n_walkers, 2 * d)
+        if d >= MANY_COORDINATES:
+            out.append(f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} nuisances "
+                       f"of {tg.n_exp} experiments: Rmax, time of the maximum, Req); at this size a measured run "
+                       f"needed ~150-180 steps per autocorrelation time and stopped at the {s.n_steps}-step cap "
+                       f"unconverged (docs/mcmc.md): expect agree = null, and {s.n_chains} x {W} walkers x "
+                       f"{s.n_steps} steps = {s.n_chains * W * s.n_steps:,} likelihood evaluations")
+    return out
+
+
 def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None, seed: int = 0, *, execution=None,
-                 runner=None, windows=None, start: str = "ensemble", progress=None, figures: bool = True) -> dict:
+                 runner=None, windows=None, start: str = "ensemble", progress=None, figures: bool = True,
+                 warn=None) -> dict:
     """Sample the windows of fit ``res`` and write ``out/mcmc.nc``, ``out/compare.json`` and the
     comparison figures (``out/figures/mcmc_*.png``). Returns the compare dict.
 
@@ -189,7 +217,8 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
     execution : :class:`imrbayes.execution.Execution` (default: this process, no checkpoints);
     windows : indices to sample (default all); start : ``"ensemble"`` (walkers start from the
     window's ensemble Gaussian) or ``"prior"``; progress : emcee progress bars (None: on a terminal,
-    in this process only).
+    in this process only); warn : None or a callable taking one line, told before sampling what
+    windows with many sampled coordinates will cost (:func:`cost_warnings`).
     """
     import xarray as xr
 
@@ -201,6 +230,9 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
     chains = out / "mcmc_chains"
     chains.mkdir(parents=True, exist_ok=True)
     specs = fit_window_specs(fm, obs, space, res, runner=runner, windows=windows)
+    if warn is not None:
+        for line in cost_warnings(specs, s):
+            warn(line)
     ex = execution or Execution(progress=False)
     spec, token = fm_spec(fm), register_runner(runner or fm)
     local = ex.executor is None or type(ex.executor).__name__ == "InProcessExecutor"
@@ -213,7 +245,8 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
             "ens_mean": sp.ens_mean, "ens_cov": sp.ens_cov, "state_source": sp.state_source,
             "backend": str(chains / f"window_{sp.index:03d}.h5"),
             "node_path": str(chains / f"window_{sp.index:03d}.nc"),
-            "progress": progress if local else False}))
+            "progress": progress if local else False,
+            "log": bool(local and progress is not True and not sys.stderr.isatty())}))
     rep = ex.run(units, mcmc_window_unit, seed, desc=f"mcmc of {len(units)} window(s)")
     results, failed = [], []
     for sp in specs:

@@ -359,6 +359,16 @@ def convergence_check(chain, s: "MCMCSettings") -> dict:
     return out
 
 
+def check_line(chk: dict, s: "MCMCSettings", n_evals: int | None = None) -> str:
+    """One line on a convergence check: where each criterion stands against its threshold."""
+    miss = [k for k, v in chk["criteria"].items() if not v]
+    evals = f", {n_evals:,} evaluations" if n_evals is not None else ""
+    return (f"{chk['n']} steps{evals}: tau {chk['tau_max']:.1f} ({chk['n_over_tau']:.1f} tau, needs "
+            f"{s.tau_rule:g}), R-hat {chk['rhat_max']:.3f} (<= {s.rhat_max:g}), ESS bulk {chk['ess_bulk_min']:.0f} "
+            f"tail {chk['ess_tail_min']:.0f} (>= {s.ess_min:g}) -- "
+            + ("converged" if chk["ok"] else "not yet: " + ", ".join(miss)))
+
+
 def _next_check(n: int, chk: dict, s: "MCMCSettings") -> int:
     """The next check point after a failed check at n steps (module docstring), capped at n_steps."""
     tau = chk["tau_max"] if math.isfinite(chk["tau_max"]) else float(n)
@@ -586,7 +596,7 @@ def _progress_bar(progress, total):
 
 
 def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | None = None, seed: int = 0,
-             backend=None, name: str = "mcmc", progress=None, resume: bool = True) -> MCMCRun:
+             backend=None, name: str = "mcmc", progress=None, resume: bool = True, log=None) -> MCMCRun:
     """Sample ``target`` with ``n_chains`` independent emcee ensembles (module docstring).
 
     Parameters
@@ -601,6 +611,8 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
     name : HDF5 group prefix, e.g. ``"window_03"``; ensemble c is ``{name}/chain_{c}``.
     progress : show a progress bar (None: only when stderr is a terminal).
     resume : continue ensembles already in the file (False: start them afresh).
+    log : None, or a callable taking one line of text, called after every convergence check
+        (:func:`check_line`, prefixed by ``name``): the progress of a run without a terminal.
     """
     import emcee
 
@@ -783,10 +795,15 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                 break
             chk = convergence_check(stacked(n_chk)[1], s)
             checks.append(chk)
+            if log is not None:
+                log(f"{name}: " + check_line(chk, s, int(getattr(target, "n_evals", 0)) - evals0 or None))
             if chk["ok"]:
                 reason = "converged"
             elif n_chk >= s.n_steps:
                 reason = "cap"
+                if log is not None:
+                    log(f"{name}: stopped at the cap of {s.n_steps} steps, not converged (agree = null; "
+                        "raise it with --mcmc-set n_steps=N, a resumed run continues)")
             else:
                 n_chk = _next_check(n_chk, chk, s)
     finally:
