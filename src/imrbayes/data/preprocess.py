@@ -103,7 +103,9 @@ def estimate_noise_sd(R_m) -> float:
 class RmaxResult:
     """``index`` of the largest sample; ``t_s``, ``rmax_m``: the maximum's time [s] and radius [m]
     (refined or sample); ``rmax_sample_m``: the largest sample [m]; ``method``: what was used;
-    ``t_sd_s``, ``rmax_sd_m``: their standard errors [s], [m] (``local-fit`` only, else NaN);
+    ``t_sd_s``, ``rmax_sd_m``: their standard errors [s], [m] (``local-fit`` and, when it falls back
+    to the three-point parabola or the largest sample of a noisy record, theirs: the parabola's by
+    error propagation, capped by the width of the noise-hidden top; else NaN, taken as known);
     ``n_fit``: samples in the fit."""
 
     index: int
@@ -150,9 +152,49 @@ def locate_rmax(t_s, R_m, method: str = "parabola", u_c: float | None = None, ha
     if i == 0 or i == R.size - 1:
         return RmaxResult(i, float(t[i]), float(R[i]), float(R[i]), "sample (at record end)")
     v = parabola_vertex(t[i - 1:i + 2], R[i - 1:i + 2])
+    # a fallback of the local fit keeps an honest time uncertainty (before 2026-11-27 it had none,
+    # so the time of the maximum was taken as known: a frame off on a camera record)
+    honest = method == "local-fit" and noise_sd_m > 0
+    flat = _flat_top_sd(R[i], noise_sd_m, R[i] / u_c) if honest else float("nan")
     if v is None or not (t[i - 1] < v[0] < t[i + 1]) or v[1] < R[i]:
-        return RmaxResult(i, float(t[i]), float(R[i]), float(R[i]), "sample (flat top)")
-    return RmaxResult(i, float(v[0]), float(v[1]), float(R[i]), "parabola")
+        return RmaxResult(i, float(t[i]), float(R[i]), float(R[i]), "sample (flat top)",
+                          max(flat, float(t[i + 1] - t[i - 1]) / math.sqrt(24.0)) if honest else float("nan"),
+                          float(noise_sd_m) if honest else float("nan"))
+    t_sd, r_sd = (_three_point_vertex_sd(t[i - 1:i + 2], R[i - 1:i + 2], noise_sd_m, R[i] / u_c) if honest
+                  else (float("nan"),) * 2)
+    # capped where the noise hides the top: the time by its half-width, the radius by two noise sd
+    # (the vertex of three noisy samples lies within their spread)
+    return RmaxResult(i, float(v[0]), float(v[1]), float(R[i]), "parabola", min(t_sd, flat) if honest else t_sd,
+                      min(r_sd, 2.0 * noise_sd_m) if honest else r_sd)
+
+
+def _flat_top_sd(rmax: float, noise_sd_m: float, t_c: float) -> float:
+    """[s] Half-width of the top where the noise hides the maximum: R falls by 2 noise sd within
+    t_c sqrt(4 sigma / (K R)) of it (R ~ Rmax (1 - K t*^2 / 2), K from ``CURVATURE_PRIOR``); half of
+    that taken as a standard deviation of the time of the maximum."""
+    return 0.5 * t_c * math.sqrt(4.0 * max(noise_sd_m, 0.0) / (CURVATURE_PRIOR[0] * rmax))
+
+
+def _three_point_vertex_sd(t3, R3, noise_sd_m: float, t_c: float) -> tuple:
+    """([s], [m]) Standard errors of the vertex of the parabola through three equally spaced samples
+    with independent noise ``noise_sd_m``, by linear error propagation. The second difference D is
+    taken as observed and as expected from the curvature prior (D = -K R (h / t_c)^2), the larger
+    error kept: where the noise dominates D (a fast camera, 2 % noise), the observed D is mostly
+    noise, and its size says nothing about how well the vertex is placed."""
+    h = 0.5 * float(t3[2] - t3[0])
+    rm, r0, rp = (float(x) for x in R3)
+    N = rm - rp
+    d_expected = -CURVATURE_PRIOR[0] * r0 * (h / t_c) ** 2
+    out = []
+    for D in (rm - 2.0 * r0 + rp, d_expected):
+        if not D < 0.0:
+            return float("inf"), float(noise_sd_m)
+        gx = np.array([h / (2 * D) * (1 - N / D), h * N / D ** 2, -h / (2 * D) * (1 + N / D)])
+        # R_v = r0 - N^2 / (8 D)
+        gr = np.array([-N / (4 * D) + N * N / (8 * D * D), 1.0 - 2.0 * N * N / (8 * D * D),
+                       N / (4 * D) + N * N / (8 * D * D)])
+        out.append((float(noise_sd_m * np.linalg.norm(gx)), float(noise_sd_m * np.linalg.norm(gr))))
+    return max(o[0] for o in out), max(o[1] for o in out)
 
 
 #: Curvature of R(t) at the maximum, R ~ Rmax (1 - K t*^2 / 2), as a prior for the local fit:
