@@ -167,4 +167,4 @@ def test_cost_warning_names_windows_with_many_coordinates():
     assert len(out) == 1
     w = out[0]
     assert w.startswith("MCMC window 1 samples 19 coordinates (2 parameters and 17 nuisances of 6 experiments")
-    assert f"{s.n_chains} x 38 walkers x {s.n_steps} steps = {s.n_chains * 38 * s.n_steps:,}" in w
+    assert f"{s.n_chains} x 38 walkers x {s.n_steps} steps = {s.n_chains * 38 * s.n_steps:,}" in w and "agree = null" in w

@@ -186,8 +186,8 @@ def _plain(obj):
 
 
 #: Above this many sampled coordinates a window's chains are slow to mix: a measured 19-coordinate
-#: En4D-Var window (six camera bubbles' nuisances) had tau 149-179 steps and stopped at the
-#: 5000-step cap unconverged (docs/mcmc.md, "En4D-Var's check on camera data").
+#: En4D-Var window (six camera bubbles' nuisances) had tau 149-358 steps and stopped at the
+#: 5000- and 12000-step caps unconverged (docs/mcmc.md, "En4D-Var's check on camera data").
 MANY_COORDINATES = 8
 
 
@@ -200,10 +200,10 @@ def cost_warnings(specs, s: MCMCSettings) -> list:
         W = max(s.n_walkers, 2 * d)
         if d >= MANY_COORDINATES:
             out.append(f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} nuisances "
-                       f"of {tg.n_exp} experiments: Rmax, time of the maximum, Req); at this size a measured run "
-                       f"needed ~150-180 steps per autocorrelation time and stopped at the {s.n_steps}-step cap "
-                       f"unconverged (docs/mcmc.md): expect agree = null, and {s.n_chains} x {W} walkers x "
-                       f"{s.n_steps} steps = {s.n_chains * W * s.n_steps:,} likelihood evaluations")
+                       f"of {tg.n_exp} experiments: Rmax, time of the maximum, Req); at this size measured runs "
+                       "needed 150-360 steps per autocorrelation time, so 7 500-18 000 steps for 50 of them "
+                       f"(docs/mcmc.md): at the cap of {s.n_steps} steps expect agree = null, after {s.n_chains} x "
+                       f"{W} walkers x {s.n_steps} steps = {s.n_chains * W * s.n_steps:,} likelihood evaluations")
     return out
 
 
