@@ -241,3 +241,28 @@ def test_shared_datasets_load(folder):
     for e, m in zip(ds.experiments, meta["experiments"]):
         assert e.n_samples == m["n_samples"]
         assert _rel(e.R_m.max(), m["Rmax_sample_m"]) < 1e-10
+
+
+@needs_shared
+@pytest.mark.parametrize("folder", ["estrada2018_stiffPA_270kfps", "estrada2018_stiffPA_xy002_refit",
+                                    "franck_lab_A_E2_002_1.59Mfps", "umich_PA10_bis0.06_1Mfps_dualcam"])
+def test_no_measured_maximum_is_taken_as_exact(folder):
+    """Every real record's Rmax and time of the maximum reach the fits with a positive uncertainty
+    (a nuisance prior sd of 0 means 'known'): three stiff-PA bubbles fall back to the three-point
+    parabola, whose time had none before 2026-11-27 (bubble 18's fit then sat in a wrong basin)."""
+    from imrbayes.data import preprocess_dataset
+    from imrbayes.ensemble import Observations
+
+    ds = load_dataset(LIC / folder, camera="cam0deg" if folder.startswith("umich") else None)
+    pre = preprocess_dataset(ds, skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    sd = np.asarray(obs.nuisance_sd)
+    assert sd.shape == (len(pre.experiments), 3)
+    assert np.all(sd[:, :2] > 0), [e.name for e, s in zip(pre.experiments, sd) if not np.all(s[:2] > 0)]
+    methods = {e.rmax_method for e in pre.experiments}
+    if folder == "estrada2018_stiffPA_270kfps":
+        assert "parabola" in methods          # the fallback is exercised on real data
+        tc = np.array([e.tc_s for e in pre.experiments])
+        fb = np.array([e.rmax_method == "parabola" for e in pre.experiments])
+        assert np.all((sd[fb, 1] > 0.005) & (sd[fb, 1] < 0.05)), sd[fb, 1]      # t*: a fraction of a frame to ~2
+        assert np.all(np.isfinite(tc))
