@@ -417,6 +417,10 @@ def test_log_reports_every_check_and_the_cap():
     assert all("ess_bulk" in ln.split("not yet:")[1] for ln in checks)
     assert "evaluations" in checks[0] and "(>= 1e+06)" in checks[0]
     assert lines[-1].startswith("window_00: stopped at the cap of 120 steps, not converged")
+    from imrbayes.mcmc.sampler import check_line
+    early = {"n": 100, "tau_max": float("inf"), "n_over_tau": 0.0, "rhat_max": float("inf"), "ess_bulk_min": 0.0,
+             "ess_tail_min": 0.0, "criteria": {"rhat": False, "tau_rule": False}, "ok": False}
+    assert check_line(early, s) == "100 steps: too short to estimate tau yet -- not yet: rhat, tau_rule"
     ok = []
     run = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, MCMCSettings(n_walkers=8, n_steps=3000), seed=1, log=ok.append)
     assert run.stop["reason"] == "converged" and ok[-1].endswith("-- converged")

@@ -363,6 +363,8 @@ def check_line(chk: dict, s: "MCMCSettings", n_evals: int | None = None) -> str:
     """One line on a convergence check: where each criterion stands against its threshold."""
     miss = [k for k, v in chk["criteria"].items() if not v]
     evals = f", {n_evals:,} evaluations" if n_evals is not None else ""
+    if not math.isfinite(chk["tau_max"]):       # too few steps for emcee's estimate: nothing else is either
+        return f"{chk['n']} steps{evals}: too short to estimate tau yet -- not yet: " + ", ".join(miss)
     return (f"{chk['n']} steps{evals}: tau {chk['tau_max']:.1f} ({chk['n_over_tau']:.1f} tau, needs "
             f"{s.tau_rule:g}), R-hat {chk['rhat_max']:.3f} (<= {s.rhat_max:g}), ESS bulk {chk['ess_bulk_min']:.0f} "
             f"tail {chk['ess_tail_min']:.0f} (>= {s.ess_min:g}) -- "
