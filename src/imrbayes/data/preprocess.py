@@ -152,20 +152,21 @@ def locate_rmax(t_s, R_m, method: str = "parabola", u_c: float | None = None, ha
     if i == 0 or i == R.size - 1:
         return RmaxResult(i, float(t[i]), float(R[i]), float(R[i]), "sample (at record end)")
     v = parabola_vertex(t[i - 1:i + 2], R[i - 1:i + 2])
-    # a fallback of the local fit keeps an honest time uncertainty (before 2026-11-27 it had none,
-    # so the time of the maximum was taken as known: a frame off on a camera record)
-    honest = method == "local-fit" and noise_sd_m > 0
-    flat = _flat_top_sd(R[i], noise_sd_m, R[i] / u_c) if honest else float("nan")
-    if v is None or not (t[i - 1] < v[0] < t[i + 1]) or v[1] < R[i]:
-        return RmaxResult(i, float(t[i]), float(R[i]), float(R[i]), "sample (flat top)",
-                          max(flat, float(t[i + 1] - t[i - 1]) / math.sqrt(24.0)) if honest else float("nan"),
-                          float(noise_sd_m) if honest else float("nan"))
-    t_sd, r_sd = (_three_point_vertex_sd(t[i - 1:i + 2], R[i - 1:i + 2], noise_sd_m, R[i] / u_c) if honest
-                  else (float("nan"),) * 2)
-    # capped where the noise hides the top: the time by its half-width, the radius by two noise sd
-    # (the vertex of three noisy samples lies within their spread)
-    return RmaxResult(i, float(v[0]), float(v[1]), float(R[i]), "parabola", min(t_sd, flat) if honest else t_sd,
-                      min(r_sd, 2.0 * noise_sd_m) if honest else r_sd)
+    flat_top = v is None or not (t[i - 1] < v[0] < t[i + 1]) or v[1] < R[i]
+    t_sd = r_sd = float("nan")
+    if method == "local-fit" and noise_sd_m > 0:
+        # a fallback of the local fit keeps an honest uncertainty (before 2026-11-27 it had none, so
+        # the time of the maximum was taken as known: a frame off on a camera record). Where the
+        # noise hides the top, the time is capped by its half-width, the radius by two noise sd.
+        flat = _flat_top_sd(R[i], noise_sd_m, R[i] / u_c)
+        if flat_top:
+            t_sd, r_sd = max(flat, float(t[i + 1] - t[i - 1]) / math.sqrt(24.0)), float(noise_sd_m)
+        else:
+            t_sd, r_sd = _three_point_vertex_sd(t[i - 1:i + 2], R[i - 1:i + 2], noise_sd_m, R[i] / u_c)
+            t_sd, r_sd = min(t_sd, flat), min(r_sd, 2.0 * noise_sd_m)
+    if flat_top:
+        return RmaxResult(i, float(t[i]), float(R[i]), float(R[i]), "sample (flat top)", t_sd, r_sd)
+    return RmaxResult(i, float(v[0]), float(v[1]), float(R[i]), "parabola", t_sd, r_sd)
 
 
 def _flat_top_sd(rmax: float, noise_sd_m: float, t_c: float) -> float:
