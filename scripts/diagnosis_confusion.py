@@ -29,6 +29,12 @@ Resumable: each run is written to ``OUT/runs/<class>__s<seed>.json`` or
 raised are written with ``status: error`` and retried). The summary (``OUT/summary.json``,
 ``OUT/summary.md``) is written at the end, or alone with ``--summarize-only``.
 
+``--resume-from PREFIX``: the compact rows committed by an earlier ``--export PREFIX`` (another
+session's, whose OUT folder is gone) are written into OUT as finished runs, so a rerun with the same
+settings computes only the runs still missing and the summary counts them all. Rows whose export
+was made with other diagnosis settings (``--forward``, ``--quick``, ``--loeo``, ``--n-bootstrap``,
+``--mienks-drift``, read from the export's command) are refused with a one-line error.
+
 ``--rescore-from DIR``: rows of an earlier run whose diagnosis code differs only in how the check's
 p-values are combined (the statistics and their bootstrap replicates, stored in every row, are the
 same) get the current verdict (:func:`imrbayes.diagnosis.check.combined_p_value`) and are written to
@@ -308,7 +314,10 @@ def markdown(s: dict) -> str:
 
 def compact_row(row: dict) -> dict:
     """One run as committed under docs/figures/diagnosis/ (the check's statistics with every replicate's
-    value, so the combination can be recomputed; the verdict, cause, tie, gain and truth)."""
+    value, so the combination can be recomputed; the verdict, cause, tie, gain and truth). A row taken
+    from an export (``--resume-from``) is already compact and is kept as it is."""
+    if "result" not in row and "statistics" in row:
+        return {k: v for k, v in row.items() if k != "kind"}
     r = row.get("result") or {}
     ev = (r.get("constant_parameter_check") or {}).get("evidence") or {}
     st = {k: {"observed": v["observed"], "bootstrap": v.get("bootstrap"), "p": v.get("p_value"),
@@ -331,6 +340,50 @@ def export(out: Path, dest: Path, command: str, code: str) -> None:
         if rr:
             Path(f"{dest}_{kind}.json").write_text(json.dumps(
                 {"command": command, "code": code, "rows": [compact_row(r) for r in rr]}, indent=1) + "\n")
+
+
+SETTING_KEYS = ("forward", "quick", "loeo", "n_bootstrap", "mienks_drift")
+
+
+def run_settings(a) -> dict:
+    """The settings a row depends on (besides class, seed and design), from parsed arguments."""
+    loeo = (not a.quick) if a.loeo is None else a.loeo
+    return {"forward": sorted(a.forward), "quick": bool(a.quick), "loeo": bool(loeo),
+            "n_bootstrap": a.n_bootstrap, "mienks_drift": a.mienks_drift}
+
+
+def resume_from_export(prefix: Path, out: Path, settings: dict, parser) -> int:
+    """Write the compact rows of ``prefix``_{classes,nulls}.json into OUT as finished runs (module
+    doc); rows already finished in OUT are kept. Returns the number of rows written."""
+    files = [(kind, Path(f"{prefix}_{kind}.json")) for kind in ("classes", "nulls")]
+    files = [(k, f) for k, f in files if f.exists()]
+    if not files:
+        raise SystemExit(f"error: --resume-from {prefix}: neither {prefix}_classes.json nor {prefix}_nulls.json exists")
+    n = 0
+    for kind, f in files:
+        try:
+            doc = json.loads(f.read_text())
+            made = run_settings(parser.parse_args(shlex.split(doc["command"])[1:]))
+        except (ValueError, KeyError, SystemExit) as exc:
+            raise SystemExit(f"error: {f}: not an --export file of this script ({type(exc).__name__})") from None
+        if made != settings:
+            diff = {k: (made[k], settings[k]) for k in SETTING_KEYS if made[k] != settings[k]}
+            raise SystemExit(f"error: {f}: rows made with other settings (export, now): {diff}")
+        folder = out / ("runs" if kind == "classes" else "nulls")
+        folder.mkdir(parents=True, exist_ok=True)
+        for row in doc["rows"]:
+            if row.get("status") != "ok":
+                continue                      # recomputed, as an errored run would be
+            if kind == "classes":
+                dest = folder / f"{row['class']}__s{row['seed']}.json"
+            else:
+                dest = folder / f"null__{row['seed'] - NULL_SEED:03d}__{row['design']}.json"
+            if _finished(str(dest)):
+                continue
+            dest.write_text(json.dumps({**row, "kind": "class" if kind == "classes" else "null",
+                                        "resumed_from": {"file": str(f), "code": doc.get("code")}}, indent=1) + "\n")
+            n += 1
+    return n
 
 
 def write_summary(out: Path, command: str) -> dict:
@@ -368,6 +421,8 @@ def main(argv=None):
     ap.add_argument("--export", type=Path, default=None, metavar="PREFIX",
                     help="also write the rows, compact, to PREFIX_classes.json and PREFIX_nulls.json")
     ap.add_argument("--code", default="", help="with --export: the code version the rows were made with")
+    ap.add_argument("--resume-from", type=Path, default=None, metavar="PREFIX",
+                    help="write the rows of an earlier --export PREFIX into OUT as finished runs (same settings only)")
     ap.add_argument("--rescore-from", type=Path, default=None, metavar="DIR",
                     help="copy DIR's rows into OUT with the check's verdict recomputed (module doc)")
     a = ap.parse_args(argv)
@@ -381,6 +436,9 @@ def main(argv=None):
     if a.summarize_only and a.rescore_from is None and (a.out / "summary.json").exists():
         # keep the command that made the rows (a summary alone does not change them)
         command = json.loads((a.out / "summary.json").read_text()).get("command") or command
+    if a.resume_from is not None:
+        print(f"{resume_from_export(a.resume_from, a.out, run_settings(a), ap)} rows taken from {a.resume_from}",
+              flush=True)
     if a.rescore_from is not None:
         print(f"rescored {rescore(a.rescore_from, a.out)} rows of {a.rescore_from}", flush=True)
     if not a.summarize_only:

@@ -140,3 +140,43 @@ def test_rescore_recomputes_the_verdict_from_the_stored_replicates(conf, tmp_pat
     (src / "nulls" / "null__000.json").write_text(json.dumps(_check_row([100.0, 9.5, 9.5], boot, "inadequate", "x")))
     assert conf.rescore(src, tmp_path / "new") == 1
     assert json.loads((tmp_path / "new" / "nulls" / "null__000.json").read_text())["verdict"] == "adequate"
+
+
+def test_resume_from_an_export_skips_its_runs_and_refuses_other_settings(conf, tmp_path, capsys):
+    """Rows committed by --export (another session's run) seed a new OUT: the jobs they cover count as
+    finished, the summary holds them, a second export keeps them intact; an export made with other
+    settings is refused with a one-line error."""
+    import argparse
+
+    first = tmp_path / "first"
+    ss = "strain-stiffening"
+    k = conf._classes().index(ss)
+    stats = {"misfit": {"observed": 3.0, "bootstrap": [1.0, 2.0], "p_value": 0.3}}
+    result = {"constant_parameter_check": {"verdict": "adequate", "evidence": {"statistics": stats}}}
+    _write(first / "runs", f"{ss}__s{1000 * k}", **{"class": ss, "seed": 1000 * k, "cause": ss, "verdict": "inadequate",
+                                                 "result": result})
+    _write(first / "runs", "none__s0", **{"class": "none", "cause": "error", "status": "error", "error": "boom"})
+    _write(first / "nulls", "null__002__C", **{"kind": "null", "class": "none", "seed": conf.NULL_SEED + 2,
+                                              "design": "C", "verdict": "adequate", "cause": "none", "result": result})
+    cmd = "diagnosis_confusion.py --seeds 1 --nulls 3 --forward bubble=polytropic --out first"
+    conf.export(first, tmp_path / "exp", cmd, "abc1234")
+
+    new = tmp_path / "new"
+    conf.main(["--out", str(new), "--summarize-only", "--forward", "bubble=polytropic",
+               "--resume-from", str(tmp_path / "exp")])
+    assert "2 rows taken" in capsys.readouterr().out           # the errored run is not carried over
+    a = argparse.Namespace(out=new, forward=["bubble=polytropic"], quick=False, loeo=True, n_bootstrap=None,
+                           seeds=1, seed_offset=0, design="1Mfps-2um-5", nulls=3)
+    jobs = conf.jobs_for(a, ["none", ss], ["A", "B", "C"])
+    done = {(j["class"], j["seed"]) for j in jobs if conf._finished(j["path"])}
+    assert done == {(ss, 1000 * k), ("none", conf.NULL_SEED + 2)}
+    s = json.loads((new / "summary.json").read_text())
+    assert s["per_class"][ss]["score"] == 1 and s["nulls"]["n"] == 1 and s["nulls"]["alarms"] == 0
+    conf.export(new, tmp_path / "again", cmd, "abc1234")
+    again = json.loads((tmp_path / "again_classes.json").read_text())["rows"]
+    assert again[0]["statistics"]["misfit"]["bootstrap"] == [1.0, 2.0] and again[0]["resumed_from"]["code"] == "abc1234"
+
+    with pytest.raises(SystemExit, match=r"exp_classes\.json: rows made with other settings.*forward"):
+        conf.main(["--out", str(tmp_path / "other"), "--summarize-only", "--resume-from", str(tmp_path / "exp")])
+    with pytest.raises(SystemExit, match="neither"):
+        conf.main(["--out", str(tmp_path / "other"), "--summarize-only", "--resume-from", str(tmp_path / "nope")])
