@@ -382,6 +382,11 @@ def mienks_unit(unit: Unit, rng) -> dict:
         k = ns + dp
         sd = np.sqrt(np.maximum(np.diag(res.cov[0]), 0.0))
         out["log_req"] = {"mean": float(res.mean[0, k]), "sd": float(sd[k]), "rejected": rejected}
+        # the parameters and rho together: the record-level estimate with Req shared by the windows
+        J = slice(ns, ns + dp + 1)
+        qj = res.prior_anoms[0, :, J]
+        out["joint"] = {"pm": res.mean[0, J], "pc": res.cov[0, J, J],
+                        "qm": res.prior_ensemble[0, :, J].mean(axis=0), "qc": qj.T @ qj}
     if n_aug:
         out["offset"] = {"mean": float(res.mean[0, k + 2]), "sd": float(sd[k + 2]), "rejected": rejected}
         out["rmax_rel"] = {"mean": float(res.mean[0, k + 1]), "sd": float(sd[k + 1]), "rejected": rejected}
@@ -612,6 +617,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     posteriors = []                                   # WindowPosterior per window: what --mcmc checks
     average = s.L if s.obs_weight == "mean" else 1    # the weight's 1/L (paper)
     lik_terms = {g: [] for g in range(G)}             # default: every window's likelihood of each experiment
+    lik_joint = []                                    # per window, {experiment: its likelihood of (parameters, rho)}
     influence = np.eye(len(space.names))              # the parameter prior mean's weight in the window means
     for j, (a, b) in enumerate(spans):
         ok, R, lost = sw["ok"][j], sw["results"][j], sw["lost"][j]
@@ -628,6 +634,11 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             hier = random_effects(Lam, eta, chain_m, chain_c)
             for i, g in enumerate(ok):
                 lik_terms[g].append((Lam[i], eta[i]))
+            if all("joint" in r for r in R) and np.all(nuis_sd[np.asarray(ok), 2] > 0):     # rho analysed
+                Lj, ej, _, _ = likelihood_terms(*(np.stack([r["joint"][x] for r in R]) for x in ("pm", "pc", "qm", "qc")))
+                lik_joint.append({g: (Lj[i], ej[i]) for i, g in enumerate(ok)})
+            else:
+                lik_joint.append({})
             fus = Fusion(hier.pooled_mean, hier.pooled_cov, 1.0, n_clip == 0,
                          [f"{n_clip} negative eigenvalue(s) of window likelihoods clipped to 0"] if n_clip else [])
             est_m, est_c = hier.mean, hier.cov
@@ -786,6 +797,13 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                                                           "record (constant parameters) with the parameter prior; "
                                                           "top-level between_experiments is this; predictive is the "
                                                           "aggregate estimate widened by its between-bubble sd"}})
+        joint = _record_with_shared_req(lik_joint, used, nuis_sd, space)
+        if joint is not None:
+            details.setdefault("alternative_estimates", {})["record_shared_req"] = joint
+        smoothed = _windows_with_smoothed_req(lik_joint, nuis_sd, space, s.rtps)
+        if smoothed is not None:
+            details.setdefault("alternative_estimates", {})["aggregate_smoothed_req"] = smoothed["aggregate"]
+            details["windows_smoothed_req"] = smoothed["windows"]
         loo = leave_one_out(Lam_r, eta_r, space.prior_mean, space.prior_cov, names=space.names)
         if loo is not None:
             loo["note"] += "; each experiment's window likelihoods summed over the record"
@@ -823,6 +841,84 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         coords={"window": np.arange(nw), "time": t[kk], "bound": ["lower", "upper"],
                 "window_start": ("window", t[spans[:, 0]])},
         runtime_s=time.perf_counter() - t0c, warnings=warnings, window_posteriors=posteriors)
+
+
+def _record_with_shared_req(lik_joint, used, nuis_sd, space):
+    """The record-level estimate with each experiment's log Req shared by its windows: every window's
+    likelihood of (parameters, rho) summed, rho integrated out against its preprocessing prior
+    N(0, sd_rho^2) (a Schur complement), then the same random effects as the reported record-level
+    estimate (whose windows each integrate rho out against their own chained prior). None when a
+    window lacks the joint terms (e.g. a resumed run from before they were kept)."""
+    if nuis_sd is None or not used or not lik_joint or any(g not in w for w in lik_joint for g in used):
+        return None
+    Lz, ez = [], []
+    for g in used:
+        L, e = integrate_out_last(sum(w[g][0] for w in lik_joint), sum(w[g][1] for w in lik_joint), float(nuis_sd[g][2]))
+        Lz.append(L)
+        ez.append(e)
+    rec = random_effects(np.stack(Lz), np.stack(ez), space.prior_mean, space.prior_cov)
+    return rec.summaries(space)["estimate"]
+
+
+def integrate_out_last(Lam, eta, prior_sd: float, prior_mean: float = 0.0):
+    """A Gaussian likelihood exp(-x^T Lam x / 2 + eta^T x) of x = (z, r), (d+1, d+1) and (d+1,), times
+    the prior N(prior_mean, prior_sd^2) of its last coordinate r, integrated over r: the likelihood of
+    z, (Lam_z (d, d), eta_z (d,)) (a Schur complement). prior_sd <= 0: r fixed at prior_mean."""
+    Lam, eta = np.asarray(Lam, dtype=np.float64), np.asarray(eta, dtype=np.float64)
+    d = Lam.shape[0] - 1
+    b = Lam[:d, d]
+    if not prior_sd > 0.0:
+        return Lam[:d, :d].copy(), eta[:d] - b * prior_mean
+    c = Lam[d, d] + 1.0 / prior_sd ** 2
+    return Lam[:d, :d] - np.outer(b, b) / c, eta[:d] - b * (eta[d] + prior_mean / prior_sd ** 2) / c
+
+
+def _windows_with_smoothed_req(lik_joint, nuis_sd, space, rtps: float):
+    """Every window's gel-level estimate again, each experiment's Req taken as known as far as the
+    *other* windows determine it (a smoother for the one constant of the state): window i's
+    information on rho is its likelihood of (parameters, rho) with the parameters integrated against
+    their prior (the parameters may change from window to window; Req does not); rho's distribution
+    for window j is its preprocessing prior times the other windows' information, and window j's
+    likelihood of the parameters integrates rho against it. The gel-level chain (random effects,
+    RTPS) and the aggregate (precision weighting) are then the reported estimate's. None when a
+    window lacks the joint terms. Returns {"aggregate": estimate, "windows": [estimate, ...]}."""
+    if nuis_sd is None or not lik_joint or any(not w for w in lik_joint):
+        return None
+    d = space.n
+    P0 = np.linalg.inv(space.prior_cov)
+    h0 = P0 @ space.prior_mean
+    info = []                                            # per window {g: (precision, information) of rho}
+    for w in lik_joint:
+        row = {}
+        for g, (L, e) in w.items():
+            A = L[:d, :d] + P0
+            b = L[:d, d]
+            Ab = np.linalg.solve(A, b)
+            row[g] = (L[d, d] - b @ Ab, e[d] - Ab @ (e[:d] + h0))
+        info.append(row)
+    total = {}
+    for row in info:
+        for g, (lam, et) in row.items():
+            t = total.setdefault(g, [1.0 / float(nuis_sd[g][2]) ** 2, 0.0])
+            t[0] += lam
+            t[1] += et
+    chain_m, chain_c = space.prior_mean.copy(), space.prior_cov.copy()
+    means, covs, windows = [], [], []
+    for w, row in zip(lik_joint, info):
+        Lz, ez = [], []
+        for g, (L, e) in w.items():
+            lam = total[g][0] - row[g][0]
+            et = total[g][1] - row[g][1]
+            a, b = integrate_out_last(L, e, 1.0 / np.sqrt(lam), et / lam)
+            Lz.append(a)
+            ez.append(b)
+        hier = random_effects(np.stack(Lz), np.stack(ez), chain_m, chain_c, intervals=False)
+        means.append(hier.mean)
+        covs.append(hier.cov)
+        windows.append(gaussian_estimate(space, hier.mean, hier.cov))
+        chain_m, chain_c = hier.mean, rtps_cov(chain_c, hier.cov, rtps)
+    agg_m, agg_c = precision_weighted(np.array(means), np.array(covs))
+    return {"aggregate": gaussian_estimate(space, agg_m, agg_c), "windows": windows}
 
 
 def _nuisance(obs, g: int, rmax_rel, offset, log_req) -> dict:
