@@ -342,3 +342,22 @@ def test_smoothed_req_windows_on_a_linear_toy(monkeypatch):
         C = np.linalg.inv(np.linalg.inv(prior_c) + L[:2, :2])
         np.testing.assert_allclose(m, C @ (np.linalg.inv(prior_c) @ prior_m + e[:2]), rtol=1e-9, atol=1e-12)
         prior_m, prior_c = m, c
+
+
+def test_smoothed_req_does_not_take_rho_from_the_parameter_prior(monkeypatch):
+    """Neither window alone determines rho: window 0 sees z0 + 2 rho, window 1 z0 + rho (and both
+    z1). Together they do (rho 0.2, z0 0.5), and each window's smoothed estimate of z0 must be 0.5
+    whatever the parameter prior's mean: Req's information from the other window is taken at the
+    same z, not with z drawn from the prior (which put window 0's z0 near 5 with the prior at 3)."""
+    captured = []
+    monkeypatch.setattr(mk, "gaussian_estimate", lambda space, m, c: captured.append(np.array(m)) or {})
+    for m0 in (0.0, 3.0):
+        captured.clear()
+        sp = _toy_space()
+        sp.prior_mean = np.full(2, m0)
+        w0 = _lin_lik([[1.0, 0.0, 2.0], [0.0, 1.0, 0.0]], [0.9, -0.3], 0.01)
+        w1 = _lin_lik([[1.0, 0.0, 1.0], [0.0, 1.0, 0.0]], [0.7, -0.3], 0.01)
+        mk._windows_with_smoothed_req([{0: w0}, {0: w1}], np.array([[0.0, 0.0, 1.0]]), sp, rtps=1.0)
+        assert len(captured) == 3                               # two windows and the aggregate
+        for m in captured[:2]:
+            np.testing.assert_allclose(m, [0.5, -0.3], atol=2e-3)

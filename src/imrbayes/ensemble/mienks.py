@@ -98,6 +98,7 @@ the whole last window).
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 import warnings as _warnings
 from dataclasses import asdict, dataclass
@@ -869,47 +870,45 @@ def integrate_out_last(Lam, eta, prior_sd: float, prior_mean: float = 0.0):
     b = Lam[:d, d]
     if not prior_sd > 0.0:
         return Lam[:d, :d].copy(), eta[:d] - b * prior_mean
+    if math.isinf(prior_sd):                   # no prior on r
+        c = Lam[d, d]
+        return Lam[:d, :d] - np.outer(b, b) / c, eta[:d] - b * eta[d] / c
     c = Lam[d, d] + 1.0 / prior_sd ** 2
     return Lam[:d, :d] - np.outer(b, b) / c, eta[:d] - b * (eta[d] + prior_mean / prior_sd ** 2) / c
 
 
 def _windows_with_smoothed_req(lik_joint, nuis_sd, space, rtps: float):
     """Every window's gel-level estimate again, each experiment's Req taken as known as far as the
-    *other* windows determine it (a smoother for the one constant of the state): window i's
-    information on rho is its likelihood of (parameters, rho) with the parameters integrated against
-    their prior (the parameters may change from window to window; Req does not); rho's distribution
-    for window j is its preprocessing prior times the other windows' information, and window j's
-    likelihood of the parameters integrates rho against it. The gel-level chain (random effects,
-    RTPS) and the aggregate (precision weighting) are then the reported estimate's. None when a
-    window lacks the joint terms. Returns {"aggregate": estimate, "windows": [estimate, ...]}."""
+    *other* windows determine it (a smoother for the one constant of the augmented state). With
+    x = (parameters z, rho) and the other windows' summed likelihood (Lam_o, eta_o) times rho's
+    preprocessing prior, rho given z is Gaussian with precision c = Lam_o[rho, rho] and mean
+    (eta_o[rho] - Lam_o[rho, z] z) / c; window j's likelihood of z integrates rho against that
+    conditional, i.e. its own likelihood of x plus the rank-one v v^T / c (v = Lam_o's rho row),
+    eta + v eta_o[rho] / c, with rho integrated out. So window j's parameters stay its own (no other
+    window's information on z enters), while Req is what the whole record says it is. The gel-level
+    chain (random effects, RTPS) and the aggregate (precision weighting) are then the reported
+    estimate's. None when a window lacks the joint terms. Returns {"aggregate": estimate,
+    "windows": [estimate, ...]}."""
     if nuis_sd is None or not lik_joint or any(not w for w in lik_joint):
         return None
     d = space.n
-    P0 = np.linalg.inv(space.prior_cov)
-    h0 = P0 @ space.prior_mean
-    info = []                                            # per window {g: (precision, information) of rho}
-    for w in lik_joint:
-        row = {}
-        for g, (L, e) in w.items():
-            A = L[:d, :d] + P0
-            b = L[:d, d]
-            Ab = np.linalg.solve(A, b)
-            row[g] = (L[d, d] - b @ Ab, e[d] - Ab @ (e[:d] + h0))
-        info.append(row)
     total = {}
-    for row in info:
-        for g, (lam, et) in row.items():
-            t = total.setdefault(g, [1.0 / float(nuis_sd[g][2]) ** 2, 0.0])
-            t[0] += lam
-            t[1] += et
+    for w in lik_joint:
+        for g, (L, e) in w.items():
+            t = total.setdefault(g, [np.zeros((d + 1, d + 1)), np.zeros(d + 1)])
+            t[0] = t[0] + L
+            t[1] = t[1] + e
+    for g, t in total.items():
+        t[0][d, d] += 1.0 / float(nuis_sd[g][2]) ** 2         # rho's prior N(0, sd^2)
     chain_m, chain_c = space.prior_mean.copy(), space.prior_cov.copy()
     means, covs, windows = [], [], []
-    for w, row in zip(lik_joint, info):
+    for w in lik_joint:
         Lz, ez = [], []
         for g, (L, e) in w.items():
-            lam = total[g][0] - row[g][0]
-            et = total[g][1] - row[g][1]
-            a, b = integrate_out_last(L, e, 1.0 / np.sqrt(lam), et / lam)
+            v = total[g][0][d] - L[d]                            # the other windows' rho row
+            h = total[g][1][d] - e[d]
+            c = v[d]
+            a, b = integrate_out_last(L + np.outer(v, v) / c, e + v * (h / c), math.inf)
             Lz.append(a)
             ez.append(b)
         hier = random_effects(np.stack(Lz), np.stack(ez), chain_m, chain_c, intervals=False)
