@@ -106,20 +106,3 @@ def test_window_medians_separate_a_narrowing_log_normal_from_a_trend(cal):
     assert s["early_minus_late"]["mean"] == pytest.approx(first - last)
     assert s["median_early_minus_late"]["mean"] == pytest.approx(0.0, abs=1e-15)
     assert s["window_median_rel_error_mean"] == pytest.approx([0.0] * len(sds))
-
-
-def test_smoothed_windows_are_scored_beside_the_reported_ones(cal):
-    rows = [_row(0, True, [True, True, False]), _row(1, False, [True, False, True, True])]
-    rows[0]["default"]["windows_smoothed"] = {"G": [True, True, True], "mu": [True, False, True]}
-    rows[1]["default"]["windows_smoothed"] = {"G": [False, True, True, True], "mu": [True] * 4}
-    rows[0]["default"]["window_rel_error_smoothed"] = {"G": [0.3, 0.1, -0.1], "mu": [0.0, 0.0, 0.0]}
-    rows[1]["default"]["window_rel_error_smoothed"] = {"G": [0.1, 0.1, 0.1, 0.1], "mu": [0.0] * 4}
-    s = cal.summarise(rows, ["default"])["default"]
-    assert s["G"]["window_coverage_all"] == pytest.approx(5 / 7)           # the reported windows, as before
-    assert s["G"]["window_smoothed_coverage_all"] == pytest.approx(6 / 7)
-    assert s["G"]["window_smoothed_coverage_all_wilson95"] == pytest.approx(cal.wilson(6, 7))
-    assert s["G"]["window_smoothed_coverage_min"] == pytest.approx(0.5)   # window 0: 1 of 2 seeds
-    assert s["mu"]["window_smoothed_coverage_min"] == pytest.approx(0.5)  # window 1
-    assert s["G"]["window_smoothed_rel_error_mean"] == pytest.approx([0.2, 0.1, 0.0])
-    d = s["G"]["window_smoothed_early_minus_late"]
-    assert d["mean"] == pytest.approx(((0.3 + 0.1) - (-0.1 + 0.1)) / 2)

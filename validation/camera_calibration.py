@@ -116,11 +116,6 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, me
                 n: [float(np.mean([math.exp(e["mean_internal"][i]) for e in w["per_experiment"]])) / true - 1
                     for w in res.windows] for i, (n, true) in enumerate(TRUTH.items())}
             r["window_prior_dominated"] = [bool(w.get("prior_dominated", False)) for w in res.windows]
-            sm = res.details.get("windows_smoothed_req")
-            if sm:       # the windows again with each Req known as far as the other windows tell
-                r["windows_smoothed"] = {n: [bool(w[n]["hdi95"][0] <= true <= w[n]["hdi95"][1]) for w in sm]
-                                         for n, true in TRUTH.items()}
-                r["window_rel_error_smoothed"] = {n: [w[n]["mean"] / true - 1 for w in sm] for n, true in TRUTH.items()}
             r["window_prior_weight"] = {n: [w["prior_weight"][n] for w in res.windows if "prior_weight" in w]
                                         for n in TRUTH}
         for n, true in TRUTH.items():
@@ -205,17 +200,10 @@ def summarise(rows, likelihoods) -> dict:
                 flat = [c for w in wins for c in w]
                 s[n]["window_coverage_all"] = float(np.mean(flat))
                 s[n]["window_coverage_all_wilson95"] = wilson(int(np.sum(flat)), len(flat))
-            sm = [r[lk]["windows_smoothed"][n] for r in rows if "windows_smoothed" in r[lk]]
-            if sm:
-                flat = [c for w in sm for c in w]
-                n_w = min(len(w) for w in sm)
-                s[n]["window_smoothed_coverage_all"] = float(np.mean(flat))
-                s[n]["window_smoothed_coverage_all_wilson95"] = wilson(int(np.sum(flat)), len(flat))
-                s[n]["window_smoothed_coverage_min"] = float(np.min(np.mean(np.array([w[:n_w] for w in sm], float), axis=0)))
-            for kind in ("pooled", "bubbles", "smoothed"):
+            for kind in ("pooled", "bubbles"):
                 E = [r[lk][f"window_rel_error_{kind}"][n] for r in rows if n in r[lk].get(f"window_rel_error_{kind}", {})]
                 if E:
-                    _, s[n][f"window_{kind}_rel_error_mean"], s[n][f"window_{kind}_early_minus_late"] = _trend(E)
+                    s[n][f"window_{kind}_rel_error_mean"] = _trend(E)[1]
             med = [r[lk]["window_rel_error_median"][n] for r in rows if "window_rel_error_median" in r[lk]]
             if med:        # the same trajectory and trend for the window medians
                 _, s[n]["window_median_rel_error_mean"], s[n]["median_early_minus_late"] = _trend(med)
@@ -319,17 +307,10 @@ def _print_table(family, method, bubble, rows, failures, lks) -> None:
                 traj = ", ".join(f"{x:+.2f}" for x in s["window_rel_error_mean"])
                 print(f"{'':<16} window means / truth - 1: {traj}; first third - last third "
                       f"{d['mean']:+.3f} +- {(d['se'] or float('nan')):.3f} (truth: constant)")
-            if "window_smoothed_coverage_all" in s:
-                w = s["window_smoothed_coverage_all_wilson95"]
-                print(f"{'':<16} windows, Req smoothed: coverage {s['window_smoothed_coverage_all']:.2f} "
-                      f"[{w[0]:.2f}, {w[1]:.2f}] over all, lowest window {s['window_smoothed_coverage_min']:.2f}")
-            for kind, label in (("pooled", "pooled window medians"), ("bubbles", "bubbles' own chains (mean)"),
-                                ("smoothed", "window means, Req smoothed")):
+            for kind, label in (("pooled", "pooled window medians"), ("bubbles", "bubbles' own chains (mean)")):
                 if f"window_{kind}_rel_error_mean" in s:
                     traj = ", ".join(f"{x:+.2f}" for x in s[f"window_{kind}_rel_error_mean"])
-                    d = s[f"window_{kind}_early_minus_late"]
-                    print(f"{'':<16} {label} / truth - 1: {traj}; first third - last third "
-                          f"{d['mean']:+.3f} +- {(d['se'] or float('nan')):.3f}")
+                    print(f"{'':<16} {label} / truth - 1: {traj}")
             if "median_early_minus_late" in s:
                 d = s["median_early_minus_late"]
                 traj = ", ".join(f"{x:+.2f}" for x in s["window_median_rel_error_mean"])
