@@ -33,7 +33,8 @@ raised are written with ``status: error`` and retried). The summary (``OUT/summa
 session's, whose OUT folder is gone) are written into OUT as finished runs, so a rerun with the same
 settings computes only the runs still missing and the summary counts them all. Rows whose export
 was made with other diagnosis settings (``--forward``, ``--quick``, ``--loeo``, ``--n-bootstrap``,
-``--mienks-drift``, read from the export's command) are refused with a one-line error.
+``--mienks-drift``: each row's own record, or for rows made before rows kept one, the export's
+command) are refused with a one-line error.
 
 ``--rescore-from DIR``: rows of an earlier run whose diagnosis code differs only in how the check's
 p-values are combined (the statistics and their bootstrap replicates, stored in every row, are the
@@ -133,6 +134,7 @@ def run_one(job: dict) -> dict:
     """Generate, diagnose, write ``job["path"]``; returns the row."""
     t0 = time.perf_counter()
     row = {k: job[k] for k in ("kind", "class", "seed", "design", "forward")}
+    row["settings"] = {k: job.get(k) for k in ("quick", "loeo", "n_bootstrap", "mienks_drift")}
     try:
         from imrbayes.diagnosis import DiagnoseSettings, diagnose
         from imrbayes.diagnosis.synthetic import camera_obs
@@ -324,6 +326,7 @@ def compact_row(row: dict) -> dict:
               "q05_q50_q95": v.get("bootstrap_q05_q50_q95")} for k, v in (ev.get("statistics") or {}).items()}
     g = row.get("gain") or {}
     return {"class": row["class"], "seed": row["seed"], "design": row["design"], "status": row.get("status"),
+            "forward": row.get("forward"), "settings": row.get("settings"),
             "verdict": row.get("verdict"), "cause": row.get("cause"), "p_value": row.get("p_value"),
             "candidates_tied": row.get("candidates_tied"), "score": score(row) if row.get("status") == "ok" else None,
             "truth": {"theta": (row.get("truth") or {}).get("theta")},
@@ -352,6 +355,16 @@ def run_settings(a) -> dict:
             "n_bootstrap": a.n_bootstrap, "mienks_drift": a.mienks_drift}
 
 
+def row_settings(row: dict, fallback: dict) -> dict:
+    """The settings a row was made with: its own record (rows since 2026-11-27), else ``fallback``
+    (those of the command that exported it)."""
+    st = row.get("settings")
+    if not st or row.get("forward") is None:
+        return fallback
+    return {"forward": sorted(f"{k}={v}" for k, v in row["forward"].items()), "quick": bool(st.get("quick")),
+            "loeo": bool(st.get("loeo")), "n_bootstrap": st.get("n_bootstrap"), "mienks_drift": st.get("mienks_drift")}
+
+
 def resume_from_export(prefix: Path, out: Path, settings: dict, parser) -> int:
     """Write the compact rows of ``prefix``_{classes,nulls}.json into OUT as finished runs (module
     doc); rows already finished in OUT are kept. Returns the number of rows written."""
@@ -366,14 +379,16 @@ def resume_from_export(prefix: Path, out: Path, settings: dict, parser) -> int:
             made = run_settings(parser.parse_args(shlex.split(doc["command"])[1:]))
         except (ValueError, KeyError, SystemExit) as exc:
             raise SystemExit(f"error: {f}: not an --export file of this script ({type(exc).__name__})") from None
-        if made != settings:
-            diff = {k: (made[k], settings[k]) for k in SETTING_KEYS if made[k] != settings[k]}
-            raise SystemExit(f"error: {f}: rows made with other settings (export, now): {diff}")
         folder = out / ("runs" if kind == "classes" else "nulls")
         folder.mkdir(parents=True, exist_ok=True)
         for row in doc["rows"]:
             if row.get("status") != "ok":
                 continue                      # recomputed, as an errored run would be
+            had = row_settings(row, made)
+            if had != settings:
+                diff = {k: (had[k], settings[k]) for k in SETTING_KEYS if had[k] != settings[k]}
+                raise SystemExit(f"error: {f}: {row['class']} seed {row['seed']} was made with other settings "
+                                 f"(then, now): {diff}")
             if kind == "classes":
                 dest = folder / f"{row['class']}__s{row['seed']}.json"
             else:

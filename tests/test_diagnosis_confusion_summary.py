@@ -176,7 +176,26 @@ def test_resume_from_an_export_skips_its_runs_and_refuses_other_settings(conf, t
     again = json.loads((tmp_path / "again_classes.json").read_text())["rows"]
     assert again[0]["statistics"]["misfit"]["bootstrap"] == [1.0, 2.0] and again[0]["resumed_from"]["code"] == "abc1234"
 
-    with pytest.raises(SystemExit, match=r"exp_classes\.json: rows made with other settings.*forward"):
+    with pytest.raises(SystemExit, match=r"exp_classes\.json: strain-stiffening seed \d+ was made with other settings.*forward"):
         conf.main(["--out", str(tmp_path / "other"), "--summarize-only", "--resume-from", str(tmp_path / "exp")])
     with pytest.raises(SystemExit, match="neither"):
         conf.main(["--out", str(tmp_path / "other"), "--summarize-only", "--resume-from", str(tmp_path / "nope")])
+
+
+def test_resume_checks_each_rows_own_settings(conf, tmp_path):
+    """A row that records its own settings is judged by them, not by the exporting command (a
+    summary exported mid-run records the summarize command)."""
+    first = tmp_path / "first"
+    mine = {"quick": False, "loeo": True, "n_bootstrap": None, "mienks_drift": None}
+    _write(first / "runs", "none__s0", **{"class": "none", "cause": "none", "verdict": "adequate",
+                                         "forward": {"bubble": "polytropic"}, "settings": mine})
+    conf.export(first, tmp_path / "ok", "diagnosis_confusion.py --out first --summarize-only", "abc")
+    conf.main(["--out", str(tmp_path / "a"), "--summarize-only", "--forward", "bubble=polytropic",
+               "--resume-from", str(tmp_path / "ok")])
+    assert conf._finished(str(tmp_path / "a" / "runs" / "none__s0.json"))
+    _write(first / "runs", "none__s0", **{"class": "none", "cause": "none", "verdict": "adequate",
+                                         "forward": {"bubble": "polytropic"}, "settings": {**mine, "quick": True}})
+    conf.export(first, tmp_path / "bad", "diagnosis_confusion.py --out first --summarize-only", "abc")
+    with pytest.raises(SystemExit, match=r"none seed 0 was made with other settings.*quick"):
+        conf.main(["--out", str(tmp_path / "b"), "--summarize-only", "--forward", "bubble=polytropic",
+                   "--resume-from", str(tmp_path / "bad")])
