@@ -40,6 +40,27 @@ def test_constant_nhkv_is_adequate(design, seed):
     assert abs(np.log(est["mu"]["median"] / truth["theta"]["mu"])) < 0.25
 
 
+def test_stop_when_adequate_keeps_the_verdict(tmp_path):
+    """compare_when_adequate=False ends an adequate diagnosis after the check: the same verdict,
+    p-value and cause as the full run, no candidate compared, and the figures without candidates.png."""
+    from imrbayes.diagnosis.figures import write_figures
+
+    full, _ = _run("none", 11, "1Mfps-2um-5", candidates=("qkv",))
+    obs, _ = camera_obs("none", 11, OPTS, design="1Mfps-2um-5")
+    d = diagnose(obs, OPTS, settings=DiagnoseSettings.quick(loeo=False, mienks_drift=False, candidates=("qkv",),
+                                                            compare_when_adequate=False), seed=11)
+    short = d.result
+    for key in ("verdict", "p_value"):
+        a, b = full["constant_parameter_check"], short["constant_parameter_check"]
+        assert (a.get(key) or a["evidence"][key]) == (b.get(key) or b["evidence"][key])
+    assert short["cause"] == full["cause"] == "none" and short["candidates"] == [] and short["gain"] == {}
+    assert short["baseline"]["estimate"] == full["baseline"]["estimate"]
+    assert "not compared" in short["comparison_note"]
+    assert [x["stage"].split(" (")[0] for x in short["stage_seconds"]][-1] == "constant-parameter check"
+    names = sorted(p.name for p in write_figures(d, tmp_path))
+    assert names == ["check.png", "residuals.png"]
+
+
 # each hidden cause against the alternatives it is most often taken for (docs/diagnosis.md: damage and
 # zener tie with stiffening; zener with lambda1 -> 0 and Gilmore stand in for missing bubble physics);
 # every candidate against every class is the confusion matrix's job (scripts/diagnosis_confusion.py)

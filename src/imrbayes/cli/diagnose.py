@@ -47,6 +47,9 @@ from imrbayes.errors import InputError
 @click.option("--mienks-drift", is_flag=True, default=False,
               help="Add the MIEnKS-MDA G(t), mu(t) drift to the check's statistics (doubles the bootstrap's cost; "
                    "not part of the measured power and false-alarm rate).")
+@click.option("--stop-when-adequate", is_flag=True, default=False,
+              help="End after the constant-parameter check when it finds the model adequate (the cause is 'none' "
+                   "either way), without comparing the candidates: ~60 % of such a run's time.")
 @click.option("--experiments", default=None,
               help="Use only these experiments (comma-separated 1-based indices, e.g. 1,2,3).")
 @click.option("--camera", default=None, help="Keep one camera view of multi-camera data.")
@@ -56,7 +59,7 @@ from imrbayes.errors import InputError
 @execution_options(with_workers=True)
 @force_option
 def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_loeo, loeo_all, mienks_drift,
-                 experiments, camera, dt_star,
+                 stop_when_adequate, experiments, camera, dt_star,
                  n_steps, quiet, workers, scheduler, resume, retry_failed, force):
     """Diagnose DATA: baseline NHKV fit and misfit by phase (t* = dimensionless time), a bootstrap-
     calibrated constant-parameter check, candidate mechanisms (see --candidates) ranked by held-out
@@ -103,6 +106,8 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         kw["loeo_all"] = True
     if mienks_drift:
         kw["mienks_drift"] = True
+    if stop_when_adequate:
+        kw["compare_when_adequate"] = False
     s = DiagnoseSettings.quick(**kw) if quick else DiagnoseSettings(**kw)
     ds = load_dataset(data, camera=camera)
     pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, skip_failed=True)

@@ -275,8 +275,10 @@ def write_figures(d, fdir) -> list:
     A figure that fails is left out with a warning (the report is still written)."""
     fdir = Path(fdir)
     out = []
-    jobs = [(name, lambda p, fn=fn: fn(d, p)) for name, fn in
-            (("residuals.png", residuals_figure), ("check.png", check_figure), ("candidates.png", candidates_figure))]
+    own = [("residuals.png", residuals_figure), ("check.png", check_figure)]
+    if d.result.get("candidates"):          # none compared when the check ended the diagnosis
+        own.append(("candidates.png", candidates_figure))
+    jobs = [(name, lambda p, fn=fn: fn(d, p)) for name, fn in own]
     jobs += [(name, lambda p, fn=fn: fn(d.result, p)) for name, fn in _result_figures(d.result)]
     for name, job in jobs:
         try:

@@ -66,6 +66,9 @@ class DiagnoseSettings:
     n_absorb: int = 3               # candidates (best first) whose mutual absorption is measured
     tie_se: float = 2.0             # held-out differences within tie_se paired SEs are not decided
     tie_chi2: float = 4.0           # nor in-sample fits within this tempered chi-square (2 x log-lik)
+    # compare the candidates also when the check finds the constant model adequate (cause "none"
+    # either way: the verdict is the check's alone); off, such a diagnosis ends after the check
+    compare_when_adequate: bool = True
 
     @classmethod
     def quick(cls, **kw):
@@ -398,8 +401,24 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                             first_batch=s.bootstrap_first_batch, replicate_fits=s.bootstrap_fits,
                             progress=tick, mienks=mk, execution=ex,
                             build=build)
-    # candidates
     base_key = BASELINE.key
+
+    def finish(result_parts: dict, curves: dict) -> Diagnosis:
+        result = {"baseline": baseline, "constant_parameter_check": check, **result_parts,
+                  "phases": phases.to_list(), "minima_t_star": phases.minima_t().tolist(),
+                  "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": seed,
+                  "likelihood": om.describe(), "warnings": warnings, "runtime_s": time.perf_counter() - t0}
+        ends = [(t, c) for _, t, c in marks[1:]] + [(time.perf_counter(), time.process_time())]
+        result["stage_seconds"] = [{"stage": m, "seconds": float(e[0] - t), "cpu_seconds": float(e[1] - c)}
+                                   for (m, t, c), e in zip(marks, ends)]
+        return Diagnosis(result, obs, phases, curves, observed)
+
+    if check["verdict"] == "adequate" and not s.compare_when_adequate:
+        return finish({"candidates": [], "cause": "none", "extended_model": None, "gain": {}, "candidates_tied": [],
+                       "tie_reason": "", "absorption": {}, "signature": {}, "failed_units": [],
+                       "comparison_note": "the constant-parameter model is adequate; the candidates were not compared "
+                                          "(compare_when_adequate off)"}, {base_key: full.fitted})
+    # candidates
     fits = {base_key: full}
     cands = {base_key: base}
     from dataclasses import replace as _replace
@@ -553,20 +572,8 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                                 + "; elpd_diff = extended - baseline, elpd_se from az.compare")}
     baseline["heldout"] = held[base_key]
     baseline["elpd"] = elpd[base_key]
-    result = {"baseline": baseline, "constant_parameter_check": check, "candidates": candidates,
-              "cause": cause, "extended_model": ext, "gain": gain,
-              "candidates_tied": tied if cause == "ambiguous" else [],
-              "tie_reason": tie_reason if cause == "ambiguous" else "",
-              "absorption": absorption,
-              "signature": signature,
-              "phases": phases.to_list(),
-              "minima_t_star": phases.minima_t().tolist(),
-              "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": seed,
-              "likelihood": om.describe(),
-              "failed_units": failed_units, "warnings": warnings,
-              "runtime_s": time.perf_counter() - t0}
-    ends = [(t, c) for _, t, c in marks[1:]] + [(time.perf_counter(), time.process_time())]
-    result["stage_seconds"] = [{"stage": m, "seconds": float(e[0] - t), "cpu_seconds": float(e[1] - c)}
-                               for (m, t, c), e in zip(marks, ends)]
-    curves = {k: fits[k].fitted for k in cands}
-    return Diagnosis(result, obs, phases, curves, observed)
+    return finish({"candidates": candidates, "cause": cause, "extended_model": ext, "gain": gain,
+                   "candidates_tied": tied if cause == "ambiguous" else [],
+                   "tie_reason": tie_reason if cause == "ambiguous" else "",
+                   "absorption": absorption, "signature": signature, "failed_units": failed_units},
+                  {k: fits[k].fitted for k in cands})
