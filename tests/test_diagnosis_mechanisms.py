@@ -57,8 +57,12 @@ def test_stop_when_adequate_keeps_the_verdict(tmp_path):
     assert short["baseline"]["estimate"] == full["baseline"]["estimate"]
     assert "not compared" in short["comparison_note"]
     assert [x["stage"].split(" (")[0] for x in short["stage_seconds"]][-1] == "constant-parameter check"
-    names = sorted(p.name for p in write_figures(d, tmp_path))
-    assert names == ["check.png", "residuals.png"]
+    figs = write_figures(d, tmp_path)
+    assert sorted(p.name for p in figs) == ["check.png", "residuals.png"]
+    from imrbayes.diagnosis.report import write_report
+
+    page = write_report(short, figs, tmp_path / "report.html").read_text()
+    assert "the candidates were not compared" in page
 
 
 # each hidden cause against the alternatives it is most often taken for (docs/diagnosis.md: damage and

@@ -328,7 +328,7 @@ def write_report(result: dict, figures: list, path, title: str = "imrbayes diagn
 {stats}
 {_fig(figs, 'check')}
 <h2>Candidates (ranked by held-out score) and why each was not chosen</h2>
-{_candidates_table(r)}
+{f"<p class='note'>{esc(r['comparison_note'])}.</p>" if r.get('comparison_note') else _candidates_table(r)}
 {_fig(figs, 'candidates')}
 {gain}
 {_absorption(r, figs)}
