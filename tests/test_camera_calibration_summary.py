@@ -106,3 +106,10 @@ def test_window_medians_separate_a_narrowing_log_normal_from_a_trend(cal):
     assert s["early_minus_late"]["mean"] == pytest.approx(first - last)
     assert s["median_early_minus_late"]["mean"] == pytest.approx(0.0, abs=1e-15)
     assert s["window_median_rel_error_mean"] == pytest.approx([0.0] * len(sds))
+
+
+def test_rows_record_the_code_version(cal):
+    import re
+
+    v = cal.code_version()
+    assert v == "unknown" or re.fullmatch(r"[0-9a-f]{7,40}(\+dirty)?", v), v

@@ -79,10 +79,27 @@ def simulate(folder: Path, seed: int, family: str, bubble: str, design: dict | N
     return json.loads((folder / "truth.json").read_text())
 
 
+def code_version() -> str:
+    """The imrbayes source the rows are computed with: git's short hash of the checkout holding the
+    imported package, "+dirty" when its src/ has uncommitted changes ("unknown" outside git). A
+    resumed result file may hold rows of several versions; its summary says so."""
+    import imrbayes
+
+    src = Path(imrbayes.__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "-C", str(src), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(src), "status", "--porcelain", "--", "."], capture_output=True,
+                               text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
 def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, method: str = "en4dvar",
              prior: dict | None = None, design: dict | None = None) -> dict:
     fm = ForwardModel("nhkv", options={"bubble": bubble})
-    row = {"seed": seed}
+    row = {"seed": seed, "code": code_version()}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "data"
         truth = simulate(folder, seed, family, bubble, design)
@@ -397,6 +414,10 @@ def main(argv=None):
         if a.json:
             _write(a.json, meta, rows, failures, lks)
     _print_table(a.family, a.method, a.bubble, rows, failures, lks)
+    versions = sorted({r.get("code", "not recorded") for r in rows})
+    if len(versions) > 1:
+        print(f"note: the rows come from {len(versions)} code versions ({', '.join(versions)}): a resumed file "
+              f"mixes what each version computed", flush=True)
     if a.json:
         _write(a.json, meta, rows, failures, lks)
 
