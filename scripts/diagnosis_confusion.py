@@ -351,11 +351,14 @@ def export(out: Path, dest: Path, command: str, code: str) -> None:
 SETTING_KEYS = ("forward", "quick", "loeo", "n_bootstrap", "mienks_drift")
 
 
+def _settings(forward, quick, loeo, n_bootstrap, mienks_drift) -> dict:
+    return {"forward": sorted(forward), "quick": bool(quick), "loeo": bool(loeo), "n_bootstrap": n_bootstrap,
+            "mienks_drift": mienks_drift}
+
+
 def run_settings(a) -> dict:
     """The settings a row depends on (besides class, seed and design), from parsed arguments."""
-    loeo = (not a.quick) if a.loeo is None else a.loeo
-    return {"forward": sorted(a.forward), "quick": bool(a.quick), "loeo": bool(loeo),
-            "n_bootstrap": a.n_bootstrap, "mienks_drift": a.mienks_drift}
+    return _settings(a.forward, a.quick, (not a.quick) if a.loeo is None else a.loeo, a.n_bootstrap, a.mienks_drift)
 
 
 def row_settings(row: dict, fallback: dict) -> dict:
@@ -364,8 +367,8 @@ def row_settings(row: dict, fallback: dict) -> dict:
     st = row.get("settings")
     if not st or row.get("forward") is None:
         return fallback
-    return {"forward": sorted(f"{k}={v}" for k, v in row["forward"].items()), "quick": bool(st.get("quick")),
-            "loeo": bool(st.get("loeo")), "n_bootstrap": st.get("n_bootstrap"), "mienks_drift": st.get("mienks_drift")}
+    return _settings([f"{k}={v}" for k, v in row["forward"].items()], st.get("quick"), st.get("loeo"),
+                     st.get("n_bootstrap"), st.get("mienks_drift"))
 
 
 def resume_from_export(prefix: Path, out: Path, settings: dict, parser) -> int:
