@@ -371,20 +371,24 @@ def row_settings(row: dict, fallback: dict) -> dict:
                      st.get("n_bootstrap"), st.get("mienks_drift"))
 
 
+class ResumeError(Exception):
+    """An --resume-from file that cannot be used (one line; the script exits 2)."""
+
+
 def resume_from_export(prefix: Path, out: Path, settings: dict, parser) -> int:
     """Write the compact rows of ``prefix``_{classes,nulls}.json into OUT as finished runs (module
     doc); rows already finished in OUT are kept. Returns the number of rows written."""
     files = [(kind, Path(f"{prefix}_{kind}.json")) for kind in ("classes", "nulls")]
     files = [(k, f) for k, f in files if f.exists()]
     if not files:
-        raise SystemExit(f"error: --resume-from {prefix}: neither {prefix}_classes.json nor {prefix}_nulls.json exists")
+        raise ResumeError(f"--resume-from {prefix}: neither {prefix}_classes.json nor {prefix}_nulls.json exists")
     n = 0
     for kind, f in files:
         try:
             doc = json.loads(f.read_text())
             made = run_settings(parser.parse_args(shlex.split(doc["command"])[1:]))
         except (ValueError, KeyError, SystemExit) as exc:
-            raise SystemExit(f"error: {f}: not an --export file of this script ({type(exc).__name__})") from None
+            raise ResumeError(f"{f}: not an --export file of this script ({type(exc).__name__})") from None
         folder = out / ("runs" if kind == "classes" else "nulls")
         folder.mkdir(parents=True, exist_ok=True)
         for row in doc["rows"]:
@@ -393,7 +397,7 @@ def resume_from_export(prefix: Path, out: Path, settings: dict, parser) -> int:
             had = row_settings(row, made)
             if had != settings:
                 diff = {k: (had[k], settings[k]) for k in SETTING_KEYS if had[k] != settings[k]}
-                raise SystemExit(f"error: {f}: {row['class']} seed {row['seed']} was made with other settings "
+                raise ResumeError(f"{f}: {row['class']} seed {row['seed']} was made with other settings "
                                  f"(then, now): {diff}")
             if kind == "classes":
                 dest = folder / f"{row['class']}__s{row['seed']}.json"
@@ -462,8 +466,12 @@ def main(argv=None):
         # keep the command that made the rows (a summary alone does not change them)
         command = json.loads((a.out / "summary.json").read_text()).get("command") or command
     if a.resume_from is not None:
-        print(f"{resume_from_export(a.resume_from, a.out, run_settings(a), ap)} rows taken from {a.resume_from}",
-              flush=True)
+        try:
+            n = resume_from_export(a.resume_from, a.out, run_settings(a), ap)
+        except ResumeError as exc:
+            print(f"diagnosis_confusion.py: error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+        print(f"{n} rows taken from {a.resume_from}", flush=True)
     if a.rescore_from is not None:
         print(f"rescored {rescore(a.rescore_from, a.out)} rows of {a.rescore_from}", flush=True)
     if not a.summarize_only:

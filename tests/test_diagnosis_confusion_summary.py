@@ -2,6 +2,7 @@
 
 import importlib.util
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -176,13 +177,15 @@ def test_resume_from_an_export_skips_its_runs_and_refuses_other_settings(conf, t
     again = json.loads((tmp_path / "again_classes.json").read_text())["rows"]
     assert again[0]["statistics"]["misfit"]["bootstrap"] == [1.0, 2.0] and again[0]["resumed_from"]["code"] == "abc1234"
 
-    with pytest.raises(SystemExit, match=r"exp_classes\.json: strain-stiffening seed \d+ was made with other settings.*forward"):
-        conf.main(["--out", str(tmp_path / "other"), "--summarize-only", "--resume-from", str(tmp_path / "exp")])
-    with pytest.raises(SystemExit, match="neither"):
-        conf.main(["--out", str(tmp_path / "other"), "--summarize-only", "--resume-from", str(tmp_path / "nope")])
+    for prefix, msg in (("exp", r"exp_classes\.json: strain-stiffening seed \d+ was made with other settings.*forward"),
+                        ("nope", "neither")):
+        with pytest.raises(SystemExit) as ex:
+            conf.main(["--out", str(tmp_path / "other"), "--summarize-only", "--resume-from", str(tmp_path / prefix)])
+        err = capsys.readouterr().err
+        assert ex.value.code == 2 and len(err.strip().splitlines()) == 1 and re.search(msg, err), err
 
 
-def test_resume_checks_each_rows_own_settings(conf, tmp_path):
+def test_resume_checks_each_rows_own_settings(conf, tmp_path, capsys):
     """A row that records its own settings is judged by them, not by the exporting command (a
     summary exported mid-run records the summarize command)."""
     first = tmp_path / "first"
@@ -196,6 +199,8 @@ def test_resume_checks_each_rows_own_settings(conf, tmp_path):
     _write(first / "runs", "none__s0", **{"class": "none", "cause": "none", "verdict": "adequate",
                                          "forward": {"bubble": "polytropic"}, "settings": {**mine, "quick": True}})
     conf.export(first, tmp_path / "bad", "diagnosis_confusion.py --out first --summarize-only", "abc")
-    with pytest.raises(SystemExit, match=r"none seed 0 was made with other settings.*quick"):
+    with pytest.raises(SystemExit) as ex:
         conf.main(["--out", str(tmp_path / "b"), "--summarize-only", "--forward", "bubble=polytropic",
                    "--resume-from", str(tmp_path / "bad")])
+    assert ex.value.code == 2 and re.search(r"none seed 0 was made with other settings.*quick", capsys.readouterr().err)
+
