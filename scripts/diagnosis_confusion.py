@@ -26,7 +26,13 @@ measured data (Rmax, time of the maximum and Req estimated from the noisy frames
 
 Resumable: each run is written to ``OUT/runs/<class>__s<seed>.json`` or
 ``OUT/nulls/null__<i>__<design>.json`` as soon as it finishes; a rerun skips finished runs (runs that
-raised are written with ``status: error`` and retried). The summary (``OUT/summary.json``,
+raised are written with ``status: error`` and retried). A run in progress keeps its finished units
+(baseline fits, bootstrap replicates, candidate and held-out fits) in a run folder beside its row
+(``OUT/runs/<class>__s<seed>/``, a :class:`imrbayes.execution.RunStore`), so an interrupted run
+(a class row takes 15-40 min) resumes from them; a folder another configuration or imrbayes version
+made is set aside (renamed ``*.stale-<n>``), not reused. Each row records the code it was finished
+with (``code``: :func:`imrbayes.io.code_version`) and how many sessions its run folder saw
+(``checkpoint.sessions``; ``runtime_s`` of a row that took several is its last session's part). The summary (``OUT/summary.json``,
 ``OUT/summary.md``) is written at the end, or alone with ``--summarize-only``.
 
 ``--resume-from PREFIX``: the compact rows committed by an earlier ``--export PREFIX`` (another
@@ -130,15 +136,34 @@ def _jsonable(x):
     return jsonable(x)
 
 
+def open_checkpoint(folder: Path, config: dict):
+    """The run store of one row's diagnosis (module doc): ``folder`` reopened when it holds this
+    ``config`` and imrbayes version, else created (an unusable folder is renamed aside first)."""
+    from imrbayes.errors import InputError
+    from imrbayes.execution import RunStore
+
+    try:
+        return RunStore.open(folder, config, resume=True)
+    except InputError:
+        n = 0
+        while folder.with_name(f"{folder.name}.stale-{n}").exists():
+            n += 1
+        folder.rename(folder.with_name(f"{folder.name}.stale-{n}"))
+        return RunStore.open(folder, config, resume=False)
+
+
 def run_one(job: dict) -> dict:
-    """Generate, diagnose, write ``job["path"]``; returns the row."""
+    """Generate, diagnose (checkpointed in the row's run folder), write ``job["path"]``; returns the row."""
     t0 = time.perf_counter()
     row = {k: job[k] for k in ("kind", "class", "seed", "design", "forward")}
     row["settings"] = {k: job.get(k) for k in ("quick", "loeo", "n_bootstrap", "mienks_drift", "stop_when_adequate")}
     try:
+        from imrbayes.cli.options import data_fingerprint
         from imrbayes.diagnosis import DiagnoseSettings, diagnose
         from imrbayes.diagnosis.synthetic import camera_obs
+        from imrbayes.execution import Execution
         from imrbayes.forward import ForwardOptions
+        from imrbayes.io import code_version, jsonable
 
         opts = ForwardOptions.from_dict(job["forward"], source="--forward")
         obs, truth = camera_obs(job["class"], job["seed"], opts, design=job["design"])
@@ -150,7 +175,13 @@ def run_one(job: dict) -> dict:
         if job.get("n_bootstrap"):
             kw["n_bootstrap"] = job["n_bootstrap"]
         settings = DiagnoseSettings.quick(**kw) if job["quick"] else DiagnoseSettings(**kw)
-        r = diagnose(obs, opts, settings=settings, seed=job["seed"]).result
+        config = {"row": {k: row[k] for k in ("class", "seed", "design", "forward")}, "settings": row["settings"],
+                  "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, names=obs.names)}
+        with open_checkpoint(Path(job["path"]).with_suffix(""), jsonable(config)) as store:
+            r = diagnose(obs, opts, settings=settings, seed=job["seed"],
+                         execution=Execution(store=store, progress=False)).result
+            row["checkpoint"] = {"folder": str(store.path), "sessions": len(store.info.get("sessions", []))}
+        row["code"] = code_version()
         check = r.get("constant_parameter_check") or {}
         row.update(status="ok", cause=r.get("cause"), candidates_tied=r.get("candidates_tied"),
                    verdict=check.get("verdict"), p_value=(check.get("evidence") or {}).get("p_value"),
@@ -335,6 +366,8 @@ def compact_row(row: dict) -> dict:
             "truth": {"theta": (row.get("truth") or {}).get("theta")},
             "gain": {k: g.get(k) for k in ("candidate", "relative_reduction", "paired_difference", "elpd_diff", "elpd_se") if k in g},
             "statistics": st, "sequential": ev.get("sequential"), "runtime_s": row.get("runtime_s"),
+            **({"code": row["code"]} if "code" in row else {}),
+            **({"sessions": row["checkpoint"]["sessions"]} if "checkpoint" in row else {}),
             **({"rescored": row["rescored"]} if "rescored" in row else {}),
             **({"error": row.get("error")} if row.get("status") != "ok" else {})}
 
@@ -449,7 +482,8 @@ def main(argv=None):
     ap.add_argument("--summarize-only", action="store_true")
     ap.add_argument("--export", type=Path, default=None, metavar="PREFIX",
                     help="also write the rows, compact, to PREFIX_classes.json and PREFIX_nulls.json")
-    ap.add_argument("--code", default="", help="with --export: the code version the rows were made with")
+    ap.add_argument("--code", default="", help="with --export: the code version of the rows that do not record "
+                                               "their own (rows record it since 2026-11-27, session 31)")
     ap.add_argument("--resume-from", type=Path, default=None, metavar="PREFIX",
                     help="write the rows of an earlier --export PREFIX into OUT as finished runs (same settings only)")
     ap.add_argument("--rescore-from", type=Path, default=None, metavar="DIR",

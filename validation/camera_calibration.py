@@ -46,6 +46,7 @@ import numpy as np
 from imrbayes.data import load_dataset, preprocess_dataset
 from imrbayes.ensemble import En4DVarSettings, MIEnKSSettings, Observations, ParamSpace, fit_en4dvar, fit_mienks
 from imrbayes.forward import ForwardModel
+from imrbayes.io import code_version
 
 TRUTH = {"G": 5200.0, "mu": 0.065}
 SCATTER = 0.15
@@ -77,23 +78,6 @@ def simulate(folder: Path, seed: int, family: str, bubble: str, design: dict | N
         cmd += ["--scatter", f"G={SCATTER}", "--scatter", f"mu={SCATTER}"]
     subprocess.run(cmd, check=True, capture_output=True, text=True)
     return json.loads((folder / "truth.json").read_text())
-
-
-def code_version() -> str:
-    """The imrbayes source the rows are computed with: git's short hash of the checkout holding the
-    imported package, "+dirty" when its src/ has uncommitted changes ("unknown" outside git). A
-    resumed result file may hold rows of several versions; its summary says so."""
-    import imrbayes
-
-    src = Path(imrbayes.__file__).resolve().parents[1]
-    try:
-        head = subprocess.run(["git", "-C", str(src), "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(src), "status", "--porcelain", "--", "."], capture_output=True,
-                               text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return head + ("+dirty" if dirty else "")
 
 
 def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, method: str = "en4dvar",

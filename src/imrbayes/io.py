@@ -6,7 +6,9 @@
   flushed, fsynced, ``os.replace``-d onto its name, the folder fsynced);
 * :func:`write_json` -- :func:`jsonable` + strict JSON (no NaN) + newline, written atomically: every
   JSON file imrbayes writes (``summary.json``, ``compare.json``, ``dataset.json``, ``run.json``, ...);
-* :func:`new_run_dir` / :func:`prepare_out` -- the ``--out`` folder of a command.
+* :func:`new_run_dir` / :func:`prepare_out` -- the ``--out`` folder of a command;
+* :func:`code_version` -- the source a result was computed with (git hash), for result files that
+  grow over several sessions.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import json
 import math
 import os
 import re
+import subprocess
 import uuid
 from datetime import datetime
 from pathlib import Path
@@ -25,7 +28,7 @@ import numpy as np
 from imrbayes.errors import InputError
 
 __all__ = ["jsonable", "read_json", "atomic_write", "atomic_write_bytes", "atomic_write_text", "write_json", "new_run_dir",
-           "prepare_out"]
+           "prepare_out", "code_version"]
 
 
 # ------------------------------------------------------------------------------------------ JSON
@@ -175,3 +178,21 @@ def read_json(path: Path, required: bool = True):
     if not isinstance(data, dict):
         raise InputError(path, f"expected a JSON object, got {type(data).__name__}")
     return data
+
+
+def code_version() -> str:
+    """The imrbayes source this process runs: git's short hash of the checkout holding the imported
+    package, "+dirty" when its src/ has uncommitted changes ("unknown" outside git or without git).
+    Result files that are resumed across sessions (calibration rows, confusion-matrix rows) record
+    it per row, so that a file mixing versions can say so."""
+    import imrbayes
+
+    src = Path(imrbayes.__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "-C", str(src), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(src), "status", "--porcelain", "--", "."], capture_output=True,
+                               text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
