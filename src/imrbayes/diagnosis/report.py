@@ -187,7 +187,58 @@ def verdict_sentences(r: dict) -> list:
             s += (f", and its expected log predictive density differs by {pm(g['elpd_diff'], g.get('elpd_se'), '.3g')}"
                   " nats (PSIS-LOO; > 0 favours it)")
         out.append(s + ".")
-    return out[:5]
+    bubble = _bubble_sentence(r)
+    return out[:4] + [bubble] if bubble else out[:5]
+
+
+def _bubble_alternatives(r) -> list:
+    """The bubble-model alternatives the data cannot separate from the baseline and that move the
+    material (diagnosis.json's ``bubble_model_sensitivity``), largest move first."""
+    bs = r.get("bubble_model_sensitivity") or {}
+    alts = [a for a in bs.get("alternatives") or [] if a.get("indistinguishable") and a.get("material_moves")]
+    return sorted(alts, key=lambda a: -max(abs(a["shift"][n]) for n in a["material_moves"]))
+
+
+def _options(a: dict) -> str:
+    """'mass_transfer=False' for an alternative's changed forward options (else its key)."""
+    o = a.get("bubble_options") or {}
+    return ", ".join(f"{k}={v}" for k, v in o.items()) or str(a.get("key"))
+
+
+def _bubble_sentence(r) -> str | None:
+    alts = _bubble_alternatives(r)
+    if not alts:
+        return None
+    a = alts[0]
+    what = CAUSE_WORDS.get(a.get("mechanism"), a.get("mechanism") or "").split(": ", 1)[-1]
+    what = what.split(" (")[0]
+    moved = ", ".join(f"{_param(n, a['estimate'][n])} ({_rel(a['shift'][n])}, {_f(a['shift_sd'].get(n), '.2g')} sd)"
+                      for n in a["material_moves"])
+    return (f"The material estimate depends on the bubble model: with another model of {esc(what)} "
+            f"({esc(_options(a))}), which the held-out data do not tell from the baseline "
+            f"(within {_f(a.get('separation_se'), '.2g')} SE), the same records give {moved} -- a systematic "
+            f"uncertainty of the estimate that the check cannot see.")
+
+
+def _bubble_section(r) -> str:
+    bs = r.get("bubble_model_sensitivity") or {}
+    alts = bs.get("alternatives") or []
+    if not alts:
+        return ""
+    rows = []
+    for a in alts:
+        rows.append([esc(_options(a)), esc(a.get("mechanism", "")),
+                     esc(", ".join(f"{_param(n, v)} ({_rel(a['shift'].get(n))}, {_f(a['shift_sd'].get(n), '.2g')} sd)"
+                                   for n, v in (a.get("estimate") or {}).items())),
+                     (_f(a.get("separation_se"), ".2g"), "class='n'"),
+                     ("no" if a.get("indistinguishable") else "yes", "class='undecided'" if a.get("indistinguishable") else "")])
+    base = next(iter(alts)).get("baseline") or {}
+    return (f"<h2>Does the material estimate depend on the bubble model?</h2>"
+            f"<p>Baseline MAP: {esc(', '.join(_param(n, v) for n, v in base.items()))}. Each bubble-model "
+            f"alternative refitted to the same records (shift against the baseline, in % and baseline sd):</p>"
+            + table(["bubble model", "mechanism", "material estimate (median)", "held-out separation [SE]",
+                     "data tell it apart"], rows)
+            + f"<p class='note'>{esc(bs.get('rule', ''))}.</p>")
 
 
 def why_not(c: dict, r: dict) -> str:
@@ -332,6 +383,7 @@ def write_report(result: dict, figures: list, path, title: str = "imrbayes diagn
 {_fig(figs, 'candidates')}
 {gain}
 {_absorption(r, figs)}
+{_bubble_section(r)}
 {_signature(r, figs)}
 {_likelihood(r)}
 {warn_html}

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from imrbayes.diagnosis.candidates import BASELINE, DEFAULT_CANDIDATES
+from imrbayes.diagnosis.candidates import BASELINE, DEFAULT_CANDIDATES, spec_of
 from imrbayes.diagnosis.check import bootstrap_check, min_replicates, statistics, window_drift
 from imrbayes.diagnosis.heldout import elpd_compare, forecast, loeo, loglik_draws, paired
 from imrbayes.diagnosis.models import make_candidate
@@ -572,7 +572,12 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                                 + "; elpd_diff = extended - baseline, elpd_se from az.compare")}
     baseline["heldout"] = held[base_key]
     baseline["elpd"] = elpd[base_key]
+    from imrbayes.diagnosis.sensitivity import bubble_model_sensitivity
+    sensitivity = bubble_model_sensitivity(
+        candidates, baseline.get("estimate_map", baseline["estimate"]), s.tie_se,
+        overrides={d["key"]: spec_of(d["key"]).forward_options(options) for d in candidates if d["kind"] == "bubble"})
     return finish({"candidates": candidates, "cause": cause, "extended_model": ext, "gain": gain,
+                   "bubble_model_sensitivity": sensitivity,
                    "candidates_tied": tied if cause == "ambiguous" else [],
                    "tie_reason": tie_reason if cause == "ambiguous" else "",
                    "absorption": absorption, "signature": signature, "failed_units": failed_units},
