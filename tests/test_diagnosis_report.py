@@ -197,3 +197,18 @@ def test_verdict_of_a_check_decided_early_states_the_bound():
                                        "seconds": 160.2}]}) == \
         (" (constant-parameter check 180 s, candidates qkv 12 s, held-out predictions (forecast) 54 s, "
          "held-out predictions (leave one experiment out) 160 s)")
+
+
+def test_nuisance_table_shows_si_values_in_readable_units():
+    """Rmax, Req and the time offset as 'fitted ± sd [preprocessing]' in µm / µs, not as Python dicts;
+    the dimensionless internal copies are left out when the SI ones are there."""
+    from imrbayes.diagnosis.report import _likelihood
+
+    nu = [{"name": "exp_001", "rmax_rel": -0.001, "log_req": -0.15, "t0_offset": 0.01,
+           "rmax_m": {"preprocessing": 2.805e-4, "fitted": 2.802e-4, "sd": 4.9e-7},
+           "req_m": {"preprocessing": 9.78e-5, "fitted": 8.37e-5, "sd": 6.2e-7},
+           "t0_offset_s": {"fitted": 3.04e-7, "sd": 8.0e-8}}]
+    html = _likelihood({"baseline": {"nuisance": nu}})
+    assert "Rmax [µm]" in html and "280.2 ± 0.49 [280.5]" in html
+    assert "83.7 ± 0.62 [97.8]" in html and "0.304 ± 0.08" in html
+    assert "{" not in html and "rmax_rel" not in html and "log_req" not in html

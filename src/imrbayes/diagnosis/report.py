@@ -325,12 +325,34 @@ def _likelihood(r) -> str:
         cols.append(("noise sd [R*]", lambda i: (lk["noise_sd"] + [None] * n)[i]))
     if lk.get("alpha") is not None:
         cols.append(("alpha", lambda i: (lk["alpha"] + [None] * n)[i]))
-    for k in (list(nu[0]) if nu else []):
-        cols.append((k, lambda i, k=k: (nu[i] if i < len(nu) else {}).get(k)))
-    rows = [[str(i + 1)] + [(_f(fn(i), ".3g"), "class='n'") for _, fn in cols] for i in range(n)]
+    keys = list(nu[0]) if nu else []
+    internal = {"rmax_rel": "rmax_m", "log_req": "req_m", "t0_offset": "t0_offset_s"}   # shown in SI instead
+    for k in [k for k in keys if internal.get(k) not in keys]:
+        cols.append((_NUISANCE_HEAD.get(k, (k,))[0], lambda i, k=k: (nu[i] if i < len(nu) else {}).get(k), k))
+    cols = [c if len(c) == 3 else (*c, None) for c in cols]
+    rows = [[str(i + 1)] + [(_nuisance_cell(fn(i), key), "class='n'") for _, fn, key in cols] for i in range(n)]
     note = f"<p class='note'>{esc(lk['note'])}</p>" if lk.get("note") else ""
     return (f"<h2>Likelihood and nuisance parameters per experiment</h2>"
-            f"{table(['experiment'] + [esc(h) for h, _ in cols], rows)}{note}")
+            f"{table(['experiment'] + [esc(h) for h, _, _ in cols], rows)}{note}"
+            "<p class='note'>Fitted value ± its sd; in brackets the preprocessing's estimate.</p>")
+
+
+#: nuisance key -> (column head, factor from SI) for the report's table
+_NUISANCE_HEAD = {"rmax_m": ("Rmax [µm]", 1e6), "req_m": ("Req [µm]", 1e6), "t0_offset_s": ("time offset [µs]", 1e6)}
+
+
+def _nuisance_cell(v, key) -> str:
+    """A nuisance value: a number, or {fitted, sd, preprocessing} as 'fitted ± sd [preprocessing]'
+    in the column's unit."""
+    f = _NUISANCE_HEAD.get(key, (key, 1.0))[1] if key else 1.0
+    if isinstance(v, dict):
+        out = _f(v["fitted"] * f, ".4g") if _finite(v.get("fitted")) else "–"
+        if _finite(v.get("sd")):
+            out += f" ± {_f(v['sd'] * f, '.2g')}"
+        if _finite(v.get("preprocessing")):
+            out += f" [{_f(v['preprocessing'] * f, '.4g')}]"
+        return out
+    return _f(v, ".3g") if _finite(v) else esc(v if v is not None else "–")
 
 
 def write_report(result: dict, figures: list, path, title: str = "imrbayes diagnose") -> Path:
