@@ -2,7 +2,6 @@
 interrupted row resumes from its finished units (the diagnosis itself is replaced by a stand-in
 that runs two units; no physics)."""
 
-import importlib.util
 import json
 import re
 from pathlib import Path
@@ -11,15 +10,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def conf():
-    spec = importlib.util.spec_from_file_location("diagnosis_confusion_ck", ROOT / "scripts" / "diagnosis_confusion.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def conf(confusion_script):
+    return confusion_script
 
 
 class Interrupted(BaseException):

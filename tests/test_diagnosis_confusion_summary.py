@@ -1,6 +1,5 @@
 """scripts/diagnosis_confusion.py: the summary's arithmetic on hand-made run files (no diagnosis run)."""
 
-import importlib.util
 import json
 import re
 from pathlib import Path
@@ -8,15 +7,11 @@ from pathlib import Path
 import pytest
 from scipy.stats import binomtest
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def conf():
-    spec = importlib.util.spec_from_file_location("diagnosis_confusion", ROOT / "scripts" / "diagnosis_confusion.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def conf(confusion_script):
+    return confusion_script
 
 
 def _write(folder: Path, name: str, **row):
