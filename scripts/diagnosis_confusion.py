@@ -455,7 +455,7 @@ def write_summary(out: Path, command: str) -> dict:
 
 
 def main(argv=None):
-    from imrbayes.diagnosis.synthetic import DESIGNS
+    from imrbayes.diagnosis.synthetic import DESIGNS, STRENGTH_DESIGNS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=5, help="runs per class (default 5)")
@@ -463,7 +463,9 @@ def main(argv=None):
     ap.add_argument("--classes", default="", help="comma-separated classes (default: all: "
                                                   + ", ".join(_classes()) + ")")
     ap.add_argument("--nulls", type=int, default=20, help="constant-NHKV null datasets cycling through DESIGNS")
-    ap.add_argument("--design", default=next(iter(DESIGNS)), choices=list(DESIGNS), help="design of the class runs")
+    ap.add_argument("--design", default=next(iter(DESIGNS)), choices=[*DESIGNS, *STRENGTH_DESIGNS],
+                    help="design of the class runs (the nulls cycle through the varied DESIGNS; STRENGTH_DESIGNS "
+                         "make a mechanism that is at the noise level elsewhere strong enough to be found)")
     ap.add_argument("--out", type=Path, default=Path("runs/diagnosis-confusion"))
     ap.add_argument("--mienks-drift", action=argparse.BooleanOptionalAction, default=None,
                     help="the MIEnKS drift statistic in the check (default: DiagnoseSettings', off; on roughly "

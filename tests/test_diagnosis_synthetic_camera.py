@@ -98,3 +98,30 @@ def test_bubble_classes_change_the_curves():
     assert np.sqrt(np.mean(((Rc - R0) * um) ** 2)) > 1.0         # measured ~4 µm
     e = bubble_effect("bubble-compressibility", 0, POLY)
     assert e["rms_over_noise"] == pytest.approx(e["rms_um"] / 2.0) and e["rms_um"] > 1.0
+
+
+def test_strength_design_draws_violent_bubbles_and_leaves_the_others_alone():
+    """A STRENGTH_DESIGNS entry replaces the baseline's mu range and the geometry; the varied DESIGNS
+    (and so the committed matrix rows, e.g. thermal class none seed 0: G 7.25 kPa, mu 0.057 Pa s)
+    draw what they drew before."""
+    import json
+    from pathlib import Path
+
+    from imrbayes.diagnosis.synthetic import STRENGTH_DESIGNS, design_of
+
+    assert not set(STRENGTH_DESIGNS) & set(DESIGNS)                 # never in the null cycle
+    with pytest.raises(KeyError, match="unknown design"):
+        design_of("no-such-design")
+    mus, ratios = [], []
+    for seed in range(6100, 6106):
+        obs, truth = camera_obs("bubble-compressibility", seed, POLY, n_exp=2, design="1Mfps-1um-5-violent")
+        mus.append(truth["theta"]["mu"])
+        ratios += [a / b for a, b in zip(truth["rmax_m"], truth["req_m"])]
+        assert truth["noise"] == {"kind": "gaussian_um", "sd_um": 1.0}
+    assert min(mus) >= 0.02 and max(mus) <= 0.05
+    assert min(ratios) >= 9.5 - 3 * 0.3 and max(ratios) <= 9.5 + 3 * 0.3
+    rows = json.loads((Path(__file__).resolve().parents[1] / "docs" / "figures" / "diagnosis"
+                       / "confusion_camera_thermal_classes.json").read_text())["rows"]
+    (none0,) = [r for r in rows if r["class"] == "none" and r["seed"] == 0]
+    _, truth = camera_obs("none", 0, POLY, n_exp=2)
+    assert truth["theta"] == pytest.approx(none0["truth"]["theta"], rel=1e-12)

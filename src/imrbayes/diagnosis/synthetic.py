@@ -28,7 +28,8 @@ from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.ensemble import Observations
 
-__all__ = ["GENERATORS", "BASELINE_TRUTH", "synthetic_obs", "Design", "DESIGNS", "BUBBLE_GENERATORS",
+__all__ = ["GENERATORS", "BASELINE_TRUTH", "synthetic_obs", "Design", "DESIGNS", "STRENGTH_DESIGNS", "design_of",
+           "BUBBLE_GENERATORS",
            "camera_mechanisms", "camera_obs", "fine_options", "data_options", "clean_curves", "bubble_effect"]
 
 #: True (G, mu) of every synthetic dataset [Pa, Pa s]; the mechanism's own come from its candidate.
@@ -101,6 +102,8 @@ class Design:
     scatter : bubble-to-bubble material scatter, name -> relative sd (log-normal around the
         dataset's value, :func:`imrbayes.data.synthetic.draw_scatter`), e.g. ``{"G": 0.1}``.
     dt_star, n_steps : the analysis grid of the preprocessing (``imrbayes diagnose``'s defaults).
+    material : name -> :class:`Range` replacing :data:`BASELINE_TRUTH`'s range of G or mu (a design
+        for gels where a mechanism is strong, :data:`STRENGTH_DESIGNS`); empty: the baseline ranges.
     """
 
     name: str = "1Mfps-2um-5"
@@ -114,10 +117,12 @@ class Design:
     scatter: Mapping = field(default_factory=dict)
     dt_star: float = 0.025
     n_steps: int = 120
+    material: Mapping = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["scatter"] = dict(self.scatter)
+        d["material"] = {k: asdict(v) for k, v in self.material.items()}
         return d
 
 
@@ -134,6 +139,29 @@ DESIGNS = {
     "500kfps-3um-6-small": Design("500kfps-3um-6-small", n_exp=6, frame_s=2e-6, noise="3um", pre_max=4,
                                   rmax_um=(220.0, 25.0), ratio=(6.5, 0.4)),
 }
+
+#: Designs where a mechanism that is at the noise level in :data:`DESIGNS` is strong enough to be
+#: found (not in the null cycle). Liquid compressibility matters at violent collapses: low viscosity
+#: and large Rmax/Req (soft, weakly viscous gels; the paper's second truth is G 2 kPa, mu 0.05 Pa s,
+#: Rmax/Req 9) filmed with little noise. Gilmore against Keller-Miksis, noise-free, thermal, t* <= 3,
+#: seeds 6000-6003: 5.6-8.1 µm RMS (max 39-52 µm) here against 0.4-2.9 µm (max 2-23 µm) on the
+#: default design (`bubble_effect`-style comparison, 2026-11-27).
+STRENGTH_DESIGNS = {
+    "1Mfps-1um-5-violent": Design("1Mfps-1um-5-violent", noise="1um", ratio=(9.5, 0.3),
+                                  material={"mu": Range(0.02, 0.05, log=True)}),
+}
+
+
+def design_of(design) -> Design:
+    """A :class:`Design`, a name in :data:`DESIGNS` or :data:`STRENGTH_DESIGNS`, or None (the default)."""
+    if isinstance(design, str):
+        if design in DESIGNS:
+            return DESIGNS[design]
+        if design in STRENGTH_DESIGNS:
+            return STRENGTH_DESIGNS[design]
+        raise KeyError(f"unknown design {design!r}; known: {', '.join([*DESIGNS, *STRENGTH_DESIGNS])}")
+    return design or Design()
+
 
 # Bubble classes: the data come from the baseline NHKV material with a different *bubble* model than
 # the fitted one (forward-option overrides of the fitted options, :data:`BUBBLE_GENERATORS`).
@@ -295,7 +323,7 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
     from imrbayes.data.records import Dataset, Experiment
     from imrbayes.forward.constants import Physics
 
-    d = DESIGNS[design] if isinstance(design, str) else (design or Design())
+    d = design_of(design)
     over = {k: v for k, v in {"n_exp": n_exp, "noise": noise, "frame_s": frame_s, "scatter": scatter}.items()
             if v is not None}
     if over:
@@ -309,7 +337,7 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
     cand = make_candidate(key, dopts, physics=physics)
     fm = cand.fm
     rng = np.random.default_rng(seed)
-    theta = {n: r.draw(rng) for n, r in {**BASELINE_TRUTH, **cand.spec.synthetic}.items()}
+    theta = {n: r.draw(rng) for n, r in {**BASELINE_TRUTH, **d.material, **cand.spec.synthetic}.items()}
     n = int(d.n_exp)
     n_max = n * MAX_BUBBLE_FACTOR
     uc = physics.velocity_scale
@@ -371,12 +399,12 @@ def clean_curves(mechanism: str, seed: int, options, t_star, design=None, truth_
     bubbles :func:`camera_obs` draws for ``seed`` (no scatter); for effect sizes and tests."""
     from imrbayes.forward.constants import Physics
 
-    d = DESIGNS[design] if isinstance(design, str) else (design or Design())
+    d = design_of(design)
     key, _ = camera_mechanisms()[mechanism]
     physics = Physics()
     cand = make_candidate(key, data_options(options, mechanism, truth_options), physics=physics)
     rng = np.random.default_rng(seed)
-    theta = {n: r.draw(rng) for n, r in {**BASELINE_TRUTH, **cand.spec.synthetic}.items()}
+    theta = {n: r.draw(rng) for n, r in {**BASELINE_TRUTH, **d.material, **cand.spec.synthetic}.items()}
     rmax = _draw_clipped(rng, d.rmax_um[0], d.rmax_um[1], d.n_exp) * 1e-6
     ratio = _draw_clipped(rng, d.ratio[0], d.ratio[1], d.n_exp, low=2.0)
     return np.array([_clean_record(cand, cand.fm, theta, float(rmax[i]), float(rmax[i] / ratio[i]), t_star)[0]
@@ -384,12 +412,12 @@ def clean_curves(mechanism: str, seed: int, options, t_star, design=None, truth_
 
 
 def bubble_effect(mechanism: str, seed: int, options, noise_um: float = 2.0, t_end: float = 3.0,
-                  truth_options=None) -> dict:
+                  truth_options=None, design=None) -> dict:
     """RMS over t* in [0, t_end] and bubbles of R*(data of ``mechanism``) - R*(data of ``none``), same
-    material and geometry: in R*, in µm, and in units of a ``noise_um`` noise sd."""
+    material and geometry (``design``'s): in R*, in µm, and in units of a ``noise_um`` noise sd."""
     t = np.linspace(0.0, t_end, 601)
-    Rb, rmax = clean_curves(mechanism, seed, options, t, truth_options=truth_options)
-    R0, _ = clean_curves("none", seed, options, t, truth_options=truth_options)
+    Rb, rmax = clean_curves(mechanism, seed, options, t, design=design, truth_options=truth_options)
+    R0, _ = clean_curves("none", seed, options, t, design=design, truth_options=truth_options)
     diff_um = (Rb - R0) * rmax[:, None] * 1e6
     rms_um = float(np.sqrt(np.mean(diff_um ** 2)))
     return {"mechanism": mechanism, "seed": seed, "rms_r_star": float(np.sqrt(np.mean((Rb - R0) ** 2))),
