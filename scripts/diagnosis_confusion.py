@@ -163,7 +163,7 @@ def run_one(job: dict) -> dict:
         from imrbayes.diagnosis.synthetic import camera_obs
         from imrbayes.execution import Execution
         from imrbayes.forward import ForwardOptions
-        from imrbayes.io import code_version, jsonable
+        from imrbayes.io import code_version
 
         opts = ForwardOptions.from_dict(job["forward"], source="--forward")
         obs, truth = camera_obs(job["class"], job["seed"], opts, design=job["design"])
@@ -177,7 +177,7 @@ def run_one(job: dict) -> dict:
         settings = DiagnoseSettings.quick(**kw) if job["quick"] else DiagnoseSettings(**kw)
         config = {"row": {k: row[k] for k in ("class", "seed", "design", "forward")}, "settings": row["settings"],
                   "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, names=obs.names)}
-        with open_checkpoint(Path(job["path"]).with_suffix(""), jsonable(config)) as store:
+        with open_checkpoint(Path(job["path"]).with_suffix(""), _jsonable(config)) as store:
             r = diagnose(obs, opts, settings=settings, seed=job["seed"],
                          execution=Execution(store=store, progress=False)).result
             row["checkpoint"] = {"folder": str(store.path), "sessions": len(store.info.get("sessions", []))}

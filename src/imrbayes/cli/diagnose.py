@@ -191,12 +191,12 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
             click.echo(f"held-out RMSE ({g.get('candidate')}, {g.get('heldout_scheme')}): baseline "
                        f"{g['heldout_rmse_baseline']:.4g} -> {g['heldout_rmse_extended']:.4g}; ELPD diff "
                        f"{g['elpd_diff']:.1f} ± {g['elpd_se']:.1f}")
-        for a in (res.get("bubble_model_sensitivity") or {}).get("alternatives", []):
-            if a["indistinguishable"] and a["material_moves"]:
-                moved = ", ".join(f"{n} {a['shift'][n]:+.0%}" for n in a["material_moves"])
-                opts = ", ".join(f"{k}={v}" for k, v in a["bubble_options"].items()) or a["key"]
-                click.echo(f"bubble-model sensitivity: with {opts} (not separated by the held-out data, "
-                           f"{a['separation_se']:.1f} SE) the material estimate moves: {moved}")
+        from imrbayes.diagnosis.sensitivity import flagged, options_text
+
+        for a in flagged(res.get("bubble_model_sensitivity")):
+            moved = ", ".join(f"{n} {a['shift'][n]:+.0%}" for n in a["material_moves"])
+            click.echo(f"bubble-model sensitivity: with {options_text(a)} (not separated by the held-out data, "
+                       f"{a['separation_se']:.1f} SE) the material estimate moves: {moved}")
         click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")
     echo_execution(exec_summary, quiet)
     for w in res.get("warnings", []):            # what the diagnosis left out (also in diagnosis.json)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from imrbayes.diagnosis.sensitivity import flagged, options_text
 from imrbayes.html import embed_png, esc, num, pm, table, write_page
 
 __all__ = ["write_report", "verdict_sentences", "why_not"]
@@ -191,22 +192,8 @@ def verdict_sentences(r: dict) -> list:
     return out[:4] + [bubble] if bubble else out[:5]
 
 
-def _bubble_alternatives(r) -> list:
-    """The bubble-model alternatives the data cannot separate from the baseline and that move the
-    material (diagnosis.json's ``bubble_model_sensitivity``), largest move first."""
-    bs = r.get("bubble_model_sensitivity") or {}
-    alts = [a for a in bs.get("alternatives") or [] if a.get("indistinguishable") and a.get("material_moves")]
-    return sorted(alts, key=lambda a: -max(abs(a["shift"][n]) for n in a["material_moves"]))
-
-
-def _options(a: dict) -> str:
-    """'mass_transfer=False' for an alternative's changed forward options (else its key)."""
-    o = a.get("bubble_options") or {}
-    return ", ".join(f"{k}={v}" for k, v in o.items()) or str(a.get("key"))
-
-
 def _bubble_sentence(r) -> str | None:
-    alts = _bubble_alternatives(r)
+    alts = flagged(r.get("bubble_model_sensitivity"))
     if not alts:
         return None
     a = alts[0]
@@ -215,7 +202,7 @@ def _bubble_sentence(r) -> str | None:
     moved = ", ".join(f"{_param(n, a['estimate'][n])} ({_rel(a['shift'][n])}, {_f(a['shift_sd'].get(n), '.2g')} sd)"
                       for n in a["material_moves"])
     return (f"The material estimate depends on the bubble model: with another model of {esc(what)} "
-            f"({esc(_options(a))}), which the held-out data do not tell from the baseline "
+            f"({esc(options_text(a))}), which the held-out data do not tell from the baseline "
             f"(within {_f(a.get('separation_se'), '.2g')} SE), the same records give {moved} -- a systematic "
             f"uncertainty of the estimate that the check cannot see.")
 
@@ -227,7 +214,7 @@ def _bubble_section(r) -> str:
         return ""
     rows = []
     for a in alts:
-        rows.append([esc(_options(a)), esc(a.get("mechanism", "")),
+        rows.append([esc(options_text(a)), esc(a.get("mechanism", "")),
                      esc(", ".join(f"{_param(n, v)} ({_rel(a['shift'].get(n))}, {_f(a['shift_sd'].get(n), '.2g')} sd)"
                                    for n, v in (a.get("estimate") or {}).items())),
                      (_f(a.get("separation_se"), ".2g"), "class='n'"),
@@ -322,14 +309,13 @@ def _likelihood(r) -> str:
     n = max(len(lk.get("noise_sd") or []), len(lk.get("alpha") or []), len(nu))
     cols = []
     if lk.get("noise_sd") is not None:
-        cols.append(("noise sd [R*]", lambda i: (lk["noise_sd"] + [None] * n)[i]))
+        cols.append(("noise sd [R*]", lambda i: (lk["noise_sd"] + [None] * n)[i], None))
     if lk.get("alpha") is not None:
-        cols.append(("alpha", lambda i: (lk["alpha"] + [None] * n)[i]))
+        cols.append(("alpha", lambda i: (lk["alpha"] + [None] * n)[i], None))
     keys = list(nu[0]) if nu else []
     internal = {"rmax_rel": "rmax_m", "log_req": "req_m", "t0_offset": "t0_offset_s"}   # shown in SI instead
     for k in [k for k in keys if internal.get(k) not in keys]:
         cols.append((_NUISANCE_HEAD.get(k, (k,))[0], lambda i, k=k: (nu[i] if i < len(nu) else {}).get(k), k))
-    cols = [c if len(c) == 3 else (*c, None) for c in cols]
     rows = [[str(i + 1)] + [(_nuisance_cell(fn(i), key), "class='n'") for _, fn, key in cols] for i in range(n)]
     note = f"<p class='note'>{esc(lk['note'])}</p>" if lk.get("note") else ""
     return (f"<h2>Likelihood and nuisance parameters per experiment</h2>"

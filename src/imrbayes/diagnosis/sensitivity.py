@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["bubble_model_sensitivity"]
+__all__ = ["bubble_model_sensitivity", "flagged", "options_text"]
 
 #: a shift that matters: at least this many baseline posterior sd and this relative change
 SHIFT_SD = 2.0
@@ -41,7 +41,7 @@ def bubble_model_sensitivity(candidates: list, baseline_estimate: dict, tie_se: 
                              overrides: dict | None = None) -> dict:
     """Each bubble candidate's material estimate against the baseline's.
 
-    candidates: diagnose's candidate entries (``kind``, ``key``, ``mechanism``, ``forward_model``,
+    candidates: diagnose's candidate entries (``kind``, ``key``, ``mechanism``,
     ``estimate`` {name: {median, sd}}, ``heldout`` {scheme: {paired_vs_baseline}}); baseline_estimate:
     the baseline's MAP estimate {name: {median, sd}} (SI units); overrides: key -> the forward
     options the alternative changes (reported as ``bubble_options``). Returns {"alternatives": [...],
@@ -72,3 +72,17 @@ def bubble_model_sensitivity(candidates: list, baseline_estimate: dict, tie_se: 
             "material_depends_on_bubble_model": any(a["indistinguishable"] and a["material_moves"] for a in out),
             "rule": f"a bubble-model alternative the held-out schemes do not separate from the baseline (< {tie_se:g} "
                     f"paired SE) whose MAP moves a parameter by >= {SHIFT_REL:.0%} and >= {SHIFT_SD:g} baseline sd"}
+
+
+def flagged(sensitivity: dict | None) -> list:
+    """The alternatives of a ``bubble_model_sensitivity`` result that the data cannot separate from
+    the baseline and that move the material, largest move first."""
+    alts = [a for a in (sensitivity or {}).get("alternatives") or []
+            if a.get("indistinguishable") and a.get("material_moves")]
+    return sorted(alts, key=lambda a: -max(abs(a["shift"][n]) for n in a["material_moves"]))
+
+
+def options_text(alternative: dict) -> str:
+    """'mass_transfer=False': the forward options an alternative changes (else its key)."""
+    o = alternative.get("bubble_options") or {}
+    return ", ".join(f"{k}={v}" for k, v in o.items()) or str(alternative.get("key"))
