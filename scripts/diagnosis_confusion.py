@@ -348,6 +348,27 @@ def markdown(s: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+def candidate_gains(result: dict) -> list:
+    """Every compared candidate's held-out gain by scheme, for rules calibrated on the matrix later
+    (e.g. whether a candidate's gain should overrule an adequate check: relaxation seed 2001's zener
+    had a LOEO gain of 4.2 SE while the check said adequate): ``[{"key", "rank", "ruled_out",
+    "<scheme>": {"relative_reduction", "z"}}]``, z = paired mean RMSE difference / its SE, both
+    against the baseline; empty when the candidates were not compared."""
+    base = {}
+    for sch, v in ((result.get("gain") or {}).get("by_scheme") or {}).items():
+        base[sch] = v.get("baseline")
+    out = []
+    for c in result.get("candidates") or []:
+        d = {"key": c.get("key"), "rank": c.get("rank"), "ruled_out": c.get("ruled_out")}
+        for sch, h in (c.get("heldout") or {}).items():
+            pd_ = h.get("paired_vs_baseline") or {}
+            se, rb, rc = pd_.get("se"), base.get(sch), h.get("rmse")
+            d[sch] = {"relative_reduction": (1.0 - rc / rb) if rb and rc is not None else None,
+                      "z": (pd_["mean_diff"] / se) if se else None}
+        out.append(d)
+    return out
+
+
 def compact_row(row: dict) -> dict:
     """One run as committed under docs/figures/diagnosis/ (the check's statistics with every replicate's
     value, so the combination can be recomputed; the verdict, cause, tie, gain and truth). A row taken
@@ -359,12 +380,14 @@ def compact_row(row: dict) -> dict:
     st = {k: {"observed": v["observed"], "bootstrap": v.get("bootstrap"), "p": v.get("p_value"),
               "q05_q50_q95": v.get("bootstrap_q05_q50_q95")} for k, v in (ev.get("statistics") or {}).items()}
     g = row.get("gain") or {}
+    held = candidate_gains(r)
     return {"class": row["class"], "seed": row["seed"], "design": row["design"], "status": row.get("status"),
             "forward": row.get("forward"), "settings": row.get("settings"),
             "verdict": row.get("verdict"), "cause": row.get("cause"), "p_value": row.get("p_value"),
             "candidates_tied": row.get("candidates_tied"), "score": score(row) if row.get("status") == "ok" else None,
             "truth": {"theta": (row.get("truth") or {}).get("theta")},
             "gain": {k: g.get(k) for k in ("candidate", "relative_reduction", "paired_difference", "elpd_diff", "elpd_se") if k in g},
+            **({"candidates": held} if held else {}),
             "statistics": st, "sequential": ev.get("sequential"), "runtime_s": row.get("runtime_s"),
             **({"code": row["code"]} if "code" in row else {}),
             **({"sessions": row["checkpoint"]["sessions"]} if "checkpoint" in row else {}),

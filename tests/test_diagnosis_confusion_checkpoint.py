@@ -95,3 +95,23 @@ def test_a_run_folder_of_other_data_is_set_aside(conf, stand_in, tmp_path, monke
     assert stand_in["computed"] == ["a", "b"]
     assert row["checkpoint"]["sessions"] == 1
     assert (folder.parent / f"{folder.name}.stale-0" / "run.json").exists()
+
+
+def test_compact_rows_keep_every_candidates_heldout_gain(conf):
+    """The committed row keeps each compared candidate's gain and paired z by scheme, computed
+    against the baseline's held-out RMSE (hand-made result: 0.02 -> 0.015 is a 25 % reduction)."""
+    result = {"gain": {"by_scheme": {"forecast": {"baseline": 0.02}, "loeo": {"baseline": 0.01}}},
+              "candidates": [
+                  {"key": "zener", "rank": 1, "ruled_out": "",
+                   "heldout": {"forecast": {"rmse": 0.015, "paired_vs_baseline": {"mean_diff": 0.003, "se": 0.002}},
+                               "loeo": {"rmse": 0.008, "paired_vs_baseline": {"mean_diff": 0.001, "se": 0.00025}}}},
+                  {"key": "qkv", "rank": 2, "ruled_out": "fitted alpha <= 0",
+                   "heldout": {"forecast": {"rmse": 0.03, "paired_vs_baseline": {"mean_diff": -0.004, "se": 0.0}}}}]}
+    out = conf.candidate_gains(result)
+    assert [c["key"] for c in out] == ["zener", "qkv"]
+    assert out[0]["forecast"]["relative_reduction"] == pytest.approx(0.25)
+    assert out[0]["forecast"]["z"] == pytest.approx(1.5)
+    assert out[0]["loeo"] == {"relative_reduction": pytest.approx(0.2), "z": pytest.approx(4.0)}
+    assert out[1]["forecast"]["relative_reduction"] == pytest.approx(-0.5) and out[1]["forecast"]["z"] is None
+    assert out[1]["ruled_out"] == "fitted alpha <= 0" and "loeo" not in out[1]
+    assert conf.candidate_gains({"candidates": [], "gain": {}}) == []
