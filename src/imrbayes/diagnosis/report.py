@@ -201,10 +201,11 @@ def _other_scheme_lead(g: dict, shown: str | None) -> str:
     for k, v in (g.get("by_scheme") or {}).items():
         pd = v.get("paired_vs_baseline") or {}
         rr = v.get("relative_reduction")
-        if k == shown or not (_finite(rr) and _finite(pd.get("mean_diff")) and _finite(pd.get("se"))):
+        if k == shown or not (_finite(rr) and _finite(pd.get("mean_diff")) and _finite(pd.get("se"))
+                              and float(pd["se"]) > 0):
             continue
-        if float(pd["se"]) > 0 and float(pd["mean_diff"]) / float(pd["se"]) >= 2 and float(rr) > 0:
-            z = float(pd["mean_diff"]) / float(pd["se"])
+        z = float(pd["mean_diff"]) / float(pd["se"])
+        if z >= 2 and float(rr) > 0:
             return (f" On {esc(SCHEME_WORDS.get(k, k))} it predicts {_pct(float(rr))} better ({z:.1f} SE): with "
                     "an adequate check that is a lead, not a finding; more bubbles or less noise would decide.")
     return ""
