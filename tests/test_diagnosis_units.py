@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from imrbayes.diagnosis.heldout import elpd_compare
-from imrbayes.diagnosis.lsq import fit_map, predict
+from imrbayes.diagnosis.lsq import EXT_KEEP, EXT_LOG_G, extension_starts, fit_map, predict
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.ensemble import Observations
@@ -299,8 +299,39 @@ def test_grid_starts_try_a_given_start_once():
     om = ObsModel.of(obs, nuisances=False)
     qkv = make_candidate("qkv", OPTS)
     best = np.concatenate([z, qkv.prior_mean[2:]])
-    st = grid_starts(qkv, obs, np.arange(3), 120, None, om, None, extra_starts=[best])
+    st = grid_starts(qkv, obs, np.arange(3), 120, None, om, None, extra_starts=[best], ext_keep=0)
     assert np.array_equal(st[0], best) and sum(np.array_equal(s, best) for s in st) == 1 and len(st) == 2
     far = np.concatenate([np.log([4e4, 0.6]), qkv.prior_mean[2:]])
-    st = grid_starts(qkv, obs, np.arange(3), 120, None, om, None, extra_starts=[far])
+    st = grid_starts(qkv, obs, np.arange(3), 120, None, om, None, extra_starts=[far], ext_keep=0)
     assert np.array_equal(st[-1], far) and not np.array_equal(st[0], far) and len(st) == 3
+    # with the extension starts: the same ones first, then EXT_KEEP more, each the cheapest G of its line
+    st_ext = grid_starts(qkv, obs, np.arange(3), 120, None, om, None, extra_starts=[far])
+    assert len(st_ext) == 3 + EXT_KEEP and all(np.array_equal(a, b) for a, b in zip(st, st_ext))
+    X = extension_starts(qkv, far)
+    y = obs.R_star[:, 1:]
+    cost = 0.5 * np.sum((predict(qkv, X, obs, np.arange(3), None, 120)[..., 1:] - y[None]) ** 2 / 0.004 ** 2, axis=(1, 2))
+    cost += 0.5 * np.sum(((X - qkv.prior_mean) / qkv.prior_sd) ** 2, axis=1)
+    n = len(EXT_LOG_G)
+    line_min = sorted((cost[i * n:(i + 1) * n].min(), i * n + int(np.argmin(cost[i * n:(i + 1) * n])))
+                      for i in range(len(X) // n))
+    for s, (_, i) in zip(st_ext[3:], line_min):
+        assert np.allclose(s, X[i])
+
+
+def test_extension_starts_point_the_mechanisms_way():
+    """Extension starts move one extension parameter by EXT_LEVELS prior sd along a line of G, mu
+    and the other parameters kept, and only the way the mechanism points (qkv: alpha > 0; damage:
+    retention < 1); zener has no direction rule, so every level."""
+    n = len(EXT_LOG_G)
+    for key, lines in (("qkv", 2), ("damage", 4), ("zener", 4), ("carreau", 7)):
+        c = make_candidate(key, OPTS)
+        base = np.concatenate([np.log([5e3, 0.07]), c.prior_mean[2:]])
+        X = extension_starts(c, base)
+        assert X.shape == (lines * n, c.d), key
+        assert np.allclose(X[:, 1], base[1])
+        moved = X[:, 2:] != base[2:]
+        assert np.all(moved.sum(axis=1) == 1), key          # one extension parameter per line
+        assert all(c.spec.consistent(dict(zip(c.names, c.to_si(x))))[0] for x in X), key
+        assert np.allclose(np.unique(np.round(X[:, 0] - base[0], 12)), np.round(EXT_LOG_G, 12))
+    qkv = make_candidate("qkv", OPTS)
+    assert np.all(extension_starts(qkv, np.r_[np.log([5e3, 0.07]), 0.0])[:, 2] > 0)
