@@ -258,8 +258,9 @@ def extension_starts(cand, base) -> np.ndarray:
             z[j] = cand.prior_mean[j] + lv * cand.prior_sd[j]
             ok, _ = cand.spec.consistent(dict(zip(cand.names, cand.to_si(z))))
             if ok:
-                for dg in EXT_LOG_G:
-                    out.append(z + np.eye(cand.d)[0] * dg)
+                line = np.repeat(z[None], len(EXT_LOG_G), axis=0)
+                line[:, 0] += EXT_LOG_G
+                out.extend(line)
     return np.array(out).reshape(-1, cand.d)
 
 
@@ -280,18 +281,18 @@ def grid_starts(cand, obs, idx, K, minima, om, nu0, extra_starts=(), n_best: int
     parts = [Z, cand.prior_mean + 1.5 * cand.prior_sd * rng.standard_normal((n_random, cand.d))]
     if len(extra_starts):
         parts.append(np.atleast_2d(np.asarray(extra_starts, dtype=float)))
-    X = extension_starts(cand, extra_starts[0]) if len(extra_starts) and ext_keep and cand.d > 2 else np.zeros((0, cand.d))
-    Z = np.vstack([*parts, X])
+    Z = np.vstack(parts)
+    n_z = Z.shape[0]
+    if len(extra_starts) and ext_keep and cand.d > 2:
+        Z = np.vstack([Z, extension_starts(cand, extra_starts[0])])
     y = obs.R_star[idx, 1:K + 1]
     r = _residuals(predict(cand, Z, obs, idx, minima, K, nu0, om.frames), y, om.weight)
     cost = 0.5 * np.sum(r * r, axis=1) + 0.5 * np.sum(((Z - cand.prior_mean) / cand.prior_sd) ** 2, axis=1)
-    ext_cost, cost = cost[Z.shape[0] - X.shape[0]:], cost[:Z.shape[0] - X.shape[0]]
-    Z = Z[:Z.shape[0] - X.shape[0]]
-    ext = []
-    if X.shape[0]:          # per (parameter, level) line: its best G; then the best ext_keep lines
-        n = len(EXT_LOG_G)
-        line_best = [i * n + int(np.argmin(ext_cost[i * n:(i + 1) * n])) for i in range(X.shape[0] // n)]
-        ext = [X[i] for i in sorted(line_best, key=lambda i: ext_cost[i])[:ext_keep]]
+    # extension lines (one per parameter and level): each line's best G, then the ext_keep best lines
+    X, line_cost = Z[n_z:].reshape(-1, len(EXT_LOG_G), cand.d), cost[n_z:].reshape(-1, len(EXT_LOG_G))
+    best_g = line_cost.argmin(axis=1)
+    ext = [X[i, best_g[i]] for i in np.argsort(line_cost.min(axis=1), kind="stable")[:ext_keep]]
+    Z, cost = Z[:n_z], cost[:n_z]
     order = np.argsort(cost)
     out = [Z[order[0]]]
     for i in order[1:]:
