@@ -283,7 +283,7 @@ def test_preprocess_dataset_uses_meta_req(tmp_path):
     pre = preprocess_dataset(load_dataset(tmp_path / "ds"))
     assert pre.req_m[0] == 5.0e-5 and pre.req_sd_m[0] == 1e-6
     assert pre.experiments[0].req_source == "meta.json"
-    assert pre.experiments[1].req_source.startswith("mean of last")
+    assert "last 20 samples" in pre.experiments[1].req_source          # from the record's own tail
 
 
 def test_preprocess_single_experiment_fallback(tmp_path):

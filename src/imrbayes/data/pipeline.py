@@ -31,8 +31,9 @@ class ExperimentSummary:
     ``req_sd_m`` is NaN when Req was given without an uncertainty. ``noise_sd_m``: the record's
     noise sd estimated from its fourth differences; ``t0_sd_s``, ``rmax_sd_m``: standard errors of
     the maximum's time and radius (NaN unless ``rmax_method="local-fit"``). ``req_tail_t_star``: t*
-    of the frames whose mean is ``req_m`` (empty when Req was given), so that a method can compare
-    the model's own mean over the same frames (a tail that has not settled lies above Req).
+    of the frames whose mean is ``req_m`` (empty when Req was given or the tail has not settled:
+    then ``req_m`` is not their mean, :func:`~imrbayes.data.preprocess.estimate_req`), so that a
+    method can compare the model's own mean over the same frames (a cooling tail lies above Req).
     """
 
     name: str
@@ -269,7 +270,9 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         "collapse_search": "rebound > max(rebound_frac Rmax, min(4 noise sd, 0.08 Rmax)), no earlier than "
                            "t* = 0.6 after the maximum; with the noise bar, two frames in a row",
         "req": f"meta.json/file value when given, else mean of the last {n_tail} samples after the first "
-               f"collapse (uncertainty: the tail's spread beyond the noise, plus noise/sqrt(n))",
+               f"collapse (uncertainty: the tail's spread beyond the noise, plus noise/sqrt(n)); a tail whose spread "
+               f"beyond the noise exceeds 10 % of its mean has not settled: Req at the log-midpoint of its lowest "
+               f"point (raised by the expected least of n noise draws) and its mean, each one sd away",
         "n_tail": int(n_tail), "interpolation": interp,
         "resample_anchor": "the point (t*=0, R*=1) at the refined maximum plus the samples at t* > 0",
         "noise": pinfo,
@@ -308,8 +311,10 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
     else:
         est = pp.estimate_req(R, col.index, n_tail, noise_sd_m=noise_sd)
         req, req_sd, req_se = est.req_m, est.sd_m, est.se_m
-        req_tail = ((np.asarray(t[est.start_index:], dtype=float) - mx.t_s) / tc).tolist()
-        req_src = f"mean of last {est.n} samples"
+        # `req_tail=model` rescales a tail *mean* by the model's own; an unsettled tail's Req is not one
+        req_tail = ((np.asarray(t[est.start_index:], dtype=float) - mx.t_s) / tc).tolist() if est.settled else []
+        req_src = (f"mean of last {est.n} samples" if est.settled else
+                   f"last {est.n} samples not settled: between their lowest point and their mean")
         if est.warning:
             warnings.append(est.warning)
     if not req < mx.rmax_m:

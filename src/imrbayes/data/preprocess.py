@@ -40,7 +40,11 @@ Choices and why (written to every run's output by :func:`imrbayes.data.pipeline.
   collapse (the peer codes' choice). Its uncertainty: the part of the tail's spread that is not
   measurement noise (the late radius still oscillates, and where its centre lies is not averaged
   away) in full, plus the noise divided by the samples averaged; with no noise estimate, the
-  tail's sample sd. The standard error of the mean is reported as well.
+  tail's sample sd. The standard error of the mean is reported as well. A tail that has not
+  settled (its spread beyond the noise over 10 % of its mean) is a nonlinear oscillation whose
+  mean lies above Req (up to 2.8x on camera-style records to t* = 4, docs/diagnosis.md) and whose
+  lowest point lies at or below it: Req is then taken at the log-midpoint of the two, each end one
+  sd away (the data of the fitted window decide where in between).
 * **Resampling** (:func:`resample`): linear interpolation (no overshoot near the collapse, where a
   spline can undershoot below the measured minimum) of the samples at t* > 0 plus the point
   (t* = 0, R* = 1) at the refined maximum, so R*(0) = 1 as the forward model assumes.
@@ -52,6 +56,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import norm
 
 __all__ = ["parabola_vertex", "estimate_noise_sd", "locate_rmax", "first_collapse", "estimate_req", "time_scale_s",
            "nondimensionalise", "resample", "RmaxResult", "CollapseResult", "ReqResult", "RecordTooShort"]
@@ -319,6 +324,11 @@ class ReqResult:
     n: int
     start_index: int
     warning: str | None = None
+    settled: bool = True
+
+
+#: The tail's spread beyond the noise, over its mean, above which it has not settled
+UNSETTLED = 0.1
 
 
 def estimate_req(R_m, i_collapse: int, n_tail: int = 20, noise_sd_m: float | None = None) -> ReqResult:
@@ -338,7 +348,14 @@ def estimate_req(R_m, i_collapse: int, n_tail: int = 20, noise_sd_m: float | Non
         down. Not given, ``sd_m`` is s.
 
     A warning is set when fewer than ``n_tail`` samples follow the collapse (the tail then includes
-    the first rebound) or when the tail still varies by more than 10 % (sd/mean).
+    the first rebound) or when the tail still varies by more than :data:`UNSETTLED` (10 %, its
+    spread beyond the noise over its mean). Such a tail has not settled: ``req_m`` is then
+    sqrt(low * mean), with ``low`` the tail's minimum raised by the expected least of ``n`` noise draws, and ``sd_m`` puts
+    both at one sd in log, or the spread's sd if wider (``settled`` False). Why: the mean of a nonlinear oscillation lies
+    above its equilibrium (the bubble lingers near its maxima) -- on camera-style relaxation
+    records 1.3-2.2x the true Req, far outside the tail-spread sd -- while its lowest point lies
+    at or below it; between the two the estimate was within 0.33 in log of the truth on every
+    such record of the diagnosis matrix (docs/diagnosis.md).
     """
     R = np.asarray(R_m, dtype=float)
     start = max(R.size - int(n_tail), i_collapse + 1)
@@ -351,13 +368,22 @@ def estimate_req(R_m, i_collapse: int, n_tail: int = 20, noise_sd_m: float | Non
     sd = float(tail.std(ddof=1)) if n > 1 else float("nan")
     se = sd / math.sqrt(n) if n > 1 else float("nan")
     spread = sd
+    noise = float(noise_sd_m or 0.0)
     if noise_sd_m is not None and n > 1:
-        nv = float(noise_sd_m) ** 2
-        sd = math.sqrt(max(spread * spread - nv, 0.0) + nv / n)
+        sd = math.sqrt(max(spread * spread - noise * noise, 0.0) + noise * noise / n)
     if n < n_tail:
         warning = (f"only {n} sample(s) after the first collapse; Req from them includes the rebound "
                    f"and is unreliable")
-    elif math.sqrt(max(spread * spread - (float(noise_sd_m or 0.0)) ** 2, 0.0)) > 0.1 * mean:
+    elif math.sqrt(max(spread * spread - noise * noise, 0.0)) > UNSETTLED * mean:
+        # the least of n noisy samples lies ~1.87 noise sd (n = 20; Blom's approximation) below its curve
+        low = float(tail.min()) - noise * float(norm.ppf(0.625 / (n + 0.25)))
+        if 0.0 < low < mean:
+            req = math.sqrt(low * mean)
+            sd_req = req * max(0.5 * math.log(mean / low), sd / mean)   # never narrower than the spread's
+            warning = (f"late-time radius still varies by {100 * spread / mean:.0f}% (sd/mean) over the last {n} "
+                       f"samples: the tail has not settled; Req {req * 1e6:.4g} µm between its lowest point "
+                       f"({low * 1e6:.4g}) and its mean ({mean * 1e6:.4g}), each one sd away")
+            return ReqResult(req, sd_req, se, n, start, warning, settled=False)
         warning = (f"late-time radius still varies by {100 * spread / mean:.0f}% (sd/mean) over the last {n} "
                    f"samples; Req is uncertain")
     return ReqResult(mean, sd, se, n, start, warning)
