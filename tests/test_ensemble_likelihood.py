@@ -128,3 +128,16 @@ def test_observation_model_raises_the_noise_to_the_residual_and_tempers():
     assert red["sd_used"] > 0.04 and red["alpha"] < 0.4         # model error: louder and fewer independent samples
     cold = observation_model(smooth, np.zeros(400), 0.02 ** 2, adapt=False)
     assert cold["alpha"] == 1.0 and cold["sd_used"] == pytest.approx(0.02)
+
+
+def test_member_whose_req_reaches_rmax_fails_instead_of_raising():
+    """A wide Req prior (an unsettled tail) can draw a member with Req >= Rmax: that member fails
+    (the ensemble drops it), the others are untouched."""
+    from imrbayes.forward import ForwardModel
+    fm = ForwardModel("nhkv", options={"bubble": "polytropic"})
+    theta, rmax, req = np.array([5e3, 0.06]), 3e-4, 3e-4 / 2
+    t = np.linspace(0.025, 1.0, 10)
+    nu = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, np.log(2.5)]])
+    R, failed = predict(fm, np.tile(theta, (2, 1)), rmax, req, t, nu)
+    assert failed.tolist() == [False, True]
+    np.testing.assert_allclose(R[0], fm.simulate(theta[None], [rmax], [req], t).R_star[0], atol=1e-9)

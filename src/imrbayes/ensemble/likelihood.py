@@ -132,7 +132,11 @@ def predict(runner, theta, rmax_m: float, req_m: float, t_eval, nu, frames=None)
     scale = 1.0 + a
     bad = ~(scale > 0.5) | ~np.all(np.isfinite(nu), axis=1)
     scale = np.where(bad, 1.0, scale)
-    R, failed = simulate_shifted(runner, theta, rmax_m * scale, req_m * np.exp(np.where(bad, 0.0, rho)),
+    req = req_m * np.exp(np.where(bad, 0.0, rho))
+    # a member whose Req reaches its Rmax (a wide Req prior's tail) fails; it is not an input error
+    bad |= ~(req < rmax_m * scale)
+    req = np.where(bad, 0.5 * rmax_m * scale, req)
+    R, failed = simulate_shifted(runner, theta, rmax_m * scale, req,
                                  np.asarray(t_eval, dtype=np.float64)[None, :] / scale[:, None], delta / scale)
     return R * scale[:, None], failed | bad
 
