@@ -311,3 +311,15 @@ def test_preprocess_does_not_modify_dataset(tmp_path):
 def test_record_helper_consistency():
     t, R, truth = record()
     assert R.max() <= truth["rmax_m"]
+
+
+def test_unsettled_tail_is_labelled_and_gives_no_tail_frames_to_rescale(tmp_path):
+    """The fixture's records still decay towards Req at their end (their last 20 samples vary by
+    more than 10 %): the summary says Req is not a tail mean, `req_tail=model` (which rescales a
+    tail *mean*) is given no frames for it, and Req stays at or above the true one (a decaying tail's
+    lowest point is above Req)."""
+    truths = make_dataset(tmp_path / "ds", n_exp=2)
+    pre = preprocess_dataset(load_dataset(tmp_path / "ds"))
+    for e, tr in zip(pre.experiments, truths):
+        assert "not settled" in e.req_source and e.req_tail_t_star == []
+        assert tr["req_m"] <= e.req_m * 1.001 and e.req_sd_m > 0
