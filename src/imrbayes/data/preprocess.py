@@ -382,7 +382,7 @@ def estimate_req(R_m, i_collapse: int, n_tail: int = 20, noise_sd_m: float | Non
             sd_req = req * max(0.5 * math.log(mean / low), sd / mean)   # never narrower than the spread's
             warning = (f"late-time radius still varies by {100 * spread / mean:.0f}% (sd/mean) over the last {n} "
                        f"samples: the tail has not settled; Req {req * 1e6:.4g} µm between its lowest point "
-                       f"({low * 1e6:.4g}) and its mean ({mean * 1e6:.4g}), each one sd away")
+                       f"({low * 1e6:.4g} µm) and its mean ({mean * 1e6:.4g} µm), sd {sd_req * 1e6:.3g} µm")
             return ReqResult(req, sd_req, se, n, start, warning, settled=False)
         warning = (f"late-time radius still varies by {100 * spread / mean:.0f}% (sd/mean) over the last {n} "
                    f"samples; Req is uncertain")
