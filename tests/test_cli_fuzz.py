@@ -125,7 +125,8 @@ def fit_args(draw):
         "--dt-star": _number, "--n-steps": st.one_of(st.integers(-2, 400).map(str), _word),
         "--noise": st.sampled_from(["auto", "sample", "paper", "bogus"]),
         "--prior": st.one_of(st.sampled_from(["G=6e3:2e3", "mu=0.1:0", "G=-1:1", "G=1", "x=1:1"]), _word),
-        "--camera": _word})
+        "--camera": _word,
+        "--experiments": st.one_of(st.sampled_from(["1", "1,2", "0", "2-1", "1-2", "a"]), _word)})
     for _ in range(draw(st.integers(0, 3))):
         key = draw(st.sampled_from(_settings.get(method, ["n_ens"])))
         args += ["--set", f"{key}={draw(_number)}"]

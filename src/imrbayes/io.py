@@ -146,7 +146,9 @@ def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = N
             raise InputError("--out", f"{out} is the data folder; choose another folder (input files are "
                                       f"never written to)")
     if out.is_dir() and not resume and (out / "run.json").exists():
-        raise InputError(out, "already holds a run (run.json); pass --resume to continue it, or choose a new --out")
+        # --force does not reach here: the folder's checkpoints belong to that run and would be read as this one's
+        raise InputError(out, "already holds a run (run.json); pass --resume to continue it, or choose a new --out"
+                              + (" (--force does not replace a run: delete the folder first)" if force else ""))
     if out.is_dir() and not (force or resume):
         entries = sorted(p.name for p in out.iterdir())
         if entries:

@@ -15,7 +15,7 @@ import click
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
 from imrbayes.cli.options import (check_options, force_option, data_fingerprint, echo_execution, execution_options, key_values,
-                                  open_execution, prepare_out)
+                                  open_execution, prepare_out, select_experiments, EXPERIMENTS_HELP)
 from imrbayes.diagnosis.candidates import CANDIDATES, DEFAULT_CANDIDATES
 from imrbayes.errors import InputError
 
@@ -50,8 +50,7 @@ from imrbayes.errors import InputError
 @click.option("--stop-when-adequate", is_flag=True, default=False,
               help="End after the constant-parameter check when it finds the model adequate (the cause is 'none' "
                    "either way), without comparing the candidates: ~60 % of such a run's time.")
-@click.option("--experiments", default=None,
-              help="Use only these experiments (comma-separated 1-based indices, e.g. 1,2,3).")
+@click.option("--experiments", default=None, help=EXPERIMENTS_HELP)
 @click.option("--camera", default=None, help="Keep one camera view of multi-camera data.")
 @click.option("--dt-star", type=float, default=0.025, show_default=True, help="Grid step in t* [-].")
 @click.option("--n-steps", type=int, default=120, show_default=True, help="Grid steps [-].")
@@ -109,20 +108,9 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     if stop_when_adequate:
         kw["compare_when_adequate"] = False
     s = DiagnoseSettings.quick(**kw) if quick else DiagnoseSettings(**kw)
-    ds = load_dataset(data, camera=camera)
+    ds = select_experiments(load_dataset(data, camera=camera), experiments)
     pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, skip_failed=True)
     obs = Observations.from_preprocessed(pre)
-    if experiments:
-        try:
-            idx = [int(x) - 1 for x in experiments.split(",") if x.strip()]
-        except ValueError:
-            raise InputError("--experiments", f"expected comma-separated integers, got {experiments!r}")
-        if not idx or min(idx) < 0 or max(idx) >= obs.n_exp:
-            raise InputError("--experiments", f"indices must lie in 1..{obs.n_exp}")
-        obs = obs.take(idx)
-        if obs.n_exp >= 2:
-            from imrbayes.data.noise import noise_variance
-            obs.P = noise_variance(obs.t_star, obs.R_star)[0]
     # The forward model's own default discretisation (grid-converged; methods.md §7.5): IMRv2's coarse
     # Nt = 25 grid moves the inferred viscosity by ~2x on real data and raises alarms on constant-parameter
     # data, so it is never a silent default here. meta.json or --forward scheme=imrv2-fd select it.

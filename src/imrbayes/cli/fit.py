@@ -28,7 +28,7 @@ from imrbayes import __version__
 from imrbayes.cli import main, read_config
 from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution, estimate_text,
                                   execution_options, force_option, key_values, method_settings, open_execution,
-                                  prepare_out, prior_overrides)
+                                  prepare_out, prior_overrides, select_experiments, EXPERIMENTS_HELP)
 from imrbayes.ensemble import METHODS
 from imrbayes.errors import InputError
 from imrbayes.execution.progress import finish, plan
@@ -62,7 +62,7 @@ def planned_units(meth, settings, n_exp: int, n_steps: int) -> tuple:
 
 
 #: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
-CONFIG_OPTIONS = ("method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "dt_star", "n_steps",
+CONFIG_OPTIONS = ("method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "experiments", "dt_star", "n_steps",
                   "noise", "likelihood", "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES)
 CONFIG_TABLES = ("forward", "prior", "mcmc", *METHOD_NAMES)
 
@@ -117,6 +117,7 @@ def _load_config(path) -> dict:
                    "window) [default: 1: in this process].")
 @execution_options(with_workers=False)
 @click.option("--camera", default=None, help="Keep one camera view of multi-camera data.")
+@click.option("--experiments", default=None, help=EXPERIMENTS_HELP)
 @click.option("--dt-star", type=float, default=None, help="Grid step in t* [-] [default: 0.025].")
 @click.option("--n-steps", type=int, default=None, help="Grid steps [-] [default: 120].")
 @click.option("--noise", type=click.Choice(["auto", "sample", "pooled", "paper"]), default=None,
@@ -145,7 +146,7 @@ def _load_config(path) -> dict:
               help="Windows to sample with --mcmc (indices from 0) [default: all].")
 @click.option("--quiet", is_flag=True, default=None, help="Print nothing but errors.")
 @force_option
-def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, workers, camera, dt_star, n_steps,
+def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, workers, camera, experiments, dt_star, n_steps,
             noise, likelihood, mcmc, mcmc_settings, mcmc_windows, quiet, scheduler, resume, retry_failed, force):
     """Fit a constitutive model to DATA (dataset folder, .csv or .mat) with one inference method.
 
@@ -177,6 +178,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     check_options(workers, scheduler, resume, retry_failed)
     quiet = bool(pick("quiet", quiet, False))
     camera = pick("camera", camera, None)
+    experiments = pick("experiments", experiments, None)
     dt_star = float(pick("dt_star", dt_star, 0.025))
     n_steps = int(pick("n_steps", n_steps, 120))
     noise = pick("noise", noise, "auto")
@@ -214,7 +216,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
         from imrbayes.mcmc import MCMCSettings
         mcmc_s = method_settings(MCMCSettings, mcmc_cfg, {**key_values(cfg.get("mcmc_set", []), "--config mcmc_set"),
                                                     **key_values(mcmc_settings, "--mcmc-set")}, "--mcmc-set")
-    ds = load_dataset(data, camera=camera)
+    ds = select_experiments(load_dataset(data, camera=camera), experiments)
     pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, noise=noise, skip_failed=True)
     fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **key_values(forward, "--forward")}
     fm = ForwardModel(model, options=ForwardOptions.from_dict(fopts, source="forward options"),
@@ -229,7 +231,8 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     # everything that determines the numbers (and nothing that does not: workers, scheduler, --out, --quiet)
     run_config = {"command": "fit", "method": method, "model": model, "seed": seed,
                   "settings": dataclasses.asdict(s), "prior": space.describe(), "forward": fm.describe(),
-                  "preprocessing": {"dt_star": dt_star, "n_steps": n_steps, "noise": noise, "camera": camera},
+                  "preprocessing": {"dt_star": dt_star, "n_steps": n_steps, "noise": noise, "camera": camera,
+                                    **({"experiments": experiments} if experiments else {})},
                   "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, obs.t_collapse_star,
                                            names=obs.names),
                   "skipped_experiments": [x["name"] for x in pre.skipped]}

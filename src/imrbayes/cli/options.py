@@ -53,7 +53,8 @@ def force_option(f):
     """Decorator adding ``--force``: write into an existing, non-empty ``--out`` folder."""
     return click.option("--force", is_flag=True, default=None,
                         help="Write into --out even if it already holds files (files of the same name are "
-                             "replaced). Without it a non-empty --out is refused.")(f)
+                             "replaced; a folder holding a run is still refused). Without it a non-empty --out is "
+                             "refused.")(f)
 
 
 def execution_options(with_workers: bool = True):
@@ -166,6 +167,42 @@ def key_values(items, option: str, numeric: bool = False) -> dict:
             out[key] = v
         else:
             out[key.replace("-", "_")] = value.strip()
+    return out
+
+
+EXPERIMENTS_HELP = ("Use only these experiments: 1-based positions in the dataset's order (after --camera), "
+                    "comma-separated, ranges allowed (e.g. 1,2,5-8). Selected before preprocessing: the noise "
+                    "estimate and everything else see only these records.")
+
+
+def select_experiments(ds, spec):
+    """``--experiments``: a copy of dataset ``ds`` keeping the experiments at the 1-based positions
+    in ``spec`` ("1,2,5-8"; None or "" keeps all), in the dataset's order."""
+    if spec is None or not str(spec).strip():
+        return ds
+    n = len(ds.experiments)
+    pos = set()
+    for tok in str(spec).split(","):
+        tok = tok.strip()
+        if not tok:
+            continue
+        lo, dash, hi = tok.partition("-")
+        try:
+            a = int(lo)
+            b = int(hi) if dash else a
+        except ValueError:
+            raise InputError("--experiments", f"expected 1-based positions or ranges such as 1,2,5-8, got {spec!r}")
+        if a > b:
+            raise InputError("--experiments", f"range {tok!r} runs backwards")
+        pos.update(range(a, b + 1))
+    if not pos:
+        raise InputError("--experiments", f"no experiment selected by {spec!r}")
+    if min(pos) < 1 or max(pos) > n:
+        raise InputError("--experiments", f"positions must lie in 1..{n} ({ds.path} has {n} experiment(s)), "
+                                          f"got {spec!r}")
+    keep = [e.name for i, e in enumerate(ds.experiments, 1) if i in pos]
+    out = ds.select(names=keep)
+    out.notes.append(f"kept experiments {spec} of {n}: {', '.join(keep)}")
     return out
 
 
