@@ -76,10 +76,12 @@ class _Group(click.Group):
         _format_lists(formatter, ("models", "methods"))
         with formatter.section("Runtimes"):
             formatter.write_text("inspect, simulate, report, compare: seconds. fit: seconds (pimr) to minutes "
-                                 "(imr, en4dvar, mienks); fit --mcmc: minutes per window with "
-                                 "--forward bubble=polytropic, hours with the thermal bubble. diagnose: ~18 min "
-                                 "for 5 experiments with the thermal bubble (a few with --forward "
-                                 "bubble=polytropic --quick). validate --suite quick: minutes.")
+                                 "(imr, en4dvar, mienks); fit --mcmc: seconds per window with "
+                                 "--forward bubble=polytropic, 0.5-3 min per window with the thermal bubble "
+                                 "(~25 min for a 5-experiment mienks run on 2 cores); en4dvar's one window also samples "
+                                 "every bubble's nuisances: up to hours with the thermal bubble. diagnose: ~20 min for 5 experiments with the "
+                                 "thermal bubble (a few with --forward bubble=polytropic --quick). validate --suite "
+                                 "quick: minutes.")
 
     def invoke(self, ctx):
         try:
