@@ -30,6 +30,20 @@ def test_imr_optimum_within_one_grid_cell():
     assert res.posterior["G"].shape == (1, s.n_draws)
 
 
+def test_imr_says_when_the_grid_bounds_the_answer():
+    """A grid that stops below the truth (G_max 5 kPa, truth 7.29) puts the optimum on its upper
+    edge: the estimate is a bound and the fit says so; a grid holding the truth says nothing."""
+    fm, obs = observations(n_exp=2)
+    s = IMRSettings(G_min=1e3, G_max=5e3, n_G=9, mu_min=0.0612, mu_max=0.1212, n_mu=7)
+    res = fit_imr(fm, obs, space(fm), s)
+    assert res.details["grid_optimum"]["G"] == 5e3
+    assert any("G at the grid's upper end" in w and "G_max" in w for w in res.warnings)
+    assert any("2 of 2 experiments have their own optimum on the grid's edge" in w for w in res.warnings)
+    ok = fit_imr(fm, obs, space(fm), IMRSettings(G_min=5.13e3, G_max=9.93e3, n_G=9, mu_min=0.0612,
+                                                 mu_max=0.1212, n_mu=7))
+    assert not any("edge" in w or "end (" in w for w in ok.warnings)
+
+
 def test_imr_windows():
     fm, obs = observations(n_exp=2)
     K1 = fit_indices(obs, "collapse:1")

@@ -132,6 +132,29 @@ def confidence_level(J_min: float, n: int, p: int, level: float = 0.95) -> float
     return float(J_min * (1.0 + p / (n - p) * stats.f.ppf(level, p, n - p)))
 
 
+def _edge_warnings(i, j, s, Gg, mg, per_index, names) -> list:
+    """One line per way the grid bounds the answer: the pooled optimum on the grid's edge (an
+    upper edge: the estimate is a bound and the grid should widen; G or mu = 0: the records want
+    less than the model allows, so the model or the records' preprocessing, not the grid, is the
+    suspect), and the experiments whose own optimum lies there."""
+    out = []
+    edges = []
+    for val, k, n, name, unit, key in ((Gg, i, s.n_G, "G", "Pa", "G_max"), (mg, j, s.n_mu, "mu", "Pa s", "mu_max")):
+        if k == n - 1:
+            edges.append(f"{name} at the grid's upper end ({val[-1]:.4g} {unit}): the estimate is a lower bound; "
+                         f"widen the grid (--set {key}=...)")
+        elif k == 0:
+            edges.append(f"{name} at the grid's lower end ({val[0]:.4g} {unit}): the records want less than the "
+                         f"grid allows, so the model (or its bubble physics) may not describe them")
+    out += [f"standard IMR optimum: {e}" for e in edges]
+    on_edge = [nm for (ie, je), nm in zip(per_index, names)
+               if ie in (0, s.n_G - 1) or je in (0, s.n_mu - 1)]
+    if on_edge:
+        shown = ", ".join(on_edge[:5]) + (", ..." if len(on_edge) > 5 else "")
+        out.append(f"{len(on_edge)} of {len(names)} experiments have their own optimum on the grid's edge ({shown})")
+    return out
+
+
 def _quadratic_refine(J, Gg, mg, i, j):
     """Sub-grid minimum of a quadratic fitted to the 3 x 3 neighbourhood (None if not convex/interior)."""
     if not (0 < i < J.shape[0] - 1 and 0 < j < J.shape[1] - 1):
@@ -273,6 +296,8 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
         per.append({"name": obs.names[e], "optimum": {"G": float(o[0]), "mu": float(o[1])},
                     "grid_optimum": {"G": float(Gg[ie]), "mu": float(mg[je])}, "J_min": float(Jn[e, ie, je]),
                     "last_sample": int(Kn[e]), "t_end_star": float(obs.t_star[Kn[e]])})
+    warnings += _edge_warnings(i, j, s, Gg, mg, [np.unravel_index(np.argmin(Jn[e]), Jn[e].shape) for e in ok],
+                               [obs.names[e] for e in ok])
     # fitted curves at the (refined) optimum
     th = np.tile(theta[i * s.n_mu + j], (obs.n_exp, 1))
     th[:, names.index("G")] = refined[0]
