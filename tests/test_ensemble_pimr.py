@@ -96,6 +96,21 @@ def test_fit_pimr_reproduces_collapse_times():
     assert np.all(np.isfinite(res2.fitted[:, 1:]))
 
 
+def test_fit_pimr_says_when_the_grid_bounds_the_answer():
+    """Collapse times made with G 7.29 kPa, fitted on a grid that stops at 4 kPa: the optimum sits on
+    the grid's upper end, and the fit says the estimate is a bound; on the default grid it does not."""
+    fm = model("polytropic")
+    rmax = np.array([220e-6, 280e-6, 340e-6, 400e-6, 450e-6])
+    req = rmax / np.array([6.8, 7.6, 8.4, 7.2, 8.0])
+    tc = collapse_time(fm, 7.29e3, 0.088, rmax, req)
+    t = np.arange(3) * 0.025
+    obs = Observations(t, np.ones((5, t.size)), np.full(t.size, 1e-4), rmax, req, tc)
+    bounded = fit_pimr(fm, obs, space(fm), PIMRSettings(G_max=4e3, n_G=30, n_mu=20))
+    assert any(w.startswith("pIMR optimum: G at the grid's upper end") for w in bounded.warnings)
+    free = fit_pimr(fm, obs, space(fm), PIMRSettings(n_G=60, n_mu=40))
+    assert not any("grid's" in w for w in free.warnings)
+
+
 def test_fit_pimr_on_one_bubble_reports_the_ridge_not_nan():
     """One collapse time fixes a curve in (G, mu): every reported ridge point reproduces it, the
     truth lies on it, and the estimate says so instead of printing NaN."""

@@ -132,7 +132,7 @@ def confidence_level(J_min: float, n: int, p: int, level: float = 0.95) -> float
     return float(J_min * (1.0 + p / (n - p) * stats.f.ppf(level, p, n - p)))
 
 
-def _edge_warnings(i, j, s, Gg, mg, per_index, names) -> list:
+def _edge_warnings(i, j, s, Gg, mg, per_index, names, label: str = "standard IMR") -> list:
     """One line per way the grid bounds the answer: the pooled optimum on the grid's edge (an
     upper edge: the estimate is a bound and the grid should widen; G or mu = 0: the records want
     less than the model allows, so the model or the records' preprocessing, not the grid, is the
@@ -144,9 +144,9 @@ def _edge_warnings(i, j, s, Gg, mg, per_index, names) -> list:
             edges.append(f"{name} at the grid's upper end ({val[-1]:.4g} {unit}): the estimate is a lower bound; "
                          f"widen the grid (--set {key}=...)")
         elif k == 0:
-            edges.append(f"{name} at the grid's lower end ({val[0]:.4g} {unit}): the records want less than the "
-                         f"grid allows, so the model (or its bubble physics) may not describe them")
-    out += [f"standard IMR optimum: {e}" for e in edges]
+            edges.append(f"{name} at the grid's lower end ({val[0]:.4g} {unit}): the data push it there -- the "
+                         f"model (or its bubble physics) may not describe them, or they do not constrain {name}")
+    out += [f"{label} optimum: {e}" for e in edges]
     on_edge = [nm for (ie, je), nm in zip(per_index, names)
                if ie in (0, s.n_G - 1) or je in (0, s.n_mu - 1)]
     if on_edge:
