@@ -128,6 +128,8 @@ BAD_CSV = {
     "missing column": ("t_s\n1e-6\n2e-6\n", "missing column(s) R_m"),
     "extra column": ("t_s,R_m,x\n" + "\n".join(r + ",1" for r in _good_rows()), "unexpected column(s) 'x'"),
     "wrong names": ("time,radius\n" + "\n".join(_good_rows()), "missing column(s) t_s, R_m"),
+    "collapse-time summary": ("Rmax_m,Lmax_Rmax_over_Req,t_collapse_s\n3.6e-4,6.1,3.1e-5\n",
+                              "collapse-time summaries (Rmax_m,Lmax_Rmax_over_Req,t_collapse_s), not R(t) curves"),
     "unit in header": ("t_us,R_um\n" + "\n".join(_good_rows()), "suggests values in µs"),
     "semicolons": ("t_s;R_m\n1;2\n", "not comma-separated"),
     "non-numeric": ("t_s,R_m\n" + "\n".join(_good_rows()[:5] + ["1e-5,abc"] + _good_rows()[6:]),

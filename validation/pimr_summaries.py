@@ -13,6 +13,7 @@ Two constant sets: imrbayes's defaults (rho 1064 kg/m^3, as our fits use) and th
 (rho 998.2 kg/m^3; ``zhirenruns/parsimonious_IMR`` run_pIMR.m). Seconds in all.
 
     python validation/pimr_summaries.py --json validation/results/pimr_summaries.json
+    python validation/pimr_summaries.py --summary my_bubbles.csv      # pIMR on a summary file of your own
 """
 
 from __future__ import annotations
@@ -81,28 +82,39 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=300, help="random 5-bubble subsets per recipe")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--summary", type=Path, action="append", default=None, metavar="CSV",
+                    help="a summary CSV of your own (Rmax_m, Lmax_Rmax_over_Req, t_collapse_s; repeatable) "
+                         "instead of the published two and the UMich curves")
     a = ap.parse_args(argv)
+    for f in a.summary or []:
+        if not f.is_file():
+            sys.exit(f"pimr_summaries: error: {f}: no such file")
+    files = {f.stem: f for f in a.summary} if a.summary else {
+        k: SHARED / "umich_pIMR_PA_summaries" / f for k, f in SUMMARIES.items()}
     rng = np.random.default_rng(a.seed)
     out = {"command": "python validation/pimr_summaries.py " + " ".join(argv or sys.argv[1:]), "sets": {}}
     for label, over in CONSTANTS.items():
         fm = ForwardModel("nhkv", physics_overrides=over or None)
         space = ParamSpace.for_model(fm.constitutive)
         rows = {}
-        bubbles = {k: summary_bubbles(SHARED / "umich_pIMR_PA_summaries" / f, fm.physics) for k, f in SUMMARIES.items()}
-        for cam in ("cam0deg", "cam90deg"):
-            bubbles[f"UMich {cam}"] = curve_bubbles(SHARED / UMICH, cam, over)
+        bubbles = {k: summary_bubbles(f, fm.physics) for k, f in files.items()}
+        cams = [] if a.summary else ["UMich cam0deg", "UMich cam90deg"]
+        for cam in cams:
+            bubbles[cam] = curve_bubbles(SHARED / UMICH, cam.split()[1], over)
         for k, b in bubbles.items():
             r = pimr(fm, space, b)
             r.update(n=int(b["rmax_m"].size), rmax_over_req=float(np.mean(b["rmax_m"] / b["req_m"])),
                      t_collapse_star=float(np.mean(b["t_collapse_star"])))
             rows[k] = r
         subsets = {}
-        for k in SUMMARIES:
+        for k in files:
             n = bubbles[k]["rmax_m"].size
+            if n < 6:
+                continue
             est = np.array([[pimr(fm, space, bubbles[k], rng.choice(n, 5, replace=False))[p] for p in ("G", "mu")]
                             for _ in range(a.draws)])
             subsets[k] = est
-        for cam in ("UMich cam0deg", "UMich cam90deg"):
+        for cam in cams:
             g, m = rows[cam]["G"], rows[cam]["mu"]
             # mid-rank: mu often sits on the grid's lower end (0) in the subsets too
             rows[cam]["percentile_in_5_bubble_subsets"] = {
@@ -117,7 +129,7 @@ def main(argv=None) -> int:
         for k, r in rows.items():
             s5 = summ.get(k)
             extra = (f"{s5['G_90'][0] / 1e3:7.2f}-{s5['G_90'][1] / 1e3:<7.2f}      {s5['mu_90'][0]:.3f}-{s5['mu_90'][1]:.3f}"
-                     if s5 else "  percentiles: " + ", ".join(
+                     if s5 else "" if k not in cams else "  percentiles: " + ", ".join(
                          f"{kk} G {v['G']:.2f} mu {v['mu']:.2f}" for kk, v in r["percentile_in_5_bubble_subsets"].items()))
             print(f"{k:<18} {r['n']:>3} {r['rmax_over_req']:8.2f} {r['t_collapse_star']:6.3f} "
                   f"{r['G'] / 1e3:7.2f} ± {r['G_sd'] / 1e3:4.2f} {r['mu']:8.4f} ± {r['mu_sd']:.4f}  {extra}")

@@ -69,8 +69,16 @@ def _split(line: str, lineno: int, path: Path) -> list:
         raise InputError(path, f"line {lineno}: cannot be parsed as CSV ({exc})")
 
 
+#: columns of a per-bubble collapse-time summary (the published pIMR sets): no R(t) curve
+_SUMMARY_COLUMNS = {"rmax_m", "t_collapse_s"}
+
+
 def _header_problem(found: tuple, expected_sets: tuple) -> str:
     found_l = [f.lower() for f in found]
+    if _SUMMARY_COLUMNS <= set(found_l):
+        return (f"holds per-bubble collapse-time summaries ({','.join(found)}), not R(t) curves: fit, "
+                f"diagnose and inspect need t_s,R_m records; pIMR on such a file: python "
+                f"validation/pimr_summaries.py (docs/datasets.md)")
     for name in found:
         parts = name.lower().replace("[", "_").replace("]", "").replace("(", "_").replace(")", "").split("_")
         if len(parts) > 1 and parts[0] in ("t", "time", "r", "radius") and parts[-1] in _UNIT_HINTS:
