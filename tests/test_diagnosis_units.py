@@ -105,6 +105,26 @@ def test_consistency_rule_rejects_extensions_that_point_the_wrong_way():
     assert "softening" in CANDIDATES["qkv"].consistent({"alpha": -0.1})[1]
 
 
+def test_damage_is_inconsistent_when_a_modulus_surely_stiffens():
+    """Damage never stiffens: a retention factor whose 95 % interval lies above 1 rules it out (the
+    fits of relaxation seeds 2002 and 2003, which were named damage), while an interval that reaches
+    1 does not (a constant-NHKV control's a_G 1.002 [0.978, 1.026]), nor do true damage fits."""
+    from imrbayes.diagnosis.candidates import CANDIDATES
+
+    def check(aG, aG_iv, amu, amu_iv):
+        est = {"a_G": {"median": aG, "hdi95": aG_iv}, "a_mu": {"median": amu, "hdi95": amu_iv}}
+        return CANDIDATES["damage"].consistent({"a_G": aG, "a_mu": amu}, est)
+
+    for aG, aG_iv, amu, amu_iv in ((1.350, [1.317, 1.385], 0.706, [0.635, 0.786]),     # relaxation 2002
+                                   (1.788, [1.673, 1.910], 0.761, [0.684, 0.846]),     # relaxation 2003
+                                   (0.8, [0.7, 0.9], 1.2, [1.1, 1.3])):
+        ok, note = check(aG, aG_iv, amu, amu_iv)
+        assert not ok and "stiffens" in note
+    assert check(1.002, [0.978, 1.026], 0.971, [0.948, 0.994])[0]                    # violent control 100
+    assert check(0.285, [0.225, 0.361], 0.744, [0.725, 0.765])[0]                    # damage 4002
+    assert CANDIDATES["damage"].consistent({"a_G": 1.35, "a_mu": 0.7})[0]            # no interval: medians only
+
+
 def test_a_registered_candidate_needs_nothing_else(monkeypatch):
     """One declaration + one registry entry: the candidate is built, fitted in z and named in the
     vocabulary without touching any other module."""

@@ -66,6 +66,9 @@ class CandidateSpec:
     points_right_way : rule on the fitted SI medians (name -> float): True when the extension
         points the way of the mechanism (None: always); ``wrong_way`` says why when it does not.
         A candidate failing it is ranked after the others and never named the cause.
+    interval_right_way : rule on the lower and upper ends of the fitted 95 % intervals (two dicts
+        name -> float): False when the data exclude the mechanism's direction for some parameter
+        (None: no such rule); ``interval_wrong_way`` says why. Checked where an interval is known.
     synthetic : the true values of the extension in synthetic data with this mechanism hidden
         (:class:`Range` per extension name, drawn in this order; sizes of the effect seen in real
         gels). None: no generator (the mechanism is simulated by another candidate).
@@ -90,6 +93,8 @@ class CandidateSpec:
     label: str = ""
     kind: str = "material"
     forward_options: Callable | None = None
+    interval_right_way: Callable | None = None
+    interval_wrong_way: str = ""
 
     def options_for(self, options):
         """The ForwardOptions this candidate runs on given the baseline's, or None (not applicable)."""
@@ -103,10 +108,20 @@ class CandidateSpec:
     def model(self) -> str:
         return self.label or self.key
 
-    def consistent(self, medians: Mapping) -> tuple:
-        """(ok, note): does the fitted extension (SI medians, name -> float) point the right way?"""
+    def consistent(self, medians: Mapping, estimate: Mapping | None = None) -> tuple:
+        """(ok, note): does the fitted extension (SI medians, name -> float) point the right way, and
+        (with ``estimate``, name -> {"hdi95": [lo, hi], ...}) does its 95 % interval allow it?"""
         ok = self.points_right_way is None or bool(self.points_right_way(medians))
-        return ok, "" if ok else self.wrong_way
+        if not ok:
+            return False, self.wrong_way
+        if self.interval_right_way is not None and estimate is not None:
+            names = [e.name for e in self.extension]
+            if all(n in estimate and "hdi95" in estimate[n] for n in names):
+                lo = {n: float(estimate[n]["hdi95"][0]) for n in names}
+                hi = {n: float(estimate[n]["hdi95"][1]) for n in names}
+                if not self.interval_right_way(lo, hi):
+                    return False, self.interval_wrong_way
+        return True, ""
 
 
 def _retention(values, n_pieces):
@@ -146,11 +161,19 @@ CARREAU = CandidateSpec(
     synthetic={"lambda_c": Range(5e-6, 3e-5, log=True), "n": Range(0.25, 0.5)})
 
 # NHKV whose G and mu lose a fraction at every measured collapse (retention factors, median 1 = NHKV).
+# Damage softens; it never stiffens. Either factor may stay at 1 (the viscous or the elastic network
+# alone damaged), but one whose 95 % interval lies above 1 says that modulus grows from collapse to
+# collapse: the piecewise fit is then standing in for a rate-dependent mechanism (on camera-style
+# relaxation data, seeds 2002 and 2003, it fitted a_G 1.35 and 1.79 with a_mu 0.7-0.76 and was named
+# the cause), not describing damage.
 DAMAGE = CandidateSpec(
     "damage", "damage-softening", "nhkv", label="nhkv-piecewise",
     extension=(Extension("a_G", 0.0, 0.7, log=True), Extension("a_mu", 0.0, 0.7, log=True)), pieces=_retention,
     points_right_way=lambda m: m["a_G"] < 1.0 or m["a_mu"] < 1.0,
     wrong_way="fitted a_G, a_mu >= 1: stiffening across collapses, not damage",
+    interval_right_way=lambda lo, hi: lo["a_G"] <= 1.0 and lo["a_mu"] <= 1.0,
+    interval_wrong_way="a retention factor's 95 % interval lies above 1: that modulus stiffens from collapse to "
+                       "collapse, which damage cannot do",
     synthetic={"a_G": Range(0.25, 0.5), "a_mu": Range(0.6, 1.0)})
 
 

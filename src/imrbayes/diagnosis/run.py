@@ -178,7 +178,8 @@ def loeo_keys(held: dict, fits: dict, cands: dict, base_key: str, loeo_all: bool
         if k == base_key or k not in held:
             continue
         c, f = cands[k], fits[k]
-        ok, _ = c.spec.consistent({n: e["median"] for n, e in c.estimate(f.z, f.cov).items()})
+        est = c.estimate(f.z, f.cov)
+        ok, _ = c.spec.consistent({n: e["median"] for n, e in est.items()}, est)
         rk = held[k]["forecast"]["rmse"]
         if loeo_all or not np.isfinite(rb) or (ok and np.isfinite(rk) and rk < rb):
             out.append(k)
@@ -496,7 +497,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
             "elpd_diff": elpd[key]["elpd_diff"], "elpd_se": elpd[key]["elpd_se"],
             "elpd": elpd[key], "converged": bool(f.converged)})
         candidates[-1]["consistent"], candidates[-1]["consistency_note"] = c.spec.consistent(
-            {n: e["median"] for n, e in candidates[-1]["estimate"].items()})
+            {n: e["median"] for n, e in candidates[-1]["estimate"].items()}, candidates[-1]["estimate"])
     candidates.sort(key=lambda d: (not d["consistent"], -(d["score"] if np.isfinite(d["score"]) else -np.inf),
                                    -d["elpd_diff"]))
     for i, d in enumerate(candidates):
