@@ -76,7 +76,7 @@ class _Spec:
     def __init__(self, ok):
         self.ok = ok
 
-    def consistent(self, medians):
+    def consistent(self, medians, estimate=None):
         return self.ok, "" if self.ok else "fitted alpha <= 0"
 
 
