@@ -132,23 +132,32 @@ def confidence_level(J_min: float, n: int, p: int, level: float = 0.95) -> float
     return float(J_min * (1.0 + p / (n - p) * stats.f.ppf(level, p, n - p)))
 
 
-def _edge_warnings(i, j, s, Gg, mg, per_index, names, label: str = "standard IMR") -> list:
-    """One line per way the grid bounds the answer: the pooled optimum on the grid's edge (an
-    upper edge: the estimate is a bound and the grid should widen; G or mu = 0: the records want
-    less than the model allows, so the model or the records' preprocessing, not the grid, is the
-    suspect), and the experiments whose own optimum lies there."""
+def grid_edge_warnings(side_G, side_mu, Gg, mg, label: str) -> list:
+    """One line per parameter whose optimum lies on the grid's edge; ``side_*``: "low", "high" or
+    None. An upper edge makes the estimate a bound (widen the grid); a lower edge (0) means the data
+    push the parameter there -- the model may not describe them, or they do not constrain it."""
     out = []
-    edges = []
-    for val, k, n, name, unit, key in ((Gg, i, s.n_G, "G", "Pa", "G_max"), (mg, j, s.n_mu, "mu", "Pa s", "mu_max")):
-        if k == n - 1:
-            edges.append(f"{name} at the grid's upper end ({val[-1]:.4g} {unit}): the estimate is a lower bound; "
-                         f"widen the grid (--set {key}=...)")
-        elif k == 0:
-            edges.append(f"{name} at the grid's lower end ({val[0]:.4g} {unit}): the data push it there -- the "
-                         f"model (or its bubble physics) may not describe them, or they do not constrain {name}")
-    out += [f"{label} optimum: {e}" for e in edges]
+    for side, val, name, unit, key in ((side_G, Gg, "G", "Pa", "G_max"), (side_mu, mg, "mu", "Pa s", "mu_max")):
+        if side == "high":
+            out.append(f"{label} optimum: {name} at the grid's upper end ({val[-1]:.4g} {unit}): the estimate is a "
+                       f"lower bound; widen the grid (--set {key}=...)")
+        elif side == "low":
+            out.append(f"{label} optimum: {name} at the grid's lower end ({val[0]:.4g} {unit}): the data push it "
+                       f"there -- the model (or its bubble physics) may not describe them, or they do not "
+                       f"constrain {name}")
+    return out
+
+
+def _edge_side(k: int, n: int):
+    return "low" if k == 0 else "high" if k == n - 1 else None
+
+
+def _edge_warnings(i, j, s, Gg, mg, per_index, names) -> list:
+    """Standard IMR's grid-edge warnings: the pooled optimum's (:func:`grid_edge_warnings`) and the
+    count of experiments whose own optimum lies on the edge."""
+    out = grid_edge_warnings(_edge_side(i, s.n_G), _edge_side(j, s.n_mu), Gg, mg, "standard IMR")
     on_edge = [nm for (ie, je), nm in zip(per_index, names)
-               if ie in (0, s.n_G - 1) or je in (0, s.n_mu - 1)]
+               if _edge_side(ie, s.n_G) or _edge_side(je, s.n_mu)]
     if on_edge:
         shown = ", ".join(on_edge[:5]) + (", ..." if len(on_edge) > 5 else "")
         out.append(f"{len(on_edge)} of {len(names)} experiments have their own optimum on the grid's edge ({shown})")

@@ -202,14 +202,14 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
                               "the 95% region is J <= J_min (1 + p/(n-p) F_{p,n-p}(0.95))",
                "note": "one collapse time per experiment constrains a ridge in (G, mu); only the spread of "
                        "Rmax and Req across experiments breaks the degeneracy"}
-    from imrbayes.ensemble.imr import _edge_warnings
+    from imrbayes.ensemble.imr import grid_edge_warnings
 
     # the refined optimum, not the grid's; Nelder-Mead works in log space, so "at 0" means within
     # half a grid cell of it (1e-16 Pa s on the UMich records)
-    hG, hm = 0.5 * (Gg[1] - Gg[0]), 0.5 * (mg[1] - mg[0])
-    i_edge = 0 if refined[0] <= Gg[0] + hG else s.n_G - 1 if refined[0] >= Gg[-1] - hG else 1
-    j_edge = 0 if refined[1] <= mg[0] + hm else s.n_mu - 1 if refined[1] >= mg[-1] - hm else 1
-    warnings = _edge_warnings(i_edge, j_edge, s, Gg, mg, [], [], label="pIMR")
+    def side(x, grid):
+        half = 0.5 * (grid[1] - grid[0])
+        return "low" if x <= grid[0] + half else "high" if x >= grid[-1] - half else None
+    warnings = grid_edge_warnings(side(refined[0], Gg), side(refined[1], mg), Gg, mg, "pIMR")
     if n <= p:
         # one collapse time fixes a curve in (G, mu), two at most a point with no noise scale: no
         # interval can be given, but the set of (G, mu) that reproduce the data can
