@@ -350,7 +350,7 @@ def nuisance_restarts(cand, obs, idx, K, minima, om: ObsModel, z, nu, levels=(-2
 
 def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None, starts=None, nu0=None,
             max_iter: int = 40, h: float = 0.01, tol: float = 1e-6, extra_starts=(), fix_material: bool = False,
-            restarts: bool = False, trace: list | None = None) -> MapFit:
+            restarts: bool = False, trace: list | None = None, alt_nu0=None) -> MapFit:
     """MAP + Laplace fit of ``cand`` to experiments ``idx`` over samples 1..K (module doc).
 
     om : the observation model (default :meth:`ObsModel.of` ``obs``: record noise, nuisances free);
@@ -362,6 +362,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         (:func:`nuisance_restarts`) and refit jointly from them (up to twice).
     trace : a list that receives one dict per Levenberg-Marquardt iteration (cost, Newton
         decrement, damping, accepted, the material at the iterate) -- for studying the fit's path.
+    alt_nu0 : a second set of starting nuisances (E_all, q): the screen's best material start at
+        these nuisances and ``extra_starts`` are also tried from them; the best start of each set
+        goes on to convergence, and the better end wins.
     """
     idx = np.arange(obs.n_exp) if idx is None else np.atleast_1d(np.asarray(idx, dtype=int))
     K = obs.n_samples - 1 if K is None else int(K)
@@ -383,6 +386,14 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     if starts is None:
         starts = grid_starts(cand, obs, idx, K, minima, om, nu_start, extra_starts)
     starts = [np.asarray(s, dtype=float) for s in starts]
+    pairs = [(z0, u_start) for z0 in starts]
+    if alt_nu0 is not None and not fix_material:
+        nu_alt = np.zeros((E, q))
+        n1 = np.asarray(alt_nu0, dtype=float)[idx]
+        nu_alt[:, :min(q, n1.shape[1])] = n1[:, :q]
+        u_alt = np.where(active, nu_alt / np.where(active, s_nu, 1.0), 0.0)
+        alt = grid_starts(cand, obs, idx, K, minima, om, nu_alt, extra_starts)
+        pairs += [(np.asarray(z0, dtype=float), u_alt) for z0 in alt]
     z_fixed = starts[0]
     fr = om.frames
 
@@ -482,16 +493,24 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
 
     # every start a few iterations, then only the best one to convergence
     states = []
-    for z0 in (starts if d else starts[:1]):
-        x0 = pack(z0, u_start)
-        r0, R0 = res(z0[None], u_start[None])
+    for z0, u0 in (pairs if d else pairs[:1]):
+        x0 = pack(z0, u0)
+        r0, R0 = res(z0[None], u0[None])
         states.append(lm(x0, r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2,
-                         max_iter if len(starts) == 1 or not d else min(6, max_iter)))
-    best = min(states, key=lambda q: q[2])
-    if len(states) > 1 and not best[5]:
-        it0 = best[6]
-        best = lm(best[0], best[1], best[2], best[3], best[4], max(1, max_iter - it0))
-        best[6] += it0
+                         max_iter if len(pairs) == 1 or not d else min(6, max_iter)))
+    def converge(st):
+        if len(states) > 1 and not st[5]:
+            it0 = st[6]
+            st = lm(st[0], st[1], st[2], st[3], st[4], max(1, max_iter - it0))
+            st[6] += it0
+        return st
+
+    # each set of starting nuisances sends its best start on to convergence: a start far from its
+    # set's nuisance optimum (the preprocessing's, when the baseline's have adapted to the wrong
+    # model) is costly after a few iterations and only shows its basin at the end
+    n_main = len(starts) if d else 1
+    sets = [states[:n_main], states[n_main:]] if d else [states]
+    best = min((converge(min(st, key=lambda q: q[2])) for st in sets if st), key=lambda q: q[2])
     if restarts and d and active.any():
         for _ in range(2):
             z, u = unpack(best[0])
