@@ -3,6 +3,7 @@ baseline is checkpointed with the other units (small polytropic runs, no candida
 
 import json
 
+import numpy as np
 import pytest
 
 import imrbayes.diagnosis.check as check_mod
@@ -94,7 +95,8 @@ class _Fit:
 
 def test_loeo_runs_for_the_baseline_and_the_candidates_in_contention():
     """Leave-one-experiment-out for the baseline and each consistent candidate whose forecast beats
-    the baseline's; not for an inconsistent one, one the forecast puts behind, or one whose forecast
+    the baseline's or is behind it by less than a paired SE; not for an inconsistent one, one the
+    forecast puts clearly behind (or behind without per-bubble rows to say by how much), or one whose forecast
     failed -- unless every model is asked for, or the baseline's own forecast is undefined."""
     held = {"nhkv": {"forecast": {"rmse": 0.05}}, "better": {"forecast": {"rmse": 0.04}},
             "worse": {"forecast": {"rmse": 0.06}}, "inconsistent": {"forecast": {"rmse": 0.03}},
@@ -105,8 +107,20 @@ def test_loeo_runs_for_the_baseline_and_the_candidates_in_contention():
     assert run_mod.loeo_keys(held, fits, cands, "nhkv") == ["nhkv", "better"]
     assert run_mod.loeo_keys(held, fits, cands, "nhkv", loeo_all=True) == ["nhkv", "better", "worse",
                                                                            "inconsistent", "failed"]
+    # behind on the mean but within the paired noise (per-bubble RMSE differences 0.34 SE behind, as
+    # qkv on stiffening 1004): left to LOEO; clearly behind (4.5 SE, as Carreau there): not
+    base_rows = [0.020, 0.030, 0.025, 0.022, 0.028]
+    held["nhkv"]["forecast"]["per_experiment"] = base_rows
+    held["level"] = {"forecast": {"rmse": 0.052, "per_experiment": [0.012, 0.041, 0.020, 0.031, 0.022]}}
+    held["behind"] = {"forecast": {"rmse": 0.06, "per_experiment": [r + 0.0012 + 1e-4 * i for i, r in enumerate(base_rows)]}}
+    cands.update(level=_Cand(True), behind=_Cand(True))
+    fits.update(level=_Fit(), behind=_Fit())
+    d_level = np.subtract(base_rows, held["level"]["forecast"]["per_experiment"])
+    assert -1.0 < d_level.mean() / (d_level.std(ddof=1) / np.sqrt(5)) < 0     # the premise: behind, within 1 SE
+    assert run_mod.loeo_keys(held, fits, cands, "nhkv") == ["nhkv", "better", "level"]
     held["nhkv"]["forecast"]["rmse"] = float("nan")    # a record too short to forecast: LOEO for all
-    assert run_mod.loeo_keys(held, fits, cands, "nhkv") == ["nhkv", "better", "worse", "inconsistent", "failed"]
+    assert run_mod.loeo_keys(held, fits, cands, "nhkv") == ["nhkv", "better", "worse", "inconsistent", "failed",
+                                                            "level", "behind"]
 
 
 def test_diagnose_reports_loeo_where_it_ran():
@@ -118,7 +132,9 @@ def test_diagnose_reports_loeo_where_it_ran():
     base = r["baseline"]["heldout"]
     assert set(base) == {"forecast", "loeo"} and len(base["loeo"]["per_experiment"]) == 3
     for c in r["candidates"]:
-        in_contention = c["consistent"] and c["heldout"]["forecast"]["rmse"] < base["forecast"]["rmse"]
+        pd = c["heldout"]["forecast"]["paired_vs_baseline"]
+        in_contention = c["consistent"] and (c["heldout"]["forecast"]["rmse"] < base["forecast"]["rmse"]
+                                             or pd["mean_diff"] > -run_mod.LOEO_BEHIND_SE * pd["se"])
         assert ("loeo" in c["heldout"]) == in_contention, c["key"]
         assert set(c["relative_reduction"]) == set(c["heldout"])
         assert bool(c["loeo_note"]) == (not in_contention)
