@@ -392,8 +392,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         n1 = np.asarray(alt_nu0, dtype=float)[idx]
         nu_alt[:, :min(q, n1.shape[1])] = n1[:, :q]
         u_alt = np.where(active, nu_alt / np.where(active, s_nu, 1.0), 0.0)
-        alt = grid_starts(cand, obs, idx, K, minima, om, nu_alt, extra_starts)
-        pairs += [(np.asarray(z0, dtype=float), u_alt) for z0 in alt]
+        if not np.array_equal(u_alt, u_start):   # the same nuisances would repeat every start's fit
+            alt = grid_starts(cand, obs, idx, K, minima, om, nu_alt, extra_starts)
+            pairs += [(np.asarray(z0, dtype=float), u_alt) for z0 in alt]
     z_fixed = starts[0]
     fr = om.frames
 

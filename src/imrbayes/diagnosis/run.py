@@ -192,9 +192,9 @@ def loeo_keys(held: dict, fits: dict, cands: dict, base_key: str, loeo_all: bool
         ok, _ = c.spec.consistent({n: e["median"] for n, e in est.items()}, est)
         rk = held[k]["forecast"]["rmse"]
         pd = paired(held[base_key]["forecast"].get("per_experiment", []), held[k]["forecast"].get("per_experiment", []))
-        level = ok and np.isfinite(rk) and (rk < rb or (np.isfinite(pd["se"]) and pd["se"] > 0
-                                                        and pd["mean_diff"] > -LOEO_BEHIND_SE * pd["se"]))
-        if loeo_all or not np.isfinite(rb) or level:
+        in_contention = ok and np.isfinite(rk) and (rk < rb or (np.isfinite(pd["se"]) and pd["se"] > 0
+                                                                and pd["mean_diff"] > -LOEO_BEHIND_SE * pd["se"]))
+        if loeo_all or not np.isfinite(rb) or in_contention:
             out.append(k)
     return out
 
