@@ -142,9 +142,10 @@ def test_diagnose_reports_loeo_where_it_ran():
 
 @pytest.mark.parametrize("case", ["far", "holed", "dominated"])
 def test_bootstrap_stops_after_the_first_batch_only_when_decided(case, monkeypatch):
-    """Replicates whose misfit sits far below the data's decide 'inadequate' after the first batch
-    (10 of 19 run, p-value Cantelli's bound); with one of them failed the other 9 run and the rank
-    test decides (the failure counting against rejection); replicates above the data everywhere decide 'adequate' after 10 (as before)."""
+    """Replicates whose misfit sits far below the data's decide 'inadequate' at the first look
+    (5 of 19 run, p-value Cantelli's bound); with one of them failed every look stays open, all 19
+    run and the rank test decides (the failure counting against rejection); replicates above the
+    data everywhere decide 'adequate' at the first look."""
     import numpy as np
 
     calls = []
@@ -168,10 +169,12 @@ def test_bootstrap_stops_after_the_first_batch_only_when_decided(case, monkeypat
     assert all(d["seconds"] >= 0 and d["cpu_seconds"] >= 0 for d in r["stage_seconds"])
     assert not any("cannot find" in w for w in r["warnings"])     # 19 replicates can reject at 5 %
     if case == "far":
-        assert len(calls) == 10 and ev["n_bootstrap"] == 10 and ev["sequential"]["decided"] == "inadequate"
+        assert len(calls) == 5 and ev["n_bootstrap"] == 5 and ev["sequential"]["decided"] == "inadequate"
+        assert ev["sequential"]["looks"] == [5, 10] and ev["sequential"]["first_batch"] == 5
         z = max(ev["sequential"]["z_first_batch"].values())
+        assert z >= check_mod.Z_DECIDED_FIRST
         assert chk["verdict"] == "inadequate" and ev["p_value_kind"] == "bound"
-        assert ev["p_value"] == pytest.approx(3 / (1 + z ** 2)) and ev["p_value_rank"] == pytest.approx(1 / 11)
+        assert ev["p_value"] == pytest.approx(3 / (1 + z ** 2)) and ev["p_value_rank"] == pytest.approx(1 / 6)
         assert check_mod.p_value_text(ev).startswith("p ≤ ")
     elif case == "holed":
         assert len(calls) == 19 and ev["n_bootstrap"] == 19 and ev["sequential"]["decided"] is None
@@ -179,7 +182,7 @@ def test_bootstrap_stops_after_the_first_batch_only_when_decided(case, monkeypat
         assert ev["p_value_kind"] == "rank" and ev["p_value"] == pytest.approx(0.10) and chk["verdict"] == "adequate"
         assert np.isnan(ev["statistics"]["misfit"]["bootstrap"][3])
     else:
-        assert len(calls) == 10 and ev["sequential"]["decided"] == "adequate" and chk["verdict"] == "adequate"
+        assert len(calls) == 5 and ev["sequential"]["decided"] == "adequate" and chk["verdict"] == "adequate"
         assert check_mod.p_value_text(ev) == f"p = {ev['p_value']:.3f}"
 
 

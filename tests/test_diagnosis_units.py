@@ -293,6 +293,17 @@ def test_inadequate_decided_early_only_far_beyond_every_replicate():
             hits[name] += inadequate_already(obs, boot, STATS, 0.05)[0]
     assert hits["chi2"] == 0
     assert hits["lognormal"] / n <= 2 / (1 + Z_DECIDED ** 2), hits
+    # the first look, after 5 replicates, at its own threshold (decisive_z(5) = 40): as rare
+    hits5 = {"chi2": 0, "lognormal": 0}
+    for _ in range(n):
+        X = rng.chisquare(600, size=(2, 6)) / 600
+        L = np.exp(rng.standard_normal((2, 6)))
+        for name, Y in (("chi2", X), ("lognormal", L)):
+            obs = {"misfit": Y[0, 0], "phase_misfit": Y[1, 0], "drift": 0.0}
+            boot = {"misfit": Y[0, 1:], "phase_misfit": Y[1, 1:], "drift": np.zeros(5)}
+            hits5[name] += inadequate_already(obs, boot, STATS, 0.05)[0]
+    assert hits5["chi2"] == 0
+    assert hits5["lognormal"] / n <= 2 / (1 + Z_DECIDED ** 2), hits5
     boot = {"misfit": 0.6 + 0.05 * rng.standard_normal(10), "phase_misfit": 0.7 + 0.05 * rng.standard_normal(10),
             "drift": rng.exponential(0.2, 10)}
     z_want = (40.0 - boot["misfit"].mean()) / boot["misfit"].std(ddof=1)
@@ -304,6 +315,11 @@ def test_inadequate_decided_early_only_far_beyond_every_replicate():
     # just inside the threshold: not decided
     near = boot["misfit"].mean() + 0.99 * Z_DECIDED * boot["misfit"].std(ddof=1)
     assert not inadequate_already({"misfit": near, "phase_misfit": 0.7, "drift": 0.1}, boot, STATS, 0.05)[0]
+    # 30 sd out decides after 10 replicates, not after 5 (their sd is the less certain)
+    five = {k: v[:5] for k, v in boot.items()}
+    for b, want in ((boot, True), (five, False)):
+        at30 = b["misfit"].mean() + 30.0 * b["misfit"].std(ddof=1)
+        assert inadequate_already({"misfit": at30, "phase_misfit": 0.7, "drift": 0.1}, b, STATS, 0.05)[0] == want
 
 
 def test_grid_starts_try_a_given_start_once():

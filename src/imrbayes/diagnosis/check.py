@@ -34,13 +34,13 @@ extreme on *any one* statistic was then rejected, ~3 alpha with three statistics
 alarms in 20 camera-style nulls, measured. With the pool the same 20 nulls give none, and the
 mechanisms' detections are kept: docs/diagnosis.md.)
 
-The replicates run in two batches (:func:`bootstrap_check`): after the first (10 of 19), the check
-stops ``adequate`` when replicates at or above the data on every statistic already keep the
-p-value above alpha (:func:`adequate_already`, exact), and ``inadequate`` when the data lie above
-every replicate and at least 20 of their sd above their mean on a chi-square-like statistic
-(:func:`inadequate_already`; the reported p-value is then Cantelli's distribution-free bound,
-S / (1 + z^2), not a rank). The second stop adds at most that bound (0.25 % per statistic at the
-replicates' true moments) to the test's size.
+The replicates run in batches (:func:`bootstrap_check`; default after 5, after 10, then all 19):
+after each, the check stops ``adequate`` when replicates at or above the data on every statistic
+already keep the p-value above alpha (:func:`adequate_already`, exact), and ``inadequate`` when the
+data lie above every replicate and at least :func:`decisive_z` of their sd (40 after 5, 20 after 10)
+above their mean on a chi-square-like statistic (:func:`inadequate_already`; the reported p-value is
+then Cantelli's distribution-free bound, S / (1 + z^2), not a rank). That stop adds at most the
+bound (0.25 % per statistic at the replicates' true moments) to the test's size.
 """
 
 from __future__ import annotations
@@ -66,6 +66,18 @@ DECIDE_STATS = ("misfit", "phase_misfit")
 #: sample sd (below half the true sd with probability ~1 % for chi-square-like statistics).
 #: Thermal fits of real records lie 400-32 000 sd out (docs/diagnosis.md, Runtime).
 Z_DECIDED = 20.0
+#: the same after only 5 replicates: their sd (4 degrees of freedom) is below a quarter of the true
+#: sd with probability ~0.75 % (chi-square-like statistics), as 10 replicates' is below half with
+#: ~1.3 %, so both thresholds leave the data >= 10 true sd out (Cantelli: <= 1 %) at like odds.
+#: Every stored thermal row decided this early was decided inadequate after 10 as well, and the 20
+#: nulls lie <= 3.2 sd out after 5 (docs/diagnosis.md, Runtime).
+Z_DECIDED_FIRST = 40.0
+
+
+def decisive_z(n: int) -> float:
+    """The distance (in replicate sd) that decides ``inadequate`` after ``n`` replicates: 40 below
+    10 replicates, :data:`Z_DECIDED` from 10 on (:func:`inadequate_already` needs at least 5)."""
+    return Z_DECIDED if n >= 10 else Z_DECIDED_FIRST
 
 
 def mienks_drift(base, obs, settings, seed: int = 0) -> tuple:
@@ -235,9 +247,10 @@ def adequate_already(n_dominating: int, B: int, alpha: float) -> bool:
     return (1.0 + int(n_dominating)) / (B + 1.0) > alpha
 
 
-def inadequate_already(observed: dict, boot: dict, stats, alpha: float, z_decided: float = Z_DECIDED) -> tuple:
+def inadequate_already(observed: dict, boot: dict, stats, alpha: float, z_decided: float | None = None) -> tuple:
     """Whether the check is decided ``inadequate`` from the first replicates alone: the data lie
-    beyond every one of them and at least ``z_decided`` of their sd above their mean on one of
+    beyond every one of them and at least ``z_decided`` (default :func:`decisive_z` of their number)
+    of their sd above their mean on one of
     :data:`DECIDE_STATS` (``observed``: statistic -> value; ``boot``: statistic -> replicate values).
     Returns (decided, p_bound, z per statistic). ``p_bound`` = S / (1 + z^2) (Cantelli's bound at
     the replicates' moments, Bonferroni over the S statistics of the check) is what such a datum's
@@ -245,6 +258,7 @@ def inadequate_already(observed: dict, boot: dict, stats, alpha: float, z_decide
     zs, bound = {}, 1.0
     for k in (k for k in DECIDE_STATS if k in stats):
         b = np.asarray(boot[k], dtype=float)
+        z_min = decisive_z(b.size) if z_decided is None else z_decided
         obs_k = float(observed[k])
         if b.size < 5 or not np.all(np.isfinite(b)) or not np.isfinite(obs_k):
             continue
@@ -253,7 +267,7 @@ def inadequate_already(observed: dict, boot: dict, stats, alpha: float, z_decide
             continue
         z = (obs_k - float(np.mean(b))) / sd
         zs[k] = z
-        if obs_k > b.max() and z >= z_decided:
+        if obs_k > b.max() and z >= z_min:
             bound = min(bound, len(stats) / (1.0 + z * z))
     return bool(bound <= alpha), float(bound), zs
 
@@ -273,7 +287,7 @@ def p_value_text(ev: dict) -> str:
 
 def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 0, alpha: float = 0.05,
                     progress=None, mienks=None, execution=None, build: dict | None = None,
-                    first_batch: int = 10, replicate_fits: str = "full") -> dict:
+                    first_batch=(5, 10), replicate_fits: str = "full") -> dict:
     """Verdict ``adequate``/``inadequate`` with the evidence (see module doc); ``mienks``: the
     MIEnKS settings the observed ``mienks_drift`` was computed with (None: not used).
 
@@ -315,27 +329,31 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     ex = execution or Execution(progress=False)
     if progress is not None and ex.bar is None:
         ex = dataclasses.replace(ex, progress=lambda done, total: progress(1))
-    # sequential: a first batch, then the rest only when the verdict is still open. A replicate at or
+    # sequential: batches (5, 10, then the rest) while the verdict is still open. A replicate at or
     # above the data on every statistic keeps the combined p-value at (1 + their number) / (B + 1) or
     # more whatever the rest give (adequate_already): with that bound above alpha the data are
     # adequate and the rest is not run.
     # Symmetrically, data far beyond every first replicate on a chi-square-like statistic cannot be
     # made adequate by the rest except at odds below Cantelli's bound (inadequate_already): the
     # real records lie hundreds of replicate sd out, and the other half of the check is not run.
-    first = units[:min(B, first_batch)] if first_batch else units
-    rep = ex.run(first, bootstrap_unit, seed, desc="diagnose bootstrap")
-    results = dict(rep.results)
-    n_dom = sum(1 for r in results.values() if all(not (r.get(k, np.inf) < observed[k]) for k in stats))
-    first_boot = {k: [results.get(u.unit_id, {}).get(k, float("nan")) for u in first] for k in stats}
-    bad, p_bound, z_first = inadequate_already(observed, first_boot, stats, alpha)
-    decided = None
-    if len(first) < B:
-        decided = "adequate" if adequate_already(n_dom, B, alpha) else "inadequate" if bad else None
-    if len(first) < B and decided is None:
-        rep = ex.run(units[len(first):], bootstrap_unit, seed, desc="diagnose bootstrap")
+    # ``first_batch``: the replicate counts after which to look (an int: one look; 0: none)
+    looks = sorted({int(n) for n in np.atleast_1d(first_batch) if 0 < int(n) < B})
+    results, decided, done, p_bound, z_first = {}, None, 0, 1.0, {}
+    for n in looks + [B]:
+        rep = ex.run(units[done:n], bootstrap_unit, seed, desc="diagnose bootstrap")
         results.update(rep.results)
-    if decided is not None:
-        B = len(first)
+        done = n
+        n_dom = sum(1 for r in results.values() if all(not (r.get(k, np.inf) < observed[k]) for k in stats))
+        if n == B and looks:
+            break
+        first = units[:n]      # z_first_batch: at the last look (all B when there is none)
+        first_boot = {k: [results.get(u.unit_id, {}).get(k, float("nan")) for u in first] for k in stats}
+        bad, p_bound, z_first = inadequate_already(observed, first_boot, stats, alpha)
+        if n < B:
+            decided = "adequate" if adequate_already(n_dom, B, alpha) else "inadequate" if bad else None
+            if decided is not None:
+                B = n
+                break
     boot = {k: [results.get(f"bootstrap={b:03d}", {}).get(k, float("nan")) for b in range(B)] for k in stats}
     p_comb, p_each = combined_p_value([observed[k] for k in stats], [boot[k] for k in stats])
     p = dict(zip(stats, map(float, p_each)))
@@ -343,13 +361,16 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
           "p_value_kind": "bound" if decided == "inadequate" else "rank",
           "p_value_rank": p_comb,
           "replicate_fits": "full" if lin is None else "linearised",
-          "sequential": {"first_batch": len(first), "n_planned": len(units), "stopped_early": decided is not None,
+          "sequential": {"first_batch": len(first),
+                         "looks": looks, "n_planned": len(units), "stopped_early": decided is not None,
                          "decided": decided, "n_dominating": int(n_dom),
                          "z_first_batch": {k: float(v) for k, v in z_first.items()} if decided != "adequate" else {},
-                         "rule": f"stop after the first {len(first)} replicates when (1 + the number of them at or "
+                         "rule": f"stop after the first {' or '.join(map(str, looks)) or len(units)} replicates when "
+                                 "(1 + the number of them at or "
                                  "above the data on every statistic) / (B + 1) > alpha (the verdict cannot become "
                                  "inadequate), or when the data lie above all of them and >= "
-                                 f"{Z_DECIDED:g} of their sd above their mean on {' or '.join(DECIDE_STATS)} "
+                                 f"{' / '.join(f'{decisive_z(n):g}' for n in looks) or Z_DECIDED} of their sd above "
+                                 f"their mean on {' or '.join(DECIDE_STATS)} "
                                  "(inadequate: p_value is then the bound S / (1 + z^2), Cantelli's inequality with "
                                  "Bonferroni over the S statistics; p_value_rank the rank test of the replicates run)"},
           "rule": f"inadequate when the combined p-value of ({', '.join(stats)}) is <= alpha: Fisher's "

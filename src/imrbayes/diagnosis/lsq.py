@@ -23,6 +23,7 @@ nuisances. Sample 0 (R* = 1 by construction) is never fitted.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -40,6 +41,12 @@ TRUST_SD = 2.0
 #: stop when the Gauss-Newton model predicts less than this decrease of the cost (log-density
 #: units; 1e-3 is a move of ~0.05 posterior sd): the crawl along a flat direction buys nothing
 NEWTON_DECREMENT = 1e-3
+#: relative stop of :func:`fit_tempered`'s first fit (on the records' noise), 1e-6 in every other fit.
+#: That fit only picks the basin and sets the tempering: on a misfitting model its cost is the
+#: tempered one times chi-square/n (~150 on stiff PA), so 1e-4 of it is ~0.01-0.03 nats of the
+#: tempered fit that follows, and its last iterations (a fifth of them) polished a point the
+#: tempered fit moves away from anyway (docs/diagnosis.md, Runtime)
+FIRST_STAGE_TOL = 1e-4
 #: prior sd of each bubble's log G and log mu offset from the gel's: a fixed prior for the
 #: bubble-to-bubble scatter (not estimated here; ``fit``'s random-effects layer estimates it)
 RE_SD = (0.15, 0.15)
@@ -362,9 +369,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         (:func:`nuisance_restarts`) and refit jointly from them (up to twice).
     trace : a list that receives one dict per Levenberg-Marquardt iteration (cost, Newton
         decrement, damping, accepted, the material at the iterate) -- for studying the fit's path.
-    alt_nu0 : a second set of starting nuisances (E_all, q): the screen's best material start at
-        these nuisances and ``extra_starts`` are also tried from them; the best start of each set
-        goes on to convergence, and the better end wins.
+    alt_nu0 : a second set of starting nuisances (E_all, q): every material start is also tried
+        from them; the best start of each set goes on to convergence, and the better end wins.
+    tol : stop when an accepted step lowers the cost by less than this fraction.
     """
     idx = np.arange(obs.n_exp) if idx is None else np.atleast_1d(np.asarray(idx, dtype=int))
     K = obs.n_samples - 1 if K is None else int(K)
@@ -393,8 +400,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         nu_alt[:, :min(q, n1.shape[1])] = n1[:, :q]
         u_alt = np.where(active, nu_alt / np.where(active, s_nu, 1.0), 0.0)
         if not np.array_equal(u_alt, u_start):   # the same nuisances would repeat every start's fit
-            alt = grid_starts(cand, obs, idx, K, minima, om, nu_alt, extra_starts)
-            pairs += [(np.asarray(z0, dtype=float), u_alt) for z0 in alt]
+            # the same material starts: a second screen at these nuisances cost as much as six
+            # Levenberg-Marquardt iterations per candidate (docs/diagnosis.md, Runtime)
+            pairs += [(z0, u_alt) for z0 in starts]
     z_fixed = starts[0]
     fr = om.frames
 
@@ -463,7 +471,7 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
                 decrement = np.inf
             if trace is not None:
                 trace.append({"it": it, "cost": float(cost), "decrement": float(decrement), "lam": float(lam),
-                              "z": np.asarray(z, dtype=float).tolist()})
+                              "z": np.asarray(z, dtype=float).tolist(), "t": time.perf_counter()})
             if decrement < NEWTON_DECREMENT:
                 conv, J_x = True, J
                 break
@@ -494,12 +502,16 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
 
     # every start a few iterations, then only the best one to convergence
     states = []
-    for z0, u0 in (pairs if d else pairs[:1]):
+    for i_s, (z0, u0) in enumerate(pairs if d else pairs[:1]):
+        if trace is not None and len(pairs) > 1:      # a marker per raced start
+            trace.append({"start": i_s, "set": int(i_s >= len(starts)), "t": time.perf_counter()})
         x0 = pack(z0, u0)
         r0, R0 = res(z0[None], u0[None])
         states.append(lm(x0, r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2,
                          max_iter if len(pairs) == 1 or not d else min(6, max_iter)))
     def converge(st):
+        if trace is not None and len(states) > 1:
+            trace.append({"converge": True, "t": time.perf_counter()})
         if len(states) > 1 and not st[5]:
             it0 = st[6]
             st = lm(st[0], st[1], st[2], st[3], st[4], max(1, max_iter - it0))
@@ -546,7 +558,7 @@ def fit_tempered(cand, obs, minima, om0: ObsModel, **kw) -> tuple:
     nuisances' other basins (``restarts``)."""
     # nuisance restarts when the fit has no informed nuisance start (the baseline); the candidates
     # start from the baseline's nuisances, found with them
-    first = fit_map(cand, obs, minima=minima, om=om0, restarts=kw.get("nu0") is None, **kw)
+    first = fit_map(cand, obs, minima=minima, om=om0, restarts=kw.get("nu0") is None, tol=FIRST_STAGE_TOL, **kw)
     om = om0.tempered(obs, first.fitted)
     return fit_map(cand, obs, minima=minima, om=om, starts=[first.z], nu0=first.nu), om
 

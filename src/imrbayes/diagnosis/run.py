@@ -44,7 +44,7 @@ class DiagnoseSettings:
     # measured confusion matrix and false-alarm rate (docs/diagnosis.md); 39 only sharpens the p-value
     # and doubles the check's cost, the largest share of a thermal diagnosis
     n_bootstrap: int = 19
-    bootstrap_first_batch: int = 10  # sequential check: the rest only if these leave the verdict open (0: all B)
+    bootstrap_first_batch: tuple = (5, 10)  # sequential check: looks after these many replicates (0: all B at once)
     bootstrap_fits: str = "full"    # replicates' fits: "linearised" reuses one Jacobian (polytropic only: docs/diagnosis.md)
     candidates: tuple = DEFAULT_CANDIDATES
     baseline_method: str = "en4dvar"
