@@ -369,8 +369,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         (:func:`nuisance_restarts`) and refit jointly from them (up to twice).
     trace : a list that receives one dict per Levenberg-Marquardt iteration (cost, Newton
         decrement, damping, accepted, the material at the iterate) -- for studying the fit's path.
-    alt_nu0 : a second set of starting nuisances (E_all, q): every material start is also tried
-        from them; the best start of each set goes on to convergence, and the better end wins.
+    alt_nu0 : a second set of starting nuisances (E_all, q): the screen's best material start at
+        these nuisances and ``extra_starts`` are also tried from them; the best start of each set
+        goes on to convergence, and the better end wins.
     tol : stop when an accepted step lowers the cost by less than this fraction.
     """
     idx = np.arange(obs.n_exp) if idx is None else np.atleast_1d(np.asarray(idx, dtype=int))
@@ -400,9 +401,10 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         nu_alt[:, :min(q, n1.shape[1])] = n1[:, :q]
         u_alt = np.where(active, nu_alt / np.where(active, s_nu, 1.0), 0.0)
         if not np.array_equal(u_alt, u_start):   # the same nuisances would repeat every start's fit
-            # the same material starts: a second screen at these nuisances cost as much as six
-            # Levenberg-Marquardt iterations per candidate (docs/diagnosis.md, Runtime)
-            pairs += [(z0, u_alt) for z0 in starts]
+            # screened again at these nuisances: the first set's material starts raced from them
+            # miss relaxation 2002's better basin (zener stage-1 cost 334 against 269; docs/diagnosis.md, Runtime)
+            alt = grid_starts(cand, obs, idx, K, minima, om, nu_alt, extra_starts)
+            pairs += [(np.asarray(z0, dtype=float), u_alt) for z0 in alt]
     z_fixed = starts[0]
     fr = om.frames
 
