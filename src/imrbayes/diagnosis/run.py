@@ -143,7 +143,7 @@ def candidate_unit(unit, rng) -> dict:
     would damp exactly the features a candidate explains. Returns {"fit", "sd_used", "alpha"}."""
     from dataclasses import asdict as _asdict
 
-    from imrbayes.diagnosis.lsq import fit_tempered
+    from imrbayes.diagnosis.lsq import CANDIDATE_FIRST_TOL, fit_tempered
 
     d = unit.data
     c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
@@ -153,7 +153,7 @@ def candidate_unit(unit, rng) -> dict:
     # wrong model (on relaxation 2002 its Req 1.37-1.50x the truth; zener from there ends at cost 358,
     # from the preprocessing's at 269)
     f, om = fit_tempered(c, obs, minima, om0, extra_starts=[extra], nu0=d["nu_base"],
-                         alt_nu0=np.zeros_like(d["nu_base"]))
+                         alt_nu0=np.zeros_like(d["nu_base"]), first_tol=CANDIDATE_FIRST_TOL)
     return {"fit": _asdict(f), "sd_used": om.sd_used.tolist(), "alpha": om.alpha.tolist(),
             "effective_samples": om.n_eff.tolist()}
 
