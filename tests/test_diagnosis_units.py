@@ -283,27 +283,18 @@ def test_inadequate_decided_early_only_far_beyond_every_replicate():
     from imrbayes.diagnosis.check import STATS, Z_DECIDED, inadequate_already
 
     rng = np.random.default_rng(5)
-    n, hits = 20000, {"chi2": 0, "lognormal": 0}
-    for _ in range(n):
-        X = rng.chisquare(600, size=(2, 11)) / 600                    # data first, then 10 replicates
-        L = np.exp(rng.standard_normal((2, 11)))
-        for name, Y in (("chi2", X), ("lognormal", L)):
-            obs = {"misfit": Y[0, 0], "phase_misfit": Y[1, 0], "drift": 0.0}
-            boot = {"misfit": Y[0, 1:], "phase_misfit": Y[1, 1:], "drift": np.zeros(10)}
-            hits[name] += inadequate_already(obs, boot, STATS, 0.05)[0]
-    assert hits["chi2"] == 0
-    assert hits["lognormal"] / n <= 2 / (1 + Z_DECIDED ** 2), hits
-    # the first look, after 5 replicates, at its own threshold (decisive_z(5) = 40): as rare
-    hits5 = {"chi2": 0, "lognormal": 0}
-    for _ in range(n):
-        X = rng.chisquare(600, size=(2, 6)) / 600
-        L = np.exp(rng.standard_normal((2, 6)))
-        for name, Y in (("chi2", X), ("lognormal", L)):
-            obs = {"misfit": Y[0, 0], "phase_misfit": Y[1, 0], "drift": 0.0}
-            boot = {"misfit": Y[0, 1:], "phase_misfit": Y[1, 1:], "drift": np.zeros(5)}
-            hits5[name] += inadequate_already(obs, boot, STATS, 0.05)[0]
-    assert hits5["chi2"] == 0
-    assert hits5["lognormal"] / n <= 2 / (1 + Z_DECIDED ** 2), hits5
+    n = 20000
+    for n_rep in (10, 5):     # the looks after 10 replicates (20 sd) and after 5 (decisive_z(5) = 40 sd)
+        hits = {"chi2": 0, "lognormal": 0}
+        for _ in range(n):
+            X = rng.chisquare(600, size=(2, n_rep + 1)) / 600                # data first, then the replicates
+            L = np.exp(rng.standard_normal((2, n_rep + 1)))
+            for name, Y in (("chi2", X), ("lognormal", L)):
+                obs = {"misfit": Y[0, 0], "phase_misfit": Y[1, 0], "drift": 0.0}
+                boot = {"misfit": Y[0, 1:], "phase_misfit": Y[1, 1:], "drift": np.zeros(n_rep)}
+                hits[name] += inadequate_already(obs, boot, STATS, 0.05)[0]
+        assert hits["chi2"] == 0
+        assert hits["lognormal"] / n <= 2 / (1 + Z_DECIDED ** 2), (n_rep, hits)
     boot = {"misfit": 0.6 + 0.05 * rng.standard_normal(10), "phase_misfit": 0.7 + 0.05 * rng.standard_normal(10),
             "drift": rng.exponential(0.2, 10)}
     z_want = (40.0 - boot["misfit"].mean()) / boot["misfit"].std(ddof=1)
