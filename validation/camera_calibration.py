@@ -22,6 +22,10 @@ cost). Usage:
     python validation/camera_calibration.py --seeds 20 --family scatter --json validation/results/camera_scatter.json
     python validation/camera_calibration.py --seeds 20 --method mienks --likelihoods default --json validation/results/camera_mienks.json
 
+Data from another code: ``--generator pyimr`` makes every curve with PyIMR (the optional ``peers``
+extra; same physics, constants and camera sampling, its own discretisation and integrator), so the
+fitted model is not the generating one at all.
+
 Probes of the design (not the camera family itself): ``--req given`` writes the true Req into
 meta.json, so the fit takes it as known (Rmax and the time of the maximum are estimated either
 way); ``--phase 0`` puts a frame at every maximum.
@@ -74,6 +78,8 @@ def simulate(folder: Path, seed: int, family: str, bubble: str, design: dict | N
            "--phase", design.get("phase", "random"), "--pre-max-s", "5e-6",
            "--req-in-meta" if design.get("req") == "given" else "--no-req-in-meta", "--t-end", "3.6", "--seed", str(seed), "--out", str(folder),
            "--forward", f"bubble={bubble}", "--forward", "rtol=1e-9", "--forward", "atol=1e-11"]
+    if design.get("generator", "imrbayes") != "imrbayes":      # curves from another code (PyIMR)
+        cmd += ["--generator", design["generator"]]
     if family == "scatter":
         cmd += ["--scatter", f"G={SCATTER}", "--scatter", f"mu={SCATTER}"]
     subprocess.run(cmd, check=True, capture_output=True, text=True)
@@ -350,6 +356,8 @@ def main(argv=None):
                     help="given: the true Req in meta.json (the fit takes it as known)")
     ap.add_argument("--phase", choices=["random", "0"], default="random",
                     help="the camera's sub-frame phase (0: a frame at every maximum)")
+    ap.add_argument("--generator", choices=["imrbayes", "pyimr"], default="imrbayes",
+                    help="the code that makes the data (pyimr: another code, the 'peers' extra; the fit is ours)")
     ap.add_argument("--merge", nargs="+", type=Path, default=None, metavar="FILE",
                     help="no fits: unite the rows of these result files (the same design, e.g. seed ranges run in "
                          "parallel) into --json and print the table")
@@ -369,8 +377,8 @@ def main(argv=None):
     settings = dict(_setting(kv) for kv in a.set)
     if prior:
         settings = {**settings, "prior": {k: list(v) for k, v in prior.items()}}     # kept apart in the JSON
-    design = {k: v for k, v in {"req": a.req, "phase": a.phase}.items()
-              if v != {"req": "estimated", "phase": "random"}[k]}
+    design = {k: v for k, v in {"req": a.req, "phase": a.phase, "generator": a.generator}.items()
+              if v != {"req": "estimated", "phase": "random", "generator": "imrbayes"}[k]}
     meta = {"family": a.family, "bubble": a.bubble, "method": a.method, "settings": settings,
             **({"design": design} if design else {})}
     rows, failures = [], []

@@ -49,6 +49,9 @@ from imrbayes.errors import InputError
 @click.option("--req-in-meta/--no-req-in-meta", default=True, show_default=True,
               help="Write each experiment's true Rmax and Req into meta.json (off: Req must be estimated from "
                    "the record's tail, as for most real data).")
+@click.option("--generator", type=click.Choice(["imrbayes", "pyimr"]), default="imrbayes", show_default=True,
+              help="The code that makes the curves: imrbayes's forward model, or PyIMR (another code, the optional "
+                   "'peers' extra) with the same physics, constants and options -- data no part of imrbayes made.")
 @click.option("--material", default=None, help="Text for meta.json 'material' (default: synthetic <model>).")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="Dataset folder to create (default: a new folder under ./imrbayes-runs/).")
@@ -56,7 +59,7 @@ from imrbayes.errors import InputError
 @config_option
 @force_option
 def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physics, t_end, dt_star, frame_s,
-                 phase, pre_max_s, scatter, req_in_meta, material, out, quiet, force):
+                 phase, pre_max_s, scatter, req_in_meta, generator, material, out, quiet, force):
     """Write a synthetic dataset (one CSV per experiment, t_s,R_m in SI; meta.json) from the forward model, with
     truth.json."""
     from imrbayes import forward as fwd
@@ -125,7 +128,14 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
         if min(g.size for g in grids) < 10:
             raise InputError("--frame-s", f"{frame_s:g} s gives fewer than 10 frames per record")
     exp_params = syn.draw_scatter(seed, pvals, scatter_sd, n_exp) if scatter_sd else pvals
-    clean = syn.simulate_dataset(fm, exp_params, rmax_m, req_m, grids)
+    maker = fm
+    if generator == "pyimr":
+        from imrbayes.forward.peers import PyIMRModel
+        maker = PyIMRModel(fm)
+        if not quiet:
+            click.echo(f"generating with PyIMR {maker.describe()['version']} (spectral, Nt {maker.nt}); "
+                       f"the first solve compiles (~15 s)", err=True)
+    clean = syn.simulate_dataset(maker, exp_params, rmax_m, req_m, grids)
     records, redrawn, t_max_s, sd_at_max = [], 0, [], []
     for g, Rs, rm, tc in zip(grids, clean, rmax_m, tc_s):
         if Rs.shape != g.shape or not np.all(np.isfinite(Rs)):
@@ -143,7 +153,8 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
     files = [f"exp_{i:03d}.csv" for i in range(1, n_exp + 1)]
     options = fm.options.to_dict()
     meta = {"material": material or f"synthetic ({model})",
-            "description": f"imrbayes simulate: {model} {pvals}, noise {noise_d['kind']}, seed {seed}",
+            "description": f"imrbayes simulate: {model} {pvals}, noise {noise_d['kind']}, seed {seed}"
+                           + ("" if generator == "imrbayes" else f", curves by {generator}"),
             "synthetic": True, "truth": "truth.json", "physics": ph, "forward": options,
             "experiments": ({f: {"Req_m": float(q), "Rmax_m": float(r)} for f, q, r in zip(files, req_m, rmax_m)}
                             if req_in_meta else {})}
@@ -154,6 +165,7 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
                           {"frame_s": frame_s, "phase": phase, "pre_max_s": pre_max_s,
                            "before_maximum": "mirror of the collapse"}) | {"t_end_star": t_end},
              "req_in_meta": req_in_meta, "scatter": scatter_sd,
+             "generator": ({"code": "imrbayes", "forward": options} if generator == "imrbayes" else maker.describe()),
              "experiments": [{"file": f, "rmax_m": float(r), "req_m": float(q), "rmax_over_req": float(a),
                               "tc_s": float(tc), "n_samples": int(g.size), "t_max_s": float(tm),
                               "phase_s": float(ph), "noise_sd_at_max_r_star": float(sm),
