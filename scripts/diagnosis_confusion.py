@@ -156,6 +156,8 @@ def run_one(job: dict) -> dict:
     """Generate, diagnose (checkpointed in the row's run folder), write ``job["path"]``; returns the row."""
     t0 = time.perf_counter()
     row = {k: job[k] for k in ("kind", "class", "seed", "design", "forward")}
+    if job.get("generator", "imrbayes") != "imrbayes":
+        row["generator"] = job["generator"]
     row["settings"] = {k: job.get(k) for k in ("quick", "loeo", "n_bootstrap", "mienks_drift", "stop_when_adequate")}
     try:
         from imrbayes.cli.options import data_fingerprint
@@ -166,7 +168,9 @@ def run_one(job: dict) -> dict:
         from imrbayes.io import code_version
 
         opts = ForwardOptions.from_dict(job["forward"], source="--forward")
-        obs, truth = camera_obs(job["class"], job["seed"], opts, design=job["design"])
+        gen = job.get("generator", "imrbayes")
+        obs, truth = camera_obs(job["class"], job["seed"], opts, design=job["design"],
+                                **({"generator": gen} if gen != "imrbayes" else {}))
         kw = {"loeo": job["loeo"]}
         if job.get("stop_when_adequate"):
             kw["compare_when_adequate"] = False
@@ -175,7 +179,8 @@ def run_one(job: dict) -> dict:
         if job.get("n_bootstrap"):
             kw["n_bootstrap"] = job["n_bootstrap"]
         settings = DiagnoseSettings.quick(**kw) if job["quick"] else DiagnoseSettings(**kw)
-        config = {"row": {k: row[k] for k in ("class", "seed", "design", "forward")}, "settings": row["settings"],
+        config = {"row": {k: row[k] for k in ("class", "seed", "design", "forward", "generator") if k in row},
+                  "settings": row["settings"],
                   "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, names=obs.names)}
         with open_checkpoint(Path(job["path"]).with_suffix(""), _jsonable(config)) as store:
             r = diagnose(obs, opts, settings=settings, seed=job["seed"],
@@ -203,7 +208,8 @@ def jobs_for(a, classes, designs) -> list:
     fwd = dict(kv.split("=", 1) for kv in a.forward)
     common = {"forward": fwd, "quick": a.quick, "loeo": a.loeo, "n_bootstrap": a.n_bootstrap,
               "mienks_drift": getattr(a, "mienks_drift", None),
-              "stop_when_adequate": bool(getattr(a, "stop_when_adequate", False))}
+              "stop_when_adequate": bool(getattr(a, "stop_when_adequate", False)),
+              "generator": getattr(a, "generator", "imrbayes")}
     jobs = []
     for c in classes:
         for s in range(a.seed_offset, a.seed_offset + a.seeds):
@@ -390,6 +396,7 @@ def compact_row(row: dict) -> dict:
             **({"candidates": held} if held else {}),
             "statistics": st, "sequential": ev.get("sequential"), "runtime_s": row.get("runtime_s"),
             **({"code": row["code"]} if "code" in row else {}),
+            **({"generator": row["generator"]} if "generator" in row else {}),
             **({"sessions": row["checkpoint"]["sessions"]} if "checkpoint" in row else {}),
             **({"rescored": row["rescored"]} if "rescored" in row else {}),
             **({"error": row.get("error")} if row.get("status") != "ok" else {})}
@@ -404,17 +411,18 @@ def export(out: Path, dest: Path, command: str, code: str) -> None:
                 {"command": command, "code": code, "rows": [compact_row(r) for r in rr]}, indent=1) + "\n")
 
 
-SETTING_KEYS = ("forward", "quick", "loeo", "n_bootstrap", "mienks_drift")
+SETTING_KEYS = ("forward", "quick", "loeo", "n_bootstrap", "mienks_drift", "generator")
 
 
-def _settings(forward, quick, loeo, n_bootstrap, mienks_drift) -> dict:
+def _settings(forward, quick, loeo, n_bootstrap, mienks_drift, generator="imrbayes") -> dict:
     return {"forward": sorted(forward), "quick": bool(quick), "loeo": bool(loeo), "n_bootstrap": n_bootstrap,
-            "mienks_drift": mienks_drift}
+            "mienks_drift": mienks_drift, "generator": generator or "imrbayes"}
 
 
 def run_settings(a) -> dict:
     """The settings a row depends on (besides class, seed and design), from parsed arguments."""
-    return _settings(a.forward, a.quick, (not a.quick) if a.loeo is None else a.loeo, a.n_bootstrap, a.mienks_drift)
+    return _settings(a.forward, a.quick, (not a.quick) if a.loeo is None else a.loeo, a.n_bootstrap, a.mienks_drift,
+                     getattr(a, "generator", "imrbayes"))
 
 
 def row_settings(row: dict, fallback: dict) -> dict:
@@ -422,9 +430,9 @@ def row_settings(row: dict, fallback: dict) -> dict:
     (those of the command that exported it)."""
     st = row.get("settings")
     if not st or row.get("forward") is None:
-        return fallback
+        return {**fallback, "generator": row.get("generator", fallback.get("generator", "imrbayes"))}
     return _settings([f"{k}={v}" for k, v in row["forward"].items()], st.get("quick"), st.get("loeo"),
-                     st.get("n_bootstrap"), st.get("mienks_drift"))
+                     st.get("n_bootstrap"), st.get("mienks_drift"), row.get("generator", "imrbayes"))
 
 
 class ResumeError(Exception):
@@ -503,6 +511,9 @@ def main(argv=None):
                          "compares, since no score depends on it")
     ap.add_argument("--forward", action="append", default=[], metavar="KEY=VALUE",
                     help="fitted forward option (e.g. bubble=polytropic); repeatable")
+    ap.add_argument("--generator", choices=["imrbayes", "pyimr"], default="imrbayes",
+                    help="the code that makes the records (pyimr: another code, the 'peers' extra; keep its rows "
+                         "in their own --out and --export)")
     ap.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     ap.add_argument("--summarize-only", action="store_true")
     ap.add_argument("--export", type=Path, default=None, metavar="PREFIX",

@@ -71,3 +71,21 @@ def test_simulate_with_pyimr_records_the_generator(tmp_path):
     b = np.loadtxt(tmp_path / "o" / "exp_001.csv", delimiter=",", skiprows=1)
     assert a.shape == b.shape and np.allclose(a[:, 0], b[:, 0])       # same frames, other code
     assert np.max(np.abs(a[:, 1] - b[:, 1])) / 263e-6 < 1e-4
+
+
+def test_camera_obs_from_pyimr_draws_the_same_records_with_another_code():
+    """The diagnosis test bed (``camera_obs``) with ``generator="pyimr"``: the same draws (material,
+    bubbles, phases, noise), curves from PyIMR; a piecewise truth has no PyIMR counterpart."""
+    pytest.importorskip("pyimr")
+    from imrbayes.diagnosis.synthetic import camera_obs
+    from imrbayes.forward import ForwardOptions
+
+    opts = ForwardOptions(bubble="polytropic")
+    a, ta = camera_obs("none", 5, opts, n_exp=2, generator="pyimr")
+    b, tb = camera_obs("none", 5, opts, n_exp=2)
+    assert ta["generator"]["code"] == "pyimr" and tb["generator"]["code"] == "imrbayes"
+    assert ta["theta"] == tb["theta"] and ta["rmax_m"] == tb["rmax_m"]
+    assert a.R_star.shape == b.R_star.shape
+    assert 0 < np.nanmax(np.abs(a.R_star - b.R_star)) < 1e-4
+    with pytest.raises(ValueError, match="piecewise"):
+        camera_obs("damage-softening", 5, opts, n_exp=1, generator="pyimr")

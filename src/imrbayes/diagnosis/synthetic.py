@@ -257,11 +257,16 @@ def _true_minima(fm, prm, rmax, req, t_end, breaks=None, dt=0.002):
     return t[idx]
 
 
-def _clean_record(cand, fm, theta: dict, rmax, req, ts):
+def _clean_record(cand, fm, theta: dict, rmax, req, ts, peer=None):
     """Noise-free R* of one bubble at its frame times ``ts`` (t* from the maximum; mirror before it)
-    and the break times used (piecewise candidates: the bubble's own true collapses)."""
+    and the break times used (piecewise candidates: the bubble's own true collapses). ``peer``: a
+    :class:`~imrbayes.forward.peers.PyIMRModel` that makes the curve instead (another code)."""
     z = cand.to_internal([theta[n] for n in cand.names])
     t_abs, back = np.unique(np.abs(np.asarray(ts, float)), return_inverse=True)
+    if peer is not None:
+        if cand.piecewise:
+            raise ValueError(f"generator pyimr: the piecewise model {cand.key!r} has no PyIMR counterpart")
+        return peer.simulate_radius({n: theta[n] for n in cand.names}, rmax, req, t_abs)[back], []
     breaks = None
     if cand.piecewise:
         t_end = float(t_abs[-1])
@@ -286,7 +291,7 @@ def _draw_clipped(rng, mean, sd, n, low=None):
 
 def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, design=None,
                truth_options=None, noise: str | None = None, frame_s: float | None = None,
-               scatter: Mapping | None = None, physics=None):
+               scatter: Mapping | None = None, physics=None, generator: str = "imrbayes"):
     """(Observations, truth dict): camera-style records with the hidden ``mechanism``, processed
     exactly as measured data.
 
@@ -297,6 +302,8 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
         ``n_exp``, ``noise``, ``frame_s``, ``scatter`` override its fields.
     truth_options : ForwardOptions of the data (default :func:`fine_options` of ``options``,
         with the bubble class's overrides applied in either case).
+    generator : ``imrbayes`` (our forward model with ``truth_options``) or ``pyimr`` (another code,
+        :mod:`imrbayes.forward.peers`, with the same physics options; its own discretisation).
 
     Draws (one ``default_rng(seed)``): the material as :func:`synthetic_obs` (G, mu log-uniform,
     the mechanism's parameters from its candidate's ``synthetic`` ranges), Rmax and Rmax/Req per
@@ -336,6 +343,12 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
     dopts = data_options(options, mechanism, truth_options)
     cand = make_candidate(key, dopts, physics=physics)
     fm = cand.fm
+    if generator not in ("imrbayes", "pyimr"):
+        raise ValueError(f"generator must be 'imrbayes' or 'pyimr', got {generator!r}")
+    peer = None
+    if generator == "pyimr":
+        from imrbayes.forward.peers import PyIMRModel
+        peer = PyIMRModel(fm)
     rng = np.random.default_rng(seed)
     theta = {n: r.draw(rng) for n, r in {**BASELINE_TRUTH, **d.material, **cand.spec.synthetic}.items()}
     n = int(d.n_exp)
@@ -356,7 +369,7 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
             rm, rq, tc = float(rmax[j]), float(rmax[j] / ratio[j]), float(rmax[j] / uc)
             name = f"exp_{i + 1:03d}"
             ts = syn.camera_times(tc, d.frame_s, d.t_end_star, d.pre_max * d.frame_s, float(phases[i]))
-            Rs, breaks = _clean_record(cand, fm, per_exp[i], rm, rq, ts)
+            Rs, breaks = _clean_record(cand, fm, per_exp[i], rm, rq, ts, peer=peer)
             Rn, redrawn = syn.noisy(ts, Rs, noise_d, rng, rmax_m=rm)
             exps.append(Experiment(name, (ts - ts[0]) * tc, Rn * rm, source=f"synthetic:{mechanism}:{seed}:{name}"))
             sd = syn.noise_sd(ts, Rs, noise_d, rm)
@@ -387,6 +400,7 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
     truth = {"mechanism": mechanism, "model": key, "theta": theta, "seed": seed, "design": d.to_dict(),
              "noise": noise_d, "fitted_forward": options.to_dict(), "data_forward": dopts.to_dict(),
              "forward_overrides": {k: v for k, v in dopts.to_dict().items() if options.to_dict().get(k) != v},
+             "generator": peer.describe() if peer is not None else {"code": "imrbayes"},
              "experiments": truth_exp, "names": list(obs.names),
              "rmax_m": [kept[nm]["rmax_m"] for nm in obs.names], "req_m": [kept[nm]["req_m"] for nm in obs.names],
              "t_max_s": [kept[nm]["t_max_s"] for nm in obs.names],
