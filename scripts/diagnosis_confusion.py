@@ -156,8 +156,9 @@ def run_one(job: dict) -> dict:
     """Generate, diagnose (checkpointed in the row's run folder), write ``job["path"]``; returns the row."""
     t0 = time.perf_counter()
     row = {k: job[k] for k in ("kind", "class", "seed", "design", "forward")}
-    if job.get("generator", "imrbayes") != "imrbayes":
-        row["generator"] = job["generator"]
+    gen = job.get("generator", "imrbayes")
+    if gen != "imrbayes":
+        row["generator"] = gen
     row["settings"] = {k: job.get(k) for k in ("quick", "loeo", "n_bootstrap", "mienks_drift", "stop_when_adequate")}
     try:
         from imrbayes.cli.options import data_fingerprint
@@ -168,7 +169,6 @@ def run_one(job: dict) -> dict:
         from imrbayes.io import code_version
 
         opts = ForwardOptions.from_dict(job["forward"], source="--forward")
-        gen = job.get("generator", "imrbayes")
         obs, truth = camera_obs(job["class"], job["seed"], opts, design=job["design"],
                                 **({"generator": gen} if gen != "imrbayes" else {}))
         kw = {"loeo": job["loeo"]}

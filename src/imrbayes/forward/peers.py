@@ -16,27 +16,17 @@ Measured agreement at both codes' grid limits: ``docs/forward-model.md`` (peer r
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from imrbayes.errors import ForwardModelError, InputError
 
-__all__ = ["PyIMRModel", "PEER_MODELS", "pyimr_available"]
+__all__ = ["PyIMRModel", "PEER_MODELS"]
 
 #: our model name -> (PyIMR class name, our parameter names in PyIMR's order)
 PEER_MODELS = {"nhkv": ("NeoHookeanKelvinVoigt", ("G", "mu")),
                "qkv": ("QuadraticKelvinVoigt", ("G", "mu", "alpha")),
                "zener": ("Zener", ("G", "mu", "lambda1", "lambda2"))}
 _RADIAL = {"rp": 1, "km": 2, "km-enthalpy": 3, "gilmore": 4}
-
-
-def pyimr_available() -> bool:
-    try:
-        import pyimr  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 class PyIMRModel:
@@ -92,7 +82,7 @@ class PyIMRModel:
         """R* = R/Rmax on ``t_star`` (t* from the maximum, >= 0) for one bubble; raises
         ForwardModelError if PyIMR's solve fails."""
         t_star = np.asarray(t_star, dtype=float)
-        tc = rmax_m * math.sqrt(self.physics.rho / self.physics.p8)
+        tc = float(self.physics.time_scale(rmax_m))
         lead = t_star.size == 0 or t_star[0] > 0.0          # PyIMR's output grid starts at the maximum
         tv = np.concatenate([[0.0], t_star]) * tc if lead else t_star * tc
         cfg = self._pyimr.SimulationConfig(R0=float(rmax_m), Req=float(req_m), material=self.material(params),
