@@ -145,7 +145,8 @@ FUNG = CandidateSpec(
     points_right_way=lambda m: m["alpha"] > 0.0, wrong_way="fitted alpha <= 0: strain softening, not stiffening",
     default=False)
 
-# lambda2 = 0: elastic and viscous stress relax together over lambda1; lambda1 -> 0 is NHKV. No
+# lambda2 = 0: elastic and viscous stress relax together over lambda1; lambda1 -> 0 is NHKV (with
+# the default zener_j=consistent; IMRv2's J counts the viscous term twice there). No
 # direction rule: any lambda1 > 0 is relaxation.
 ZENER = CandidateSpec(
     "zener", "viscoelastic-relaxation", "zener", extension=(Extension("lambda1", float(np.log(1e-6)), 1.5, log=True),),

@@ -48,6 +48,13 @@ NEWTON_DECREMENT = 1e-3
 #: from anyway. Not the baseline's: its tempering is every later fit's, and with 1e-4 its
 #: tempered fit on stiff PA 1-5 ended at chi-square/n 115.4 against 107.0 (docs/diagnosis.md, Runtime)
 CANDIDATE_FIRST_TOL = 1e-4
+#: the race's runner-up also goes on to convergence when it is at most this fraction behind the
+#: leader and in another basin (material > RUNNER_UP_APART apart, internal units): relaxation
+#: 2001's zener on three bubbles led at cost 105 after the race and ended at 94.9 (lambda1 1.5 us)
+#: while the runner-up (119, lambda1 2.8 us) ends at 56.6 near the truth (3.9 us); session 37
+#: traced a runner-up 18 % behind that ended 3.6 % lower (docs/diagnosis.md, Runtime)
+RUNNER_UP_BEHIND = 0.25
+RUNNER_UP_APART = 0.3
 #: prior sd of each bubble's log G and log mu offset from the gel's: a fixed prior for the
 #: bubble-to-bubble scatter (not estimated here; ``fit``'s random-effects layer estimates it)
 RE_SD = (0.15, 0.15)
@@ -526,7 +533,20 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     # model) is costly after a few iterations and only shows its basin at the end
     n_main = len(starts) if d else 1
     sets = [states[:n_main], states[n_main:]] if d else [states]
-    best = min((converge(min(st, key=lambda q: q[2])) for st in sets if st), key=lambda q: q[2])
+    finalists = []
+    for st in sets:
+        if not st:
+            continue
+        ranked = sorted(st, key=lambda q: q[2])
+        finalists.append(ranked[0])
+        lead_z = unpack(ranked[0][0])[0]
+        for q_ in ranked[1:]:
+            if q_[2] > ranked[0][2] * (1.0 + RUNNER_UP_BEHIND):
+                break
+            if np.max(np.abs(unpack(q_[0])[0] - lead_z)) > RUNNER_UP_APART:
+                finalists.append(q_)
+                break
+    best = min((converge(st) for st in finalists), key=lambda q: q[2])
     if restarts and d and active.any():
         for _ in range(2):
             z, u = unpack(best[0])

@@ -262,7 +262,9 @@ class ForwardModel:
         ph = self.physics
         nd = self.constitutive.nondimensionalise(table, rho=ph.rho, p8=ph.p8, uc=ph.velocity_scale,
                                                  rmax_m=np.asarray(rmax_m)[:, None])
-        return np.array(nd, dtype=float, order="C")     # writable: see the note on ``te`` in propagate
+        # The last entry of every kernel vector is the option flag the Zener family reads (base.py).
+        flag = np.full(nd.shape[:-1] + (1,), 1.0 if self.options.j_mode == "consistent" else 0.0)
+        return np.array(np.concatenate([nd, flag], axis=-1), dtype=float, order="C")     # writable: see the note on ``te`` in propagate
 
     # ------------------------------------------------------------------ propagation
     def propagate(self, state: BatchState, params, t_end: float, t_eval=None, *, breaks_star=None,

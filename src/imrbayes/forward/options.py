@@ -48,6 +48,10 @@ class ForwardOptions:
     polytropic_pdot : ``consistent`` (exact rate of the polytropic pressure) or ``imrv2`` (IMRv2's
         rate computed from the total pressure, vapour included); None picks ``imrv2`` for the
         ``imrv2-fd`` scheme and ``consistent`` otherwise.
+    zener_j : ``consistent`` (the Keller-Miksis coefficient of Rddot is the Zener-type stress's own
+        instantaneous viscosity, 4 Lambda/Re) or ``imrv2`` (IMRv2's stress model 3/4 uses 4/Re for
+        every Lambda); None picks ``imrv2`` for the ``imrv2-fd`` scheme and ``consistent``
+        otherwise. Only the Zener family (zener, maxwell, qzener) reads it.
     rtol, atol : integrator tolerances (per component: atol + rtol |y|); None: the integrator's
         default (DEFAULT_TOLERANCES).
     integrator : ``radau5`` (Radau IIA, implicit 5th order with the structured Jacobian; default
@@ -66,6 +70,7 @@ class ForwardOptions:
     mt: int | None = None
     stretch: float | None = None
     polytropic_pdot: str | None = None
+    zener_j: str | None = None
     rtol: float | None = None
     atol: float | None = None
     integrator: str | None = None
@@ -82,6 +87,8 @@ class ForwardOptions:
             raise InputError(src, f"scheme must be one of {list(SCHEMES)}, got {self.scheme!r}")
         if self.polytropic_pdot not in (None, "consistent", "imrv2"):
             raise InputError(src, f"polytropic_pdot must be 'consistent' or 'imrv2', got {self.polytropic_pdot!r}")
+        if self.zener_j not in (None, "consistent", "imrv2"):
+            raise InputError(src, f"zener_j must be 'consistent' or 'imrv2', got {self.zener_j!r}")
         if self.mass_transfer and not (self.vapor and self.bubble == "thermal"):
             # IMRv2 has no polytropic mass transfer; vapour off leaves nothing to transfer.
             object.__setattr__(self, "mass_transfer", False)
@@ -128,6 +135,7 @@ class ForwardOptions:
         d["nt"], d["mt"] = self.resolution
         d["stretch"] = self.grid_stretch
         d["polytropic_pdot"] = self.pdot_mode
+        d["zener_j"] = self.j_mode
         d["integrator"] = self.method
         return d
 
@@ -155,6 +163,12 @@ class ForwardOptions:
     def pdot_mode(self) -> str:
         if self.polytropic_pdot:
             return self.polytropic_pdot
+        return "imrv2" if self.scheme == "imrv2-fd" else "consistent"
+
+    @property
+    def j_mode(self) -> str:
+        if self.zener_j:
+            return self.zener_j
         return "imrv2" if self.scheme == "imrv2-fd" else "consistent"
 
     @property

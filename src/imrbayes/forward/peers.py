@@ -9,7 +9,8 @@ the same physics with the other Python IMR code (``pyimr`` on the package index,
 Every constant is passed from our :class:`~imrbayes.forward.constants.Physics` (PyIMR's own
 polytropic exponent is 1.4 against IMRv2's 1.47); the forward options map one to one (radial
 model, thermal or polytropic bubble, vapour, mass transfer, cold or warm medium). Materials:
-``nhkv``, ``qkv``, ``zener`` (IMRv2's stress models 1, 2 and the Zener family in both codes).
+``nhkv``, ``qkv``, ``zener`` (IMRv2's stress models 1, 2 and the Zener family in both codes; the
+Zener with ``zener_j=consistent``, our default, which is PyIMR's).
 Measured agreement at both codes' grid limits: ``docs/forward-model.md`` (peer row) and
 ``docs/results.md`` ("Data from another code").
 """
@@ -49,6 +50,9 @@ class PyIMRModel:
             raise InputError("--generator", f"PyIMR data for model {name!r} is not mapped; "
                                             f"mapped: {', '.join(PEER_MODELS)}")
         o = fm.options
+        if name == "zener" and o.j_mode != "consistent":
+            raise InputError("--generator", "PyIMR's Zener has the consistent Keller-Miksis coefficient "
+                                            "(4 Lambda/Re); zener_j=imrv2 has no PyIMR counterpart")
         if o.radial not in _RADIAL:
             raise InputError("--generator", f"radial model {o.radial!r} has no PyIMR counterpart")
         self.fm, self.physics, self.options = fm, fm.physics, o

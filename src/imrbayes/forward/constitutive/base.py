@@ -8,7 +8,8 @@ A constitutive model is one small module that defines
   the term proportional to Rddot, and the coefficient J of that term; it writes the rates of its
   auxiliary states into ``zdot``. ``p`` is the dimensionless parameter vector from
   :meth:`ConstitutiveModel.nondimensionalise`: ``p[0] = G/p8`` (1/Ca, 0 without elasticity),
-  ``p[1] = mu/(rho Uc Rmax)`` (1/Re), then model-specific entries;
+  ``p[1] = mu/(rho Uc Rmax)`` (1/Re), then model-specific entries, and last (``p[-1]``, appended
+  by the forward model, not by the model's map) the ``zener_j`` option: 1 ``consistent``, 0 ``imrv2``;
 * ``dissipation_q(x, y, p)`` - the elastic dissipation factor used by the medium energy equation;
 * ``MODEL`` - a :class:`ConstitutiveModel` describing its parameters.
 

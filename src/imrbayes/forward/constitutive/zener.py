@@ -3,7 +3,10 @@
 Parameters G [Pa], mu [Pa s], lambda1 (relaxation time) [s], lambda2 (retardation time) [s].
 p = [G/p8, 1/Re, De = lambda1 Uc/Rmax, Lambda = lambda2/lambda1]. One auxiliary state Z1, zero at
 t = 0 (IMRv2), so the elastic stress relaxes towards its neo-Hookean value over De.
-Note (IMRv2 quirk, copied): J = 4/Re although the instantaneous viscosity is 4 Lambda/Re.
+J, the Keller-Miksis coefficient of Rddot, is the stress's instantaneous viscosity 4 Lambda/Re
+(option ``zener_j=consistent``, the default) or IMRv2's 4/Re for every Lambda (``zener_j=imrv2``,
+the default of the ``imrv2-fd`` scheme, for conformance; Oldroyd-B, IMRv2's stress 5, uses 4 Lambda/Re
+in both codes). At Lambda = 0 the two differ by 2.7e-2 relative L2 in R* (docs/forward-model.md).
 """
 
 import numpy as np
@@ -22,13 +25,15 @@ def equilibrium_stress(R, rs, p):
 @njit(cache=True, error_model="numpy")
 def relax(R, Rdot, z, ze, p, zdot):
     """Linear Maxwell-type relaxation of Z1 towards the elastic equilibrium ``ze`` (shared by the
-    Zener-type models): returns (S, Sdot, J) and writes dZ1/dt."""
+    Zener-type models): returns (S, Sdot, J) and writes dZ1/dt. ``p[-1]`` selects J (module note)."""
     de = p[2]
     lam = p[3]
     zdot[0] = -(z[0] - ze) / de + 4.0 * (lam - 1.0) * p[1] / de * R * R * Rdot
     ur = Rdot / R
     S = z[0] / R ** 3 - 4.0 * lam * p[1] * ur
     Sdot = zdot[0] / R ** 3 - 3.0 * Rdot / R ** 4 * z[0] + 4.0 * lam * p[1] * ur * ur
+    if p[p.shape[0] - 1] > 0.5:
+        return S, Sdot, 4.0 * lam * p[1]
     return S, Sdot, 4.0 * p[1]
 
 
