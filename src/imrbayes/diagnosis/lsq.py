@@ -49,10 +49,12 @@ NEWTON_DECREMENT = 1e-3
 #: tempered fit on stiff PA 1-5 ended at chi-square/n 115.4 against 107.0 (docs/diagnosis.md, Runtime)
 CANDIDATE_FIRST_TOL = 1e-4
 #: the race's runner-up also goes on to convergence when it is at most this fraction behind the
-#: leader and in another basin (material > RUNNER_UP_APART apart, internal units): relaxation
-#: 2001's zener on three bubbles led at cost 105 after the race and ended at 94.9 (lambda1 1.5 us)
-#: while the runner-up (119, lambda1 2.8 us) ends at 56.6 near the truth (3.9 us); session 37
-#: traced a runner-up 18 % behind that ended 3.6 % lower (docs/diagnosis.md, Runtime)
+#: leader and in another basin of the candidate's extension (its parameters beyond G and mu more
+#: than RUNNER_UP_APART apart, internal units): relaxation 2001's zener on three bubbles led at
+#: cost 105 after the race and ended at 94.9 (lambda1 1.5 us) while the runner-up (119, lambda1
+#: 2.8 us) ends at 87.7 (3.4 us; truth 3.9 us); session 37 traced a runner-up 18 % behind that
+#: ended 3.6 % lower. Any basin (G and mu too) cost stiff PA 1-5 50 s for no change of any fit
+#: (docs/diagnosis.md, Runtime)
 RUNNER_UP_BEHIND = 0.25
 RUNNER_UP_APART = 0.3
 #: prior sd of each bubble's log G and log mu offset from the gel's: a fixed prior for the
@@ -539,11 +541,11 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
             continue
         ranked = sorted(st, key=lambda q: q[2])
         finalists.append(ranked[0])
-        lead_z = unpack(ranked[0][0])[0]
-        for q_ in ranked[1:]:
+        lead_ext = unpack(ranked[0][0])[0][2:]
+        for q_ in ranked[1:] if lead_ext.size else ():
             if q_[2] > ranked[0][2] * (1.0 + RUNNER_UP_BEHIND):
                 break
-            if np.max(np.abs(unpack(q_[0])[0] - lead_z)) > RUNNER_UP_APART:
+            if np.max(np.abs(unpack(q_[0])[0][2:] - lead_ext)) > RUNNER_UP_APART:
                 finalists.append(q_)
                 break
     best = min((converge(st) for st in finalists), key=lambda q: q[2])
