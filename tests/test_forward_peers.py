@@ -107,3 +107,12 @@ def test_camera_obs_from_pyimr_draws_the_same_records_with_another_code():
     assert 0 < np.nanmax(np.abs(a.R_star - b.R_star)) < 1e-4
     with pytest.raises(ValueError, match="piecewise"):
         camera_obs("damage-softening", 5, opts, n_exp=1, generator="pyimr")
+
+
+def test_zener_with_imrv2_coefficient_has_no_pyimr_counterpart():
+    pytest.importorskip("pyimr")
+    from imrbayes.errors import InputError
+    from imrbayes.forward.peers import PyIMRModel
+
+    with pytest.raises(InputError, match="zener_j"):
+        PyIMRModel(ForwardModel("zener", options={"bubble": "polytropic", "zener_j": "imrv2"}))
