@@ -539,15 +539,11 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     for st in sets:
         if not st:
             continue
-        ranked = sorted(st, key=lambda q: q[2])
-        finalists.append(ranked[0])
-        lead_ext = unpack(ranked[0][0])[0][2:]
-        for q_ in ranked[1:] if lead_ext.size else ():
-            if q_[2] > ranked[0][2] * (1.0 + RUNNER_UP_BEHIND):
-                break
-            if np.max(np.abs(unpack(q_[0])[0][2:] - lead_ext)) > RUNNER_UP_APART:
-                finalists.append(q_)
-                break
+        leader, *rest = sorted(st, key=lambda q: q[2])
+        finalists.append(leader)
+        lead_ext = leader[0][2:d]                     # the extension's coordinates (x starts with z)
+        close = [q_ for q_ in rest if lead_ext.size and q_[2] <= leader[2] * (1.0 + RUNNER_UP_BEHIND)]
+        finalists += [q_ for q_ in close if np.max(np.abs(q_[0][2:d] - lead_ext)) > RUNNER_UP_APART][:1]
     best = min((converge(st) for st in finalists), key=lambda q: q[2])
     if restarts and d and active.any():
         for _ in range(2):

@@ -263,8 +263,9 @@ class ForwardModel:
         nd = self.constitutive.nondimensionalise(table, rho=ph.rho, p8=ph.p8, uc=ph.velocity_scale,
                                                  rmax_m=np.asarray(rmax_m)[:, None])
         # The last entry of every kernel vector is the option flag the Zener family reads (base.py).
+        # concatenate makes a new C-ordered float array: writable (see the note on ``te`` in propagate)
         flag = np.full(nd.shape[:-1] + (1,), 1.0 if self.options.j_mode == "consistent" else 0.0)
-        return np.array(np.concatenate([nd, flag], axis=-1), dtype=float, order="C")     # writable: see the note on ``te`` in propagate
+        return np.concatenate([np.asarray(nd, dtype=float), flag], axis=-1)
 
     # ------------------------------------------------------------------ propagation
     def propagate(self, state: BatchState, params, t_end: float, t_eval=None, *, breaks_star=None,

@@ -159,17 +159,17 @@ class ForwardOptions:
             return 0.0
         return DEFAULT_STRETCH if self.stretch is None else float(self.stretch)
 
+    def _imrv2_choice(self, value) -> str:
+        """An IMRv2-conformance choice: ``value``, or by default IMRv2's on its own scheme."""
+        return value or ("imrv2" if self.scheme == "imrv2-fd" else "consistent")
+
     @property
     def pdot_mode(self) -> str:
-        if self.polytropic_pdot:
-            return self.polytropic_pdot
-        return "imrv2" if self.scheme == "imrv2-fd" else "consistent"
+        return self._imrv2_choice(self.polytropic_pdot)
 
     @property
     def j_mode(self) -> str:
-        if self.zener_j:
-            return self.zener_j
-        return "imrv2" if self.scheme == "imrv2-fd" else "consistent"
+        return self._imrv2_choice(self.zener_j)
 
     @property
     def thermal(self) -> bool:
