@@ -28,6 +28,25 @@ from forward import RATIO, RMAX, T_STAR, _peer_case  # noqa: E402
 from imrbayes.forward import ForwardModel, ForwardOptions  # noqa: E402
 
 
+def dense_lu_us(n: int, repeat: int = 400) -> dict:
+    """Median time [µs] of one LU factorisation of a dense real and a dense complex n x n matrix
+    (LAPACK through scipy): what each of Radau's Newton systems would cost if the bubble's fields
+    were collocated (dense differentiation matrices) instead of finite-differenced (block
+    tridiagonal plus low rank, O(n)). n: two fields (temperature, vapour) on the nodes plus R, Rdot, p."""
+    from scipy.linalg import lu_factor
+    rng = np.random.default_rng(0)
+    out = {"dense_n": n}
+    for kind, a in (("real", rng.normal(size=(n, n)) + n * np.eye(n)),
+                    ("complex", rng.normal(size=(n, n)) + 1j * rng.normal(size=(n, n)) + n * np.eye(n))):
+        ts = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            lu_factor(a, check_finite=False)
+            ts.append(time.perf_counter() - t0)
+        out[f"lu_{kind}_us"] = 1e6 * float(np.median(ts))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--peer-nt", default="17,25,33,41,49,65")
@@ -60,9 +79,12 @@ def main(argv=None) -> int:
         fm = ForwardModel("nhkv", options=ForwardOptions(nt=nt, mt=nt, stretch=2.75, rtol=1e-8, atol=1e-10))
         fm.simulate(theta, RMAX, RMAX / RATIO, T_STAR[:3])
         t0 = time.perf_counter()
-        R = fm.simulate(theta, RMAX, RMAX / RATIO, T_STAR).R_star[0]
+        out = fm.simulate(theta, RMAX, RMAX / RATIO, T_STAR)
+        ms = 1e3 * (time.perf_counter() - t0)
+        R = out.R_star[0]
         rows.append({"code": "imrbayes FD, stretch 2.75", "points": nt, "rel_l2_to_limit": rel(R, R_lim),
-                     "max_abs_Rstar": float(np.max(np.abs(R - R_lim))), "solve_ms": 1e3 * (time.perf_counter() - t0)})
+                     "max_abs_Rstar": float(np.max(np.abs(R - R_lim))), "solve_ms": ms,
+                     "steps": int(out.n_steps[0]), "us_per_step": 1e3 * ms / int(out.n_steps[0])})
         print(f"  imrbayes FD  nt {nt:4d}: {rows[-1]['rel_l2_to_limit']:.2e}", flush=True)
         save()
     mat = NeoHookeanKelvinVoigt(theta["G"], theta["mu"])
@@ -74,12 +96,17 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         R = np.asarray(prob.solve(T_STAR * tc).radius_ratio)
         rows.append({"code": "PyIMR Chebyshev", "points": nt, "rel_l2_to_limit": rel(R, R_lim),
-                     "max_abs_Rstar": float(np.max(np.abs(R - R_lim))), "solve_ms": 1e3 * (time.perf_counter() - t0)})
+                     "max_abs_Rstar": float(np.max(np.abs(R - R_lim))), "solve_ms": 1e3 * (time.perf_counter() - t0),
+                     **dense_lu_us(2 * nt + 3)})
         print(f"  PyIMR cheb   Nt {nt:4d}: {rows[-1]['rel_l2_to_limit']:.2e}", flush=True)
         save()
-    print("\n| code | points | rel. L2 to our limit | max abs dR* | one solve [ms] |\n|---|---|---|---|---|")
+    print("\n| code | points | rel. L2 to our limit | max abs dR* | one solve [ms] | per step [µs] "
+          "| dense LU real + complex [µs] |\n|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['code']} | {r['points']} | {r['rel_l2_to_limit']:.1e} | {r['max_abs_Rstar']:.1e} | {r['solve_ms']:.0f} |")
+        step = f"{r['us_per_step']:.1f}" if "us_per_step" in r else "–"
+        lu = f"{r['lu_real_us'] + r['lu_complex_us']:.0f} (n {r['dense_n']})" if "dense_n" in r else "–"
+        print(f"| {r['code']} | {r['points']} | {r['rel_l2_to_limit']:.1e} | {r['max_abs_Rstar']:.1e} "
+              f"| {r['solve_ms']:.0f} | {step} | {lu} |")
     return 0
 
 
