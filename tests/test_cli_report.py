@@ -16,6 +16,7 @@ import xarray as xr
 from click.testing import CliRunner
 
 from imrbayes.cli import main
+from imrbayes.mcmc.compare import THRESHOLDS
 
 TINY_MIENKS = ["--method", "mienks", "--forward", "bubble=polytropic", "--set", "n_ens=8", "--set", "n_iter=2",
                "--set", "L=10", "--set", "h=5", "--n-steps", "40", "--quiet"]
@@ -140,7 +141,7 @@ def test_report_mienks_with_mcmc(runs):
     for e, para in zip(compare["windows"], re.split(r"(?=Window \d+ \(t\*)", flagged)[1:]):
         m = e["mcmc"]
         rhat, ess = max(m["rhat"].values()), min(m["ess_bulk"].values())
-        failing = {"max R-hat": rhat > 1.01, "min bulk ESS": ess < 400,
+        failing = {"max R-hat": rhat > THRESHOLDS["rhat"], "min bulk ESS": ess < THRESHOLDS["ess_bulk"],
                    "autocorrelation times long": m["sampler"]["all_tau_ok"] is False}
         assert any(failing.values())
         for words, fails in failing.items():
