@@ -86,7 +86,8 @@ def _hdf_backend(path, name, read_only=False):
 
 #: emcee moves by name (``MCMCSettings.moves``). ``snooker`` is :func:`snooker_move` (the corrected
 #: DE snooker), not emcee 3.1.6's ``DESnookerMove``, which does not sample the target (docs/mcmc.md).
-MOVE_NAMES = ("stretch", "de", "snooker", "walk", "indep")
+#: ``blocks`` and ``ridge`` (:mod:`imrbayes.mcmc.blocks`) use the target's per-experiment nuisance structure.
+MOVE_NAMES = ("stretch", "de", "snooker", "walk", "indep", "blocks", "ridge")
 
 #: stop reasons reported in ``MCMCRun.stop`` / ``diagnostics()["stop_reason"]``
 STOP_REASONS = ("converged", "cap", "fixed")
@@ -195,14 +196,28 @@ def independence_move(center, cov, scale: float = 1.5, dof: float = 4.0):
     return move
 
 
-def emcee_moves(spec: str, center=None, cov=None, indep_scale: float = 1.5, indep_dof: float = 4.0) -> list:
+def emcee_moves(spec: str, center=None, cov=None, indep_scale: float = 1.5, indep_dof: float = 4.0,
+                target=None) -> list:
     """emcee move objects with weights for ``EnsembleSampler(moves=...)``; ``indep`` needs ``center``
-    and ``cov`` (the start Gaussian, :func:`independence_move`)."""
+    and ``cov`` (the start Gaussian, :func:`independence_move`), ``blocks`` and ``ridge`` the
+    ``target`` (a :class:`~imrbayes.mcmc.target.WindowTarget`; ``blocks`` one with sampled nuisances)."""
     import emcee
+
+    from imrbayes.mcmc.blocks import BlockMove, RidgeMove
+
+    def need_target(name):
+        if target is None or not hasattr(target, "nuisance_blocks"):
+            raise InputError("moves", f"the {name!r} move needs a window target with per-experiment nuisances")
+        if name == "blocks" and not any(b.size for b in target.nuisance_blocks):
+            raise InputError("moves", "the 'blocks' move needs sampled nuisances; this window has none "
+                                      "(use e.g. 'indep:0.7,de:0.3')")
+        return target
 
     make = {"stretch": emcee.moves.StretchMove, "de": emcee.moves.DEMove, "snooker": snooker_move,
             "walk": emcee.moves.WalkMove,
-            "indep": lambda: independence_move(center, cov, indep_scale, indep_dof)}
+            "indep": lambda: independence_move(center, cov, indep_scale, indep_dof),
+            "blocks": lambda: BlockMove(need_target("blocks")),
+            "ridge": lambda: RidgeMove(need_target("ridge").prior.n)}
     return [(make[n](), w) for n, w in parse_moves(spec)]
 
 
@@ -681,7 +696,7 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                                     random_state=np.random.RandomState(seeds[c]).get_state())
 
     # one move list per ensemble: an adapted independence proposal must see only its own ensemble
-    moves = [emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof) for _ in range(C)]
+    moves = [emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof, target) for _ in range(C)]
     placed = [False] * C
     samplers = [None] * C
     route = [None] * C                  # the batcher each ensemble's log-prob calls go through (None: direct)

@@ -187,6 +187,14 @@ class WindowTarget:
                 "weight_min": float(self.weight[self.use].min()), "weight_max": float(self.weight[self.use].max()),
                 **self.description}
 
+    @property
+    def nuisance_blocks(self) -> list:
+        """Each experiment's sampled nuisance columns in z, one int array per experiment (empty
+        where none is sampled). Given the parameters the blocks are independent: the likelihood and
+        the prior factorise over experiments (:meth:`block_terms`)."""
+        cols = self.prior.n + np.cumsum(self.nuisance_used.ravel()).reshape(self.nuisance_used.shape) - 1
+        return [cols[e][self.nuisance_used[e]] for e in range(self.n_exp)]
+
     # ------------------------------------------------------------------ evaluation
     def predict(self, Z):
         """Forward prediction for n parameter sets in one batch.
@@ -257,6 +265,76 @@ class WindowTarget:
             r2 = np.where(self.use[None], self.weight * (self.y - R) ** 2 / self.P, 0.0)
             ll = -0.5 * np.sum(r2, axis=(1, 2))
         return np.where(failed | ~np.isfinite(ll), -np.inf, ll)
+
+    def _experiment_loglik(self, R, failed) -> np.ndarray:
+        """(n, N_exp, m) predictions -> (n, N_exp) each experiment's log-likelihood term (its sum is
+        :meth:`log_likelihood`); -inf where that experiment's prediction is not finite, and on every
+        experiment of a set whose solve was flagged failed without a non-finite radius."""
+        r = np.where(self.use[None], self.y - R, 0.0)
+        with np.errstate(invalid="ignore", over="ignore"):
+            if self.whiten is not None:
+                ll = -0.5 * np.sum(np.einsum("eij,nej->nei", self.whiten, r) ** 2, axis=2)
+            else:
+                ll = -0.5 * np.sum(np.where(self.use[None], self.weight * r * r / self.P, 0.0), axis=2)
+        ll = np.where(np.isfinite(ll), ll, -np.inf)
+        return np.where(failed[:, None] & np.all(np.isfinite(ll), axis=1)[:, None], -np.inf, ll)
+
+    def _nuisance_log_prior(self, Z) -> np.ndarray:
+        """(n, ndim) -> (n, N_exp) each experiment's N(0, sd^2) nuisance term (-inf outside the box)."""
+        out = np.zeros((Z.shape[0], self.n_exp))
+        for e, cols in enumerate(self.nuisance_blocks):
+            if cols.size:
+                sd = self.nuisance_sd[e][self.nuisance_used[e]]
+                x = Z[:, cols] / sd
+                out[:, e] = -0.5 * np.sum(x * x + np.log(2 * np.pi * sd * sd), axis=1)
+                out[np.any(np.abs(x) > self.prior.box_sd, axis=1), e] = -np.inf
+        return out
+
+    def block_terms(self, Z):
+        """The log-posterior split by experiment: ``(lp_params (n,), T (n, N_exp), R, failed)`` with
+        ``log_prob(Z) = lp_params + T.sum(1)`` (up to rounding): the parameter prior, and per
+        experiment its log-likelihood plus its nuisances' prior. Predictions come from the memo where
+        the set was evaluated before (no forward solve)."""
+        Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
+        lp0 = self.prior.log_prob(Z[:, :self.prior.n])
+        T = np.full((Z.shape[0], self.n_exp), -np.inf)
+        R = np.full((Z.shape[0], self.n_exp, self.t_eval.size), np.nan)
+        failed = np.ones(Z.shape[0], dtype=bool)
+        ok = np.isfinite(lp0)
+        if ok.any():
+            R[ok], failed[ok] = self._predict_remembered(Z[ok])
+            T[ok] = self._experiment_loglik(R[ok], failed[ok]) + self._nuisance_log_prior(Z[ok])
+        T[~np.isfinite(T)] = -np.inf
+        return lp0, T, R, failed
+
+    def accept_blocks(self, X, Q, random):
+        """Metropolis acceptance of each experiment's nuisance block on its own.
+
+        X, Q : (n, ndim) current and proposed sets that differ only in nuisance columns (the same
+        parameters), Q already evaluated (its predictions in the memo). Given the parameters the
+        target factorises over experiments, so each block is a Metropolis step on its own conditional
+        (proposal symmetric) and all blocks of a set cost one forward batch. Returns ``(Z (n, ndim),
+        lp (n,), accepted (n, N_exp))``; Z's predictions are put in the memo, so its log-density and
+        pointwise log-likelihood need no new solve.
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        Q = np.atleast_2d(np.asarray(Q, dtype=np.float64))
+        d = self.prior.n
+        if X.shape != Q.shape or not np.array_equal(X[:, :d], Q[:, :d]):
+            raise ValueError("accept_blocks: X and Q must have the same parameters")
+        lp0, Tx, Rx, _ = self.block_terms(X)
+        _, Tq, Rq, _ = self.block_terms(Q)
+        log_u = np.log(random.rand(*Tx.shape))
+        with np.errstate(invalid="ignore"):
+            acc = np.isfinite(Tq) & ((Tq - Tx > log_u) | ~np.isfinite(Tx))
+        Z = X.copy()
+        for e, cols in enumerate(self.nuisance_blocks):
+            if cols.size:
+                Z[np.ix_(acc[:, e], cols)] = Q[np.ix_(acc[:, e], cols)]
+        lp = lp0 + np.sum(np.where(acc, Tq, Tx), axis=1)
+        lp[~np.isfinite(lp)] = -np.inf
+        self._remember(Z, np.where(acc[:, :, None], Rq, Rx), ~np.isfinite(lp))
+        return Z, lp, acc
 
     def log_prior(self, Z) -> np.ndarray:
         """(n, ndim) -> (n,) the parameter prior plus the nuisances' N(0, sd^2)."""
