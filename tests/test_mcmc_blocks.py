@@ -126,3 +126,17 @@ def test_block_moves_need_nuisances():
     with pytest.raises(InputError, match="needs a window target"):
         emcee_moves("ridge")
     assert len(emcee_moves("ridge", target=tg)) == 1
+
+
+def test_auto_moves_follow_the_window():
+    from _mcmc_synth import GaussianTarget
+
+    from imrbayes.mcmc.sampler import AUTO_MOVES, resolve_moves
+
+    assert resolve_moves("auto", LinearWindow()) == AUTO_MOVES["nuisances"] == "ridge:0.5,blocks:0.5"
+    assert resolve_moves("auto", LinearWindow(nuisance_sd=(0.0, 0.0, 0.0))) == AUTO_MOVES["plain"]
+    assert resolve_moves("auto", GaussianTarget([0.0, 1.0], np.eye(2))) == "indep:0.7,de:0.3"
+    assert resolve_moves("de", LinearWindow()) == "de"
+    tg = LinearWindow()
+    run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed"), seed=0)
+    assert run.settings["moves"] == "ridge:0.5,blocks:0.5" and run.n_walkers == 2 * tg.ndim

@@ -159,12 +159,22 @@ def test_cost_warning_names_windows_with_many_coordinates():
 
     from imrbayes.mcmc.fit import MANY_COORDINATES, cost_warnings
 
-    def spec(index, d, n_exp):
-        return SimpleNamespace(index=index, target=SimpleNamespace(ndim=d, prior=SimpleNamespace(n=2), n_exp=n_exp))
+    def spec(index, d, n_exp, blocks=None):
+        tg = SimpleNamespace(ndim=d, prior=SimpleNamespace(n=2), n_exp=n_exp)
+        if blocks is not None:
+            tg.nuisance_blocks = blocks
+        return SimpleNamespace(index=index, target=tg)
 
     s = MCMCSettings()
     out = cost_warnings([spec(0, 2, 5), spec(1, 19, 6), spec(2, MANY_COORDINATES - 1, 2)], s)
     assert len(out) == 1
     w = out[0]
     assert w.startswith("MCMC window 1 samples 19 coordinates (2 parameters and 17 nuisances of 6 experiments")
-    assert f"{s.n_chains} x 38 walkers x {s.n_steps} steps = {s.n_chains * 38 * s.n_steps:,}" in w and "agree = null" in w
+    assert "150-360 steps" in w and f"{s.n_chains} x 38 walkers" in w and "agree = null" in w
+    assert f"after {s.n_chains * 38 * s.n_steps:,} likelihood evaluations" in w
+    # the default moves on a window with nuisance blocks: the block and ridge moves, converging within the cap
+    blocks = [np.arange(2 + 3 * e, 5 + 3 * e) for e in range(6)]
+    (w,) = cost_warnings([spec(3, 20, 6, blocks)], s)
+    assert "35-40 steps" in w and "about 2 000 steps" in w and "agree = null" not in w
+    (w,) = cost_warnings([spec(3, 20, 6, blocks)], MCMCSettings(moves="indep:0.7,de:0.3"))
+    assert "150-360 steps" in w

@@ -38,7 +38,7 @@ from imrbayes.errors import InputError
 from imrbayes.execution import Execution, Unit, unit_id
 from imrbayes.forward import BatchState, fm_spec, register_runner, runner_for
 from imrbayes.mcmc.compare import compare_window
-from imrbayes.mcmc.sampler import MCMCSettings, run_mcmc
+from imrbayes.mcmc.sampler import MCMCSettings, parse_moves, resolve_moves, run_mcmc
 from imrbayes.mcmc.target import WindowTarget
 from imrbayes.mcmc.windows import WindowMCMC, mcmc_tree, window_seed, start_gaussian, window_specs, write_compare
 
@@ -186,8 +186,9 @@ def _plain(obj):
 
 
 #: Above this many sampled coordinates a window's chains are slow to mix: a measured 19-coordinate
-#: En4D-Var window (six camera bubbles' nuisances) had tau 149-358 steps and stopped at the
-#: 5000- and 12000-step caps unconverged (docs/mcmc.md, "En4D-Var's check on camera data").
+#: En4D-Var window (six camera bubbles' nuisances) had tau 149-358 steps with DE and independence
+#: moves and stopped at the 5000- and 12000-step caps unconverged; with the block and ridge moves
+#: (the default there since 2026-11-29) tau was 39-40 steps (docs/mcmc.md, "En4D-Var's check on camera data").
 MANY_COORDINATES = 8
 
 
@@ -198,12 +199,22 @@ def cost_warnings(specs, s: MCMCSettings) -> list:
         tg = sp.target
         d, n_par = int(tg.ndim), int(tg.prior.n)
         W = max(s.n_walkers, 2 * d)
-        if d >= MANY_COORDINATES:
-            out.append(f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} nuisances "
-                       f"of {tg.n_exp} experiments: Rmax, time of the maximum, Req); at this size measured runs "
-                       "needed 150-360 steps per autocorrelation time, so 7 500-18 000 steps for 50 of them "
-                       f"(docs/mcmc.md): at the cap of {s.n_steps} steps expect agree = null, after {s.n_chains} x "
-                       f"{W} walkers x {s.n_steps} steps = {s.n_chains * W * s.n_steps:,} likelihood evaluations")
+        if d < MANY_COORDINATES:
+            continue
+        names = {n for n, _ in parse_moves(resolve_moves(s.moves, tg))}
+        if names & {"blocks", "ridge"}:
+            tau, steps = "35-40", "about 2 000"
+        else:
+            tau, steps = "150-360", "7 500-18 000"
+        head = (f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} nuisances "
+                f"of {tg.n_exp} experiments: Rmax, time of the maximum, Req); with these moves measured runs "
+                f"needed {tau} steps per autocorrelation time, so {steps} steps for 50 of them (docs/mcmc.md), "
+                f"each {s.n_chains} x {W} walkers")
+        n_cap = s.n_chains * W * s.n_steps
+        tail = (f": at the cap of {s.n_steps} steps expect agree = null, after {n_cap:,} likelihood evaluations"
+                if steps.startswith("7") and s.n_steps < 7500 else
+                f"; at most {n_cap:,} likelihood evaluations (the cap of {s.n_steps} steps)")
+        out.append(head + tail)
     return out
 
 
