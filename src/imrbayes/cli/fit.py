@@ -140,8 +140,10 @@ def _load_config(path) -> dict:
               help="emcee setting: n_walkers, n_chains (independent ensembles), n_steps (hard cap), moves, "
                    "indep_scale, indep_dof, indep_adapt, min_steps, rhat_max, ess_min, tau_rule, burn, thin, "
                    "max_draws, init_scale, lockstep, loglik, quadrature (true: also the exact grid posterior of "
-                   "2-parameter windows, ~40 % more time) [default: 2 ensembles x 8 walkers, stopped when "
-                   "R-hat <= 1.01, bulk and tail ESS >= 400 and >= 50 tau, cap 5000 steps]; repeatable.")
+                   "2-parameter windows, ~40 % more time) [default: 2 ensembles x 8 walkers (2 per coordinate "
+                   "with nuisances), moves auto (indep:0.7,de:0.3; ridge:0.5,blocks:0.5 with nuisances), "
+                   "stopped when R-hat <= 1.01, bulk and tail ESS >= 400 and >= 50 tau, cap 5000 steps]; "
+                   "repeatable.")
 @click.option("--mcmc-windows", default=None, metavar="all|J,K,...",
               help="Windows to sample with --mcmc (indices from 0) [default: all].")
 @click.option("--quiet", is_flag=True, default=None, help="Print nothing but errors.")
