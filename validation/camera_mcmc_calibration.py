@@ -1,0 +1,124 @@
+"""Is the likelihood itself calibrated? The exact (MCMC) En4D-Var posterior on camera data, per seed.
+
+``camera_calibration.py`` scores the ensemble's Gaussian. When it under-covers, either the ensemble
+approximates a calibrated density badly, or the density (the default likelihood with its nuisances)
+is itself off. This script answers the second: for each seed it writes the same data set as
+``camera_calibration.py --family camera`` (6 bubbles, 1 Mfps, random phase, noise 0.02 R*, Req not
+given; polytropic by default, for cost) and runs
+
+    imrbayes fit DATA --method en4dvar --forward bubble=B --mcmc --seed 0 --out OUT/seed_S/fit --resume
+
+(the window's density sampled to convergence with the default moves: since session 43 the block and
+ridge moves, ~170-200 k evaluations per seed polytropic), then scores, against the truth, both the
+MCMC posterior (equal-tailed 95 % interval of the draws) and the ensemble's estimate of the same
+fit. Every seed's fit is its own checkpointed run folder: rerunning the command resumes and skips
+finished seeds; ``--collect`` only reads what is there.
+
+    python validation/camera_mcmc_calibration.py --first-seed 100 --seeds 20 --out runs/mcmc-cal \
+        --json validation/results/camera_mcmc_calibration.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from camera_calibration import TRUTH, simulate, wilson  # noqa: E402
+
+
+def run_seed(out: Path, seed: int, bubble: str) -> Path:
+    """Data and the fit with its MCMC check for one seed (resumed where it stopped)."""
+    folder = out / f"seed_{seed}"
+    data, fit = folder / "data", folder / "fit"
+    if not (data / "truth.json").is_file():
+        simulate(data, seed, "camera", bubble)
+    if not (fit / "compare.json").is_file():
+        cmd = [sys.executable, "-m", "imrbayes.cli", "fit", str(data), "--method", "en4dvar", "--forward",
+               f"bubble={bubble}", "--mcmc", "--seed", "0", "--out", str(fit), "--resume", "--quiet"]
+        subprocess.run(cmd, check=True)
+    return folder
+
+
+def score_seed(folder: Path) -> dict | None:
+    """The MCMC and ensemble posteriors of a finished seed against the truth (None if unfinished)."""
+    import xarray as xr
+
+    fit = folder / "fit"
+    if not (fit / "compare.json").is_file():
+        return None
+    summary = json.loads((fit / "summary.json").read_text())
+    entry = json.loads((fit / "compare.json").read_text())["windows"][0]
+    with xr.open_datatree(fit / "mcmc.nc") as dt:
+        post = dt["window_00"]["posterior"]
+        draws = {n: np.asarray(post[n]).ravel() for n in TRUTH}
+    row = {"seed": int(folder.name.split("_")[1]), "agree": entry.get("agree"),
+           "n_evals": entry.get("n_evals"), "converged": entry["mcmc"]["sampler"].get("stop_reason") == "converged"}
+    for n, true in TRUTH.items():
+        lo, hi = np.quantile(draws[n], [0.025, 0.975])
+        e = summary["estimate"][n]
+        row[n] = {"mcmc": {"mean": float(draws[n].mean()), "sd": float(draws[n].std()), "ci95": [float(lo), float(hi)],
+                           "covers": bool(lo <= true <= hi), "rel_error": float(draws[n].mean() / true - 1)},
+                  "ensemble": {"mean": e["mean"], "sd": e["sd"], "hdi95": e["hdi95"],
+                               "covers": bool(e["hdi95"][0] <= true <= e["hdi95"][1]),
+                               "rel_error": e["mean"] / true - 1},
+                  "sd_ratio_ensemble_to_mcmc": e["sd"] / float(draws[n].std())}
+    return row
+
+
+def summarise(rows: list) -> dict:
+    out = {"n_seeds": len(rows), "truth": TRUTH}
+    for n in TRUTH:
+        for kind in ("mcmc", "ensemble"):
+            k = sum(r[n][kind]["covers"] for r in rows)
+            err = np.array([r[n][kind]["rel_error"] for r in rows])
+            out[f"{n}_{kind}"] = {"coverage": k / len(rows) if rows else float("nan"), "covered": k,
+                                  "wilson95": wilson(k, len(rows)), "bias": float(err.mean()) if rows else None,
+                                  "scatter": float(err.std(ddof=1)) if len(rows) > 1 else None}
+        out[f"{n}_sd_ratio_ensemble_to_mcmc"] = float(np.mean([r[n]["sd_ratio_ensemble_to_mcmc"] for r in rows])) \
+            if rows else None
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--first-seed", type=int, default=100)
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--bubble", choices=["polytropic", "thermal"], default="polytropic")
+    ap.add_argument("--out", type=Path, required=True, help="folder of the per-seed runs (resumable)")
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--collect", action="store_true", help="no runs: score the seeds that finished")
+    args = ap.parse_args(argv)
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    rows = []
+    for s in seeds:
+        folder = args.out / f"seed_{s}"
+        if not args.collect:
+            run_seed(args.out, s, args.bubble)
+        row = score_seed(folder)
+        if row is not None:
+            rows.append(row)
+            print(f"seed {s}: " + ", ".join(
+                f"{n} MCMC {row[n]['mcmc']['rel_error']:+.3f} ({'in' if row[n]['mcmc']['covers'] else 'OUT'}) "
+                f"ensemble {row[n]['ensemble']['rel_error']:+.3f} ({'in' if row[n]['ensemble']['covers'] else 'OUT'})"
+                for n in TRUTH), flush=True)
+    summ = summarise(rows)
+    print(f"{len(rows)} of {len(seeds)} seeds finished")
+    for n in TRUTH:
+        for kind in ("mcmc", "ensemble"):
+            t = summ[f"{n}_{kind}"]
+            if rows:
+                print(f"{n:>3} {kind:>8}: coverage {t['coverage']:.2f} [{t['wilson95'][0]:.2f}, {t['wilson95'][1]:.2f}], "
+                      f"bias {t['bias']:+.3f}")
+    if args.json:
+        args.json.write_text(json.dumps({"command": " ".join(sys.argv), "bubble": args.bubble, "summary": summ,
+                                         "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
