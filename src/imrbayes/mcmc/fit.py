@@ -201,18 +201,15 @@ def cost_warnings(specs, s: MCMCSettings) -> list:
         W = max(s.n_walkers, 2 * d)
         if d < MANY_COORDINATES:
             continue
-        names = {n for n, _ in parse_moves(resolve_moves(s.moves, tg))}
-        if names & {"blocks", "ridge"}:
-            tau, steps = "35-40", "about 2 000"
-        else:
-            tau, steps = "150-360", "7 500-18 000"
+        structured = bool({n for n, _ in parse_moves(resolve_moves(s.moves, tg))} & {"blocks", "ridge"})
+        tau, steps = ("35-40", "about 2 000") if structured else ("150-360", "7 500-18 000")
         head = (f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} nuisances "
                 f"of {tg.n_exp} experiments: Rmax, time of the maximum, Req); with these moves measured runs "
                 f"needed {tau} steps per autocorrelation time, so {steps} steps for 50 of them (docs/mcmc.md), "
                 f"each {s.n_chains} x {W} walkers")
         n_cap = s.n_chains * W * s.n_steps
         tail = (f": at the cap of {s.n_steps} steps expect agree = null, after {n_cap:,} likelihood evaluations"
-                if steps.startswith("7") and s.n_steps < 7500 else
+                if not structured and s.n_steps < 7500 else
                 f"; at most {n_cap:,} likelihood evaluations (the cap of {s.n_steps} steps)")
         out.append(head + tail)
     return out

@@ -58,7 +58,7 @@ import math
 import sys
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -655,13 +655,10 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
 
     s = settings or MCMCSettings()
     d = int(target.ndim)
-    if resolve_moves(s.moves, target) != s.moves:
-        from dataclasses import replace
-        s = replace(s, moves=resolve_moves(s.moves, target))
+    s = replace(s, moves=resolve_moves(s.moves, target))
     if s.n_walkers < 2 * d:
         # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
         # (fewer with the block and ridge moves did not pay: docs/mcmc.md)
-        from dataclasses import replace
         s = replace(s, n_walkers=2 * d)
     s.check(d)
     t0 = time.perf_counter()

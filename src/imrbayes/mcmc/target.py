@@ -258,12 +258,7 @@ class WindowTarget:
     def log_likelihood(self, Z) -> np.ndarray:
         """(n, d) -> (n,) ``-1/2 sum c (y - R)^2 / P`` over the used samples; -inf where a solve failed."""
         R, failed = self.predict(Z)
-        if self.whiten is not None:
-            r = np.where(self.use[None], self.y - R, 0.0)
-            ll = -0.5 * np.sum(np.einsum("eij,nej->nei", self.whiten, r) ** 2, axis=(1, 2))
-        else:
-            r2 = np.where(self.use[None], self.weight * (self.y - R) ** 2 / self.P, 0.0)
-            ll = -0.5 * np.sum(r2, axis=(1, 2))
+        ll = self._experiment_loglik(R, failed).sum(axis=1)
         return np.where(failed | ~np.isfinite(ll), -np.inf, ll)
 
     def _experiment_loglik(self, R, failed) -> np.ndarray:
@@ -342,10 +337,7 @@ class WindowTarget:
         d = self.prior.n
         out = self.prior.log_prob(Z[:, :d])
         if self.nuisance_used.any():
-            sd = self.nuisance_sd[self.nuisance_used]
-            x = Z[:, d:] / sd
-            out = out - 0.5 * np.sum(x * x + np.log(2 * np.pi * sd * sd), axis=1)
-            out[np.any(np.abs(x) > self.prior.box_sd, axis=1)] = -np.inf
+            out = out + self._nuisance_log_prior(Z).sum(axis=1)
         return out
 
     def log_prob(self, Z) -> np.ndarray:
