@@ -269,8 +269,12 @@ def test_stop_rule_lockstep_equals_sequential_and_resume_stops_at_the_same_step(
                  seed=7, backend=path, name="w")
     cut = emcee.backends.HDFBackend(str(path), name="w/chain_0", read_only=True).iteration
     assert ref.stop["checks"][0]["n"] < cut < ref.n_steps          # after the first check, before the end
-    res = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _conv(), seed=7, backend=path, name="w")
+    lines = []
+    res = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _conv(), seed=7, backend=path, name="w", log=lines.append)
     np.testing.assert_array_equal(res.chain, ref.chain)
+    # the progress counts this call's evaluations, and says so: not the whole chain's
+    assert [ln for ln in lines if "evaluations" in ln] and all(
+        "evaluations since the resume" in ln for ln in lines if "evaluations" in ln)
     assert [c["n"] for c in res.stop["checks"]] == [c["n"] for c in ref.stop["checks"]]
     assert 0 < sum(res.steps_run) < sum(ref.steps_run)
     # a finished run read back: the replayed schedule stops at the same step, nothing is sampled

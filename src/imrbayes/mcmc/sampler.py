@@ -394,10 +394,11 @@ def convergence_check(chain, s: "MCMCSettings") -> dict:
     return out
 
 
-def check_line(chk: dict, s: "MCMCSettings", n_evals: int | None = None) -> str:
-    """One line on a convergence check: where each criterion stands against its threshold."""
+def check_line(chk: dict, s: "MCMCSettings", n_evals: int | None = None, resumed: bool = False) -> str:
+    """One line on a convergence check: where each criterion stands against its threshold
+    (``n_evals``: evaluations made by this call, so only since the resume of a resumed run)."""
     miss = [k for k, v in chk["criteria"].items() if not v]
-    evals = f", {n_evals:,} evaluations" if n_evals is not None else ""
+    evals = (f", {n_evals:,} evaluations" + (" since the resume" if resumed else "")) if n_evals is not None else ""
     if not math.isfinite(chk["tau_max"]):       # too few steps for emcee's estimate: nothing else is either
         return f"{chk['n']} steps{evals}: too short to estimate tau yet -- not yet: " + ", ".join(miss)
     return (f"{chk['n']} steps{evals}: tau {chk['tau_max']:.1f} ({chk['n_over_tau']:.1f} tau, needs "
@@ -834,7 +835,8 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             chk = convergence_check(stacked(n_chk)[1], s)
             checks.append(chk)
             if log is not None:
-                log(f"{name}: " + check_line(chk, s, int(getattr(target, "n_evals", 0)) - evals0 or None))
+                made = int(getattr(target, "n_evals", 0)) - evals0
+                log(f"{name}: " + check_line(chk, s, made or None, resumed=any(done)))
             if chk["ok"]:
                 reason = "converged"
             elif n_chk >= s.n_steps:
