@@ -41,3 +41,28 @@ def test_summary_counts_coverage_per_posterior(cal):
 def test_an_unfinished_seed_is_not_scored(cal, tmp_path):
     (tmp_path / "seed_7" / "fit").mkdir(parents=True)
     assert cal.score_seed(tmp_path / "seed_7") is None
+
+
+def test_a_nuisance_off_only_along_the_ridge_is_on_target_at_the_true_material(cal):
+    """Req drawn as truth x (1 + 0.5 (log G - log G_true)) + noise, with G's posterior 30 % high:
+    the marginal Req is off by several sd, the conditional at the true G is not; Rmax exact."""
+    import numpy as np
+
+    rng = np.random.default_rng(3)
+    n = 40000
+    lg = np.log(cal.TRUTH["G"] * 1.3) + 0.1 * rng.standard_normal(n)
+    lm = np.log(cal.TRUTH["mu"]) + 0.05 * rng.standard_normal(n)
+    req_true, req_hat, rmax_true = 40e-6, 41e-6, 300e-6
+    req = req_true * (1 + 0.5 * (lg - np.log(cal.TRUTH["G"])) + 0.004 * rng.standard_normal(n))
+    post = {"G": np.exp(lg), "mu": np.exp(lm), "log_req_exp_001": np.log(req / req_hat),
+            "rmax_rel_exp_001": 0.002 * rng.standard_normal(n)}
+    truth = {"experiments": [{"file": "exp_001.csv", "req_m": req_true, "rmax_m": rmax_true}]}
+    summary = {"per_experiment": [{"nuisance": {"req_m": {"prior_mean": req_hat}, "rmax_m": {"prior_mean": rmax_true}}}]}
+    (row,) = cal.score_nuisances(truth, summary, post)
+    assert row["req"]["prior_rel_error"] == pytest.approx(0.025)
+    assert row["req"]["rel_error"] == pytest.approx(0.5 * np.log(1.3), rel=0.05)
+    assert row["req"]["z"] > 2.0 and not row["req"]["covers"]
+    assert abs(row["req"]["z_at_truth"]) < 0.1
+    assert abs(row["rmax"]["z"]) < 0.1 and row["rmax"]["covers"]
+    s = cal.summarise_nuisances([{"nuisance": [row]}, {"nuisance": [row]}])
+    assert s["req"]["n_bubbles"] == 2 and s["req"]["covered"] == 0 and s["rmax"]["coverage"] == 1.0

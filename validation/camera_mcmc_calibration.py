@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -57,8 +58,10 @@ def score_seed(folder: Path) -> dict | None:
     with xr.open_datatree(fit / "mcmc.nc") as dt:
         post = dt["window_00"]["posterior"]
         draws = {n: np.asarray(post[n]).ravel() for n in TRUTH}
+        nuisance = score_nuisances(json.loads((folder / "data" / "truth.json").read_text()), summary, post)
     row = {"seed": int(folder.name.split("_")[1]), "agree": entry.get("agree"),
-           "n_evals": entry.get("n_evals"), "converged": entry["mcmc"]["sampler"].get("stop_reason") == "converged"}
+           "n_evals": entry.get("n_evals"), "converged": entry["mcmc"]["sampler"].get("stop_reason") == "converged",
+           "nuisance": nuisance}
     for n, true in TRUTH.items():
         lo, hi = np.quantile(draws[n], [0.025, 0.975])
         e = summary["estimate"][n]
@@ -69,6 +72,53 @@ def score_seed(folder: Path) -> dict | None:
                                "rel_error": e["mean"] / true - 1},
                   "sd_ratio_ensemble_to_mcmc": e["sd"] / float(draws[n].std())}
     return row
+
+
+def score_nuisances(truth: dict, summary: dict, post) -> list:
+    """Each experiment's MCMC posterior of Rmax and Req against its truth (``truth.json``).
+
+    ``z``: (posterior mean - truth) / posterior sd; ``z_at_truth``: the same for the posterior
+    *conditional* on the true (G, mu), from the linear regression of the nuisance on (log G, log mu)
+    over the draws -- a nuisance that is off only because it trades with a missed material along a
+    ridge is off in ``z`` and not in ``z_at_truth``."""
+    lg, lm = (np.log(np.asarray(post[n]).ravel()) for n in ("G", "mu"))
+    X = np.column_stack([np.ones_like(lg), lg - lg.mean(), lm - lm.mean()])
+    x_true = np.array([1.0, math.log(TRUTH["G"]) - lg.mean(), math.log(TRUTH["mu"]) - lm.mean()])
+    out = []
+    for e, pe in zip(truth["experiments"], summary["per_experiment"]):
+        name, nu = Path(e["file"]).stem, pe["nuisance"]
+        row = {"experiment": name}
+        for key, var, true, value in (
+                ("req", f"log_req_{name}", e["req_m"], lambda v, p0=nu["req_m"]["prior_mean"]: p0 * np.exp(v)),
+                ("rmax", f"rmax_rel_{name}", e["rmax_m"], lambda v, p0=nu["rmax_m"]["prior_mean"]: p0 * (1 + v))):
+            y = value(np.asarray(post[var]).ravel()) / true - 1.0
+            b, *_ = np.linalg.lstsq(X, y, rcond=None)
+            resid_sd = float(np.std(y - X @ b))
+            prior = nu[f"{key}_m"]["prior_mean"] / true - 1.0
+            lo, hi = np.quantile(y, [0.025, 0.975])
+            row[key] = {"prior_rel_error": float(prior), "rel_error": float(y.mean()), "sd": float(y.std()),
+                        "covers": bool(lo <= 0.0 <= hi), "z": float(y.mean() / y.std()),
+                        "z_at_truth": float(x_true @ b / resid_sd) if resid_sd > 0 else float("nan")}
+        out.append(row)
+    return out
+
+
+def summarise_nuisances(rows: list) -> dict:
+    """Coverage of every bubble's nuisance interval over the seeds, and its z-scores marginal and at the true material."""
+    out = {}
+    for key in ("req", "rmax"):
+        items = [n[key] for r in rows for n in r.get("nuisance", [])]
+        if not items:
+            continue
+        k = sum(i["covers"] for i in items)
+        z, zt = np.array([i["z"] for i in items]), np.array([i["z_at_truth"] for i in items])
+        out[key] = {"n_bubbles": len(items), "covered": k, "coverage": k / len(items), "wilson95": wilson(k, len(items)),
+                    "bias": float(np.mean([i["rel_error"] for i in items])),
+                    "prior_bias": float(np.mean([i["prior_rel_error"] for i in items])),
+                    "z_mean": float(z.mean()), "z_sd": float(z.std(ddof=1)) if z.size > 1 else None,
+                    "z_at_truth_mean": float(np.nanmean(zt)),
+                    "z_at_truth_sd": float(np.nanstd(zt, ddof=1)) if zt.size > 1 else None}
+    return out
 
 
 def summarise(rows: list) -> dict:
@@ -82,6 +132,7 @@ def summarise(rows: list) -> dict:
                                   "scatter": float(err.std(ddof=1)) if len(rows) > 1 else None}
         out[f"{n}_sd_ratio_ensemble_to_mcmc"] = float(np.mean([r[n]["sd_ratio_ensemble_to_mcmc"] for r in rows])) \
             if rows else None
+    out["nuisance"] = summarise_nuisances(rows)
     return out
 
 
@@ -115,6 +166,10 @@ def main(argv=None):
             if rows:
                 print(f"{n:>3} {kind:>8}: coverage {t['coverage']:.2f} [{t['wilson95'][0]:.2f}, {t['wilson95'][1]:.2f}], "
                       f"bias {t['bias']:+.3f}")
+    for key, t in summ["nuisance"].items():
+        print(f"{key:>4} per bubble: coverage {t['coverage']:.2f} [{t['wilson95'][0]:.2f}, {t['wilson95'][1]:.2f}] "
+              f"of {t['n_bubbles']}, bias {t['bias']:+.4f} (preprocessing {t['prior_bias']:+.4f}), z {t['z_mean']:+.2f} "
+              f"(sd {t['z_sd']:.2f}), at the true material {t['z_at_truth_mean']:+.2f} (sd {t['z_at_truth_sd']:.2f})")
     if args.json:
         args.json.write_text(json.dumps({"command": " ".join(sys.argv), "bubble": args.bubble, "summary": summ,
                                          "rows": rows}, indent=1))
