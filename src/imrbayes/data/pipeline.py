@@ -267,8 +267,9 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         "dt_star": float(dt_star), "n_steps_requested": int(n_steps), "n_steps": n_use,
         "rmax_method": rmax_method, "collapse_method": collapse_method, "rebound_frac": rebound_frac,
         "record_noise": "sd from the median absolute fourth difference of each record (noise_sd_m)",
-        "collapse_search": "rebound > max(rebound_frac Rmax, min(4 noise sd, 0.08 Rmax)), no earlier than "
-                           "t* = 0.6 after the maximum; with the noise bar, two frames in a row",
+        "collapse_search": "rebound > max(rebound_frac Rmax, min(4 noise sd, 0.08 Rmax)) -- 2 noise sd from a "
+                           "minimum below 0.5 Rmax --, no earlier than t* = 0.6 after the maximum; with the noise "
+                           "bar, two frames in a row",
         "req": f"meta.json/file value when given, else mean of the last {n_tail} samples after the first "
                f"collapse (uncertainty: the tail's spread beyond the noise, plus noise/sqrt(n)); a tail whose spread "
                f"beyond the noise exceeds 10 % of its mean has not settled: Req at the log-midpoint of its lowest "

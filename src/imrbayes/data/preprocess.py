@@ -268,14 +268,19 @@ class CollapseResult:
 
 
 def first_collapse(t_s, R_m, i_max: int, method: str = "parabola", rebound_frac: float = 0.05,
-                   noise_sd_m: float = 0.0, t_min_s: float = 0.0, t_max_s: float | None = None) -> CollapseResult:
+                   noise_sd_m: float = 0.0, t_min_s: float = 0.0, t_max_s: float | None = None,
+                   deep_frac: float = 0.5) -> CollapseResult:
     """The first radius minimum after the maximum at index ``i_max`` (at time ``t_max_s``, default
     the sample's).
 
     Walks forward from ``i_max`` keeping the running minimum; the collapse is that minimum once the
     radius has risen above it by more than ``rebound_frac * R[i_max]`` and more than 4
     ``noise_sd_m`` (capped at 0.08 R[i_max]: damped gels rebound by little more; when the noise sets
-    that bar, two frames in a row must clear it), at least ``t_min_s`` after the maximum. ``method="parabola"`` refines
+    that bar, two frames in a row must clear it), at least ``t_min_s`` after the maximum. A minimum
+    below ``deep_frac * R[i_max]`` needs only 2 ``noise_sd_m``: no noise dip is that deep (on the
+    way down the frames fall by more than the noise each), while a small bubble's sampled rebound at
+    1 Mfps can rise only ~0.05-0.1 Rmax above its sampled minimum, at the 4-sd bar under 2 % noise.
+    ``method="parabola"`` refines
     the minimum with the parabola through it and its two neighbours (the vertex lies between them
     and not above the smallest sample); ``"sample"`` keeps the smallest sample.
 
@@ -288,16 +293,21 @@ def first_collapse(t_s, R_m, i_max: int, method: str = "parabola", rebound_frac:
         raise ValueError(f"method must be 'parabola' or 'sample', got {method!r}")
     t = np.asarray(t_s, dtype=float)
     R = np.asarray(R_m, dtype=float)
-    noise_rise = min(4.0 * float(noise_sd_m), 0.08 * R[i_max])
-    rise = max(rebound_frac * R[i_max], noise_rise)
-    confirm = noise_rise > rebound_frac * R[i_max]     # noise sets the bar: one lucky frame is not enough
+    def bar(k_sd: float) -> tuple:
+        noise_rise = min(k_sd * float(noise_sd_m), 0.08 * R[i_max])
+        # noise sets the bar: one lucky frame is not enough
+        return max(rebound_frac * R[i_max], noise_rise), noise_rise > rebound_frac * R[i_max]
+
+    shallow, deep = bar(4.0), bar(2.0)
     t_earliest = (t[i_max] if t_max_s is None else float(t_max_s)) + float(t_min_s)
     im, m = i_max, R[i_max]
     rebound = None
     for j in range(i_max + 1, R.size):
         if R[j] < m:
             im, m = j, R[j]
-        elif R[j] - m > rise and t[j] >= t_earliest and (not confirm or j + 1 == R.size or R[j + 1] - m > rise):
+            continue
+        rise, confirm = deep if m < deep_frac * R[i_max] else shallow
+        if R[j] - m > rise and t[j] >= t_earliest and (not confirm or j + 1 == R.size or R[j + 1] - m > rise):
             rebound = j
             break
     if rebound is None:
