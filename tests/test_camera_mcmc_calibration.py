@@ -19,15 +19,16 @@ def cal():
     return mod
 
 
-def _row(seed, err_mcmc, err_ens, covers_mcmc, covers_ens, sd_ratio=0.6):
+def _row(seed, err_mcmc, err_ens, covers_mcmc, covers_ens, sd_ratio=0.6, pit=0.5):
     part = lambda e, c: {"mean": 1 + e, "sd": 0.1, "rel_error": e, "covers": c}  # noqa: E731
-    one = {"mcmc": part(err_mcmc, covers_mcmc), "ensemble": part(err_ens, covers_ens),
+    one = {"mcmc": {**part(err_mcmc, covers_mcmc), "pit": pit}, "ensemble": part(err_ens, covers_ens),
            "sd_ratio_ensemble_to_mcmc": sd_ratio}
     return {"seed": seed, "G": one, "mu": one}
 
 
 def test_summary_counts_coverage_per_posterior(cal):
-    rows = [_row(0, 0.10, 0.12, True, False), _row(1, -0.02, 0.00, True, True), _row(2, 0.04, 0.06, False, False)]
+    rows = [_row(0, 0.10, 0.12, True, False, pit=0.1), _row(1, -0.02, 0.00, True, True, pit=0.9),
+            _row(2, 0.04, 0.06, False, False, pit=0.01)]
     s = cal.summarise(rows)
     assert s["n_seeds"] == 3
     assert s["G_mcmc"]["covered"] == 2 and s["G_ensemble"]["covered"] == 1
@@ -35,6 +36,8 @@ def test_summary_counts_coverage_per_posterior(cal):
     assert s["G_mcmc"]["wilson95"] == pytest.approx(cal.wilson(2, 3))
     assert s["G_mcmc"]["bias"] == pytest.approx(0.04) and s["G_ensemble"]["bias"] == pytest.approx(0.06)
     assert s["mu_sd_ratio_ensemble_to_mcmc"] == pytest.approx(0.6)
+    assert s["G_mcmc"]["pit"]["mean"] == pytest.approx(1.01 / 3) and s["G_mcmc"]["pit"]["below_0.5"] == 2
+    assert 0.0 < s["G_mcmc"]["pit"]["ks_uniform_p"] <= 1.0
     assert cal.summarise([])["n_seeds"] == 0
 
 

@@ -66,7 +66,9 @@ def score_seed(folder: Path) -> dict | None:
         lo, hi = np.quantile(draws[n], [0.025, 0.975])
         e = summary["estimate"][n]
         row[n] = {"mcmc": {"mean": float(draws[n].mean()), "sd": float(draws[n].std()), "ci95": [float(lo), float(hi)],
-                           "covers": bool(lo <= true <= hi), "rel_error": float(draws[n].mean() / true - 1)},
+                           "covers": bool(lo <= true <= hi), "rel_error": float(draws[n].mean() / true - 1),
+                           "median_rel_error": float(np.median(draws[n]) / true - 1),
+                           "pit": float(np.mean(draws[n] < true))},
                   "ensemble": {"mean": e["mean"], "sd": e["sd"], "hdi95": e["hdi95"],
                                "covers": bool(e["hdi95"][0] <= true <= e["hdi95"][1]),
                                "rel_error": e["mean"] / true - 1},
@@ -130,6 +132,14 @@ def summarise(rows: list) -> dict:
             out[f"{n}_{kind}"] = {"coverage": k / len(rows) if rows else float("nan"), "covered": k,
                                   "wilson95": wilson(k, len(rows)), "bias": float(err.mean()) if rows else None,
                                   "scatter": float(err.std(ddof=1)) if len(rows) > 1 else None}
+        pit = np.array([r[n]["mcmc"]["pit"] for r in rows if "pit" in r[n]["mcmc"]])
+        if pit.size:
+            from scipy.stats import kstest
+            # the truth's rank in a calibrated posterior is uniform over the seeds: a bias shows as a
+            # mean away from 1/2, too narrow a posterior as PITs piled at 0 and 1
+            out[f"{n}_mcmc"]["pit"] = {"values": pit.tolist(), "mean": float(pit.mean()),
+                                       "ks_uniform_p": float(kstest(pit, "uniform").pvalue),
+                                       "below_0.5": int(np.sum(pit < 0.5))}
         out[f"{n}_sd_ratio_ensemble_to_mcmc"] = float(np.mean([r[n]["sd_ratio_ensemble_to_mcmc"] for r in rows])) \
             if rows else None
     out["nuisance"] = summarise_nuisances(rows)
@@ -165,7 +175,8 @@ def main(argv=None):
             t = summ[f"{n}_{kind}"]
             if rows:
                 print(f"{n:>3} {kind:>8}: coverage {t['coverage']:.2f} [{t['wilson95'][0]:.2f}, {t['wilson95'][1]:.2f}], "
-                      f"bias {t['bias']:+.3f}")
+                      f"bias {t['bias']:+.3f}" + (f", truth's posterior rank (PIT) mean {t['pit']['mean']:.2f}, "
+                                                  f"KS vs uniform p = {t['pit']['ks_uniform_p']:.2g}" if "pit" in t else ""))
     for key, t in summ["nuisance"].items():
         print(f"{key:>4} per bubble: coverage {t['coverage']:.2f} [{t['wilson95'][0]:.2f}, {t['wilson95'][1]:.2f}] "
               f"of {t['n_bubbles']}, bias {t['bias']:+.4f} (preprocessing {t['prior_bias']:+.4f}), z {t['z_mean']:+.2f} "
