@@ -57,11 +57,18 @@ def test_a_nuisance_off_only_along_the_ridge_is_on_target_at_the_true_material(c
     lm = np.log(cal.TRUTH["mu"]) + 0.05 * rng.standard_normal(n)
     req_true, req_hat, rmax_true = 40e-6, 41e-6, 300e-6
     req = req_true * (1 + 0.5 * (lg - np.log(cal.TRUTH["G"])) + 0.004 * rng.standard_normal(n))
+    tc = rmax_true * np.sqrt(1064.0 / 101325.0)
     post = {"G": np.exp(lg), "mu": np.exp(lm), "log_req_exp_001": np.log(req / req_hat),
-            "rmax_rel_exp_001": 0.002 * rng.standard_normal(n)}
-    truth = {"experiments": [{"file": "exp_001.csv", "req_m": req_true, "rmax_m": rmax_true}]}
-    summary = {"per_experiment": [{"nuisance": {"req_m": {"prior_mean": req_hat}, "rmax_m": {"prior_mean": rmax_true}}}]}
+            "rmax_rel_exp_001": 0.002 * rng.standard_normal(n),
+            "t0_offset_exp_001": 0.05 + 0.01 * rng.standard_normal(n)}     # the maximum 0.05 t* after its prior
+    truth = {"physics": {"rho": 1064.0, "p8": 101325.0},
+             "experiments": [{"file": "exp_001.csv", "req_m": req_true, "rmax_m": rmax_true, "t_max_s": 6e-6},
+                             {"file": "exp_002.csv", "req_m": req_true, "rmax_m": rmax_true, "t_max_s": 6e-6}]}
+    summary = {"per_experiment": [{"name": "exp_001", "nuisance": {      # exp_002 left out by the fit
+        "req_m": {"prior_mean": req_hat}, "rmax_m": {"prior_mean": rmax_true},
+        "t0_s": {"prior_mean": 6e-6 - 0.05 * tc}}}]}
     (row,) = cal.score_nuisances(truth, summary, post)
+    assert row["t0"]["prior_rel_error"] == pytest.approx(-0.05) and abs(row["t0"]["z"]) < 0.1
     assert row["req"]["prior_rel_error"] == pytest.approx(0.025)
     assert row["req"]["rel_error"] == pytest.approx(0.5 * np.log(1.3), rel=0.05)
     assert row["req"]["z"] > 2.0 and not row["req"]["covers"]

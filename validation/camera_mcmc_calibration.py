@@ -77,7 +77,8 @@ def score_seed(folder: Path) -> dict | None:
 
 
 def score_nuisances(truth: dict, summary: dict, post) -> list:
-    """Each experiment's MCMC posterior of Rmax and Req against its truth (``truth.json``).
+    """Each experiment's MCMC posterior of Rmax, Req (relative errors) and the time of the maximum
+    (error in t*) against its truth (``truth.json``).
 
     ``z``: (posterior mean - truth) / posterior sd; ``z_at_truth``: the same for the posterior
     *conditional* on the true (G, mu), from the linear regression of the nuisance on (log G, log mu)
@@ -87,16 +88,29 @@ def score_nuisances(truth: dict, summary: dict, post) -> list:
     X = np.column_stack([np.ones_like(lg), lg - lg.mean(), lm - lm.mean()])
     x_true = np.array([1.0, math.log(TRUTH["G"]) - lg.mean(), math.log(TRUTH["mu"]) - lm.mean()])
     out = []
-    for e, pe in zip(truth["experiments"], summary["per_experiment"]):
-        name, nu = Path(e["file"]).stem, pe["nuisance"]
+    per_experiment = {pe["name"]: pe for pe in summary["per_experiment"]}     # a record left out has none
+    phys = truth.get("physics", {})
+    sqrt_rho_p8 = math.sqrt(phys.get("rho", 1064.0) / phys.get("p8", 101325.0))
+    for e in truth["experiments"]:
+        name = Path(e["file"]).stem
+        if name not in per_experiment:
+            continue
+        nu = per_experiment[name]["nuisance"]
+        tc = nu["rmax_m"]["prior_mean"] * sqrt_rho_p8           # the preprocessing's t_c, the offset's unit
         row = {"experiment": name}
         for key, var, true, value in (
                 ("req", f"log_req_{name}", e["req_m"], lambda v, p0=nu["req_m"]["prior_mean"]: p0 * np.exp(v)),
-                ("rmax", f"rmax_rel_{name}", e["rmax_m"], lambda v, p0=nu["rmax_m"]["prior_mean"]: p0 * (1 + v))):
-            y = value(np.asarray(post[var]).ravel()) / true - 1.0
+                ("rmax", f"rmax_rel_{name}", e["rmax_m"], lambda v, p0=nu["rmax_m"]["prior_mean"]: p0 * (1 + v)),
+                ("t0", f"t0_offset_{name}", e.get("t_max_s"),
+                 lambda v, p0=nu.get("t0_s", {}).get("prior_mean"): p0 + tc * v)):
+            if true is None or var not in post or ("t0_s" not in nu and key == "t0"):
+                continue
+            # Req and Rmax relative to the truth; t0 in t* (t_c) units, an absolute error
+            y = value(np.asarray(post[var]).ravel())
+            y = (y - true) / tc if key == "t0" else y / true - 1.0
             b, *_ = np.linalg.lstsq(X, y, rcond=None)
             resid_sd = float(np.std(y - X @ b))
-            prior = nu[f"{key}_m"]["prior_mean"] / true - 1.0
+            prior = (nu["t0_s"]["prior_mean"] - true) / tc if key == "t0" else nu[f"{key}_m"]["prior_mean"] / true - 1.0
             lo, hi = np.quantile(y, [0.025, 0.975])
             row[key] = {"prior_rel_error": float(prior), "rel_error": float(y.mean()), "sd": float(y.std()),
                         "covers": bool(lo <= 0.0 <= hi), "z": float(y.mean() / y.std()),
@@ -108,8 +122,8 @@ def score_nuisances(truth: dict, summary: dict, post) -> list:
 def summarise_nuisances(rows: list) -> dict:
     """Coverage of every bubble's nuisance interval over the seeds, and its z-scores marginal and at the true material."""
     out = {}
-    for key in ("req", "rmax"):
-        items = [n[key] for r in rows for n in r.get("nuisance", [])]
+    for key in ("req", "rmax", "t0"):
+        items = [n[key] for r in rows for n in r.get("nuisance", []) if key in n]
         if not items:
             continue
         k = sum(i["covers"] for i in items)
