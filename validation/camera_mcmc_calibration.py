@@ -98,19 +98,19 @@ def score_nuisances(truth: dict, summary: dict, post) -> list:
         nu = per_experiment[name]["nuisance"]
         tc = nu["rmax_m"]["prior_mean"] * sqrt_rho_p8           # the preprocessing's t_c, the offset's unit
         row = {"experiment": name}
-        for key, var, true, value in (
-                ("req", f"log_req_{name}", e["req_m"], lambda v, p0=nu["req_m"]["prior_mean"]: p0 * np.exp(v)),
-                ("rmax", f"rmax_rel_{name}", e["rmax_m"], lambda v, p0=nu["rmax_m"]["prior_mean"]: p0 * (1 + v)),
-                ("t0", f"t0_offset_{name}", e.get("t_max_s"),
-                 lambda v, p0=nu.get("t0_s", {}).get("prior_mean"): p0 + tc * v)):
-            if true is None or var not in post or ("t0_s" not in nu and key == "t0"):
+        # (draw of the sampled coordinate -> SI value, truth, error): Req and Rmax relative, t0 in t* (t_c)
+        quantities = {"req": (f"log_req_{name}", lambda v: nu["req_m"]["prior_mean"] * np.exp(v), e["req_m"]),
+                      "rmax": (f"rmax_rel_{name}", lambda v: nu["rmax_m"]["prior_mean"] * (1 + v), e["rmax_m"])}
+        if "t0_s" in nu and e.get("t_max_s") is not None:
+            quantities["t0"] = (f"t0_offset_{name}", lambda v: nu["t0_s"]["prior_mean"] + tc * v, e["t_max_s"])
+        for key, (var, to_si, true) in quantities.items():
+            if var not in post:
                 continue
-            # Req and Rmax relative to the truth; t0 in t* (t_c) units, an absolute error
-            y = value(np.asarray(post[var]).ravel())
-            y = (y - true) / tc if key == "t0" else y / true - 1.0
+            error = (lambda x: (x - true) / tc) if key == "t0" else (lambda x: x / true - 1.0)
+            y = error(to_si(np.asarray(post[var]).ravel()))
+            prior = error(to_si(0.0))                   # the preprocessing's estimate: every coordinate at 0
             b, *_ = np.linalg.lstsq(X, y, rcond=None)
             resid_sd = float(np.std(y - X @ b))
-            prior = (nu["t0_s"]["prior_mean"] - true) / tc if key == "t0" else nu[f"{key}_m"]["prior_mean"] / true - 1.0
             lo, hi = np.quantile(y, [0.025, 0.975])
             row[key] = {"prior_rel_error": float(prior), "rel_error": float(y.mean()), "sd": float(y.std()),
                         "covers": bool(lo <= 0.0 <= hi), "z": float(y.mean() / y.std()),
