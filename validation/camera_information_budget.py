@@ -1,0 +1,208 @@
+"""Where G's information in a camera record goes, and whether the fit's likelihood loses it.
+
+On the camera family (6 bubbles, 1 Mfps, random phase, noise 0.02 R*) the exact En4D-Var posterior
+of G is ~10 % wide and has a right-hand error tail (``camera_mcmc_calibration.py``). This script
+asks, per seed of that script's folder, two questions with the truth in hand:
+
+1. **How much does each bubble's geometry cost?** The Fisher (Laplace) sd of log G at the truth,
+   with the nuisances (Rmax, time of the maximum, Req) known, inferred with the preprocessing's
+   priors, and each kind known in turn -- for the *ideal* likelihood (the camera frames themselves
+   as data, the true noise sd, no tempering) and for the *fit's* (the frames resampled on the dt*
+   grid, predicted through the same frame operator, each record's variance and tempering from the
+   fit's summary.json). A local measure: it says where the information sits, not how wide the
+   posterior is.
+2. **Is the tail the data's or the likelihood's?** The profile log-likelihood of log G at the true
+   mu, each bubble's three nuisances maximised out (with their prior), for both likelihoods. If the
+   ideal likelihood also peaks far from the truth on the seeds where the fit does, the grid
+   resampling, the noise level and the tempering are not what moves G: the noise draw is.
+
+    python validation/camera_information_budget.py --folder runs/mcmc-cal --seeds 100-119 \
+        --calibration validation/results/camera_mcmc_calibration_20261129.json \
+        --json validation/results/camera_information_budget_20261129.json
+
+Every seed is appended to the JSON as it finishes (a rerun skips the seeds already there).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+NUISANCE_KINDS = ("rmax", "t0", "req")          # the likelihood module's (a, delta, rho)
+
+
+def load_seed(folder: Path):
+    """(truth, runner, observations, per-record data dicts) of one seed folder (data/ and fit/)."""
+    import pandas as pd
+
+    from imrbayes.data import load_dataset, preprocess_dataset
+    from imrbayes.ensemble import Observations
+    from imrbayes.ensemble.likelihood import frame_operator, nuisance_prior_sd
+    from imrbayes.forward import ForwardModel
+    from imrbayes.forward.runner import Runner
+
+    truth = json.loads((folder / "data" / "truth.json").read_text())
+    summary = json.loads((folder / "fit" / "summary.json").read_text())
+    fitted = {p["name"]: p["likelihood"] for p in summary["per_experiment"]}
+    pre = preprocess_dataset(load_dataset(folder / "data"), skip_failed=True)
+    obs = Observations.from_preprocessed(pre)
+    runner = Runner(ForwardModel(truth["model"], options=truth["forward"]))
+    t_eval = obs.t_star[1:]
+    by_file = {e["file"].rsplit(".", 1)[0]: e for e in truth["experiments"]}
+    records = []
+    for n, ex in enumerate(pre.experiments):
+        if ex.name not in fitted:               # a record the fit left out
+            continue
+        e = by_file[ex.name]
+        frames = pd.read_csv(folder / "data" / e["file"])
+        t = (frames["t_s"].to_numpy() - ex.t0_s) / ex.tc_s
+        keep = (t >= 0.0) & (t <= t_eval[-1])   # the span the fit sees
+        rmax, req = float(obs.rmax_m[n]), float(obs.req_m[n])
+        lik = fitted[ex.name]
+        records.append({
+            "name": ex.name, "rmax": rmax, "req": req,
+            # the truth in the likelihood's nuisance coordinates
+            "nu_true": np.array([e["rmax_m"] / rmax - 1.0, (e["t_max_s"] - ex.t0_s) / ex.tc_s, math.log(e["req_m"] / req)]),
+            "prior_sd": nuisance_prior_sd(obs, n),
+            "grid": {"t": t_eval, "y": np.asarray(obs.R_star[n][1:]), "frames": frame_operator(obs.frame_t[n], t_eval),
+                     "w": lik["alpha"] / lik["var"]},
+            "ideal": {"t": t[keep], "y": frames["R_m"].to_numpy()[keep] / rmax, "frames": None,
+                      "w": 1.0 / (truth["noise"]["sd"] * e["rmax_m"] / rmax) ** 2},
+        })
+    return truth, runner, records
+
+
+def _predict(runner, rec, kind, theta, nu):
+    from imrbayes.ensemble.likelihood import predict
+    d = rec[kind]
+    return predict(runner, theta, rec["rmax"], rec["req"], d["t"], nu, d["frames"])
+
+
+def fisher_sd(runner, records, theta_true, kind: str, h: float = 1e-3) -> dict:
+    """Laplace sd of (log G, log mu) at the truth: nuisances known, inferred, each kind known."""
+    n_rec = len(records)
+    n_par = 2 + 3 * n_rec
+    info = np.zeros((n_par, n_par))
+    prior_prec = np.zeros(n_par)
+    steps = np.zeros((11, 5))
+    for k in range(5):
+        steps[1 + 2 * k, k], steps[2 + 2 * k, k] = h, -h
+    for i, rec in enumerate(records):
+        theta = theta_true[None] * np.exp(steps[:, :2])
+        R, failed = _predict(runner, rec, kind, theta, rec["nu_true"][None] + steps[:, 2:])
+        if failed.any():
+            raise RuntimeError(f"{rec['name']}: a forward solve failed at the truth")
+        J = np.stack([(R[1 + 2 * k] - R[2 + 2 * k]) / (2 * h) for k in range(5)], axis=1)
+        idx = [0, 1] + [2 + 3 * i + j for j in range(3)]
+        info[np.ix_(idx, idx)] += rec[kind]["w"] * J.T @ J
+        prior_prec[2 + 3 * i:5 + 3 * i] = 1.0 / rec["prior_sd"] ** 2
+
+    def sd(known=()):
+        prec = prior_prec.copy()
+        for j in known:
+            prec[2 + j::3] = 1e12
+        return np.sqrt(np.diag(np.linalg.inv(info + np.diag(prec)))[:2])
+
+    out = {"known": np.sqrt(np.diag(np.linalg.inv(info[:2, :2]))).tolist(), "inferred": sd().tolist()}
+    for j, name in enumerate(NUISANCE_KINDS):
+        out[f"{name}_known"] = sd((j,)).tolist()
+    return out
+
+
+def profile(runner, records, theta_true, kind: str, log_g) -> np.ndarray:
+    """(len(log_g), n_records) log-likelihood + nuisance log-prior, maximised over each record's
+    nuisances, at G = G_true e^log_g and the true mu (several starts: the alignment has basins)."""
+    from scipy.optimize import least_squares
+
+    out = np.zeros((len(log_g), len(records)))
+    for i, rec in enumerate(records):
+        d, ps = rec[kind], rec["prior_sd"]
+        last = None
+        for j, g in enumerate(log_g):
+            theta = np.array([[theta_true[0] * math.exp(g), theta_true[1]]])
+
+            def resid(nu):
+                R, failed = _predict(runner, rec, kind, theta, nu[None])
+                if failed.any():
+                    return np.full(d["t"].size + 3, 1e3)
+                return np.concatenate([math.sqrt(d["w"]) * (d["y"] - R[0]), nu / ps])
+
+            best = None
+            for x0 in [rec["nu_true"], np.zeros(3)] + ([last] if last is not None else []):
+                r = least_squares(resid, x0, x_scale=ps, diff_step=1e-4)
+                if best is None or r.cost < best.cost:
+                    best = r
+            out[j, i], last = -best.cost, best.x
+    return out
+
+
+def peak(log_g, total) -> float:
+    """The profile's maximum, refined by a parabola through the best point and its neighbours."""
+    k = int(np.argmax(total))
+    if 0 < k < len(log_g) - 1:
+        x, y = log_g[k - 1:k + 2], total[k - 1:k + 2]
+        a, b, _ = np.polyfit(x, y, 2)
+        if a < 0:
+            return float(np.clip(-b / (2 * a), x[0], x[-1]))
+    return float(log_g[k])
+
+
+def run_seed(folder: Path, log_g) -> dict:
+    truth, runner, records = load_seed(folder)
+    theta_true = np.array([truth["parameters"]["G"], truth["parameters"]["mu"]])
+    row = {"seed": truth["seed"], "records": [r["name"] for r in records]}
+    for kind in ("ideal", "grid"):
+        prof = profile(runner, records, theta_true, kind, log_g).sum(axis=1)
+        row[kind] = {"fisher_sd_log": fisher_sd(runner, records, theta_true, kind),
+                     "profile": (prof - prof.max()).tolist(),
+                     "profile_peak_log_g": peak(log_g, prof),
+                     "profile_drop_at_truth": float(prof.max() - np.interp(0.0, log_g, prof))}
+    return row
+
+
+def parse_seeds(text: str) -> list:
+    a, _, b = text.partition("-")
+    return list(range(int(a), int(b) + 1)) if b else [int(x) for x in text.split(",")]
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--folder", type=Path, required=True, help="camera_mcmc_calibration.py's --out (seed_S/data, seed_S/fit)")
+    ap.add_argument("--seeds", required=True, help="e.g. 100-119 or 103,111")
+    ap.add_argument("--calibration", type=Path, help="camera_mcmc_calibration.py's JSON (the MCMC's G, for the table)")
+    ap.add_argument("--json", type=Path, required=True)
+    a = ap.parse_args(argv)
+    log_g = np.linspace(-0.3, 0.6, 13)
+    res = json.loads(a.json.read_text()) if a.json.is_file() else {
+        "command": "python validation/camera_information_budget.py " + " ".join(sys.argv[1:] if argv is None else argv),
+        "log_g": log_g.tolist(), "rows": []}
+    done = {r["seed"] for r in res["rows"]}
+    mcmc = {}
+    if a.calibration:
+        mcmc = {r["seed"]: r["G"]["mcmc"] for r in json.loads(a.calibration.read_text())["rows"]}
+    for seed in parse_seeds(a.seeds):
+        if seed not in done:
+            res["rows"].append(run_seed(a.folder / f"seed_{seed}", log_g))
+            a.json.write_text(json.dumps(res, indent=1))
+    print("seed | Fisher sd log G: ideal known / inferred / t0 known | grid inferred | profile peak log G: ideal, grid "
+          "| MCMC: G error, sd")
+    for r in sorted(res["rows"], key=lambda r: r["seed"]):
+        fi, fg = r["ideal"]["fisher_sd_log"], r["grid"]["fisher_sd_log"]
+        m = mcmc.get(r["seed"])
+        tail = f"{m['rel_error']:+.3f}, {m['sd'] / m['mean']:.3f}" if m else "-"
+        print(f"{r['seed']} | {fi['known'][0]:.3f} / {fi['inferred'][0]:.3f} / {fi['t0_known'][0]:.3f} | "
+              f"{fg['inferred'][0]:.3f} | {r['ideal']['profile_peak_log_g']:+.3f}, {r['grid']['profile_peak_log_g']:+.3f} | {tail}")
+    if len(res["rows"]) > 2:
+        pi = np.array([r["ideal"]["profile_peak_log_g"] for r in res["rows"]])
+        pg = np.array([r["grid"]["profile_peak_log_g"] for r in res["rows"]])
+        print(f"profile peaks over {pi.size} seeds: ideal mean {pi.mean():+.3f} (sd {pi.std(ddof=1):.3f}), "
+              f"grid {pg.mean():+.3f} (sd {pg.std(ddof=1):.3f}); correlation {np.corrcoef(pi, pg)[0, 1]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
