@@ -1,0 +1,68 @@
+"""The information-budget script (validation/camera_information_budget.py) on a small camera data set
+with little noise, where the truth must sit where the script puts it."""
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+_spec = importlib.util.spec_from_file_location(
+    "camera_information_budget", Path(__file__).resolve().parents[1] / "validation" / "camera_information_budget.py")
+budget = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(budget)
+
+NOISE = 0.002
+
+
+@pytest.fixture(scope="module")
+def seed_folder(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("budget") / "seed_7"
+    cmd = [sys.executable, "-m", "imrbayes.cli", "simulate", "--model", "nhkv", "--param", "G=5200",
+           "--param", "mu=0.065", "--rmax", "320e-6:30e-6", "--ratio", "7.9:0.3", "--n-exp", "2",
+           "--noise", str(NOISE), "--frame-s", "1e-6", "--phase", "random", "--pre-max-s", "5e-6",
+           "--no-req-in-meta", "--t-end", "3.6", "--seed", "7", "--out", str(folder / "data"),
+           "--forward", "bubble=polytropic"]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    names = [e["file"].rsplit(".", 1)[0] for e in json.loads((folder / "data" / "truth.json").read_text())["experiments"]]
+    (folder / "fit").mkdir()
+    # what the script reads of a fit: which records it kept and each one's variance and tempering
+    (folder / "fit" / "summary.json").write_text(json.dumps(
+        {"per_experiment": [{"name": n, "likelihood": {"alpha": 1.0, "var": NOISE ** 2}} for n in names]}))
+    return folder
+
+
+def test_the_truth_in_nuisance_coordinates_reproduces_the_frames(seed_folder):
+    truth, runner, records = budget.load_seed(seed_folder)
+    theta = np.array([[truth["parameters"]["G"], truth["parameters"]["mu"]]])
+    assert len(records) == 2
+    for rec in records:
+        for kind in ("ideal", "grid"):
+            R, failed = budget._predict(runner, rec, kind, theta, rec["nu_true"][None])
+            rms = float(np.sqrt(np.mean((rec[kind]["y"] - R[0]) ** 2)))
+            assert not failed.any()
+            assert 0.3 * NOISE < rms < 1.5 * NOISE, (rec["name"], kind, rms)
+        # the preprocessing's guess is off by more than the noise allows: the test can fail
+        R0, _ = budget._predict(runner, rec, "ideal", theta, np.zeros((1, 3)))
+        assert np.sqrt(np.mean((rec["ideal"]["y"] - R0[0]) ** 2)) > 1.5 * NOISE
+
+
+def test_profile_peaks_at_the_truth_and_the_geometry_costs_information(seed_folder):
+    truth, runner, records = budget.load_seed(seed_folder)
+    theta = np.array([truth["parameters"]["G"], truth["parameters"]["mu"]])
+    log_g = np.array([-0.15, -0.05, 0.05, 0.15])
+    for kind in ("ideal", "grid"):
+        prof = budget.profile(runner, records, theta, kind, log_g).sum(axis=1)
+        assert abs(budget.peak(log_g, prof)) < 0.05, (kind, prof)
+        sd = budget.fisher_sd(runner, records, theta, kind)
+        assert sd["known"][0] < sd["t0_known"][0] <= sd["inferred"][0] * 1.0001
+        assert sd["known"][0] < sd["req_known"][0] <= sd["inferred"][0] * 1.0001
+
+
+def test_peak_refines_by_a_parabola():
+    x = np.linspace(-0.3, 0.6, 13)
+    assert abs(budget.peak(x, -(x - 0.1234) ** 2) - 0.1234) < 1e-9
+    assert budget.peak(x, x) == pytest.approx(0.6)          # at the edge: the edge
