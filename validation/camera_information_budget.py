@@ -114,9 +114,28 @@ def fisher_sd(runner, records, theta_true, kind: str, h: float = 1e-3) -> dict:
     return out
 
 
+def _starts(runner, rec, kind, theta, last, n_best: int = 3, half_width_sd: float = 3.0, n_scan: int = 121) -> list:
+    """Starting nuisances for one record's optimisation: the previous G's optimum and the ``n_best``
+    deepest local minima of the cost along a scan of the time of the maximum over +-``half_width_sd``
+    prior sd (Rmax and Req at the previous optimum). The alignment's basins lie a fraction of a
+    frame apart, so one local start lands in whichever basin is nearest."""
+    d, ps = rec[kind], rec["prior_sd"]
+    base = np.zeros(3) if last is None else np.asarray(last, dtype=np.float64)
+    delta = np.linspace(-half_width_sd, half_width_sd, n_scan) * ps[1]
+    nu = np.repeat(base[None], n_scan, axis=0)
+    nu[:, 1] = delta
+    R, failed = _predict(runner, rec, kind, np.repeat(theta, n_scan, axis=0), nu)
+    cost = 0.5 * d["w"] * np.sum((d["y"][None] - R) ** 2, axis=1) + 0.5 * np.sum((nu / ps) ** 2, axis=1)
+    cost = np.where(failed | ~np.isfinite(cost), np.inf, cost)
+    interior = np.r_[False, (cost[1:-1] <= cost[:-2]) & (cost[1:-1] <= cost[2:]), False]
+    order = [k for k in np.argsort(cost) if interior[k] and np.isfinite(cost[k])][:n_best]
+    return [nu[k] for k in order] + ([base] if last is not None else [np.zeros(3)])
+
+
 def profile(runner, records, theta_true, kind: str, log_g) -> np.ndarray:
     """(len(log_g), n_records) log-likelihood + nuisance log-prior, maximised over each record's
-    nuisances, at G = G_true e^log_g and the true mu (several starts: the alignment has basins)."""
+    nuisances, at G = G_true e^log_g and the true mu (started from the previous G's optimum and from
+    the deepest minima of a scan of the time of the maximum: the alignment has basins)."""
     from scipy.optimize import least_squares
 
     out = np.zeros((len(log_g), len(records)))
@@ -133,7 +152,7 @@ def profile(runner, records, theta_true, kind: str, log_g) -> np.ndarray:
                 return np.concatenate([math.sqrt(d["w"]) * (d["y"] - R[0]), nu / ps])
 
             best = None
-            for x0 in [rec["nu_true"], np.zeros(3)] + ([last] if last is not None else []):
+            for x0 in _starts(runner, rec, kind, theta, last):
                 r = least_squares(resid, x0, x_scale=ps, diff_step=1e-4)
                 if best is None or r.cost < best.cost:
                     best = r
