@@ -66,3 +66,12 @@ def test_peak_refines_by_a_parabola():
     x = np.linspace(-0.3, 0.6, 13)
     assert abs(budget.peak(x, -(x - 0.1234) ** 2) - 0.1234) < 1e-9
     assert budget.peak(x, x) == pytest.approx(0.6)          # at the edge: the edge
+
+
+def test_without_a_fit_every_record_is_scored_with_the_ideal_likelihood_only(seed_folder, tmp_path):
+    (tmp_path / "seed_7").mkdir()
+    (tmp_path / "seed_7" / "data").symlink_to(seed_folder / "data")
+    truth, runner, records = budget.load_seed(tmp_path / "seed_7")
+    assert len(records) == truth["n_experiments"] and all(r["grid"] is None for r in records)
+    row = budget.run_seed(tmp_path / "seed_7", np.array([-0.1, 0.0, 0.1]))
+    assert "grid" not in row and abs(row["ideal"]["profile_peak_log_g"]) < 0.05

@@ -47,8 +47,10 @@ def load_seed(folder: Path):
     from imrbayes.forward.runner import Runner
 
     truth = json.loads((folder / "data" / "truth.json").read_text())
-    summary = json.loads((folder / "fit" / "summary.json").read_text())
-    fitted = {p["name"]: p["likelihood"] for p in summary["per_experiment"]}
+    summary_file = folder / "fit" / "summary.json"
+    fitted = None                               # no fit: the ideal likelihood only, every record
+    if summary_file.is_file():
+        fitted = {p["name"]: p["likelihood"] for p in json.loads(summary_file.read_text())["per_experiment"]}
     pre = preprocess_dataset(load_dataset(folder / "data"), skip_failed=True)
     obs = Observations.from_preprocessed(pre)
     runner = Runner(ForwardModel(truth["model"], options=truth["forward"]))
@@ -56,21 +58,21 @@ def load_seed(folder: Path):
     by_file = {e["file"].rsplit(".", 1)[0]: e for e in truth["experiments"]}
     records = []
     for n, ex in enumerate(pre.experiments):
-        if ex.name not in fitted:               # a record the fit left out
+        if fitted is not None and ex.name not in fitted:      # a record the fit left out
             continue
         e = by_file[ex.name]
         frames = pd.read_csv(folder / "data" / e["file"])
         t = (frames["t_s"].to_numpy() - ex.t0_s) / ex.tc_s
         keep = (t >= 0.0) & (t <= t_eval[-1])   # the span the fit sees
         rmax, req = float(obs.rmax_m[n]), float(obs.req_m[n])
-        lik = fitted[ex.name]
         records.append({
             "name": ex.name, "rmax": rmax, "req": req,
             # the truth in the likelihood's nuisance coordinates
             "nu_true": np.array([e["rmax_m"] / rmax - 1.0, (e["t_max_s"] - ex.t0_s) / ex.tc_s, math.log(e["req_m"] / req)]),
             "prior_sd": nuisance_prior_sd(obs, n),
-            "grid": {"t": t_eval, "y": np.asarray(obs.R_star[n][1:]), "frames": frame_operator(obs.frame_t[n], t_eval),
-                     "w": lik["alpha"] / lik["var"]},
+            "grid": None if fitted is None else {
+                "t": t_eval, "y": np.asarray(obs.R_star[n][1:]), "frames": frame_operator(obs.frame_t[n], t_eval),
+                "w": fitted[ex.name]["alpha"] / fitted[ex.name]["var"]},
             "ideal": {"t": t[keep], "y": frames["R_m"].to_numpy()[keep] / rmax, "frames": None,
                       "w": 1.0 / (truth["noise"]["sd"] * e["rmax_m"] / rmax) ** 2},
         })
@@ -176,6 +178,8 @@ def run_seed(folder: Path, log_g) -> dict:
     theta_true = np.array([truth["parameters"]["G"], truth["parameters"]["mu"]])
     row = {"seed": truth["seed"], "records": [r["name"] for r in records]}
     for kind in ("ideal", "grid"):
+        if records[0][kind] is None:
+            continue
         prof = profile(runner, records, theta_true, kind, log_g).sum(axis=1)
         row[kind] = {"fisher_sd_log": fisher_sd(runner, records, theta_true, kind),
                      "profile": (prof - prof.max()).tolist(),
@@ -195,6 +199,10 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", required=True, help="e.g. 100-119 or 103,111")
     ap.add_argument("--calibration", type=Path, help="camera_mcmc_calibration.py's JSON (the MCMC's G, for the table)")
     ap.add_argument("--json", type=Path, required=True)
+    ap.add_argument("--simulate", action="store_true",
+                    help="write a seed's camera data set (camera_calibration.py's family) where the folder has none; "
+                         "without a fit only the ideal likelihood is scored")
+    ap.add_argument("--bubble", default="polytropic", help="bubble model of --simulate's data")
     a = ap.parse_args(argv)
     log_g = np.linspace(-0.3, 0.6, 13)
     res = json.loads(a.json.read_text()) if a.json.is_file() else {
@@ -206,22 +214,39 @@ def main(argv=None) -> None:
         mcmc = {r["seed"]: r["G"]["mcmc"] for r in json.loads(a.calibration.read_text())["rows"]}
     for seed in parse_seeds(a.seeds):
         if seed not in done:
+            if a.simulate and not (a.folder / f"seed_{seed}" / "data" / "truth.json").is_file():
+                sys.path.insert(0, str(Path(__file__).resolve().parent))
+                from camera_calibration import simulate
+                simulate(a.folder / f"seed_{seed}" / "data", seed, "camera", a.bubble)
             res["rows"].append(run_seed(a.folder / f"seed_{seed}", log_g))
             a.json.write_text(json.dumps(res, indent=1))
     print("seed | Fisher sd log G: ideal known / inferred / t0 known | grid inferred | profile peak log G: ideal, grid "
-          "| MCMC: G error, sd")
-    for r in sorted(res["rows"], key=lambda r: r["seed"]):
-        fi, fg = r["ideal"]["fisher_sd_log"], r["grid"]["fisher_sd_log"]
+          "| 2 x profile drop at the truth: ideal, grid | MCMC: G error, sd")
+    rows = sorted(res["rows"], key=lambda r: r["seed"])
+    for r in rows:
+        fi = r["ideal"]["fisher_sd_log"]
+        g = r.get("grid")
         m = mcmc.get(r["seed"])
         tail = f"{m['rel_error']:+.3f}, {m['sd'] / m['mean']:.3f}" if m else "-"
         print(f"{r['seed']} | {fi['known'][0]:.3f} / {fi['inferred'][0]:.3f} / {fi['t0_known'][0]:.3f} | "
-              f"{fg['inferred'][0]:.3f} | {r['ideal']['profile_peak_log_g']:+.3f}, {r['grid']['profile_peak_log_g']:+.3f} | {tail}")
-    if len(res["rows"]) > 2:
-        pi = np.array([r["ideal"]["profile_peak_log_g"] for r in res["rows"]])
-        pg = np.array([r["grid"]["profile_peak_log_g"] for r in res["rows"]])
-        print(f"profile peaks over {pi.size} seeds: ideal mean {pi.mean():+.3f} (sd {pi.std(ddof=1):.3f}), "
-              f"grid {pg.mean():+.3f} (sd {pg.std(ddof=1):.3f}); correlation {np.corrcoef(pi, pg)[0, 1]:.2f}")
-
+              f"{g['fisher_sd_log']['inferred'][0] if g else float('nan'):.3f} | "
+              f"{r['ideal']['profile_peak_log_g']:+.3f}, {g['profile_peak_log_g'] if g else float('nan'):+.3f} | "
+              f"{2 * r['ideal']['profile_drop_at_truth']:.2f}, {2 * g['profile_drop_at_truth'] if g else float('nan'):.2f} | {tail}")
+    for kind in ("ideal", "grid"):
+        have = [r[kind] for r in rows if r.get(kind)]
+        if len(have) < 3:
+            continue
+        pk = np.array([h["profile_peak_log_g"] for h in have])
+        lr = np.array([2 * h["profile_drop_at_truth"] for h in have])
+        k = int(np.sum(lr > 3.841))
+        print(f"{kind}: {len(have)} seeds; profile peak log G mean {pk.mean():+.3f} (SE {pk.std(ddof=1) / np.sqrt(pk.size):.3f}, "
+              f"sd {pk.std(ddof=1):.3f}); the truth outside the 95 % profile interval (2 x drop > 3.84) in {k}")
+    both = [r for r in rows if r.get("grid")]
+    if len(both) > 2:
+        pi = np.array([r["ideal"]["profile_peak_log_g"] for r in both])
+        pg = np.array([r["grid"]["profile_peak_log_g"] for r in both])
+        print(f"ideal and grid peaks on the same {len(both)} seeds: correlation {np.corrcoef(pi, pg)[0, 1]:.2f}, "
+              f"mean difference {np.mean(pg - pi):+.3f}")
 
 if __name__ == "__main__":
     main()
