@@ -75,3 +75,8 @@ def test_without_a_fit_every_record_is_scored_with_the_ideal_likelihood_only(see
     assert len(records) == truth["n_experiments"] and all(r["grid"] is None for r in records)
     row = budget.run_seed(tmp_path / "seed_7", np.array([-0.1, 0.0, 0.1]))
     assert "grid" not in row and abs(row["ideal"]["profile_peak_log_g"]) < 0.05
+
+
+def test_profile_sd_of_a_gaussian_profile():
+    x = np.linspace(-0.3, 0.6, 13)
+    assert budget.profile_sd(x, -0.5 * ((x - 0.1) / 0.12) ** 2) == pytest.approx(0.12, rel=1e-9)

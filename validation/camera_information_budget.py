@@ -173,6 +173,18 @@ def peak(log_g, total) -> float:
     return float(log_g[k])
 
 
+def profile_sd(log_g, prof, within: float = 4.0) -> float:
+    """The width of a profile as a Gaussian would have it: 1/sqrt(-2a) of the parabola a x^2 + ...
+    fitted to the points within ``within`` log-units of its maximum (the posterior sd of log G the
+    data imply beyond the truth's neighbourhood, where the Fisher information is local)."""
+    x, y = np.asarray(log_g, dtype=np.float64), np.asarray(prof, dtype=np.float64)
+    near = y >= y.max() - within
+    if near.sum() < 3:
+        return float("nan")
+    a = np.polyfit(x[near], y[near], 2)[0]
+    return float((-2.0 * a) ** -0.5) if a < 0 else float("inf")
+
+
 def run_seed(folder: Path, log_g) -> dict:
     truth, runner, records = load_seed(folder)
     theta_true = np.array([truth["parameters"]["G"], truth["parameters"]["mu"]])
@@ -208,6 +220,7 @@ def main(argv=None) -> None:
     res = json.loads(a.json.read_text()) if a.json.is_file() else {
         "command": "python validation/camera_information_budget.py " + " ".join(sys.argv[1:] if argv is None else argv),
         "log_g": log_g.tolist(), "rows": []}
+    log_g = np.asarray(res["log_g"], dtype=np.float64)
     done = {r["seed"] for r in res["rows"]}
     mcmc = {}
     if a.calibration:
@@ -220,7 +233,8 @@ def main(argv=None) -> None:
                 simulate(a.folder / f"seed_{seed}" / "data", seed, "camera", a.bubble)
             res["rows"].append(run_seed(a.folder / f"seed_{seed}", log_g))
             a.json.write_text(json.dumps(res, indent=1))
-    print("seed | Fisher sd log G: ideal known / inferred / t0 known | grid inferred | profile peak log G: ideal, grid "
+    print("seed | Fisher sd log G: ideal known / inferred / t0 known | grid inferred | profile's sd: ideal, grid "
+          "| profile peak log G: ideal, grid "
           "| 2 x profile drop at the truth: ideal, grid | MCMC: G error, sd")
     rows = sorted(res["rows"], key=lambda r: r["seed"])
     for r in rows:
@@ -230,6 +244,7 @@ def main(argv=None) -> None:
         tail = f"{m['rel_error']:+.3f}, {m['sd'] / m['mean']:.3f}" if m else "-"
         print(f"{r['seed']} | {fi['known'][0]:.3f} / {fi['inferred'][0]:.3f} / {fi['t0_known'][0]:.3f} | "
               f"{g['fisher_sd_log']['inferred'][0] if g else float('nan'):.3f} | "
+              f"{profile_sd(log_g, r['ideal']['profile']):.3f}, {profile_sd(log_g, g['profile']) if g else float('nan'):.3f} | "
               f"{r['ideal']['profile_peak_log_g']:+.3f}, {g['profile_peak_log_g'] if g else float('nan'):+.3f} | "
               f"{2 * r['ideal']['profile_drop_at_truth']:.2f}, {2 * g['profile_drop_at_truth'] if g else float('nan'):.2f} | {tail}")
     for kind in ("ideal", "grid"):
@@ -239,8 +254,13 @@ def main(argv=None) -> None:
         pk = np.array([h["profile_peak_log_g"] for h in have])
         lr = np.array([2 * h["profile_drop_at_truth"] for h in have])
         k = int(np.sum(lr > 3.841))
+        wid = np.array([profile_sd(log_g, h["profile"]) for h in have])
+        fis = np.array([h["fisher_sd_log"]["inferred"][0] for h in have])
         print(f"{kind}: {len(have)} seeds; profile peak log G mean {pk.mean():+.3f} (SE {pk.std(ddof=1) / np.sqrt(pk.size):.3f}, "
-              f"sd {pk.std(ddof=1):.3f}); the truth outside the 95 % profile interval (2 x drop > 3.84) in {k}")
+              f"sd {pk.std(ddof=1):.3f}, skewness {float(np.mean(((pk - pk.mean()) / pk.std()) ** 3)):+.2f}); "
+              f"the truth outside the 95 % profile interval (2 x drop > 3.84) in {k}; profile's sd median "
+              f"{np.median(wid):.3f} [{wid.min():.3f}, {wid.max():.3f}]; Fisher sd at the truth median {np.median(fis):.3f} "
+              f"[{fis.min():.3f}, {fis.max():.3f}]")
     both = [r for r in rows if r.get("grid")]
     if len(both) > 2:
         pi = np.array([r["ideal"]["profile_peak_log_g"] for r in both])
