@@ -111,3 +111,52 @@ def test_changed_options_on_resume_exit_2(tmp_path):
     res = subprocess.run([*_cmd(out, "--resume", "--sleep", "0"), "--steps", "301"], capture_output=True, text=True)
     assert res.returncode == 2
     assert "cannot resume: the configuration differs from the stored run (steps: 300 (stored) vs 301 (now))" in res.stderr
+
+
+def _stopped_in_compiled_code(unit, rng):
+    """A unit that an interrupt stops inside a numba kernel: numba hands back a SystemError whose
+    cause is the interrupt the signal handler raised."""
+    from imrbayes.execution import RunInterrupted
+    if unit["value"] == 2:
+        try:
+            raise RunInterrupted(signal.SIGTERM)
+        except RunInterrupted as stop:
+            raise SystemError("CPUDispatcher(<function integrate_batch_parallel>) returned a result with an "
+                              "exception set") from stop
+    return {"x": float(unit["value"])}
+
+
+def _plain(unit, rng):
+    return {"x": float(unit["value"])}
+
+
+def test_an_interrupt_inside_compiled_code_is_not_recorded_as_the_units_failure(tmp_path):
+    from imrbayes.execution import RunInterrupted
+    units = [{"unit_id": f"u{i}", "value": i} for i in range(4)]
+    out = tmp_path / "run"
+    with RunStore.open(out, {"what": "interrupt"}) as store:
+        with pytest.raises(RunInterrupted):
+            run_units(units, _stopped_in_compiled_code, store=store, progress=False)
+    assert not list((out / "units").glob("*.failed.json"))
+    assert sorted(p.name for p in (out / "units").glob("*.npz")) == ["u0.npz", "u1.npz"]
+    with RunStore.open(out, {"what": "interrupt"}, resume=True) as store:
+        rep = run_units(units, _plain, store=store, progress=False)
+    assert rep.ok and rep.n_resumed == 2 and rep.n_computed == 2
+    assert [rep.results[f"u{i}"]["x"] for i in range(4)] == [0.0, 1.0, 2.0, 3.0]
+
+
+def test_a_failure_record_written_by_an_interrupt_is_rerun_on_resume(tmp_path):
+    units = [{"unit_id": f"u{i}", "value": i} for i in range(3)]
+    out = tmp_path / "run"
+    with RunStore.open(out, {"what": "old record"}) as store:
+        run_units(units[:2], _plain, store=store, progress=False)
+        # as older code wrote it: the interrupt wrapped by numba, recorded as the unit's failure
+        store.save_failure("u2", seed=0, error="SystemError: CPUDispatcher(...) returned a result with an exception set",
+                           traceback="Traceback ...\nimrbayes.execution.driver.RunInterrupted: interrupted by SIGTERM\n")
+        store.save_failure("u3", seed=0, error="ValueError: a real failure", traceback="Traceback ...\nValueError: x\n")
+    units.append({"unit_id": "u3", "value": 3})
+    with RunStore.open(out, {"what": "old record"}, resume=True) as store:
+        with pytest.warns(RuntimeWarning, match="recorded as failed when an interrupt stopped it"):
+            rep = run_units(units, _plain, store=store, progress=False)
+    assert rep.results["u2"]["x"] == 2.0 and rep.n_computed == 1
+    assert list(rep.failures) == ["u3"] and rep.failures["u3"].from_checkpoint

@@ -69,13 +69,30 @@ def _worker_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
+def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The interrupt (SIGTERM/SIGINT turned into an exception) that ``exc`` wraps, if any: a signal
+    that arrives inside compiled code (a numba kernel) comes back as a ``SystemError`` whose cause is
+    the interrupt. Such a unit was stopped, not failed."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 def run_one(fn: Callable, unit, uid: str, seed: int) -> Outcome:
     """Run ``fn(unit, unit_rng(seed, uid))`` and wrap the result or the exception (top-level, so
-    every backend can ship it to a worker)."""
+    every backend can ship it to a worker). An interrupt, also one wrapped in another exception, is
+    raised, never recorded as the unit's failure (a resumed run must compute the unit)."""
     t0 = time.perf_counter()
     try:
         value = fn(unit, unit_rng(seed, uid))
     except Exception as exc:  # contained: reported per unit, never fatal to the others
+        stop = interrupt_behind(exc)
+        if stop is not None:
+            raise stop from exc
         msg = str(exc).strip().splitlines()
         return Outcome(uid, False, error=f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__,
                        traceback=traceback.format_exc(), seconds=time.perf_counter() - t0,

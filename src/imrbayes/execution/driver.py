@@ -28,6 +28,10 @@ from imrbayes.execution.units import normalize_units
 __all__ = ["run_units", "RunReport", "UnitFailure", "RunInterrupted"]
 
 
+#: how an interrupt shows in a stored traceback (the class's qualified name)
+INTERRUPT_MARK = "imrbayes.execution.driver.RunInterrupted"
+
+
 class RunInterrupted(KeyboardInterrupt):
     """SIGTERM (or SIGINT) arrived during :func:`run_units`. Finished units are on disk; in-flight
     ones are lost; ``--resume`` continues. A ``KeyboardInterrupt``, so ``except Exception`` in unit
@@ -200,6 +204,12 @@ def run_units(units: Iterable, fn: Callable, *, seed: int = 0, store: RunStore |
             except CorruptUnitError as exc:
                 warnings.warn(f"{exc}; rerunning unit {uid!r}", RuntimeWarning, stacklevel=2)
             else:
+                if INTERRUPT_MARK in (rec.get("traceback") or ""):
+                    # written before interrupts inside compiled code were told apart from failures
+                    warnings.warn(f"unit {uid!r} was recorded as failed when an interrupt stopped it; rerunning it",
+                                  RuntimeWarning, stacklevel=2)
+                    todo.append((uid, unit))
+                    continue
                 failures[uid] = UnitFailure(uid, rec.get("error", "?"), rec.get("traceback"), rec.get("worker"),
                                             from_checkpoint=True)
                 n_resumed += 1
