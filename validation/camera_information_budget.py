@@ -136,29 +136,34 @@ def _starts(runner, rec, kind, theta, last, n_best: int = 3, half_width_sd: floa
 
 def profile(runner, records, theta_true, kind: str, log_g) -> np.ndarray:
     """(len(log_g), n_records) log-likelihood + nuisance log-prior, maximised over each record's
-    nuisances, at G = G_true e^log_g and the true mu (started from the previous G's optimum and from
-    the deepest minima of a scan of the time of the maximum: the alignment has basins)."""
+    nuisances, at G = G_true e^log_g and the true mu. The alignment has basins: a sweep up in G starts
+    each point from the previous optimum and from the deepest minima of a scan of the time of the
+    maximum; a sweep back down restarts each point from its upper neighbour's optimum and keeps the
+    better (a basin found at one G is then never lost at the next)."""
     from scipy.optimize import least_squares
 
     out = np.zeros((len(log_g), len(records)))
     for i, rec in enumerate(records):
         d, ps = rec[kind], rec["prior_sd"]
-        last = None
-        for j, g in enumerate(log_g):
-            theta = np.array([[theta_true[0] * math.exp(g), theta_true[1]]])
 
+        def fit(theta, starts):
             def resid(nu):
                 R, failed = _predict(runner, rec, kind, theta, nu[None])
                 if failed.any():
                     return np.full(d["t"].size + 3, 1e3)
                 return np.concatenate([math.sqrt(d["w"]) * (d["y"] - R[0]), nu / ps])
+            return min((least_squares(resid, x0, x_scale=ps, diff_step=1e-4) for x0 in starts), key=lambda r: r.cost)
 
-            best = None
-            for x0 in _starts(runner, rec, kind, theta, last):
-                r = least_squares(resid, x0, x_scale=ps, diff_step=1e-4)
-                if best is None or r.cost < best.cost:
-                    best = r
-            out[j, i], last = -best.cost, best.x
+        thetas = [np.array([[theta_true[0] * math.exp(g), theta_true[1]]]) for g in log_g]
+        cost, best = np.zeros(len(log_g)), [None] * len(log_g)
+        for j, theta in enumerate(thetas):
+            r = fit(theta, _starts(runner, rec, kind, theta, best[j - 1] if j else None))
+            cost[j], best[j] = r.cost, r.x
+        for j in range(len(log_g) - 2, -1, -1):
+            r = fit(thetas[j], [best[j + 1]])
+            if r.cost < cost[j]:
+                cost[j], best[j] = r.cost, r.x
+        out[:, i] = -cost
     return out
 
 
