@@ -80,3 +80,12 @@ def test_without_a_fit_every_record_is_scored_with_the_ideal_likelihood_only(see
 def test_profile_sd_of_a_gaussian_profile():
     x = np.linspace(-0.3, 0.6, 13)
     assert budget.profile_sd(x, -0.5 * ((x - 0.1) / 0.12) ** 2) == pytest.approx(0.12, rel=1e-9)
+
+
+def test_gs_information_sits_on_the_collapse(seed_folder):
+    truth, runner, records = budget.load_seed(seed_folder)
+    theta = np.array([truth["parameters"]["G"], truth["parameters"]["mu"]])
+    for r in budget.information_by_frame(runner, records, theta):
+        assert 0.0 < r["share"] <= 1.0 and len(r["t_star"]) == 3
+        # the first collapse (t* ~ 0.9) holds the most informative frame, not the flat maximum
+        assert 0.7 < r["t_star"][0] < 1.6, r

@@ -134,6 +134,21 @@ def _starts(runner, rec, kind, theta, last, n_best: int = 3, half_width_sd: floa
     return [nu[k] for k in order] + ([base] if last is not None else [np.zeros(3)])
 
 
+def information_by_frame(runner, records, theta_true, h: float = 1e-3, top: int = 3) -> list:
+    """Where G's information sits with the geometry known (ideal likelihood): per record, the share
+    of sum_k w (dR_k/d log G)^2 carried by its ``top`` frames, their t* and R*."""
+    out = []
+    for rec in records:
+        d = rec["ideal"]
+        theta = theta_true[None] * np.exp(np.array([[h, 0.0], [-h, 0.0], [0.0, 0.0]]))
+        R, _ = _predict(runner, rec, "ideal", theta, np.repeat(rec["nu_true"][None], 3, axis=0))
+        info = d["w"] * ((R[0] - R[1]) / (2 * h)) ** 2
+        k = np.argsort(info)[::-1][:top]
+        out.append({"record": rec["name"], "share": float(info[k].sum() / info.sum()),
+                    "t_star": d["t"][k].round(3).tolist(), "R_star": R[2][k].round(3).tolist()})
+    return out
+
+
 def profile(runner, records, theta_true, kind: str, log_g) -> np.ndarray:
     """(len(log_g), n_records) log-likelihood + nuisance log-prior, maximised over each record's
     nuisances, at G = G_true e^log_g and the true mu. The alignment has basins: a sweep up in G starts
@@ -220,7 +235,17 @@ def main(argv=None) -> None:
                     help="write a seed's camera data set (camera_calibration.py's family) where the folder has none; "
                          "without a fit only the ideal likelihood is scored")
     ap.add_argument("--bubble", default="polytropic", help="bubble model of --simulate's data")
+    ap.add_argument("--frames-report", action="store_true",
+                    help="print where G's information sits in each record of --seeds (nothing is written)")
     a = ap.parse_args(argv)
+    if a.frames_report:
+        for seed in parse_seeds(a.seeds):
+            truth, runner, records = load_seed(a.folder / f"seed_{seed}")
+            theta = np.array([truth["parameters"]["G"], truth["parameters"]["mu"]])
+            for r in information_by_frame(runner, records, theta):
+                print(f"seed {seed} {r['record']}: top frames hold {r['share']:.0%} of G's information "
+                      f"(geometry known); t* {r['t_star']}, R* {r['R_star']}")
+        return
     log_g = np.linspace(-0.3, 0.6, 13)
     res = json.loads(a.json.read_text()) if a.json.is_file() else {
         "command": "python validation/camera_information_budget.py " + " ".join(sys.argv[1:] if argv is None else argv),
