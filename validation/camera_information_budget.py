@@ -37,7 +37,11 @@ NUISANCE_KINDS = ("rmax", "t0", "req")          # the likelihood module's (a, de
 
 
 def load_seed(folder: Path):
-    """(truth, runner, observations, per-record data dicts) of one seed folder (data/ and fit/)."""
+    """(truth.json, a runner of the generating forward model, one dict per record) of a seed folder:
+    ``data/`` and, if there is one, ``fit/summary.json`` (which records the fit kept, and each
+    one's noise variance and tempering). Each record holds its preprocessing geometry, the truth in
+    the likelihood's nuisance coordinates, their prior sds and the two observation models
+    (``"ideal"``, ``"grid"``: times t*, data y, frame operator or None, weight w = 1 / variance)."""
     import pandas as pd
 
     from imrbayes.data import load_dataset, preprocess_dataset
@@ -73,6 +77,7 @@ def load_seed(folder: Path):
             "grid": None if fitted is None else {
                 "t": t_eval, "y": np.asarray(obs.R_star[n][1:]), "frames": frame_operator(obs.frame_t[n], t_eval),
                 "w": fitted[ex.name]["alpha"] / fitted[ex.name]["var"]},
+            # the generator's noise sd is in R* of the true Rmax; the data here are scaled by the estimate
             "ideal": {"t": t[keep], "y": frames["R_m"].to_numpy()[keep] / rmax, "frames": None,
                       "w": 1.0 / (truth["noise"]["sd"] * e["rmax_m"] / rmax) ** 2},
         })
