@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))       # camera_calibration (--simulate)
+
 NUISANCE_KINDS = ("rmax", "t0", "req")          # the likelihood module's (a, delta, rho)
 
 
@@ -263,7 +265,6 @@ def main(argv=None) -> None:
     for seed in parse_seeds(a.seeds):
         if seed not in done:
             if a.simulate and not (a.folder / f"seed_{seed}" / "data" / "truth.json").is_file():
-                sys.path.insert(0, str(Path(__file__).resolve().parent))
                 from camera_calibration import simulate
                 simulate(a.folder / f"seed_{seed}" / "data", seed, "camera", a.bubble)
             res["rows"].append(run_seed(a.folder / f"seed_{seed}", log_g))

@@ -28,10 +28,6 @@ from imrbayes.execution.units import normalize_units
 __all__ = ["run_units", "RunReport", "UnitFailure", "RunInterrupted"]
 
 
-#: how an interrupt shows in a stored traceback (the class's qualified name)
-INTERRUPT_MARK = "imrbayes.execution.driver.RunInterrupted"
-
-
 class RunInterrupted(KeyboardInterrupt):
     """SIGTERM (or SIGINT) arrived during :func:`run_units`. Finished units are on disk; in-flight
     ones are lost; ``--resume`` continues. A ``KeyboardInterrupt``, so ``except Exception`` in unit
@@ -40,6 +36,10 @@ class RunInterrupted(KeyboardInterrupt):
     def __init__(self, signum: int):
         self.signum = signum
         super().__init__(f"interrupted by {signal.Signals(signum).name}")
+
+
+#: how an interrupt shows in a stored traceback (the class's qualified name)
+INTERRUPT_MARK = f"{RunInterrupted.__module__}.{RunInterrupted.__qualname__}"
 
 
 @dataclass
