@@ -51,7 +51,7 @@ from imrbayes.errors import InputError
               help="End after the constant-parameter check when it finds the model adequate (the cause is 'none' "
                    "either way), without comparing the candidates: ~60 % of such a run's time.")
 @click.option("--experiments", default=None, help=EXPERIMENTS_HELP)
-@click.option("--camera", default=None, help="Keep one camera view of multi-camera data.")
+@click.option("--camera", default=None, help='Keep one camera view of multi-camera data (e.g. cam0deg), or "mean" to average the views of each bubble frame by frame.')
 @click.option("--dt-star", type=float, default=0.025, show_default=True, help="Grid step in t* [-].")
 @click.option("--n-steps", type=int, default=120, show_default=True, help="Grid steps [-].")
 @click.option("--quiet", is_flag=True, default=False, help="Print nothing but errors.")

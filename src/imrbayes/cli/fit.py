@@ -116,7 +116,7 @@ def _load_config(path) -> dict:
               help="Worker processes for the units (imr, en4dvar: experiments; mienks: the experiments of each "
                    "window) [default: 1: in this process].")
 @execution_options(with_workers=False)
-@click.option("--camera", default=None, help="Keep one camera view of multi-camera data.")
+@click.option("--camera", default=None, help='Keep one camera view of multi-camera data (e.g. cam0deg), or "mean" to average the views of each bubble frame by frame.')
 @click.option("--experiments", default=None, help=EXPERIMENTS_HELP)
 @click.option("--dt-star", type=float, default=None, help="Grid step in t* [-] [default: 0.025].")
 @click.option("--n-steps", type=int, default=None, help="Grid steps [-] [default: 120].")

@@ -64,7 +64,8 @@ def _print_table(pre, out: Path) -> None:
 @click.option("--n-steps", type=int, default=120, show_default=True,
               help="Grid steps [-] (fewer if the shortest record ends earlier).")
 @click.option("--camera", default=None,
-              help="Keep one camera view of multi-camera data (e.g. cam0deg); default: every view.")
+              help='Keep one camera view of multi-camera data (e.g. cam0deg), or "mean" to average the views of each '
+                   'bubble frame by frame; default: every view.')
 @click.option("--rmax-method", type=click.Choice(["local-fit", "parabola", "sample"]), default="local-fit",
               show_default=True, help="Time and value of the maximum: a polynomial fitted over the frames "
                                       "within 0.35 t_c (robust to noise), the parabola through three frames, or "

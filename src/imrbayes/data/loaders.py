@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from imrbayes.data.checks import check_record
 from imrbayes.data.csvio import format_lines, read_table
 from imrbayes.data.matfile import LAYOUTS, read_mat
@@ -23,7 +25,7 @@ from imrbayes.data.meta import Meta, read_meta
 from imrbayes.data.records import Dataset, Experiment
 from imrbayes.errors import InputError
 
-__all__ = ["load_dataset", "load_experiment_csv", "load_long_csv", "load_mat", "load_directory"]
+__all__ = ["MEAN_OF_VIEWS", "mean_of_views", "load_dataset", "load_experiment_csv", "load_long_csv", "load_mat", "load_directory"]
 
 
 def _apply_meta(exp: Experiment, meta: Meta) -> Experiment:
@@ -173,7 +175,9 @@ def load_dataset(path, camera: str | None = None) -> Dataset:
         else:
             raise InputError(path, f"unrecognised file type {suffix or '(no extension)'!r}; expected a dataset "
                                    "directory, a .csv or a .mat file")
-    if camera is not None:
+    if camera == MEAN_OF_VIEWS:
+        ds = mean_of_views(ds, path)
+    elif camera is not None:
         cams = sorted({e.camera for e in ds.experiments if e.camera})
         ds = ds.select(camera=camera)
         if not ds.experiments:
@@ -189,4 +193,73 @@ def _note_camera_pairs(ds: Dataset) -> None:
     if len(cams) > 1:
         ds.warnings.append(f"experiments are views of the same bubbles from {len(cams)} cameras "
                            f"({', '.join(sorted(cams))}); they are not independent experiments "
-                           f"(use --camera to keep one view)")
+                           f"(use --camera {MEAN_OF_VIEWS} to average the views of each bubble, or --camera NAME "
+                           f"to keep one view)")
+
+
+#: ``--camera`` value that averages the views of each bubble frame by frame
+MEAN_OF_VIEWS = "mean"
+
+#: a late view difference beyond this fraction of the tail radius is worth a warning
+VIEW_SPREAD_WARN = 0.05
+
+
+def mean_of_views(ds: Dataset, path) -> Dataset:
+    """One experiment per bubble: the frame-by-frame mean radius of its camera views.
+
+    Views of one bubble share a name up to their ``_cam...`` suffix and a time axis (frames present in
+    every view are kept). Two orthogonal views of a bubble that is not quite round, or of cameras whose
+    scales differ, disagree by more than their noise: the mean is the better spherical-equivalent
+    radius, and half the views' difference over the record's last ``n`` frames (``info
+    ["view_req_spread_m"]``) is the systematic uncertainty preprocessing adds to an estimated Req.
+    Raises InputError when there is nothing to average.
+    """
+    groups: dict = {}
+    for e in ds.experiments:
+        if not e.camera:
+            raise InputError(path, f"--camera {MEAN_OF_VIEWS}: experiment {e.name!r} has no camera view label")
+        head = e.name[: -len(e.camera) - 1] if e.name.endswith("_" + e.camera) else e.name
+        groups.setdefault(head, []).append(e)
+    exps, spreads = [], []
+    for head, views in groups.items():
+        if len(views) < 2:
+            raise InputError(path, f"--camera {MEAN_OF_VIEWS}: bubble {head!r} has one view only "
+                                   f"({views[0].camera}); nothing to average")
+        dt = min(float(np.median(np.diff(v.t_s))) for v in views)
+        keys = [np.round(v.t_s / (1e-3 * dt)).astype(np.int64) for v in views]
+        common = keys[0]
+        for k in keys[1:]:
+            common = np.intersect1d(common, k)
+        if common.size < 10:
+            raise InputError(path, f"--camera {MEAN_OF_VIEWS}: the views of bubble {head!r} share "
+                                   f"{common.size} frame times; they are not on one time axis")
+        R = np.stack([v.R_m[np.searchsorted(k, common)] for v, k in zip(views, keys)])
+        t = views[0].t_s[np.searchsorted(keys[0], common)]
+        n_tail = min(20, common.size // 4)
+        tail_diff = float(np.ptp(R[:, -n_tail:].mean(axis=1)))
+        tail_mean = float(R[:, -n_tail:].mean())
+        info = {"camera": MEAN_OF_VIEWS, "views": [v.name for v in views],
+                "view_difference_rms_m": float(np.sqrt(np.mean(np.ptp(R, axis=0) ** 2))),
+                "view_req_spread_m": 0.5 * tail_diff, "view_tail_frames": n_tail}
+        warns = [w for v in views for w in v.warnings]
+        dropped = sum(v.t_s.size - common.size for v in views)
+        if dropped:
+            warns.append(f"bubble {head!r}: {dropped} frame(s) missing from some view dropped before averaging")
+        req = [v.req_m for v in views if v.req_m is not None]
+        exps.append(Experiment(head, t, R.mean(axis=0), ", ".join(v.source for v in views),
+                               req_m=float(np.mean(req)) if len(req) == len(views) else None,
+                               req_source=views[0].req_source if len(req) == len(views) else None,
+                               info=info, warnings=warns))
+        spreads.append((head, tail_diff, tail_mean))
+    out = Dataset(ds.name, ds.path, ds.format, exps, ds.material, ds.meta, ds.physics, ds.forward,
+                  ds.meta_path, [w for w in ds.warnings if "not independent" not in w], list(ds.notes))
+    out.notes.append(f"averaged the camera views of each bubble frame by frame ({len(exps)} bubbles from "
+                     f"{len(ds.experiments)} views)")
+    far = [(h, d, m) for h, d, m in spreads if d > VIEW_SPREAD_WARN * m]
+    if far:
+        out.warnings.append(
+            "the camera views disagree late in the record by more than their noise: "
+            + "; ".join(f"{h} {d * 1e6:.1f} µm ({d / m:.0%} of the tail radius)" for h, d, m in far)
+            + " -- the bubble is not round or the cameras' scales differ; half the difference is added to "
+              "Req's uncertainty")
+    return out

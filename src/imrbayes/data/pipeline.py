@@ -318,6 +318,12 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
                    f"last {est.n} samples not settled: between their lowest point and their mean")
         if est.warning:
             warnings.append(est.warning)
+        spread = float(exp.info.get("view_req_spread_m") or 0.0)
+        if spread > 0.0:
+            # camera views that disagree on the tail (a bubble not quite round): a systematic error
+            # of the averaged radius that no tail statistic sees
+            req_sd = math.hypot(req_sd, spread)
+            req_src += f"; views' half-difference {spread * 1e6:.2g} µm added to its sd"
     if not req < mx.rmax_m:
         raise InputError(exp.source, f"experiment {exp.name!r}: Req = {req:g} m is not below Rmax = "
                                      f"{mx.rmax_m:g} m")
