@@ -4,12 +4,15 @@ Independent truth: synthetic views of a known curve, made non-round by a known f
 mean is the curve itself) and given independent noise of a known sd (the mean's is sd / sqrt 2).
 """
 
+import json
 import math
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from _data_synth import LIC, make_dataset, record, write_csv
+from imrbayes.cli import main
 from imrbayes.data import load_dataset, preprocess_dataset
 from imrbayes.data.loaders import MEAN_OF_VIEWS
 from imrbayes.data.preprocess import estimate_noise_sd
@@ -108,3 +111,19 @@ def test_umich_dual_camera_bubbles_averaged():
     spreads = sorted(e.info["view_req_spread_m"] for e in ds.experiments)
     assert spreads[0] < 1e-6 and 1.5e-6 < spreads[-1] < 5e-6
     assert sum("% of the tail radius" in w for w in ds.warnings) == 1
+
+
+def test_inspect_cli_with_mean_views(tmp_path):
+    """The CLI passes ``--camera mean`` through: two bubbles in dataset.json; a dataset without
+    camera labels is one line of bad input naming it."""
+    two_views(tmp_path / "ds", n_exp=2)
+    res = CliRunner().invoke(main, ["inspect", str(tmp_path / "ds"), "--camera", "mean",
+                                    "--out", str(tmp_path / "out")], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    info = json.loads((tmp_path / "out" / "dataset.json").read_text())
+    names = [e["name"] for e in info["experiments"]]
+    assert names == ["bubble_01", "bubble_02"]
+    make_dataset(tmp_path / "plain", n_exp=2)
+    bad = CliRunner().invoke(main, ["inspect", str(tmp_path / "plain"), "--camera", "mean"])
+    assert bad.exit_code == 2 and "no camera view label" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1
