@@ -127,3 +127,17 @@ def test_inspect_cli_with_mean_views(tmp_path):
     bad = CliRunner().invoke(main, ["inspect", str(tmp_path / "plain"), "--camera", "mean"])
     assert bad.exit_code == 2 and "no camera view label" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_req_given_for_both_views_is_averaged(tmp_path):
+    two_views(tmp_path / "ds", n_exp=1, ovality=0.1)
+    meta = {"material": "synthetic", "experiments": {
+        "bubble_01_cam0deg.csv": {"Req_m": 40e-6, "Req_sd_m": 1e-6},
+        "bubble_01_cam90deg.csv": {"Req_m": 44e-6, "Req_sd_m": 3e-6}}}
+    (tmp_path / "ds" / "meta.json").write_text(json.dumps(meta))
+    e = load_dataset(tmp_path / "ds", camera=MEAN_OF_VIEWS).experiments[0]
+    assert e.req_m == pytest.approx(42e-6) and e.req_sd_m == pytest.approx(2e-6)
+    assert e.req_source == "meta.json"
+    # a given Req is the user's: the views' spread is not added to it
+    pre = preprocess_dataset(load_dataset(tmp_path / "ds", camera=MEAN_OF_VIEWS)).experiments[0]
+    assert pre.req_m == pytest.approx(42e-6) and pre.req_sd_m == pytest.approx(2e-6)

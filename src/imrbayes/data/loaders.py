@@ -245,10 +245,12 @@ def mean_of_views(ds: Dataset, path) -> Dataset:
         dropped = sum(v.t_s.size - common.size for v in views)
         if dropped:
             warns.append(f"bubble {head!r}: {dropped} frame(s) missing from some view dropped before averaging")
-        req = [v.req_m for v in views if v.req_m is not None]
+        given = all(v.req_m is not None for v in views)
+        req_sd = [v.req_sd_m for v in views if v.req_sd_m is not None]
         exps.append(Experiment(head, t, R.mean(axis=0), ", ".join(v.source for v in views),
-                               req_m=float(np.mean(req)) if len(req) == len(views) else None,
-                               req_source=views[0].req_source if len(req) == len(views) else None,
+                               req_m=float(np.mean([v.req_m for v in views])) if given else None,
+                               req_sd_m=float(np.mean(req_sd)) if given and len(req_sd) == len(views) else None,
+                               req_source=views[0].req_source if given else None,
                                info=info, warnings=warns))
         spreads.append((head, tail_diff, tail_mean))
     out = Dataset(ds.name, ds.path, ds.format, exps, ds.material, ds.meta, ds.physics, ds.forward,
@@ -258,7 +260,7 @@ def mean_of_views(ds: Dataset, path) -> Dataset:
     far = [(h, d, m) for h, d, m in spreads if d > VIEW_SPREAD_WARN * m]
     if far:
         out.warnings.append(
-            "the camera views disagree late in the record by more than their noise: "
+            f"the camera views disagree late in the record by more than {VIEW_SPREAD_WARN:.0%} of the tail radius: "
             + "; ".join(f"{h} {d * 1e6:.1f} µm ({d / m:.0%} of the tail radius)" for h, d, m in far)
             + " -- the bubble is not round or the cameras' scales differ; half the difference is added to "
               "Req's uncertainty")
