@@ -38,6 +38,13 @@ NU_STEP = 0.05      # nuisance finite-difference step [prior sd]
 #: relaxation time near the NHKV limit) has Marquardt damping ~ its prior precision only, and steps of
 #: 2-7 prior sd there sent the trial solves to far-off, slow parameter sets (docs/diagnosis.md, Runtime)
 TRUST_SD = 2.0
+#: the MAP of a candidate's extension (its parameters beyond G and mu) is searched within this many
+#: prior sd of the prior mean (the prior density there is < 4e-6 of its peak). Why: a first fit on
+#: the records' noise swamps the prior, and where the data prefer the NHKV limit of a nested model
+#: (zener's lambda1 -> 0) the fit crawled to lambda1 ~ 1e-14 s: R* within 3e-5 of lambda1 = 1 ns,
+#: but 4-7x the Radau steps per solve and 40 iterations unconverged -- UMich PA10's zener fit took
+#: 892 s (docs/diagnosis.md, Runtime). No stored final fit of a candidate lies beyond 4 prior sd.
+EXTENSION_BOX_SD = 5.0
 #: stop when the Gauss-Newton model predicts less than this decrease of the cost (log-density
 #: units; 1e-3 is a move of ~0.05 posterior sd): the crawl along a flat direction buys nothing
 NEWTON_DECREMENT = 1e-3
@@ -437,6 +444,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         return z, u
 
     n_x = d + int(active.sum())
+    lo, hi = np.full(n_x, -np.inf), np.full(n_x, np.inf)
+    if d > 2:
+        lo[2:d], hi[2:d] = m0[2:d] - EXTENSION_BOX_SD * s0[2:d], m0[2:d] + EXTENSION_BOX_SD * s0[2:d]
     # column of the Jacobian for nuisance (e, j)
     col = -np.ones((E, q), dtype=int)
     col[active] = d + np.arange(int(active.sum()))
@@ -477,6 +487,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
             z, u = unpack(x)
             J = jacobian(z, u, r)
             A, g = J.T @ J, J.T @ r
+            # a coordinate at its bound that the gradient pushes outwards is held (projected LM)
+            free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+            A, g = A[np.ix_(free, free)], g[free]
             try:
                 decrement = 0.5 * float(g @ np.linalg.solve(A + 1e-12 * np.diag(np.diag(A) + 1e-9), g))
             except np.linalg.LinAlgError:
@@ -490,10 +503,12 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
             lams = lam * np.array([0.1, 1.0, 10.0])
             steps = []
             for lm_ in lams:
+                step = np.zeros(n_x)
                 try:
-                    steps.append(capped(-np.linalg.solve(A + lm_ * np.diag(np.diag(A) + 1e-9), g)))
+                    step[free] = -np.linalg.solve(A + lm_ * np.diag(np.diag(A) + 1e-9), g)
                 except np.linalg.LinAlgError:
-                    steps.append(np.zeros(n_x))
+                    pass
+                steps.append(np.clip(x + capped(step), lo, hi) - x)
             trials = [unpack(x + s) for s in steps]
             rt, Rt = res(np.array([t[0] for t in trials]), np.array([t[1] for t in trials]))
             costs = 0.5 * np.einsum("ij,ij->i", rt, rt)
@@ -517,7 +532,8 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     for i_s, (z0, u0) in enumerate(pairs if d else pairs[:1]):
         if trace is not None and len(pairs) > 1:      # a marker per raced start
             trace.append({"start": i_s, "set": int(i_s >= len(starts)), "t": time.perf_counter()})
-        x0 = pack(z0, u0)
+        x0 = np.clip(pack(z0, u0), lo, hi)
+        z0 = unpack(x0)[0] if d else z0
         r0, R0 = res(z0[None], u0[None])
         states.append(lm(x0, r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2,
                          max_iter if len(pairs) == 1 or not d else min(6, max_iter)))

@@ -1,0 +1,72 @@
+"""A candidate's extension is fitted inside +-EXTENSION_BOX_SD prior sd of its prior mean.
+
+Why (docs/diagnosis.md, Runtime): on a record the model misses by far, the first fit's likelihood
+swamps the prior, and zener's lambda1 crawled towards its NHKV limit (lambda1 ~ 1e-14 s on UMich
+PA10), where the thermal solves need 4-7x the steps for no change in R*. The fit's optimiser is
+checked here on an exactly quadratic problem (a linear stand-in for the forward model) whose
+unconstrained optimum lies 8 prior sd out along the extension.
+"""
+
+import numpy as np
+import pytest
+
+from imrbayes.diagnosis import lsq
+from imrbayes.diagnosis.models import make_candidate
+from imrbayes.diagnosis.phases import phases_of
+from imrbayes.diagnosis.synthetic import camera_obs
+from imrbayes.forward import ForwardOptions
+
+POLY = ForwardOptions(bubble="polytropic")
+
+
+@pytest.fixture(scope="module")
+def problem():
+    obs, _ = camera_obs("none", 0, POLY, design="1Mfps-2um-5")
+    obs = obs.take(range(2))
+    zener = make_candidate("zener", POLY)
+    m, s = zener.prior_mean, zener.prior_sd
+    target = np.array([m[0] + 0.3, m[1] - 0.2, m[2] - 8.0 * s[2]])   # lambda1 8 prior sd below 1 us
+    return obs, zener, target
+
+
+def _linear_model(target, scale):
+    """R* = data + 0.02 * sum_i (z_i - target_i) / scale_i * b_i, b_i on disjoint thirds of the
+    record: the cost is quadratic and its coordinates independent, whatever the nuisances."""
+
+    def fake_predict(cand, Z, obs, idx, minima, K, nu=None, frames=None):
+        Z = np.atleast_2d(np.asarray(Z, dtype=float))
+        idx = np.atleast_1d(idx)
+        y = obs.R_star[idx, :K + 1]
+        b = np.zeros((3, K + 1))
+        for i, part in enumerate(np.array_split(np.arange(1, K + 1), 3)):
+            b[i, part] = 1.0
+        dz = (Z - target) / scale                                   # (M, 3)
+        return y[None] + 0.02 * np.einsum("mi,ik->mk", dz, b)[:, None, :]
+
+    return fake_predict
+
+
+def test_extension_held_at_its_box_and_the_rest_converges(problem, monkeypatch):
+    obs, zener, target = problem
+    m, s = zener.prior_mean, zener.prior_sd
+    monkeypatch.setattr(lsq, "predict", _linear_model(target, np.array([0.1, 0.1, 1.0])))
+    phases = phases_of(obs, 2)
+    om = lsq.ObsModel.of(obs)
+    f = lsq.fit_map(zener, obs, minima=phases.minima, om=om, tol=1e-10)
+    floor = m[2] - lsq.EXTENSION_BOX_SD * s[2]
+    assert f.z[2] == pytest.approx(floor, abs=1e-9)                 # held at the bound, not 8 sd out
+    assert f.converged and f.n_iter < 40
+    # G and mu are independent of lambda1 here: they reach their own optimum (the data's pull on
+    # each is ~1e3 times its prior's, so within 1e-2 of the target)
+    np.testing.assert_allclose(f.z[:2], target[:2], atol=1e-2)
+
+
+def test_without_the_box_the_same_fit_goes_out_of_it(problem, monkeypatch):
+    # the problem above is one where the box binds: unbounded, the optimum is ~8 prior sd out
+    obs, zener, target = problem
+    m, s = zener.prior_mean, zener.prior_sd
+    monkeypatch.setattr(lsq, "predict", _linear_model(target, np.array([0.1, 0.1, 1.0])))
+    monkeypatch.setattr(lsq, "EXTENSION_BOX_SD", np.inf)
+    phases = phases_of(obs, 2)
+    f = lsq.fit_map(zener, obs, minima=phases.minima, om=lsq.ObsModel.of(obs), tol=1e-10)
+    assert f.z[2] < m[2] - 7.0 * s[2]
