@@ -1,4 +1,6 @@
-"""A candidate's extension is fitted inside +-EXTENSION_BOX_SD prior sd of its prior mean.
+"""The diagnosis fits' Levenberg-Marquardt (`lsq.fit_map`): the extension box and the Jacobian reuse.
+
+A candidate's extension is fitted inside +-EXTENSION_BOX_SD prior sd of its prior mean.
 
 Why (docs/diagnosis.md, Runtime): on a record the model misses by far, the first fit's likelihood
 swamps the prior, and zener's lambda1 crawled towards its NHKV limit (lambda1 ~ 1e-14 s on UMich
@@ -70,3 +72,33 @@ def test_without_the_box_the_same_fit_goes_out_of_it(problem, monkeypatch):
     phases = phases_of(obs, 2)
     f = lsq.fit_map(zener, obs, minima=phases.minima, om=lsq.ObsModel.of(obs), tol=1e-10)
     assert f.z[2] < m[2] - 7.0 * s[2]
+
+
+def test_a_rejected_step_reuses_the_jacobian_of_the_unchanged_point(monkeypatch):
+    # polytropic relaxation data, two camera-style bubbles, the qkv fit: its damping is raised
+    # after rejected steps several times. The point is then unchanged, and so is its Jacobian
+    # (d + 5 batched solves, the bulk of an iteration): no Jacobian batch may be computed twice.
+    obs, _ = camera_obs("viscoelastic-relaxation", 2001, POLY, design="1Mfps-2um-5")
+    obs = obs.take(range(2))
+    qkv = make_candidate("qkv", POLY)
+    phases = phases_of(obs, 2)
+    om = lsq.ObsModel.of(obs)
+    n_jac = qkv.d + int((om.nu_sd > 0).any(axis=0).sum())         # members of a Jacobian batch
+    batches = []
+    predict = lsq.predict
+
+    def recording(cand, Z, *a, **kw):
+        Z = np.atleast_2d(Z)
+        if Z.shape[0] == n_jac:
+            nu = a[4] if len(a) > 4 else kw.get("nu")
+            batches.append(Z.tobytes() + np.asarray(nu).tobytes())
+        return predict(cand, Z, *a, **kw)
+
+    monkeypatch.setattr(lsq, "predict", recording)
+    trace = []
+    lsq.fit_map(qkv, obs, minima=phases.minima, om=om, trace=trace)
+    its = [e for e in trace if "it" in e]
+    rejected = sum(b["it"] == a["it"] + 1 and b["z"] == a["z"] and b["cost"] == a["cost"] for a, b in zip(its, its[1:]))
+    assert rejected >= 1                                  # the situation under test occurs
+    assert len(batches) > rejected
+    assert len(set(batches)) == len(batches)
