@@ -42,8 +42,9 @@ TRUST_SD = 2.0
 #: prior sd of the prior mean (the prior density there is < 4e-6 of its peak). Why: a first fit on
 #: the records' noise swamps the prior, and where the data prefer the NHKV limit of a nested model
 #: (zener's lambda1 -> 0) the fit crawled to lambda1 ~ 1e-14 s: R* within 3e-5 of lambda1 = 1 ns,
-#: but 4-7x the Radau steps per solve and 40 iterations unconverged -- UMich PA10's zener fit took
-#: 892 s (docs/diagnosis.md, Runtime). No stored final fit of a candidate lies beyond 4 prior sd.
+#: but up to 7x the Radau steps per solve (at 1e-14 s) and 40 iterations unconverged -- UMich
+#: PA10's zener fit took 892 s (docs/diagnosis.md, Runtime). No stored final fit of a candidate
+#: lies beyond 4 prior sd.
 EXTENSION_BOX_SD = 5.0
 #: stop when the Gauss-Newton model predicts less than this decrease of the cost (log-density
 #: units; 1e-3 is a move of ~0.05 posterior sd): the crawl along a flat direction buys nothing
