@@ -4,7 +4,7 @@ A candidate's extension is fitted inside +-EXTENSION_BOX_SD prior sd of its prio
 
 Why (docs/diagnosis.md, Runtime): on a record the model misses by far, the first fit's likelihood
 swamps the prior, and zener's lambda1 crawled towards its NHKV limit (lambda1 ~ 1e-14 s on UMich
-PA10), where the thermal solves need 4-7x the steps for no change in R*. The fit's optimiser is
+PA10), where the thermal solves need up to 7x the steps for no change in R*. The fit's optimiser is
 checked here on an exactly quadratic problem (a linear stand-in for the forward model) whose
 unconstrained optimum lies 8 prior sd out along the extension.
 """
