@@ -1,4 +1,4 @@
-"""The diagnosis fits' Levenberg-Marquardt (`lsq.fit_map`): the extension box and the Jacobian reuse.
+"""The diagnosis fits' Levenberg-Marquardt (`lsq.fit_map`): the extension box, the Jacobian reuse, no trial twice.
 
 A candidate's extension is fitted inside +-EXTENSION_BOX_SD prior sd of its prior mean.
 
@@ -102,3 +102,36 @@ def test_a_rejected_step_reuses_the_jacobian_of_the_unchanged_point(monkeypatch)
     assert rejected >= 1                                  # the situation under test occurs
     assert len(batches) > rejected
     assert len(set(batches)) == len(batches)
+
+
+def test_a_rejected_trial_step_is_not_tried_again(monkeypatch):
+    # After a rejection the damping rises 100-fold and LM tries 0.1x, 1x and 10x of it: the first
+    # is the last iteration's largest trial, from the same point with the same Jacobian, and was
+    # rejected. Every trial member (material and nuisances) must be new: none may repeat an
+    # earlier one to 1e-9 (the damping of the repeat differs from the original in its last bits).
+    obs, _ = camera_obs("viscoelastic-relaxation", 2001, POLY, design="1Mfps-2um-5")
+    obs = obs.take(range(2))
+    qkv = make_candidate("qkv", POLY)
+    phases = phases_of(obs, 2)
+    om = lsq.ObsModel.of(obs)
+    n_jac = qkv.d + int((om.nu_sd > 0).any(axis=0).sum())
+    members = []
+    predict = lsq.predict
+
+    def recording(cand, Z, *a, **kw):
+        Z = np.atleast_2d(Z)
+        if 1 < Z.shape[0] < n_jac:                                 # a batch of trial steps
+            nu = np.asarray(a[4] if len(a) > 4 else kw.get("nu"))
+            members.extend(np.concatenate([Z[i], nu[i].ravel()]) for i in range(Z.shape[0]))
+        return predict(cand, Z, *a, **kw)
+
+    monkeypatch.setattr(lsq, "predict", recording)
+    trace = []
+    lsq.fit_map(qkv, obs, minima=phases.minima, om=om, trace=trace)
+    its = [e for e in trace if "it" in e]
+    rejected = sum(b["it"] == a["it"] + 1 and b["z"] == a["z"] and b["cost"] == a["cost"] for a, b in zip(its, its[1:]))
+    assert rejected >= 1                                            # the situation under test occurs
+    M = np.array(members)
+    assert len(M) >= len(its)                                       # the trial batches were seen
+    close = np.isclose(M[:, None, :], M[None, :, :], rtol=1e-9, atol=1e-12).all(axis=2)
+    assert not np.triu(close, k=1).any()
