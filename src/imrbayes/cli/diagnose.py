@@ -66,10 +66,10 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     all parameters.
 
     Runtime (measured on 2 cores): 5 bubbles with the default thermal bubble 13-17 min at default
-    settings on an AMD EPYC host, 23 min on an Intel icelake one; 20 bubbles with --forward bubble=polytropic and --quick ~25 min on one core;
-    --experiments and --no-loeo cut it (--workers helps only where cores are idle: the forward model
-    already spreads its batches over the cores). Writes diagnosis.json,
-    report.html and figures."""
+    settings on an AMD EPYC host, 23 min on an Intel icelake one; 20 bubbles with --forward
+    bubble=polytropic and --quick ~25 min on one core; --experiments and --no-loeo cut it (--workers
+    helps only where cores are idle: the forward model already spreads its batches over the cores).
+    Writes diagnosis.json, report.html and figures."""
     t_start = time.perf_counter()
     from imrbayes.data import load_dataset, preprocess_dataset
     from imrbayes.diagnosis import DiagnoseSettings, diagnose
