@@ -74,24 +74,20 @@ def test_without_the_box_the_same_fit_goes_out_of_it(problem, monkeypatch):
     assert f.z[2] < m[2] - 7.0 * s[2]
 
 
-def test_a_rejected_step_reuses_the_jacobian_of_the_unchanged_point(monkeypatch):
-    # polytropic relaxation data, two camera-style bubbles, the qkv fit: its damping is raised
-    # after rejected steps several times. The point is then unchanged, and so is its Jacobian
-    # (d + 5 batched solves, the bulk of an iteration): no Jacobian batch may be computed twice.
+def _qkv_fit_on_relaxation_data(monkeypatch):
+    """Polytropic relaxation data, two camera-style bubbles, the qkv fit: its damping is raised
+    after rejected steps several times. Returns (the forward batches it asked for: (Z, nu) each,
+    the members of a Jacobian batch, the number of iterations after a rejected step, of all)."""
     obs, _ = camera_obs("viscoelastic-relaxation", 2001, POLY, design="1Mfps-2um-5")
     obs = obs.take(range(2))
     qkv = make_candidate("qkv", POLY)
     phases = phases_of(obs, 2)
     om = lsq.ObsModel.of(obs)
-    n_jac = qkv.d + int((om.nu_sd > 0).any(axis=0).sum())         # members of a Jacobian batch
     batches = []
     predict = lsq.predict
 
     def recording(cand, Z, *a, **kw):
-        Z = np.atleast_2d(Z)
-        if Z.shape[0] == n_jac:
-            nu = a[4] if len(a) > 4 else kw.get("nu")
-            batches.append(Z.tobytes() + np.asarray(nu).tobytes())
+        batches.append((np.atleast_2d(Z).copy(), np.asarray(a[4] if len(a) > 4 else kw.get("nu")).copy()))
         return predict(cand, Z, *a, **kw)
 
     monkeypatch.setattr(lsq, "predict", recording)
@@ -100,8 +96,16 @@ def test_a_rejected_step_reuses_the_jacobian_of_the_unchanged_point(monkeypatch)
     its = [e for e in trace if "it" in e]
     rejected = sum(b["it"] == a["it"] + 1 and b["z"] == a["z"] and b["cost"] == a["cost"] for a, b in zip(its, its[1:]))
     assert rejected >= 1                                  # the situation under test occurs
-    assert len(batches) > rejected
-    assert len(set(batches)) == len(batches)
+    return batches, qkv.d + int((om.nu_sd > 0).any(axis=0).sum()), rejected, len(its)
+
+
+def test_a_rejected_step_reuses_the_jacobian_of_the_unchanged_point(monkeypatch):
+    # after a rejection the point is unchanged, and so is its Jacobian (d + 5 batched solves, the
+    # bulk of an iteration): no Jacobian batch may be computed twice
+    batches, n_jac, rejected, _ = _qkv_fit_on_relaxation_data(monkeypatch)
+    jac = [Z.tobytes() + nu.tobytes() for Z, nu in batches if Z.shape[0] == n_jac]
+    assert len(jac) > rejected
+    assert len(set(jac)) == len(jac)
 
 
 def test_a_rejected_trial_step_is_not_tried_again(monkeypatch):
@@ -109,30 +113,10 @@ def test_a_rejected_trial_step_is_not_tried_again(monkeypatch):
     # is the last iteration's largest trial, from the same point with the same Jacobian, and was
     # rejected. Every trial member (material and nuisances) must be new: none may repeat an
     # earlier one to 1e-9 (the damping of the repeat differs from the original in its last bits).
-    obs, _ = camera_obs("viscoelastic-relaxation", 2001, POLY, design="1Mfps-2um-5")
-    obs = obs.take(range(2))
-    qkv = make_candidate("qkv", POLY)
-    phases = phases_of(obs, 2)
-    om = lsq.ObsModel.of(obs)
-    n_jac = qkv.d + int((om.nu_sd > 0).any(axis=0).sum())
-    members = []
-    predict = lsq.predict
-
-    def recording(cand, Z, *a, **kw):
-        Z = np.atleast_2d(Z)
-        if 1 < Z.shape[0] < n_jac:                                 # a batch of trial steps
-            nu = np.asarray(a[4] if len(a) > 4 else kw.get("nu"))
-            members.extend(np.concatenate([Z[i], nu[i].ravel()]) for i in range(Z.shape[0]))
-        return predict(cand, Z, *a, **kw)
-
-    monkeypatch.setattr(lsq, "predict", recording)
-    trace = []
-    lsq.fit_map(qkv, obs, minima=phases.minima, om=om, trace=trace)
-    its = [e for e in trace if "it" in e]
-    rejected = sum(b["it"] == a["it"] + 1 and b["z"] == a["z"] and b["cost"] == a["cost"] for a, b in zip(its, its[1:]))
-    assert rejected >= 1                                            # the situation under test occurs
-    M = np.array(members)
-    assert len(M) >= len(its)                                       # the trial batches were seen
+    batches, n_jac, _, n_its = _qkv_fit_on_relaxation_data(monkeypatch)
+    M = np.array([np.concatenate([Z[i], nu[i].ravel()]) for Z, nu in batches if 1 < Z.shape[0] < n_jac
+                  for i in range(Z.shape[0])])
+    assert len(M) >= n_its                                          # the trial batches were seen
     close = np.isclose(M[:, None, :], M[None, :, :], rtol=1e-9, atol=1e-12).all(axis=2)
     assert not np.triu(close, k=1).any()
 
