@@ -483,16 +483,13 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         return step * (TRUST_SD / m) if m > TRUST_SD else step
 
     def jacobian_at(x, r, J_at):
-        """The Jacobian at x: ``J_at`` (x', J, ...) when x' is x (after a rejected step the point is
-        unchanged, and its Jacobian is d + 5 batched solves, ~3/4 of an iteration; 11-18 % of the
-        iterations on UMich PA10's fits), else computed."""
+        """(the Jacobian at x, the dampings already rejected there): ``J_at``'s (x', J, rejected)
+        when x' is x (after a rejected step the point is unchanged, and its Jacobian is d + 5
+        batched solves, ~3/4 of an iteration; 11-18 % of the iterations on UMich PA10's fits),
+        else computed, with none rejected."""
         if J_at is not None and np.array_equal(J_at[0], x):
-            return J_at[1]
-        return jacobian(*unpack(x), r)
-
-    def tried_at(x, J_at):
-        """The dampings already tried and rejected at x (``J_at``'s third item)."""
-        return J_at[2] if J_at is not None and np.array_equal(J_at[0], x) else np.zeros(0)
+            return J_at[1], J_at[2]
+        return jacobian(*unpack(x), r), np.zeros(0)
 
     def lm(x, r, cost, Rz, lam, n_iter, J_at=None):
         """Up to n_iter iterations from x; ``J_at`` (x, J, dampings rejected at x) a Jacobian already
@@ -501,8 +498,7 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         conv, it, J_x = False, 0, None
         for it in range(1, n_iter + 1):
             z, u = unpack(x)
-            J = jacobian_at(x, r, J_at)
-            rejected = tried_at(x, J_at)
+            J, rejected = jacobian_at(x, r, J_at)
             J_at = (x, J, rejected)
             A, g = J.T @ J, J.T @ r
             # a coordinate at its bound that the gradient pushes outwards is held (projected LM)
@@ -606,7 +602,7 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     x, r, cost, Rz, _, conv, it, J, J_at = best
     z, u = unpack(x)
     if J is None:
-        J = jacobian_at(x, r, J_at)
+        J = jacobian_at(x, r, J_at)[0]
     try:
         C = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
