@@ -193,3 +193,49 @@ def test_too_few_replicates_to_reject_are_named():
     hits = [w for w in r["warnings"] if "cannot find the constant-parameter model inadequate" in w]
     assert len(hits) == 1 and "1/3 > alpha = 0.05" in hits[0] and "at least 19 replicates" in hits[0]
     assert r["constant_parameter_check"]["verdict"] == "adequate"
+
+
+def _top(z_forecast, z_loeo=None, score=0.05, consistent=True):
+    """A top-ranked candidate as ``diagnose`` ranks it: per-scheme paired differences against the
+    baseline (mean_diff > 0: the candidate predicts better), se fixed, z set by mean_diff."""
+    held = {"forecast": {"paired_vs_baseline": {"mean_diff": z_forecast * 1e-4, "se": 1e-4}}}
+    if z_loeo is not None:
+        held["loeo"] = {"paired_vs_baseline": {"mean_diff": z_loeo * 1e-4, "se": 1e-4}}
+    return {"key": "bubble-gilmore", "model": "bubble-gilmore", "mechanism": "bubble-compressibility",
+            "score": score, "consistent": consistent, "heldout": held}
+
+
+MECH = {"bubble-gilmore": "bubble-compressibility", "qkv": "strain-stiffening"}
+
+
+@pytest.mark.parametrize("top, tied, cause", [
+    # bubble-thermal 5001 of the thermal matrix: inadequate, Gilmore ahead by 1.8 and 0.7 SE -- a guess
+    (_top(1.79, 0.68), [], "unexplained"),
+    (_top(1.79, 2.4), [], "bubble-compressibility"),         # leave-one-out separates it
+    (_top(2.1), [], "bubble-compressibility"),               # the forecast alone (no LOEO run)
+    (_top(2.1, -0.5), ["bubble-gilmore", "qkv"], "ambiguous"),
+    (_top(1.0, 1.5), ["bubble-gilmore", "qkv"], "unexplained"),  # a tie of guesses is no cause either
+    (_top(5.0, 5.0, consistent=False), [], "unexplained"),
+    (_top(5.0, 5.0, score=-0.01), [], "unexplained"),
+])
+def test_a_cause_is_named_only_when_its_gain_is_separated_from_the_baseline(top, tied, cause):
+    got, ext, got_tied, note = run_mod.name_cause("inadequate", top, tied, MECH, name_se=2.0)
+    assert got == cause
+    assert (ext is None) == (cause == "unexplained")
+    if cause == "ambiguous":
+        assert got_tied == tied
+    if cause == "unexplained":
+        assert got_tied == []
+    if cause == "unexplained" and top["consistent"] and top["score"] > 0:
+        assert "within 2 paired SE on every scheme" in note and "forecast 1." in note
+    assert run_mod.name_cause("adequate", top, tied, MECH)[0] == "none"
+
+
+def test_one_experiment_names_on_the_score_and_says_so():
+    """No paired SE exists for one experiment: the separation cannot be measured, the rule names on
+    the score (as before) and the note says that it did."""
+    top = _top(0.0)
+    top["heldout"]["forecast"]["paired_vs_baseline"] = {"mean_diff": float("nan"), "se": float("nan")}
+    cause, ext, _, note = run_mod.name_cause("inadequate", top, [], MECH)
+    assert cause == "bubble-compressibility" and ext == "bubble-gilmore" and "not measured" in note
+    assert run_mod.separation_se(top) == {}

@@ -175,6 +175,8 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
         g = res.get("gain") or {}
         click.echo(f"constant-parameter check: {chk['verdict']} ({p_value_text(chk['evidence'])}); "
                    f"cause: {res['cause']}; extended model: {res['extended_model']}")
+        if res.get("cause_note"):
+            click.echo(f"cause: {res['cause_note']}")
         if g:
             click.echo(f"held-out RMSE ({g.get('candidate')}, {g.get('heldout_scheme')}): baseline "
                        f"{g['heldout_rmse_baseline']:.4g} -> {g['heldout_rmse_extended']:.4g}; ELPD diff "

@@ -163,8 +163,9 @@ def verdict_sentences(r: dict) -> list:
         out.append("No extension is needed (cause: none)." if adequate
                    else "No cause is named (cause: none).")
     elif cause == "unexplained":
-        out.append("No candidate explains the misfit (cause: unexplained): none predicts held-out data better "
-                   "with a fit that points the way of its mechanism.")
+        out.append("No candidate explains the misfit (cause: unexplained): "
+                   + esc(r.get("cause_note") or "none predicts held-out data better with a fit that points the "
+                                                 "way of its mechanism") + ".")
     else:
         ext = r.get("extended_model") or g.get("candidate")
         out.append(f"The most likely cause is <b>{esc(cause)}</b>: {esc(CAUSE_WORDS.get(cause, cause))}"
