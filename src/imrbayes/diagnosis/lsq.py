@@ -199,10 +199,7 @@ def _predict(cand, z, obs, idx, minima, K, nu, frames):
     order = np.argsort(S, axis=1, kind="stable")
     S = np.take_along_axis(S, order, axis=1)
     rmax = np.tile(obs.rmax_m[idx], M) * scale
-    if cand.req_scale is not None and cand.req_scale.size != obs.n_exp:
-        raise ValueError(f"candidate {cand.key}: req_scale has {cand.req_scale.size} entries for {obs.n_exp} experiments")
-    req0 = obs.req_m[idx] if cand.req_scale is None else obs.req_m[idx] * cand.req_scale[idx]
-    req = np.tile(req0, M) * np.exp(rho)
+    req = np.tile(obs.req_m[idx], M) * np.exp(rho)
     bad |= ~(req < rmax)             # a step that puts Req above Rmax: a failed member, not an error
     req = np.where(bad, 0.5 * rmax, req)
     kw = {}

@@ -17,7 +17,7 @@ from imrbayes.ensemble.problem import ParamSpace
 from imrbayes.forward import ForwardModel
 from imrbayes.forward.constitutive import get_model
 
-__all__ = ["Candidate", "make_candidate", "candidate_space", "applicable", "bubble_req_scale"]
+__all__ = ["Candidate", "make_candidate", "candidate_space", "applicable"]
 
 
 def candidate_space(spec: CandidateSpec, prior: dict | None = None) -> ParamSpace:
@@ -41,11 +41,6 @@ class Candidate:
     spec: CandidateSpec
     space: ParamSpace
     fm: ForwardModel
-    #: (E,) [-] or None: each experiment's Req parameter over the baseline's for the same resting
-    #: radius. Preprocessing measures where a bubble comes to rest; a bubble model whose contents
-    #: rest elsewhere (vapour mass transfer off: the vapour cannot leave, the bubble rests at
-    #: ~2.2-2.4x its gas Req) needs its Req prior centred there (:func:`bubble_req_scale`)
-    req_scale: np.ndarray | None = None
 
     @property
     def key(self) -> str:
@@ -126,51 +121,17 @@ class Candidate:
         return out
 
 
-def make_candidate(key: str, options, physics=None, prior: dict | None = None, req_scale=None) -> Candidate:
+def make_candidate(key: str, options, physics=None, prior: dict | None = None) -> Candidate:
     """The baseline (``nhkv``) or registered candidate ``key`` on a forward model with the baseline's
     ``options`` (ForwardOptions; a bubble-model candidate changes them) and ``physics``; ``prior``:
-    (G, mu) prior overrides, name -> (mean, sd) SI; ``req_scale``: :attr:`Candidate.req_scale`.
-    Raises ValueError when a bubble-model candidate does not apply to ``options``
-    (:meth:`CandidateSpec.options_for`)."""
+    (G, mu) prior overrides, name -> (mean, sd) SI. Raises ValueError when a bubble-model candidate
+    does not apply to ``options`` (:meth:`CandidateSpec.options_for`)."""
     spec = spec_of(key)
     opts = spec.options_for(options)
     if opts is None:
         raise ValueError(f"candidate {key} does not apply to the baseline's forward options")
     return Candidate(spec, candidate_space(spec, prior), ForwardModel(spec.forward_model, options=opts,
-                                                                      physics=physics),
-                     None if req_scale is None else np.asarray(req_scale, dtype=float))
-
-
-def bubble_req_scale(cand: Candidate, base: Candidate, rmax_m, req_m, z, t_rest: float = 40.0,
-                     iterations: int = 3, bounds=(0.2, 5.0)) -> np.ndarray:
-    """(E,) [-]: ``cand``'s Req over the baseline's ``req_m`` (E,) [m] that makes it come to rest at
-    the same radius.
-
-    Both models are run at the baseline's material ``z`` (d,) and Rmax ``rmax_m`` (E,) [m] to
-    t* = ``t_rest`` (the resting radius: the mean over its last 2 t*; 0.3 s for five thermal bubbles);
-    cand's Req is rescaled by the ratio of the two, ``iterations`` times. A record whose ratio fails or
-    leaves ``bounds`` keeps 1. Why (session 49): with vapour mass transfer off the thermal bubble rests
-    at 2.2-2.4x its gas Req (thermal matrix, bubble-thermal 5003 at the truth; the baseline's 1.015x),
-    the preprocessing's Req of such records is 1.8-2.9x the generator's, and with the Req prior (sd
-    ~2 %) centred there the right bubble model could not fit its own data (5003: it predicted the
-    held-out data 15 % worse than the wrong one)."""
-    rmax = np.asarray(rmax_m, dtype=float)
-    req_b = np.asarray(req_m, dtype=float)
-    E = rmax.size
-    T = np.repeat(np.linspace(t_rest - 2.0, t_rest, 9)[None], E, axis=0)
-
-    def rest(c, req):
-        P = np.repeat(c.forward_params(np.asarray(z, dtype=float)[None]), E, axis=0)
-        with np.errstate(all="ignore"):
-            o = c.fm.simulate(P, rmax, req, T, max_steps=2_000_000)
-        return np.where(np.asarray(o.failed, dtype=bool), np.nan, np.asarray(o.R_star).mean(axis=1) * rmax)
-
-    target = rest(base, req_b)
-    req_c = req_b.copy()
-    for _ in range(iterations):
-        req_c = np.minimum(req_c * target / rest(cand, req_c), 0.9 * rmax)
-    scale = req_c / req_b
-    return np.where(np.isfinite(scale) & (scale > bounds[0]) & (scale < bounds[1]), scale, 1.0)
+                                                                      physics=physics))
 
 
 def applicable(key: str, options) -> bool:

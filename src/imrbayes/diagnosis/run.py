@@ -25,7 +25,7 @@ import numpy as np
 from imrbayes.diagnosis.candidates import BASELINE, DEFAULT_CANDIDATES, spec_of
 from imrbayes.diagnosis.check import bootstrap_check, min_replicates, statistics, window_drift
 from imrbayes.diagnosis.heldout import elpd_compare, forecast, loeo, loglik_draws, paired
-from imrbayes.diagnosis.models import bubble_req_scale, make_candidate
+from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.errors import InputError
 
@@ -147,7 +147,7 @@ def candidate_unit(unit, rng) -> dict:
     from imrbayes.diagnosis.lsq import CANDIDATE_FIRST_TOL, fit_tempered
 
     d = unit.data
-    c = make_candidate(d["key"], d["options"], d["physics"], d["prior"], d.get("req_scales", {}).get(d["key"]))
+    c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
     extra = np.concatenate([d["z_base"], c.prior_mean[2:]])
     obs, om0, minima = d["obs"], d["om0"], d["phases"].minima
     # from the baseline's nuisances and from the preprocessing's: the baseline's have adapted to the
@@ -165,7 +165,7 @@ def heldout_unit(unit, rng) -> dict:
     from imrbayes.diagnosis.lsq import MapFit
 
     d = unit.data
-    c = make_candidate(d["key"], d["options"], d["physics"], d["prior"], d.get("req_scales", {}).get(d["key"]))
+    c = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
     fit = MapFit(**d["fit"])
     scheme = {"forecast": forecast, "loeo": loeo}
     return {k: scheme[k](c, d["obs"], d["phases"], fit, d["om"]) for k in d["schemes"]}
@@ -215,7 +215,7 @@ def signature_unit(unit, rng) -> dict:
     with np.errstate(all="ignore"):
         if d["key"] is None:
             return observed_signature(base.fm, obs, ss, seed=seed + 11)
-        cand = make_candidate(d["key"], d["options"], d["physics"], d["prior"], d.get("req_scales", {}).get(d["key"]))
+        cand = make_candidate(d["key"], d["options"], d["physics"], d["prior"])
         fit = MapFit(**d["fit"])
         Rf = frame_values(cand, fit.z, obs, d["phases"].minima, fit.nu)
         return predicted_signature(lambda r: replicate(obs, Rf, d["noise_sd"], r), base.fm, ss, seed=seed + 13)
@@ -488,12 +488,6 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     not_applicable = [k for k in s.candidates if k not in keys]
     for k in not_applicable:
         warnings.append(f"candidate {k} left out: it has no alternative to the baseline's forward options")
-    # a bubble model that comes to rest elsewhere gets its Req prior centred where the data rest
-    req_b = obs.req_m * np.exp(full.nu[:, 2])
-    req_scales = {k: bubble_req_scale(make_candidate(k, options, physics, prior), base, obs.rmax_m * (1.0 + full.nu[:, 0]),
-                                      req_b, full.z).tolist()
-                  for k in keys if spec_of(k).kind == "bubble"}
-    build["req_scales"] = common["req_scales"] = req_scales
     say(f"candidates {', '.join(keys)}")
     rep = ex.run([Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z, "nu_base": full.nu}) for key in keys],
                  candidate_unit, seed, desc="diagnose candidates")
@@ -504,7 +498,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
             fits[key] = MapFit(**res_k["fit"])
             oms[key] = _replace(om, sd_used=np.asarray(res_k["sd_used"]), alpha=np.asarray(res_k["alpha"]),
                                 n_eff=np.asarray(res_k["effective_samples"]))
-            cands[key] = make_candidate(key, options, physics, prior, req_scales.get(key))
+            cands[key] = make_candidate(key, options, physics, prior)
         tick(1)
     say("held-out predictions (forecast)")
     rep = ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
@@ -544,7 +538,6 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         candidates.append({
             "model": c.spec.model, "key": key, "mechanism": c.mechanism, "kind": c.spec.kind,
             "forward_model": c.forward_name, "estimate": c.estimate(f.z, f.cov),
-            **({"req_scale": c.req_scale.tolist()} if c.req_scale is not None else {}),
             "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2))),
             "chi2_norm": float(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2 / om.noise_sd[:, None] ** 2)),
             "misfit_by_phase": _phase_misfit(obs, phases, f.fitted, om),
