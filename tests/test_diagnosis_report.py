@@ -175,6 +175,12 @@ def test_why_not():
     assert why_not({"consistent": True, "ruled_out": "", "score": -0.02}, r).startswith("held-out gain ≤ 0")
     assert why_not(r["candidates"][0], r) == "chosen"
     assert why_not({"score": float("nan")}, r) == "no held-out score"
+    # inadequate, but the best candidate is not separated from the baseline (run.name_cause)
+    u = _minimal("unexplained", cause_note="the best-ranked candidate, zener, ... (forecast 1.8 SE)")
+    assert why_not(u["candidates"][0], u).startswith("best-ranked, but its held-out gain is within 2 paired SE")
+    assert "not separated" in why_not({"consistent": True, "score": 0.01, "rank": 2, "key": "qkv"}, u)
+    text = html.unescape(re.sub(r"<[^>]+>", "", " ".join(verdict_sentences(u))))
+    assert "cause: unexplained" in text and "(forecast 1.8 SE)" in text
 
 
 def test_verdict_of_a_check_decided_early_states_the_bound():
