@@ -262,13 +262,14 @@ def why_not(c: dict, r: dict) -> str:
     key = c.get("key", c.get("model"))
     if r.get("cause") == "ambiguous" and key in (r.get("candidates_tied") or []):
         return "tied: " + (r.get("tie_reason") or "the data cannot tell it from the others")
-    if (c.get("model") is not None and c.get("model") == r.get("extended_model")) or (r.get("cause") not in ("none", "unexplained", "ambiguous", None)
-                                                        and c.get("rank") == 1):
+    named = r.get("cause") not in ("none", "unexplained", "ambiguous", None)
+    if (c.get("model") is not None and c.get("model") == r.get("extended_model")) or (named and c.get("rank") == 1):
         return "chosen"
     if r.get("constant_parameter_check", {}).get("verdict") == "adequate":
         return "not needed: the baseline is adequate"
     if r.get("cause") == "unexplained":     # the naming rule (run.name_cause): not separated from the baseline
-        return ("best-ranked, but its held-out gain is within 2 paired SE of the baseline on every scheme"
+        bar = (r.get("settings") or {}).get("tie_se", 2.0)
+        return (f"best-ranked, but its held-out gain is within {bar:g} paired SE of the baseline on every scheme"
                 if c.get("rank") == 1 else
                 "lower held-out score than the best-ranked, which is itself not separated from the baseline")
     return "lower held-out score than the chosen candidate"
