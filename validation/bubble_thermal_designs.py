@@ -21,16 +21,15 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from imrbayes.data import synthetic as syn
 from imrbayes.diagnosis.candidates import BASELINE
 from imrbayes.diagnosis.lsq import ObsModel, fit_tempered
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
-from imrbayes.data import synthetic as syn
 from imrbayes.diagnosis.synthetic import Design, camera_obs
 from imrbayes.forward import ForwardOptions
 
