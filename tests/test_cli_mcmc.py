@@ -138,7 +138,7 @@ def test_en4dvar_plain_likelihood_mcmc_samples_the_same_density(syn, tmp_path):
     (["--method", "mienks", "--mcmc-set", "n_steps=10"], "needs --mcmc"),
     (["--method", "mienks", "--mcmc", "--mcmc-windows", "a,b"], "--mcmc-windows"),
     (["--method", "mienks", "--mcmc", "--mcmc-set", "bogus=1"], "bogus"),
-    (["--method", "en4dvar", "--mcmc", "--set", "req_tail=model"], "req_tail=model"),
+    (["--method", "en4dvar", "--set", "req_tail=tail"], "req_tail"),
 ])
 def test_bad_mcmc_options_fail_before_the_fit(syn, tmp_path, args, needle):
     res = _run("fit", syn, *args, *FWD, "--out", tmp_path / "x", expect=2)

@@ -64,8 +64,10 @@ def test_en4dvar_req_tail_model_runs_two_passes_and_says_so():
     assert info["method"] == "model" and len(info["factor"]) == 2
     assert np.allclose(np.array(info["req_tail_mean_m"]) / np.array(info["req_prior_mean_m"]), info["factor"])
     assert set(info["first_pass_estimate"]) == {"G", "mu"}
-    first = res.details["alternative_estimates"]["req_tail_mean"]
+    first = res.details["alternative_estimates"]["req_tail_first_pass"]
     assert {k: first[k]["mean"] for k in ("G", "mu")} == info["first_pass_estimate"]
+    # the first pass is the quick one (one cycle, no screening), whatever the fit's own settings
+    assert info["first_pass_settings"]["n_runs"] == 1 and info["first_pass_settings"]["screen"] == 0
     assert all(np.isfinite(res.estimate[k]["mean"]) for k in ("G", "mu"))
     # each experiment's reported Req prior is the corrected one
     for p, r in zip(res.per_experiment, info["req_prior_mean_m"]):
@@ -88,3 +90,38 @@ def test_req_tail_model_without_measured_tails_is_one_pass():
     assert one.details["req_tail"]["factor"] == [1.0, 1.0] and "one pass" in one.details["req_tail"]["note"]
     assert one.estimate["G"]["mean"] == plain.estimate["G"]["mean"]
     assert one.details["member_runs"] == plain.details["member_runs"]
+
+
+def test_auto_places_req_by_the_model_only_for_the_thermal_bubble():
+    """``req_tail=auto`` (the default): ``model`` with the thermal bubble and the default likelihood
+    (its tail mean is high), ``mean`` with the polytropic bubble (settled) or the paper's likelihood
+    (Req known); an explicit choice is kept."""
+    from imrbayes.ensemble.en4dvar import req_tail_mode
+    from imrbayes.forward import ForwardModel
+
+    thermal, poly = ForwardModel("nhkv"), ForwardModel("nhkv", options={"bubble": "polytropic"})
+    assert En4DVarSettings().req_tail == "auto"
+    assert req_tail_mode(En4DVarSettings(), thermal) == "model"
+    assert req_tail_mode(En4DVarSettings(), poly) == "mean"
+    assert req_tail_mode(En4DVarSettings(likelihood="paper"), thermal) == "mean"
+    assert req_tail_mode(En4DVarSettings(req_tail="mean"), thermal) == "mean"
+    assert req_tail_mode(En4DVarSettings(req_tail="model"), poly) == "model"
+
+
+def test_the_mcmc_target_of_a_req_tail_fit_runs_at_the_moved_req():
+    """The MCMC check samples the density the reported fit approximates: with ``req_tail=model``
+    each experiment's Req prior is centred on the corrected value, so the target's bubbles start
+    from that Req (not the preprocessing's tail mean) with the same nuisance prior sd."""
+    from imrbayes.mcmc.fit import fit_window_specs
+
+    opts = ForwardOptions(bubble="polytropic")
+    obs, truth = camera_obs("none", 2, opts, n_exp=2)
+    base = make_candidate(BASELINE.key, opts)
+    st = dict(n_ens=12, n_runs=1, n_iter=2, max_iter=2, screen=0, loglik=False, n_draws=1)
+    res = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0)
+    moved = np.array(res.details["req_tail"]["req_prior_mean_m"])
+    assert not np.allclose(moved, obs.req_m, rtol=1e-9, atol=0)
+    (spec,) = fit_window_specs(base.fm, obs, base.space, res)
+    np.testing.assert_allclose(spec.target.start.req_m, moved, rtol=1e-12)
+    sd = np.array([p["nuisance"]["req_m"]["prior_sd"] for p in res.per_experiment])
+    np.testing.assert_allclose(spec.target.nuisance_sd[:, 2], sd / moved, rtol=1e-9)

@@ -36,7 +36,7 @@ from imrbayes.execution.progress import finish, plan
 METHOD_NAMES = tuple(METHODS)
 
 
-def planned_units(meth, settings, n_exp: int, n_steps: int) -> tuple:
+def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
     """(units the fit will run, what they are in words) for the progress bar's total, so that it counts
     the whole run from the start (``mienks: 18 windows x 5 experiments``); ``(None, "")`` when not
     known (the bar then grows batch by batch). A method may declare ``n_units(settings, n_exp,
@@ -53,8 +53,11 @@ def planned_units(meth, settings, n_exp: int, n_steps: int) -> tuple:
             return 2 * nw * n_exp, f"2 passes x {nw} windows x {n_exp} experiments"
         return nw * n_exp, f"{nw} windows x {n_exp} experiments"
     if meth.name == "en4dvar":      # each experiment's cycles, then its fitted curves (fast)
-        if getattr(settings, "req_tail", "mean") == "model":
-            return 4 * n_exp, f"2 passes (Req from the model's tail) x {n_exp} experiments, then their fitted curves"
+        from imrbayes.ensemble.en4dvar import req_tail_mode
+
+        if req_tail_mode(settings, fm) == "model":
+            return 4 * n_exp, (f"a quick pass to place Req by the model's tail, then the fit: 2 x {n_exp} experiments "
+                               "and their fitted curves")
         return 2 * n_exp, f"{n_exp} experiments, then their fitted curves"
     if meth.name == "imr":
         return n_exp, f"grid over {n_exp} experiments"
@@ -104,8 +107,9 @@ def _load_config(path) -> dict:
               help="Method setting (en4dvar: n_ens, n_iter, n_runs, rtps, t_end [t*], fusion=likelihood|prior, "
                    "obs_weight=mean|sum, bubble_posterior=gaussian|sampled (sampled: each bubble's posterior by importance "
                    "sampling, is_rounds x is_draws more forward runs per bubble, under the prior widened "
-                   "is_prior_widen times; its calibration on camera data: docs/results.md), req_tail=mean|model "
-                   "(model: each Req's prior centred by the model's own tail at a first fit, then fitted again); "
+                   "is_prior_widen times; its calibration on camera data: docs/results.md), req_tail=auto|mean|model "
+                   "(model: each Req's prior centred by the model's own tail at a quick first fit, then the fit; "
+                   "auto, the default: model with the thermal bubble); "
                    "mienks: L, h [samples], n_ens, n_iter, rtps, likelihood=default|paper, adapt (default likelihood: "
                    "pilot pass), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
                    "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
@@ -211,9 +215,6 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
             s = dataclasses.replace(s, likelihood=likelihood)
     prior = prior_overrides(cfg.get("prior", {}), key_values(priors, "--prior"))
     mcmc_s = None
-    if mcmc and getattr(s, "req_tail", "mean") == "model":
-        raise InputError("--mcmc", "cannot check a req_tail=model fit yet (its second pass moves each Req's prior, "
-                                   "which the MCMC target does not); drop --set req_tail=model or --mcmc")
     if mcmc:
         from imrbayes.mcmc import MCMCSettings
         mcmc_s = method_settings(MCMCSettings, mcmc_cfg, {**key_values(cfg.get("mcmc_set", []), "--config mcmc_set"),
@@ -244,7 +245,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     compare = None
     with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
                         retry_failed=retry_failed, quiet=quiet, desc=method) as execution:
-        n_units, what = planned_units(meth, s, obs.n_exp, obs.n_samples - 1)
+        n_units, what = planned_units(meth, s, obs.n_exp, obs.n_samples - 1, fm)
         if what and execution.bar is not None:
             execution.bar.write(f"imrbayes: {method}: {n_units} units ({what})", file=sys.stderr)
         plan(execution.bar, n_units, method)

@@ -107,9 +107,11 @@ class En4DVarSettings:
     forward runs per experiment; see the module doc); is_prior_widen: the sampling's working prior
     on the parameters is the parameter prior with its sd (in z) times this factor, divided out
     again before the fusion (which applies the parameter prior once). req_tail (default likelihood
-    only): ``mean`` (each Req's prior centred on the preprocessing's tail mean) or ``model`` (fit
-    once, centre each Req where the model's own mean over the same frames matches the data's at that
-    fit's estimate, fit again: :mod:`imrbayes.ensemble.req_tail`; twice the cost).
+    only): ``mean`` (each Req's prior centred on the preprocessing's tail mean), ``model`` (a quick
+    first fit -- one cycle, no screening -- then each Req centred where the model's own mean over the
+    same frames matches the data's at that fit's estimate, then the fit:
+    :mod:`imrbayes.ensemble.req_tail`; ~1.25x the cost) or ``auto`` (the default: ``model`` with the
+    thermal bubble, whose records still settle from above at their end, ``mean`` otherwise).
     """
 
     n_ens: int = 48
@@ -129,7 +131,7 @@ class En4DVarSettings:
     is_draws: int = 1000
     is_rounds: int = 4
     is_prior_widen: float = 3.0
-    req_tail: str = "mean"
+    req_tail: str = "auto"
 
     def resolved(self) -> "En4DVarSettings":
         """The settings with the likelihood's own choices filled in (``paper``: averaged cost and the
@@ -161,8 +163,8 @@ class En4DVarSettings:
             raise InputError("bubble_posterior", f"must be 'gaussian' or 'sampled', got {self.bubble_posterior!r}")
         if self.bubble_posterior == "sampled" and s.likelihood != "default":
             raise InputError("bubble_posterior", "'sampled' needs the default likelihood (the paper's keeps the ensemble)")
-        if self.req_tail not in ("mean", "model"):
-            raise InputError("req_tail", f"must be 'mean' or 'model', got {self.req_tail!r}")
+        if self.req_tail not in ("auto", "mean", "model"):
+            raise InputError("req_tail", f"must be 'auto', 'mean' or 'model', got {self.req_tail!r}")
         if self.req_tail == "model" and s.likelihood != "default":
             raise InputError("req_tail", "'model' needs the default likelihood (the paper's takes Req as known)")
         if not (np.isfinite(self.is_prior_widen) and self.is_prior_widen >= 1.0):
@@ -170,6 +172,24 @@ class En4DVarSettings:
         if self.is_draws < 50 or self.is_rounds < 1:
             raise InputError("is_draws/is_rounds", f"need at least 50 draws and one round, got {self.is_draws}, "
                                                    f"{self.is_rounds}")
+
+
+def req_tail_mode(settings: En4DVarSettings, fm) -> str:
+    """``mean`` or ``model``: what ``settings.req_tail`` means for forward model ``fm``. ``auto`` is
+    ``model`` with the thermal bubble and the default likelihood: its record's tail mean is high
+    (+2.3 % on 1 Mfps camera records to t* = 3.6, docs/results.md), while a polytropic bubble has
+    settled (+0.3 %) and the paper's likelihood takes Req as known."""
+    s = settings.resolved()
+    if s.req_tail != "auto":
+        return s.req_tail
+    thermal = getattr(getattr(fm, "options", None), "bubble", "thermal") == "thermal"
+    return "model" if thermal and s.likelihood == "default" else "mean"
+
+
+#: the first pass of ``req_tail=model``: it only has to place the material near the data's (the
+#: correction moves by < 0.1 % of Req between this and the full fit on thermal camera records,
+#: against a Req prior sd of 4-6 %; docs/results.md), so one cycle from the prior mean
+REQ_TAIL_FIRST_PASS = {"n_runs": 1, "screen": 0, "n_draws": 1, "loglik": False, "bubble_posterior": "gaussian"}
 
 
 def fit_window(obs, K: int, obs_weight: str = "mean"):
@@ -388,28 +408,42 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     s = s.resolved()
     ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
-    if s.req_tail != "model":
-        return _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex)
+    mode = req_tail_mode(s, fm)
+    tails = [t for t in (obs.req_tail_t or []) if t.size > 0]
+    one_pass = {"method": mode, "setting": s.req_tail, "factor": [1.0] * obs.n_exp}
+    if mode != "model":
+        res = _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex)
+        res.details["req_tail"] = {**one_pass, "note": "each Req's prior centred on the preprocessing's value"}
+        return res
+    if not tails:
+        res = _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex)
+        res.details["req_tail"] = {**one_pass, "note": "no experiment's Req came from its record's tail (given, or "
+                                                       "no tail measured): nothing to re-centre, one pass"}
+        return res
     t0 = time.perf_counter()
-    first = _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex)
+    first = _fit_en4dvar(fm, obs, space, replace(s, **REQ_TAIL_FIRST_PASS), seed, runner, progress, ex,
+                         tag={"req": "first"})
     theta = np.array([first.estimate[nm]["mean"] for nm in space.names])
     rmax = np.array([p["nuisance"]["rmax_m"]["mean"] if "nuisance" in p else r
                      for p, r in zip(first.per_experiment, obs.rmax_m)])
     obs2, factor = model_tail_req(runner, obs, theta, rmax)
-    if np.all(factor == 1.0):
-        first.details["req_tail"] = {"method": "model", "factor": factor.tolist(),
-                                     "note": "no experiment's Req came from its record's tail (given, or no tail "
-                                             "measured): nothing to re-centre, one pass"}
-        return first
-    res = _fit_en4dvar(fm, obs2, space, s, seed, runner, progress, ex, tag={"req": "model"})
+    if np.all(factor == 1.0):        # every correction failed: the tail means stand
+        obs2, tag = obs, None
+        note = "the model's tail could not be computed for any experiment: Req's prior is the tail mean"
+    else:
+        tag = {"req": "model"}
+        note = ("each Req's prior centred where the model's mean over the frames the preprocessing averaged equals "
+                "the data's (model at a quick first fit's estimate and Rmax: one cycle, no screening); the "
+                "estimate is the full fit after it")
+    res = _fit_en4dvar(fm, obs2, space, s, seed, runner, progress, ex, tag=tag)
     res.details["req_tail"] = {
-        "method": "model", "factor": factor.tolist(), "req_tail_mean_m": obs.req_m.tolist(),
+        "method": "model", "setting": s.req_tail, "factor": factor.tolist(), "req_tail_mean_m": obs.req_m.tolist(),
         "req_prior_mean_m": obs2.req_m.tolist(),
         "first_pass_estimate": {nm: first.estimate[nm]["mean"] for nm in space.names},
-        "note": "each Req's prior centred where the model's mean over the frames the preprocessing averaged "
-                "equals the data's (model at the first pass's estimate and Rmax); the estimate is the second pass"}
-    # the first pass is the req_tail=mean fit of the same data: kept beside the reported one
-    res.details.setdefault("alternative_estimates", {})["req_tail_mean"] = {nm: first.estimate[nm] for nm in space.names}
+        "first_pass_settings": dict(REQ_TAIL_FIRST_PASS), "note": note}
+    # the quick first pass, for the record (not the tail-mean fit of the same data: that has three cycles)
+    res.details.setdefault("alternative_estimates", {})["req_tail_first_pass"] = {
+        nm: first.estimate[nm] for nm in space.names}
     res.details["member_runs"] += first.details["member_runs"]
     res.runtime_s = time.perf_counter() - t0
     return res
@@ -677,6 +711,9 @@ def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov,
         index=0, start=0, samples=(1, K), mean=np.asarray(mean, float), cov=np.asarray(cov, float),
         prior_mean=space.prior_mean, prior_cov=space.prior_cov, weight=np.full(K, c),
         start_state=np.array(fm.initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64),
+        # the Req each experiment's nuisance prior is centred on (req_tail=model moves it off the data's
+        # tail mean): the MCMC target must run at the same one
+        start_req_m=np.asarray(obs.req_m, dtype=np.float64).copy(),
         description=desc, whiten=whiten, **({} if offsets is None else
                                             {"nuisance_sd": offsets[0], "nuisance_mean": offsets[1],
                                              "nuisance_post_sd": offsets[2],
@@ -707,7 +744,9 @@ class En4DVar(InferenceMethod):
             # (iterations past n_iter up to max_iter are not counted: the bar is an estimate)
             if s.screen:    # the screen, and at most one more start in cycle 1 (scored by one run per start)
                 n += (s.screen + 1 + s.n_iter * s.n_ens + 2) * n_exp
-        return 2 * n if getattr(s, "req_tail", "mean") == "model" else n
+        if s.likelihood == "default" and getattr(s, "req_tail", "mean") in ("model", "auto"):
+            n += s.n_iter * s.n_ens * n_exp + 3 * n_exp     # req_tail's quick first pass (auto: thermal only)
+        return n
 
     @staticmethod
     def figures(obs, res, fdir):
