@@ -483,3 +483,17 @@ def test_report_warns_that_an_inferred_req_can_make_mu_windows_decline(runs, tmp
                                   for e in s["per_experiment"]])
     html = _report(one, "--quiet") and (one / "report.html").read_text()
     assert key not in _text(_section(html, "conclusion"))
+
+
+def test_report_says_when_reqs_prior_came_from_the_models_tail(runs, tmp_path):
+    """A req_tail=model fit (the thermal default) moved each Req's prior: the conclusion says by how
+    much and that the estimate is the fit after the quick first pass; a fit that moved nothing says nothing."""
+    one = _copy(runs, "en4dvar", tmp_path)
+    _edit_summary(one, lambda s: s.setdefault("details", {}).update(
+        req_tail={"method": "model", "setting": "auto", "factor": [1.012, 1.0, 1.047]}))
+    concl = _text(_section(_report(one, "--quiet") and (one / "report.html").read_text(), "conclusion"))
+    assert "centred by the model's own tail" in concl and "1.2–4.7 % above Req in 2 of 3" in concl
+    assert "default for the thermal bubble" in concl
+    _edit_summary(one, lambda s: s["details"].update(req_tail={"method": "mean", "setting": "auto", "factor": [1.0] * 3}))
+    concl = _text(_section(_report(one, "--quiet") and (one / "report.html").read_text(), "conclusion"))
+    assert "model's own tail" not in concl

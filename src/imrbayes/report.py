@@ -639,6 +639,13 @@ def _section_conclusion(run) -> str:
         req_inferred = any(_fnum(((x.get("nuisance") or {}).get("req_m") or {}).get("prior_sd")) > 0
                            for x in per if isinstance(x, dict))
         req_from_fit = ((s.get("details") or {}).get("req_prior") or {}).get("method") == "en4dvar"
+        rt = (s.get("details") or {}).get("req_tail") or {}
+        moved = [f for f in (_fnum(x) for x in rt.get("factor") or []) if math.isfinite(f) and f != 1.0]
+        if rt.get("method") == "model" and moved:
+            items.append(f"Req's prior was centred by the model's own tail (req_tail=model{', the default for the thermal bubble' if rt.get('setting') == 'auto' else ''}): "
+                         f"the record's tail mean lies {100 * (min(moved) - 1):.1f}–{100 * (max(moved) - 1):.1f} % above "
+                         f"Req in {len(moved)} of {len(rt.get('factor'))} experiments, a quick first fit placed the "
+                         "material, and the estimate is the fit after it.")
         if len(wins) > 1 and req_from_fit:
             items.append("Each estimated Req's prior came from a whole-record En4D-Var fit of the same data "
                          "(req_prior=en4dvar), so the early windows start from the Req the record's tail decides.")
