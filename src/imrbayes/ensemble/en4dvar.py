@@ -187,7 +187,7 @@ def req_tail_mode(settings: En4DVarSettings, fm) -> str:
 
 
 #: the first pass of ``req_tail=model``: it only has to place the material near the data's (the
-#: correction moves by < 0.1 % of Req between this and the full fit on thermal camera records,
+#: correction moves by <= 0.16 % of Req between this and the full fit on thermal camera records,
 #: against a Req prior sd of 4-6 %; docs/results.md), so one cycle from the prior mean
 REQ_TAIL_FIRST_PASS = {"n_runs": 1, "screen": 0, "n_draws": 1, "loglik": False, "bubble_posterior": "gaussian"}
 
