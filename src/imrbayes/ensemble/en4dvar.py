@@ -409,16 +409,13 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
     mode = req_tail_mode(s, fm)
-    tails = [t for t in (obs.req_tail_t or []) if t.size > 0]
-    one_pass = {"method": mode, "setting": s.req_tail, "factor": [1.0] * obs.n_exp}
-    if mode != "model":
+    tails = any(t.size > 0 for t in (obs.req_tail_t or []))
+    if mode != "model" or not tails:
         res = _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex)
-        res.details["req_tail"] = {**one_pass, "note": "each Req's prior centred on the preprocessing's value"}
-        return res
-    if not tails:
-        res = _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex)
-        res.details["req_tail"] = {**one_pass, "note": "no experiment's Req came from its record's tail (given, or "
-                                                       "no tail measured): nothing to re-centre, one pass"}
+        note = ("each Req's prior centred on the preprocessing's value" if mode != "model" else
+                "no experiment's Req came from its record's tail (given, or no tail measured): nothing to re-centre, "
+                "one pass")
+        res.details["req_tail"] = {"method": mode, "setting": s.req_tail, "factor": [1.0] * obs.n_exp, "note": note}
         return res
     t0 = time.perf_counter()
     first = _fit_en4dvar(fm, obs, space, replace(s, **REQ_TAIL_FIRST_PASS), seed, runner, progress, ex,
