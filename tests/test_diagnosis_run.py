@@ -239,3 +239,34 @@ def test_one_experiment_names_on_the_score_and_says_so():
     cause, ext, _, note = run_mod.name_cause("inadequate", top, [], MECH)
     assert cause == "bubble-compressibility" and ext == "bubble-gilmore" and "not measured" in note
     assert run_mod.separation_se(top) == {}
+
+
+def test_the_en4dvar_baseline_places_req_at_the_least_squares_fit(monkeypatch):
+    """With ``req_tail=model`` (the thermal default; forced here on a small polytropic camera set),
+    diagnose's En4D-Var evaluates the model's tail at its least-squares baseline -- each bubble's
+    material with its fitted offsets, its fitted Rmax -- instead of running a first pass of its own."""
+    import imrbayes.ensemble.en4dvar as en4dvar_mod
+    from imrbayes.diagnosis.models import BASELINE, make_candidate
+    from imrbayes.diagnosis.synthetic import camera_obs
+    from imrbayes.ensemble.req_tail import model_tail_req
+    from imrbayes.forward import Runner
+
+    monkeypatch.setattr(en4dvar_mod, "req_tail_mode", lambda settings, fm: "model")
+    obs = camera_obs("none", 3, OPTS, n_exp=2)[0]
+    s = DiagnoseSettings.quick(baseline_method="en4dvar", en4dvar_n_ens=6, en4dvar_n_runs=1, mienks_drift=False,
+                               **SMALL)
+    ex = Execution(progress=False)
+    b = diagnose(obs, OPTS, settings=s, seed=0, execution=ex).result["baseline"]
+    info = b["req_tail"]
+    assert info["method"] == "model" and "least-squares" in info["start"]["source"]
+    assert "first_pass_estimate" not in info
+    assert "tail at the least-squares baseline" in b["estimate_note"] and "estimate_map" in b["estimate_note"]
+    # one En4D-Var pass: its experiments' units once (the given start), no 'req=first' pass
+    assert [desc for desc, _ in ex.reports].count("en4dvar experiments") == 1
+    theta = np.array([[b["estimate_map"][k]["median"] * np.exp(n[f"log_{k}_offset"]) for k in ("G", "mu")]
+                      for n in b["nuisance"]])
+    rmax = np.array([n["rmax_m"]["fitted"] for n in b["nuisance"]])
+    assert np.allclose(info["start"]["theta_si"], theta, rtol=1e-12)
+    assert np.allclose(info["start"]["rmax_m"], rmax, rtol=1e-12)
+    _, factor = model_tail_req(Runner(make_candidate(BASELINE.key, OPTS).fm), obs, theta, rmax)
+    assert np.allclose(info["factor"], factor, rtol=0, atol=1e-12) and not np.allclose(factor, 1.0)

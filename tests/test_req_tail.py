@@ -78,6 +78,35 @@ def test_en4dvar_req_tail_model_runs_two_passes_and_says_so():
         En4DVarSettings(likelihood="paper", req_tail="model").check()
 
 
+def test_a_given_start_replaces_the_first_pass():
+    """``req_tail_start`` (diagnose's least-squares baseline): no first pass is run; the factors
+    are the model's tail at the given material and Rmax (per bubble), and the record says where
+    they came from; a start that does not match the records is refused."""
+    from imrbayes.ensemble.req_tail import ReqTailStart
+
+    opts = ForwardOptions(bubble="polytropic")
+    obs, truth = camera_obs("none", 2, opts, n_exp=2)
+    req, rmax, theta = _truth(truth)
+    base = make_candidate(BASELINE.key, opts)
+    st = dict(n_ens=12, n_runs=1, n_iter=2, max_iter=2, screen=0, loglik=False, n_draws=1)
+    per_bubble = np.stack([theta, theta * [1.1, 0.9]])
+    start = ReqTailStart(theta_si=per_bubble, rmax_m=rmax, source="test fit")
+    given = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0,
+                        req_tail_start=start)
+    two = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0)
+    info = given.details["req_tail"]
+    _, want = model_tail_req(Runner(base.fm), obs, per_bubble, rmax)
+    assert np.allclose(info["factor"], want, rtol=0, atol=1e-12) and not np.allclose(want, 1.0)
+    assert info["start"]["source"] == "test fit" and "test fit" in info["note"]
+    assert "first_pass_estimate" not in info and "req_tail_first_pass" not in given.details.get(
+        "alternative_estimates", {})
+    # one pass's member runs instead of two passes'
+    assert given.details["member_runs"] < two.details["member_runs"]
+    with pytest.raises(ValueError, match="do not match"):
+        fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0,
+                    req_tail_start=ReqTailStart(theta_si=theta, rmax_m=rmax[:1], source="bad"))
+
+
 def test_req_tail_model_without_measured_tails_is_one_pass():
     """Every Req given (no frames averaged): the first pass is the answer, and it says so."""
     opts = ForwardOptions(bubble="polytropic")

@@ -646,8 +646,10 @@ def _section_conclusion(run) -> str:
                          + (f"the record's tail mean lies {100 * (min(moved) - 1):.1f}–{100 * (max(moved) - 1):.1f} % above Req"
                             if min(moved) > 1 else f"the record's tail mean differs from Req by {100 * (min(moved) - 1):+.1f} "
                                                    f"to {100 * (max(moved) - 1):+.1f} %")
-                         + f" in {len(moved)} of {len(rt.get('factor'))} experiments, a quick first fit placed the "
-                         "material, and the estimate is the fit after it.")
+                         + f" in {len(moved)} of {len(rt.get('factor'))} experiments, "
+                         + (f"the {(rt.get('start') or {}).get('source')} placed the material" if rt.get("start")
+                            else "a quick first fit placed the material")
+                         + ", and the estimate is the fit after it.")
         if len(wins) > 1 and req_from_fit:
             items.append("Each estimated Req's prior came from a whole-record En4D-Var fit of the same data "
                          "(req_prior=en4dvar), so the early windows start from the Req the record's tail decides.")

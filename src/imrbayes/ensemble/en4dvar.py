@@ -79,7 +79,7 @@ from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, rand
 from imrbayes.ensemble.likelihood import (check_choice, frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
                                           predict, record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
-from imrbayes.ensemble.req_tail import model_tail_req
+from imrbayes.ensemble.req_tail import ReqTailStart, model_tail_req
 from imrbayes.ensemble.sampled import WeightedDraws, adaptive_importance, fuse_draws, weighted_quantiles
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
                                       si_covariance)
@@ -389,7 +389,8 @@ def en4dvar_post_unit(unit: Unit, rng) -> dict:
 
 
 def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: int = 0,
-                runner: Runner | None = None, progress=None, execution=None) -> FitResult:
+                runner: Runner | None = None, progress=None, execution=None,
+                req_tail_start: ReqTailStart | None = None) -> FitResult:
     """Fit constant parameters to every experiment and fuse (see module doc).
 
     fm : ForwardModel; obs : Observations; space : ParamSpace; seed: the run seed (each experiment
@@ -397,7 +398,10 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     (:func:`en4dvar_unit`, ``exp=003``: every cycle), then one per experiment after the fusion
     (:func:`en4dvar_post_unit`, ``post=fit/exp=003``: fitted curves, draws' log-likelihood);
     ``execution`` (:class:`~imrbayes.execution.Execution`) says where they run and are checkpointed
-    (default: this process, with ``runner``).
+    (default: this process, with ``runner``). ``req_tail_start``
+    (:class:`~imrbayes.ensemble.req_tail.ReqTailStart`): with ``req_tail=model``, the material and
+    Rmax of an existing fit of the same records at which the model's tail is evaluated, instead of
+    the quick first pass (units tagged ``req=given``); ignored otherwise.
     An experiment whose unit fails is left out of the fusion (counted, reported in
     ``details["failed_units"]`` and the warnings).
     Returns a :class:`FitResult` with per-experiment posteriors in ``per_experiment`` and the
@@ -418,30 +422,42 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
         res.details["req_tail"] = {"method": mode, "setting": s.req_tail, "factor": [1.0] * obs.n_exp, "note": note}
         return res
     t0 = time.perf_counter()
-    first = _fit_en4dvar(fm, obs, space, replace(s, **REQ_TAIL_FIRST_PASS), seed, runner, progress, ex,
-                         tag={"req": "first"})
-    theta = np.array([first.estimate[nm]["mean"] for nm in space.names])
-    rmax = np.array([p["nuisance"]["rmax_m"]["mean"] if "nuisance" in p else r
-                     for p, r in zip(first.per_experiment, obs.rmax_m)])
+    first = None
+    if req_tail_start is not None:
+        theta = np.asarray(req_tail_start.theta_si, dtype=np.float64)
+        rmax = np.asarray(req_tail_start.rmax_m, dtype=np.float64)
+        if theta.shape[-1] != space.n or theta.ndim not in (1, 2) or rmax.shape != (obs.n_exp,):
+            raise ValueError(f"req_tail_start: theta_si {theta.shape} / rmax_m {rmax.shape} do not match "
+                             f"{space.n} parameters and {obs.n_exp} experiments")
+        where, tag_name = f"the {req_tail_start.source}", "given"
+    else:
+        first = _fit_en4dvar(fm, obs, space, replace(s, **REQ_TAIL_FIRST_PASS), seed, runner, progress, ex,
+                             tag={"req": "first"})
+        theta = np.array([first.estimate[nm]["mean"] for nm in space.names])
+        rmax = np.array([p["nuisance"]["rmax_m"]["mean"] if "nuisance" in p else r
+                         for p, r in zip(first.per_experiment, obs.rmax_m)])
+        where, tag_name = "a quick first fit's estimate and Rmax: one cycle, no screening", "model"
     obs2, factor = model_tail_req(runner, obs, theta, rmax)
     if np.all(factor == 1.0):        # every correction failed: the tail means stand
         obs2, tag = obs, None
         note = "the model's tail could not be computed for any experiment: Req's prior is the tail mean"
     else:
-        tag = {"req": "model"}
+        tag = {"req": tag_name}
         note = ("each Req's prior centred where the model's mean over the frames the preprocessing averaged equals "
-                "the data's (model at a quick first fit's estimate and Rmax: one cycle, no screening); the "
-                "estimate is the full fit after it")
+                f"the data's (model at {where}); the estimate is the full fit after it")
     res = _fit_en4dvar(fm, obs2, space, s, seed, runner, progress, ex, tag=tag)
-    res.details["req_tail"] = {
-        "method": "model", "setting": s.req_tail, "factor": factor.tolist(), "req_tail_mean_m": obs.req_m.tolist(),
-        "req_prior_mean_m": obs2.req_m.tolist(),
-        "first_pass_estimate": {nm: first.estimate[nm]["mean"] for nm in space.names},
-        "first_pass_settings": dict(REQ_TAIL_FIRST_PASS), "note": note}
-    # the quick first pass, for the record (not the tail-mean fit of the same data: that has three cycles)
-    res.details.setdefault("alternative_estimates", {})["req_tail_first_pass"] = {
-        nm: first.estimate[nm] for nm in space.names}
-    res.details["member_runs"] += first.details["member_runs"]
+    info = {"method": "model", "setting": s.req_tail, "factor": factor.tolist(), "req_tail_mean_m": obs.req_m.tolist(),
+            "req_prior_mean_m": obs2.req_m.tolist(), "note": note}
+    if first is None:
+        info["start"] = {"source": req_tail_start.source, "theta_si": theta.tolist(), "rmax_m": rmax.tolist()}
+    else:
+        info.update({"first_pass_estimate": {nm: first.estimate[nm]["mean"] for nm in space.names},
+                     "first_pass_settings": dict(REQ_TAIL_FIRST_PASS)})
+        # the quick first pass, for the record (not the tail-mean fit of the same data: that has three cycles)
+        res.details.setdefault("alternative_estimates", {})["req_tail_first_pass"] = {
+            nm: first.estimate[nm] for nm in space.names}
+        res.details["member_runs"] += first.details["member_runs"]
+    res.details["req_tail"] = info
     res.runtime_s = time.perf_counter() - t0
     return res
 

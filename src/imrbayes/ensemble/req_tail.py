@@ -16,11 +16,26 @@ correction is half the truth's), so it is computed at a first fit's estimate, no
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["model_tail_req"]
+__all__ = ["ReqTailStart", "model_tail_req"]
+
+
+@dataclass(frozen=True)
+class ReqTailStart:
+    """Where ``req_tail=model`` evaluates the model's tail when a fit of the same records exists.
+
+    theta_si : (d,) or (E, d) material [SI] (per experiment where the fit has bubble offsets);
+    rmax_m : (E,) fitted Rmax [m]; source : what the fit was (written to the run's details).
+    Given to :func:`imrbayes.ensemble.fit_en4dvar`, it replaces the quick first pass: the
+    correction only needs a material and Rmax near the data's, not that pass's estimate
+    (``diagnose`` has its baseline's least-squares fit of the same model and records).
+    """
+    theta_si: np.ndarray
+    rmax_m: np.ndarray
+    source: str
 
 
 def model_tail_req(runner, obs, theta_si, rmax_m=None, iterations: int = 3) -> tuple:
