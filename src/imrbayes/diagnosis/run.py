@@ -467,7 +467,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                     if rt.get("method") == "model" and moved else "")
         baseline.update({"method": "en4dvar", "estimate": en.estimate, "rmse_en4dvar": en.rmse,
                          "estimate_map": baseline["estimate"], "req_tail": rt or None,
-                         "estimate_note": "En4D-Var of all experiments with fit's defaults, fused across bubbles"
+                         "estimate_note": "En4D-Var of all experiments as `fit --method en4dvar` runs it, fused across bubbles"
                                           f"{req_note}; the candidates are compared with the MAP (estimate_map: "
                                           + baseline["estimate_note"] + ")"})
         warnings += [f"baseline En4D-Var: {w}" for w in en.warnings]
