@@ -105,6 +105,14 @@ def test_a_given_start_replaces_the_first_pass():
     with pytest.raises(ValueError, match="do not match"):
         fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0,
                     req_tail_start=ReqTailStart(theta_si=theta, rmax_m=rmax[:1], source="bad"))
+    # given exactly where the first pass ended, the fit is the two-pass fit: the same factors, the
+    # same unit seeds (one tag for both paths), the same estimate
+    t2 = two.details["req_tail"]
+    same = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0,
+                       req_tail_start=ReqTailStart(theta_si=[t2["first_pass_estimate"][k] for k in ("G", "mu")],
+                                                   rmax_m=np.array(t2["first_pass_rmax_m"]), source="first pass"))
+    assert same.details["req_tail"]["factor"] == t2["factor"]
+    assert all(same.estimate[k]["mean"] == two.estimate[k]["mean"] for k in ("G", "mu"))
 
 
 def test_req_tail_model_without_measured_tails_is_one_pass():

@@ -455,7 +455,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
         info["start"] = {"source": req_tail_start.source, "theta_si": theta.tolist(), "rmax_m": rmax.tolist()}
     else:
         info.update({"first_pass_estimate": {nm: first.estimate[nm]["mean"] for nm in space.names},
-                     "first_pass_settings": dict(REQ_TAIL_FIRST_PASS)})
+                     "first_pass_rmax_m": rmax.tolist(), "first_pass_settings": dict(REQ_TAIL_FIRST_PASS)})
         # the quick first pass, for the record (not the tail-mean fit of the same data: that has three cycles)
         res.details.setdefault("alternative_estimates", {})["req_tail_first_pass"] = {
             nm: first.estimate[nm] for nm in space.names}
