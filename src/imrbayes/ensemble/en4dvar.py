@@ -426,7 +426,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     if req_tail_start is not None:
         theta = np.asarray(req_tail_start.theta_si, dtype=np.float64)
         rmax = np.asarray(req_tail_start.rmax_m, dtype=np.float64)
-        if theta.shape[-1] != space.n or theta.ndim not in (1, 2) or rmax.shape != (obs.n_exp,):
+        if theta.ndim not in (1, 2) or theta.shape[-1] != space.n or rmax.shape != (obs.n_exp,):
             raise ValueError(f"req_tail_start: theta_si {theta.shape} / rmax_m {rmax.shape} do not match "
                              f"{space.n} parameters and {obs.n_exp} experiments")
         where = f"the {req_tail_start.source}"
