@@ -72,7 +72,7 @@ def test_en4dvar_req_tail_model_runs_two_passes_and_says_so():
     # each experiment's reported Req prior is the corrected one
     for p, r in zip(res.per_experiment, info["req_prior_mean_m"]):
         assert p["nuisance"]["req_m"]["prior_mean"] == pytest.approx(r)
-    with pytest.raises(InputError, match="mean' or 'model"):
+    with pytest.raises(InputError, match="'model' or 'inline'"):
         En4DVarSettings(req_tail="fit").check()
     with pytest.raises(InputError, match="default likelihood"):
         En4DVarSettings(likelihood="paper", req_tail="model").check()
@@ -113,6 +113,24 @@ def test_a_given_start_replaces_the_first_pass():
                                                    rmax_m=np.array(t2["first_pass_rmax_m"]), source="first pass"))
     assert same.details["req_tail"]["factor"] == t2["factor"]
     assert all(same.estimate[k]["mean"] == two.estimate[k]["mean"] for k in ("G", "mu"))
+
+
+def test_inline_moves_req_after_the_first_cycle():
+    """``req_tail=inline``: one pass; each unit moves its Req origin after cycle 1 by the model's
+    tail at its own posterior, and the reported Req prior centres are the moved ones."""
+    opts = ForwardOptions(bubble="thermal")
+    obs, truth = camera_obs("none", 0, opts, n_exp=2, noise="none")
+    req, rmax, theta = _truth(truth)
+    base = make_candidate(BASELINE.key, opts)
+    st = dict(n_ens=12, n_runs=2, n_iter=2, max_iter=2, screen=0, loglik=False, n_draws=1)
+    res = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0)
+    info = res.details["req_tail"]
+    assert info["method"] == "inline" and all(f > 1.003 for f in info["factor"])
+    assert np.allclose(np.array(info["req_tail_mean_m"]) / np.array(info["req_prior_mean_m"]), info["factor"])
+    # the moved centres are nearer the truth than the tail means (noise-free thermal records)
+    assert np.all(np.abs(np.array(info["req_prior_mean_m"]) / req - 1) < np.abs(obs.req_m / req - 1))
+    for p, r in zip(res.per_experiment, info["req_prior_mean_m"]):
+        assert p["nuisance"]["req_m"]["prior_mean"] == pytest.approx(r)
 
 
 def test_req_tail_model_without_measured_tails_is_one_pass():

@@ -79,7 +79,7 @@ from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, rand
 from imrbayes.ensemble.likelihood import (check_choice, frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
                                           predict, record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
-from imrbayes.ensemble.req_tail import ReqTailStart, model_tail_req
+from imrbayes.ensemble.req_tail import ReqTailStart, model_tail_req, tail_req
 from imrbayes.ensemble.sampled import WeightedDraws, adaptive_importance, fuse_draws, weighted_quantiles
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
                                       si_covariance)
@@ -163,9 +163,9 @@ class En4DVarSettings:
             raise InputError("bubble_posterior", f"must be 'gaussian' or 'sampled', got {self.bubble_posterior!r}")
         if self.bubble_posterior == "sampled" and s.likelihood != "default":
             raise InputError("bubble_posterior", "'sampled' needs the default likelihood (the paper's keeps the ensemble)")
-        if self.req_tail not in ("auto", "mean", "model"):
-            raise InputError("req_tail", f"must be 'auto', 'mean' or 'model', got {self.req_tail!r}")
-        if self.req_tail == "model" and s.likelihood != "default":
+        if self.req_tail not in ("auto", "mean", "model", "inline"):
+            raise InputError("req_tail", f"must be 'auto', 'mean', 'model' or 'inline', got {self.req_tail!r}")
+        if self.req_tail in ("model", "inline") and s.likelihood != "default":
             raise InputError("req_tail", "'model' needs the default likelihood (the paper's takes Req as known)")
         if not (np.isfinite(self.is_prior_widen) and self.is_prior_widen >= 1.0):
             raise InputError("is_prior_widen", f"must be a number >= 1, got {self.is_prior_widen!r}")
@@ -226,6 +226,7 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
     mean, cov = space.prior_mean.copy(), space.prior_cov.copy()
     cycles = []
     res = None
+    req_factor = 1.0
     default = s.likelihood == "default"
     y, weight = d["y"], d["weight"]
     lik = W = None
@@ -278,6 +279,19 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         infl = rtps(res.prior_anoms, res.anoms, s.rtps)
         mean = res.mean[0].copy()
         cov = np.einsum("gnd,gne->gde", infl, infl)[0]
+        if r == 0 and default and d.get("req_tail_t") is not None and 2 in active and s.n_runs > 1:
+            # req_tail=inline: Req's origin moves to Req_hat / c, c the model's tail at this bubble's
+            # cycle-1 posterior mean; that posterior is moved as a linear-Gaussian one would be by
+            # the shift of Req's prior centre (m' = m + C[:, rho] dm0 / sd0^2), then cycles 2..
+            j = n_p + int(np.flatnonzero(active == 2)[0])
+            a = mean[n_p + int(np.flatnonzero(active == 0)[0])] if 0 in active else 0.0
+            new_req, c = tail_req(runner, space.to_si(mean[None, :n_p]), np.array([rmax * (1.0 + a)]),
+                                  np.array([req]), [np.asarray(d["req_tail_t"], dtype=np.float64)])
+            if c[0] != 1.0:
+                shift = float(np.log(req / new_req[0]))        # rho' = rho + log(req / req')
+                mean[j] += shift
+                mean -= res.cov[0][:, j] * shift / nu_sd[2] ** 2
+                req_factor, req = float(c[0]), float(new_req[0])
         used = np.isfinite(res.cost[0])
         cycles.append({"cycle": r + 1, "cost": res.cost[0][used], "n_failed": res.n_failed[0][used],
                        "n_redrawn": int(res.n_redrawn[0]), "stopped": bool(res.stopped[0]),
@@ -314,7 +328,8 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         sampled = {"ess": dr.ess, "n_draws": int(dr.x.shape[0]), "x": thin.x[:, :n_p], "w": thin.w}
     # the parameters' marginals (the nuisances are reported per experiment)
     out = {"mean": pm[:n_p], "cov": pc[:n_p, :n_p], "prior_mean": qm[:n_p], "prior_cov": qc[:n_p, :n_p],
-           "stopped": bool(res.stopped[0]), "cycles": cycles, "sampled": sampled}
+           "stopped": bool(res.stopped[0]), "cycles": cycles, "sampled": sampled, "req_m": float(req),
+           "req_factor": req_factor}
     if sampled is not None:
         out["ensemble_mean"], out["ensemble_cov"] = res.mean[0][:n_p], res.cov[0][:n_p, :n_p]
         out["ensemble_prior_mean"], out["ensemble_prior_cov"] = res.prior_ensemble[0].mean(axis=0)[:n_p], (qa.T @ qa)[:n_p, :n_p]
@@ -414,9 +429,18 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     runner = runner or Runner(fm)
     mode = req_tail_mode(s, fm)
     tails = any(t.size > 0 for t in (obs.req_tail_t or []))
-    if mode != "model" or not tails:
+    if mode == "inline" and tails:
+        res = _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag={"req": "inline"}, inline=True)
+        res.details["req_tail"] = {
+            "method": "inline", "setting": s.req_tail, "factor": res.details.pop("req_factor"),
+            "req_tail_mean_m": obs.req_m.tolist(), "req_prior_mean_m": res.details.pop("req_prior_mean_m"),
+            "note": "each Req's origin moved after cycle 1 to where the model's mean over the frames the preprocessing "
+                    "averaged equals the data's (model at that bubble's cycle-1 posterior mean), that posterior "
+                    "shifted as a linear-Gaussian one would be; one pass"}
+        return res
+    if mode not in ("model", "inline") or not tails:
         res = _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex)
-        note = ("each Req's prior centred on the preprocessing's value" if mode != "model" else
+        note = ("each Req's prior centred on the preprocessing's value" if mode == "mean" else
                 "no experiment's Req came from its record's tail (given, or no tail measured): nothing to re-centre, "
                 "one pass")
         res.details["req_tail"] = {"method": mode, "setting": s.req_tail, "factor": [1.0] * obs.n_exp, "note": note}
@@ -465,7 +489,7 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     return res
 
 
-def _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag=None) -> FitResult:
+def _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag=None, inline=False) -> FitResult:
     """:func:`fit_en4dvar` with Req's prior as ``obs`` has it; ``tag`` a prefix of the unit ids (a
     second pass must not reuse the first's checkpoints)."""
     tag = tag or {}
@@ -482,6 +506,7 @@ def _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag=None) -> Fit
     rep = ex.run([Unit(unit_id(**tag, exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
                                         "y": y[n], "weight": weight, "noise_var": noise_var[n],
                                         "nuisance_sd": nuisance_prior_sd(obs, n),
+                                        "req_tail_t": obs.req_tail_t[n] if inline and obs.req_tail_t else None,
                                         "frames": None if obs.frame_t is None else
                                         frame_operator(obs.frame_t[n], t_eval[1:])})
                   for n in range(n_exp)], en4dvar_unit, seed, desc="en4dvar experiments")
@@ -499,6 +524,16 @@ def _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag=None) -> Fit
     if not ok:
         raise RuntimeError(f"every experiment failed (e.g. {failed_units[0]['error']})")
     R = [rep.results[unit_id(**tag, exp=n)] for n in ok]
+    req_factor = np.ones(n_exp)
+    if inline:
+        # the units moved Req's origin: every later step (reported nuisances, fitted curves, the
+        # MCMC window) reads the moved Req
+        req_new = obs.req_m.copy()
+        for n, r in zip(ok, R):
+            req_new[n], req_factor[n] = float(r.get("req_m", req_new[n])), float(r.get("req_factor", 1.0))
+        sd = obs.nuisance_sd.copy()
+        sd[:, 2] *= req_new / obs.req_m
+        obs = replace(obs, req_m=req_new, nuisance_sd=sd)
     member_runs = sum(int(r["member_runs"]) for r in R)
     failed_runs = sum(int(r["failed_member_runs"]) for r in R)
     cycles = []
@@ -634,6 +669,7 @@ def _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag=None) -> Fit
                "fused_cov_si": si_covariance(space, fus.mean, fus.cov).tolist(),
                "parameter_space": space.describe(),
                "member_runs": member_runs, "failed_member_runs": failed_runs,
+               **({"req_factor": req_factor.tolist(), "req_prior_mean_m": obs.req_m.tolist()} if inline else {}),
                "failed_units": failed_units, "experiments_used": [obs.names[n] for n in ok],
                "gauss_newton": "normalised anomalies: H = I + (1/N_t) sum Y'^T P^-1 Y', grad = w - ...; identical "
                                "iterates to the paper's (N_En - 1) form with unnormalised anomalies",

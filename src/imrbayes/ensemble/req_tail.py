@@ -20,7 +20,37 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["ReqTailStart", "model_tail_req"]
+__all__ = ["ReqTailStart", "model_tail_req", "tail_req"]
+
+
+def tail_req(runner, theta_si, rmax_m, req_hat_m, tails, iterations: int = 3) -> tuple:
+    """Req_hat / c per experiment: theta_si (d,) or (E, d) [SI], rmax_m and req_hat_m (E,) [m] (the
+    tail means), tails: E arrays of the frames averaged [t*]. Returns ``(req (E,) [m], c (E,))``, c = 1
+    (and Req_hat kept) where a record has no tail or a solve failed."""
+    req_hat = np.asarray(req_hat_m, dtype=np.float64)
+    E = req_hat.size
+    theta = np.broadcast_to(np.asarray(theta_si, dtype=np.float64), (E, np.shape(theta_si)[-1])).copy()
+    rmax = np.asarray(rmax_m, dtype=np.float64)
+    use = np.array([t.size > 0 and np.all(t > 0) for t in tails])
+    factor = np.ones(E)
+    req = req_hat.copy()
+    if use.any():
+        idx = np.flatnonzero(use)
+        J = max(tails[i].size for i in idx)
+        T = np.array([np.concatenate([np.sort(tails[i]), np.full(J - tails[i].size, np.max(tails[i]))]) for i in idx])
+        n = np.array([tails[i].size for i in idx])
+        cur = req_hat[idx].copy()
+        ok = np.ones(idx.size, dtype=bool)
+        for _ in range(iterations):
+            out = runner.simulate(theta[idx], rmax[idx], cur, T)
+            R = np.asarray(out.R_star, dtype=np.float64)
+            mean = np.array([R[k, :n[k]].mean() for k in range(idx.size)]) * rmax[idx]
+            c = mean / cur
+            ok &= ~np.asarray(out.failed, dtype=bool) & np.isfinite(c) & (c > 0.5) & (c < 2.0)
+            cur = np.where(ok, req_hat[idx] / np.where(ok, c, 1.0), req_hat[idx])
+        factor[idx] = np.where(ok, req_hat[idx] / cur, 1.0)
+        req[idx] = cur
+    return req, factor
 
 
 @dataclass(frozen=True)
@@ -50,28 +80,8 @@ def model_tail_req(runner, obs, theta_si, rmax_m=None, iterations: int = 3) -> t
     scaled with it) and ``c`` (E,) [-] (1 where the record has no measured tail or a solve failed).
     """
     E = obs.n_exp
-    theta = np.broadcast_to(np.asarray(theta_si, dtype=np.float64), (E, np.shape(theta_si)[-1])).copy()
     rmax = np.asarray(obs.rmax_m if rmax_m is None else rmax_m, dtype=np.float64)
-    tails = obs.req_tail_t or [np.empty(0)] * E
-    use = np.array([t.size > 0 and np.all(t > 0) for t in tails])
-    factor = np.ones(E)
-    req = obs.req_m.copy()
-    if use.any():
-        idx = np.flatnonzero(use)
-        J = max(tails[i].size for i in idx)
-        T = np.array([np.concatenate([np.sort(tails[i]), np.full(J - tails[i].size, np.max(tails[i]))]) for i in idx])
-        n = np.array([tails[i].size for i in idx])
-        cur = obs.req_m[idx].copy()
-        ok = np.ones(idx.size, dtype=bool)
-        for _ in range(iterations):
-            out = runner.simulate(theta[idx], rmax[idx], cur, T)
-            R = np.asarray(out.R_star, dtype=np.float64)
-            mean = np.array([R[k, :n[k]].mean() for k in range(idx.size)]) * rmax[idx]
-            c = mean / cur
-            ok &= ~np.asarray(out.failed, dtype=bool) & np.isfinite(c) & (c > 0.5) & (c < 2.0)
-            cur = np.where(ok, obs.req_m[idx] / np.where(ok, c, 1.0), obs.req_m[idx])
-        factor[idx] = np.where(ok, obs.req_m[idx] / cur, 1.0)
-        req[idx] = cur
+    req, factor = tail_req(runner, theta_si, rmax, obs.req_m, obs.req_tail_t or [np.empty(0)] * E, iterations)
     sd = obs.nuisance_sd.copy()
     sd[:, 2] *= req / obs.req_m           # the same relative uncertainty about the corrected value
     return replace(obs, req_m=req, nuisance_sd=sd), factor
