@@ -494,6 +494,11 @@ def test_report_says_when_reqs_prior_came_from_the_models_tail(runs, tmp_path):
     concl = _text(_section(_report(one, "--quiet") and (one / "report.html").read_text(), "conclusion"))
     assert "centred by the model's own tail" in concl and "1.2–4.7 % above Req in 2 of 3" in concl
     assert "default for the thermal bubble" in concl
+    _edit_summary(one, lambda s: s["details"].update(req_tail={"method": "inline", "setting": "auto",
+                                                                "factor": [1.012, 1.0, 1.047]}))
+    concl = _text(_section(_report(one, "--quiet") and (one / "report.html").read_text(), "conclusion"))
+    assert "req_tail=inline, the default for the thermal bubble" in concl and "1.2–4.7 % above Req in 2 of 3" in concl
+    assert "first-cycle posterior placed the material" in concl and "quick first fit" not in concl
     _edit_summary(one, lambda s: s["details"].update(req_tail={"method": "mean", "setting": "auto", "factor": [1.0] * 3}))
     concl = _text(_section(_report(one, "--quiet") and (one / "report.html").read_text(), "conclusion"))
     assert "model's own tail" not in concl

@@ -23,9 +23,11 @@ def test_every_method_declares_the_protocol():
     e4 = METHODS["en4dvar"].settings_class
     assert METHODS["en4dvar"].n_forward_runs(e4(req_tail="mean"), 2, 120) == \
         3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2
-    # req_tail=auto (thermal) / model: the quick first pass (one cycle, no screen) before the fit
-    assert METHODS["en4dvar"].n_forward_runs(e4(), 2, 120) == \
+    # req_tail=model: the quick first pass (one cycle, no screen) before the fit; auto (thermal:
+    # inline): the model's tail after cycle 1 only
+    assert METHODS["en4dvar"].n_forward_runs(e4(req_tail="model"), 2, 120) == \
         3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2 + 5 * 48 * 2 + 3 * 2
+    assert METHODS["en4dvar"].n_forward_runs(e4(), 2, 120) == 3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2 + 3 * 2
     cls = METHODS["mienks"].settings_class          # default likelihood: a pilot pass, then the reported one
     assert METHODS["mienks"].n_forward_runs(cls(), 2, 120) == 2 * 18 * 6 * 48 * 2
     assert METHODS["mienks"].n_forward_runs(cls(likelihood="paper"), 2, 120) == 18 * 6 * 48 * 2

@@ -113,6 +113,14 @@ def test_a_given_start_replaces_the_first_pass():
                                                    rmax_m=np.array(t2["first_pass_rmax_m"]), source="first pass"))
     assert same.details["req_tail"]["factor"] == t2["factor"]
     assert all(same.estimate[k]["mean"] == two.estimate[k]["mean"] for k in ("G", "mu"))
+    # req_tail=inline (the thermal default) with a start, or with one cycle (nothing to move Req
+    # before), is this path: the same fits exactly
+    inl = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0, req_tail_start=start)
+    assert inl.details["req_tail"]["method"] == "model" and inl.details["req_tail"]["factor"] == info["factor"]
+    assert all(inl.estimate[k]["mean"] == given.estimate[k]["mean"] for k in ("G", "mu"))
+    one = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0)
+    assert one.details["req_tail"]["factor"] == t2["factor"]
+    assert all(one.estimate[k]["mean"] == two.estimate[k]["mean"] for k in ("G", "mu"))
 
 
 def test_inline_moves_req_after_the_first_cycle():
@@ -131,6 +139,11 @@ def test_inline_moves_req_after_the_first_cycle():
     assert np.all(np.abs(np.array(info["req_prior_mean_m"]) / req - 1) < np.abs(obs.req_m / req - 1))
     for p, r in zip(res.per_experiment, info["req_prior_mean_m"]):
         assert p["nuisance"]["req_m"]["prior_mean"] == pytest.approx(r)
+    # the MCMC check's bubbles start from the moved Req too
+    from imrbayes.mcmc.fit import fit_window_specs
+
+    (spec,) = fit_window_specs(base.fm, obs, base.space, res)
+    np.testing.assert_allclose(spec.target.start.req_m, info["req_prior_mean_m"], rtol=1e-12)
 
 
 def test_req_tail_model_without_measured_tails_is_one_pass():
@@ -148,7 +161,7 @@ def test_req_tail_model_without_measured_tails_is_one_pass():
 
 
 def test_auto_places_req_by_the_model_only_for_the_thermal_bubble():
-    """``req_tail=auto`` (the default): ``model`` with the thermal bubble and the default likelihood
+    """``req_tail=auto`` (the default): ``inline`` with the thermal bubble and the default likelihood
     (its tail mean is high), ``mean`` with the polytropic bubble (settled) or the paper's likelihood
     (Req known); an explicit choice is kept."""
     from imrbayes.ensemble.en4dvar import req_tail_mode
@@ -156,7 +169,7 @@ def test_auto_places_req_by_the_model_only_for_the_thermal_bubble():
 
     thermal, poly = ForwardModel("nhkv"), ForwardModel("nhkv", options={"bubble": "polytropic"})
     assert En4DVarSettings().req_tail == "auto"
-    assert req_tail_mode(En4DVarSettings(), thermal) == "model"
+    assert req_tail_mode(En4DVarSettings(), thermal) == "inline"
     assert req_tail_mode(En4DVarSettings(), poly) == "mean"
     assert req_tail_mode(En4DVarSettings(likelihood="paper"), thermal) == "mean"
     assert req_tail_mode(En4DVarSettings(req_tail="mean"), thermal) == "mean"

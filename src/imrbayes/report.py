@@ -641,15 +641,19 @@ def _section_conclusion(run) -> str:
         req_from_fit = ((s.get("details") or {}).get("req_prior") or {}).get("method") == "en4dvar"
         rt = (s.get("details") or {}).get("req_tail") or {}
         moved = [f for f in (_fnum(x) for x in rt.get("factor") or []) if math.isfinite(f) and f != 1.0]
-        if rt.get("method") == "model" and moved:
-            items.append(f"Req's prior was centred by the model's own tail (req_tail=model{', the default for the thermal bubble' if rt.get('setting') == 'auto' else ''}): "
+        if rt.get("method") in ("model", "inline") and moved:
+            inline = rt.get("method") == "inline"
+            items.append(f"Req's prior was centred by the model's own tail (req_tail={rt.get('method')}"
+                         f"{', the default for the thermal bubble' if rt.get('setting') == 'auto' else ''}): "
                          + (f"the record's tail mean lies {100 * (min(moved) - 1):.1f}–{100 * (max(moved) - 1):.1f} % above Req"
                             if min(moved) > 1 else f"the record's tail mean differs from Req by {100 * (min(moved) - 1):+.1f} "
                                                    f"to {100 * (max(moved) - 1):+.1f} %")
                          + f" in {len(moved)} of {len(rt.get('factor'))} experiments, "
-                         + (f"the {(rt.get('start') or {}).get('source')} placed the material" if rt.get("start")
-                            else "a quick first fit placed the material")
-                         + ", and the estimate is the fit after it.")
+                         + ("each experiment's first-cycle posterior placed the material and its later cycles fitted "
+                            "with Req moved" if inline else
+                            (f"the {(rt.get('start') or {}).get('source')} placed the material" if rt.get("start")
+                             else "a quick first fit placed the material") + ", and the estimate is the fit after it")
+                         + ".")
         if len(wins) > 1 and req_from_fit:
             items.append("Each estimated Req's prior came from a whole-record En4D-Var fit of the same data "
                          "(req_prior=en4dvar), so the early windows start from the Req the record's tail decides.")

@@ -55,7 +55,8 @@ def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
     if meth.name == "en4dvar":      # each experiment's cycles, then its fitted curves (fast)
         from imrbayes.ensemble.en4dvar import req_tail_mode
 
-        if req_tail_mode(settings, fm) == "model":
+        mode = req_tail_mode(settings, fm)
+        if mode == "model" or (mode == "inline" and settings.n_runs < 2):       # inline runs as model then
             return 4 * n_exp, (f"a quick pass to place Req by the model's tail, then the fit: 2 x {n_exp} experiments "
                                "and their fitted curves")
         return 2 * n_exp, f"{n_exp} experiments, then their fitted curves"
@@ -107,9 +108,10 @@ def _load_config(path) -> dict:
               help="Method setting (en4dvar: n_ens, n_iter, n_runs, rtps, t_end [t*], fusion=likelihood|prior, "
                    "obs_weight=mean|sum, bubble_posterior=gaussian|sampled (sampled: each bubble's posterior by importance "
                    "sampling, is_rounds x is_draws more forward runs per bubble, under the prior widened "
-                   "is_prior_widen times; its calibration on camera data: docs/results.md), req_tail=auto|mean|model "
+                   "is_prior_widen times; its calibration on camera data: docs/results.md), req_tail=auto|mean|model|inline "
                    "(model: each Req's prior centred by the model's own tail at a quick first fit, then the fit; "
-                   "auto, the default: model with the thermal bubble); "
+                   "inline: one pass, each Req moved by the model's tail after cycle 1; auto, the default: inline "
+                   "with the thermal bubble); "
                    "mienks: L, h [samples], n_ens, n_iter, rtps, likelihood=default|paper, adapt (default likelihood: "
                    "pilot pass), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
                    "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "

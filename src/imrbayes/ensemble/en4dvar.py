@@ -110,8 +110,12 @@ class En4DVarSettings:
     only): ``mean`` (each Req's prior centred on the preprocessing's tail mean), ``model`` (a quick
     first fit -- one cycle, no screening -- then each Req centred where the model's own mean over the
     same frames matches the data's at that fit's estimate, then the fit:
-    :mod:`imrbayes.ensemble.req_tail`; ~1.25x the cost) or ``auto`` (the default: ``model`` with the
-    thermal bubble, whose records still settle from above at their end, ``mean`` otherwise).
+    :mod:`imrbayes.ensemble.req_tail`; ~1.25x the cost), ``inline`` (one pass: after cycle 1 each
+    experiment moves its Req origin to where the model's tail at its own cycle-1 posterior mean
+    matches the data's, shifting that posterior as a linear-Gaussian one would be, then cycles 2..;
+    the same answers as ``model`` within 0.1 sd median on thermal camera records, docs/results.md)
+    or ``auto`` (the default: ``inline`` with the thermal bubble, whose records still settle from
+    above at their end, ``mean`` otherwise).
     """
 
     n_ens: int = 48
@@ -175,15 +179,16 @@ class En4DVarSettings:
 
 
 def req_tail_mode(settings: En4DVarSettings, fm) -> str:
-    """``mean`` or ``model``: what ``settings.req_tail`` means for forward model ``fm``. ``auto`` is
-    ``model`` with the thermal bubble and the default likelihood: its record's tail mean is high
-    (+2.3 % on 1 Mfps camera records to t* = 3.6, docs/results.md), while a polytropic bubble has
-    settled (+0.3 %) and the paper's likelihood takes Req as known."""
+    """``mean``, ``model`` or ``inline``: what ``settings.req_tail`` means for forward model ``fm``.
+    ``auto`` is ``inline`` with the thermal bubble and the default likelihood: its record's tail mean
+    is high (+2.3 % on 1 Mfps camera records to t* = 3.6, docs/results.md), while a polytropic bubble
+    has settled (+0.3 %) and the paper's likelihood takes Req as known. (:func:`fit_en4dvar` runs
+    ``inline`` as ``model`` when given a start or one cycle.)"""
     s = settings.resolved()
     if s.req_tail != "auto":
         return s.req_tail
     thermal = getattr(getattr(fm, "options", None), "bubble", "thermal") == "thermal"
-    return "model" if thermal and s.likelihood == "default" else "mean"
+    return "inline" if thermal and s.likelihood == "default" else "mean"
 
 
 #: the first pass of ``req_tail=model``: it only has to place the material near the data's (the
@@ -414,9 +419,10 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     (:func:`en4dvar_post_unit`, ``post=fit/exp=003``: fitted curves, draws' log-likelihood);
     ``execution`` (:class:`~imrbayes.execution.Execution`) says where they run and are checkpointed
     (default: this process, with ``runner``). ``req_tail_start``
-    (:class:`~imrbayes.ensemble.req_tail.ReqTailStart`): with ``req_tail=model``, the material and
-    Rmax of an existing fit of the same records at which the model's tail is evaluated, instead of
-    the quick first pass; ignored otherwise.
+    (:class:`~imrbayes.ensemble.req_tail.ReqTailStart`): with ``req_tail=model`` or ``inline``, the
+    material and Rmax of an existing fit of the same records at which the model's tail is evaluated
+    once, before the one pass (instead of the quick first pass or the move after cycle 1); ignored
+    otherwise.
     An experiment whose unit fails is left out of the fusion (counted, reported in
     ``details["failed_units"]`` and the warnings).
     Returns a :class:`FitResult` with per-experiment posteriors in ``per_experiment`` and the
@@ -429,6 +435,9 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     runner = runner or Runner(fm)
     mode = req_tail_mode(s, fm)
     tails = any(t.size > 0 for t in (obs.req_tail_t or []))
+    if mode == "inline" and (req_tail_start is not None or s.n_runs < 2):
+        # a given start already places Req in one pass; one cycle leaves no cycle to move Req before
+        mode = "model"
     if mode == "inline" and tails:
         res = _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag={"req": "inline"}, inline=True)
         res.details["req_tail"] = {
@@ -796,8 +805,10 @@ class En4DVar(InferenceMethod):
             # (iterations past n_iter up to max_iter are not counted: the bar is an estimate)
             if s.screen:    # the screen, and at most one more start in cycle 1 (scored by one run per start)
                 n += (s.screen + 1 + s.n_iter * s.n_ens + 2) * n_exp
-        if s.likelihood == "default" and getattr(s, "req_tail", "mean") in ("model", "auto"):
-            n += s.n_iter * s.n_ens * n_exp + 3 * n_exp     # req_tail's quick first pass (auto: thermal only)
+        if s.likelihood == "default" and getattr(s, "req_tail", "mean") == "model":
+            n += s.n_iter * s.n_ens * n_exp + 3 * n_exp     # req_tail's quick first pass
+        elif s.likelihood == "default" and getattr(s, "req_tail", "mean") in ("inline", "auto"):
+            n += 3 * n_exp      # the model's tail after cycle 1 (auto: thermal only)
         return n
 
     @staticmethod
