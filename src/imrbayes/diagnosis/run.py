@@ -448,9 +448,9 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         say("baseline En4D-Var")
         from imrbayes.ensemble import En4DVarSettings, fit_en4dvar
         from imrbayes.ensemble.req_tail import ReqTailStart
-        # with req_tail=model (the thermal default) the model's tail is evaluated at the least-squares
-        # baseline of the same model and records, each bubble with its own material offsets and Rmax:
-        # En4D-Var's own quick first pass would only re-estimate them (37 s of 162 on stiff PA 1-5)
+        # with the thermal default (req_tail=auto: inline, run as model when given a start) the model's
+        # tail is evaluated once at the least-squares baseline of the same model and records, each
+        # bubble with its own material offsets and Rmax: a first pass or cycle would only re-estimate them
         zz = np.repeat(full.z[None], obs.n_exp, axis=0)
         if full.nu.shape[1] > 3:
             zz[:, :2] += full.nu[:, 3:5]
