@@ -76,6 +76,8 @@ def test_en4dvar_req_tail_model_runs_two_passes_and_says_so():
         En4DVarSettings(req_tail="fit").check()
     with pytest.raises(InputError, match="default likelihood"):
         En4DVarSettings(likelihood="paper", req_tail="model").check()
+    with pytest.raises(InputError, match="'inline' needs the default likelihood"):
+        En4DVarSettings(likelihood="paper", req_tail="inline").check()
 
 
 def test_a_given_start_replaces_the_first_pass():

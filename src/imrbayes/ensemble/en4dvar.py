@@ -170,7 +170,7 @@ class En4DVarSettings:
         if self.req_tail not in ("auto", "mean", "model", "inline"):
             raise InputError("req_tail", f"must be 'auto', 'mean', 'model' or 'inline', got {self.req_tail!r}")
         if self.req_tail in ("model", "inline") and s.likelihood != "default":
-            raise InputError("req_tail", "'model' needs the default likelihood (the paper's takes Req as known)")
+            raise InputError("req_tail", f"'{self.req_tail}' needs the default likelihood (the paper's takes Req as known)")
         if not (np.isfinite(self.is_prior_widen) and self.is_prior_widen >= 1.0):
             raise InputError("is_prior_widen", f"must be a number >= 1, got {self.is_prior_widen!r}")
         if self.is_draws < 50 or self.is_rounds < 1:
