@@ -1,4 +1,4 @@
-"""Req from the model's own tail (``--set req_tail=model``, En4D-Var).
+"""Req from the model's own tail (``--set req_tail=model`` or ``inline``, En4D-Var).
 
 Preprocessing estimates Req as the mean of a record's last frames. A bubble whose contents are
 still cooling (the thermal model) oscillates about a mean that lies *above* Req there and settles
@@ -11,7 +11,9 @@ lies: with a material estimate theta and each experiment's Rmax,
 
 over the same frames t*_j (:attr:`Observations.req_tail_t`), iterated because c depends on Req
 a little. c depends on mu (damping sets how far the rebounds have decayed: at 3x the true mu the
-correction is half the truth's), so it is computed at a first fit's estimate, not the prior's.
+correction is half the truth's), so it is computed at a fit's estimate, not the prior's: a quick
+first fit of all experiments (``model``, :func:`model_tail_req`), or each experiment's own
+posterior after its first cycle inside its unit (``inline``, the thermal default; :func:`tail_req`).
 """
 
 from __future__ import annotations
