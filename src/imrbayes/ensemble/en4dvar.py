@@ -79,7 +79,7 @@ from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, rand
 from imrbayes.ensemble.likelihood import (check_choice, frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
                                           predict, record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
-from imrbayes.ensemble.req_tail import ReqTailStart, model_tail_req, tail_req
+from imrbayes.ensemble.req_tail import ReqTailStart, model_tail_req, tail_req, with_req
 from imrbayes.ensemble.sampled import WeightedDraws, adaptive_importance, fuse_draws, weighted_quantiles
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
                                       si_covariance)
@@ -540,9 +540,7 @@ def _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag=None, inline
         req_new = obs.req_m.copy()
         for n, r in zip(ok, R):
             req_new[n], req_factor[n] = float(r.get("req_m", req_new[n])), float(r.get("req_factor", 1.0))
-        sd = obs.nuisance_sd.copy()
-        sd[:, 2] *= req_new / obs.req_m
-        obs = replace(obs, req_m=req_new, nuisance_sd=sd)
+        obs = with_req(obs, req_new)
     member_runs = sum(int(r["member_runs"]) for r in R)
     failed_runs = sum(int(r["failed_member_runs"]) for r in R)
     cycles = []

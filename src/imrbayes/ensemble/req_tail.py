@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["ReqTailStart", "model_tail_req", "tail_req"]
+__all__ = ["ReqTailStart", "model_tail_req", "tail_req", "with_req"]
 
 
 def tail_req(runner, theta_si, rmax_m, req_hat_m, tails, iterations: int = 3) -> tuple:
@@ -84,6 +84,11 @@ def model_tail_req(runner, obs, theta_si, rmax_m=None, iterations: int = 3) -> t
     E = obs.n_exp
     rmax = np.asarray(obs.rmax_m if rmax_m is None else rmax_m, dtype=np.float64)
     req, factor = tail_req(runner, theta_si, rmax, obs.req_m, obs.req_tail_t or [np.empty(0)] * E, iterations)
+    return with_req(obs, req), factor
+
+
+def with_req(obs, req_m):
+    """``obs`` with each Req's prior centred at ``req_m`` (E,) [m], keeping its relative sd."""
     sd = obs.nuisance_sd.copy()
-    sd[:, 2] *= req / obs.req_m           # the same relative uncertainty about the corrected value
-    return replace(obs, req_m=req, nuisance_sd=sd), factor
+    sd[:, 2] *= req_m / obs.req_m           # the same relative uncertainty about the corrected value
+    return replace(obs, req_m=np.asarray(req_m, dtype=np.float64), nuisance_sd=sd)
