@@ -20,14 +20,19 @@ def test_every_method_declares_the_protocol():
     assert METHODS["en4dvar"].n_forward_runs(paper, 2, 120) == 3 * 5 * 48 * 2 + 4 + 96
     # the default likelihood adds one run per experiment per cycle (the residual at the centre) and the
     # screened start (the prior mean and 96 draws per experiment; at most one more start in cycle 1)
+    # (and 24 members, not the paper's 48)
     e4 = METHODS["en4dvar"].settings_class
     assert METHODS["en4dvar"].n_forward_runs(e4(req_tail="mean"), 2, 120) == \
-        3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2
+        3 * 5 * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2
     # req_tail=model: the quick first pass (one cycle, no screen) before the fit; auto (thermal:
     # inline): the model's tail after cycle 1 only
     assert METHODS["en4dvar"].n_forward_runs(e4(req_tail="model"), 2, 120) == \
-        3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2 + 5 * 48 * 2 + 3 * 2
-    assert METHODS["en4dvar"].n_forward_runs(e4(), 2, 120) == 3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2 + 3 * 2
+        3 * 5 * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2 + 5 * 24 * 2 + 3 * 2
+    assert METHODS["en4dvar"].n_forward_runs(e4(), 2, 120) == 3 * 5 * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2 + 3 * 2
+    assert METHODS["en4dvar"].n_forward_runs(e4(n_ens=48, req_tail="mean"), 2, 120) == \
+        3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2
+    assert e4().resolved().n_ens == 24 and e4(likelihood="paper").resolved().n_ens == 48
+    assert e4(n_ens=12, likelihood="paper").resolved().n_ens == 12
     cls = METHODS["mienks"].settings_class          # default likelihood: a pilot pass, then the reported one
     assert METHODS["mienks"].n_forward_runs(cls(), 2, 120) == 2 * 18 * 6 * 48 * 2
     assert METHODS["mienks"].n_forward_runs(cls(likelihood="paper"), 2, 120) == 18 * 6 * 48 * 2

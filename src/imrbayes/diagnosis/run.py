@@ -53,7 +53,7 @@ class DiagnoseSettings:
     loeo_all: bool = False
     n_draws: int = 100
     alpha: float = 0.05
-    en4dvar_n_ens: int = 48
+    en4dvar_n_ens: int | None = None     # None: fit's default (en4dvar.DEFAULT_N_ENS)
     en4dvar_n_runs: int = 3
     max_collapses: int = 3
     # MIEnKS-MDA G(t), mu(t) slope statistic in the check: off by default -- half of every thermal

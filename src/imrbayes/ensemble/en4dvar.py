@@ -90,11 +90,18 @@ from imrbayes.forward import Runner, fm_spec, register_runner, runner_for
 __all__ = ["En4DVar", "En4DVarSettings", "fit_en4dvar", "en4dvar_unit", "en4dvar_post_unit", "fitting_window_posterior"]
 
 
+#: members per experiment: the default likelihood's, and the paper's (``likelihood="paper"``)
+DEFAULT_N_ENS, PAPER_N_ENS = 24, 48
+
+
 @dataclass
 class En4DVarSettings:
     """En4D-Var settings (paper values by default).
 
-    n_ens: members per experiment; n_iter: Gauss–Newton iterations per cycle; n_runs: cycles
+    n_ens: members per experiment (default: 24 with the default likelihood, the paper's 48 with
+    ``likelihood="paper"``: the drawn ensembles have exact moments and the regression linearisation
+    needs only N > d + 1, so halving N halves the cost and leaves each bubble's posterior where it
+    was, docs/results.md "Half the members"); n_iter: Gauss–Newton iterations per cycle; n_runs: cycles
     (restarts); rtps: relaxation-to-prior-spread factor a; t_end: last fitted t* (None = whole
     record); exact_moments: see module doc; n_draws: draws of the fused posterior written to
     posterior.nc (with their pointwise log-likelihood if ``loglik``); fusion, obs_weight: see module doc;
@@ -118,7 +125,7 @@ class En4DVarSettings:
     above at their end, ``mean`` otherwise).
     """
 
-    n_ens: int = 48
+    n_ens: int | None = None
     n_iter: int = 5
     n_runs: int = 3
     rtps: float = 0.7
@@ -139,16 +146,17 @@ class En4DVarSettings:
 
     def resolved(self) -> "En4DVarSettings":
         """The settings with the likelihood's own choices filled in (``paper``: averaged cost and the
-        prior-corrected fusion unless set)."""
+        prior-corrected fusion unless set) and the members per experiment (24; the paper's 48)."""
         if self.likelihood == "paper":
-            return replace(self, fusion=self.fusion or "prior", obs_weight=self.obs_weight or "mean")
-        return self
+            return replace(self, fusion=self.fusion or "prior", obs_weight=self.obs_weight or "mean",
+                           n_ens=self.n_ens or PAPER_N_ENS)
+        return self if self.n_ens else replace(self, n_ens=DEFAULT_N_ENS)
 
     def check(self):
         check_choice(self.likelihood, self.fusion, self.obs_weight)
         s = self.resolved()
-        if self.n_ens < 3:
-            raise InputError("n_ens", f"needs at least 3 members, got {self.n_ens}")
+        if s.n_ens < 3:
+            raise InputError("n_ens", f"needs at least 3 members, got {s.n_ens}")
         if self.n_iter < 1 or self.n_runs < 1:
             raise InputError("n_iter/n_runs", "must be at least 1")
         if not 0.0 <= self.rtps <= 1.0:
@@ -796,7 +804,7 @@ class En4DVar(InferenceMethod):
 
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
-        s = settings        # cycles x iterations x members, then the fitted curves and the draws
+        s = settings.resolved()     # cycles x iterations x members, then the fitted curves and the draws
         n = s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
         if s.likelihood == "default":       # the observation model: one run per cycle
             n += s.n_runs * n_exp
