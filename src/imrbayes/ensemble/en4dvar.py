@@ -287,6 +287,7 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
             J = posterior_cost(ev, y, both.mean, mean, cov)
             g = int(np.argmin(J))
             screen_info.update({"cost_end": [float(c) if np.isfinite(c) else None for c in J],
+                                "cost_paths": [[float(c) for c in row if np.isfinite(c)] for row in both.cost],
                                 "kept": ["prior mean", "screened"][g]})
             res = take_group(both, g)
         infl = rtps(res.prior_anoms, res.anoms, s.rtps)
