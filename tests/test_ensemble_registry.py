@@ -33,6 +33,8 @@ def test_every_method_declares_the_protocol():
         3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2
     assert e4().resolved().n_ens == 24 and e4(likelihood="paper").resolved().n_ens == 48
     assert e4(n_ens=12, likelihood="paper").resolved().n_ens == 12
+    with pytest.raises(InputError, match="n_ens"):
+        e4(n_ens=0).check()
     cls = METHODS["mienks"].settings_class          # default likelihood: a pilot pass, then the reported one
     assert METHODS["mienks"].n_forward_runs(cls(), 2, 120) == 2 * 18 * 6 * 48 * 2
     assert METHODS["mienks"].n_forward_runs(cls(likelihood="paper"), 2, 120) == 18 * 6 * 48 * 2

@@ -96,7 +96,7 @@ DEFAULT_N_ENS, PAPER_N_ENS = 24, 48
 
 @dataclass
 class En4DVarSettings:
-    """En4D-Var settings (paper values by default).
+    """En4D-Var settings (the paper's values with ``likelihood="paper"``).
 
     n_ens: members per experiment (default: 24 with the default likelihood, the paper's 48 with
     ``likelihood="paper"``: the drawn ensembles have exact moments and the regression linearisation
@@ -149,8 +149,8 @@ class En4DVarSettings:
         prior-corrected fusion unless set) and the members per experiment (24; the paper's 48)."""
         if self.likelihood == "paper":
             return replace(self, fusion=self.fusion or "prior", obs_weight=self.obs_weight or "mean",
-                           n_ens=self.n_ens or PAPER_N_ENS)
-        return self if self.n_ens else replace(self, n_ens=DEFAULT_N_ENS)
+                           n_ens=PAPER_N_ENS if self.n_ens is None else self.n_ens)
+        return self if self.n_ens is not None else replace(self, n_ens=DEFAULT_N_ENS)
 
     def check(self):
         check_choice(self.likelihood, self.fusion, self.obs_weight)
