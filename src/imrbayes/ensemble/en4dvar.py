@@ -127,6 +127,7 @@ class En4DVarSettings:
 
     n_ens: int | None = None
     n_iter: int = 5
+    n_iter_later: int | None = None
     n_runs: int = 3
     rtps: float = 0.7
     t_end: float | None = None
@@ -159,6 +160,8 @@ class En4DVarSettings:
             raise InputError("n_ens", f"needs at least 3 members, got {s.n_ens}")
         if self.n_iter < 1 or self.n_runs < 1:
             raise InputError("n_iter/n_runs", "must be at least 1")
+        if self.n_iter_later is not None and not 1 <= self.n_iter_later <= self.n_iter:
+            raise InputError("n_iter_later", f"must lie between 1 and n_iter ({self.n_iter}), got {self.n_iter_later}")
         if not 0.0 <= self.rtps <= 1.0:
             raise InputError("rtps", f"the RTPS factor must lie in [0, 1], got {self.rtps}")
         if s.likelihood == "paper" and s.fusion not in ("likelihood", "prior"):
@@ -262,6 +265,7 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
             return predict(runner, space.to_si(Z[:, :n_p]), rmax, req, t_eval[1:], nuisances(Z), d.get("frames"))
     max_iter = s.max_iter if default else None
     for r in range(s.n_runs):
+        n_iter = s.n_iter if r == 0 or s.n_iter_later is None else s.n_iter_later
         if default:
             # the observation model at the current centre: cycle 1 with the record's noise alone, later
             # cycles also with the residual's level and autocorrelation
@@ -278,11 +282,11 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
             centre, screen_info = screened_start(rng, ev, y, mean, cov, s.screen)
         if centre is mean:
             E0 = draw(rng, mean, cov, s.n_ens, exact=s.exact_moments)[None]
-            res = gauss_newton(E0, ev, y[None], weight[None], n_iter=s.n_iter, rng=rng, max_iter=max_iter)
+            res = gauss_newton(E0, ev, y[None], weight[None], n_iter=n_iter, rng=rng, max_iter=max_iter)
         else:
             # both starts, one forward batch per iteration; the cycle goes on from the better end
             E0 = np.stack([draw(rng, c, cov, s.n_ens, exact=s.exact_moments) for c in (mean, centre)])
-            both = gauss_newton(E0, ev, np.stack([y, y]), np.stack([weight, weight]), n_iter=s.n_iter, rng=rng,
+            both = gauss_newton(E0, ev, np.stack([y, y]), np.stack([weight, weight]), n_iter=n_iter, rng=rng,
                                 max_iter=max_iter)
             J = posterior_cost(ev, y, both.mean, mean, cov)
             g = int(np.argmin(J))
@@ -806,7 +810,8 @@ class En4DVar(InferenceMethod):
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         s = settings.resolved()     # cycles x iterations x members, then the fitted curves and the draws
-        n = s.n_runs * s.n_iter * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
+        later = s.n_iter if s.n_iter_later is None else s.n_iter_later
+        n = (s.n_iter + (s.n_runs - 1) * later) * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
         if s.likelihood == "default":       # the observation model: one run per cycle
             n += s.n_runs * n_exp
             # (iterations past n_iter up to max_iter are not counted: the bar is an estimate)
