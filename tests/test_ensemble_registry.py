@@ -20,19 +20,21 @@ def test_every_method_declares_the_protocol():
     assert METHODS["en4dvar"].n_forward_runs(paper, 2, 120) == 3 * 5 * 48 * 2 + 4 + 96
     # the default likelihood adds one run per experiment per cycle (the residual at the centre) and the
     # screened start (the prior mean and 96 draws per experiment; at most one more start in cycle 1)
-    # (and 24 members, not the paper's 48)
+    # (and 24 members, not the paper's 48; at least 3 iterations in cycles 2-3, not 5)
     e4 = METHODS["en4dvar"].settings_class
     assert METHODS["en4dvar"].n_forward_runs(e4(req_tail="mean"), 2, 120) == \
-        3 * 5 * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2
+        (5 + 2 * 3) * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2
     # req_tail=model: the quick first pass (one cycle, no screen) before the fit; auto (thermal:
     # inline): the model's tail after cycle 1 only
     assert METHODS["en4dvar"].n_forward_runs(e4(req_tail="model"), 2, 120) == \
-        3 * 5 * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2 + 5 * 24 * 2 + 3 * 2
-    assert METHODS["en4dvar"].n_forward_runs(e4(), 2, 120) == 3 * 5 * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2 + 3 * 2
-    assert METHODS["en4dvar"].n_forward_runs(e4(n_ens=48, req_tail="mean"), 2, 120) == \
+        (5 + 2 * 3) * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2 + 5 * 24 * 2 + 3 * 2
+    assert METHODS["en4dvar"].n_forward_runs(e4(), 2, 120) == (5 + 2 * 3) * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2 + 3 * 2
+    assert METHODS["en4dvar"].n_forward_runs(e4(n_ens=48, n_iter_later=5, req_tail="mean"), 2, 120) == \
         3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2
     assert e4().resolved().n_ens == 24 and e4(likelihood="paper").resolved().n_ens == 48
     assert e4(n_ens=12, likelihood="paper").resolved().n_ens == 12
+    assert e4().resolved().n_iter_later == 3 and e4(likelihood="paper").resolved().n_iter_later == 5
+    assert e4(n_iter=2).resolved().n_iter_later == 2 and e4(n_iter_later=5).resolved().n_iter_later == 5
     with pytest.raises(InputError, match="n_ens"):
         e4(n_ens=0).check()
     cls = METHODS["mienks"].settings_class          # default likelihood: a pilot pass, then the reported one

@@ -106,7 +106,7 @@ def _load_config(path) -> dict:
                    "scheme=imrv2-fd, nt=25, radial=km, ...); repeatable.")
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Method setting (en4dvar: n_ens (members per bubble: 24; the paper's 48 with --likelihood paper), "
-                   "n_iter, n_runs, rtps, t_end [t*], fusion=likelihood|prior, obs_weight=mean|sum, "
+                   "n_iter, n_iter_later (cycles 2..: 3; the paper's 5), n_runs, rtps, t_end [t*], fusion=likelihood|prior, obs_weight=mean|sum, "
                    "bubble_posterior=gaussian|sampled (sampled: each bubble's posterior by importance sampling, "
                    "is_rounds x is_draws more forward runs per bubble, under the prior widened "
                    "is_prior_widen times; its calibration on camera data: docs/results.md), req_tail=auto|mean|model|inline "

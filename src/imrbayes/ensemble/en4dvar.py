@@ -92,6 +92,12 @@ __all__ = ["En4DVar", "En4DVarSettings", "fit_en4dvar", "en4dvar_unit", "en4dvar
 
 #: members per experiment: the default likelihood's, and the paper's (``likelihood="paper"``)
 DEFAULT_N_ENS, PAPER_N_ENS = 24, 48
+#: Gauss-Newton iterations (at least; on to convergence up to ``max_iter``) of the cycles after the
+#: first with the default likelihood: they start from the inflated posterior of the cycle before,
+#: near its optimum (on stiff PA every bubble's later cycles stopped at the minimum of 5), and on 60
+#: thermal camera seeds 3 moved the gel-level estimates by <= 0.24 sd (docs/results.md, "Fewer
+#: iterations after the first cycle"); the paper's fixed ``n_iter`` in every cycle otherwise
+DEFAULT_N_ITER_LATER = 3
 
 
 @dataclass
@@ -101,7 +107,9 @@ class En4DVarSettings:
     n_ens: members per experiment (default: 24 with the default likelihood, the paper's 48 with
     ``likelihood="paper"``: the drawn ensembles have exact moments and the regression linearisation
     needs only N > d + 1, so halving N halves the cost and leaves each bubble's posterior where it
-    was, docs/results.md "Half the members"); n_iter: Gauss–Newton iterations per cycle; n_runs: cycles
+    was, docs/results.md "Half the members"); n_iter: Gauss–Newton iterations per cycle; n_iter_later:
+    those of the cycles after the first (default: 3 with the default likelihood -- they start near
+    the optimum and iterate on to convergence -- and ``n_iter`` with the paper's); n_runs: cycles
     (restarts); rtps: relaxation-to-prior-spread factor a; t_end: last fitted t* (None = whole
     record); exact_moments: see module doc; n_draws: draws of the fused posterior written to
     posterior.nc (with their pointwise log-likelihood if ``loglik``); fusion, obs_weight: see module doc;
@@ -150,8 +158,11 @@ class En4DVarSettings:
         prior-corrected fusion unless set) and the members per experiment (24; the paper's 48)."""
         if self.likelihood == "paper":
             return replace(self, fusion=self.fusion or "prior", obs_weight=self.obs_weight or "mean",
-                           n_ens=PAPER_N_ENS if self.n_ens is None else self.n_ens)
-        return self if self.n_ens is not None else replace(self, n_ens=DEFAULT_N_ENS)
+                           n_ens=PAPER_N_ENS if self.n_ens is None else self.n_ens,
+                           n_iter_later=self.n_iter if self.n_iter_later is None else self.n_iter_later)
+        return replace(self, n_ens=DEFAULT_N_ENS if self.n_ens is None else self.n_ens,
+                       n_iter_later=(min(DEFAULT_N_ITER_LATER, self.n_iter) if self.n_iter_later is None
+                                     else self.n_iter_later))
 
     def check(self):
         check_choice(self.likelihood, self.fusion, self.obs_weight)
@@ -265,7 +276,7 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
             return predict(runner, space.to_si(Z[:, :n_p]), rmax, req, t_eval[1:], nuisances(Z), d.get("frames"))
     max_iter = s.max_iter if default else None
     for r in range(s.n_runs):
-        n_iter = s.n_iter if r == 0 or s.n_iter_later is None else s.n_iter_later
+        n_iter = s.n_iter if r == 0 else s.n_iter_later
         if default:
             # the observation model at the current centre: cycle 1 with the record's noise alone, later
             # cycles also with the residual's level and autocorrelation
@@ -810,8 +821,7 @@ class En4DVar(InferenceMethod):
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         s = settings.resolved()     # cycles x iterations x members, then the fitted curves and the draws
-        later = s.n_iter if s.n_iter_later is None else s.n_iter_later
-        n = (s.n_iter + (s.n_runs - 1) * later) * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
+        n = (s.n_iter + (s.n_runs - 1) * s.n_iter_later) * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
         if s.likelihood == "default":       # the observation model: one run per cycle
             n += s.n_runs * n_exp
             # (iterations past n_iter up to max_iter are not counted: the bar is an estimate)
