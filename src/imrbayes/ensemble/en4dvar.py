@@ -293,12 +293,13 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
             centre, screen_info = screened_start(rng, ev, y, mean, cov, s.screen)
         if centre is mean:
             E0 = draw(rng, mean, cov, s.n_ens, exact=s.exact_moments)[None]
-            res = gauss_newton(E0, ev, y[None], weight[None], n_iter=n_iter, rng=rng, max_iter=max_iter)
+            res = gauss_newton(E0, ev, y[None], weight[None], n_iter=n_iter, rng=rng, max_iter=max_iter,
+                               patience=s.n_iter)
         else:
             # both starts, one forward batch per iteration; the cycle goes on from the better end
             E0 = np.stack([draw(rng, c, cov, s.n_ens, exact=s.exact_moments) for c in (mean, centre)])
             both = gauss_newton(E0, ev, np.stack([y, y]), np.stack([weight, weight]), n_iter=n_iter, rng=rng,
-                                max_iter=max_iter)
+                                max_iter=max_iter, patience=s.n_iter)
             J = posterior_cost(ev, y, both.mean, mean, cov)
             g = int(np.argmin(J))
             screen_info.update({"cost_end": [float(c) if np.isfinite(c) else None for c in J],

@@ -104,7 +104,8 @@ def _sqrt_inv(H):
 
 def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw: int = 5,
                  min_valid: int | None = None, project: bool = True, transform: bool = True,
-                 backtrack: bool = True, max_iter: int | None = None, rtol: float = 0.01) -> GNResult:
+                 backtrack: bool = True, max_iter: int | None = None, rtol: float = 0.01,
+                 patience: int | None = None) -> GNResult:
     """Run the ensemble Gauss–Newton analysis for G groups at once.
 
     Parameters
@@ -130,6 +131,11 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
         records (tiny noise, large misfit) five iterations stop far from the optimum, and where
         they stop depends on the draws. Default: exactly ``n_iter``. Converged groups drop out of
         the batch; ``cost`` then has ``max_iter`` columns, NaN after a group's last evaluation.
+    patience : the fewest evaluations of a group none of whose steps has lowered the cost yet
+        (default ``n_iter``): with ``n_iter`` small, a first step that overshoots is halved this
+        many times before the group gives up on it (on stiff PA with 3 iterations and no patience,
+        one bubble's last cycle stopped after two rejected steps and ended 0.9 sd away, own RMSE
+        0.0136 -> 0.0163).
     """
     E0 = np.array(E0, dtype=np.float64)
     G, N, d = E0.shape
@@ -171,7 +177,8 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
     xbar = E0.mean(axis=1)                                  # (G, d)
     A = (E0 - xbar[:, None, :]) / sq                        # (G, N, d)
     w = np.zeros((G, N))
-    n_max = n_iter if max_iter is None else max(n_iter, int(max_iter))
+    patience = n_iter if patience is None else int(patience)
+    n_max = max(n_iter, patience) if max_iter is None else max(n_iter, patience, int(max_iter))
     cost = np.full((G, n_max), np.nan)
     nfail = np.zeros((G, n_max), dtype=int)
     stopped = np.zeros(G, dtype=bool)
@@ -182,6 +189,7 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
     w_best = np.zeros((G, N))
     w_upd = np.zeros((G, N))
     n_back = np.zeros(G, dtype=int)
+    n_accepted = np.zeros(G, dtype=int)
     ybar_last = np.full((G, m), np.nan)
     for it in range(n_max):
         if it > 0:
@@ -218,9 +226,11 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
                 # the step increased the cost: go back halfway towards the best iterate
                 w[g] = w_best[g] + 0.5 * (w[g] - w_best[g])
                 n_back[g] += 1
-                if it >= n_iter - 1:            # past n_iter a step that fails ends the group's iterations
+                # past n_iter a step that fails ends the group's iterations -- once one has succeeded
+                if it >= n_iter - 1 and (n_accepted[g] > 1 or it >= patience - 1):
                     active[g] = False
                 continue
+            n_accepted[g] += 1
             prev = best[g]
             best[g] = c
             w_best[g] = w[g]
