@@ -27,7 +27,12 @@ the record's noise (cycle 1) the stiff-PA costs were still falling 20-80 % per i
 fifth, and where the fit stopped depended on the draws (one bubble's rmse 0.020, 0.034, 0.048 R*
 over three seeds). With both changes, bubbles 3-5 of the stiff-PA records reach the best optima
 least squares found, the same on three seeds (docs/results.md 2a'); cost ~3.5x on those records,
-little on data the model fits (synthetic camera data converge in a few iterations).
+little on data the model fits (synthetic camera data converge in a few iterations). The cycles after
+the first start from the inflated posterior of the one before, near its optimum: they run at least
+``n_iter_later`` (3) iterations, on by the same rule, and a group whose every step so far has raised
+the cost keeps halving it up to ``n_iter`` evaluations (``patience``) -- on stiff PA every bubble's
+later cycles had stopped at the minimum of 5; docs/results.md, "Fewer iterations after the first
+cycle".
 
 Fusion of the experiments (``fusion``). ``prior`` (default, methods.md §3): the last cycle's
 (un-inflated) posteriors N(m_n, S_n) by the prior-corrected product rule with the original prior
