@@ -100,8 +100,9 @@ DEFAULT_N_ENS, PAPER_N_ENS = 24, 48
 #: Gauss-Newton iterations (at least; on to convergence up to ``max_iter``) of the cycles after the
 #: first with the default likelihood: they start from the inflated posterior of the cycle before,
 #: near its optimum (on stiff PA every bubble's later cycles stopped at the minimum of 5), and on 60
-#: thermal camera seeds 3 moved the gel-level estimates by 0.001 sd on average, at most 0.35 (docs/results.md, "Fewer
-#: iterations after the first cycle"); the paper's fixed ``n_iter`` in every cycle otherwise
+#: thermal camera seeds 3 moved the gel-level estimates by 0.001 sd on average, at most 0.35
+#: (docs/results.md, "Fewer iterations after the first cycle"); the paper's fixed ``n_iter`` in
+#: every cycle otherwise
 DEFAULT_N_ITER_LATER = 3
 
 
