@@ -116,7 +116,9 @@ class En4DVarSettings:
     was, docs/results.md "Half the members"); n_iter: Gauss–Newton iterations per cycle; n_iter_later:
     those of the cycles after the first (default: 3 with the default likelihood -- they start near
     the optimum and iterate on to convergence -- and ``n_iter`` with the paper's); n_runs: cycles
-    (restarts); rtps: relaxation-to-prior-spread factor a; t_end: last fitted t* (None = whole
+    (restarts; with 2 instead of 3 the thermal camera estimates sit 0.18-0.26 sd higher, a 4th or
+    RTPS 1.0 moves nothing beyond its SE: docs/results.md, "Cycles, RTPS and the screen"); rtps:
+    relaxation-to-prior-spread factor a; t_end: last fitted t* (None = whole
     record); exact_moments: see module doc; n_draws: draws of the fused posterior written to
     posterior.nc (with their pointwise log-likelihood if ``loglik``); fusion, obs_weight: see module doc;
     screen: prior draws screened for the first cycle's centre (0 = start at the prior mean);
