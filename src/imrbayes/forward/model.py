@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import numba
 import numpy as np
 
 from imrbayes.errors import ForwardModelError, InputError
@@ -310,11 +311,23 @@ class ForwardModel:
             raise ForwardModelError(f"state has {state.y.shape[1]} entries, this model needs {self.n_state}")
         G = group_matrix(self.groups(state.rmax_m, state.req_m), n)
         o = self.options
-        integrate = self.kernel.integrate_batch_parallel if (self.parallel and n > 1) else self.kernel.integrate_batch
-        Y, R, status, nsteps, nrej = integrate(
-            np.array(state.y, dtype=float, order="C"), t0, t_end, te, G, P, breaks, self._flags,
-            self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols,
-            self._radau)
+        # One compiled entry point for every batch, serial or threaded: the serial and the threaded
+        # compilations of the member loop differ in their last bits (1e-10 relative through a
+        # collapse), and a process used whichever it loaded first -- so a run's numbers depended on
+        # --workers (MIEnKS-MDA amplified that to 11 % in one bubble's G; docs/open-work.md,
+        # session 57). Serial means one thread for this call.
+        threads = numba.get_num_threads()
+        serial = not self.parallel or n < 2
+        if serial and threads > 1:
+            numba.set_num_threads(1)
+        try:
+            Y, R, status, nsteps, nrej = self.kernel.integrate_batch_parallel(
+                np.array(state.y, dtype=float, order="C"), t0, t_end, te, G, P, breaks, self._flags,
+                self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols,
+                self._radau)
+        finally:
+            if serial and threads > 1:
+                numba.set_num_threads(threads)
         end = BatchState(Y, t_end, state.rmax_m.copy(), state.req_m.copy())
         return Propagation(t_eval, R, end, status, nsteps, nrej)
 
