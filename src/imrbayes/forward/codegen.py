@@ -52,7 +52,7 @@ def _warm_up(module_name: str) -> None:
     model = next(name for name, mod in REGISTRY.items() if mod == module_name)
     fm = ForwardModel(model, options=ForwardOptions(bubble="polytropic"))
     defaults = {p.name: p.default for p in fm.constitutive.parameters}
-    for n in (1, 2):  # integrate_batch, integrate_batch_parallel
+    for n in (1, 2):  # one member and a batch (both through integrate_batch_parallel)
         fm.simulate({k: np.full(n, v) for k, v in defaults.items()}, 100e-6, 20e-6, np.array([0.0, 0.01]))
 
 

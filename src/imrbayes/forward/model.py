@@ -101,8 +101,9 @@ class ForwardModel:
     physics : Physics, optional
         Physical constants (SI); ``physics_overrides`` (a dict) modifies the defaults instead.
     parallel : bool
-        Spread the members of a batch over numba threads (default True; results are identical
-        to the serial loop, member by member). ``NUMBA_NUM_THREADS`` caps the threads.
+        Spread the members of a batch over numba threads (default True). False runs the same
+        compiled loop on one thread, so the results are bitwise the same either way.
+        ``NUMBA_NUM_THREADS`` caps the threads.
     """
 
     def __init__(self, constitutive="nhkv", options=None, physics: Physics | None = None,
