@@ -45,6 +45,29 @@ def test_unit_rng_is_fixed_by_seed_and_id():
     assert not np.array_equal(a, unit_rng(1, "exp=002").random(4))
 
 
+def _first_draw(unit, rng):
+    return float(rng.random())
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_units_stream_key_seeds_it_instead_of_its_id(workers):
+    """Units whose ids differ but whose ``stream`` keys agree draw the same numbers (in any backend);
+    without a stream key the id seeds the unit; dict units may set ``"stream"`` too."""
+    units = [Unit("noise=aaaa/exp=000", stream="exp=000"), Unit("noise=bbbb/exp=000", stream="exp=000"),
+             {"unit_id": "noise=cccc/exp=000", "stream": "exp=000"}, Unit("exp=000"), Unit("noise=aaaa/exp=001")]
+    ex = InProcessExecutor() if workers == 1 else ProcessPoolExecutor(workers)
+    try:
+        rep = run_units(units, _first_draw, seed=SEED, executor=ex, progress=False)
+    finally:
+        ex.close()
+    r = rep.results
+    ref = unit_rng(SEED, "exp=000").random()
+    assert r["noise=aaaa/exp=000"] == r["noise=bbbb/exp=000"] == r["noise=cccc/exp=000"] == r["exp=000"] == ref
+    assert r["noise=aaaa/exp=001"] == unit_rng(SEED, "noise=aaaa/exp=001").random() != ref
+    bad = run_units([Unit("exp=002", stream="")], _first_draw, seed=SEED, progress=False)
+    assert "non-empty string" in bad.failures["exp=002"].error
+
+
 def test_unit_rng_ignores_python_hash_salt():
     code = "from imrbayes.execution import unit_rng; print(unit_rng(5, 'exp=004/window=02').random().hex())"
     outs = set()

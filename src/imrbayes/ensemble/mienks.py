@@ -399,13 +399,14 @@ def mienks_unit(unit: Unit, rng) -> dict:
     return out
 
 
-def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw):
+def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw, stream_tag=None):
     """Run every window's units in order (one per alive experiment, :func:`mienks_unit`) and collect
     their results; ``weight_for(j, g, a, b)`` gives experiment g's observation weights in window j;
     ``nuis_sd`` (G, 3): prior sds of each experiment's nuisances (a, delta, rho) (default likelihood;
     None: the paper's, no nuisances).
     The fusion does not feed back into the ensembles, so it is done afterwards
-    (:func:`fit_mienks`). ``tag``: leading parts of the unit ids (e.g. ``{"pass": "pilot"}``).
+    (:func:`fit_mienks`). ``tag``: leading parts of the unit ids (e.g. ``{"pass": "pilot"}``);
+    ``stream_tag``: those of the units' random streams when they differ (default ``tag``).
     Returns a dict of per-window lists."""
     G = obs.n_exp
     t = obs.t_star
@@ -432,12 +433,14 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw
             out["start_means"].append(q)
             out["start_req"].append(rq)
         a2 = b if last else a + s.h
+        stag = tag if stream_tag is None else stream_tag
         units = [Unit(unit_id(**tag, window=j, exp=g),
                       {"spec": base["spec"], "runner": base["runner"], "space": base["space"], "settings": s, "t": t,
                        "a": int(a), "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
                        "req": float(obs.req_m[g]), "y": obs.R_star[g, a:b + 1], "weight": weight_for(j, g, a, b),
                        "E": handoff[g], **({"carry_req": True} if nuis_sd is not None else {}),
-                       **({"nuis_sd": [float(x) for x in nuis_sd[g]]} if j == 0 and nuis_sd is not None else {})})
+                       **({"nuis_sd": [float(x) for x in nuis_sd[g]]} if j == 0 and nuis_sd is not None else {})},
+                      stream=unit_id(**stag, window=j, exp=g))
                  for g in alive]
         label = "".join(f" ({v})" for v in tag.values())
         desc = f"mienks window {j + 1}/{nw}{label}"
@@ -599,11 +602,13 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         def weight_for(j, g, a, b):
             return beta[j, a:b + 1] * alpha[g] / var[g]
         # the reported pass's units depend on the pilot's outcome: their ids carry a digest of the
-        # noise model, so a resume after the pilot changed (e.g. --retry-failed) recomputes them
+        # noise model, so a resume after the pilot changed (e.g. --retry-failed) recomputes them;
+        # their random streams do not (window and experiment only), or a last-bit change of the
+        # pilot's fit would redraw every ensemble (one bubble's G moved 2-11 % that way)
         tag = {}
         if s.adapt:
             tag = {"noise": hashlib.sha1(np.concatenate([var, alpha]).astype("<f8").tobytes()).hexdigest()[:8]}
-        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw)
+        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw, stream_tag={})
     else:
         pilot_failed = []
 

@@ -18,9 +18,10 @@ from imrbayes.execution.backends import (DaskExecutor, ExecutionError, Executor,
 from imrbayes.execution.driver import RunInterrupted, RunReport, UnitFailure, run_units
 from imrbayes.execution.run import Execution
 from imrbayes.execution.store import CorruptUnitError, RunStore, canonical_config, config_fingerprint
-from imrbayes.execution.units import Unit, normalize_units, safe_name, unit_id, unit_rng, unit_seed_sequence
+from imrbayes.execution.units import Unit, normalize_units, safe_name, unit_id, unit_rng, unit_seed_sequence, unit_stream
 
 __all__ = ["Executor", "InProcessExecutor", "ProcessPoolExecutor", "DaskExecutor", "make_executor", "Outcome",
            "ExecutionError", "run_units", "RunReport", "UnitFailure", "RunInterrupted", "RunStore",
            "CorruptUnitError", "canonical_config", "config_fingerprint",
-           "Execution", "Unit", "unit_id", "unit_rng", "unit_seed_sequence", "normalize_units", "safe_name"]
+           "Execution", "Unit", "unit_id", "unit_rng", "unit_seed_sequence", "unit_stream", "normalize_units",
+           "safe_name"]

@@ -37,7 +37,7 @@ from itertools import islice
 from typing import Any, Callable, Iterable, Iterator
 
 from imrbayes.errors import InputError
-from imrbayes.execution.units import normalize_units, unit_rng
+from imrbayes.execution.units import normalize_units, unit_rng, unit_stream
 
 __all__ = ["Outcome", "Executor", "InProcessExecutor", "ProcessPoolExecutor", "DaskExecutor",
            "ExecutionError", "make_executor", "run_one"]
@@ -83,12 +83,13 @@ def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
 
 
 def run_one(fn: Callable, unit, uid: str, seed: int) -> Outcome:
-    """Run ``fn(unit, unit_rng(seed, uid))`` and wrap the result or the exception (top-level, so
+    """Run ``fn(unit, rng)``, ``rng = unit_rng(seed, unit_stream(unit, uid))`` (the unit's stream key,
+    by default its id), and wrap the result or the exception (top-level, so
     every backend can ship it to a worker). An interrupt, also one wrapped in another exception, is
     raised, never recorded as the unit's failure (a resumed run must compute the unit)."""
     t0 = time.perf_counter()
     try:
-        value = fn(unit, unit_rng(seed, uid))
+        value = fn(unit, unit_rng(seed, unit_stream(unit, uid)))
     except Exception as exc:  # contained: reported per unit, never fatal to the others
         stop = interrupt_behind(exc)
         if stop is not None:
