@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Fusion", "fuse", "likelihood_terms", "fuse_likelihoods", "rtps", "rtps_factors", "precision_weighted", "draw", "marginal_summary",
+__all__ = ["Fusion", "fuse", "likelihood_terms", "integrate_out_trailing", "marginal_under_reference", "fuse_likelihoods", "rtps", "rtps_factors", "precision_weighted", "draw", "marginal_summary",
            "sym", "is_pd"]
 
 
@@ -112,6 +112,46 @@ def likelihood_terms(post_m, post_c, prior_m, prior_c, ridge: float = 1e-9):
         Lam[n], eta[n] = L, e
         mean[n] = np.linalg.lstsq(L, e, rcond=None)[0]
     return Lam, eta, mean, clipped
+
+
+def integrate_out_trailing(Lam, eta, prior_sd):
+    """A Gaussian likelihood exp(-x^T Lam x / 2 + eta^T x) of x = (z, r) ((d+k, d+k), (d+k,)) times
+    the prior N(0, diag(prior_sd^2)) of its last k coordinates r, integrated over r: the likelihood
+    of z, (Lam_z (d, d), eta_z (d,)) (a Schur complement). A prior_sd <= 0 fixes that coordinate at 0."""
+    Lam, eta = np.asarray(Lam, dtype=np.float64), np.asarray(eta, dtype=np.float64)
+    sd = np.atleast_1d(np.asarray(prior_sd, dtype=np.float64))
+    k = sd.size
+    d = Lam.shape[0] - k
+    keep = sd > 0
+    if not keep.any():
+        return Lam[:d, :d].copy(), eta[:d].copy()
+    r = d + np.flatnonzero(keep)
+    C = Lam[np.ix_(r, r)] + np.diag(1.0 / sd[keep] ** 2)
+    B = Lam[:d, r]
+    return sym(Lam[:d, :d] - B @ np.linalg.solve(C, B.T)), eta[:d] - B @ np.linalg.solve(C, eta[r])
+
+
+def marginal_under_reference(post_m, post_c, prior_m, prior_c, n_keep: int, swap: dict):
+    """The first ``n_keep`` coordinates' posterior and prior (mean, cov, prior mean, prior cov) under a
+    reference prior: the analysis's own prior (``prior_m``, ``prior_c``; ``post_*`` its posterior,
+    (d,), (d, d)) with each coordinate i in ``swap`` ({i: sd}) made independent of the rest and
+    N(0, sd^2). Their ratio is the likelihood of the kept coordinates with the swapped ones
+    integrated out against N(0, sd^2), the others against the analysis prior's conditional.
+    (The joint likelihood is posterior / prior, :func:`likelihood_terms`; exact for a
+    linear-Gaussian model.)"""
+    Lj, ej, _, _ = likelihood_terms(np.asarray(post_m)[None], np.asarray(post_c)[None], np.asarray(prior_m)[None],
+                                    np.asarray(prior_c)[None])
+    Rm, Rc = np.array(prior_m, dtype=np.float64), np.array(prior_c, dtype=np.float64)
+    for i, sd in swap.items():
+        Rc[i, :] = 0.0
+        Rc[:, i] = 0.0
+        Rc[i, i] = float(sd) ** 2
+        Rm[i] = 0.0
+    Rci = np.linalg.inv(Rc)
+    P = np.linalg.inv(Rci + Lj[0])
+    p = P @ (Rci @ Rm + ej[0])
+    k = int(n_keep)
+    return p[:k], sym(P[:k, :k]), Rm[:k], sym(Rc[:k, :k])
 
 
 def fuse_likelihoods(post_m, post_c, prior_m, prior_c, chain_m, chain_c) -> Fusion:

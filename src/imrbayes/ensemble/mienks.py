@@ -110,8 +110,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from imrbayes.ensemble.gaussian import (Fusion, draw, fuse, fuse_likelihoods, marginal_summary, precision_weighted,
-                                        rtps_factors)
+from imrbayes.ensemble.gaussian import (Fusion, draw, fuse, fuse_likelihoods, integrate_out_trailing, marginal_summary,
+                                        precision_weighted, rtps_factors)
 from imrbayes.ensemble.gn import gauss_newton
 from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, random_effects
 from imrbayes.ensemble.likelihood import (check_choice, effective_samples, nuisance_prior_sd, nuisance_summary, predict,
@@ -871,13 +871,7 @@ def integrate_out_last(Lam, eta, prior_sd: float):
     """A Gaussian likelihood exp(-x^T Lam x / 2 + eta^T x) of x = (z, r), (d+1, d+1) and (d+1,), times
     the prior N(0, prior_sd^2) of its last coordinate r, integrated over r: the likelihood of z,
     (Lam_z (d, d), eta_z (d,)) (a Schur complement). prior_sd <= 0: r fixed at 0."""
-    Lam, eta = np.asarray(Lam, dtype=np.float64), np.asarray(eta, dtype=np.float64)
-    d = Lam.shape[0] - 1
-    if not prior_sd > 0.0:
-        return Lam[:d, :d].copy(), eta[:d].copy()
-    c = Lam[d, d] + 1.0 / prior_sd ** 2
-    b = Lam[:d, d]
-    return Lam[:d, :d] - np.outer(b, b) / c, eta[:d] - b * eta[d] / c
+    return integrate_out_trailing(Lam, eta, [float(prior_sd)])
 
 
 def _nuisance(obs, g: int, rmax_rel, offset, log_req) -> dict:
