@@ -36,3 +36,30 @@ def test_fewer_later_iterations_leave_the_posterior_where_it_was(seed):
 def test_later_iterations_are_checked(bad):
     with pytest.raises(InputError, match="n_iter_later"):
         En4DVarSettings(n_iter_later=bad).check()
+
+
+def test_req_is_integrated_against_its_preprocessing_prior():
+    """``nuisance_integral``: the Gauss-Newton paths do not depend on it (the same nuisance
+    posteriors); with Req inferred each bubble's likelihood changes (log Req integrated against its
+    preprocessing prior, not the last cycle's: the algebra is checked against closed-form
+    linear-Gaussian marginals in test_ensemble_gaussian.py); with Req known there is nothing to
+    integrate and the numbers are identical."""
+    import dataclasses
+    obs, _ = camera_obs("none", 2, OPTS)
+    assert np.all(obs.nuisance_sd[:, 2] > 0)                         # Req estimated: inferred
+    base = make_candidate(BASELINE.key, OPTS)
+
+    def fit(o, how):
+        return fit_en4dvar(base.fm, o, base.space, En4DVarSettings(nuisance_integral=how, loglik=False, n_draws=1),
+                           seed=0)
+    cyc, req = fit(obs, "cycle"), fit(obs, "req")
+    for a, b in zip(cyc.per_experiment, req.per_experiment):
+        assert a["nuisance"] == b["nuisance"]
+        for p in ("G", "mu"):
+            ea, eb = a["estimate"][p], b["estimate"][p]
+            assert abs(eb["sd"] / ea["sd"] - 1.0) > 1e-4 and abs(eb["mean"] / ea["mean"] - 1.0) > 1e-6, (p, ea, eb)
+    known = dataclasses.replace(obs, nuisance_sd=obs.nuisance_sd * np.array([1.0, 1.0, 0.0]))
+    k1, k2 = fit(known, "cycle"), fit(known, "req")
+    assert all(k1.estimate[p] == k2.estimate[p] for p in k1.estimate)
+    with pytest.raises(InputError, match="nuisance_integral"):
+        En4DVarSettings(nuisance_integral="all").check()
