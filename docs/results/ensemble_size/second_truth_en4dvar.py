@@ -1,11 +1,12 @@
 """En4D-Var part of the second-truth case (suite quick: polytropic), seeds 0-4, one setting at two
 values: 24 vs 48 members (default: ``python second_truth_en4dvar.py out.json``; session 55) or e.g.
-``python second_truth_en4dvar.py out.json n_iter_later 3 5`` (session 56)."""
+``python second_truth_en4dvar.py out.json n_iter_later 3 5`` (session 56), or text values, e.g.
+``python second_truth_en4dvar.py out.json nuisance_integral cycle req`` (session 58)."""
 import json, sys
 from imrbayes.ensemble import En4DVarSettings, ParamSpace, fit_en4dvar
 from imrbayes.forward import ForwardModel
 from imrbayes.validation.suite import TRUTH_2, RATIO_2, verification_data, TRUTH
-key, values = (sys.argv[2], [int(v) for v in sys.argv[3:]]) if len(sys.argv) > 2 else ("n_ens", [24, 48])
+key, values = (sys.argv[2], [int(v) if v.lstrip("-").isdigit() else v for v in sys.argv[3:]]) if len(sys.argv) > 2 else ("n_ens", [24, 48])
 fm = ForwardModel("nhkv", options={"bubble": "polytropic"})
 space = ParamSpace.for_model(fm.constitutive)
 rows = []

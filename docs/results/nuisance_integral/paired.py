@@ -1,6 +1,6 @@
 """Paired comparison of two camera_calibration.py result files on their common seeds: python paired.py ref=REF.json NEW.json [NEW2.json ...]."""
 import json, sys, numpy as np
-REF = sys.argv.pop(1) if sys.argv[1].startswith("ref=") else "ref=/work/main/validation/results/camera_thermal_n24_60seeds_20261130.json"
+REF = sys.argv.pop(1) if sys.argv[1].startswith("ref=") else "ref=validation/results/camera_thermal_later3_patience_60seeds_20261130.json"
 ref = {r["seed"]: r["default"] for r in json.load(open(REF[4:]))["rows"]}
 rows = []
 for f in sys.argv[1:]:
