@@ -417,6 +417,7 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw
     dp = base["space"].n
     out = {"results": [], "ok": [], "lost": [], "start_means": [], "start_req": [], "warnings": [],
            "failed_units": failed_units, "alive": alive}
+    stag = tag if stream_tag is None else stream_tag
     for j, (a, b) in enumerate(spans):
         last = j == nw - 1
         warn = []
@@ -433,7 +434,6 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw
             out["start_means"].append(q)
             out["start_req"].append(rq)
         a2 = b if last else a + s.h
-        stag = tag if stream_tag is None else stream_tag
         units = [Unit(unit_id(**tag, window=j, exp=g),
                       {"spec": base["spec"], "runner": base["runner"], "space": base["space"], "settings": s, "t": t,
                        "a": int(a), "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
