@@ -98,6 +98,49 @@ def test_default_weights_count_each_sample_once(monkeypatch):
     assert np.all(res.window_posteriors[1].weight == beta[1, 5:20])
 
 
+def test_a_cheaper_pilot_runs_with_its_own_members_iterations_and_shift(monkeypatch):
+    """``pilot_n_ens``, ``pilot_n_iter``, ``pilot_h``: the pilot pass's units run with those (their
+    weights still count every sample once over the pilot's own windows), the reported pass with
+    n_ens, n_iter and h; the forward-run count and the settings check follow."""
+    fm = observations()[0]
+    obs = noisy(fm, n_exp=2, n_steps=40, sd=0.01)
+    seen = []
+    unit = mk.mienks_unit
+
+    def spy(u, rng):
+        seen.append((u.unit_id, int(u.data["a"]), int(u.data["b"]), np.array(u.data["weight"], dtype=float),
+                     u.data["settings"]))
+        out = unit(u, rng)
+        if u.data["E"] is not None:
+            assert np.asarray(u.data["E"]).shape[0] == u.data["settings"].n_ens
+        return out
+    monkeypatch.setattr(mk, "mienks_unit", spy)
+    s = MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=2, pilot_n_ens=4, pilot_n_iter=1, pilot_h=10)
+    res = fit_mienks(fm, obs, space(fm), s, seed=0)
+    pilot = [x for x in seen if x[0].startswith("pass=pilot")]
+    final = [x for x in seen if not x[0].startswith("pass=pilot")]
+    assert {(x[4].n_ens, x[4].n_iter, x[4].h) for x in pilot} == {(4, 1, 10)}
+    assert {(x[4].n_ens, x[4].n_iter, x[4].h) for x in final} == {(8, 2, 5)}
+    assert len(pilot) == 2 * mk.n_windows(40, 15, 10) and len(final) == 2 * len(res.windows)
+    for g in range(2):
+        total = np.zeros(41)
+        for uid, a, b, w, _ in pilot:
+            if uid.endswith(f"exp={g:03d}"):
+                total[a:b + 1] += w * obs.noise_sd[g] ** 2
+        last = max(b for _, _, b, _, _ in pilot)
+        assert total[0] == 0.0
+        np.testing.assert_allclose(total[1:last + 1], 1.0, rtol=0, atol=1e-12)
+    runs = mk.MIEnKS.n_forward_runs(s, 2, 40)
+    assert runs == (mk.n_windows(40, 15, 5) * 3 * 8 + mk.n_windows(40, 15, 10) * 2 * 4) * 2
+    d = MIEnKSSettings().pilot()
+    assert (d.n_ens, d.n_iter, d.h) == (48, 5, 5)              # the default pilot: the reported pass's settings
+    d = MIEnKSSettings(n_ens=16, n_iter=2, pilot_n_ens=24, pilot_n_iter=3).pilot()
+    assert (d.n_ens, d.n_iter) == (16, 2)                       # never dearer than the reported pass
+    for bad in ({"pilot_n_ens": 2}, {"pilot_n_iter": 0}, {"pilot_h": 16}, {"pilot_h": 1.5}):
+        with pytest.raises(InputError, match=next(iter(bad))):
+            MIEnKSSettings(L=15, **bad).check(40)
+
+
 def test_paper_mode_reproduces_the_previous_method():
     """likelihood="paper" gives the numbers the method gave before the default likelihood (computed
     with that code on this case, seed 3)."""

@@ -50,7 +50,11 @@ def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
         nw = n_windows(n_steps, settings.L, settings.h)
         if getattr(settings, "likelihood", "paper") == "default" and getattr(settings, "adapt", False):
             # the default likelihood's pilot pass sets the noise level, then the reported pass
-            return 2 * nw * n_exp, f"2 passes x {nw} windows x {n_exp} experiments"
+            sp = settings.pilot()
+            nwp = n_windows(n_steps, sp.L, sp.h)
+            if nwp == nw:
+                return 2 * nw * n_exp, f"2 passes x {nw} windows x {n_exp} experiments"
+            return (nwp + nw) * n_exp, f"a pilot pass of {nwp} windows and {nw} windows, x {n_exp} experiments"
         return nw * n_exp, f"{nw} windows x {n_exp} experiments"
     if meth.name == "en4dvar":      # each experiment's cycles, then its fitted curves (fast)
         from imrbayes.ensemble.en4dvar import req_tail_mode
@@ -115,7 +119,7 @@ def _load_config(path) -> dict:
                    "with the thermal bubble), nuisance_integral=req|prior|cycle (what each bubble's likelihood "
                    "integrates its nuisances against; req, the default: Req against its preprocessing prior); "
                    "mienks: L, h [samples], n_ens, n_iter, rtps, likelihood=default|paper, adapt (default likelihood: "
-                   "pilot pass), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
+                   "pilot pass), pilot_n_ens, pilot_n_iter, pilot_h (the pilot's members, iterations, shift; default: n_ens, n_iter, h), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
                    "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
                    "repeatable.")
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",

@@ -39,8 +39,9 @@ Likelihood ``default`` (methods.md §7)
   autocorrelation time (:func:`imrbayes.ensemble.likelihood.effective_samples`), so each
   *independent* observation counts once. The reported pass uses these (``adapt=False``: no pilot,
   the record noise and alpha = 1). One noise level and one tempering per experiment over the whole
-  record (a window of 35 correlated samples is too short to estimate an autocorrelation time);
-  the pilot doubles the cost.
+  record (a window of 35 correlated samples is too short to estimate an autocorrelation time).
+  The pilot doubles the cost; ``pilot_n_ens``, ``pilot_n_iter`` make it cheaper (measured, not
+  the default: docs/results.md, "A cheaper pilot").
 * **Geometry and alignment** (§7.3): inferred, not fixed. Window 0's members carry the nuisances
   of :mod:`imrbayes.ensemble.likelihood`: the relative Rmax error a, the time of the maximum delta
   (t*) and rho = log(Req / Req_hat), drawn from the preprocessing prior and analysed with the
@@ -145,7 +146,12 @@ class MIEnKSSettings:
     sets each record's noise level and tempering from its residual (False: the record's noise, no
     tempering, one pass). ``req_prior`` (default likelihood): where each experiment's Req prior comes
     from -- ``preprocessing`` (the record's tail) or ``en4dvar`` (the Req posterior of a whole-record
-    En4D-Var fit of the same data, run first; see :func:`req_prior_from_en4dvar`)."""
+    En4D-Var fit of the same data, run first; see :func:`req_prior_from_en4dvar`). ``pilot_n_ens``,
+    ``pilot_n_iter``, ``pilot_h``: the pilot pass's members and Gauss–Newton iterations (at most)
+    and window shift (None: the reported pass's). The pilot only sets each record's noise level
+    and tempering from its residual (module doc); 24 members and 3 iterations cost a third of the
+    reported pass, but on stiff PA one seed's pilot lost a bubble (docs/results.md, "A cheaper
+    pilot: measured, not the default")."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -162,6 +168,17 @@ class MIEnKSSettings:
     likelihood: str = "default"
     adapt: bool = True
     req_prior: str = "preprocessing"
+    pilot_n_ens: int | None = None
+    pilot_n_iter: int | None = None
+    pilot_h: int | None = None
+
+    def pilot(self) -> "MIEnKSSettings":
+        """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members and
+        ``pilot_n_iter`` Gauss–Newton iterations (never more than the reported pass's; None: the
+        same) and the window shift ``pilot_h`` (None: h)."""
+        from dataclasses import replace
+        return replace(self, n_ens=min(self.pilot_n_ens or self.n_ens, self.n_ens),
+                       n_iter=min(self.pilot_n_iter or self.n_iter, self.n_iter), h=self.pilot_h or self.h)
 
     def resolved(self) -> "MIEnKSSettings":
         """The settings with the likelihood's own choices filled in (``paper``: ``chain`` fusion and
@@ -192,6 +209,13 @@ class MIEnKSSettings:
             raise InputError("req_prior", "applies to the default likelihood only (the paper's has no Req nuisance)")
         if self.h > self.L:
             raise InputError("h", f"the shift h = {self.h} exceeds the window length L = {self.L}: samples would be skipped")
+        for k in ("pilot_n_ens", "pilot_n_iter", "pilot_h"):
+            v = getattr(self, k)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < (3 if k == "pilot_n_ens" else 1)):
+                raise InputError(k, f"must be {'an integer >= 3' if k == 'pilot_n_ens' else 'a positive integer'} "
+                                    f"or unset, got {v!r}")
+        if self.pilot_h is not None and self.pilot_h > self.L:
+            raise InputError("pilot_h", f"the pilot's shift {self.pilot_h} exceeds the window length L = {self.L}")
         n_windows(n_steps, self.L, self.h)
 
 
@@ -587,13 +611,19 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         if s.adapt:
             # pilot pass: the record's noise, no tempering; its fitted curve sets each experiment's
             # noise level and tempering for the pass that is reported (module doc)
+            sp = s.pilot()
+            spans_p = window_spans(n_steps, sp.L, sp.h)
+            nw_p = spans_p.shape[0]
+            beta_p = mda_weights(n_steps, sp.L, sp.h)
+            beta_p[:, 0] = 0.0
+
             def w_pilot(j, g, a, b):
-                return beta[j, a:b + 1] / noise_var[g]
-            pil = _sweep(ex, base, obs, s, spans, seed, w_pilot, nuis_sd, {"pass": "pilot"}, progress, nw)
+                return beta_p[j, a:b + 1] / noise_var[g]
+            pil = _sweep(ex, base, obs, sp, spans_p, seed, w_pilot, nuis_sd, {"pass": "pilot"}, progress, nw_p)
             for w in pil["warnings"]:
                 warnings.extend(w)
             pilot_failed = pil["failed_units"]
-            var, alpha, lik_info = _noise_model(obs, _fitted(obs, spans, pil, nw, s.h), noise_var)
+            var, alpha, lik_info = _noise_model(obs, _fitted(obs, spans_p, pil, nw_p, sp.h), noise_var)
         else:
             lik_info = [{"noise_sd": float(np.sqrt(v)), "sd_used": float(np.sqrt(v)), "alpha": 1.0,
                          "effective_samples": None, "autocorrelation_time": None,
@@ -912,8 +942,11 @@ class MIEnKS(InferenceMethod):
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         s = settings        # per window: the Gauss-Newton iterations and the hand-off, every member
-        passes = 2 if (s.likelihood == "default" and s.adapt) else 1     # the default likelihood's pilot
-        return passes * n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
+        n = n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
+        if s.likelihood == "default" and s.adapt:      # the default likelihood's pilot pass
+            p = s.pilot()
+            n += n_windows(n_steps, p.L, p.h) * (p.n_iter + 1) * p.n_ens * n_exp
+        return n
 
     @staticmethod
     def figures(obs, res, fdir):
