@@ -141,6 +141,26 @@ def test_a_cheaper_pilot_runs_with_its_own_members_iterations_and_shift(monkeypa
             MIEnKSSettings(L=15, **bad).check(40)
 
 
+def test_a_bubble_the_pilot_lost_is_named():
+    """The stiff-PA seed-1 pattern (one bubble's pilot residual 3.5x its neighbours'): a warning naming
+    it with its relative weight, its entry flagged; nothing flagged when the residuals are alike or
+    there are too few bubbles to compare."""
+    def info(rms, sd, alpha):
+        return [{"resid_rms": r, "sd_used": s_, "alpha": a} for r, s_, a in zip(rms, sd, alpha)]
+    li = info([0.0186, 0.0222, 0.0719, 0.0219, 0.0243], [0.0186, 0.0222, 0.0719, 0.0219, 0.0243],
+              [0.23, 0.214, 0.342, 0.343, 0.283])
+    w = mk.pilot_outliers(li, ["exp01", "exp02", "exp03", "exp04", "exp05"])
+    assert len(w) == 1 and "'exp03'" in w[0] and "3.3x" in w[0]
+    assert li[2].get("pilot_outlier") and not any(x.get("pilot_outlier") for i, x in enumerate(li) if i != 2)
+    ratio = (0.342 / 0.0719 ** 2) / np.median([a / s_ ** 2 for a, s_ in [(0.23, 0.0186), (0.214, 0.0222),
+                                                                         (0.343, 0.0219), (0.283, 0.0243)]])
+    assert f"{ratio:.2g}x as much" in w[0]
+    assert mk.pilot_outliers(info([0.02, 0.025, 0.03], [0.02] * 3, [0.3] * 3), ["a", "b", "c"]) == []
+    assert mk.pilot_outliers(info([0.02, 0.2], [0.02, 0.2], [0.3, 0.3]), ["a", "b"]) == []
+    assert mk.pilot_outliers(info([0.02, None, 0.02, 0.2], [0.02] * 4, [0.3] * 4), list("abcd"))[0].startswith(
+        "experiment 'd'")
+
+
 def test_paper_mode_reproduces_the_previous_method():
     """likelihood="paper" gives the numbers the method gave before the default likelihood (computed
     with that code on this case, seed 3)."""

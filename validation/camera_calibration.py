@@ -146,6 +146,8 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, me
         if alts:         # e.g. bubble_posterior=sampled: the ensembles' Gaussians, the sampled fusion
             r["alternatives"] = {name: _scored(est) for name, est in alts.items()}
         r["effective_samples"] = res.details.get("likelihood", {}).get("effective_samples")
+        if res.method == "mienks":      # bubbles whose pilot residual stood out (a warning in fit)
+            r["pilot_outliers"] = [e["name"] for e in res.per_experiment if (e.get("likelihood") or {}).get("pilot_outlier")]
         row[lk] = r
     return row
 
