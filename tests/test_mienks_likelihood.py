@@ -142,7 +142,7 @@ def test_a_cheaper_pilot_runs_with_its_own_members_iterations_and_shift(monkeypa
 
 
 def test_a_bubble_the_pilot_lost_is_named():
-    """The stiff-PA seed-1 pattern (one bubble's pilot residual 3.5x its neighbours'): a warning naming
+    """The stiff-PA seed-1 pattern (one bubble's pilot residual 3.3x its neighbours'): a warning naming
     it with its relative weight, its entry flagged; nothing flagged when the residuals are alike or
     there are too few bubbles to compare."""
     def info(rms, sd, alpha):
