@@ -161,6 +161,44 @@ def test_a_bubble_the_pilot_lost_is_named():
         "experiment 'd'")
 
 
+def test_a_flagged_bubbles_pilot_is_run_again_and_the_closer_fit_kept(monkeypatch):
+    """``pilot_retry``: an experiment the outlier rule flags gets one more pilot of its own (units
+    ``pass=pilot/retry=<g>/...``, other random streams); the closer of the two fits sets its noise
+    model (recorded in ``pilot_retry``), the other experiments' are untouched; off: no retry."""
+    fm = observations()[0]
+    obs = noisy(fm, n_exp=3, n_steps=40, sd=0.01, seed=2)
+    first = {}
+
+    def flag_second(lik_info, names, factor=3.0):
+        first.update({g: dict(x) for g, x in enumerate(lik_info)})
+        lik_info[1]["resid_rms"] = 1.0                  # as if the pilot had lost it
+        lik_info[1]["pilot_outlier"] = True
+        return [f"experiment {names[1]!r}: flagged"]
+    monkeypatch.setattr(mk, "pilot_outliers", flag_second)
+    seen = []
+    unit = mk.mienks_unit
+
+    def spy(u, rng):
+        seen.append(u.unit_id)
+        return unit(u, rng)
+    monkeypatch.setattr(mk, "mienks_unit", spy)
+    s = MIEnKSSettings(n_ens=8, n_iter=1, L=15, h=5, n_draws=2)
+    res = fit_mienks(fm, obs, space(fm), s, seed=0)
+    retry = [u for u in seen if "/retry=" in u]
+    nw = mk.n_windows(40, 15, 5)
+    assert retry == [f"pass=pilot/retry=001/window={j:03d}/exp=000" for j in range(nw)]
+    lik = [e["likelihood"] for e in res.per_experiment]
+    r = lik[1]["pilot_retry"]
+    assert r["resid_rms_first"] == 1.0 and r["kept"] == "retry" and r["resid_rms_retry"] < 0.05
+    assert lik[1]["resid_rms"] == r["resid_rms_retry"] and lik[1]["pilot_outlier"]
+    for g in (0, 2):
+        assert "pilot_retry" not in lik[g] and lik[g]["resid_rms"] == first[g]["resid_rms"]
+    assert any("second pilot" in w and "the second is used" in w for w in res.warnings)
+    seen.clear()
+    res_off = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, pilot_retry=False), seed=0)
+    assert not any("/retry=" in u for u in seen) and "pilot_retry" not in res_off.per_experiment[1]["likelihood"]
+
+
 def test_paper_mode_reproduces_the_previous_method():
     """likelihood="paper" gives the numbers the method gave before the default likelihood (computed
     with that code on this case, seed 3)."""

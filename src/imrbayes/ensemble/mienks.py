@@ -43,7 +43,8 @@ Likelihood ``default`` (methods.md §7)
   The pilot doubles the cost; ``pilot_n_ens``, ``pilot_n_iter`` make it cheaper (measured, not
   the default: docs/results.md, "A cheaper pilot"). An experiment whose pilot residual stands out
   from the others' (:func:`pilot_outliers`) is named in the warnings: the smoother may have lost
-  track of it, and the reported pass then weights it far less.
+  track of it, and the reported pass would then weight it far less; its pilot is run once more,
+  alone and on other random streams, and the closer fit is used (``pilot_retry``).
 * **Geometry and alignment** (§7.3): inferred, not fixed. Window 0's members carry the nuisances
   of :mod:`imrbayes.ensemble.likelihood`: the relative Rmax error a, the time of the maximum delta
   (t*) and rho = log(Req / Req_hat), drawn from the preprocessing prior and analysed with the
@@ -153,7 +154,8 @@ class MIEnKSSettings:
     and window shift (None: the reported pass's). The pilot only sets each record's noise level
     and tempering from its residual (module doc); 24 members and 3 iterations cost a third of the
     reported pass, but on stiff PA one seed's pilot lost a bubble (docs/results.md, "A cheaper
-    pilot: measured, not the default")."""
+    pilot: measured, not the default"). ``pilot_retry``: an experiment whose pilot residual stands
+    out (:func:`pilot_outliers`) gets a second pilot of its own, and the closer fit is used."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -173,6 +175,7 @@ class MIEnKSSettings:
     pilot_n_ens: int | None = None
     pilot_n_iter: int | None = None
     pilot_h: int | None = None
+    pilot_retry: bool = True
 
     def pilot(self) -> "MIEnKSSettings":
         """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members and
@@ -560,7 +563,7 @@ def pilot_outliers(lik_info: list, names, factor: float = PILOT_OUTLIER_FACTOR) 
             w = lik_info[g]["alpha"] / lik_info[g]["sd_used"] ** 2
             w_ref = np.nanmedian([x["alpha"] / x["sd_used"] ** 2 for i, x in enumerate(lik_info) if i != g])
             out.append(f"experiment {names[g]!r}: the pilot pass's residual ({r:.3g} R*) is {r / ref:.1f}x the median of "
-                       f"the other experiments' ({ref:.3g}), so the reported pass weights it {w / w_ref:.2g}x as much "
+                       f"the other experiments' ({ref:.3g}), so the reported pass would weight it {w / w_ref:.2g}x as much "
                        f"as them; the smoother may have lost track of it (compare its fitted curve with the data; "
                        f"summary.json likelihood)")
     return out
@@ -638,6 +641,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         nuis_sd = np.stack([nuisance_prior_sd(obs, g) for g in range(G)])      # (a, delta, rho)
         var, alpha = noise_var.copy(), np.ones(G)
         pilot_failed = []
+        member_runs_retry = []                       # the sweeps of bubbles whose pilot was repeated
         if s.adapt:
             # pilot pass: the record's noise, no tempering; its fitted curve sets each experiment's
             # noise level and tempering for the pass that is reported (module doc)
@@ -654,7 +658,30 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                 warnings.extend(w)
             pilot_failed = pil["failed_units"]
             var, alpha, lik_info = _noise_model(obs, _fitted(obs, spans_p, pil, nw_p, sp.h), noise_var)
-            warnings.extend(pilot_outliers(lik_info, obs.names))
+            flagged = pilot_outliers(lik_info, obs.names)
+            if s.pilot_retry:
+                for g in [g for g, x in enumerate(lik_info) if x.get("pilot_outlier")]:
+                    # a pilot that lost track of one bubble (a Monte-Carlo failure of the smoother:
+                    # the reported pass fits it) would weight that bubble down for good; one more
+                    # pilot of that bubble alone, on its own random streams, and the closer fit kept
+                    sub = obs.take([g])
+                    pr = _sweep(ex, base, sub, sp, spans_p, seed, lambda j, _, a, b, g=g: beta_p[j, a:b + 1] / noise_var[g],
+                                nuis_sd[[g]], {"pass": "pilot", "retry": g}, None, nw_p)
+                    pilot_failed = pilot_failed + pr["failed_units"]
+                    member_runs_retry.append(pr)
+                    v2, a2, i2 = _noise_model(sub, _fitted(sub, spans_p, pr, nw_p, sp.h), noise_var[[g]])
+                    first = lik_info[g]["resid_rms"]
+                    second = i2[0]["resid_rms"]
+                    keep = second is not None and second < first
+                    if keep:
+                        var[g], alpha[g] = v2[0], a2[0]
+                        lik_info[g] = {**i2[0], "pilot_outlier": True}
+                    lik_info[g]["pilot_retry"] = {"resid_rms_first": first, "resid_rms_retry": second,
+                                                  "kept": "retry" if keep else "first"}
+                    got = f"a residual of {second:.3g} R*" if second is not None else "no residual (too few fitted samples)"
+                    flagged.append(f"experiment {obs.names[g]!r}: a second pilot of it alone (other random draws) gave "
+                                   f"{got} against {first:.3g}; " + ("the second is used" if keep else "the first is kept"))
+            warnings.extend(flagged)
         else:
             lik_info = [{"noise_sd": float(np.sqrt(v)), "sd_used": float(np.sqrt(v)), "alpha": 1.0,
                          "effective_samples": None, "autocorrelation_time": None,
@@ -684,8 +711,9 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     chain_m, chain_c = space.prior_mean.copy(), space.prior_cov.copy()
     member_runs, failed_runs = 0, 0
     if default and s.adapt:
-        member_runs += sum(int(r["member_runs"]) for R in pil["results"] for r in R)
-        failed_runs += sum(int(r["failed_member_runs"]) for R in pil["results"] for r in R)
+        for sweep in [pil, *member_runs_retry]:
+            member_runs += sum(int(r["member_runs"]) for R in sweep["results"] for r in R)
+            failed_runs += sum(int(r["failed_member_runs"]) for R in sweep["results"] for r in R)
     posteriors = []                                   # WindowPosterior per window: what --mcmc checks
     average = s.L if s.obs_weight == "mean" else 1    # the weight's 1/L (paper)
     lik_terms = {g: [] for g in range(G)}             # default: every window's likelihood of each experiment
