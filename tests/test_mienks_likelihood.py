@@ -198,6 +198,17 @@ def test_a_flagged_bubbles_pilot_is_run_again_and_the_closer_fit_kept(monkeypatc
     res_off = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, pilot_retry=False), seed=0)
     assert not any("/retry=" in u for u in seen) and "pilot_retry" not in res_off.per_experiment[1]["likelihood"]
 
+    def fail_retry(u, rng):                         # a retry that fails keeps the first pilot, the fit goes on
+        if "/retry=" in u.unit_id:
+            raise RuntimeError("lost")
+        return unit(u, rng)
+    monkeypatch.setattr(mk, "mienks_unit", fail_retry)
+    res_fail = fit_mienks(fm, obs, space(fm), s, seed=0)
+    r = res_fail.per_experiment[1]["likelihood"]["pilot_retry"]
+    assert r["kept"] == "first" and r["resid_rms_retry"] is None and "lost" in r["error"]
+    assert res_fail.per_experiment[1]["likelihood"]["resid_rms"] == 1.0
+    assert any("second pilot of it alone failed" in w for w in res_fail.warnings)
+
 
 def test_paper_mode_reproduces_the_previous_method():
     """likelihood="paper" gives the numbers the method gave before the default likelihood (computed

@@ -665,12 +665,20 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
                     # the reported pass fits it) would weight that bubble down for good; one more
                     # pilot of that bubble alone, on its own random streams, and the closer fit kept
                     sub = obs.take([g])
-                    pr = _sweep(ex, base, sub, sp, spans_p, seed, lambda j, _, a, b, g=g: beta_p[j, a:b + 1] / noise_var[g],
-                                nuis_sd[[g]], {"pass": "pilot", "retry": g}, None, nw_p)
+                    first = lik_info[g]["resid_rms"]
+                    try:
+                        pr = _sweep(ex, base, sub, sp, spans_p, seed,
+                                    lambda j, _, a, b, g=g: beta_p[j, a:b + 1] / noise_var[g],
+                                    nuis_sd[[g]], {"pass": "pilot", "retry": g}, None, nw_p)
+                    except RuntimeError as exc:        # the bubble failed in some window of the retry
+                        lik_info[g]["pilot_retry"] = {"resid_rms_first": first, "resid_rms_retry": None,
+                                                      "kept": "first", "error": str(exc)}
+                        flagged.append(f"experiment {obs.names[g]!r}: a second pilot of it alone failed ({exc}); "
+                                       f"the first is kept")
+                        continue
                     pilot_failed = pilot_failed + pr["failed_units"]
                     member_runs_retry.append(pr)
                     v2, a2, i2 = _noise_model(sub, _fitted(sub, spans_p, pr, nw_p, sp.h), noise_var[[g]])
-                    first = lik_info[g]["resid_rms"]
                     second = i2[0]["resid_rms"]
                     keep = second is not None and second < first
                     if keep:
