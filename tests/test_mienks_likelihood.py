@@ -37,6 +37,17 @@ def noisy(fm, n_exp=2, n_steps=40, sd=0.01, offsets=None, t0_sd=0.0, seed=0):
                         tc_s=np.full(n_exp, 30e-6))
 
 
+def spy_unit_ids(monkeypatch):
+    """(the list every MIEnKS-MDA unit's id is appended to as it runs, the unit function itself)."""
+    ids, unit = [], mk.mienks_unit
+
+    def spy(u, rng):
+        ids.append(u.unit_id)
+        return unit(u, rng)
+    monkeypatch.setattr(mk, "mienks_unit", spy)
+    return ids, unit
+
+
 def test_settings_are_checked():
     MIEnKSSettings().check(120)
     MIEnKSSettings(likelihood="paper", fusion="prior", obs_weight="mda").check(120)
@@ -175,13 +186,7 @@ def test_a_flagged_bubbles_pilot_is_run_again_and_the_closer_fit_kept(monkeypatc
         lik_info[1]["pilot_outlier"] = True
         return [f"experiment {names[1]!r}: flagged"]
     monkeypatch.setattr(mk, "pilot_outliers", flag_second)
-    seen = []
-    unit = mk.mienks_unit
-
-    def spy(u, rng):
-        seen.append(u.unit_id)
-        return unit(u, rng)
-    monkeypatch.setattr(mk, "mienks_unit", spy)
+    seen, unit = spy_unit_ids(monkeypatch)
     s = MIEnKSSettings(n_ens=8, n_iter=1, L=15, h=5, n_draws=2)
     res = fit_mienks(fm, obs, space(fm), s, seed=0)
     retry = [u for u in seen if "/retry=" in u]
@@ -420,13 +425,7 @@ def test_reported_pass_is_continuous_in_the_pilots_last_bits(monkeypatch):
     Y2[:, 1:] *= 1.0 + 1e-13
     obs2 = dataclasses.replace(obs, R_star=Y2)
     s = MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=2)
-    ids = []
-    unit = mk.mienks_unit
-
-    def spy(u, rng):
-        ids.append(u.unit_id)
-        return unit(u, rng)
-    monkeypatch.setattr(mk, "mienks_unit", spy)
+    ids, _ = spy_unit_ids(monkeypatch)
     est = []
     for o in (obs, obs2):
         ids.clear()
