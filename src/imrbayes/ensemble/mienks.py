@@ -569,6 +569,42 @@ def pilot_outliers(lik_info: list, names, factor: float = PILOT_OUTLIER_FACTOR) 
     return out
 
 
+def _retry_lost_pilots(ex, base, obs, sp, spans_p, seed, w_pilot, nuis_sd, noise_var, var, alpha, lik_info):
+    """One more pilot for each experiment :func:`pilot_outliers` flagged, that bubble alone on its own
+    random streams (units ``pass=pilot/retry=<g>/...``); the closer of the two fits sets its noise
+    model (``var``, ``alpha`` and ``lik_info`` updated in place, ``lik_info[g]["pilot_retry"]`` says
+    which). Why: a pilot that lost track of a bubble is a Monte-Carlo failure of the smoother (the
+    reported pass fits it), and it would weight that bubble down for good. A retry that fails keeps
+    the first. Returns (warnings, the retry sweeps, their failed units)."""
+    notes, sweeps, failed = [], [], []
+    nw_p = spans_p.shape[0]
+    for g in [g for g, x in enumerate(lik_info) if x.get("pilot_outlier")]:
+        sub = obs.take([g])
+        first = lik_info[g]["resid_rms"]
+        try:
+            pr = _sweep(ex, base, sub, sp, spans_p, seed, lambda j, _, a, b, g=g: w_pilot(j, g, a, b),
+                        nuis_sd[[g]], {"pass": "pilot", "retry": g}, None, nw_p)
+        except RuntimeError as exc:        # the bubble failed in some window of the retry
+            lik_info[g]["pilot_retry"] = {"resid_rms_first": first, "resid_rms_retry": None, "kept": "first",
+                                          "error": str(exc)}
+            notes.append(f"experiment {obs.names[g]!r}: a second pilot of it alone failed ({exc}); the first is kept")
+            continue
+        failed += pr["failed_units"]
+        sweeps.append(pr)
+        v2, a2, i2 = _noise_model(sub, _fitted(sub, spans_p, pr, nw_p, sp.h), noise_var[[g]])
+        second = i2[0]["resid_rms"]
+        keep = second is not None and second < first
+        if keep:
+            var[g], alpha[g] = v2[0], a2[0]
+            lik_info[g] = {**i2[0], "pilot_outlier": True}
+        lik_info[g]["pilot_retry"] = {"resid_rms_first": first, "resid_rms_retry": second,
+                                      "kept": "retry" if keep else "first"}
+        got = f"a residual of {second:.3g} R*" if second is not None else "no residual (too few fitted samples)"
+        notes.append(f"experiment {obs.names[g]!r}: a second pilot of it alone (other random draws) gave {got} "
+                     f"against {first:.3g}; " + ("the second is used" if keep else "the first is kept"))
+    return notes, sweeps, failed
+
+
 def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution):
     """(Observations with each estimated Req's prior replaced by its whole-record En4D-Var posterior
     [mean, sd], details). Why: the smoother's windows see Req only through the data before them and
@@ -641,7 +677,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         nuis_sd = np.stack([nuisance_prior_sd(obs, g) for g in range(G)])      # (a, delta, rho)
         var, alpha = noise_var.copy(), np.ones(G)
         pilot_failed = []
-        member_runs_retry = []                       # the sweeps of bubbles whose pilot was repeated
+        retry_sweeps = []                            # the sweeps of bubbles whose pilot was repeated
         if s.adapt:
             # pilot pass: the record's noise, no tempering; its fitted curve sets each experiment's
             # noise level and tempering for the pass that is reported (module doc)
@@ -660,35 +696,10 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             var, alpha, lik_info = _noise_model(obs, _fitted(obs, spans_p, pil, nw_p, sp.h), noise_var)
             flagged = pilot_outliers(lik_info, obs.names)
             if s.pilot_retry:
-                for g in [g for g, x in enumerate(lik_info) if x.get("pilot_outlier")]:
-                    # a pilot that lost track of one bubble (a Monte-Carlo failure of the smoother:
-                    # the reported pass fits it) would weight that bubble down for good; one more
-                    # pilot of that bubble alone, on its own random streams, and the closer fit kept
-                    sub = obs.take([g])
-                    first = lik_info[g]["resid_rms"]
-                    try:
-                        pr = _sweep(ex, base, sub, sp, spans_p, seed,
-                                    lambda j, _, a, b, g=g: beta_p[j, a:b + 1] / noise_var[g],
-                                    nuis_sd[[g]], {"pass": "pilot", "retry": g}, None, nw_p)
-                    except RuntimeError as exc:        # the bubble failed in some window of the retry
-                        lik_info[g]["pilot_retry"] = {"resid_rms_first": first, "resid_rms_retry": None,
-                                                      "kept": "first", "error": str(exc)}
-                        flagged.append(f"experiment {obs.names[g]!r}: a second pilot of it alone failed ({exc}); "
-                                       f"the first is kept")
-                        continue
-                    pilot_failed = pilot_failed + pr["failed_units"]
-                    member_runs_retry.append(pr)
-                    v2, a2, i2 = _noise_model(sub, _fitted(sub, spans_p, pr, nw_p, sp.h), noise_var[[g]])
-                    second = i2[0]["resid_rms"]
-                    keep = second is not None and second < first
-                    if keep:
-                        var[g], alpha[g] = v2[0], a2[0]
-                        lik_info[g] = {**i2[0], "pilot_outlier": True}
-                    lik_info[g]["pilot_retry"] = {"resid_rms_first": first, "resid_rms_retry": second,
-                                                  "kept": "retry" if keep else "first"}
-                    got = f"a residual of {second:.3g} R*" if second is not None else "no residual (too few fitted samples)"
-                    flagged.append(f"experiment {obs.names[g]!r}: a second pilot of it alone (other random draws) gave "
-                                   f"{got} against {first:.3g}; " + ("the second is used" if keep else "the first is kept"))
+                more, retry_sweeps, failed = _retry_lost_pilots(ex, base, obs, sp, spans_p, seed, w_pilot, nuis_sd,
+                                                                noise_var, var, alpha, lik_info)
+                flagged += more
+                pilot_failed = pilot_failed + failed
             warnings.extend(flagged)
         else:
             lik_info = [{"noise_sd": float(np.sqrt(v)), "sd_used": float(np.sqrt(v)), "alpha": 1.0,
@@ -719,7 +730,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     chain_m, chain_c = space.prior_mean.copy(), space.prior_cov.copy()
     member_runs, failed_runs = 0, 0
     if default and s.adapt:
-        for sweep in [pil, *member_runs_retry]:
+        for sweep in [pil, *retry_sweeps]:
             member_runs += sum(int(r["member_runs"]) for R in sweep["results"] for r in R)
             failed_runs += sum(int(r["failed_member_runs"]) for R in sweep["results"] for r in R)
     posteriors = []                                   # WindowPosterior per window: what --mcmc checks
