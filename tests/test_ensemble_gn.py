@@ -136,3 +136,49 @@ def test_a_mildly_nonlinear_posterior_hardly_depends_on_the_ensemble_size():
         np.testing.assert_allclose(np.sqrt(np.diag(C)), sd, rtol=0.1)
     # and not trivially: the posterior is far narrower than the prior and away from its mean
     assert np.all(sd < 0.25 * 0.5) and np.any(np.abs(ref_mean) / sd > 3)
+
+
+def test_min_iter_stops_a_converged_group_early_with_the_same_posterior():
+    # linear: the first Gauss-Newton step lands on the optimum (evaluation 1: the cost falls), the
+    # next repeats its cost, so with min_iter=2 every group stops after three of its five
+    # evaluations, with the exact posterior
+    rng, M, P, c, y, m0, S0 = _linear_problem(seed=3)
+    G, N = M.shape[0], 20
+    E0 = np.stack([draw(rng, m0, S0, N) for _ in range(G)])
+    calls = []
+
+    def evaluate(groups, Z):
+        calls.append(len(groups))
+        return np.einsum("kmd,kd->km", M[groups], Z), np.zeros(len(groups), dtype=bool)
+
+    res = gauss_newton(E0, evaluate, y, c / P, n_iter=5, min_iter=2)
+    assert calls == [G * N] * 3
+    assert np.all(np.isnan(res.cost[:, 3:])) and np.all(np.isfinite(res.cost[:, :3]))
+    for g in range(G):
+        mean, cov = _exact(M[g], P, c, y[g], m0, S0)
+        np.testing.assert_allclose(res.mean[g], mean, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(res.cov[g], cov, rtol=1e-8, atol=1e-12)
+
+
+def test_min_iter_on_a_nonlinear_posterior_stops_only_once_the_cost_settles():
+    # y = exp(M z), prior far from the optimum: the cost falls over several iterations, so a group
+    # may not stop at min_iter; where it stops, the posterior is the fully iterated one to a
+    # hundredth of its sd, and every group's evaluations lie between min_iter and n_iter
+    rng = np.random.default_rng(5)
+    d, m, G = 3, 25, 6
+    M = rng.normal(size=(G, m, d)) * 0.7
+    truth = rng.normal(size=(G, d)) * 0.8
+    y = np.exp(np.einsum("gmd,gd->gm", M, truth)) + rng.normal(size=(G, m)) * 0.05
+    E0 = np.stack([draw(rng, np.zeros(d), np.eye(d), 24) for _ in range(G)])
+
+    def evaluate(groups, Z):
+        return np.exp(np.einsum("kmd,kd->km", M[groups], Z)), np.zeros(len(groups), dtype=bool)
+
+    full = gauss_newton(E0, evaluate, y, np.full(m, 1 / 0.05 ** 2), n_iter=10)
+    early = gauss_newton(E0, evaluate, y, np.full(m, 1 / 0.05 ** 2), n_iter=10, min_iter=3)
+    n_eval = np.sum(np.isfinite(early.cost), axis=1)
+    assert np.all((n_eval >= 3) & (n_eval <= 10)) and n_eval.sum() < 10 * G and n_eval.max() > 3
+    for g in range(G):
+        sd = np.sqrt(np.diag(full.cov[g]))
+        assert np.all(np.abs(early.mean[g] - full.mean[g]) / sd < 0.01)
+        np.testing.assert_allclose(np.sqrt(np.diag(early.cov[g])), sd, rtol=0.01)

@@ -215,6 +215,36 @@ def test_a_flagged_bubbles_pilot_is_run_again_and_the_closer_fit_kept(monkeypatc
     assert any("second pilot of it alone failed" in w for w in res_fail.warnings)
 
 
+def test_a_cheaper_pilots_retry_runs_at_the_reported_pass_size(monkeypatch):
+    """With ``pilot_n_ens`` / ``pilot_n_iter`` set, a flagged bubble's second pilot runs with the
+    reported pass's members and iterations over the pilot's windows (``pilot_h``): on stiff PA seed 1
+    a retry at the cheap pilot's own size lost the same bubble again (docs/results.md)."""
+    fm = observations()[0]
+    obs = noisy(fm, n_exp=3, n_steps=40, sd=0.01, seed=2)
+
+    def flag_second(lik_info, names, factor=3.0):
+        lik_info[1]["resid_rms"] = 1.0
+        lik_info[1]["pilot_outlier"] = True
+        return [f"experiment {names[1]!r}: flagged"]
+    monkeypatch.setattr(mk, "pilot_outliers", flag_second)
+    seen, unit = [], mk.mienks_unit
+
+    def spy(u, rng):
+        st = u.data["settings"]
+        seen.append((u.unit_id, st.n_ens, st.n_iter, st.h))
+        return unit(u, rng)
+    monkeypatch.setattr(mk, "mienks_unit", spy)
+    s = MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=2, pilot_n_ens=4, pilot_n_iter=1, pilot_h=10)
+    res = fit_mienks(fm, obs, space(fm), s, seed=0)
+    kinds = {}
+    for uid, n_ens, n_iter, h in seen:
+        kind = "retry" if "/retry=" in uid else "pilot" if uid.startswith("pass=pilot") else "reported"
+        kinds.setdefault(kind, set()).add((n_ens, n_iter, h))
+    assert kinds == {"pilot": {(4, 1, 10)}, "retry": {(8, 2, 10)}, "reported": {(8, 2, 5)}}
+    assert sum("/retry=" in x[0] for x in seen) == mk.n_windows(40, 15, 10)
+    assert res.per_experiment[1]["likelihood"]["pilot_retry"]["kept"] == "retry"
+
+
 def test_paper_mode_reproduces_the_previous_method():
     """likelihood="paper" gives the numbers the method gave before the default likelihood (computed
     with that code on this case, seed 3)."""
