@@ -144,7 +144,9 @@ def test_a_cheaper_pilot_runs_with_its_own_members_iterations_and_shift(monkeypa
     runs = mk.MIEnKS.n_forward_runs(s, 2, 40)
     assert runs == (mk.n_windows(40, 15, 5) * 3 * 8 + mk.n_windows(40, 15, 10) * 2 * 4) * 2
     d = MIEnKSSettings().pilot()
-    assert (d.n_ens, d.n_iter, d.h) == (48, 5, 5)              # the default pilot: the reported pass's settings
+    assert (d.n_ens, d.n_iter, d.h) == (24, 5, 5)              # the default pilot: half the members (session 60)
+    d = MIEnKSSettings(pilot_n_ens=None).pilot()
+    assert (d.n_ens, d.n_iter, d.h) == (48, 5, 5)              # unset: the reported pass's settings
     d = MIEnKSSettings(n_ens=16, n_iter=2, pilot_n_ens=24, pilot_n_iter=3).pilot()
     assert (d.n_ens, d.n_iter) == (16, 2)                       # never dearer than the reported pass
     for bad in ({"pilot_n_ens": 2}, {"pilot_n_iter": 0}, {"pilot_h": 16}, {"pilot_h": 1.5}):
@@ -243,6 +245,27 @@ def test_a_cheaper_pilots_retry_runs_at_the_reported_pass_size(monkeypatch):
     assert kinds == {"pilot": {(4, 1, 10)}, "retry": {(8, 2, 10)}, "reported": {(8, 2, 5)}}
     assert sum("/retry=" in x[0] for x in seen) == mk.n_windows(40, 15, 10)
     assert res.per_experiment[1]["likelihood"]["pilot_retry"]["kept"] == "retry"
+
+
+def test_stopping_settled_windows_early_saves_runs_not_the_answer():
+    """``min_iter`` (default 2): windows whose cost has settled stop before ``n_iter``; the same
+    records give the gel-level estimate of the fully iterated smoother (None) to a tenth of its sd
+    with fewer forward runs, and each window's logged costs never exceed ``n_iter`` evaluations."""
+    fm = observations()[0]
+    obs = noisy(fm, n_exp=3, n_steps=60, sd=0.01, seed=4)
+    s = MIEnKSSettings(n_ens=16, n_iter=5, L=20, h=10, n_draws=3)
+    assert s.min_iter == 2
+    early = fit_mienks(fm, obs, space(fm), s, seed=1)
+    full = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, min_iter=None), seed=1)
+    assert early.details["member_runs"] < full.details["member_runs"]
+    for name in ("G", "mu"):
+        sd = full.estimate[name]["sd"]
+        assert abs(early.estimate[name]["mean"] - full.estimate[name]["mean"]) < 0.1 * sd
+        assert early.estimate[name]["sd"] == pytest.approx(sd, rel=0.1)
+    assert all(len(w["cost"]) == 5 for w in early.windows)
+    assert any(c is None for w in early.windows for c in w["cost"])       # some window stopped early
+    with pytest.raises(InputError, match="min_iter"):
+        MIEnKSSettings(min_iter=0).check(120)
 
 
 def test_paper_mode_reproduces_the_previous_method():
