@@ -182,3 +182,41 @@ def test_min_iter_on_a_nonlinear_posterior_stops_only_once_the_cost_settles():
         sd = np.sqrt(np.diag(full.cov[g]))
         assert np.all(np.abs(early.mean[g] - full.mean[g]) / sd < 0.01)
         np.testing.assert_allclose(np.sqrt(np.diag(early.cov[g])), sd, rtol=0.01)
+
+
+def test_step_tol_stops_once_the_next_step_is_shorter_than_a_fraction_of_an_sd():
+    # linear: after the first step (evaluation 1, at the optimum) the next step is zero, so with
+    # step_tol the group stops there, one evaluation before the cost rule would, exactly right
+    rng, M, P, c, y, m0, S0 = _linear_problem(seed=4)
+    G, N = M.shape[0], 20
+    E0 = np.stack([draw(rng, m0, S0, N) for _ in range(G)])
+    calls = []
+
+    def evaluate(groups, Z):
+        calls.append(len(groups))
+        return np.einsum("kmd,kd->km", M[groups], Z), np.zeros(len(groups), dtype=bool)
+
+    res = gauss_newton(E0, evaluate, y, c / P, n_iter=5, min_iter=2, step_tol=0.1)
+    assert calls == [G * N] * 2
+    for g in range(G):
+        mean, cov = _exact(M[g], P, c, y[g], m0, S0)
+        np.testing.assert_allclose(res.mean[g], mean, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(res.cov[g], cov, rtol=1e-8, atol=1e-12)
+    # nonlinear (the problem above): stopped where the next step is under 0.05 sd, the posterior
+    # mean lies within 0.05 sd of the fully iterated one
+    rng = np.random.default_rng(5)
+    d, m, G = 3, 25, 6
+    M = rng.normal(size=(G, m, d)) * 0.7
+    truth = rng.normal(size=(G, d)) * 0.8
+    y = np.exp(np.einsum("gmd,gd->gm", M, truth)) + rng.normal(size=(G, m)) * 0.05
+    E0 = np.stack([draw(rng, np.zeros(d), np.eye(d), 24) for _ in range(G)])
+
+    def evaluate_nl(groups, Z):
+        return np.exp(np.einsum("kmd,kd->km", M[groups], Z)), np.zeros(len(groups), dtype=bool)
+
+    full = gauss_newton(E0, evaluate_nl, y, np.full(m, 1 / 0.05 ** 2), n_iter=10)
+    early = gauss_newton(E0, evaluate_nl, y, np.full(m, 1 / 0.05 ** 2), n_iter=10, min_iter=2, step_tol=0.05)
+    assert np.sum(np.isfinite(early.cost)) < np.sum(np.isfinite(full.cost))
+    for g in range(G):
+        sd = np.sqrt(np.diag(full.cov[g]))
+        assert np.all(np.abs(early.mean[g] - full.mean[g]) / sd < 0.05)

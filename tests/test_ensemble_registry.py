@@ -38,7 +38,10 @@ def test_every_method_declares_the_protocol():
     with pytest.raises(InputError, match="n_ens"):
         e4(n_ens=0).check()
     cls = METHODS["mienks"].settings_class          # default likelihood: a pilot pass, then the reported one
-    assert METHODS["mienks"].n_forward_runs(cls(), 2, 120) == 2 * 18 * 6 * 48 * 2
+    # the default likelihood: the pilot (24 members) and the reported pass (48); an upper bound,
+    # windows whose cost settles stop before n_iter (min_iter)
+    assert METHODS["mienks"].n_forward_runs(cls(), 2, 120) == 18 * 6 * (48 + 24) * 2
+    assert METHODS["mienks"].n_forward_runs(cls(pilot_n_ens=None), 2, 120) == 2 * 18 * 6 * 48 * 2
     assert METHODS["mienks"].n_forward_runs(cls(likelihood="paper"), 2, 120) == 18 * 6 * 48 * 2
 
 
