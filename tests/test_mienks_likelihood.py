@@ -254,9 +254,9 @@ def test_stopping_settled_windows_early_saves_runs_not_the_answer():
     fm = observations()[0]
     obs = noisy(fm, n_exp=3, n_steps=60, sd=0.01, seed=4)
     s = MIEnKSSettings(n_ens=16, n_iter=5, L=20, h=10, n_draws=3)
-    assert s.min_iter == 2
+    assert s.min_iter == 2 and s.step_tol == 0.1
     early = fit_mienks(fm, obs, space(fm), s, seed=1)
-    full = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, min_iter=None), seed=1)
+    full = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, min_iter=None, step_tol=None), seed=1)
     assert early.details["member_runs"] < full.details["member_runs"]
     for name in ("G", "mu"):
         sd = full.estimate[name]["sd"]
@@ -266,6 +266,9 @@ def test_stopping_settled_windows_early_saves_runs_not_the_answer():
     assert any(c is None for w in early.windows for c in w["cost"])       # some window stopped early
     with pytest.raises(InputError, match="min_iter"):
         MIEnKSSettings(min_iter=0).check(120)
+    for bad in (0.0, -1.0, float("nan"), True):
+        with pytest.raises(InputError, match="step_tol"):
+            MIEnKSSettings(step_tol=bad).check(120)
 
 
 def test_paper_mode_reproduces_the_previous_method():

@@ -110,6 +110,7 @@ the whole last window).
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 import warnings as _warnings
 from dataclasses import asdict, dataclass, replace
@@ -165,7 +166,10 @@ class MIEnKSSettings:
     accepted iterate whose cost fell by <= 1 % (:func:`imrbayes.ensemble.gn.gauss_newton`; None:
     always ``n_iter``, the method before session 60). Default 2: on stiff PA 1-5 15-17 % fewer
     forward runs with the gel-level estimate within 0.04 posterior sd, on 40 camera records'
-    paired shifts <= 0.15 sd (docs/results.md, "Stopping a settled window early")."""
+    paired shifts <= 0.15 sd. ``step_tol``: from ``min_iter`` on a window also stops once its
+    next Gauss–Newton step is shorter than this many posterior sd (the Newton decrement; None:
+    never); 0.1 took another 10-14 % of the forward runs off stiff PA 1-5 with the estimates within
+    0.06 sd (docs/results.md, "Settled windows stop early")."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -187,7 +191,7 @@ class MIEnKSSettings:
     pilot_h: int | None = None
     pilot_retry: bool = True
     min_iter: int | None = 2
-    step_tol: float | None = None
+    step_tol: float | None = 0.1
 
     def pilot(self) -> "MIEnKSSettings":
         """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members and
@@ -233,6 +237,9 @@ class MIEnKSSettings:
                                           or self.min_iter < 1):
             raise InputError("min_iter", f"must be a positive integer (n_iter or more: never early) or unset, "
                                          f"got {self.min_iter!r}")
+        if self.step_tol is not None and not (isinstance(self.step_tol, (int, float)) and not isinstance(self.step_tol, bool)
+                                              and math.isfinite(self.step_tol) and self.step_tol > 0):
+            raise InputError("step_tol", f"must be a positive number of posterior sd or unset, got {self.step_tol!r}")
         if self.pilot_h is not None and self.pilot_h > self.L:
             raise InputError("pilot_h", f"the pilot's shift {self.pilot_h} exceeds the window length L = {self.L}")
         n_windows(n_steps, self.L, self.h)
