@@ -169,7 +169,7 @@ class MIEnKSSettings:
     paired shifts <= 0.15 sd. ``step_tol``: from ``min_iter`` on a window also stops once its
     next Gauss–Newton step is shorter than this many posterior sd (the Newton decrement; None:
     never); 0.1 took another 10-14 % of the forward runs off stiff PA 1-5 with the estimates within
-    0.06 sd (docs/results.md, "Settled windows stop early")."""
+    0.06 sd (docs/results.md, "Settled windows stop early; the pilot has half the members")."""
 
     n_ens: int = 48
     n_iter: int = 5
