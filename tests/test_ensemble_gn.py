@@ -138,11 +138,9 @@ def test_a_mildly_nonlinear_posterior_hardly_depends_on_the_ensemble_size():
     assert np.all(sd < 0.25 * 0.5) and np.any(np.abs(ref_mean) / sd > 3)
 
 
-def test_min_iter_stops_a_converged_group_early_with_the_same_posterior():
-    # linear: the first Gauss-Newton step lands on the optimum (evaluation 1: the cost falls), the
-    # next repeats its cost, so with min_iter=2 every group stops after three of its five
-    # evaluations, with the exact posterior
-    rng, M, P, c, y, m0, S0 = _linear_problem(seed=3)
+def _counted_linear(seed):
+    """A linear problem, its prior ensembles and an evaluate that logs each batch's size."""
+    rng, M, P, c, y, m0, S0 = _linear_problem(seed=seed)
     G, N = M.shape[0], 20
     E0 = np.stack([draw(rng, m0, S0, N) for _ in range(G)])
     calls = []
@@ -150,20 +148,11 @@ def test_min_iter_stops_a_converged_group_early_with_the_same_posterior():
     def evaluate(groups, Z):
         calls.append(len(groups))
         return np.einsum("kmd,kd->km", M[groups], Z), np.zeros(len(groups), dtype=bool)
-
-    res = gauss_newton(E0, evaluate, y, c / P, n_iter=5, min_iter=2)
-    assert calls == [G * N] * 3
-    assert np.all(np.isnan(res.cost[:, 3:])) and np.all(np.isfinite(res.cost[:, :3]))
-    for g in range(G):
-        mean, cov = _exact(M[g], P, c, y[g], m0, S0)
-        np.testing.assert_allclose(res.mean[g], mean, rtol=1e-8, atol=1e-10)
-        np.testing.assert_allclose(res.cov[g], cov, rtol=1e-8, atol=1e-12)
+    return E0, evaluate, calls, (M, P, c, y, m0, S0)
 
 
-def test_min_iter_on_a_nonlinear_posterior_stops_only_once_the_cost_settles():
-    # y = exp(M z), prior far from the optimum: the cost falls over several iterations, so a group
-    # may not stop at min_iter; where it stops, the posterior is the fully iterated one to a
-    # hundredth of its sd, and every group's evaluations lie between min_iter and n_iter
+def _exp_problem():
+    """y = exp(M z) for six groups, the prior far from the optimum (several falling iterations)."""
     rng = np.random.default_rng(5)
     d, m, G = 3, 25, 6
     M = rng.normal(size=(G, m, d)) * 0.7
@@ -173,9 +162,36 @@ def test_min_iter_on_a_nonlinear_posterior_stops_only_once_the_cost_settles():
 
     def evaluate(groups, Z):
         return np.exp(np.einsum("kmd,kd->km", M[groups], Z)), np.zeros(len(groups), dtype=bool)
+    return E0, evaluate, y, np.full(m, 1 / 0.05 ** 2)
 
-    full = gauss_newton(E0, evaluate, y, np.full(m, 1 / 0.05 ** 2), n_iter=10)
-    early = gauss_newton(E0, evaluate, y, np.full(m, 1 / 0.05 ** 2), n_iter=10, min_iter=3)
+
+def _assert_exact(res, problem):
+    M, P, c, y, m0, S0 = problem
+    for g in range(M.shape[0]):
+        mean, cov = _exact(M[g], P, c, y[g], m0, S0)
+        np.testing.assert_allclose(res.mean[g], mean, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(res.cov[g], cov, rtol=1e-8, atol=1e-12)
+
+
+def test_min_iter_stops_a_converged_group_early_with_the_same_posterior():
+    # linear: the first Gauss-Newton step lands on the optimum (evaluation 1: the cost falls), the
+    # next repeats its cost, so with min_iter=2 every group stops after three of its five
+    # evaluations, with the exact posterior
+    E0, evaluate, calls, problem = _counted_linear(3)
+    res = gauss_newton(E0, evaluate, problem[3], problem[2] / problem[1], n_iter=5, min_iter=2)
+    assert calls == [E0.shape[0] * E0.shape[1]] * 3
+    assert np.all(np.isnan(res.cost[:, 3:])) and np.all(np.isfinite(res.cost[:, :3]))
+    _assert_exact(res, problem)
+
+
+def test_min_iter_on_a_nonlinear_posterior_stops_only_once_the_cost_settles():
+    # the cost falls over several iterations, so a group may not stop at min_iter; where it stops,
+    # the posterior is the fully iterated one to a hundredth of its sd, and every group's
+    # evaluations lie between min_iter and n_iter
+    E0, evaluate, y, W = _exp_problem()
+    G = E0.shape[0]
+    full = gauss_newton(E0, evaluate, y, W, n_iter=10)
+    early = gauss_newton(E0, evaluate, y, W, n_iter=10, min_iter=3)
     n_eval = np.sum(np.isfinite(early.cost), axis=1)
     assert np.all((n_eval >= 3) & (n_eval <= 10)) and n_eval.sum() < 10 * G and n_eval.max() > 3
     for g in range(G):
@@ -187,36 +203,16 @@ def test_min_iter_on_a_nonlinear_posterior_stops_only_once_the_cost_settles():
 def test_step_tol_stops_once_the_next_step_is_shorter_than_a_fraction_of_an_sd():
     # linear: after the first step (evaluation 1, at the optimum) the next step is zero, so with
     # step_tol the group stops there, one evaluation before the cost rule would, exactly right
-    rng, M, P, c, y, m0, S0 = _linear_problem(seed=4)
-    G, N = M.shape[0], 20
-    E0 = np.stack([draw(rng, m0, S0, N) for _ in range(G)])
-    calls = []
-
-    def evaluate(groups, Z):
-        calls.append(len(groups))
-        return np.einsum("kmd,kd->km", M[groups], Z), np.zeros(len(groups), dtype=bool)
-
-    res = gauss_newton(E0, evaluate, y, c / P, n_iter=5, min_iter=2, step_tol=0.1)
-    assert calls == [G * N] * 2
-    for g in range(G):
-        mean, cov = _exact(M[g], P, c, y[g], m0, S0)
-        np.testing.assert_allclose(res.mean[g], mean, rtol=1e-8, atol=1e-10)
-        np.testing.assert_allclose(res.cov[g], cov, rtol=1e-8, atol=1e-12)
-    # nonlinear (the problem above): stopped where the next step is under 0.05 sd, the posterior
-    # mean lies within 0.05 sd of the fully iterated one
-    rng = np.random.default_rng(5)
-    d, m, G = 3, 25, 6
-    M = rng.normal(size=(G, m, d)) * 0.7
-    truth = rng.normal(size=(G, d)) * 0.8
-    y = np.exp(np.einsum("gmd,gd->gm", M, truth)) + rng.normal(size=(G, m)) * 0.05
-    E0 = np.stack([draw(rng, np.zeros(d), np.eye(d), 24) for _ in range(G)])
-
-    def evaluate_nl(groups, Z):
-        return np.exp(np.einsum("kmd,kd->km", M[groups], Z)), np.zeros(len(groups), dtype=bool)
-
-    full = gauss_newton(E0, evaluate_nl, y, np.full(m, 1 / 0.05 ** 2), n_iter=10)
-    early = gauss_newton(E0, evaluate_nl, y, np.full(m, 1 / 0.05 ** 2), n_iter=10, min_iter=2, step_tol=0.05)
+    E0, evaluate, calls, problem = _counted_linear(4)
+    res = gauss_newton(E0, evaluate, problem[3], problem[2] / problem[1], n_iter=5, min_iter=2, step_tol=0.1)
+    assert calls == [E0.shape[0] * E0.shape[1]] * 2
+    _assert_exact(res, problem)
+    # nonlinear: stopped where the next step is under 0.05 sd, the posterior mean lies within
+    # 0.05 sd of the fully iterated one, with fewer evaluations
+    E0, evaluate, y, W = _exp_problem()
+    full = gauss_newton(E0, evaluate, y, W, n_iter=10)
+    early = gauss_newton(E0, evaluate, y, W, n_iter=10, min_iter=2, step_tol=0.05)
     assert np.sum(np.isfinite(early.cost)) < np.sum(np.isfinite(full.cost))
-    for g in range(G):
+    for g in range(E0.shape[0]):
         sd = np.sqrt(np.diag(full.cov[g]))
         assert np.all(np.abs(early.mean[g] - full.mean[g]) / sd < 0.05)
