@@ -254,9 +254,12 @@ def test_stopping_settled_windows_early_saves_runs_not_the_answer():
     fm = observations()[0]
     obs = noisy(fm, n_exp=3, n_steps=60, sd=0.01, seed=4)
     s = MIEnKSSettings(n_ens=16, n_iter=5, L=20, h=10, n_draws=3)
-    assert s.min_iter == 2 and s.step_tol == 0.1
+    r = s.resolved()
+    assert (r.min_iter, r.step_tol) == (2, 0.1)
+    paper = dataclasses.replace(s, likelihood="paper").resolved()
+    assert (paper.min_iter, paper.step_tol) == (None, None)       # the paper's: n_iter in every window
     early = fit_mienks(fm, obs, space(fm), s, seed=1)
-    full = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, min_iter=None, step_tol=None), seed=1)
+    full = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, min_iter=5), seed=1)     # = n_iter: never early
     assert early.details["member_runs"] < full.details["member_runs"]
     for name in ("G", "mu"):
         sd = full.estimate[name]["sd"]

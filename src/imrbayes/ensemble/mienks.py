@@ -134,6 +134,11 @@ from imrbayes.forward import BatchState, Runner, fm_spec, register_runner, runne
 __all__ = ["MIEnKS", "MIEnKSSettings", "fit_mienks", "mienks_unit", "rtps_cov"]
 
 
+#: the default likelihood's early stop of a window's Gauss-Newton iterations (MIEnKSSettings.resolved)
+DEFAULT_MIN_ITER = 2
+DEFAULT_STEP_TOL = 0.1
+
+
 @dataclass
 class MIEnKSSettings:
     """MIEnKS-MDA settings: members, Gauss–Newton iterations, window length L and shift h
@@ -163,13 +168,14 @@ class MIEnKSSettings:
     (:func:`pilot_outliers`) gets a second pilot of its own at the reported pass's size, and the
     closer fit is used.
     ``min_iter``: a window may stop iterating after this many Gauss–Newton evaluations, at the first
-    accepted iterate whose cost fell by <= 1 % (:func:`imrbayes.ensemble.gn.gauss_newton`; None:
-    always ``n_iter``, the method before session 60). Default 2: on stiff PA 1-5 15-17 % fewer
-    forward runs with the gel-level estimate within 0.04 posterior sd, on 40 camera records'
-    paired shifts <= 0.15 sd. ``step_tol``: from ``min_iter`` on a window also stops once its
-    next Gauss–Newton step is shorter than this many posterior sd (the Newton decrement; None:
-    never); 0.1 took another 10-14 % of the forward runs off stiff PA 1-5 with the estimates within
-    0.06 sd (docs/results.md, "Settled windows stop early; the pilot has half the members")."""
+    accepted iterate whose cost fell by <= 1 % (:func:`imrbayes.ensemble.gn.gauss_newton`; ``n_iter``
+    or more: never early, the method before session 60). Unset: 2 with the default likelihood (on
+    stiff PA 1-5 15-17 % fewer forward runs with the gel-level estimate within 0.04 posterior sd,
+    on 40 camera records' paired shifts <= 0.15 sd), ``n_iter`` with the paper's. ``step_tol``:
+    from ``min_iter`` on a window also stops once its next Gauss–Newton step is shorter than this
+    many posterior sd (the Newton decrement). Unset: 0.1 with the default likelihood (another
+    10-14 % of the forward runs off stiff PA 1-5, the estimates within 0.06 sd; docs/results.md,
+    "Settled windows stop early; the pilot has half the members"), never with the paper's."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -190,8 +196,8 @@ class MIEnKSSettings:
     pilot_n_iter: int | None = None
     pilot_h: int | None = None
     pilot_retry: bool = True
-    min_iter: int | None = 2
-    step_tol: float | None = 0.1
+    min_iter: int | None = None
+    step_tol: float | None = None
 
     def pilot(self) -> "MIEnKSSettings":
         """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members and
@@ -202,10 +208,12 @@ class MIEnKSSettings:
 
     def resolved(self) -> "MIEnKSSettings":
         """The settings with the likelihood's own choices filled in (``paper``: ``chain`` fusion and
-        the ``mean`` weight unless set)."""
+        the ``mean`` weight unless set, every window ``n_iter`` iterations; ``default``: windows
+        stop once settled, ``min_iter`` 2 and ``step_tol`` 0.1 unless set)."""
         if self.likelihood == "paper":
             return replace(self, fusion=self.fusion or "chain", obs_weight=self.obs_weight or "mean")
-        return self
+        return replace(self, min_iter=DEFAULT_MIN_ITER if self.min_iter is None else self.min_iter,
+                       step_tol=DEFAULT_STEP_TOL if self.step_tol is None else self.step_tol)
 
     def check(self, n_steps: int):
         check_choice(self.likelihood, self.fusion, self.obs_weight)
@@ -1044,7 +1052,7 @@ class MIEnKS(InferenceMethod):
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         # per window: the Gauss-Newton iterations and the hand-off, every member -- at most: with
-        # min_iter a window whose cost has settled stops early (stiff PA 1-5: ~85 % of this)
+        # min_iter a window whose cost has settled stops early (stiff PA 1-5: ~75 % of this)
         s = settings
         n = n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
         if s.likelihood == "default" and s.adapt:      # the default likelihood's pilot pass
