@@ -251,6 +251,8 @@ def _setting(kv: str):
     key, sep, val = kv.partition("=")
     if not sep or not key:
         raise SystemExit(f"--set {kv!r}: expected KEY=VALUE")
+    if val.lower() in ("none", "null"):       # unset, as `imrbayes fit --set` reads it
+        return key, None
     for cast in (int, float):
         try:
             return key, cast(val)
