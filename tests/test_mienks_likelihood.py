@@ -48,6 +48,20 @@ def spy_unit_ids(monkeypatch):
     return ids, unit
 
 
+def flag_second_as_lost(monkeypatch):
+    """Make the outlier rule flag experiment 1 as if its pilot had lost it (residual 1.0 R*);
+    returns the dict the first pilot's entries are copied into, by experiment."""
+    first = {}
+
+    def flag_second(lik_info, names, factor=3.0):
+        first.update({g: dict(x) for g, x in enumerate(lik_info)})
+        lik_info[1]["resid_rms"] = 1.0
+        lik_info[1]["pilot_outlier"] = True
+        return [f"experiment {names[1]!r}: flagged"]
+    monkeypatch.setattr(mk, "pilot_outliers", flag_second)
+    return first
+
+
 def test_settings_are_checked():
     MIEnKSSettings().check(120)
     MIEnKSSettings(likelihood="paper", fusion="prior", obs_weight="mda").check(120)
@@ -180,14 +194,7 @@ def test_a_flagged_bubbles_pilot_is_run_again_and_the_closer_fit_kept(monkeypatc
     model (recorded in ``pilot_retry``), the other experiments' are untouched; off: no retry."""
     fm = observations()[0]
     obs = noisy(fm, n_exp=3, n_steps=40, sd=0.01, seed=2)
-    first = {}
-
-    def flag_second(lik_info, names, factor=3.0):
-        first.update({g: dict(x) for g, x in enumerate(lik_info)})
-        lik_info[1]["resid_rms"] = 1.0                  # as if the pilot had lost it
-        lik_info[1]["pilot_outlier"] = True
-        return [f"experiment {names[1]!r}: flagged"]
-    monkeypatch.setattr(mk, "pilot_outliers", flag_second)
+    first = flag_second_as_lost(monkeypatch)
     seen, unit = spy_unit_ids(monkeypatch)
     s = MIEnKSSettings(n_ens=8, n_iter=1, L=15, h=5, n_draws=2)
     res = fit_mienks(fm, obs, space(fm), s, seed=0)
@@ -223,12 +230,7 @@ def test_a_cheaper_pilots_retry_runs_at_the_reported_pass_size(monkeypatch):
     a retry at the cheap pilot's own size lost the same bubble again (docs/results.md)."""
     fm = observations()[0]
     obs = noisy(fm, n_exp=3, n_steps=40, sd=0.01, seed=2)
-
-    def flag_second(lik_info, names, factor=3.0):
-        lik_info[1]["resid_rms"] = 1.0
-        lik_info[1]["pilot_outlier"] = True
-        return [f"experiment {names[1]!r}: flagged"]
-    monkeypatch.setattr(mk, "pilot_outliers", flag_second)
+    flag_second_as_lost(monkeypatch)
     seen, unit = [], mk.mienks_unit
 
     def spy(u, rng):
