@@ -198,6 +198,7 @@ class MIEnKSSettings:
     pilot_retry: bool = True
     min_iter: int | None = None
     step_tol: float | None = None
+    prior_widen: float | None = None
 
     def pilot(self) -> "MIEnKSSettings":
         """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members and
@@ -248,6 +249,13 @@ class MIEnKSSettings:
         if self.step_tol is not None and not (isinstance(self.step_tol, (int, float)) and not isinstance(self.step_tol, bool)
                                               and math.isfinite(self.step_tol) and self.step_tol > 0):
             raise InputError("step_tol", f"must be a positive number of posterior sd or unset, got {self.step_tol!r}")
+        if self.prior_widen is not None and not (isinstance(self.prior_widen, (int, float))
+                                                 and not isinstance(self.prior_widen, bool)
+                                                 and math.isfinite(self.prior_widen) and self.prior_widen >= 1.0):
+            raise InputError("prior_widen", f"must be a number >= 1 or unset, got {self.prior_widen!r}")
+        if self.prior_widen not in (None, 1, 1.0) and s.likelihood != "default":
+            raise InputError("prior_widen", "applies to the default likelihood only (the paper's members start "
+                                            "from the parameter prior)")
         if self.pilot_h is not None and self.pilot_h > self.L:
             raise InputError("pilot_h", f"the pilot's shift {self.pilot_h} exceeds the window length L = {self.L}")
         n_windows(n_steps, self.L, self.h)
@@ -303,7 +311,8 @@ def mienks_unit(unit: Unit, rng) -> dict:
         n_aug = 2 if carry else 0
         E = np.zeros((N, ns + dp + n_carry + n_aug))
         E[:, :ns] = st0.y
-        E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov, N)
+        widen = float(getattr(s, "prior_widen", None) or 1.0)
+        E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov * widen ** 2, N)
         if carry:
             sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
             E[:, ns + dp] = sd_rho * rng.standard_normal(N)
