@@ -498,3 +498,39 @@ def test_reported_pass_is_continuous_in_the_pilots_last_bits(monkeypatch):
     # ensembles moved log G by 2e-2 and the covariance by 18 %
     assert np.max(np.abs(m1 - m2)) < 1e-3, (m1, m2)
     assert np.allclose(c1, c2, rtol=1e-2, atol=0.0), (c1, c2)
+
+
+def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the_prior(monkeypatch):
+    """``prior_widen`` (default 3 with the default likelihood, 1 with the paper's): window 0's
+    members are drawn with the parameter prior's sd times the factor (their covariance, exactly),
+    while the gel-level window estimate still uses the parameter prior itself as its chained prior."""
+    assert MIEnKSSettings().resolved().prior_widen == 3.0
+    assert MIEnKSSettings(likelihood="paper").resolved().prior_widen == 1.0
+    assert MIEnKSSettings(prior_widen=1.5).resolved().prior_widen == 1.5
+    for bad in (0.5, float("inf"), True, "3"):
+        with pytest.raises(InputError, match="prior_widen"):
+            MIEnKSSettings(prior_widen=bad).check(120)
+    with pytest.raises(InputError, match="prior_widen"):
+        MIEnKSSettings(likelihood="paper", prior_widen=2.0).check(120)
+    fm = observations()[0]
+    obs = noisy(fm, n_exp=2, n_steps=40, sd=0.01, seed=2)
+    sp = space(fm)
+    seen = {}
+    unit = mk.mienks_unit
+
+    def spy(u, rng):
+        out = unit(u, rng)
+        if u.data["E"] is None:                     # window 0
+            seen.setdefault(u.data["settings"].prior_widen, []).append(out["qc"])
+        return out
+    monkeypatch.setattr(mk, "mienks_unit", spy)
+    base = MIEnKSSettings(n_ens=12, n_iter=2, L=20, h=10, n_draws=3, adapt=False)
+    res = {w: fit_mienks(fm, obs, sp, dataclasses.replace(base, prior_widen=w), seed=1) for w in (1.0, 3.0)}
+    for w in (1.0, 3.0):
+        for qc in seen[w]:
+            np.testing.assert_allclose(qc, sp.prior_cov * w ** 2, rtol=1e-8, atol=1e-12)
+        p0 = res[w].window_posteriors[0]
+        np.testing.assert_allclose(p0.prior_mean, sp.prior_mean)      # the gel chain starts at the prior
+        np.testing.assert_allclose(p0.prior_cov, sp.prior_cov)
+    # the wider start moves where window 0's gel estimate lands, not what prior it states
+    assert res[1.0].windows[0]["mean_internal"] != res[3.0].windows[0]["mean_internal"]
