@@ -501,10 +501,10 @@ def test_reported_pass_is_continuous_in_the_pilots_last_bits(monkeypatch):
 
 
 def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the_prior(monkeypatch):
-    """``prior_widen`` (default 3 with the default likelihood, 1 with the paper's): window 0's
-    members are drawn with the parameter prior's sd times the factor (their covariance, exactly),
-    while the gel-level window estimate still uses the parameter prior itself as its chained prior."""
-    assert MIEnKSSettings().resolved().prior_widen == 3.0
+    """``prior_widen`` (default 1; the default likelihood only): window 0's members are drawn with
+    the parameter prior's sd times the factor (their covariance, exactly), while the gel-level
+    window estimate still uses the parameter prior itself as its chained prior."""
+    assert MIEnKSSettings().resolved().prior_widen == 1.0
     assert MIEnKSSettings(likelihood="paper").resolved().prior_widen == 1.0
     assert MIEnKSSettings(prior_widen=1.5).resolved().prior_widen == 1.5
     for bad in (0.5, float("inf"), True, "3"):

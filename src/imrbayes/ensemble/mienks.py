@@ -137,8 +137,6 @@ __all__ = ["MIEnKS", "MIEnKSSettings", "fit_mienks", "mienks_unit", "rtps_cov"]
 #: the default likelihood's early stop of a window's Gauss-Newton iterations (MIEnKSSettings.resolved)
 DEFAULT_MIN_ITER = 2
 DEFAULT_STEP_TOL = 0.1
-#: the default likelihood's widening of the parameter prior's sd (in z) for window 0's members
-DEFAULT_PRIOR_WIDEN = 3.0
 
 
 @dataclass
@@ -182,12 +180,13 @@ class MIEnKSSettings:
     (in z) times this factor -- a working prior that each window's likelihood (its posterior divided
     by the ensemble's own prior) divides out again; the gel-level chain, the record-level estimate
     and the ``--mcmc`` densities keep the parameter prior (as En4D-Var's ``is_prior_widen``). Why: a
-    prior whose bulk is far from the truth (the paper's mu, 3.2x the camera design's) started every
-    bubble's ensemble there, and the chained ensembles carried that pull to the last window. Unset:
-    3 with the default likelihood (polytropic camera family, 20 seeds: aggregate bias G +15.2 ->
-    +4.7 %, mu +11.4 -> +5.6 %, windows holding the truth G 0.87 -> 0.93, mu 0.79 -> 0.92; 5 put
-    G at -21 %: too wide a start loses G's linearisation; docs/results.md, "A wider start for the
-    members"), 1 (the prior itself) with the paper's."""
+    prior whose bulk is far from the truth (the paper's mu, 3.2x the camera design's) starts every
+    bubble's ensemble there, and the chained ensembles carry that pull to the last window. Unset:
+    1, the prior itself. 3 removes most of the pull on the polytropic camera family (20 seeds:
+    aggregate bias G +15.2 -> +4.7 %, mu +11.4 -> +5.6 %, windows holding the truth G 0.87 -> 0.93,
+    mu 0.79 -> 0.92) but is not the default: on noise-free records (tests' short record, 48
+    members) the wide start ended in a wrong basin (late windows' G -62 %), and 5 put the camera
+    family's G at -21 % (docs/results.md, "A wider start for the members")."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -228,7 +227,7 @@ class MIEnKSSettings:
                            prior_widen=self.prior_widen or 1.0)
         return replace(self, min_iter=DEFAULT_MIN_ITER if self.min_iter is None else self.min_iter,
                        step_tol=DEFAULT_STEP_TOL if self.step_tol is None else self.step_tol,
-                       prior_widen=DEFAULT_PRIOR_WIDEN if self.prior_widen is None else self.prior_widen)
+                       prior_widen=self.prior_widen or 1.0)
 
     def check(self, n_steps: int):
         check_choice(self.likelihood, self.fusion, self.obs_weight)
