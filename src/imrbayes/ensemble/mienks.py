@@ -221,7 +221,8 @@ class MIEnKSSettings:
     def resolved(self) -> "MIEnKSSettings":
         """The settings with the likelihood's own choices filled in (``paper``: ``chain`` fusion and
         the ``mean`` weight unless set, every window ``n_iter`` iterations; ``default``: windows
-        stop once settled, ``min_iter`` 2 and ``step_tol`` 0.1 unless set)."""
+        stop once settled, ``min_iter`` 2 and ``step_tol`` 0.1 unless set; either: ``prior_widen`` 1
+        unless set)."""
         if self.likelihood == "paper":
             return replace(self, fusion=self.fusion or "chain", obs_weight=self.obs_weight or "mean",
                            prior_widen=self.prior_widen or 1.0)
