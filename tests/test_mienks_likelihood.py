@@ -507,9 +507,14 @@ def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the
     assert MIEnKSSettings().resolved().prior_widen == 1.0
     assert MIEnKSSettings(likelihood="paper").resolved().prior_widen == 1.0
     assert MIEnKSSettings(prior_widen=1.5).resolved().prior_widen == 1.5
-    for bad in (0.5, float("inf"), True, "3"):
+    for bad in (0.5, float("inf"), True, "3", "mu=3", "mu:0.5", [3]):
         with pytest.raises(InputError, match="prior_widen"):
             MIEnKSSettings(prior_widen=bad).check(120)
+    np.testing.assert_array_equal(mk.widen_factors("mu:3", ("G", "mu")), [1.0, 3.0])
+    np.testing.assert_array_equal(mk.widen_factors("G:2, mu:3", ("G", "mu")), [2.0, 3.0])
+    np.testing.assert_array_equal(mk.widen_factors(2, ("G", "mu")), [2.0, 2.0])
+    with pytest.raises(InputError, match="unknown parameter"):
+        mk.widen_factors("lambda1:3", ("G", "mu"))
     with pytest.raises(InputError, match="prior_widen"):
         MIEnKSSettings(likelihood="paper", prior_widen=2.0).check(120)
     fm = observations()[0]
@@ -525,10 +530,10 @@ def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the
         return out
     monkeypatch.setattr(mk, "mienks_unit", spy)
     base = MIEnKSSettings(n_ens=12, n_iter=2, L=20, h=10, n_draws=3, adapt=False)
-    res = {w: fit_mienks(fm, obs, sp, dataclasses.replace(base, prior_widen=w), seed=1) for w in (1.0, 3.0)}
-    for w in (1.0, 3.0):
+    res = {w: fit_mienks(fm, obs, sp, dataclasses.replace(base, prior_widen=w), seed=1) for w in (1.0, 3.0, "mu:3")}
+    for w, f in ((1.0, [1, 1]), (3.0, [3, 3]), ("mu:3", [1, 3])):
         for qc in seen[w]:
-            np.testing.assert_allclose(qc, sp.prior_cov * w ** 2, rtol=1e-8, atol=1e-12)
+            np.testing.assert_allclose(qc, sp.prior_cov * np.outer(f, f), rtol=1e-8, atol=1e-12)
         p0 = res[w].window_posteriors[0]
         np.testing.assert_allclose(p0.prior_mean, sp.prior_mean)      # the gel chain starts at the prior
         np.testing.assert_allclose(p0.prior_cov, sp.prior_cov)

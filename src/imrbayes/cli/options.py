@@ -237,7 +237,12 @@ def coerce_setting(cls, name, value, source):
                 raise ValueError
             return int(f)
         if "float" in typ:
-            f = float(v)
+            try:
+                f = float(v)
+            except ValueError:
+                if "str" in typ:                # a field that also takes text (e.g. prior_widen=mu:3)
+                    return v
+                raise
             if not math.isfinite(f):
                 raise ValueError
             return f

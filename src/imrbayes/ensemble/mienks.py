@@ -177,7 +177,7 @@ class MIEnKSSettings:
     10-14 % of the forward runs off stiff PA 1-5, the estimates within 0.06 sd; docs/results.md,
     "Settled windows stop early; the pilot has half the members"), never with the paper's.
     ``prior_widen``: window 0's members draw their parameters from the parameter prior with its sd
-    (in z) times this factor -- a working prior that each window's likelihood (its posterior divided
+    (in z) times this factor (a number, or ``"mu:3"`` for the parameters named, :func:`widen_factors`) -- a working prior that each window's likelihood (its posterior divided
     by the ensemble's own prior) divides out again; the gel-level chain, the record-level estimate
     and the ``--mcmc`` densities keep the parameter prior (as En4D-Var's ``is_prior_widen``). Why: a
     prior whose bulk is far from the truth (the paper's mu, 3.2x the camera design's) starts every
@@ -209,7 +209,7 @@ class MIEnKSSettings:
     pilot_retry: bool = True
     min_iter: int | None = None
     step_tol: float | None = None
-    prior_widen: float | None = None
+    prior_widen: float | str | None = None
 
     def pilot(self) -> "MIEnKSSettings":
         """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members and
@@ -263,16 +263,45 @@ class MIEnKSSettings:
         if self.step_tol is not None and not (isinstance(self.step_tol, (int, float)) and not isinstance(self.step_tol, bool)
                                               and math.isfinite(self.step_tol) and self.step_tol > 0):
             raise InputError("step_tol", f"must be a positive number of posterior sd or unset, got {self.step_tol!r}")
-        if self.prior_widen is not None and not (isinstance(self.prior_widen, (int, float))
-                                                 and not isinstance(self.prior_widen, bool)
-                                                 and math.isfinite(self.prior_widen) and self.prior_widen >= 1.0):
-            raise InputError("prior_widen", f"must be a number >= 1 or unset, got {self.prior_widen!r}")
+        widen_factors(self.prior_widen, None)
         if self.prior_widen not in (None, 1, 1.0) and s.likelihood != "default":
             raise InputError("prior_widen", "applies to the default likelihood only (the paper's members start "
                                             "from the parameter prior)")
         if self.pilot_h is not None and self.pilot_h > self.L:
             raise InputError("pilot_h", f"the pilot's shift {self.pilot_h} exceeds the window length L = {self.L}")
         n_windows(n_steps, self.L, self.h)
+
+
+def widen_factors(value, names) -> np.ndarray | None:
+    """``prior_widen`` as a factor per parameter: a number K >= 1 (every parameter) or text
+    ``"NAME:K[,NAME:K]"`` (the parameters named; the others 1), None or 1 for none. ``names``: the
+    parameter names (None: check the form only, return None)."""
+    if value is None:
+        return None if names is None else np.ones(len(names))
+    pairs = None
+    if isinstance(value, str):
+        try:
+            pairs = [(k.strip(), float(v)) for k, v in (p.split(":") for p in value.split(","))]
+        except ValueError:
+            raise InputError("prior_widen", f"must be a number >= 1 or 'NAME:K[,NAME:K]', got {value!r}")
+        ks = [k for _, k in pairs]
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        ks = [float(value)]
+    else:
+        raise InputError("prior_widen", f"must be a number >= 1 or 'NAME:K[,NAME:K]', got {value!r}")
+    if not all(math.isfinite(k) and k >= 1.0 for k in ks):
+        raise InputError("prior_widen", f"every factor must be a finite number >= 1, got {value!r}")
+    if names is None:
+        return None
+    if pairs is None:
+        return np.full(len(names), ks[0])
+    unknown = [k for k, _ in pairs if k not in names]
+    if unknown:
+        raise InputError("prior_widen", f"unknown parameter(s) {', '.join(unknown)}; the model's: {', '.join(names)}")
+    out = np.ones(len(names))
+    for k, v in pairs:
+        out[list(names).index(k)] = v
+    return out
 
 
 def _redraw_failed(E, bad, rng):
@@ -325,8 +354,8 @@ def mienks_unit(unit: Unit, rng) -> dict:
         n_aug = 2 if carry else 0
         E = np.zeros((N, ns + dp + n_carry + n_aug))
         E[:, :ns] = st0.y
-        widen = float(getattr(s, "prior_widen", None) or 1.0)
-        E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov * widen ** 2, N)
+        f = widen_factors(getattr(s, "prior_widen", None), space.names)
+        E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov * np.outer(f, f), N)
         if carry:
             sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
             E[:, ns + dp] = sd_rho * rng.standard_normal(N)
@@ -708,6 +737,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     n_steps = obs.n_samples - 1
     s.check(n_steps)
     s = s.resolved()
+    widen_factors(s.prior_widen, space.names)           # unknown parameter names refused before any run
     default = s.likelihood == "default"
     t0c = time.perf_counter()
     ex = execution or Execution(progress=False)
