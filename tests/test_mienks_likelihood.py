@@ -515,6 +515,12 @@ def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the
     np.testing.assert_array_equal(mk.widen_factors(2, ("G", "mu")), [2.0, 2.0])
     with pytest.raises(InputError, match="unknown parameter"):
         mk.widen_factors("lambda1:3", ("G", "mu"))
+    from imrbayes.cli.options import coerce_setting          # --set prior_widen=... from the command line
+    assert coerce_setting(MIEnKSSettings, "prior_widen", "3", "--set") == 3.0
+    assert coerce_setting(MIEnKSSettings, "prior_widen", "mu:3", "--set") == "mu:3"
+    assert coerce_setting(MIEnKSSettings, "prior_widen", "none", "--set") is None
+    with pytest.raises(InputError, match="step_tol"):
+        coerce_setting(MIEnKSSettings, "step_tol", "mu:3", "--set")      # a float-only field still refuses text
     with pytest.raises(InputError, match="prior_widen"):
         MIEnKSSettings(likelihood="paper", prior_widen=2.0).check(120)
     fm = observations()[0]
