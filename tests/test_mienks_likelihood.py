@@ -255,7 +255,9 @@ def test_stopping_settled_windows_early_saves_runs_not_the_answer():
     with fewer forward runs, and each window's logged costs never exceed ``n_iter`` evaluations."""
     fm = observations()[0]
     obs = noisy(fm, n_exp=3, n_steps=60, sd=0.01, seed=4)
-    s = MIEnKSSettings(n_ens=16, n_iter=5, L=20, h=10, n_draws=3)
+    # members started at the prior itself: with mu's start widened (the default) this short record's
+    # 16-member windows keep moving for all 5 iterations and only the pilot pass stops early
+    s = MIEnKSSettings(n_ens=16, n_iter=5, L=20, h=10, n_draws=3, prior_widen=1.0)
     r = s.resolved()
     assert (r.min_iter, r.step_tol) == (2, 0.1)
     paper = dataclasses.replace(s, likelihood="paper").resolved()
@@ -325,9 +327,10 @@ def test_default_on_synthetic_records_with_known_truth():
         for name in ("G", "mu"):
             lo, hi = w[name]["hdi95"]
             assert lo < TRUTH[name] < hi, (w["index"], name, w[name])
-    # G is weakly identified with 16 members and 5 windows: it comes out 12-14 % low here, as in the
-    # paper mode with obs_weight="mda" on the same records (same weights with this noise)
-    for name, tol in (("G", 0.2), ("mu", 0.05)):
+    # G is weakly identified with 16 members and 5 windows: with the members started at the prior
+    # itself (prior_widen=1) it came out 12 % low here, as in the paper mode with obs_weight="mda"
+    # on the same records; with mu's start widened (the default) 3 % low
+    for name, tol in (("G", 0.1), ("mu", 0.05)):
         assert res.estimate[name]["mean"] == pytest.approx(TRUTH[name], rel=tol)
     for n, p in enumerate(summ["per_experiment"]):
         nu = p["nuisance"]
@@ -337,8 +340,11 @@ def test_default_on_synthetic_records_with_known_truth():
         assert t0["sd"] < t0["prior_sd"]
         assert abs(t0["offset_star"] - offsets[n]) < max(3 * t0["offset_sd_star"], 0.005), (n, t0)
         # the experiment's own estimate (prior x its window likelihoods over the record): G within 3 sd
-        assert abs(p["estimate"]["G"]["mean"] - TRUTH["G"]) < 3 * p["estimate"]["G"]["sd"], p["estimate"]["G"]
-        assert p["estimate"]["mu"]["mean"] == pytest.approx(TRUTH["mu"], rel=0.05)
+        # and mu within 3 sd, the sd itself under 10 % of the truth
+        for name in ("G", "mu"):
+            e = p["estimate"][name]
+            assert abs(e["mean"] - TRUTH[name]) < 3 * e["sd"], (name, e)
+        assert p["estimate"]["mu"]["sd"] < 0.1 * TRUTH["mu"], p["estimate"]["mu"]
     # leave one bubble out: three records of one gel, each inside the others' predictive
     loo = res.details["leave_one_bubble_out"]
     assert loo["n"] == 3 and loo["parameters"] == ["G", "mu"]
@@ -501,10 +507,13 @@ def test_reported_pass_is_continuous_in_the_pilots_last_bits(monkeypatch):
 
 
 def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the_prior(monkeypatch):
-    """``prior_widen`` (default 1; the default likelihood only): window 0's members are drawn with
-    the parameter prior's sd times the factor (their covariance, exactly), while the gel-level
+    """``prior_widen`` (default ``mu:3``; the default likelihood only): window 0's members are drawn
+    with the parameter prior's sd times the factor (their covariance, exactly), while the gel-level
     window estimate still uses the parameter prior itself as its chained prior."""
-    assert MIEnKSSettings().resolved().prior_widen == 1.0
+    assert MIEnKSSettings().resolved().prior_widen == "mu:3"
+    # the default names mu; a model without one (no stress) starts from the prior itself
+    np.testing.assert_array_equal(mk.widen_factors("mu:3", (), strict=False), [])
+    np.testing.assert_array_equal(mk.widen_factors("mu:3", ("G", "alpha"), strict=False), [1.0, 1.0])
     assert MIEnKSSettings(likelihood="paper").resolved().prior_widen == 1.0
     assert MIEnKSSettings(prior_widen=1.5).resolved().prior_widen == 1.5
     for bad in (0.5, float("inf"), True, "3", "mu=3", "mu:0.5", [3]):

@@ -137,6 +137,7 @@ __all__ = ["MIEnKS", "MIEnKSSettings", "fit_mienks", "mienks_unit", "rtps_cov"]
 #: the default likelihood's early stop of a window's Gauss-Newton iterations (MIEnKSSettings.resolved)
 DEFAULT_MIN_ITER = 2
 DEFAULT_STEP_TOL = 0.1
+DEFAULT_PRIOR_WIDEN = "mu:3"
 
 
 @dataclass
@@ -228,7 +229,7 @@ class MIEnKSSettings:
                            prior_widen=self.prior_widen or 1.0)
         return replace(self, min_iter=DEFAULT_MIN_ITER if self.min_iter is None else self.min_iter,
                        step_tol=DEFAULT_STEP_TOL if self.step_tol is None else self.step_tol,
-                       prior_widen=self.prior_widen or 1.0)
+                       prior_widen=DEFAULT_PRIOR_WIDEN if self.prior_widen is None else self.prior_widen)
 
     def check(self, n_steps: int):
         check_choice(self.likelihood, self.fusion, self.obs_weight)
@@ -272,7 +273,7 @@ class MIEnKSSettings:
         n_windows(n_steps, self.L, self.h)
 
 
-def widen_factors(value, names) -> np.ndarray | None:
+def widen_factors(value, names, strict: bool = True) -> np.ndarray | None:
     """``prior_widen`` as a factor per parameter: a number K >= 1 (every parameter) or text
     ``"NAME:K[,NAME:K]"`` (the parameters named; the others 1), None or 1 for none. ``names``: the
     parameter names (None: check the form only, return None)."""
@@ -296,7 +297,8 @@ def widen_factors(value, names) -> np.ndarray | None:
     if pairs is None:
         return np.full(len(names), ks[0])
     unknown = [k for k, _ in pairs if k not in names]
-    if unknown:
+    pairs = [(k, v) for k, v in pairs if k in names]
+    if unknown and strict:
         raise InputError("prior_widen", f"unknown parameter(s) {', '.join(unknown)}; the model's: {', '.join(names)}")
     out = np.ones(len(names))
     for k, v in pairs:
@@ -354,7 +356,7 @@ def mienks_unit(unit: Unit, rng) -> dict:
         n_aug = 2 if carry else 0
         E = np.zeros((N, ns + dp + n_carry + n_aug))
         E[:, :ns] = st0.y
-        f = widen_factors(getattr(s, "prior_widen", None), space.names)
+        f = widen_factors(getattr(s, "prior_widen", None), space.names, strict=False)
         E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov * np.outer(f, f), N)
         if carry:
             sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
@@ -736,8 +738,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     s = settings or MIEnKSSettings()
     n_steps = obs.n_samples - 1
     s.check(n_steps)
-    s = s.resolved()
     widen_factors(s.prior_widen, space.names)           # unknown parameter names refused before any run
+    s = s.resolved()
     default = s.likelihood == "default"
     t0c = time.perf_counter()
     ex = execution or Execution(progress=False)
