@@ -119,7 +119,7 @@ def _load_config(path) -> dict:
                    "with the thermal bubble), nuisance_integral=req|prior|cycle (what each bubble's likelihood "
                    "integrates its nuisances against; req, the default: Req against its preprocessing prior); "
                    "mienks: L, h [samples], n_ens, n_iter, rtps, likelihood=default|paper, adapt (default likelihood: "
-                   "pilot pass), pilot_n_ens, pilot_n_iter, pilot_h (the pilot's members, iterations, shift; default: 24, n_iter, h), pilot_retry (a bubble whose pilot residual stands out gets a second pilot; default true), min_iter (default likelihood: a window stops iterating once its cost settles or its next step is under step_tol posterior sd, from this many evaluations on: 2; n_iter: never early), step_tol (0.1), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
+                   "pilot pass), pilot_n_ens, pilot_n_iter, pilot_h (the pilot's members, iterations, shift; default: 24, n_iter, h), pilot_retry (a bubble whose pilot residual stands out gets a second pilot; default true), min_iter (default likelihood: a window stops iterating once its cost settles or its next step is under step_tol posterior sd, from this many evaluations on: 2; n_iter: never early), step_tol (0.1), prior_widen (window 0's members drawn with the prior sd times K: a number for every parameter or NAME:K[,NAME:K]; default mu:3, 1 = the prior itself), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
                    "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
                    "repeatable.")
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",

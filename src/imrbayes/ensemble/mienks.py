@@ -137,6 +137,7 @@ __all__ = ["MIEnKS", "MIEnKSSettings", "fit_mienks", "mienks_unit", "rtps_cov"]
 #: the default likelihood's early stop of a window's Gauss-Newton iterations (MIEnKSSettings.resolved)
 DEFAULT_MIN_ITER = 2
 DEFAULT_STEP_TOL = 0.1
+#: the default likelihood's start of window 0's members: mu's prior sd x 3 (docs/results.md)
 DEFAULT_PRIOR_WIDEN = "mu:3"
 
 
@@ -183,11 +184,13 @@ class MIEnKSSettings:
     and the ``--mcmc`` densities keep the parameter prior (as En4D-Var's ``is_prior_widen``). Why: a
     prior whose bulk is far from the truth (the paper's mu, 3.2x the camera design's) starts every
     bubble's ensemble there, and the chained ensembles carry that pull to the last window. Unset:
-    1, the prior itself. 3 removes most of the pull on the polytropic camera family (20 seeds:
-    aggregate bias G +15.2 -> +4.7 %, mu +11.4 -> +5.6 %, windows holding the truth G 0.87 -> 0.93,
-    mu 0.79 -> 0.92) but is not the default: on noise-free records (tests' short record, 48
-    members) the wide start ended in a wrong basin (late windows' G -62 %), and 5 put the camera
-    family's G at -21 % (docs/results.md, "A wider start for the members")."""
+    ``"mu:3"`` with the default likelihood (:data:`DEFAULT_PRIOR_WIDEN`; a model without mu starts
+    from its prior), 1 with the paper's. mu's start widened takes the thermal camera family (20
+    seeds) from G 0.70 / +24.9 % and mu 0.65 / +14.8 % to 0.95 / +13.9 % and 0.95 / +9.7 %
+    (coverage / bias) and keeps noise-free records right; 3 for every parameter removes more of the
+    pull on the polytropic family (bias G +4.7 %, mu +5.6 %) but on noise-free records (tests'
+    short record, 48 members) ended in a wrong basin (late windows' G -62 %), and 5 put the camera
+    family's G at -21 % (docs/results.md, "A wider start for the members", "mu's start widened")."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -222,8 +225,8 @@ class MIEnKSSettings:
     def resolved(self) -> "MIEnKSSettings":
         """The settings with the likelihood's own choices filled in (``paper``: ``chain`` fusion and
         the ``mean`` weight unless set, every window ``n_iter`` iterations; ``default``: windows
-        stop once settled, ``min_iter`` 2 and ``step_tol`` 0.1 unless set; either: ``prior_widen`` 1
-        unless set)."""
+        stop once settled, ``min_iter`` 2 and ``step_tol`` 0.1 unless set, ``prior_widen`` ``"mu:3"``
+        unless set; paper: ``prior_widen`` 1)."""
         if self.likelihood == "paper":
             return replace(self, fusion=self.fusion or "chain", obs_weight=self.obs_weight or "mean",
                            prior_widen=self.prior_widen or 1.0)
