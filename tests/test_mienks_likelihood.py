@@ -554,3 +554,45 @@ def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the
         np.testing.assert_allclose(p0.prior_cov, sp.prior_cov)
     # the wider start moves where window 0's gel estimate lands, not what prior it states
     assert res[1.0].windows[0]["mean_internal"] != res[3.0].windows[0]["mean_internal"]
+
+
+def test_member_start_pilot_centres_window0_on_each_experiments_pilot_estimate(monkeypatch):
+    """``member_start="pilot"``: the reported pass's window-0 members are centred (exactly: the
+    draws have the stated moments) on each experiment's last pilot window posterior mean; the
+    pilot's own members start at the prior mean; the gel chain keeps the parameter prior; the
+    paper likelihood and a run without the pilot refuse the setting."""
+    for bad in ({"member_start": "en4dvar"}, {"member_start": "pilot", "likelihood": "paper"},
+                {"member_start": "pilot", "adapt": False}):
+        with pytest.raises(InputError, match="member_start"):
+            MIEnKSSettings(**bad).check(120)
+    fm = observations()[0]
+    obs = noisy(fm, n_exp=2, n_steps=40, sd=0.01, seed=2)
+    sp = space(fm)
+    window0, last = {}, {}
+    unit = mk.mienks_unit
+
+    def spy(u, rng):
+        out = unit(u, rng)
+        passname = "pilot" if u.unit_id.startswith("pass=pilot") else "reported"
+        exp = u.unit_id.rsplit("exp=", 1)[1]
+        if u.data["E"] is None:
+            window0[(passname, exp)] = (out["qm"], u.data.get("param_start"))
+        if u.data["last"]:
+            last[(passname, exp)] = out["pm"]
+        return out
+    monkeypatch.setattr(mk, "mienks_unit", spy)
+    s = MIEnKSSettings(n_ens=12, n_iter=2, L=20, h=10, n_draws=3, member_start="pilot", pilot_retry=False)
+    res = fit_mienks(fm, obs, sp, s, seed=1)
+    exps = sorted({e for _, e in window0})
+    assert len(exps) == 2
+    for e in exps:
+        qm_pilot, start = window0[("pilot", e)]
+        assert start is None
+        np.testing.assert_allclose(qm_pilot, sp.prior_mean, atol=1e-12)
+        qm, start = window0[("reported", e)]
+        np.testing.assert_allclose(start, last[("pilot", e)], rtol=1e-12)
+        np.testing.assert_allclose(qm, last[("pilot", e)], atol=1e-10)
+        assert np.max(np.abs(qm - sp.prior_mean)) > 1e-3           # it did move
+    p0 = res.window_posteriors[0]
+    np.testing.assert_allclose(p0.prior_mean, sp.prior_mean)          # the gel chain starts at the prior
+    assert res.details["settings"]["member_start"] == "pilot"

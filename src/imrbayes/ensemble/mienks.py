@@ -190,7 +190,14 @@ class MIEnKSSettings:
     (coverage / bias) and keeps noise-free records right; 3 for every parameter removes more of the
     pull on the polytropic family (bias G +4.7 %, mu +5.6 %) but on noise-free records (tests'
     short record, 48 members) ended in a wrong basin (late windows' G -62 %), and 5 put the camera
-    family's G at -21 % (docs/results.md, "A wider start for the members", "mu's start widened")."""
+    family's G at -21 % (docs/results.md, "A wider start for the members", "mu's start widened").
+    ``member_start``: where the reported pass's window-0 members are centred (default likelihood
+    with its pilot): ``prior`` (the parameter prior's mean) or ``pilot`` (each experiment's pilot
+    estimate at the record's end, the last pilot window's posterior mean; the prior's where the
+    pilot lost the experiment). Either way the members' spread is the prior's times
+    ``prior_widen`` and each window's likelihood divides the members' own prior out, so the gel
+    chain and the record-level estimate keep the parameter prior: what moves is where the ensemble's
+    regression linearises the window. No forward runs are added."""
 
     n_ens: int = 48
     n_iter: int = 5
@@ -214,6 +221,7 @@ class MIEnKSSettings:
     min_iter: int | None = None
     step_tol: float | None = None
     prior_widen: float | str | None = None
+    member_start: str = "prior"
 
     def pilot(self) -> "MIEnKSSettings":
         """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members and
@@ -271,6 +279,10 @@ class MIEnKSSettings:
         if self.prior_widen not in (None, 1, 1.0) and s.likelihood != "default":
             raise InputError("prior_widen", "applies to the default likelihood only (the paper's members start "
                                             "from the parameter prior)")
+        if self.member_start not in ("prior", "pilot"):
+            raise InputError("member_start", f"must be 'prior' or 'pilot', got {self.member_start!r}")
+        if self.member_start == "pilot" and (s.likelihood != "default" or not self.adapt):
+            raise InputError("member_start", "'pilot' needs the default likelihood with its pilot pass (adapt=true)")
         if self.pilot_h is not None and self.pilot_h > self.L:
             raise InputError("pilot_h", f"the pilot's shift {self.pilot_h} exceeds the window length L = {self.L}")
         n_windows(n_steps, self.L, self.h)
@@ -360,7 +372,8 @@ def mienks_unit(unit: Unit, rng) -> dict:
         E = np.zeros((N, ns + dp + n_carry + n_aug))
         E[:, :ns] = st0.y
         f = widen_factors(getattr(s, "prior_widen", None), space.names, strict=False)
-        E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov * np.outer(f, f), N)
+        centre = space.prior_mean if d.get("param_start") is None else np.asarray(d["param_start"], dtype=np.float64)
+        E[:, ns:ns + dp] = draw(rng, centre, space.prior_cov * np.outer(f, f), N)
         if carry:
             sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
             E[:, ns + dp] = sd_rho * rng.standard_normal(N)
@@ -515,14 +528,15 @@ def mienks_unit(unit: Unit, rng) -> dict:
     return out
 
 
-def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw, stream_tag=None):
+def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw, stream_tag=None, param_start=None):
     """Run every window's units in order (one per alive experiment, :func:`mienks_unit`) and collect
     their results; ``weight_for(j, g, a, b)`` gives experiment g's observation weights in window j;
     ``nuis_sd`` (G, 3): prior sds of each experiment's nuisances (a, delta, rho) (default likelihood;
     None: the paper's, no nuisances).
     The fusion does not feed back into the ensembles, so it is done afterwards
     (:func:`fit_mienks`). ``tag``: leading parts of the unit ids (e.g. ``{"pass": "pilot"}``);
-    ``stream_tag``: those of the units' random streams when they differ (default ``tag``).
+    ``stream_tag``: those of the units' random streams when they differ (default ``tag``);
+    ``param_start`` (G, d): where each experiment's window-0 members are centred (None: the prior mean).
     Returns a dict of per-window lists."""
     G = obs.n_exp
     t = obs.t_star
@@ -555,7 +569,8 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw
                        "a": int(a), "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
                        "req": float(obs.req_m[g]), "y": obs.R_star[g, a:b + 1], "weight": weight_for(j, g, a, b),
                        "E": handoff[g], **({"carry_req": True} if nuis_sd is not None else {}),
-                       **({"nuis_sd": [float(x) for x in nuis_sd[g]]} if j == 0 and nuis_sd is not None else {})},
+                       **({"nuis_sd": [float(x) for x in nuis_sd[g]]} if j == 0 and nuis_sd is not None else {}),
+                       **({"param_start": [float(x) for x in param_start[g]]} if j == 0 and param_start is not None else {})},
                       stream=unit_id(**stag, window=j, exp=g))
                  for g in alive]
         label = "".join(f" ({v})" for v in tag.values())
@@ -681,6 +696,7 @@ def _retry_lost_pilots(ex, base, obs, s, sp, spans_p, seed, w_pilot, nuis_sd, no
             notes.append(f"experiment {obs.names[g]!r}: a second pilot of it alone failed ({exc}); the first is kept")
             continue
         failed += pr["failed_units"]
+        pr["experiment"] = g
         sweeps.append(pr)
         v2, a2, i2 = _noise_model(sub, _fitted(sub, spans_p, pr, nw_p, sp.h), noise_var[[g]])
         second = i2[0]["resid_rms"]
@@ -694,6 +710,21 @@ def _retry_lost_pilots(ex, base, obs, s, sp, spans_p, seed, w_pilot, nuis_sd, no
         notes.append(f"experiment {obs.names[g]!r}: a second pilot of it alone (other random draws) gave {got} "
                      f"against {first:.3g}; " + ("the second is used" if keep else "the first is kept"))
     return notes, sweeps, failed
+
+
+def _pilot_centres(pil, retry_sweeps, lik_info, space) -> np.ndarray:
+    """(G, d) internal coordinates: each experiment's parameter posterior mean in the pilot's last
+    window (the retry's where :func:`_retry_lost_pilots` kept it), the prior mean where the pilot
+    lost the experiment before the end (``member_start="pilot"``)."""
+    G = len(lik_info)
+    out = np.tile(space.prior_mean, (G, 1)).astype(np.float64)
+    for g, r in zip(pil["ok"][-1], pil["results"][-1]):
+        out[g] = r["pm"]
+    for pr in retry_sweeps:
+        g = pr["experiment"]
+        if lik_info[g].get("pilot_retry", {}).get("kept") == "retry" and pr["ok"][-1] == [0]:
+            out[g] = pr["results"][-1][0]["pm"]
+    return out
 
 
 def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution):
@@ -803,9 +834,12 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         # their random streams do not (window and experiment only), or a last-bit change of the
         # pilot's fit would redraw every ensemble (one bubble's G moved 2-11 % that way)
         tag = {}
+        param_start = _pilot_centres(pil, retry_sweeps, lik_info, space) if s.member_start == "pilot" else None
         if s.adapt:
-            tag = {"noise": hashlib.sha1(np.concatenate([var, alpha]).astype("<f8").tobytes()).hexdigest()[:8]}
-        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw, stream_tag={})
+            key = [var, alpha] + ([param_start.ravel()] if param_start is not None else [])
+            tag = {"noise": hashlib.sha1(np.concatenate(key).astype("<f8").tobytes()).hexdigest()[:8]}
+        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw, stream_tag={},
+                    param_start=param_start)
     else:
         pilot_failed = []
 
