@@ -437,6 +437,12 @@ def test_req_prior_from_a_whole_record_en4dvar_fit():
     summ = summary_dict(res, obs, seed=2)
     assert summ["per_experiment"][0]["nuisance"]["req_m"]["prior_mean"] == pytest.approx(info["req_m"][0])
     assert summ["per_experiment"][1]["nuisance"]["req_m"]["prior_sd"] == 0.0
+    # en4dvar-centre: the same centre (the same En4D-Var fit), the preprocessing's sd kept
+    res_c = fit_mienks(fm, obs, space(fm), dataclasses.replace(st, req_prior="en4dvar-centre"), seed=2)
+    info_c = res_c.details["req_prior"]
+    assert info_c["req_m"] == pytest.approx(info["req_m"], rel=1e-12)
+    assert info_c["req_sd_m"] == pytest.approx(info["preprocessing_req_sd_m"], rel=1e-12)
+    assert info_c["req_sd_m"][0] > info["req_sd_m"][0]
 
 
 def test_integrating_out_req_is_the_marginal_of_the_joint_posterior():

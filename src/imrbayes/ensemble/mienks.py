@@ -257,8 +257,8 @@ class MIEnKSSettings:
             raise InputError("fusion", f"must be 'chain' or 'prior', got {s.fusion!r}")
         if s.likelihood == "paper" and s.obs_weight not in ("mean", "mda"):
             raise InputError("obs_weight", f"must be 'mean' or 'mda', got {s.obs_weight!r}")
-        if self.req_prior not in ("preprocessing", "en4dvar"):
-            raise InputError("req_prior", f"must be 'preprocessing' or 'en4dvar', got {self.req_prior!r}")
+        if self.req_prior not in ("preprocessing", "en4dvar", "en4dvar-centre"):
+            raise InputError("req_prior", f"must be 'preprocessing', 'en4dvar' or 'en4dvar-centre', got {self.req_prior!r}")
         if self.req_prior != "preprocessing" and s.likelihood != "default":
             raise InputError("req_prior", "applies to the default likelihood only (the paper's has no Req nuisance)")
         if self.h > self.L:
@@ -727,14 +727,17 @@ def _pilot_centres(pil, retry_sweeps, lik_info, space) -> np.ndarray:
     return out
 
 
-def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution):
+def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: bool = False):
     """(Observations with each estimated Req's prior replaced by its whole-record En4D-Var posterior
     [mean, sd], details). Why: the smoother's windows see Req only through the data before them and
     its prior, while the record's tail, where Req is decided, comes last; with the tail-mean prior (sd
     ~3-4 % on camera records) the early windows slide along the Req-mu ridge and their mu stays high
     (docs/results.md: with the true Req given the aggregate bias fell from G +17 %, mu +12 % to +4 %,
     +1 %). The data inform Req twice (the En4D-Var fit, then the windows): an empirical-Bayes
-    approximation, measured rather than exact. A Req given in meta.json (prior sd 0) is kept."""
+    approximation, measured rather than exact. ``keep_sd`` (``req_prior="en4dvar-centre"``): only the
+    centre moves to the En4D-Var mean, the prior keeps the preprocessing's sd -- the record's
+    information on Req's place used to choose the centre, its precision not counted again. A Req
+    given in meta.json (prior sd 0) is kept."""
     from imrbayes.ensemble.en4dvar import En4DVarSettings, _fit_en4dvar
     e4s = En4DVarSettings(n_draws=1, loglik=False)
     e4s.check()
@@ -748,13 +751,17 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution):
         g = names.index(e["name"]) if e.get("name") in names else None
         if g is None or q is None or not sd[g, 2] > 0 or not (np.isfinite(q["mean"]) and q["sd"] > 0):
             continue
-        req[g], sd[g, 2] = float(q["mean"]), float(q["sd"])
+        req[g] = float(q["mean"])
+        if not keep_sd:
+            sd[g, 2] = float(q["sd"])
         used.append(names[g])
     info = {"method": "en4dvar", "experiments": used, "preprocessing_req_m": np.asarray(obs.req_m).tolist(),
             "preprocessing_req_sd_m": np.asarray(obs.nuisance_sd)[:, 2].tolist(), "req_m": req.tolist(),
             "req_sd_m": sd[:, 2].tolist(), "en4dvar_estimate": {nm: e4.estimate[nm]["mean"] for nm in space.names},
             "en4dvar_member_runs": int(e4.details.get("member_runs", 0)),
-            "note": "each estimated Req's prior is its whole-record En4D-Var posterior (mean, sd), run first"}
+            "note": ("each estimated Req's prior is centred at its whole-record En4D-Var posterior mean, run first, "
+                     "with the preprocessing's sd" if keep_sd else
+                     "each estimated Req's prior is its whole-record En4D-Var posterior (mean, sd), run first")}
     return replace(obs, req_m=req, nuisance_sd=sd), info
 
 
@@ -786,8 +793,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     G = obs.n_exp
     t = obs.t_star
     req_info = None
-    if default and s.req_prior == "en4dvar":
-        obs, req_info = req_prior_from_en4dvar(fm, obs, space, seed, runner, ex)
+    if default and s.req_prior in ("en4dvar", "en4dvar-centre"):
+        obs, req_info = req_prior_from_en4dvar(fm, obs, space, seed, runner, ex, keep_sd=s.req_prior == "en4dvar-centre")
     base = {"spec": spec, "runner": token, "space": space, "fm": fm}
     warnings = []
     lik_info = None
