@@ -139,6 +139,8 @@ DEFAULT_MIN_ITER = 2
 DEFAULT_STEP_TOL = 0.1
 #: the default likelihood's start of window 0's members: mu's prior sd x 3 (docs/results.md)
 DEFAULT_PRIOR_WIDEN = "mu:3"
+#: where each estimated Req's prior comes from (``req_prior``); all but the first fit En4D-Var first
+REQ_PRIORS = ("preprocessing", "en4dvar", "en4dvar-centre")
 
 
 @dataclass
@@ -257,7 +259,7 @@ class MIEnKSSettings:
             raise InputError("fusion", f"must be 'chain' or 'prior', got {s.fusion!r}")
         if s.likelihood == "paper" and s.obs_weight not in ("mean", "mda"):
             raise InputError("obs_weight", f"must be 'mean' or 'mda', got {s.obs_weight!r}")
-        if self.req_prior not in ("preprocessing", "en4dvar", "en4dvar-centre"):
+        if self.req_prior not in REQ_PRIORS:
             raise InputError("req_prior", f"must be 'preprocessing', 'en4dvar' or 'en4dvar-centre', got {self.req_prior!r}")
         if self.req_prior != "preprocessing" and s.likelihood != "default":
             raise InputError("req_prior", "applies to the default likelihood only (the paper's has no Req nuisance)")
@@ -793,7 +795,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     G = obs.n_exp
     t = obs.t_star
     req_info = None
-    if default and s.req_prior in ("en4dvar", "en4dvar-centre"):
+    if default and s.req_prior != "preprocessing":
         obs, req_info = req_prior_from_en4dvar(fm, obs, space, seed, runner, ex, keep_sd=s.req_prior == "en4dvar-centre")
     base = {"spec": spec, "runner": token, "space": space, "fm": fm}
     warnings = []
