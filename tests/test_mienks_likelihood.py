@@ -399,7 +399,9 @@ def test_default_infers_rmax_and_req():
     mu is recovered; with both fixed at the stated values the same records give a worse mu."""
     fm, obs, rmax_t, req_t, o = _misplaced_geometry(0.15)
     t, Y = obs.t_star, obs.R_star
-    st = MIEnKSSettings(n_ens=24, n_iter=3, L=20, h=10, n_draws=3, adapt=False)
+    # the windows' own inference of Req from the stated prior (the default's En4D-Var prior would
+    # already sit near the truth: tested below)
+    st = MIEnKSSettings(n_ens=24, n_iter=3, L=20, h=10, n_draws=3, adapt=False, req_prior="preprocessing")
     res = fit_mienks(fm, obs, space(fm), st, seed=2)
     summ = summary_dict(res, obs, seed=2)
     for n, p in enumerate(summ["per_experiment"]):
@@ -426,6 +428,10 @@ def test_req_prior_from_a_whole_record_en4dvar_fit():
         MIEnKSSettings(req_prior="tail").check(120)
     with pytest.raises(InputError, match="default likelihood only"):
         MIEnKSSettings(req_prior="en4dvar", likelihood="paper").check(120)
+    # unset: the default likelihood's is en4dvar, the paper's the preprocessing's (no Req nuisance)
+    assert MIEnKSSettings().resolved().req_prior == mk.DEFAULT_REQ_PRIOR == "en4dvar"
+    assert MIEnKSSettings(likelihood="paper").resolved().req_prior == "preprocessing"
+    MIEnKSSettings(likelihood="paper").check(120)
     fm, obs, _, req_t, o = _misplaced_geometry([0.15, 0.0])             # experiment 2: Req given
     st = MIEnKSSettings(n_ens=24, n_iter=3, L=20, h=10, n_draws=3, adapt=False, req_prior="en4dvar")
     res = fit_mienks(fm, obs, space(fm), st, seed=2)
@@ -443,6 +449,11 @@ def test_req_prior_from_a_whole_record_en4dvar_fit():
     assert info_c["req_m"] == pytest.approx(info["req_m"], rel=1e-12)
     assert info_c["req_sd_m"] == pytest.approx(info["preprocessing_req_sd_m"], rel=1e-12)
     assert info_c["req_sd_m"][0] > info["req_sd_m"][0]
+    # every Req given: no En4D-Var fit is run, the stated Req stays
+    given = dataclasses.replace(obs, nuisance_sd=np.column_stack([obs.nuisance_sd[:, :2], np.zeros(2)]))
+    res_g = fit_mienks(fm, given, space(fm), dataclasses.replace(st, req_prior=None), seed=2)
+    assert "req_prior" not in res_g.details
+    assert res_g.details["settings"]["req_prior"] == "en4dvar"
 
 
 def test_integrating_out_req_is_the_marginal_of_the_joint_posterior():
