@@ -478,6 +478,11 @@ def test_report_warns_that_an_inferred_req_can_make_mu_windows_decline(runs, tmp
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     concl = _text(_section(html, "conclusion"))
     assert key not in concl and "prior came from a whole-record En4D-Var fit" in concl
+    assert "kept the record's Req prior" not in concl
+    _edit_summary(run, lambda s: s["details"]["req_prior"].update(conflicts=[{"experiment": "exp02", "z": -40.9}]))
+    html = _report(run, "--quiet") and (run / "report.html").read_text()
+    concl = _text(_section(html, "conclusion"))
+    assert "In 1 experiment (exp02)" in concl and "kept the record's Req prior" in concl
     one = _copy(runs, "en4dvar", tmp_path)
     _edit_summary(one, lambda s: [e.update(nuisance={"req_m": {"prior_mean": 3e-5, "prior_sd": 1e-6}})
                                   for e in s["per_experiment"]])

@@ -613,3 +613,28 @@ def test_member_start_pilot_centres_window0_on_each_experiments_pilot_estimate(m
     p0 = res.window_posteriors[0]
     np.testing.assert_allclose(p0.prior_mean, sp.prior_mean)          # the gel chain starts at the prior
     assert res.details["settings"]["member_start"] == "pilot"
+
+
+def test_req_prior_keeps_the_record_req_where_the_whole_record_fit_contradicts_it():
+    """An experiment whose En4D-Var Req lies more than ``conflict_z`` preprocessing sd from its own
+    Req keeps the preprocessing prior (mean and sd) and is named in ``conflicts`` with its z and a
+    warning; the others take the En4D-Var posterior. The same fit (same seed) with the bound
+    above and below experiment 1's z shows both branches."""
+    from imrbayes.execution import Execution
+    from imrbayes.forward import Runner
+    fm, obs, _, req_t, o = _misplaced_geometry([0.15, 0.0])
+    # experiment 2 estimated as well, with a prior that the records contradict by 12 %
+    obs = dataclasses.replace(obs, nuisance_sd=np.column_stack([obs.nuisance_sd[:, :2], [0.15 * o.req_m[0], 0.03 * o.req_m[1]]]))
+    args = (fm, obs, space(fm), 2, Runner(fm), Execution(progress=False))
+    _, free = mk.req_prior_from_en4dvar(*args, conflict_z=np.inf)
+    assert free["conflicts"] == [] and free["experiments"] == list(obs.names)
+    z = (np.array(free["req_m"]) - obs.req_m) / obs.nuisance_sd[:, 2]
+    assert abs(z[1]) > abs(z[0])                      # the 3 % prior is the one the data move furthest
+    bound = 0.5 * (abs(z[0]) + abs(z[1]))
+    new, info = mk.req_prior_from_en4dvar(*args, conflict_z=bound)
+    assert [c["experiment"] for c in info["conflicts"]] == [obs.names[1]]
+    assert info["conflicts"][0]["z"] == pytest.approx(z[1], rel=1e-9)
+    assert new.req_m[1] == obs.req_m[1] and new.nuisance_sd[1, 2] == obs.nuisance_sd[1, 2]
+    assert new.req_m[0] == pytest.approx(free["req_m"][0], rel=1e-12)
+    assert len(info["warnings"]) == 1 and obs.names[1] in info["warnings"][0]
+    assert mk.REQ_PRIOR_CONFLICT_Z == 3.0

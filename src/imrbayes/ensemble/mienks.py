@@ -146,6 +146,9 @@ DEFAULT_PRIOR_WIDEN = "mu:3"
 REQ_PRIORS = ("preprocessing", "en4dvar", "en4dvar-centre")
 #: the default likelihood's ``req_prior`` (docs/results.md, "Req's prior from a whole-record fit: the default")
 DEFAULT_REQ_PRIOR = "en4dvar"
+#: a whole-record Req further than this many preprocessing prior sd from the record's own Req is a
+#: conflict between the model and the measured tail: that experiment keeps the preprocessing prior
+REQ_PRIOR_CONFLICT_Z = 3.0
 
 
 @dataclass
@@ -737,7 +740,8 @@ def _pilot_centres(pil, retry_sweeps, lik_info, space) -> np.ndarray:
     return out
 
 
-def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: bool = False):
+def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: bool = False,
+                           conflict_z: float = REQ_PRIOR_CONFLICT_Z):
     """(Observations with each estimated Req's prior replaced by its whole-record En4D-Var posterior
     [mean, sd], details). Why: the smoother's windows see Req only through the data before them and
     its prior, while the record's tail, where Req is decided, comes last; with the tail-mean prior (sd
@@ -747,7 +751,13 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
     approximation, measured rather than exact. ``keep_sd`` (``req_prior="en4dvar-centre"``): only the
     centre moves to the En4D-Var mean, the prior keeps the preprocessing's sd -- the record's
     information on Req's place used to choose the centre, its precision not counted again. A Req
-    given in meta.json (prior sd 0) is kept."""
+    given in meta.json (prior sd 0) is kept. An experiment whose En4D-Var Req lies more than
+    ``conflict_z`` preprocessing sd from its preprocessing Req keeps the preprocessing prior, and a
+    warning names it (``details["req_prior"]["conflicts"]``). Why: on camera records of the model's
+    own physics the shift stays within 2.1 sd (120 polytropic bubbles; thermal in docs/results.md);
+    on the 20 stiff-PA bubbles the whole-record fit moved Req by up to 40 sd (-19 % to +32 %) to fit
+    the collapses, and that Req, imported with its En4D-Var precision, doubled the between-bubble sd
+    of G and mu -- model error absorbed by the geometry, which the measured tail contradicts."""
     from imrbayes.ensemble.en4dvar import En4DVarSettings, _fit_en4dvar
     e4s = En4DVarSettings(n_draws=1, loglik=False)
     e4s.check()
@@ -755,17 +765,30 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
     req = np.array(obs.req_m, dtype=np.float64).copy()
     sd = np.array(obs.nuisance_sd, dtype=np.float64).copy()
     names = list(obs.names)
-    used = []
+    used, conflicts, warns = [], [], []
     for e in e4.per_experiment:
         q = (e.get("nuisance") or {}).get("req_m")
         g = names.index(e["name"]) if e.get("name") in names else None
         if g is None or q is None or not sd[g, 2] > 0 or not (np.isfinite(q["mean"]) and q["sd"] > 0):
             continue
+        z = (float(q["mean"]) - req[g]) / sd[g, 2]
+        if abs(z) > conflict_z:
+            conflicts.append({"experiment": names[g], "z": z, "en4dvar_req_m": float(q["mean"]),
+                              "en4dvar_req_sd_m": float(q["sd"]), "preprocessing_req_m": float(req[g])})
+            continue
         req[g] = float(q["mean"])
         if not keep_sd:
             sd[g, 2] = float(q["sd"])
         used.append(names[g])
-    info = {"method": "en4dvar", "experiments": used, "preprocessing_req_m": np.asarray(obs.req_m).tolist(),
+    if conflicts:
+        each = ", ".join(f"{c['experiment']} {1e6 * c['en4dvar_req_m']:.1f} um against {1e6 * c['preprocessing_req_m']:.1f} "
+                         f"({c['z']:+.1f} sd)" for c in conflicts)
+        warns.append(f"{len(conflicts)} of {len(names)} experiments: the whole-record En4D-Var fit puts Req more than "
+                     f"{conflict_z:g} prior sd from the record's own ({each}); the model fits the collapses with a Req "
+                     f"the measured tail contradicts (model error absorbed by the geometry: see diagnose), so the "
+                     f"smoother keeps their Req prior from the record")
+    info = {"method": "en4dvar", "experiments": used, "conflicts": conflicts, "conflict_z": conflict_z,
+            "warnings": warns, "preprocessing_req_m": np.asarray(obs.req_m).tolist(),
             "preprocessing_req_sd_m": np.asarray(obs.nuisance_sd)[:, 2].tolist(), "req_m": req.tolist(),
             "req_sd_m": sd[:, 2].tolist(), "en4dvar_estimate": {nm: e4.estimate[nm]["mean"] for nm in space.names},
             "en4dvar_member_runs": int(e4.details.get("member_runs", 0)),
@@ -806,7 +829,7 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     if default and s.req_prior != "preprocessing" and np.any(obs.nuisance_sd[:, 2] > 0):  # some Req estimated
         obs, req_info = req_prior_from_en4dvar(fm, obs, space, seed, runner, ex, keep_sd=s.req_prior == "en4dvar-centre")
     base = {"spec": spec, "runner": token, "space": space, "fm": fm}
-    warnings = []
+    warnings = list(req_info["warnings"]) if req_info else []
     lik_info = None
     if default:
         beta = beta.copy()
