@@ -14,18 +14,18 @@ from camera_calibration import simulate
 from imrbayes.data import load_dataset, preprocess_dataset
 from imrbayes.ensemble import Observations, ParamSpace
 from imrbayes.ensemble.mienks import req_prior_from_en4dvar
-from imrbayes.forward import Runner
 from imrbayes.execution import Execution
-from imrbayes.forward import ForwardModel
+from imrbayes.forward import ForwardModel, Runner
 bubble, family, first, n, out = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
 fm = ForwardModel("nhkv", options={"bubble": bubble}); space = ParamSpace.for_model(fm.constitutive)
 rows = []
 for seed in range(first, first + n):
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "data"
-        truth = simulate(folder, seed, family, bubble)
+        simulate(folder, seed, family, bubble)
         obs = Observations.from_preprocessed(preprocess_dataset(load_dataset(folder), skip_failed=True))
-    _, info = req_prior_from_en4dvar(fm, obs, space, seed, Runner(fm), Execution(progress=False))
+    # no bound: a conflicting bubble would otherwise keep its preprocessing Req and read z = 0
+    _, info = req_prior_from_en4dvar(fm, obs, space, seed, Runner(fm), Execution(progress=False), conflict_z=np.inf)
     pre, psd, post, qsd = (np.array(info[k]) for k in ("preprocessing_req_m", "preprocessing_req_sd_m", "req_m", "req_sd_m"))
     z = (post - pre) / psd
     rows.append({"seed": seed, "z": z.tolist(), "pre": pre.tolist(), "pre_sd": psd.tolist(), "post": post.tolist(), "post_sd": qsd.tolist()})

@@ -654,15 +654,17 @@ def _section_conclusion(run) -> str:
                             (f"the {(rt.get('start') or {}).get('source')} placed the material" if rt.get("start")
                              else "a quick first fit placed the material") + ", and the estimate is the fit after it")
                          + ".")
-        conflicts = (((s.get("details") or {}).get("req_prior") or {}).get("conflicts")) or []
+        rp = (s.get("details") or {}).get("req_prior") or {}
+        conflicts = rp.get("conflicts") or []
+        bound = _fnum(rp.get("conflict_z", 3.0))
         if len(wins) > 1 and req_from_fit:
             items.append("Each estimated Req's prior came from a whole-record En4D-Var fit of the same data "
                          "(req_prior=en4dvar, the default), so the early windows start from the Req the record's tail decides.")
             if conflicts:
                 items.append(f"<span class='caveat'>In {len(conflicts)} experiment{'s' if len(conflicts) > 1 else ''} "
                              f"({esc(', '.join(str(c.get('experiment')) for c in conflicts))}) that fit put Req more "
-                             "than 3 prior sd from the record's own tail (a model that needs another bubble size to "
-                             "fit the collapses); those experiments kept the record's Req prior.</span>")
+                             f"than {bound:g} prior sd from the record's own tail (a model that needs another bubble "
+                             "size to fit the collapses); those experiments kept the record's Req prior.</span>")
         elif len(wins) > 1 and req_inferred:
             # measured on camera-style synthetic records of a constant gel (docs/results.md, "Where the
             # decline of the decided windows comes from", 20 seeds): with Req inferred the mu windows fell
