@@ -11,6 +11,7 @@ import html
 import re
 import struct
 
+import numpy as np
 import pytest
 
 from imrbayes.diagnosis import DiagnoseSettings, diagnose
@@ -237,3 +238,34 @@ def test_adequate_verdict_shows_a_significant_gain_on_the_other_scheme_as_a_lead
     r = _minimal("viscoelastic-relaxation")                                     # inadequate: the cause speaks
     r["gain"]["by_scheme"]["loeo"] = {"relative_reduction": 0.2, "paired_vs_baseline": {"mean_diff": 0.01, "se": 0.001}}
     assert "a lead" not in " ".join(verdict_sentences(r))
+
+
+def test_req_conflict_is_stated_when_most_bubbles_contradict_their_tail():
+    """``baseline.req_consistency`` (run.req_consistency): counted against the bound, flagged only
+    when more than half the estimated experiments conflict; then the verdict says so in words and
+    the report tabulates each bubble's tail Req, fitted Req, shift and z."""
+    from types import SimpleNamespace
+
+    from imrbayes.diagnosis.report import _req_section
+    from imrbayes.diagnosis.run import req_consistency
+
+    obs = SimpleNamespace(names=["e1", "e2", "e3"], req_m=np.array([50e-6, 40e-6, 30e-6]),
+                          nuisance_sd=np.array([[0, 0, 0.5e-6], [0, 0, 0.4e-6], [0, 0, 1e-6]]))
+
+    def fit(*req):
+        return [{"name": n, "nuisance": {"req_m": {"mean": q, "sd": 0.2e-6}}} for n, q in zip(obs.names, req)]
+
+    one = req_consistency(obs, fit(52e-6, 40.4e-6, 30.5e-6))        # z = +4, +1, +0.5: one conflict
+    assert one["n_conflict"] == 1 and not one["flagged"] and one["median_abs_z"] == pytest.approx(1.0)
+    r = _minimal("damage-softening")
+    r["baseline"]["req_consistency"] = one
+    assert "tails contradict" not in " ".join(verdict_sentences(r))
+    two = req_consistency(obs, fit(52e-6, 38e-6, 30.5e-6))          # z = +4, -5, +0.5: two of three
+    assert two["n_conflict"] == 2 and two["flagged"] and two["median_abs_z"] == pytest.approx(4.0)
+    r["baseline"]["req_consistency"] = two
+    text = html.unescape(re.sub(r"<[^>]+>", "", " ".join(verdict_sentences(r))))
+    assert "tails contradict: in 2 of 3 experiments" in text and "median |z| = 4" in text
+    table = html.unescape(re.sub(r"<[^>]+>", " ", _req_section(r)))
+    assert "50.00 ± 0.5" in table and "52.00 ± 0.2" in table and "+4.0 %" in table and "-5.0" in table
+    assert "2 of 3 conflict" in table and "flagged" in table
+    assert req_consistency(obs, fit(52e-6, 38e-6, 30.5e-6), bound=6.0)["n_conflict"] == 0

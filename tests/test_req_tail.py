@@ -195,3 +195,24 @@ def test_the_mcmc_target_of_a_req_tail_fit_runs_at_the_moved_req():
     np.testing.assert_allclose(spec.target.start.req_m, moved, rtol=1e-12)
     sd = np.array([p["nuisance"]["req_m"]["prior_sd"] for p in res.per_experiment])
     np.testing.assert_allclose(spec.target.nuisance_sd[:, 2], sd / moved, rtol=1e-9)
+
+
+def test_req_shift_z_measures_the_fit_against_the_tail_in_tail_sd():
+    """z = (fitted Req - tail Req) / tail sd per estimated experiment; an experiment whose Req was
+    given (sd 0) or that the fit does not name is left out; the conflict bound is MIEnKS-MDA's."""
+    from types import SimpleNamespace
+
+    from imrbayes.ensemble.mienks import REQ_PRIOR_CONFLICT_Z
+    from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, req_shift_z
+
+    obs = SimpleNamespace(names=["a", "b", "c"], req_m=np.array([50e-6, 40e-6, 30e-6]),
+                          nuisance_sd=np.array([[0, 0, 0.5e-6], [0, 0, 0.0], [0, 0, 2e-6]]))
+    fit = [{"name": "a", "nuisance": {"req_m": {"mean": 52e-6, "sd": 0.3e-6}}},
+           {"name": "b", "nuisance": {"req_m": {"mean": 41e-6, "sd": 0.3e-6}}},     # given: skipped
+           {"name": "c", "nuisance": {"req_m": {"mean": 29e-6, "sd": 0.4e-6}}},
+           {"name": "x", "nuisance": {"req_m": {"mean": 1e-6, "sd": 0.4e-6}}}]      # not in obs
+    rows = req_shift_z(obs, fit)
+    assert [q["experiment"] for q in rows] == ["a", "c"]
+    assert rows[0]["z"] == pytest.approx(4.0) and rows[1]["z"] == pytest.approx(-0.5)
+    assert rows[0]["fitted_req_sd_m"] == 0.3e-6 and rows[1]["preprocessing_req_sd_m"] == 2e-6
+    assert REQ_CONFLICT_Z == REQ_PRIOR_CONFLICT_Z == 3.0

@@ -123,7 +123,7 @@ def _names(r) -> dict:
 
 
 def verdict_sentences(r: dict) -> list:
-    """The verdict of diagnosis.json's object ``r`` in 2-5 plain sentences (HTML-escaped)."""
+    """The verdict of diagnosis.json's object ``r`` in 2-6 plain sentences (HTML-escaped)."""
     chk = r["constant_parameter_check"]
     ev = chk.get("evidence", {})
     base = r["baseline"]
@@ -190,7 +190,37 @@ def verdict_sentences(r: dict) -> list:
                   " nats (PSIS-LOO; > 0 favours it)")
         out.append(s + "." + (_other_scheme_lead(g, sk) if adequate else ""))
     bubble = _bubble_sentence(r)
-    return out[:4] + [bubble] if bubble else out[:5]
+    out = out[:4] + [bubble] if bubble else out[:5]
+    req = _req_sentence(r)
+    return out + [req] if req else out
+
+
+def _req_sentence(r) -> str | None:
+    """When most experiments' baseline Req contradicts their own tail (``baseline.req_consistency``)."""
+    rc = (r.get("baseline") or {}).get("req_consistency") or {}
+    if not rc.get("flagged"):
+        return None
+    return (f"The constant-parameter fit reproduces the collapses only with bubble sizes the records' own tails "
+            f"contradict: in {rc['n_conflict']} of {rc['n_estimated']} experiments its Req lies more than "
+            f"{_f(rc.get('bound'), '.2g')} tail sd from the measured one (median |z| = {_f(rc.get('median_abs_z'), '.3g')}). "
+            "Part of the model error is absorbed by the geometry, so the material estimate is not the gel's alone.")
+
+
+def _req_section(r) -> str:
+    rc = (r.get("baseline") or {}).get("req_consistency") or {}
+    rows = rc.get("experiments") or []
+    if not rows:
+        return ""
+    b = float(rc.get("bound", 3.0))
+    body = [[esc(q["experiment"]), (f"{1e6 * q['preprocessing_req_m']:.2f} ± {1e6 * q['preprocessing_req_sd_m']:.2g}", "class='n'"),
+             (f"{1e6 * q['fitted_req_m']:.2f} ± {1e6 * q['fitted_req_sd_m']:.2g}", "class='n'"),
+             (f"{100 * (q['fitted_req_m'] / q['preprocessing_req_m'] - 1):+.1f} %", "class='n'"),
+             (f"{q['z']:+.1f}", "class='n'" + (" style='color:#b00'" if abs(q["z"]) > b else ""))] for q in rows]
+    return ("<h2>Does the fit's bubble size agree with the record's tail?</h2>"
+            + table(["experiment", "tail Req [µm]", "En4D-Var Req [µm]", "shift", "z [tail sd]"], body)
+            + f"<p class='note'>{esc(rc.get('rule', ''))}: {rc.get('n_conflict')} of {rc.get('n_estimated')} "
+              f"conflict, median |z| = {_f(rc.get('median_abs_z'), '.3g')}"
+              + ("; flagged" if rc.get("flagged") else "") + ".</p>")
 
 
 def _other_scheme_lead(g: dict, shown: str | None) -> str:
@@ -419,6 +449,7 @@ def write_report(result: dict, figures: list, path, title: str = "imrbayes diagn
 {_bubble_section(r)}
 {_signature(r, figs)}
 {_likelihood(r)}
+{_req_section(r)}
 {warn_html}
 {''.join(embed_png(p, title=stem) for stem, p in figs.items())}
 <p class='note'>runtime {_f(r.get('runtime_s'), '.0f')} s{_stages(r)}; seed {esc(r.get('seed'))}</p>"""

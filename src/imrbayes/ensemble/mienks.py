@@ -128,6 +128,7 @@ from imrbayes.ensemble.likelihood import (check_choice, effective_samples, nuisa
                                           record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
+from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, req_shift_z
 from imrbayes.ensemble.windows import (PRIOR_WEIGHT_LIMIT, chained_prior_weight, mda_weights, n_windows,
                                        prior_dominated_note, time_resolved, window_spans)
 from imrbayes.errors import InputError
@@ -148,7 +149,7 @@ REQ_PRIORS = ("preprocessing", "en4dvar", "en4dvar-centre")
 DEFAULT_REQ_PRIOR = "en4dvar"
 #: a whole-record Req further than this many preprocessing prior sd from the record's own Req is a
 #: conflict between the model and the measured tail: that experiment keeps the preprocessing prior
-REQ_PRIOR_CONFLICT_Z = 3.0
+REQ_PRIOR_CONFLICT_Z = REQ_CONFLICT_Z
 
 
 @dataclass
@@ -766,19 +767,15 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
     sd = np.array(obs.nuisance_sd, dtype=np.float64).copy()
     names = list(obs.names)
     used, conflicts, warns = [], [], []
-    for e in e4.per_experiment:
-        q = (e.get("nuisance") or {}).get("req_m")
-        g = names.index(e["name"]) if e.get("name") in names else None
-        if g is None or q is None or not sd[g, 2] > 0 or not (np.isfinite(q["mean"]) and q["sd"] > 0):
+    for q in req_shift_z(obs, e4.per_experiment):
+        g = names.index(q["experiment"])
+        if abs(q["z"]) > conflict_z:
+            conflicts.append({"experiment": names[g], "z": q["z"], "en4dvar_req_m": q["fitted_req_m"],
+                              "en4dvar_req_sd_m": q["fitted_req_sd_m"], "preprocessing_req_m": float(req[g])})
             continue
-        z = (float(q["mean"]) - req[g]) / sd[g, 2]
-        if abs(z) > conflict_z:
-            conflicts.append({"experiment": names[g], "z": z, "en4dvar_req_m": float(q["mean"]),
-                              "en4dvar_req_sd_m": float(q["sd"]), "preprocessing_req_m": float(req[g])})
-            continue
-        req[g] = float(q["mean"])
+        req[g] = q["fitted_req_m"]
         if not keep_sd:
-            sd[g, 2] = float(q["sd"])
+            sd[g, 2] = q["fitted_req_sd_m"]
         used.append(names[g])
     if conflicts:
         each = ", ".join(f"{c['experiment']} {1e6 * c['en4dvar_req_m']:.1f} um against {1e6 * c['preprocessing_req_m']:.1f} "

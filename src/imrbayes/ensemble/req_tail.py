@@ -22,7 +22,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["ReqTailStart", "model_tail_req", "tail_req", "with_req"]
+__all__ = ["ReqTailStart", "model_tail_req", "tail_req", "with_req", "req_shift_z", "REQ_CONFLICT_Z"]
+
+#: |z| beyond which a fit's Req contradicts the record's own tail (:func:`req_shift_z`). On constant-NHKV
+#: camera records the largest |z| was 2.14 over 360 bubbles (``validation/req_conflict_probe.py``) and
+#: 2.97 over the 107 bubbles of diagnose's 20 null datasets (``validation/req_conflict_classes.py``).
+REQ_CONFLICT_Z = 3.0
 
 
 def tail_req(runner, theta_si, rmax_m, req_hat_m, tails, iterations: int = 3) -> tuple:
@@ -92,3 +97,30 @@ def with_req(obs, req_m):
     sd = obs.nuisance_sd.copy()
     sd[:, 2] *= req_m / obs.req_m           # the same relative uncertainty about the corrected value
     return replace(obs, req_m=np.asarray(req_m, dtype=np.float64), nuisance_sd=sd)
+
+
+def req_shift_z(obs, per_experiment) -> list:
+    """How far a fit moved each measured Req from the record's tail, in the tail's sd.
+
+    obs : the fitted :class:`~imrbayes.ensemble.Observations` (``req_m`` the preprocessing's tail
+    estimate [m], ``nuisance_sd[:, 2]`` its sd [m]); per_experiment : a fit's ``per_experiment``
+    entries (``name`` and ``nuisance.req_m`` = {mean, sd} [m], as En4D-Var writes them).
+    Returns one dict per experiment whose Req was estimated (prior sd > 0) and fitted: experiment,
+    z = (fitted mean - tail Req) / tail sd, fitted_req_m, fitted_req_sd_m, preprocessing_req_m,
+    preprocessing_req_sd_m. Why it matters: the fits see t* <= 3 (the analysis grid), the tail
+    Req of a long record comes from frames after it, so a large |z| means the model reproduces
+    the collapses only with a bubble size its own later record contradicts (docs/diagnosis.md,
+    "The Req conflict")."""
+    names = list(obs.names)
+    req = np.asarray(obs.req_m, dtype=np.float64)
+    sd = np.asarray(obs.nuisance_sd, dtype=np.float64)[:, 2]
+    out = []
+    for e in per_experiment:
+        q = (e.get("nuisance") or {}).get("req_m")
+        g = names.index(e["name"]) if e.get("name") in names else None
+        if g is None or q is None or not sd[g] > 0 or not (np.isfinite(q["mean"]) and q["sd"] > 0):
+            continue
+        out.append({"experiment": names[g], "z": float((float(q["mean"]) - req[g]) / sd[g]),
+                    "fitted_req_m": float(q["mean"]), "fitted_req_sd_m": float(q["sd"]),
+                    "preprocessing_req_m": float(req[g]), "preprocessing_req_sd_m": float(sd[g])})
+    return out
