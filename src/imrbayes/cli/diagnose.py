@@ -188,6 +188,11 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
             moved = ", ".join(f"{n} {a['shift'][n]:+.0%}" for n in a["material_moves"])
             click.echo(f"bubble-model sensitivity: with {options_text(a)} (not separated by the held-out data, "
                        f"{a['separation_se']:.1f} SE) the material estimate moves: {moved}")
+        rc = (res.get("baseline") or {}).get("req_consistency") or {}
+        if rc.get("flagged"):
+            click.echo(f"Req conflict: in {rc['n_conflict']} of {rc['n_estimated']} experiments the baseline's Req lies "
+                       f"more than {rc['bound']:g} tail sd from the record's own (median |z| {rc['median_abs_z']:.3g}): "
+                       "the model fits the collapses with another bubble than the one filmed")
         click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")
     echo_execution(exec_summary, quiet)
     for w in res.get("warnings", []):            # what the diagnosis left out (also in diagnosis.json)

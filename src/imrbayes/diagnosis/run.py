@@ -119,10 +119,12 @@ def req_consistency(obs, per_experiment, bound: float | None = None) -> dict:
     per experiment z = (fitted Req - tail Req) / tail sd (:func:`imrbayes.ensemble.req_tail.req_shift_z`),
     how many exceed ``bound`` (default :data:`~imrbayes.ensemble.req_tail.REQ_CONFLICT_Z`), the
     median |z|, and ``flagged`` when more than half of them do. Why: the fits see t* <= 3, the tail
-    Req of a long record is measured after that; on constant-NHKV synthetic records no dataset had
-    more than one bubble beyond 3 (20 nulls of five designs, 35 mechanism datasets: 0 flagged),
-    on the 20 stiff-PA bubbles 17 are (docs/diagnosis.md, "The Req conflict"). Evidence that the
-    model needs another bubble than the one filmed -- reported, not a statistic of the check."""
+    Req of a long record is measured after that. On camera-style synthetic records
+    (``validation/req_conflict_classes.py``) none of 40 constant-NHKV datasets is flagged (2 of 178
+    bubbles beyond 3), viscoelastic relaxation on 270 kfps records to t* = 8 is in 4 of 5, damage
+    in 1 of 5, every other class in none; the 20 stiff-PA bubbles are (18 of 20 beyond 3,
+    docs/diagnosis.md, "The Req conflict"). Evidence that the model needs another bubble than the
+    one filmed -- reported, not a statistic of the check, which decides the verdict."""
     from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, req_shift_z
 
     b = REQ_CONFLICT_Z if bound is None else float(bound)

@@ -26,7 +26,8 @@ __all__ = ["ReqTailStart", "model_tail_req", "tail_req", "with_req", "req_shift_
 
 #: |z| beyond which a fit's Req contradicts the record's own tail (:func:`req_shift_z`). On constant-NHKV
 #: camera records the largest |z| was 2.14 over 360 bubbles (``validation/req_conflict_probe.py``) and
-#: 2.97 over the 107 bubbles of diagnose's 20 null datasets (``validation/req_conflict_classes.py``).
+#: 3.6 over the 178 bubbles of 40 constant-NHKV datasets of diagnose's designs, 2 of them beyond 3
+#: (``validation/req_conflict_classes.py``, docs/diagnosis.md "The Req conflict").
 REQ_CONFLICT_Z = 3.0
 
 
