@@ -200,3 +200,37 @@ def test_integrate_out_trailing_and_the_reference_prior_give_the_marginal_likeli
     # the marginals' ratio integrates every nuisance against Q's conditional: neither of the above
     Lm, _ = info(p[z], P[z, z], q[z], Q[z, z])
     assert not np.allclose(Lm, L0, rtol=0.05) and not np.allclose(Lm, L_ref, rtol=0.05)
+
+
+def test_likelihood_terms_do_not_depend_on_the_units_of_a_coordinate():
+    """The likelihood recovered from (posterior, prior) is the same whatever unit a coordinate is
+    stated in: with a third parameter in seconds (prior sd 5e-7 s, a Zener's retardation time) its
+    centre is the scaled copy of the one in microseconds. A ridge sized by the largest prior
+    precision (1e-9 x 4e12) swamped the other coordinates and put their centre near 0 (G = 1 Pa on
+    real data) -- the test fails on that version."""
+    from imrbayes.ensemble.gaussian import likelihood_terms
+
+    rng = np.random.default_rng(4)
+    q, Q = np.array([8.6, -1.6, 0.0]), np.diag([0.2, 0.16, 0.25])        # the third in us
+    A = rng.standard_normal((3, 3))
+    Lam0 = A @ A.T * 20.0 + np.eye(3)
+    m0 = q + rng.standard_normal(3) * 0.3
+    S = np.linalg.inv(np.linalg.inv(Q) + Lam0)
+    p = S @ (np.linalg.solve(Q, q) + Lam0 @ m0)
+    _, _, centre_us, _ = likelihood_terms(p[None], S[None], q[None], Q[None])
+    np.testing.assert_allclose(centre_us[0], m0, rtol=1e-6, atol=1e-8)
+    D = np.diag([1.0, 1.0, 1e-6])                                       # the same in s
+    _, _, centre_s, _ = likelihood_terms((D @ p)[None], (D @ S @ D)[None], (D @ q)[None], (D @ Q @ D)[None])
+    np.testing.assert_allclose(centre_s[0], D @ m0, rtol=1e-6, atol=1e-14)
+
+
+def test_a_zero_default_parameter_gets_its_own_prior_scale():
+    """A Zener-family retardation time (default 0) gets the prior 0 +- 0.5 us, not 0 +- 1 s (with
+    which every member of `fit --model zener` failed on stiff PA)."""
+    for name in ("zener", "qzener", "maxwell", "oldroyd-b"):
+        sp = ParamSpace.for_model(get_model(name))
+        i = sp.names.index("lambda2")
+        assert not sp.positive[i] and sp.prior_mean[i] == 0.0
+        assert math.sqrt(sp.prior_cov[i, i]) == pytest.approx(5e-7)
+    sp = ParamSpace.for_model(get_model("carreau"))                     # no scale given: 1 SI unit
+    assert math.sqrt(sp.prior_cov[sp.names.index("mu_inf")] [sp.names.index("mu_inf")]) == pytest.approx(1.0)

@@ -243,11 +243,13 @@ class ParamSpace:
     @classmethod
     def for_model(cls, constitutive, prior: dict | None = None, box_sd: float = 10.0) -> "ParamSpace":
         """From a ``ConstitutiveModel``; ``prior`` maps name -> (mean, sd) in SI (default
-        :data:`PAPER_PRIOR`, else the model default with a 50 % sd), uncorrelated."""
+        :data:`PAPER_PRIOR`, else the model default with a 50 % sd, or with the parameter's own
+        ``prior_sd`` where the default is 0: a Zener's retardation time 0 +- 0.5 us), uncorrelated."""
         prior = {**PAPER_PRIOR, **(prior or {})}
         names, pos, means, sds, si = [], [], [], [], {}
         for p in constitutive.parameters:
-            mean, sd = prior.get(p.name, (p.default, 0.5 * abs(p.default) if p.default else 1.0))
+            fallback = 0.5 * abs(p.default) if p.default else (p.prior_sd or 1.0)
+            mean, sd = prior.get(p.name, (p.default, fallback))
             mean, sd = float(mean), float(sd)
             if not (math.isfinite(mean) and math.isfinite(sd) and sd > 0):
                 raise InputError("prior", f"{p.name}: need a finite mean and a positive sd, got {mean}, {sd}")

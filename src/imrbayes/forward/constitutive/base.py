@@ -46,13 +46,16 @@ ALIASES = {"sls": "zener", "ucm": "oldroyd-b", "oldroydb": "oldroyd-b", "invisci
 @dataclass(frozen=True)
 class Parameter:
     """One material parameter: ``name``, SI ``unit``, a typical ``default``, whether it must be
-    ``positive`` (inference then works on its logarithm), and a one-line ``description``."""
+    ``positive`` (inference then works on its logarithm), a one-line ``description``, and
+    ``prior_sd`` [SI]: the default prior's sd where half the default cannot be (a default of 0;
+    None: 1 SI unit -- 1 s for a time of microseconds would make every member fail)."""
 
     name: str
     unit: str
     default: float
     positive: bool = True
     description: str = ""
+    prior_sd: float | None = None
 
 
 @dataclass(frozen=True)

@@ -38,5 +38,6 @@ MODEL = ConstitutiveModel(
                 Parameter("mu", "Pa s", 0.088, description="viscosity"),
                 Parameter("alpha", "-", 0.25, positive=False, description="strain-stiffening coefficient"),
                 Parameter("lambda1", "s", 1e-6, description="relaxation time"),
-                Parameter("lambda2", "s", 0.0, positive=False, description="retardation time")),
+                Parameter("lambda2", "s", 0.0, positive=False, description="retardation time",
+                          prior_sd=5e-7)),
     n_aux=N_AUX, module=__name__, imrv2_stress=4, _nondim=_nondim)

@@ -58,5 +58,6 @@ MODEL = ConstitutiveModel(
     parameters=(Parameter("G", "Pa", 7.29e3, description="shear modulus"),
                 Parameter("mu", "Pa s", 0.088, description="viscosity"),
                 Parameter("lambda1", "s", 1e-6, description="relaxation time"),
-                Parameter("lambda2", "s", 0.0, positive=False, description="retardation time")),
+                Parameter("lambda2", "s", 0.0, positive=False, description="retardation time",
+                          prior_sd=5e-7)),
     n_aux=N_AUX, module=__name__, imrv2_stress=3, _nondim=_nondim)
