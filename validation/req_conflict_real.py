@@ -9,22 +9,21 @@ one line per run and writes every bubble's z, shift and the estimate as JSON.
 import json
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
-from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z
+from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, req_shift_z
 
 
 def conflict_of(summary: dict) -> dict:
-    pre = {e["name"]: e for e in summary["preprocessing"]["experiments"]}
-    rows = []
-    for pe in summary["per_experiment"]:
-        q, e = pe["nuisance"]["req_m"], pre[pe["name"]]
-        if not e.get("req_sd_m"):
-            continue
-        rows.append({"experiment": pe["name"], "z": (q["mean"] - e["req_m"]) / e["req_sd_m"],
-                     "shift": q["mean"] / e["req_m"] - 1.0, "tail_req_m": e["req_m"], "tail_sd_m": e["req_sd_m"],
-                     "fitted_req_m": q["mean"], "fitted_sd_m": q["sd"], "t_last_star": e.get("t_last_star")})
+    pre = summary["preprocessing"]["experiments"]
+    # the preprocessing's Req and its sd, as the fitted Observations carried them
+    obs = SimpleNamespace(names=[e["name"] for e in pre], req_m=np.array([e["req_m"] for e in pre]),
+                          nuisance_sd=np.array([[0.0, 0.0, e.get("req_sd_m") or 0.0] for e in pre]))
+    t_last = {e["name"]: e.get("t_last_star") for e in pre}
+    rows = [{**q, "shift": q["fitted_req_m"] / q["preprocessing_req_m"] - 1.0, "t_last_star": t_last[q["experiment"]]}
+            for q in req_shift_z(obs, summary["per_experiment"])]
     z = np.array([r["z"] for r in rows])
     return {"model": summary["model"], "estimate": {k: v["mean"] for k, v in summary["estimate"].items()},
             "rmse": summary["details"].get("rmse"), "bubbles": rows, "n_conflict": int(np.sum(np.abs(z) > REQ_CONFLICT_Z)),

@@ -96,8 +96,8 @@ def likelihood_terms(post_m, post_c, prior_m, prior_c, ridge: float = 1e-9):
     H >= I, so this only removes round-off); ``ridge`` times the prior precision keeps Lambda_n
     invertible in directions the data do not inform (it does not change eta_n). The algebra runs in
     units of each coordinate's prior sd, and the ridge is the prior precision matrix itself, not its
-    largest eigenvalue times I: a parameter stated in small SI units (a Zener's retardation time, prior sd 5e-7 s, precision 4e12) would otherwise add
-    4e3 to every other coordinate's precision and pull each bubble's mean to z = 0 (G = 1 Pa,
+    largest eigenvalue times I: a parameter stated in small SI units (a Zener's retardation time,
+    prior sd 5e-7 s, precision 4e12) would otherwise add 4e3 to every other coordinate's precision and pull each bubble's mean to z = 0 (G = 1 Pa,
     measured on stiff PA and synthetic Zener records, session 64). Returns (Lam, eta, m_n,
     n_clipped) with m_n the likelihood's centre."""
     post_m = np.atleast_2d(post_m)
