@@ -631,10 +631,41 @@ def test_req_prior_keeps_the_record_req_where_the_whole_record_fit_contradicts_i
     z = (np.array(free["req_m"]) - obs.req_m) / obs.nuisance_sd[:, 2]
     assert abs(z[1]) > abs(z[0])                      # the 3 % prior is the one the data move furthest
     bound = 0.5 * (abs(z[0]) + abs(z[1]))
-    new, info = mk.req_prior_from_en4dvar(*args, conflict_z=bound)
+    new, info = mk.req_prior_from_en4dvar(*args, conflict_z=bound, stop_z=None)
     assert [c["experiment"] for c in info["conflicts"]] == [obs.names[1]]
     assert info["conflicts"][0]["z"] == pytest.approx(z[1], rel=1e-9)
     assert new.req_m[1] == obs.req_m[1] and new.nuisance_sd[1, 2] == obs.nuisance_sd[1, 2]
     assert new.req_m[0] == pytest.approx(free["req_m"][0], rel=1e-12)
     assert len(info["warnings"]) == 1 and obs.names[1] in info["warnings"][0]
     assert mk.REQ_PRIOR_CONFLICT_Z == 3.0
+    assert free["stopped_early"] == [] and info["stopped_early"] == []
+
+
+def test_req_prior_fit_stops_an_experiment_whose_conflict_is_decided():
+    """``stop_z``: an experiment whose Req lies beyond it after a cycle skips its later cycles and
+    is still a conflict; the other experiment's fit is the same as without the stop (its own
+    random stream); each cycle's recorded Req z ends at the z the comparison uses."""
+    from imrbayes.ensemble.en4dvar import En4DVarSettings, _fit_en4dvar
+    from imrbayes.ensemble.req_tail import req_shift_z
+    from imrbayes.execution import Execution
+    from imrbayes.forward import Runner
+    fm, obs, _, _, o = _misplaced_geometry([0.15, 0.0])
+    obs = dataclasses.replace(obs, nuisance_sd=np.column_stack([obs.nuisance_sd[:, :2], [0.15 * o.req_m[0], 0.03 * o.req_m[1]]]))
+    s = En4DVarSettings(n_draws=1, loglik=False)
+    free = _fit_en4dvar(fm, obs, space(fm), s.resolved(), 2, Runner(fm), None, Execution(progress=False),
+                        tag={"req_prior": "en4dvar"})             # the units' streams req_prior_from_en4dvar uses
+    z_cyc = [c["req_z"] for c in free.details["cycles"]]          # [cycle][experiment]
+    z_end = [q["z"] for q in req_shift_z(obs, free.per_experiment)]
+    np.testing.assert_allclose(z_cyc[-1], z_end, rtol=1e-9)
+    assert abs(z_cyc[0][1]) > 3.0 and abs(z_cyc[0][0]) < abs(z_cyc[0][1])
+    stop = 0.5 * (max(abs(z_cyc[0][0]), abs(z_cyc[1][0]), abs(z_cyc[2][0]), 3.0) + abs(z_cyc[0][1]))
+    args = (fm, obs, space(fm), 2, Runner(fm), Execution(progress=False))
+    _, ref = mk.req_prior_from_en4dvar(*args, stop_z=None)
+    new, info = mk.req_prior_from_en4dvar(*args, stop_z=stop)
+    assert info["stop_z"] == pytest.approx(stop) and ref["stop_z"] is None
+    assert info["stopped_early"] == [{"experiment": obs.names[1], "after_cycle": 1}]
+    assert [c["experiment"] for c in info["conflicts"]] == [obs.names[1]]
+    assert info["conflicts"][0]["z"] == pytest.approx(z_cyc[0][1], rel=1e-9)
+    assert new.req_m[1] == obs.req_m[1]                              # the record's prior kept
+    assert new.req_m[0] == ref["req_m"][0] and new.nuisance_sd[0, 2] == ref["req_sd_m"][0]
+    assert info["en4dvar_member_runs"] < ref["en4dvar_member_runs"]

@@ -147,7 +147,13 @@ class En4DVarSettings:
     twice, each bubble's mu too narrow and pulled along the Req ridge; thermal camera records,
     20 paired seeds: mu covered 15 -> 20 of 20 with ``req``, G unchanged; ``prior`` moved G up by
     0.7 sd on polytropic records, the alignment's effect being far from linear over its prior:
-    docs/results.md, "Which prior the nuisances are integrated against").
+    docs/results.md, "Which prior the nuisances are integrated against"). req_conflict_stop
+    (default likelihood, Req estimated): after a cycle that leaves an experiment's Req more than
+    this many prior sd from its preprocessing value, that experiment's later cycles are skipped
+    (None: never). For fits whose only use is that comparison -- MIEnKS-MDA's Req prior, which
+    keeps the record's Req beyond :data:`~imrbayes.ensemble.req_tail.REQ_CONFLICT_Z` -- where
+    more cycles cannot bring such a Req back within the bound (docs/results.md, "The Req-prior
+    fit stops on a decided conflict"). Every cycle records its Req z (``cycles[].req_z``).
     """
 
     n_ens: int | None = None
@@ -170,6 +176,7 @@ class En4DVarSettings:
     is_prior_widen: float = 3.0
     req_tail: str = "auto"
     nuisance_integral: str = "req"
+    req_conflict_stop: float | None = None
 
     def resolved(self) -> "En4DVarSettings":
         """The settings with the likelihood's own choices filled in (``paper``: averaged cost and the
@@ -215,6 +222,8 @@ class En4DVarSettings:
             raise InputError("nuisance_integral", f"must be 'cycle', 'req' or 'prior', got {self.nuisance_integral!r}")
         if not (np.isfinite(self.is_prior_widen) and self.is_prior_widen >= 1.0):
             raise InputError("is_prior_widen", f"must be a number >= 1, got {self.is_prior_widen!r}")
+        if self.req_conflict_stop is not None and not (np.isfinite(self.req_conflict_stop) and self.req_conflict_stop > 0):
+            raise InputError("req_conflict_stop", f"must be a positive number of prior sd or None, got {self.req_conflict_stop!r}")
         if self.is_draws < 50 or self.is_rounds < 1:
             raise InputError("is_draws/is_rounds", f"need at least 50 draws and one round, got {self.is_draws}, "
                                                    f"{self.is_rounds}")
@@ -329,7 +338,15 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         infl = rtps(res.prior_anoms, res.anoms, s.rtps)
         mean = res.mean[0].copy()
         cov = np.einsum("gnd,gne->gde", infl, infl)[0]
-        if r == 0 and default and d.get("req_tail_t") is not None and 2 in active and s.n_runs > 1:
+        req_z = None
+        if default and 2 in active:
+            # this cycle's Req against the preprocessing's, in its prior sd (req_tail.req_shift_z's z)
+            jr = n_p + int(np.flatnonzero(active == 2)[0])
+            req_z = float((req * np.exp(mean[jr]) - d["req"]) / (d["req"] * nu_sd[2]))
+        # a decided conflict ends the fit before Req's origin moves (the reported Req stays this cycle's)
+        stop = s.req_conflict_stop is not None and req_z is not None and abs(req_z) > s.req_conflict_stop \
+            and r < s.n_runs - 1
+        if r == 0 and not stop and default and d.get("req_tail_t") is not None and 2 in active and s.n_runs > 1:
             # req_tail=inline: Req's origin moves to Req_hat / c, c the model's tail at this bubble's
             # cycle-1 posterior mean; that posterior is moved as a linear-Gaussian one would be by
             # the shift of Req's prior centre (m' = m + C[:, rho] dm0 / sd0^2), then cycles 2..
@@ -344,8 +361,10 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
                 req_factor, req = float(c[0]), float(new_req[0])
         used = np.isfinite(res.cost[0])
         cycles.append({"cycle": r + 1, "cost": res.cost[0][used], "n_failed": res.n_failed[0][used],
-                       "n_redrawn": int(res.n_redrawn[0]), "stopped": bool(res.stopped[0]),
+                       "n_redrawn": int(res.n_redrawn[0]), "stopped": bool(res.stopped[0]), "req_z": req_z,
                        **({"likelihood": {k_: v for k_, v in lik.items() if k_ != "W"}} if default else {})})
+        if stop:
+            break
     if default and s.screen:
         cycles[0]["screen"] = screen_info
     qa = res.prior_anoms[0]
@@ -601,11 +620,16 @@ def _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag=None, inline
     failed_runs = sum(int(r["failed_member_runs"]) for r in R)
     cycles = []
     for c in range(s.n_runs):
-        cyc = [r["cycles"][c] for r in R]
+        # an experiment stopped by req_conflict_stop has fewer cycles: each cycle lists those that ran it
+        ran = [(n, r["cycles"][c]) for n, r in zip(ok, R) if len(r["cycles"]) > c]
+        if not ran:
+            break
+        cyc = [x for _, x in ran]
         cycles.append({"cycle": c + 1, "cost": [np.asarray(x["cost"]).tolist() for x in cyc],
                        "n_failed": [np.asarray(x["n_failed"]).tolist() for x in cyc],
                        "n_redrawn": [int(x["n_redrawn"]) for x in cyc], "stopped": [bool(x["stopped"]) for x in cyc],
-                       "experiments": [obs.names[n] for n in ok],
+                       "req_z": [x.get("req_z") for x in cyc],
+                       "experiments": [obs.names[n] for n, _ in ran],
                        **({"screen": [x["screen"] for x in cyc]} if all("screen" in x for x in cyc) else {})})
         if progress is not None:
             progress(c + 1)

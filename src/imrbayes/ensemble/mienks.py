@@ -150,6 +150,10 @@ DEFAULT_REQ_PRIOR = "en4dvar"
 #: a whole-record Req further than this many preprocessing prior sd from the record's own Req is a
 #: conflict between the model and the measured tail: that experiment keeps the preprocessing prior
 REQ_PRIOR_CONFLICT_Z = REQ_CONFLICT_Z
+#: the Req-prior fit skips an experiment's later cycles once a cycle leaves its Req this many
+#: preprocessing sd from the record's (En4DVarSettings.req_conflict_stop): a conflict the later
+#: cycles do not undo (docs/results.md, "The Req-prior fit stops on a decided conflict")
+REQ_PRIOR_STOP_Z = 6.0
 
 
 @dataclass
@@ -742,7 +746,7 @@ def _pilot_centres(pil, retry_sweeps, lik_info, space) -> np.ndarray:
 
 
 def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: bool = False,
-                           conflict_z: float = REQ_PRIOR_CONFLICT_Z):
+                           conflict_z: float = REQ_PRIOR_CONFLICT_Z, stop_z: float | None = REQ_PRIOR_STOP_Z):
     """(Observations with each estimated Req's prior replaced by its whole-record En4D-Var posterior
     [mean, sd], details). Why: the smoother's windows see Req only through the data before them and
     its prior, while the record's tail, where Req is decided, comes last; with the tail-mean prior (sd
@@ -758,9 +762,13 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
     own physics the shift stays within 2.1 sd (120 polytropic bubbles; thermal in docs/results.md);
     on the 20 stiff-PA bubbles the whole-record fit moved Req by up to 40 sd (-19 % to +32 %) to fit
     the collapses, and that Req, imported with its En4D-Var precision, doubled the between-bubble sd
-    of G and mu -- model error absorbed by the geometry, which the measured tail contradicts."""
+    of G and mu -- model error absorbed by the geometry, which the measured tail contradicts.
+    ``stop_z`` (None: off): an experiment whose Req lies beyond it after a restart cycle skips its
+    later cycles -- its conflict is decided, only the comparison is used (``details["req_prior"]
+    ["stopped_early"]``)."""
     from imrbayes.ensemble.en4dvar import En4DVarSettings, _fit_en4dvar
-    e4s = En4DVarSettings(n_draws=1, loglik=False)
+    stop = max(stop_z, conflict_z) if stop_z else None       # never below the conflict bound
+    e4s = En4DVarSettings(n_draws=1, loglik=False, req_conflict_stop=stop if stop and np.isfinite(stop) else None)
     e4s.check()
     e4 = _fit_en4dvar(fm, obs, space, e4s.resolved(), seed, runner, None, execution, tag={"req_prior": "en4dvar"})
     req = np.array(obs.req_m, dtype=np.float64).copy()
@@ -784,11 +792,18 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
                      f"{conflict_z:g} prior sd from the record's own ({each}); the model fits the collapses with a Req "
                      f"the measured tail contradicts (model error absorbed by the geometry: see diagnose), so the "
                      f"smoother keeps their Req prior from the record")
+    last = {}                                        # the last cycle each experiment ran
+    for c in e4.details.get("cycles", []):
+        for nm in c["experiments"]:
+            last[nm] = c["cycle"]
     info = {"method": "en4dvar", "experiments": used, "conflicts": conflicts, "conflict_z": conflict_z,
             "warnings": warns, "preprocessing_req_m": np.asarray(obs.req_m).tolist(),
             "preprocessing_req_sd_m": np.asarray(obs.nuisance_sd)[:, 2].tolist(), "req_m": req.tolist(),
             "req_sd_m": sd[:, 2].tolist(), "en4dvar_estimate": {nm: e4.estimate[nm]["mean"] for nm in space.names},
             "en4dvar_member_runs": int(e4.details.get("member_runs", 0)),
+            "stop_z": e4s.req_conflict_stop,
+            "stopped_early": [{"experiment": nm, "after_cycle": last[nm]} for nm in names
+                              if 0 < last.get(nm, 0) < e4s.n_runs],
             "note": ("each estimated Req's prior is centred at its whole-record En4D-Var posterior mean, run first, "
                      "with the preprocessing's sd" if keep_sd else
                      "each estimated Req's prior is its whole-record En4D-Var posterior (mean, sd), run first")}
