@@ -40,7 +40,7 @@ def cycles_z(obs, bubble: str, seed: int, label: str) -> list:
                       tag={"req_prior": "en4dvar"})
     final = {q["experiment"]: q["z"] for q in req_shift_z(obs, e4.per_experiment)}
     rows = []
-    for i, name in enumerate(e4.details["cycles"][0]["experiments"]):
+    for name in e4.details["cycles"][0]["experiments"]:
         z = [c["req_z"][c["experiments"].index(name)] for c in e4.details["cycles"] if name in c["experiments"]]
         rows.append({"source": label, "seed": seed, "experiment": name, "z_cycles": z, "z_final": final.get(name)})
         print(label, seed, name, np.round(z, 2), round(final.get(name, np.nan), 2), flush=True)

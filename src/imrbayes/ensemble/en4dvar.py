@@ -293,6 +293,7 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         nu_sd = np.asarray(d["nuisance_sd"], dtype=np.float64)
         active = np.flatnonzero(nu_sd > 0)
         k = active.size
+        j_rho = n_p + int(np.flatnonzero(active == 2)[0]) if 2 in active else None   # log Req's coordinate
         mean = np.concatenate([mean, np.zeros(k)])
         cov = np.block([[cov, np.zeros((n_p, k))], [np.zeros((k, n_p)), np.diag(nu_sd[active] ** 2)]])
 
@@ -341,23 +342,21 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         req_z = None
         if default and 2 in active:
             # this cycle's Req against the preprocessing's, in its prior sd (req_tail.req_shift_z's z)
-            jr = n_p + int(np.flatnonzero(active == 2)[0])
-            req_z = float((req * np.exp(mean[jr]) - d["req"]) / (d["req"] * nu_sd[2]))
+            req_z = float((req * np.exp(mean[j_rho]) - d["req"]) / (d["req"] * nu_sd[2]))
         # a decided conflict ends the fit before Req's origin moves (the reported Req stays this cycle's)
-        stop = s.req_conflict_stop is not None and req_z is not None and abs(req_z) > s.req_conflict_stop \
-            and r < s.n_runs - 1
+        stop = (s.req_conflict_stop is not None and req_z is not None and abs(req_z) > s.req_conflict_stop
+                and r < s.n_runs - 1)
         if r == 0 and not stop and default and d.get("req_tail_t") is not None and 2 in active and s.n_runs > 1:
             # req_tail=inline: Req's origin moves to Req_hat / c, c the model's tail at this bubble's
             # cycle-1 posterior mean; that posterior is moved as a linear-Gaussian one would be by
             # the shift of Req's prior centre (m' = m + C[:, rho] dm0 / sd0^2), then cycles 2..
-            j = n_p + int(np.flatnonzero(active == 2)[0])
             a = mean[n_p + int(np.flatnonzero(active == 0)[0])] if 0 in active else 0.0
             new_req, c = tail_req(runner, space.to_si(mean[None, :n_p]), np.array([rmax * (1.0 + a)]),
                                   np.array([req]), [np.asarray(d["req_tail_t"], dtype=np.float64)])
             if c[0] != 1.0:
                 shift = float(np.log(req / new_req[0]))        # rho' = rho + log(req / req')
-                mean[j] += shift
-                mean -= res.cov[0][:, j] * shift / nu_sd[2] ** 2
+                mean[j_rho] += shift
+                mean -= res.cov[0][:, j_rho] * shift / nu_sd[2] ** 2
                 req_factor, req = float(c[0]), float(new_req[0])
         used = np.isfinite(res.cost[0])
         cycles.append({"cycle": r + 1, "cost": res.cost[0][used], "n_failed": res.n_failed[0][used],

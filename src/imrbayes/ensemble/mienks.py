@@ -767,8 +767,8 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
     later cycles -- its conflict is decided, only the comparison is used (``details["req_prior"]
     ["stopped_early"]``)."""
     from imrbayes.ensemble.en4dvar import En4DVarSettings, _fit_en4dvar
-    stop = max(stop_z, conflict_z) if stop_z else None       # never below the conflict bound
-    e4s = En4DVarSettings(n_draws=1, loglik=False, req_conflict_stop=stop if stop and np.isfinite(stop) else None)
+    stop = max(stop_z, conflict_z) if stop_z else None       # never below the conflict bound; inf: no stop
+    e4s = En4DVarSettings(n_draws=1, loglik=False, req_conflict_stop=stop if stop is not None and np.isfinite(stop) else None)
     e4s.check()
     e4 = _fit_en4dvar(fm, obs, space, e4s.resolved(), seed, runner, None, execution, tag={"req_prior": "en4dvar"})
     req = np.array(obs.req_m, dtype=np.float64).copy()
