@@ -137,6 +137,27 @@ def test_auto_moves_follow_the_window():
     assert resolve_moves("auto", LinearWindow(nuisance_sd=(0.0, 0.0, 0.0))) == AUTO_MOVES["plain"]
     assert resolve_moves("auto", GaussianTarget([0.0, 1.0], np.eye(2))) == "indep:0.7,de:0.3"
     assert resolve_moves("de", LinearWindow()) == "de"
+    # a window with one nuisance per experiment (Rmax alone): placed on the target first; this one is
+    # linear-Gaussian, so the quadratic fit is exact and independent walkers sample it (8, fewer than 2 d)
+    tg = LinearWindow(nuisance_sd=(0.3, 0.0, 0.0))
+    run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed"), seed=0)
+    assert run.settings["place"] == "laplace" and run.settings["moves"] == "indep" and run.n_walkers == 8 < 2 * tg.ndim
+    assert run.settings["placement"]["rounds"][-1]["residual_sd_nats"] < 1e-6
+    # the start as given: the block and ridge moves with 2 walkers per coordinate
+    run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed", place="start"), seed=0)
+    assert run.settings["moves"] == "ridge:0.5,blocks:0.5" and run.n_walkers == 2 * tg.ndim
+    # three nuisances per experiment (camera records: Rmax, alignment, Req): placed, then the block moves
     tg = LinearWindow()
     run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed"), seed=0)
-    assert run.settings["moves"] == "ridge:0.5,blocks:0.5" and run.n_walkers == 2 * tg.ndim
+    assert run.settings["place"] == "laplace" and run.settings["moves"] == "ridge:0.5,blocks:0.5"
+    assert run.n_walkers == 2 * tg.ndim and "3 nuisance(s) per experiment" in run.settings["placement"]["moves_rule"]
+
+
+def test_auto_moves_fall_back_to_blocks_when_the_placed_fit_is_not_gaussian(monkeypatch):
+    import imrbayes.mcmc.sampler as sampler
+
+    monkeypatch.setattr(sampler, "LAPLACE_MAX_RESIDUAL", -1.0)       # any fit counts as not Gaussian
+    tg = LinearWindow(nuisance_sd=(0.3, 0.0, 0.0))
+    run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed"), seed=0)
+    assert run.settings["place"] == "laplace" and run.settings["moves"] == "ridge:0.5,blocks:0.5"
+    assert run.n_walkers == 2 * tg.ndim and "ridge" in run.settings["placement"]["moves_rule"]

@@ -176,5 +176,9 @@ def test_cost_warning_names_windows_with_many_coordinates():
     blocks = [np.arange(2 + 3 * e, 5 + 3 * e) for e in range(6)]
     (w,) = cost_warnings([spec(3, 20, 6, blocks)], s)
     assert "35-40 steps" in w and "about 2 000 steps" in w and "agree = null" not in w
+    # one nuisance per experiment (Rmax alone): the start is placed and independent walkers may sample it
+    (w,) = cost_warnings([spec(4, 20, 18, [np.array([2 + e]) for e in range(18)])], s)
+    assert "placed on the target" in w and "independent walkers" in w and "agree = null" not in w
+    assert "2,079 evaluations" in w                     # 3 rounds x 3 points x (d + 1)(d + 2)/2 = 231 coefficients
     (w,) = cost_warnings([spec(3, 20, 6, blocks)], MCMCSettings(moves="indep:0.7,de:0.3"))
     assert "150-360 steps" in w

@@ -122,6 +122,11 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, me
             r["window_rel_error_bubbles"] = {
                 n: [float(np.mean([math.exp(e["mean_internal"][i]) for e in w["per_experiment"]])) / true - 1
                     for w in res.windows] for i, (n, true) in enumerate(TRUTH.items())}
+            # each window's sd (relative to the truth) and its mean's distance from the aggregate in its own
+            # sd: the validation suite's no-spurious-trend criterion (every window within 2 sd of the aggregate)
+            r["window_rel_sd"] = {n: [w[n]["sd"] / true for w in res.windows] for n, true in TRUTH.items()}
+            r["window_dev_sd"] = {n: [(w[n]["mean"] - res.estimate[n]["mean"]) / w[n]["sd"] for w in res.windows]
+                                  for n in TRUTH}
             r["window_prior_dominated"] = [bool(w.get("prior_dominated", False)) for w in res.windows]
             r["window_prior_weight"] = {n: [w["prior_weight"][n] for w in res.windows if "prior_weight" in w]
                                         for n in TRUTH}
@@ -182,6 +187,43 @@ def _trend(errs):
                                         "se": float(drop.std(ddof=1) / np.sqrt(len(drop))) if len(drop) > 1 else None}
 
 
+def _trend_test(rows, lk, bound: float = 2.0) -> dict | None:
+    """The validation suite's no-spurious-trend criterion per seed (``validation/suite.py``,
+    ``case_mienks``): every window's mean within ``bound`` of its own posterior sd from the aggregate
+    estimate, for G and mu -- over all windows, and over the windows not flagged prior-dominated.
+    On constant-parameter data a seed failing it is a trend a user would read into the windows: the
+    fraction failing is the false-trend rate (with its Wilson interval). Also the decided windows'
+    first - last third in units of their own mean sd."""
+    rs = [r[lk] for r in rows if "window_dev_sd" in r[lk]]
+    if not rs:
+        return None
+    out = {"bound_sd": bound, "n_seeds": len(rs)}
+    for scope in ("all", "decided"):
+        ok = []
+        for r in rs:
+            dom = np.array(r["window_prior_dominated"], dtype=bool)
+            keep = ~dom if scope == "decided" else np.ones(dom.size, dtype=bool)
+            ok.append(all(np.all(np.abs(np.array(r["window_dev_sd"][n])[keep]) < bound) for n in TRUTH))
+        k = int(len(ok) - np.sum(ok))
+        out[scope] = {"seeds_with_a_trend": k, "false_trend_rate": k / len(ok), "wilson95": wilson(k, len(ok)),
+                      "max_abs_dev_sd": {n: float(np.median([np.max(np.abs(np.array(r["window_dev_sd"][n])[
+                          ~np.array(r["window_prior_dominated"], bool) if scope == "decided" else slice(None)]))
+                          for r in rs])) for n in TRUTH}}
+    drops = {n: [] for n in TRUTH}
+    for r in rs:
+        dom = np.array(r["window_prior_dominated"], dtype=bool)
+        for n in TRUTH:
+            e = np.array(r["window_rel_error"][n])[~dom]
+            sd = np.array(r["window_rel_sd"][n])[~dom]
+            if e.size >= 2:
+                k3 = max(1, e.size // 3)
+                drops[n].append((e[:k3].mean() - e[-k3:].mean()) / sd.mean())
+    out["decided_early_minus_late_in_window_sd"] = {
+        n: {"mean": float(np.mean(v)), "se": float(np.std(v, ddof=1) / np.sqrt(len(v)))} for n, v in drops.items()
+        if len(v) > 1}
+    return out
+
+
 def summarise(rows, likelihoods) -> dict:
     out = {}
     for lk in likelihoods:
@@ -235,6 +277,9 @@ def summarise(rows, likelihoods) -> dict:
                     if len(drops) > 1:
                         s[n]["decided_early_minus_late"] = {"mean": float(np.mean(drops)), "n_seeds": len(drops),
                                                             "se": float(np.std(drops, ddof=1) / np.sqrt(len(drops)))}
+        trend = _trend_test(rows, lk)
+        if trend:
+            s["trend_test"] = trend
         rec = [r[lk]["record"] for r in rows if "record" in r[lk]]
         if rec:          # MIEnKS-MDA's record-level estimate (each experiment's window likelihoods summed)
             s["record"] = _coverage_table(rec)

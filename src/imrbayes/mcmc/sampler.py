@@ -63,6 +63,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from imrbayes.errors import InputError
+from imrbayes.mcmc.laplace import quadratic_placement
 
 __all__ = ["MCMCSettings", "MCMCRun", "run_mcmc", "integrated_tau", "parse_moves", "emcee_moves", "snooker_move",
            "convergence_check", "resolve_moves", "AUTO_MOVES", "MOVE_NAMES", "STOP_REASONS"]
@@ -96,6 +97,19 @@ MOVE_NAMES = ("stretch", "de", "snooker", "walk", "indep", "blocks", "ridge")
 #: with them (per-experiment Rmax / time of the maximum / Req: 5.7x fewer evaluations to convergence
 #: on a 20-coordinate camera window, docs/mcmc.md)
 AUTO_MOVES = {"plain": "indep:0.7,de:0.3", "nuisances": "ridge:0.5,blocks:0.5"}
+#: On a window with sampled nuisances ``moves="auto"`` first places the start Gaussian on the target
+#: (``place="auto"`` -> ``"laplace"``); when the quadratic fit of its last round leaves a residual sd of
+#: at most :data:`LAPLACE_MAX_RESIDUAL` [nats] and no experiment has more than
+#: :data:`LAPLACE_MAX_BLOCK` nuisances, the window is sampled by independent walkers on the placed
+#: proposal (:data:`LAPLACE_INDEP`), else by :data:`AUTO_MOVES` ``["nuisances"]`` from the placed start.
+#: Measured (docs/mcmc.md, session 66): on the verification window (Rmax alone per experiment, d = 7)
+#: residual 0.18-0.48 nats, the independent walkers' draws as the block moves' (sds within 6 %) on
+#: 13-22x fewer evaluations; on a camera window (Rmax, time of the maximum and Req, d = 20) 0.45-0.68
+#: nats, acceptance 0.4, and G's sd 15 % short of the block moves' (the alignment's non-Gaussian
+#: conditional posterior: a tail the fixed proposal under-samples in a finite run) -- so not there.
+LAPLACE_MAX_RESIDUAL = 0.6
+LAPLACE_MAX_BLOCK = 1
+LAPLACE_INDEP = {"moves": "indep", "indep_dof": 20.0, "indep_scale": 1.1, "indep_adapt": 0}
 
 
 def resolve_moves(spec: str, target) -> str:
@@ -108,6 +122,13 @@ def resolve_moves(spec: str, target) -> str:
 
 #: stop reasons reported in ``MCMCRun.stop`` / ``diagnostics()["stop_reason"]``
 STOP_REASONS = ("converged", "cap", "fixed")
+
+
+def independent_walkers(spec: str) -> bool:
+    """True when every move of ``spec`` is ``indep``: each walker is then an independent
+    Metropolis-Hastings chain with a fixed proposal, so the walker count does not need to span the
+    parameter space (the >= 2 d rule of the ensemble moves does not apply)."""
+    return spec.strip().lower() != "auto" and all(n == "indep" for n, _ in parse_moves(spec))
 
 
 def parse_moves(spec: str) -> list:
@@ -261,6 +282,12 @@ class MCMCSettings:
         over-dispersed).
     indep_scale, indep_dof : the ``indep`` move's Student-t proposal: scale (in start sd) and degrees
         of freedom (:func:`independence_move`).
+    place : ``"auto"`` (default: ``"laplace"`` with ``moves="auto"`` on a window with sampled nuisances,
+        which then also picks the moves, :data:`LAPLACE_MAX_RESIDUAL`; else ``"start"``), ``"start"``
+        (the walkers' start Gaussian and the ``indep`` proposal are the one given: the ensemble
+        smoother's) or ``"laplace"`` (moved first to a quadratic fit of the target's own
+        log-density around it, :func:`imrbayes.mcmc.laplace.quadratic_placement`: ``place_rounds``
+        rounds of (d + 1)(d + 2)/2 x 3 evaluations, seeded, done again identically on resume).
     indep_adapt : 0, or the step at which each ensemble moves its ``indep`` proposal once to the
         mean and covariance of its own draws in the second half of the steps so far (then fixed;
         default 50, before the first convergence check at ``min_steps`` = 100).
@@ -290,14 +317,18 @@ class MCMCSettings:
     indep_scale: float = 1.5
     indep_dof: float = 4.0
     indep_adapt: int = 50
+    place: str = "auto"
+    place_rounds: int = 3
     tau_rule: float = 50.0
     lockstep: bool = True
     loglik: bool = True
     quadrature: bool = False
 
     def check(self, ndim: int):
-        if self.n_walkers < 2 * ndim or self.n_walkers % 2:
-            raise InputError("n_walkers", f"needs an even number >= 2 x {ndim} parameters, got {self.n_walkers}")
+        need = 2 if independent_walkers(self.moves) else 2 * ndim
+        if self.n_walkers < need or self.n_walkers % 2:
+            raise InputError("n_walkers", f"needs an even number >= {need}" +
+                             ("" if need == 2 else f" (2 x {ndim} parameters)") + f", got {self.n_walkers}")
         if self.n_chains < 2:
             raise InputError("n_chains", f"R-hat needs at least 2 independent ensembles, got {self.n_chains}")
         if self.n_steps < 4:
@@ -322,6 +353,10 @@ class MCMCSettings:
             raise InputError("indep_scale", f"must be positive, got {self.indep_scale}")
         if not (math.isfinite(self.indep_dof) and self.indep_dof > 0):
             raise InputError("indep_dof", f"must be positive, got {self.indep_dof}")
+        if self.place not in ("auto", "start", "laplace"):
+            raise InputError("place", f"must be 'auto', 'start' or 'laplace', got {self.place!r}")
+        if not self.place_rounds >= 1:
+            raise InputError("place_rounds", f"must be >= 1, got {self.place_rounds}")
         if not (self.indep_adapt == 0 or self.indep_adapt >= 4):
             raise InputError("indep_adapt", f"must be 0 (never) or a step >= 4, got {self.indep_adapt}")
         moves = [m for spec in (AUTO_MOVES.values() if self.moves.strip().lower() == "auto" else [self.moves])
@@ -577,6 +612,7 @@ class MCMCRun:
                 "stop_reason": self.stop.get("reason"), "cap": self.stop.get("cap"),
                 "cap_hit": bool(self.stop.get("cap_hit", False)), "checks": list(self.stop.get("checks", [])),
                 "evals_per_chain": int(self.n_steps * self.n_walkers),
+                **({"placement": self.settings["placement"]} if "placement" in self.settings else {}),
                 "chain_definition": "one chain = one independent emcee ensemble; draws walker-major"}
 
     def to_datatree(self, target=None, loglik: bool = True):
@@ -656,12 +692,10 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
 
     s = settings or MCMCSettings()
     d = int(target.ndim)
-    s = replace(s, moves=resolve_moves(s.moves, target))
-    if s.n_walkers < 2 * d:
-        # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
-        # (fewer with the block and ridge moves did not pay: docs/mcmc.md)
-        s = replace(s, n_walkers=2 * d)
-    s.check(d)
+    auto = s.moves.strip().lower() == "auto"
+    nuisances = resolve_moves("auto", target) == AUTO_MOVES["nuisances"]
+    place = s.place if s.place != "auto" else ("laplace" if auto and nuisances else "start")
+    s = replace(s, moves=resolve_moves(s.moves, target), place=place)
     t0 = time.perf_counter()
     if start_mean is None:
         if getattr(target.prior, "scale", "internal") != "internal":
@@ -669,11 +703,43 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
         start_mean, start_cov = target.prior.prior_mean, target.prior.prior_cov
     start_mean = np.asarray(start_mean, dtype=np.float64).reshape(d)
     start_cov = np.asarray(start_cov, dtype=np.float64).reshape(d, d)
+    given = (start_mean, start_cov)
+    evals0 = int(getattr(target, "n_evals", 0))
+    placement = None
+    if s.place == "laplace":          # its own seed stream: the chains' seeds below are those of place="start"
+        start_mean, start_cov, placement = quadratic_placement(
+            target.log_prob, start_mean, start_cov, rounds=s.place_rounds,
+            seed=int(np.random.SeedSequence([int(seed), 7919]).generate_state(1)[0]))
+        last = placement["rounds"][-1] if placement["rounds"] else {}
+        per_exp = max((np.size(b) for b in getattr(target, "nuisance_blocks", ())), default=0)
+        if (auto and nuisances and last.get("fitted") and last["residual_sd_nats"] <= LAPLACE_MAX_RESIDUAL
+                and per_exp <= LAPLACE_MAX_BLOCK):
+            # the window is Gaussian to within the bound over the placed cloud: independent walkers on
+            # the placed proposal (docs/mcmc.md: 15-22x fewer evaluations on the verification window)
+            s = replace(s, **LAPLACE_INDEP)
+            placement["moves_rule"] = (f"residual sd {last['residual_sd_nats']:.3g} <= {LAPLACE_MAX_RESIDUAL} nats: "
+                                       f"{LAPLACE_INDEP['moves']} on the placed Gaussian")
+        elif auto and nuisances:
+            placement["moves_rule"] = (f"residual sd {last.get('residual_sd_nats', float('nan')):.3g} nats (bound "
+                                       f"{LAPLACE_MAX_RESIDUAL}), {per_exp} nuisance(s) per experiment (bound "
+                                       f"{LAPLACE_MAX_BLOCK}): {s.moves} from the placed Gaussian")
+    if placement is not None and log is not None:
+        fits = [r for r in placement["rounds"] if r.get("fitted")]
+        log(f"{name}: start placed on the target in {placement['n_evals']} evaluations (quadratic fit's residual sd "
+            f"{', '.join(f'{r['residual_sd_nats']:.2f}' for r in fits) or 'none'} nats by round)"
+            + (f"; {placement['moves_rule']}" if "moves_rule" in placement else ""))
+    if s.n_walkers < 2 * d and not independent_walkers(s.moves):
+        # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
+        # (fewer with the block and ridge moves did not pay: docs/mcmc.md)
+        s = replace(s, n_walkers=2 * d)
+    s.check(d)
+    # independent walkers (indep alone): fewer walkers than coordinates are fine, so emcee's check that the
+    # start spans the space does not apply
+    solo = independent_walkers(s.moves)
     Lc = np.linalg.cholesky(0.5 * (start_cov + start_cov.T))
     C, W = s.n_chains, s.n_walkers
     children = np.random.SeedSequence(int(seed)).spawn(C)
     seeds = [int(ch.generate_state(1)[0]) for ch in children]
-    evals0 = int(getattr(target, "n_evals", 0))
 
     # ----- backends and where each ensemble stands
     backends, done = [], []
@@ -757,7 +823,7 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             stops = ([n_a] if lengths[c] < n_a < upto else []) + [upto]
             for stop in stops:
                 for st in samplers[c].sample(states[c], iterations=stop - lengths[c], store=True,
-                                             skip_initial_state_check=lengths[c] > 0):
+                                             skip_initial_state_check=lengths[c] > 0 or solo):
                     states[c] = st
                     lengths[c] += 1
                     if bar is not None:
@@ -876,4 +942,6 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                    backend=None if backend is None else {"path": str(backend), "name": name},
                    failed_chains=dict(sorted(failed.items())), stop=stop,
                    settings={**asdict(s), "seed": int(seed), "start_mean": start_mean.tolist(),
-                             "start_cov": start_cov.tolist()})
+                             "start_cov": start_cov.tolist(),
+                             **({} if placement is None else {"given_mean": given[0].tolist(),
+                                                              "given_cov": given[1].tolist(), "placement": placement})})
