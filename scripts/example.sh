@@ -4,7 +4,7 @@
 # paper's noise), simulated, inspected (table + figure), fitted with ensemble 4D-Var, its Gaussian
 # posterior checked against emcee (the same density, sampled: compare.json), and written up as one
 # HTML report. The example uses the polytropic bubble so that it runs in about two minutes; drop
-# `--forward bubble=polytropic` for the full thermal model (the MCMC then takes hours).
+# `--forward bubble=polytropic` for the full thermal model (about 4 minutes more on 2 cores, 2026-12-02).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install.sh

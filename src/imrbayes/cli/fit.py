@@ -150,10 +150,12 @@ def _load_config(path) -> dict:
                    "MIEnKS-MDA run, its fit included (fewer windows with --mcmc-windows).")
 @click.option("--mcmc-set", "mcmc_settings", multiple=True, metavar="KEY=VALUE",
               help="emcee setting: n_walkers, n_chains (independent ensembles), n_steps (hard cap), moves, "
-                   "indep_scale, indep_dof, indep_adapt, min_steps, rhat_max, ess_min, tau_rule, burn, thin, "
+                   "indep_scale, indep_dof, indep_adapt, place (auto, start, laplace), place_rounds, min_steps, "
+                   "rhat_max, ess_min, tau_rule, burn, thin, "
                    "max_draws, init_scale, lockstep, loglik, quadrature (true: also the exact grid posterior of "
                    "2-parameter windows, ~40 % more time) [default: 2 ensembles x 8 walkers (2 per coordinate "
-                   "with nuisances), moves auto (indep:0.7,de:0.3; ridge:0.5,blocks:0.5 with nuisances), "
+                   "with nuisances), moves auto (indep:0.7,de:0.3; with nuisances the start placed on the target "
+                   "first, then 8 independent walkers (one nuisance per experiment) or ridge:0.5,blocks:0.5), "
                    "stopped when R-hat <= 1.01, bulk and tail ESS >= 400 and >= 50 tau, cap 5000 steps]; "
                    "repeatable.")
 @click.option("--mcmc-windows", default=None, metavar="all|J,K,...",

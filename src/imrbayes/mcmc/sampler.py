@@ -35,7 +35,10 @@ evolution), ``snooker`` (the DE snooker, corrected: :func:`snooker_move`), ``wal
 regression: :mod:`imrbayes.mcmc.blocks`), e.g. ``"indep:0.7,de:0.3"``. The default ``"auto"``
 (2026-11-29) is ``"indep:0.7,de:0.3"`` (with ``indep_adapt`` = 50: each ensemble's independence
 proposal re-placed once on its own draws; the default since 2026-11-27, before it
-``"de:0.8,snooker:0.2"``) and ``"ridge:0.5,blocks:0.5"`` on windows with sampled nuisances. The
+``"de:0.8,snooker:0.2"``) and ``"ridge:0.5,blocks:0.5"`` on windows with sampled nuisances. On those, the start Gaussian is first
+placed on the target (``place``, :mod:`imrbayes.mcmc.laplace`), and a window with one nuisance per
+experiment whose placed fit is Gaussian (:data:`LAPLACE_MAX_RESIDUAL`) is sampled by independent
+walkers on it instead (:data:`LAPLACE_INDEP`; 2026-12-02). The
 choice is measured by evaluations to convergence and ESS per forward solve (docs/mcmc.md).
 
 Sampling is seeded: ensemble c uses ``emcee.State(p0_c, random_state=RandomState(seed_c).get_state())``
