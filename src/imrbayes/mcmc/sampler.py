@@ -718,7 +718,7 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
         if (auto and nuisances and last.get("fitted") and last["residual_sd_nats"] <= LAPLACE_MAX_RESIDUAL
                 and per_exp <= LAPLACE_MAX_BLOCK):
             # the window is Gaussian to within the bound over the placed cloud: independent walkers on
-            # the placed proposal (docs/mcmc.md: 15-22x fewer evaluations on the verification window)
+            # the placed proposal (docs/mcmc.md: 13-22x fewer evaluations on the verification window)
             s = replace(s, **LAPLACE_INDEP)
             placement["moves_rule"] = (f"residual sd {last['residual_sd_nats']:.3g} <= {LAPLACE_MAX_RESIDUAL} nats: "
                                        f"{LAPLACE_INDEP['moves']} on the placed Gaussian")
