@@ -38,7 +38,8 @@ from imrbayes.errors import InputError
 from imrbayes.execution import Execution, Unit, unit_id
 from imrbayes.forward import BatchState, fm_spec, register_runner, runner_for
 from imrbayes.mcmc.compare import compare_window
-from imrbayes.mcmc.sampler import LAPLACE_MAX_BLOCK, LAPLACE_MAX_RESIDUAL, MCMCSettings, parse_moves, resolve_moves, run_mcmc
+from imrbayes.mcmc.sampler import (LAPLACE_MAX_BLOCK, LAPLACE_MAX_RESIDUAL, MCMCSettings, nuisances_per_experiment,
+                                   parse_moves, resolve_moves, run_mcmc)
 from imrbayes.mcmc.target import WindowTarget
 from imrbayes.mcmc.windows import WindowMCMC, mcmc_tree, window_seed, start_gaussian, window_specs, write_compare
 
@@ -202,9 +203,8 @@ def cost_warnings(specs, s: MCMCSettings) -> list:
         if d < MANY_COORDINATES:
             continue
         structured = bool({n for n, _ in parse_moves(resolve_moves(s.moves, tg))} & {"blocks", "ridge"})
-        per_exp = max((np.size(b) for b in getattr(tg, "nuisance_blocks", ())), default=0)
         if (structured and s.moves.strip().lower() == "auto" and s.place in ("auto", "laplace")
-                and per_exp <= LAPLACE_MAX_BLOCK):
+                and nuisances_per_experiment(tg) <= LAPLACE_MAX_BLOCK):
             out.append(f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} "
                        f"nuisances of {tg.n_exp} experiments: Rmax, time of the maximum, Req); its start is first "
                        f"placed on the target by a quadratic fit ({3 * s.place_rounds * (d + 1) * (d + 2) // 2:,} "

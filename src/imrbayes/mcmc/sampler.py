@@ -115,6 +115,11 @@ LAPLACE_MAX_BLOCK = 1
 LAPLACE_INDEP = {"moves": "indep", "indep_dof": 20.0, "indep_scale": 1.1, "indep_adapt": 0}
 
 
+def nuisances_per_experiment(target) -> int:
+    """The most sampled nuisances any one experiment of ``target`` has (0 without nuisance blocks)."""
+    return max((np.size(b) for b in getattr(target, "nuisance_blocks", None) or ()), default=0)
+
+
 def resolve_moves(spec: str, target) -> str:
     """``spec``, or for ``"auto"`` the :data:`AUTO_MOVES` mixture that suits ``target``."""
     if spec.strip().lower() != "auto":
@@ -714,7 +719,7 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             target.log_prob, start_mean, start_cov, rounds=s.place_rounds,
             seed=int(np.random.SeedSequence([int(seed), 7919]).generate_state(1)[0]))
         last = placement["rounds"][-1] if placement["rounds"] else {}
-        per_exp = max((np.size(b) for b in getattr(target, "nuisance_blocks", ())), default=0)
+        per_exp = nuisances_per_experiment(target)
         if (auto and nuisances and last.get("fitted") and last["residual_sd_nats"] <= LAPLACE_MAX_RESIDUAL
                 and per_exp <= LAPLACE_MAX_BLOCK):
             # the window is Gaussian to within the bound over the placed cloud: independent walkers on
