@@ -84,7 +84,7 @@ from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, rand
 from imrbayes.ensemble.likelihood import (check_choice, frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
                                           predict, record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
-from imrbayes.ensemble.req_tail import ReqTailStart, model_tail_req, tail_req, with_req
+from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, ReqTailStart, model_tail_req, tail_req, with_req
 from imrbayes.ensemble.sampled import WeightedDraws, adaptive_importance, fuse_draws, weighted_quantiles
 from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
                                       si_covariance)
@@ -147,7 +147,11 @@ class En4DVarSettings:
     twice, each bubble's mu too narrow and pulled along the Req ridge; thermal camera records,
     20 paired seeds: mu covered 15 -> 20 of 20 with ``req``, G unchanged; ``prior`` moved G up by
     0.7 sd on polytropic records, the alignment's effect being far from linear over its prior:
-    docs/results.md, "Which prior the nuisances are integrated against"). req_conflict_stop
+    docs/results.md, "Which prior the nuisances are integrated against"). An experiment whose fitted
+    Req ends more than :data:`~imrbayes.ensemble.req_tail.REQ_CONFLICT_Z` prior sd from its record's
+    keeps Req against the last cycle's prior whatever this says: the first-order integral would
+    move the material along the Req ridge to a point tens of sd from anything the fit visited
+    (docs/results.md, "A Req in conflict is not extrapolated"). req_conflict_stop
     (default likelihood, Req estimated): after a cycle that leaves an experiment's Req more than
     this many prior sd from its preprocessing value, that experiment's later cycles are skipped
     (None: never). For fits whose only use is that comparison -- MIEnKS-MDA's Req prior, which
@@ -395,6 +399,14 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         thin = dr.thinned(2000, rng)
         sampled = {"ess": dr.ess, "n_draws": int(dr.x.shape[0]), "x": thin.x[:, :n_p], "w": thin.w}
     lik_pm, lik_pc, lik_qm, lik_qc = pm[:n_p], pc[:n_p, :n_p], qm[:n_p], qc[:n_p, :n_p]
+    last_z = cycles[-1]["req_z"]
+    # a Req in conflict with its record (beyond REQ_CONFLICT_Z prior sd) is not integrated against
+    # the preprocessing prior: the Gaussian algebra would move the parameters linearly along the
+    # Req ridge to where that prior sits, tens of sd from any point the fit visited (xy002: Req z
+    # 57, G 13.0 kPa with the fit's own rmse 0.025 R* moved to 56 kPa, whose curve at the fitted
+    # nuisances misses by 0.12 R*; docs/results.md, "A Req in conflict is not extrapolated")
+    req_conflict = last_z is not None and abs(last_z) > REQ_CONFLICT_Z
+    integral_used = s.nuisance_integral
     if default and k and sampled is None and s.nuisance_integral != "cycle":
         # the experiment's likelihood of the parameters with some nuisances integrated out against
         # their preprocessing prior N(0, nu_sd^2) instead of the last cycle's prior (the inflated
@@ -402,13 +414,17 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         # likelihood (last posterior / last prior) under a reference prior that is the cycle's
         # with those coordinates replaced, then the parameter marginals' ratio
         swap = {n_p + j: nu_sd[which] for j, which in enumerate(active)
-                if s.nuisance_integral == "prior" or which == 2}
+                if (s.nuisance_integral == "prior" or which == 2) and not (which == 2 and req_conflict)}
+        if req_conflict:
+            integral_used = "cycle" if not swap else "prior (Req: cycle)"
         if swap:                # (with Req known and nuisance_integral=req there is nothing to swap)
             lik_pm, lik_pc, lik_qm, lik_qc = marginal_under_reference(pm, pc, qm, qc, n_p, swap)
     # the parameters' marginals (the nuisances are reported per experiment)
     out = {"mean": lik_pm, "cov": lik_pc, "prior_mean": lik_qm, "prior_cov": lik_qc,
            "stopped": bool(res.stopped[0]), "cycles": cycles, "sampled": sampled, "req_m": float(req),
-           "req_factor": req_factor}
+           "req_factor": req_factor, "req_conflict": bool(default and k and sampled is None and req_conflict
+                                                          and s.nuisance_integral != "cycle"),
+           "nuisance_integral": integral_used}
     if sampled is not None:
         out["ensemble_mean"], out["ensemble_cov"] = res.mean[0][:n_p], res.cov[0][:n_p, :n_p]
         out["ensemble_prior_mean"], out["ensemble_prior_cov"] = res.prior_ensemble[0].mean(axis=0)[:n_p], (qa.T @ qa)[:n_p, :n_p]
@@ -712,8 +728,16 @@ def _fit_en4dvar(fm, obs, space, s, seed, runner, progress, ex, tag=None, inline
             entry["nuisance"] = nuisance_summary(r["nu_mean"], r["nu_sd"], nuisance_prior_sd(obs, n),
                                                  float(obs.rmax_m[n]), float(obs.req_m[n]), float(obs.t0_s[n]),
                                                  float(obs.tc_s[n]))
-            entry["likelihood"] = r["likelihood"]
+            entry["likelihood"] = {**r["likelihood"], "nuisance_integral": r.get("nuisance_integral", s.nuisance_integral),
+                                   "req_conflict": bool(r.get("req_conflict", False))}
         per.append(entry)
+    conflicted = [obs.names[n] for i, n in enumerate(ok) if R[i].get("req_conflict")]
+    if conflicted:
+        warnings.append(f"{len(conflicted)} of {len(ok)} experiment(s) fit a Req more than {REQ_CONFLICT_Z:g} prior sd "
+                        f"from the record's: {', '.join(conflicted[:5])}{' ...' if len(conflicted) > 5 else ''}. Their "
+                        f"likelihood keeps the fit's Req (the last cycle's prior) instead of integrating Req against "
+                        f"the record's, which would extrapolate the material along the Req ridge "
+                        f"(per_experiment[].likelihood.nuisance_integral)")
     if default:
         # a nuisance pulled far outside what its record says absorbs model error: say so
         far = []
