@@ -259,7 +259,8 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
     P, pinfo = noise_variance(t_star, R_star, p_floor_abs, p_floor_rel, method=noise)
     if pinfo["method"] == "paper-noise-model" and noise == "auto":
         warnings.append("one experiment: the noise variance P_k comes from the paper's verification noise model (sd |R*-1|/20 + "
-                        "(1-exp(-t*/10))/30), not from data")
+                        "(1-exp(-t*/10))/30), not from data; only --likelihood paper and IMR's weighting=P use it (the "
+                        "default likelihood takes each record's own noise sd)")
     elif len(records) == 2 and noise != "paper":
         warnings.append("P_k from only two experiments is a very rough estimate")
     choices = {
