@@ -216,3 +216,27 @@ def test_step_tol_stops_once_the_next_step_is_shorter_than_a_fraction_of_an_sd()
     for g in range(E0.shape[0]):
         sd = np.sqrt(np.diag(full.cov[g]))
         assert np.all(np.abs(early.mean[g] - full.mean[g]) / sd < 0.05)
+
+
+def test_a_step_into_failing_parameters_is_halved_not_the_end():
+    """y = exp(x) observed at x = 1 (tiny noise), the model failing beyond x = 1.5, the prior
+    N(0, 0.1^2) widened by the data: the first Gauss-Newton step from x ~ 0 (linearised slope 1)
+    lands near 1.7, where every member fails. Before: the group stopped there with the prior as
+    its answer. Now the step is halved like a cost increase and the iterations reach x = 1."""
+    rng = np.random.default_rng(3)
+    N, m = 16, 5
+    E0 = draw(rng, np.zeros(1), np.array([[0.01]]), N)[None]
+    y = np.full((1, m), np.e)
+
+    def evaluate(groups, Z):
+        bad = Z[:, 0] > 1.5
+        Y = np.repeat(np.exp(Z[:, :1]), m, axis=1)
+        Y[bad] = np.nan
+        return Y, bad
+
+    res = gauss_newton(E0, evaluate, y, np.full(m, 1e4), n_iter=5, rng=rng, max_iter=15)
+    assert res.n_failed[0, 1] == N                         # the full first step failed
+    assert not res.stopped[0] and res.n_backtracked[0] >= 1
+    assert abs(res.mean[0, 0] - 1.0) < 1e-3, res.mean
+    old = gauss_newton(E0, evaluate, y, np.full(m, 1e4), n_iter=5, rng=rng, max_iter=15, backtrack=False)
+    assert old.stopped[0] and abs(old.mean[0, 0] - 1.0) > 0.1  # the old behaviour: stopped, far away

@@ -39,6 +39,12 @@ def test_imr_says_when_the_grid_bounds_the_answer():
     assert res.details["grid_optimum"]["G"] == 5e3
     assert any("G at the grid's upper end" in w and "G_max" in w for w in res.warnings)
     assert any("2 of 2 experiments have their own optimum on the grid's edge" in w for w in res.warnings)
+    # the pseudo-posterior sits inside one cell (grid sd 3e-11 Pa) and the edge leaves no quadratic to
+    # refine it: the reported sd is a uniform cell's, not the grid's zero, and a warning says so
+    assert not res.details["refined"] and res.estimate["G"]["sd_grid"] < 1.0
+    assert res.estimate["G"]["sd"] == pytest.approx(500.0 / np.sqrt(12.0))
+    assert res.estimate["mu"]["sd"] >= 0.01 / np.sqrt(12.0) * (1 - 1e-12)
+    assert any("inside one grid cell" in w for w in res.warnings)
     ok = fit_imr(fm, obs, space(fm), IMRSettings(G_min=5.13e3, G_max=9.93e3, n_G=9, mu_min=0.0612,
                                                  mu_max=0.1212, n_mu=7))
     assert not any("edge" in w or "end (" in w for w in ok.warnings)

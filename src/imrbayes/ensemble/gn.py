@@ -124,9 +124,11 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
         xbar + A^T w + sqrt(N-1) T A with T = H^-1/2 of the previous iteration, so the ensemble
         shrinks to the posterior's size and the linearisation is taken at that scale (default);
         False evaluates the prior ensemble shifted by A^T w (the literal form of methods.md).
-    backtrack : when an iterate's cost exceeds the best so far, the next evaluation is halfway
-        back towards the best iterate (no extra forward runs); the posterior is always the
-        Gauss–Newton update from the best evaluated iterate.
+    backtrack : when an iterate's cost exceeds the best so far, or fewer than ``min_valid`` of
+        its members run, the next evaluation is halfway back towards the best iterate (no extra
+        forward runs); the posterior is always the Gauss–Newton update from the best evaluated
+        iterate -- except where the steps from it could not be run, which end at that iterate.
+        Without it (or on the prior ensemble) too few valid members stop the group.
     max_iter : iterate past ``n_iter`` (up to ``max_iter`` evaluations) for every group whose last
         accepted iterate still lowered the cost by more than ``rtol`` (relative): on stiff
         records (tiny noise, large misfit) five iterations stop far from the optimum, and where
@@ -205,6 +207,7 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
     w_upd = np.zeros((G, N))
     n_back = np.zeros(G, dtype=int)
     n_accepted = np.zeros(G, dtype=int)
+    unrunnable = np.zeros(G, dtype=bool)       # the update from the best iterate failed to run
     ybar_last = np.full((G, m), np.nan)
     stop_from = n_iter if min_iter is None else min(int(min_iter), n_iter)
     for it in range(n_max):
@@ -224,6 +227,17 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
             ok = ~failed[g] & np.all(np.isfinite(Yhat[g]), axis=1)
             nfail[g, it] = N - ok.sum()
             if ok.sum() < min_valid:
+                if backtrack and it > 0 and n_accepted[g] > 0:
+                    # a step into parameters the model cannot run is a rejected step, not the end:
+                    # halve it towards the best iterate as a cost increase would (stiff PA, qkv: a
+                    # full step to alpha < 0 made the deep collapse singular, and 12 of 20 bubbles
+                    # stopped with the prior as their answer)
+                    w[g] = w_best[g] + 0.5 * (w[g] - w_best[g])
+                    n_back[g] += 1
+                    unrunnable[g] = True
+                    if it >= n_iter - 1 and (n_accepted[g] > 1 or it >= patience - 1):
+                        active[g] = False
+                    continue
                 stopped[g] = True
                 active[g] = False
                 continue
@@ -249,6 +263,7 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
                     active[g] = False
                 continue
             n_accepted[g] += 1
+            unrunnable[g] = False
             prev = best[g]
             best[g] = c
             w_best[g] = w[g]
@@ -267,6 +282,9 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
             ybar_last[g] = ybar
             if done:
                 active[g] = False
+    # a group whose last steps from its best iterate could not be run ends at that iterate, not at
+    # the update its members failed on (the next cycle would start where nothing runs)
+    w_upd[unrunnable] = w_best[unrunnable]
     w = w_upd
     Hi, Hs = _sqrt_inv(H)
     mean = xbar + np.einsum("gnd,gn->gd", A, w)

@@ -328,6 +328,18 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
         dr = rng.multivariate_normal(refined, np.array(laplace["cov"]), size=s.n_draws)
         dG_draw, dm_draw = dr[:, 0], dr[:, 1]
     else:
+        if not resolved:
+            # narrower than a cell and no quadratic to refine it (the optimum next to the grid's edge):
+            # the grid cannot say more than "inside this cell", so no sd below a uniform cell's
+            thin = [nm for a, nm in enumerate(("G", "mu")) if est[nm]["sd"] < spacing[a] / np.sqrt(12.0)]
+            for a, nm in enumerate(("G", "mu")):
+                if nm in thin:
+                    est[nm]["sd_grid"] = est[nm]["sd"]
+                    est[nm]["sd"] = float(spacing[a] / np.sqrt(12.0))
+            if thin:
+                warnings.append(f"standard IMR: the pseudo-posterior of {' and '.join(thin)} lies inside one grid cell "
+                                f"and the optimum could not be refined (no local quadratic): its sd is the cell's "
+                                f"(spacing/sqrt 12); a finer grid (--set n_G=/n_mu= or the bounds) resolves it")
         idx = rng.choice(pmf.size, size=s.n_draws, p=pmf.ravel())
         ii, jj = np.unravel_index(idx, pmf.shape)
         dG_draw = np.clip(Gg[ii] + (rng.random(s.n_draws) - 0.5) * spacing[0], Gg[0], Gg[-1])
