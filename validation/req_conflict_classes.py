@@ -10,7 +10,10 @@ and each bubble's z = (En4D-Var Req - preprocessing Req) / preprocessing sd is s
 preprocessing's Req, the true Req and the En4D-Var estimate of G and mu.
 
     python validation/req_conflict_classes.py OUT.json [--classes none,bubble-thermal,...] [--seeds 5]
-        [--seed-offset 0] [--design NAME] [--nulls 20] [--null-offset 0]
+        [--seed-offset 0] [--design NAME] [--nulls 20] [--null-offset 0] [--model nhkv]
+
+``--model`` is the constitutive model the En4D-Var fit uses (default NHKV, the baseline): with a
+candidate's model it is the direct test of whether that candidate brings each Req back to its tail.
 
 Rows are appended to OUT.json as each dataset finishes; a rerun skips the datasets already in it.
 """
@@ -28,15 +31,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 
 
-def jobs(classes, seeds, seed_offset, nulls, null_offset, design=None):
+def jobs(classes, seeds, seed_offset, nulls, null_offset, design=None, model="nhkv"):
     from diagnosis_confusion import NULL_SEED, _classes
     from imrbayes.diagnosis.synthetic import DESIGNS
 
     all_classes, designs = _classes(), list(DESIGNS)
     out = [{"kind": "class", "class": c, "seed": 1000 * all_classes.index(c) + s,
-            "design": design or designs[0]}
+            "design": design or designs[0], "model": model}
            for c in classes for s in range(seed_offset, seed_offset + seeds)]
-    out += [{"kind": "null", "class": "none", "seed": NULL_SEED + i, "design": designs[i % len(designs)]}
+    out += [{"kind": "null", "class": "none", "seed": NULL_SEED + i, "design": designs[i % len(designs)], "model": model}
             for i in range(null_offset, null_offset + nulls)]
     return out
 
@@ -51,7 +54,7 @@ def run(job: dict) -> dict:
     t0 = time.perf_counter()
     opts = ForwardOptions()
     obs, truth = camera_obs(job["class"], job["seed"], opts, design=job["design"])
-    fm = ForwardModel("nhkv", options=opts)
+    fm = ForwardModel(job.get("model", "nhkv"), options=opts)
     space = ParamSpace.for_model(fm.constitutive)
     # no bound: a conflicting bubble would otherwise keep its preprocessing Req and read z = 0
     _, info = req_prior_from_en4dvar(fm, obs, space, job["seed"], Runner(fm), Execution(progress=False),
@@ -62,6 +65,7 @@ def run(job: dict) -> dict:
     return {**job, "z": ((post - pre) / psd).tolist(), "pre_m": pre.tolist(), "pre_sd_m": psd.tolist(),
             "en4dvar_m": post.tolist(), "en4dvar_sd_m": qsd.tolist(), "true_m": true_req.tolist(),
             "en4dvar_estimate": info["en4dvar_estimate"], "truth_theta": truth["theta"],
+            "rmse_own": info.get("en4dvar_rmse_own"),
             "runtime_s": time.perf_counter() - t0}
 
 
@@ -76,6 +80,7 @@ def main(argv=None):
     ap.add_argument("--design", default=None, help="design of the class datasets (default: diagnose's default design)")
     ap.add_argument("--nulls", type=int, default=0)
     ap.add_argument("--null-offset", type=int, default=0)
+    ap.add_argument("--model", default="nhkv", help="constitutive model of the En4D-Var fit (default nhkv)")
     a = ap.parse_args(argv)
     classes = _classes() if a.classes == "all" else [c for c in a.classes.split(",") if c]
     unknown = sorted(set(classes) - set(_classes()))
@@ -83,15 +88,15 @@ def main(argv=None):
         sys.exit(f"req_conflict_classes: unknown class(es) {', '.join(unknown)}; known: {', '.join(_classes())}")
     out = Path(a.out)
     rows = json.loads(out.read_text()) if out.exists() else []
-    done = {(r["kind"], r["seed"], r["design"]) for r in rows}
-    for job in jobs(classes, a.seeds, a.seed_offset, a.nulls, a.null_offset, a.design):
-        if (job["kind"], job["seed"], job["design"]) in done:
+    done = {(r["kind"], r["seed"], r["design"], r.get("model", "nhkv")) for r in rows}
+    for job in jobs(classes, a.seeds, a.seed_offset, a.nulls, a.null_offset, a.design, a.model):
+        if (job["kind"], job["seed"], job["design"], job["model"]) in done:
             continue
         row = run(job)
         rows.append(row)
         out.write_text(json.dumps(rows, indent=1) + "\n")
         z = np.array(row["z"])
-        print(f"{job['kind']:5s} {job['class']:24s} {job['seed']:6d} {job['design']:22s} max|z| {np.max(np.abs(z)):6.2f} "
+        print(f"{job['model']:6s} {job['kind']:5s} {job['class']:24s} {job['seed']:6d} {job['design']:22s} max|z| {np.max(np.abs(z)):6.2f} "
               f"z {np.round(z, 1).tolist()} ({row['runtime_s']:.0f} s)", flush=True)
 
 

@@ -801,6 +801,7 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
             "preprocessing_req_sd_m": np.asarray(obs.nuisance_sd)[:, 2].tolist(), "req_m": req.tolist(),
             "req_sd_m": sd[:, 2].tolist(), "en4dvar_estimate": {nm: e4.estimate[nm]["mean"] for nm in space.names},
             "en4dvar_member_runs": int(e4.details.get("member_runs", 0)),
+            "en4dvar_rmse_own": [p.get("rmse_own") for p in e4.per_experiment],
             "stop_z": e4s.req_conflict_stop,
             "stopped_early": [{"experiment": nm, "after_cycle": last[nm]} for nm in names
                               if 0 < last.get(nm, 0) < e4s.n_runs],
