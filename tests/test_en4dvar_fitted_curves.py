@@ -39,6 +39,7 @@ def test_sampled_bubble_posteriors_agree_with_the_ensemble_where_it_is_nearly_ga
                                                                is_rounds=3), seed=0)
     gauss = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st), seed=0)
     assert min(en.details["sampled"]["ess_per_experiment"]) > 100
+    assert not any("importance sampling degenerate" in w for w in en.warnings)
     for p, q in zip(en.per_experiment, gauss.per_experiment):
         m, C = np.array(p["mean_internal"]), np.array(p["cov_internal"])
         mg, Cg = np.array(q["mean_internal"]), np.array(q["cov_internal"])
@@ -53,3 +54,19 @@ def test_sampled_bubble_posteriors_agree_with_the_ensemble_where_it_is_nearly_ga
             assert a[name]["hdi95"][0] < hi and lo < a[name]["hdi95"][1]
     with pytest.raises(Exception, match="default likelihood"):
         En4DVarSettings(likelihood="paper", bubble_posterior="sampled").check()
+
+
+def test_degenerate_importance_sampling_is_said(monkeypatch):
+    """With fewer effective draws than ``MIN_SAMPLED_ESS`` (here the bound raised above any ESS;
+    on UMich PA10 the sampler's ESS was 1.0-2.7 of 4000 and two bubbles came back with sd 0) the
+    fit names each such experiment and its ESS in a warning."""
+    import imrbayes.ensemble.en4dvar as e4
+    monkeypatch.setattr(e4, "MIN_SAMPLED_ESS", 1e9)
+    obs, _ = camera_obs("none", 3, OPTS, n_exp=2)
+    base = make_candidate(BASELINE.key, OPTS)
+    en = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(n_ens=24, n_runs=1, loglik=False, n_draws=1,
+                                                               bubble_posterior="sampled", is_draws=100,
+                                                               is_rounds=1), seed=0)
+    msg = [w for w in en.warnings if "importance sampling degenerate for 2 of 2" in w]
+    assert msg and all(f"{nm} ESS" in msg[0] for nm in obs.names)
+
