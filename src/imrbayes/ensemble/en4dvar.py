@@ -98,7 +98,6 @@ __all__ = ["En4DVar", "En4DVarSettings", "fit_en4dvar", "en4dvar_unit", "en4dvar
 #: fewest effective importance draws per experiment before ``bubble_posterior="sampled"`` warns
 MIN_SAMPLED_ESS = 50
 #: members per experiment: the default likelihood's, and the paper's (``likelihood="paper"``)
-
 DEFAULT_N_ENS, PAPER_N_ENS = 24, 48
 #: Gauss-Newton iterations (at least; on to convergence up to ``max_iter``) of the cycles after the
 #: first with the default likelihood: they start from the inflated posterior of the cycle before,
@@ -408,26 +407,25 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
     # Req ridge to where that prior sits, tens of sd from any point the fit visited (xy002: Req z
     # 57, G 13.0 kPa with the fit's own rmse 0.025 R* moved to 56 kPa, whose curve at the fitted
     # nuisances misses by 0.12 R*; docs/results.md, "A Req in conflict is not extrapolated")
-    req_conflict = last_z is not None and abs(last_z) > REQ_CONFLICT_Z
-    integral_used = s.nuisance_integral
+    integral_used, conflict_kept = s.nuisance_integral, False
     if default and k and sampled is None and s.nuisance_integral != "cycle":
+        conflict_kept = last_z is not None and abs(last_z) > REQ_CONFLICT_Z
         # the experiment's likelihood of the parameters with some nuisances integrated out against
         # their preprocessing prior N(0, nu_sd^2) instead of the last cycle's prior (the inflated
         # posterior of the cycle before, which already holds what the data say of them): the joint
         # likelihood (last posterior / last prior) under a reference prior that is the cycle's
         # with those coordinates replaced, then the parameter marginals' ratio
         swap = {n_p + j: nu_sd[which] for j, which in enumerate(active)
-                if (s.nuisance_integral == "prior" or which == 2) and not (which == 2 and req_conflict)}
-        if req_conflict:
+                if (s.nuisance_integral == "prior" and which != 2) or (which == 2 and not conflict_kept)}
+        if conflict_kept:
             integral_used = "cycle" if not swap else "prior (Req: cycle)"
         if swap:                # (with Req known and nuisance_integral=req there is nothing to swap)
             lik_pm, lik_pc, lik_qm, lik_qc = marginal_under_reference(pm, pc, qm, qc, n_p, swap)
     # the parameters' marginals (the nuisances are reported per experiment)
     out = {"mean": lik_pm, "cov": lik_pc, "prior_mean": lik_qm, "prior_cov": lik_qc,
            "stopped": bool(res.stopped[0]), "cycles": cycles, "sampled": sampled, "req_m": float(req),
-           "req_factor": req_factor, "req_conflict": bool(default and k and sampled is None and req_conflict
-                                                          and s.nuisance_integral != "cycle"),
-           "nuisance_integral": integral_used}
+           "req_factor": req_factor, "req_conflict": bool(conflict_kept), "nuisance_integral": integral_used}
+
     if sampled is not None:
         out["ensemble_mean"], out["ensemble_cov"] = res.mean[0][:n_p], res.cov[0][:n_p, :n_p]
         out["ensemble_prior_mean"], out["ensemble_prior_cov"] = res.prior_ensemble[0].mean(axis=0)[:n_p], (qa.T @ qa)[:n_p, :n_p]

@@ -210,6 +210,16 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
     unrunnable = np.zeros(G, dtype=bool)       # the update from the best iterate failed to run
     ybar_last = np.full((G, m), np.nan)
     stop_from = n_iter if min_iter is None else min(int(min_iter), n_iter)
+
+    def reject(g, it):
+        # go back halfway towards the best iterate; past n_iter a rejected step ends the group's
+        # iterations -- once one has succeeded (not from min_iter on: a later halved step may
+        # still be accepted and move the answer, by 100 sd on the nonlinear test problem)
+        w[g] = w_best[g] + 0.5 * (w[g] - w_best[g])
+        n_back[g] += 1
+        if it >= n_iter - 1 and (n_accepted[g] > 1 or it >= patience - 1):
+            active[g] = False
+
     for it in range(n_max):
         if it > 0:
             act = np.flatnonzero(active)
@@ -228,15 +238,11 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
             nfail[g, it] = N - ok.sum()
             if ok.sum() < min_valid:
                 if backtrack and it > 0 and n_accepted[g] > 0:
-                    # a step into parameters the model cannot run is a rejected step, not the end:
-                    # halve it towards the best iterate as a cost increase would (stiff PA, qkv: a
-                    # full step to alpha < 0 made the deep collapse singular, and 12 of 20 bubbles
-                    # stopped with the prior as their answer)
-                    w[g] = w_best[g] + 0.5 * (w[g] - w_best[g])
-                    n_back[g] += 1
+                    # a step into parameters the model cannot run is a rejected step, not the end
+                    # (stiff PA, qkv: a full step to alpha < 0 made the deep collapse singular, and
+                    # 12 of 20 bubbles stopped with the prior as their answer)
+                    reject(g, it)
                     unrunnable[g] = True
-                    if it >= n_iter - 1 and (n_accepted[g] > 1 or it >= patience - 1):
-                        active[g] = False
                     continue
                 stopped[g] = True
                 active[g] = False
@@ -253,15 +259,9 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
             c = 0.5 * np.sum(Wt[g] * d_in**2) + 0.5 * w[g] @ w[g]
             cost[g, it] = c
             if backtrack and it > 0 and not c <= best[g] * (1.0 + 1e-9):
-                # the step increased the cost: go back halfway towards the best iterate
-                w[g] = w_best[g] + 0.5 * (w[g] - w_best[g])
-                n_back[g] += 1
-                # past n_iter a step that fails ends the group's iterations -- once one has
-                # succeeded (not from min_iter on: a later halved step may still be accepted and
-                # move the answer, by 100 sd on the nonlinear test problem)
-                if it >= n_iter - 1 and (n_accepted[g] > 1 or it >= patience - 1):
-                    active[g] = False
+                reject(g, it)                                   # the step increased the cost
                 continue
+
             n_accepted[g] += 1
             unrunnable[g] = False
             prev = best[g]

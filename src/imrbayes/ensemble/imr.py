@@ -331,11 +331,12 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
         if not resolved:
             # narrower than a cell and no quadratic to refine it (the optimum next to the grid's edge):
             # the grid cannot say more than "inside this cell", so no sd below a uniform cell's
-            thin = [nm for a, nm in enumerate(("G", "mu")) if est[nm]["sd"] < spacing[a] / np.sqrt(12.0)]
+            thin = []
             for a, nm in enumerate(("G", "mu")):
-                if nm in thin:
-                    est[nm]["sd_grid"] = est[nm]["sd"]
-                    est[nm]["sd"] = float(spacing[a] / np.sqrt(12.0))
+                if est[nm]["sd"] < spacing[a] / np.sqrt(12.0):
+                    est[nm]["sd_grid"], est[nm]["sd"] = est[nm]["sd"], float(spacing[a] / np.sqrt(12.0))
+                    thin.append(nm)
+
             if thin:
                 warnings.append(f"standard IMR: the pseudo-posterior of {' and '.join(thin)} lies inside one grid cell "
                                 f"and the optimum could not be refined (no local quadratic): its sd is the cell's "
