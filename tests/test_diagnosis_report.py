@@ -269,3 +269,31 @@ def test_req_conflict_is_stated_when_most_bubbles_contradict_their_tail():
     assert "50.00 ± 0.5" in table and "52.00 ± 0.2" in table and "+4.0 %" in table and "-5.0" in table
     assert "2 of 3 conflict" in table and "flagged" in table
     assert req_consistency(obs, fit(52e-6, 38e-6, 30.5e-6), bound=6.0)["n_conflict"] == 0
+
+
+def test_alignment_conflict_is_stated_when_most_bubbles_need_another_maximum():
+    """``baseline.alignment_consistency`` (run.alignment_consistency): z of the fitted Rmax and time
+    of the maximum against the local fit, an experiment in conflict when either is beyond the bound,
+    flagged only when more than half are; then a verdict sentence and a table (shifts in % and µs)."""
+    from imrbayes.diagnosis.report import _alignment_section
+    from imrbayes.diagnosis.run import alignment_consistency
+
+    def fit(*shifts):        # (relative Rmax shift, t0 shift in t*) per experiment; prior sd 1e-3 and 0.01 t*
+        return [{"name": f"e{i + 1}", "nuisance": {
+            "rmax_m": {"prior_mean": 3e-4, "prior_sd": 3e-7, "mean": 3e-4 * (1 + a)},
+            "t0_s": {"prior_mean": 1e-6, "prior_sd": 3e-7, "mean": 1e-6 + 3e-5 * d, "offset_star": d,
+                     "prior_sd_star": 0.01}}} for i, (a, d) in enumerate(shifts)]
+
+    one = alignment_consistency(fit((-0.005, 0.0), (0.001, 0.01), (0.0, -0.02)))   # z_rmax -5, +1, 0; z_t0 0, +1, -2
+    assert one["n_conflict"] == 1 and not one["flagged"] and one["median_abs_z_rmax"] == pytest.approx(1.0)
+    r = _minimal("damage-softening")
+    r["baseline"]["alignment_consistency"] = one
+    assert "another maximum" not in " ".join(verdict_sentences(r))
+    two = alignment_consistency(fit((-0.005, 0.0), (0.001, 0.05), (0.0, -0.02)))   # e2 now +5 on the time
+    assert two["n_conflict"] == 2 and two["flagged"] and two["median_abs_z_t0"] == pytest.approx(2.0)
+    r["baseline"]["alignment_consistency"] = two
+    text = html.unescape(re.sub(r"<[^>]+>", "", " ".join(verdict_sentences(r))))
+    assert "another maximum than the filmed one: in 2 of 3 experiments" in text
+    table = html.unescape(re.sub(r"<[^>]+>", " ", _alignment_section(r)))
+    assert "-0.50 %" in table and "-5.0" in table and "+1.50" in table and "+5.0" in table and "flagged" in table
+    assert alignment_consistency(fit((-0.005, 0.0), (0.001, 0.05)), bound=6.0)["n_conflict"] == 0

@@ -196,3 +196,21 @@ def test_kernel_source_is_written_once_and_never_replaced(tmp_path):
     assert path.read_text() == "x = 1\n"
     assert (after.st_mtime_ns, after.st_ino) == (before.st_mtime_ns, before.st_ino)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kernel.py"]      # no temporary left behind
+
+
+def test_not_compiled_names_the_kernels_a_cache_lacks(tmp_path, monkeypatch):
+    """``not_compiled`` (what ``diagnose`` compiles up front, all at once): every kernel of an empty
+    cache, none of the session's cache (conftest compiled them), and a kernel whose marker names
+    another numba cache counts as missing."""
+    from imrbayes.forward.codegen import _kernel_source, not_compiled
+    from imrbayes.forward.constitutive.base import REGISTRY
+
+    mods = [REGISTRY["nhkv"], REGISTRY["zener"]]
+    assert not_compiled(mods) == []
+    monkeypatch.setenv("IMRBAYES_CACHE_DIR", str(tmp_path))
+    assert not_compiled(mods) == mods
+    marker = _kernel_source(mods[0])[1].with_suffix(".compiled")
+    marker.write_text(os.environ.get("NUMBA_CACHE_DIR", ""))
+    assert not_compiled(mods) == [mods[1]]
+    marker.write_text("another cache")
+    assert not_compiled(mods) == mods

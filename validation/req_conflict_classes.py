@@ -7,7 +7,8 @@ preprocessed as ``diagnose`` sees them (:func:`imrbayes.diagnosis.synthetic.came
 default fitted model: thermal bubble, converged grid), the whole-record En4D-Var fit that MIEnKS-MDA
 runs for its Req prior is made (:func:`imrbayes.ensemble.mienks.req_prior_from_en4dvar`, no bound),
 and each bubble's z = (En4D-Var Req - preprocessing Req) / preprocessing sd is stored with the
-preprocessing's Req, the true Req and the En4D-Var estimate of G and mu.
+preprocessing's Req, the true Req and the En4D-Var estimate of G and mu; since session 69 also the z
+of the fit's Rmax and time of the maximum against the preprocessing's local fit (``z_rmax``, ``z_t0``).
 
     python validation/req_conflict_classes.py OUT.json [--classes none,bubble-thermal,...] [--seeds 5]
         [--seed-offset 0] [--design NAME] [--nulls 20] [--null-offset 0] [--model nhkv]
@@ -66,6 +67,9 @@ def run(job: dict) -> dict:
             "en4dvar_m": post.tolist(), "en4dvar_sd_m": qsd.tolist(), "true_m": true_req.tolist(),
             "en4dvar_estimate": info["en4dvar_estimate"], "truth_theta": truth["theta"],
             "rmse_own": info.get("en4dvar_rmse_own"),
+            # the fit's Rmax and time of the maximum against the preprocessing's local fit ("The alignment conflict")
+            "z_rmax": [a["z_rmax"] for a in info["en4dvar_alignment_z"]],
+            "z_t0": [a["z_t0"] for a in info["en4dvar_alignment_z"]],
             "runtime_s": time.perf_counter() - t0}
 
 
@@ -97,7 +101,8 @@ def main(argv=None):
         out.write_text(json.dumps(rows, indent=1) + "\n")
         z = np.array(row["z"])
         print(f"{job['model']:6s} {job['kind']:5s} {job['class']:24s} {job['seed']:6d} {job['design']:22s} max|z| {np.max(np.abs(z)):6.2f} "
-              f"z {np.round(z, 1).tolist()} ({row['runtime_s']:.0f} s)", flush=True)
+              f"z {np.round(z, 1).tolist()} Rmax z {np.round(np.array(row['z_rmax'], float), 1).tolist()} "
+              f"t0 z {np.round(np.array(row['z_t0'], float), 1).tolist()} ({row['runtime_s']:.0f} s)", flush=True)
 
 
 if __name__ == "__main__":

@@ -193,6 +193,11 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
             click.echo(f"Req conflict: in {rc['n_conflict']} of {rc['n_estimated']} experiments the baseline's Req lies "
                        f"more than {rc['bound']:g} tail sd from the record's own (median |z| {rc['median_abs_z']:.3g}): "
                        "the model fits the collapses with another bubble than the one filmed")
+        ac = (res.get("baseline") or {}).get("alignment_consistency") or {}
+        if ac.get("flagged"):
+            click.echo(f"alignment conflict: in {ac['n_conflict']} of {ac['n_estimated']} experiments the baseline's Rmax or "
+                       f"time of the maximum lies more than {ac['bound']:g} sd from the local fit of the maximum (median |z| "
+                       f"{ac['median_abs_z_rmax']:.3g} / {ac['median_abs_z_t0']:.3g}): model error absorbed by the alignment")
         click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")
     echo_execution(exec_summary, quiet)
     for w in res.get("warnings", []):            # what the diagnosis left out (also in diagnosis.json)

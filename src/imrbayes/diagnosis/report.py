@@ -191,8 +191,8 @@ def verdict_sentences(r: dict) -> list:
         out.append(s + "." + (_other_scheme_lead(g, sk) if adequate else ""))
     bubble = _bubble_sentence(r)
     out = out[:4] + [bubble] if bubble else out[:5]
-    req = _req_sentence(r)
-    return out + [req] if req else out
+    extra = [x for x in (_req_sentence(r), _alignment_sentence(r)) if x]
+    return out + extra
 
 
 def _req_sentence(r) -> str | None:
@@ -204,6 +204,39 @@ def _req_sentence(r) -> str | None:
             f"contradict: in {rc['n_conflict']} of {rc['n_estimated']} experiments its Req lies more than "
             f"{_f(rc.get('bound'), '.2g')} tail sd from the measured one (median |z| = {_f(rc.get('median_abs_z'), '.3g')}). "
             "Part of the model error is absorbed by the geometry, so the material estimate is not the gel's alone.")
+
+
+def _alignment_sentence(r) -> str | None:
+    """When most experiments' baseline Rmax or time of the maximum contradicts the local fit of the
+    maximum (``baseline.alignment_consistency``)."""
+    ac = (r.get("baseline") or {}).get("alignment_consistency") or {}
+    if not ac.get("flagged"):
+        return None
+    return (f"It also needs another maximum than the filmed one: in {ac['n_conflict']} of {ac['n_estimated']} "
+            f"experiments its Rmax or time of the maximum lies more than {_f(ac.get('bound'), '.2g')} sd from the "
+            f"local fit of the frames around it (median |z| {_f(ac.get('median_abs_z_rmax'), '.3g')} for Rmax, "
+            f"{_f(ac.get('median_abs_z_t0'), '.3g')} for the time).")
+
+
+def _alignment_section(r) -> str:
+    ac = (r.get("baseline") or {}).get("alignment_consistency") or {}
+    rows = ac.get("experiments") or []
+    if not rows:
+        return ""
+    b = float(ac.get("bound", 3.0))
+
+    def z(v):
+        if v is None:
+            return ("—", "class='n'")
+        return (f"{v:+.1f}", "class='n'" + (" style='color:#b00'" if abs(v) > b else ""))
+    body = [[esc(str(q["experiment"])),
+             (f"{100 * q['rmax_rel']:+.2f} %" if q.get("rmax_rel") is not None else "—", "class='n'"), z(q["z_rmax"]),
+             (f"{1e6 * q['t0_shift_s']:+.2f}" if q.get("t0_shift_s") is not None else "—", "class='n'"), z(q["z_t0"])]
+            for q in rows]
+    return ("<h2>Does the fit's maximum agree with the filmed one?</h2>"
+            + table(["experiment", "Rmax shift", "z [sd]", "time shift [µs]", "z [sd]"], body)
+            + f"<p class='note'>{esc(ac.get('rule', ''))}: {ac.get('n_conflict')} of {ac.get('n_estimated')} "
+              f"conflict" + ("; flagged" if ac.get("flagged") else "") + ".</p>")
 
 
 def _req_section(r) -> str:
@@ -450,6 +483,7 @@ def write_report(result: dict, figures: list, path, title: str = "imrbayes diagn
 {_signature(r, figs)}
 {_likelihood(r)}
 {_req_section(r)}
+{_alignment_section(r)}
 {warn_html}
 {''.join(embed_png(p, title=stem) for stem, p in figs.items())}
 <p class='note'>runtime {_f(r.get('runtime_s'), '.0f')} s{_stages(r)}; seed {esc(r.get('seed'))}</p>"""

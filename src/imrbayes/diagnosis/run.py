@@ -138,6 +138,34 @@ def req_consistency(obs, per_experiment, bound: float | None = None) -> dict:
                      "flagged when more than half the experiments conflict")}
 
 
+def alignment_consistency(per_experiment, bound: float | None = None) -> dict:
+    """The baseline En4D-Var's Rmax and time of the maximum against the preprocessing's local fit of
+    the maximum (``baseline.alignment_consistency``): per experiment z_rmax and z_t0
+    (:func:`imrbayes.ensemble.req_tail.alignment_shift_z`), how many experiments exceed ``bound``
+    (default :data:`~imrbayes.ensemble.req_tail.REQ_CONFLICT_Z`) on either, the median |z| of each,
+    and ``flagged`` when more than half of them do. Why: the local fit sees a few frames around the
+    maximum; the fit moves them to where the model's collapse and rebounds need them, so a large
+    shift is model error absorbed by the alignment (docs/diagnosis.md, "The alignment conflict",
+    where its rate on constant-NHKV camera datasets and on the classes is measured). Reported as
+    evidence, like the Req conflict; the check decides the verdict."""
+    from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, alignment_shift_z
+
+    b = REQ_CONFLICT_Z if bound is None else float(bound)
+    rows = alignment_shift_z(per_experiment)
+
+    def col(k):
+        return np.array([r[k] for r in rows if r[k] is not None], dtype=float)
+    zr, zt = col("z_rmax"), col("z_t0")
+    over = [r for r in rows if any(r[k] is not None and abs(r[k]) > b for k in ("z_rmax", "z_t0"))]
+    n = sum(1 for r in rows if r["z_rmax"] is not None or r["z_t0"] is not None)
+    return {"experiments": rows, "bound": b, "n_estimated": n, "n_conflict": len(over),
+            "median_abs_z_rmax": float(np.median(np.abs(zr))) if zr.size else float("nan"),
+            "median_abs_z_t0": float(np.median(np.abs(zt))) if zt.size else float("nan"),
+            "flagged": bool(n and len(over) > n / 2),
+            "rule": (f"z = (baseline En4D-Var Rmax or time of the maximum - the preprocessing's local fit) / its sd; "
+                     f"a conflict beyond {b:g} on either; flagged when more than half the experiments conflict")}
+
+
 def observed_unit(unit, rng) -> dict:
     """Unit ``observed``: the baseline's fits to the data and the check's statistics of the data
     (:func:`check.statistics`), as plain values the run store keeps (a resumed diagnosis does not
@@ -429,6 +457,15 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
     tick = progress or (lambda n=1: None)
     phases = phases_of(obs, s.max_collapses)
     base = make_candidate(BASELINE.key, options, physics, prior)
+    from imrbayes.forward.codegen import not_compiled, precompile
+    from imrbayes.forward.constitutive.base import REGISTRY
+    cold = not_compiled(sorted({REGISTRY[spec_of(k).forward_model] for k in (BASELINE.key, *s.candidates)}))
+    if cold:
+        # all at once, a child process per CPU: compiled on first use instead, each candidate's kernel
+        # took a minute or more of one core while the other waited (stiff PA 1-5 on a fresh machine:
+        # candidates 652 s against 330 s warm, docs/diagnosis.md "Runtime")
+        say(f"compiling the forward-model kernels of {', '.join(m.rsplit('.', 1)[-1] for m in cold)} (first use only)")
+        precompile(cold)
     say("baseline fits (whole record, to the 1st and 2nd collapse)")
     warnings = []               # what the diagnosis left out, one line each (diagnosis.json, stderr)
     if s.n_bootstrap < min_replicates(s.alpha):
@@ -490,6 +527,7 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
                     f"means {100 * (min(moved) - 1):+.1f} to {100 * (max(moved) - 1):+.1f} % from Req)"
                     if rt.get("method") == "model" and moved else "")
         baseline["req_consistency"] = req_consistency(obs, en.per_experiment)
+        baseline["alignment_consistency"] = alignment_consistency(en.per_experiment)
         baseline.update({"method": "en4dvar", "estimate": en.estimate, "rmse_en4dvar": en.rmse,
                          "estimate_map": baseline["estimate"], "req_tail": rt or None,
                          "estimate_note": "En4D-Var of all experiments as `fit --method en4dvar` runs it, fused across bubbles"

@@ -168,7 +168,7 @@ def nuisance_summary(mean, sd_post, sd_prior, rmax_m: float, req_m: float, t0_s:
     return {"rmax_m": {"prior_mean": rmax_m, "prior_sd": rmax_m * p[0], "mean": rmax_m * (1.0 + m[0]),
                        "sd": rmax_m * s[0]},
             "t0_s": {"prior_mean": t0_s, "prior_sd": tc_s * p[1], "mean": t0_s + tc_s * m[1], "sd": tc_s * s[1],
-                     "offset_star": float(m[1]), "offset_sd_star": float(s[1])},
+                     "offset_star": float(m[1]), "offset_sd_star": float(s[1]), "prior_sd_star": float(p[1])},
             "req_m": {"prior_mean": req_m, "prior_sd": req_m * p[2], "mean": req, "sd": req * s[2]},
             "treatment": "inferred with the material parameters (augmented ensemble); a prior sd of 0 means the "
                          "quantity was taken as known"}

@@ -128,7 +128,7 @@ from imrbayes.ensemble.likelihood import (check_choice, effective_samples, nuisa
                                           record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
-from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, req_shift_z
+from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, alignment_shift_z, req_shift_z
 from imrbayes.ensemble.windows import (PRIOR_WEIGHT_LIMIT, chained_prior_weight, mda_weights, n_windows,
                                        prior_dominated_note, time_resolved, window_spans)
 from imrbayes.errors import InputError
@@ -802,6 +802,7 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
             "req_sd_m": sd[:, 2].tolist(), "en4dvar_estimate": {nm: e4.estimate[nm]["mean"] for nm in space.names},
             "en4dvar_member_runs": int(e4.details.get("member_runs", 0)),
             "en4dvar_rmse_own": [p.get("rmse_own") for p in e4.per_experiment],
+            "en4dvar_alignment_z": alignment_shift_z(e4.per_experiment),
             "stop_z": e4s.req_conflict_stop,
             "stopped_early": [{"experiment": nm, "after_cycle": last[nm]} for nm in names
                               if 0 < last.get(nm, 0) < e4s.n_runs],

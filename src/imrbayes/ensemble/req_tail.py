@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["ReqTailStart", "model_tail_req", "tail_req", "with_req", "req_shift_z", "REQ_CONFLICT_Z"]
+__all__ = ["ReqTailStart", "model_tail_req", "tail_req", "with_req", "req_shift_z", "alignment_shift_z", "REQ_CONFLICT_Z"]
 
 #: |z| beyond which a fit's Req contradicts the record's own tail (:func:`req_shift_z`). On constant-NHKV
 #: camera records the largest |z| was 2.14 over 360 bubbles (``validation/req_conflict_probe.py``) and
@@ -124,4 +124,31 @@ def req_shift_z(obs, per_experiment) -> list:
         out.append({"experiment": names[g], "z": float((float(q["mean"]) - req[g]) / sd[g]),
                     "fitted_req_m": float(q["mean"]), "fitted_req_sd_m": float(q["sd"]),
                     "preprocessing_req_m": float(req[g]), "preprocessing_req_sd_m": float(sd[g])})
+    return out
+
+
+def alignment_shift_z(per_experiment) -> list:
+    """How far a fit moved each experiment's Rmax and time of the maximum from the preprocessing's
+    local fit of the maximum, in that fit's sd: one dict per experiment with ``experiment``,
+    ``z_rmax``, ``z_t0`` (None where the quantity was taken as known) and the shifts
+    ``rmax_rel`` (relative) and ``t0_shift_s`` [s]. per_experiment: a fit's entries (``nuisance.rmax_m``
+    and ``nuisance.t0_s`` = {prior_mean, prior_sd, mean}, SI, as En4D-Var writes them). Why: the
+    local fit sees only the frames around the maximum, the fit the whole collapse and rebounds; a
+    model whose collapse needs another maximum than the filmed one moves them by many sd
+    (docs/diagnosis.md, "The alignment conflict")."""
+    out = []
+    for e in per_experiment:
+        nu = e.get("nuisance") or {}
+        row = {"experiment": e.get("name")}
+        q = nu.get("rmax_m")
+        ok = q is not None and q.get("prior_sd", 0) > 0
+        row["z_rmax"] = float((q["mean"] - q["prior_mean"]) / q["prior_sd"]) if ok else None
+        row["rmax_rel"] = float(q["mean"] / q["prior_mean"] - 1.0) if q and q.get("prior_mean") else None
+        q = nu.get("t0_s") or {}
+        # in t*, where the offset lives: the file's clock (and so the shift in s) may be unknown
+        ok = q.get("prior_sd_star", 0) > 0 and np.isfinite(q.get("offset_star", np.nan))
+        row["z_t0"] = float(q["offset_star"] / q["prior_sd_star"]) if ok else None
+        row["t0_shift_s"] = (float(q["mean"] - q["prior_mean"]) if np.isfinite(q.get("mean", np.nan))
+                             and np.isfinite(q.get("prior_mean", np.nan)) else None)
+        out.append(row)
     return out

@@ -130,6 +130,18 @@ def write_once(path: Path, text: str) -> bool:
             os.unlink(tmp)
 
 
+def not_compiled(module_names) -> list:
+    """Those of ``module_names`` whose kernel this cache does not hold yet (their first use would
+    compile it: about a minute of one CPU each)."""
+    stamp = os.environ.get("NUMBA_CACHE_DIR", "")
+    out = []
+    for m in module_names:
+        marker = _kernel_source(m)[1].with_suffix(".compiled")
+        if not (marker.exists() and marker.read_text() == stamp):
+            out.append(m)
+    return out
+
+
 def precompile(module_names=None, workers: int | None = None) -> None:
     """Compile the kernels of several constitutive models (default: all registered), ``workers``
     child processes at a time (default: one per CPU). A model's first compile takes about a
