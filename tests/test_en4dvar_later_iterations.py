@@ -97,8 +97,8 @@ def test_a_req_in_conflict_is_not_extrapolated():
 
 
 def test_a_misgiven_maximum_is_read_as_an_alignment_conflict():
-    """The preprocessing's Rmax of one record 1 % too large (its grid values R / Rmax 1 % too small,
-    its stated sd kept): the fit moves that bubble's Rmax back by about the 1 % (many prior sd) and
+    """The preprocessing's Rmax of one record 3 % too large (its grid values R / Rmax 3 % too small,
+    its stated sd of ~0.3 % kept): the fit moves that bubble's Rmax back by most of the 3 % and
     :func:`alignment_shift_z` says so in the preprocessing's units, while the other bubbles' Rmax
     and time of the maximum stay within 3 sd of their local fits (constant-NHKV camera records, the
     model's own physics: docs/diagnosis.md, "The alignment conflict")."""
@@ -106,15 +106,15 @@ def test_a_misgiven_maximum_is_read_as_an_alignment_conflict():
     from imrbayes.ensemble.req_tail import alignment_shift_z
     obs, _ = camera_obs("none", 2, OPTS)
     rmax, R = obs.rmax_m.copy(), obs.R_star.copy()
-    rmax[0] *= 1.01
-    R[0] /= 1.01
+    rmax[0] *= 1.03
+    R[0] /= 1.03
     bad = dataclasses.replace(obs, rmax_m=rmax, R_star=R)
     base = make_candidate(BASELINE.key, OPTS)
     res = fit_en4dvar(base.fm, bad, base.space, En4DVarSettings(loglik=False, n_draws=1), seed=0)
     z = alignment_shift_z(res.per_experiment)
     assert [q["experiment"] for q in z] == list(obs.names)
     first = z[0]
-    assert abs(first["rmax_rel"] + 0.0099) < 0.003, first          # 1/1.01 - 1 = -0.0099
+    assert -0.035 < first["rmax_rel"] < -0.02, first               # 1/1.03 - 1 = -0.029
     sd_rel = obs.nuisance_sd[0, 0]                                   # relative (Observations)
     assert first["z_rmax"] < -5 and abs(first["z_rmax"] - first["rmax_rel"] / sd_rel) < 1e-6 * abs(first["z_rmax"]) + 1e-9
     for q in z[1:]:
