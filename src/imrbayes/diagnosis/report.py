@@ -195,9 +195,14 @@ def verdict_sentences(r: dict) -> list:
     return out + extra
 
 
+def _baseline_part(r, key: str) -> dict:
+    """``baseline[key]`` of a diagnosis result, {} when absent (older results, ``--quick``)."""
+    return (r.get("baseline") or {}).get(key) or {}
+
+
 def _req_sentence(r) -> str | None:
     """When most experiments' baseline Req contradicts their own tail (``baseline.req_consistency``)."""
-    rc = (r.get("baseline") or {}).get("req_consistency") or {}
+    rc = _baseline_part(r, "req_consistency")
     if not rc.get("flagged"):
         return None
     return (f"The constant-parameter fit reproduces the collapses only with bubble sizes the records' own tails "
@@ -209,7 +214,7 @@ def _req_sentence(r) -> str | None:
 def _alignment_sentence(r) -> str | None:
     """When most experiments' baseline Rmax or time of the maximum contradicts the local fit of the
     maximum (``baseline.alignment_consistency``)."""
-    ac = (r.get("baseline") or {}).get("alignment_consistency") or {}
+    ac = _baseline_part(r, "alignment_consistency")
     if not ac.get("flagged"):
         return None
     return (f"It also needs another maximum than the filmed one: in {ac['n_conflict']} of {ac['n_estimated']} "
@@ -219,7 +224,7 @@ def _alignment_sentence(r) -> str | None:
 
 
 def _alignment_section(r) -> str:
-    ac = (r.get("baseline") or {}).get("alignment_consistency") or {}
+    ac = _baseline_part(r, "alignment_consistency")
     rows = ac.get("experiments") or []
     if not rows:
         return ""
@@ -240,7 +245,7 @@ def _alignment_section(r) -> str:
 
 
 def _req_section(r) -> str:
-    rc = (r.get("baseline") or {}).get("req_consistency") or {}
+    rc = _baseline_part(r, "req_consistency")
     rows = rc.get("experiments") or []
     if not rows:
         return ""

@@ -60,7 +60,7 @@ def _compile_in_child(module_name: str, marker: Path) -> None:
     """Populate numba's cache from a child process (see module doc); best effort: on failure
     this process compiles for itself."""
     stamp = os.environ.get("NUMBA_CACHE_DIR", "")
-    if marker.exists() and marker.read_text() == stamp:
+    if _is_compiled(marker):
         return
     code = f"import imrbayes.forward.codegen as c; c._warm_up({module_name!r})"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -76,6 +76,11 @@ def _compile_in_child(module_name: str, marker: Path) -> None:
         tail = (done.stderr or "").strip().splitlines()[-1:] or ["no output"]
         warnings.warn(f"compiling {module_name}'s kernel in a child process failed (exit {done.returncode}: "
                       f"{tail[0]}); compiling in this process", RuntimeWarning, stacklevel=2)
+
+
+def _is_compiled(marker: Path) -> bool:
+    """Whether a child compiled this kernel into the numba cache this process uses."""
+    return marker.exists() and marker.read_text() == os.environ.get("NUMBA_CACHE_DIR", "")
 
 
 _CHILD_ENV = "IMRBAYES_KERNEL_CHILD"   # set in the compiling child, which must not start another
@@ -133,13 +138,7 @@ def write_once(path: Path, text: str) -> bool:
 def not_compiled(module_names) -> list:
     """Those of ``module_names`` whose kernel this cache does not hold yet (their first use would
     compile it: about a minute of one CPU each)."""
-    stamp = os.environ.get("NUMBA_CACHE_DIR", "")
-    out = []
-    for m in module_names:
-        marker = _kernel_source(m)[1].with_suffix(".compiled")
-        if not (marker.exists() and marker.read_text() == stamp):
-            out.append(m)
-    return out
+    return [m for m in module_names if not _is_compiled(_kernel_source(m)[1].with_suffix(".compiled"))]
 
 
 def precompile(module_names=None, workers: int | None = None) -> None:
