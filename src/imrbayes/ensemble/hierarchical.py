@@ -207,9 +207,8 @@ def _predictive_cov(Lam, m, tau, cov, m0, C0i, n_grid: int = 48, drop: float = 1
     d = tau.size
     pred = sym(cov + np.diag(tau ** 2))
     for i in range(d):
-        def cond(t):
+        def cond(t, i=i):
             T = tau ** 2
-            T = T.copy()
             T[i] = t * t
             return _conditional(Lam, m, T, m0, C0i)
         ll_top = cond(tau[i])[2]
