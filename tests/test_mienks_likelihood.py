@@ -332,6 +332,14 @@ def test_default_on_synthetic_records_with_known_truth():
     # on the same records; with mu's start widened (the default) 3 % low
     for name, tol in (("G", 0.1), ("mu", 0.05)):
         assert res.estimate[name]["mean"] == pytest.approx(TRUTH[name], rel=tol)
+    # the aggregate's covariance is the chain-propagated one (never wider than the normalised
+    # precision weighting's, kept as an alternative with the same centre)
+    assert res.details["aggregate_cov_rule"] == "chain"
+    weighting = res.details["alternative_estimates"]["aggregate_precision_weighted"]
+    for name in ("G", "mu"):
+        assert res.estimate[name]["median"] == pytest.approx(weighting[name]["median"], rel=1e-12)
+        assert res.estimate[name]["sd"] <= weighting[name]["sd"] * (1 + 1e-9)
+        assert summ["predictive"][name]["sd"] >= res.estimate[name]["sd"]
     for n, p in enumerate(summ["per_experiment"]):
         nu = p["nuisance"]
         for key in ("rmax_m", "req_m", "t0_s"):

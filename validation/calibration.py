@@ -58,7 +58,7 @@ def covers(est: dict, name: str) -> bool:
     return bool(lo <= TRUTH[name] <= hi)
 
 
-def one_seed(fm, space, seed: int, methods=PAPER_METHODS) -> dict:
+def one_seed(fm, space, seed: int, methods=PAPER_METHODS, mienks_set: dict | None = None) -> dict:
     obs = verification_data(fm, seed)
     row, fits = {"seed": seed}, []
 
@@ -66,7 +66,7 @@ def one_seed(fm, space, seed: int, methods=PAPER_METHODS) -> dict:
         return fit_en4dvar(fm, data, space, En4DVarSettings(n_draws=1, loglik=False, **kw), seed=seed)
 
     def mienks(name, data, **kw):
-        res = fit_mienks(fm, data, space, MIEnKSSettings(n_draws=1, **kw), seed=seed)
+        res = fit_mienks(fm, data, space, MIEnKSSettings(n_draws=1, **{**kw, **(mienks_set or {})}), seed=seed)
         row[f"{name}_windows"] = {n: [covers(w, n) for w in res.windows] for n in TRUTH}
         return res
 
@@ -103,6 +103,11 @@ def one_seed(fm, space, seed: int, methods=PAPER_METHODS) -> dict:
             # record, the prior once, random effects), reported beside the aggregate
             row[f"{m}_record"] = {n: covers(record, n) for n in TRUTH}
             fits.append((f"{m}_record", record))
+        chain = (res.details.get("alternative_estimates") or {}).get("aggregate_chain_cov")
+        if m.startswith("mienks") and chain:
+            # the aggregate's mean with its covariance propagated through the window chain
+            row[f"{m}_chain"] = {n: covers(chain, n) for n in TRUTH}
+            fits.append((f"{m}_chain", chain))
     row["estimates"] = {m: {n: e[n]["mean"] for n in TRUTH} for m, e in fits}
     row["sds"] = {m: {n: e[n]["sd"] for n in TRUTH} for m, e in fits}
     return row
@@ -110,7 +115,7 @@ def one_seed(fm, space, seed: int, methods=PAPER_METHODS) -> dict:
 
 def summarise(rows: list) -> dict:
     out = {}
-    for method in [*METHODS, *(f"{m}_record" for m in METHODS)]:
+    for method in [*METHODS, *(f"{m}_record" for m in METHODS), *(f"{m}_chain" for m in METHODS)]:
         if method not in rows[0]:
             continue
         for n in TRUTH:
@@ -142,12 +147,24 @@ def main(argv=None):
     ap.add_argument("--first-seed", type=int, default=100, help="seeds first-seed .. first-seed + seeds - 1")
     ap.add_argument("--methods", nargs="+", default=list(PAPER_METHODS), choices=list(METHODS))
     ap.add_argument("--json", default=None)
+    ap.add_argument("--mienks-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a MIEnKSSettings field for the MIEnKS-MDA rows (JSON value), e.g. rtps_regress=true")
     args = ap.parse_args(argv)
+    mienks_set = {}
+    for item in args.mienks_set:
+        key, _, value = item.partition("=")
+        if key not in {f.name for f in dataclasses.fields(MIEnKSSettings)}:
+            raise SystemExit(f"--mienks-set: {key!r} is not a MIEnKSSettings field")
+        try:
+            mienks_set[key] = json.loads(value)
+        except json.JSONDecodeError:
+            mienks_set[key] = value
+    args.mienks_settings = mienks_set
     fm = ForwardModel("nhkv", options={"bubble": "polytropic"})
     space = ParamSpace.for_model(fm.constitutive)
     rows, t0 = [], time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.seeds):
-        rows.append(one_seed(fm, space, seed, args.methods))
+        rows.append(one_seed(fm, space, seed, args.methods, mienks_set))
         print(f"seed {seed}: " + " ".join(f"{m}:{''.join('y' if rows[-1][m][n] else 'n' for n in TRUTH)}"
                                            for m in args.methods)
               + "".join(f" {k} G {np.mean(rows[-1][k]['G']):.2f} mu {np.mean(rows[-1][k]['mu']):.2f}"
@@ -168,7 +185,7 @@ def _write(args, rows, t0) -> dict:
     """The result so far (written after every seed: an interrupted run keeps the seeds it finished)."""
     result = {"case": "methods.md §5 design, polytropic bubble, paper noise; paper settings unless the method's "
                       "name ends in _default (the default likelihood); IMR 40 x 25 grid", "methods": args.methods,
-              "truth": TRUTH, "seeds": [r["seed"] for r in rows], "runtime_s": time.perf_counter() - t0,
+              "truth": TRUTH, "mienks_settings": getattr(args, "mienks_settings", {}), "seeds": [r["seed"] for r in rows], "runtime_s": time.perf_counter() - t0,
               "summary": summarise(rows), "rows": rows}
     if args.json:
         with open(args.json, "w") as fh:

@@ -150,6 +150,11 @@ def one_seed(seed: int, family: str, bubble: str, likelihoods, settings=None, me
         alts = res.details.get("alternative_estimates") or {}
         if alts:         # e.g. bubble_posterior=sampled: the ensembles' Gaussians, the sampled fusion
             r["alternatives"] = {name: _scored(est) for name, est in alts.items()}
+        for name, pr in (res.details.get("alternative_predictives") or {}).items():
+            for n in TRUTH:      # e.g. the chain-propagated aggregate widened by the integrated scatter
+                lo, hi = pr[n]["hdi95"]
+                r.setdefault("alternatives", {}).setdefault(name, {}).setdefault(n, {})["predictive_holds"] = \
+                    float(np.mean((bubbles[n] >= lo) & (bubbles[n] <= hi)))
         r["effective_samples"] = res.details.get("likelihood", {}).get("effective_samples")
         if res.method == "mienks":      # bubbles whose pilot residual stood out (a warning in fit)
             r["pilot_outliers"] = [e["name"] for e in res.per_experiment if (e.get("likelihood") or {}).get("pilot_outlier")]
@@ -298,6 +303,8 @@ def _setting(kv: str):
         raise SystemExit(f"--set {kv!r}: expected KEY=VALUE")
     if val.lower() in ("none", "null"):       # unset, as `imrbayes fit --set` reads it
         return key, None
+    if val.lower() in ("true", "false"):
+        return key, val.lower() == "true"
     for cast in (int, float):
         try:
             return key, cast(val)

@@ -5,7 +5,9 @@ Until session 70 ``fit --method mienks`` reported the windows' equal-weight prec
 aggregate (methods.md §4) as its estimate and widened that aggregate by the between-bubble sd for
 ``predictive``; the rows also store the record-level random-effects estimate (``record``: each
 experiment's window likelihoods summed over the record, the prior once) and its between-bubble sd.
-This script scores both on the same fits: coverage with a Wilson interval, bias, scatter, mean
+Rows that carry ``alternatives.aggregate_chain_cov`` (session 72: the aggregate's mean with its
+covariance propagated through the window chain, :mod:`imrbayes.ensemble.aggregate`) are scored as a
+third rule, ``chain``. This script scores them on the same fits: coverage with a Wilson interval, bias, scatter, mean
 posterior sd, and the fraction of the bubbles' true parameters inside each rule's 95 % predictive
 interval (the bubbles' truths are regenerated from each seed with ``imrbayes simulate``, as the
 calibration drew them; the curves are not needed but come with it).
@@ -57,12 +59,16 @@ def rescore(path: Path, cache: dict) -> dict:
             cache[key] = {n: [e["parameters"][n] for e in truth["experiments"]] for n in TRUTH}
         bub = {n: np.array(v) for n, v in cache[key].items()}
         entry = {"seed": row["seed"]}
+        rules = [("aggregate", r), ("record", r["record"])]
+        chain = (r.get("alternatives") or {}).get("aggregate_chain_cov")
+        if chain:       # the aggregate's mean with its covariance propagated through the window chain
+            rules.append(("chain", chain))
         for n in TRUTH:
             tau = r[n].get("between_sd_log") or 0.0
             entry[n] = {rule: {"covers": est[n]["covers"], "rel_error": est[n]["rel_error"],
                                "rel_sd": est[n]["sd"] / TRUTH[n],
                                "predictive_holds": predictive_holds(est[n], tau, bub[n])}
-                        for rule, est in (("aggregate", r), ("record", r["record"]))}
+                        for rule, est in rules}
             entry[n]["between_covers"] = r[n].get("between_covers")
             # the fit's own (aggregate) predictive, as stored: the regenerated truths must reproduce it
             entry[n]["stored_predictive_holds"] = r[n].get("predictive_holds")
@@ -71,8 +77,10 @@ def rescore(path: Path, cache: dict) -> dict:
              for e in per_seed for n in TRUTH if e[n]["stored_predictive_holds"] is not None]
     summary = {"max_abs_diff_to_stored_predictive": max(check) if check else None}
     for n in TRUTH:
-        for rule in ("aggregate", "record"):
-            xs = [e[n][rule] for e in per_seed]
+        for rule in ("aggregate", "record", "chain"):
+            xs = [e[n][rule] for e in per_seed if rule in e[n]]
+            if not xs:
+                continue
             k = sum(x["covers"] for x in xs)
             err = np.array([x["rel_error"] for x in xs])
             summary[f"{n}:{rule}"] = {
