@@ -1276,7 +1276,10 @@ class MIEnKS(InferenceMethod):
     label = "MIEnKS-MDA (sliding-window smoother)"
     settings_class = MIEnKSSettings
     gaussian_posterior = True
-    estimate_note = "Precision-weighted aggregate over the whole record (all windows)."
+    estimate_note = ("Aggregate over the whole record: the windows' precision-weighted mean, its sd propagated "
+                     "through the window chain (each sample counted once, each bubble's deviation from the gel "
+                     "shared by its windows; details.aggregate_cov_rule 'chain'; with the paper's likelihood "
+                     "the weighting's own covariance, 'weighting').")
     fit = staticmethod(fit_mienks)
 
     @staticmethod
