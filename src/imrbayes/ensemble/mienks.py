@@ -231,8 +231,7 @@ class MIEnKSSettings:
     ``rtps_regress``: RTPS also moves each member's state along its regression on the inflated
     columns (:func:`regression_shift`), so inflated parameters keep the posterior's state-parameter
     slope (default off: on the verification design, 20 seeds, the record-level G sd 5.2 -> 4.5 %
-    against a scatter of 2.9-3.2 %, the rest unchanged). ``rtps_nuisance``: RTPS also acts on the
-    nuisance columns (rho; window 0's a and delta) -- the behaviour before session 72 (True).
+    against a scatter of 2.9-3.2 %, the rest unchanged).
     ``aggregate_cov``: the aggregate's covariance, ``chain`` or ``weighting`` (module doc); unset:
     :data:`DEFAULT_AGGREGATE_COV` with the default likelihood, ``weighting`` with the paper's."""
 
@@ -243,7 +242,6 @@ class MIEnKSSettings:
     rtps: float = 0.7
     rtps_state: bool = False
     rtps_regress: bool = False
-    rtps_nuisance: bool = True
     aggregate_cov: str | None = None
     max_redraw: int = 5
     n_draws: int = 500
@@ -279,7 +277,8 @@ class MIEnKSSettings:
             return replace(self, fusion=self.fusion or "chain", obs_weight=self.obs_weight or "mean",
                            prior_widen=self.prior_widen or 1.0, req_prior=self.req_prior or "preprocessing",
                            aggregate_cov=self.aggregate_cov or "weighting")
-        return replace(self, aggregate_cov=self.aggregate_cov or DEFAULT_AGGREGATE_COV, min_iter=DEFAULT_MIN_ITER if self.min_iter is None else self.min_iter,
+        return replace(self, aggregate_cov=self.aggregate_cov or DEFAULT_AGGREGATE_COV,
+                       min_iter=DEFAULT_MIN_ITER if self.min_iter is None else self.min_iter,
                        step_tol=DEFAULT_STEP_TOL if self.step_tol is None else self.step_tol,
                        prior_widen=DEFAULT_PRIOR_WIDEN if self.prior_widen is None else self.prior_widen,
                        req_prior=self.req_prior or DEFAULT_REQ_PRIOR)
@@ -322,7 +321,8 @@ class MIEnKSSettings:
             raise InputError("prior_widen", "applies to the default likelihood only (the paper's members start "
                                             "from the parameter prior)")
         if s.aggregate_cov not in AGGREGATE_COVS:
-            raise InputError("aggregate_cov", f"must be one of {', '.join(AGGREGATE_COVS)} or unset, got {self.aggregate_cov!r}")
+            raise InputError("aggregate_cov", f"must be one of {', '.join(AGGREGATE_COVS)} or unset, "
+                                              f"got {self.aggregate_cov!r}")
         if s.aggregate_cov == "chain" and s.likelihood != "default":
             raise InputError("aggregate_cov", "'chain' needs the default likelihood (the paper's keeps methods.md §4's weighting)")
         if self.member_start not in ("prior", "pilot"):
@@ -551,10 +551,8 @@ def mienks_unit(unit: Unit, rng) -> dict:
     f = rtps_factors(res.prior_anoms, res.anoms, s.rtps)[0]
     if not s.rtps_state:
         f[:ns] = 1.0
-    if not getattr(s, "rtps_nuisance", True):
-        f[ns + dp:] = 1.0
     Ea = res.mean[0][None, :] + np.sqrt(N - 1.0) * res.anoms[0] * f[None, :]
-    if getattr(s, "rtps_regress", False) and not s.rtps_state:
+    if s.rtps_regress and not s.rtps_state:
         Ea[:, :ns] += regression_shift(res.anoms[0], f, ns) * np.sqrt(N - 1.0)
     problems = runner.fm.state_problems(from_analysis(Ea)[:, :ns])     # analysed states that are not physical
     n_invalid = int(np.any(np.stack(list(problems.values())), axis=0).sum())
@@ -1004,7 +1002,8 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
             # the window mean's linear weights (aggregate.chain_aggregate_cov)
             T_j = np.diag(np.where(np.isfinite(hier.tau), hier.tau, 0.0) ** 2)
             chain_F.append(hier.cov @ np.linalg.inv(chain_c))
-            chain_D.append({g: hier.cov @ np.linalg.inv(np.eye(len(space.names)) + Lam[i] @ T_j) for i, g in enumerate(ok)})
+            chain_D.append({g: hier.cov @ np.linalg.inv(np.eye(len(space.names)) + Lam[i] @ T_j)
+                            for i, g in enumerate(ok)})
             chain_L.append({g: Lam[i] for i, g in enumerate(ok)})
             chain_m = hier.mean
             chain_c = rtps_cov(chain_c, hier.cov, s.rtps)
