@@ -46,3 +46,35 @@ def cpu_label(info: dict | None = None) -> str:
     info = machine_info() if info is None else info
     vec = "AVX-512" if info["avx512f"] else ("AVX2" if info["avx2"] else "no AVX2")
     return f"{info['cpu_model_name']}, family {info['cpu_family']} ({info['numba_target_cpu']}), {vec}"
+
+
+# Issue #20's own reference: the previous default forward row (a) -- 48 members of the LIC case,
+# thermal bubble, stretch 1.5, nt 64, t* in [0, 3] -- took 113 ms on the host the speed targets of
+# #19-#21 were set on. Timing the same row beside a benchmark says how fast *this* host is, so that
+# a target missed here can be told apart from a target missed by the code (docs/open-work.md).
+YARDSTICK_REFERENCE_MS = 113.0
+
+
+def host_yardstick(repeat: int = 5) -> dict:
+    """Best-of-``repeat`` wall time [ms] of the yardstick row above and its ratio to the reference
+    host's 113 ms (``host_factor`` > 1: this host is slower)."""
+    import time
+
+    import numpy as np
+
+    from imrbayes.forward import ForwardModel, ForwardOptions
+
+    rng = np.random.default_rng(0)
+    params = {"G": 7290.0 * (1 + 0.4 * rng.uniform(-1, 1, 48)), "mu": 0.088 * (1 + 0.4 * rng.uniform(-1, 1, 48))}
+    fm = ForwardModel("nhkv", options=ForwardOptions(stretch=1.5, nt=64))
+    t_star = np.arange(121) * 0.025
+    rmax, ratio = 263e-6, 7.58
+    fm.simulate({"G": 7290.0, "mu": 0.088}, rmax, rmax / ratio, t_star[:3])     # load / compile
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fm.simulate(params, rmax, rmax / ratio, t_star)
+        best = min(best, time.perf_counter() - t0)
+    ms = 1e3 * best
+    return {"row": "forward (a), previous default grid (stretch 1.5, nt 64), 48 members, t* <= 3",
+            "ms": ms, "reference_ms": YARDSTICK_REFERENCE_MS, "host_factor": ms / YARDSTICK_REFERENCE_MS}

@@ -16,7 +16,10 @@ Cases (``--cases``; default: the two targets):
 
 Usage: python benchmarks/methods_realistic.py [--cases ...] [--json out.json]
 Each case is timed once (a fit takes minutes); run it on a quiet machine -- the load average is
-recorded so that a loaded run can be recognised.
+recorded so that a loaded run can be recognised. The 2-core VM lands on hosts up to ~2x apart, so
+the run also times a host yardstick before and after the fits (``_machine.host_yardstick``: #20's
+previous-default forward row, 113 ms on the host the targets were set on) and prints each wall
+divided by the host factor beside the raw one; the JSON keeps both.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import cpu_label, machine_info  # noqa: E402
+from _machine import cpu_label, host_yardstick, machine_info  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 LIC = ROOT.parent / "shared" / "data" / "lic"
@@ -74,6 +77,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     rows = []
     print(f"host: {cpu_label()}; load average now {os.getloadavg()[0]:.2f}")
+    yard = [host_yardstick()]
+    print(f"host yardstick: {yard[0]['row']}: {yard[0]['ms']:.1f} ms against {yard[0]['reference_ms']:.0f} ms on "
+          f"the host the targets were set on (host factor {yard[0]['host_factor']:.2f})", flush=True)
     print(f"{'case':<20} {'wall [s]':>9} {'target':>7} {'CPU [s]':>8} {'load':>10} {'bubbles':>7} "
           f"{'G [kPa]':>16} {'mu [Pa s]':>18}")
     with tempfile.TemporaryDirectory() as tmp:
@@ -106,8 +112,15 @@ def main(argv=None) -> int:
             tgt = f"{target:7.0f}" if target else "      -"
             print(f"{name:<20} {r['wall_s']:9.1f} {tgt} {r['cpu_s']:8.1f} {r['load_before']:4.2f}-{r['load_after']:4.2f} "
                   f"{row.get('n_experiments', '-')!s:>7} {est}", flush=True)
+    yard.append(host_yardstick())
+    factor = min(y["host_factor"] for y in yard)
+    print(f"host yardstick after the fits: {yard[1]['ms']:.1f} ms; with the faster of the two (factor {factor:.2f}) "
+          "the walls above correspond on the reference host to:")
+    for r in rows:
+        tgt = f" (target {r['target_s']:.0f} s)" if r["target_s"] else ""
+        print(f"  {r['case']:<20} {r['wall_s'] / factor:7.1f} s{tgt}")
     if a.json:
-        Path(a.json).write_text(json.dumps({"meta": {"machine": machine_info(), "seed": a.seed,
+        Path(a.json).write_text(json.dumps({"meta": {"machine": machine_info(), "seed": a.seed, "host_yardstick": yard,
                                                       "note": "one timed run per case, imrbayes fit as a subprocess"},
                                              "rows": rows}, indent=1, default=str))
     return 0 if all(r["returncode"] == 0 for r in rows) else 1

@@ -66,8 +66,9 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     prediction, and the gain of the extended model (RMSE in R* = R/Rmax, ELPD in nats). SI units for
     all parameters.
 
-    Runtime (measured on 2 cores): 5 bubbles with the default thermal bubble 13-17 min at default
-    settings on an AMD EPYC host, 23 min on an Intel icelake one; 20 bubbles with --forward
+    Runtime (measured on 2 cores): 5 bubbles with the default thermal bubble 11-14 min at default
+    settings on AMD znver4/znver5 hosts, 17.5-19 min on AVX2-only znver3 ones and 23 min on an Intel
+    icelake one; 20 bubbles with --forward
     bubble=polytropic and --quick ~25 min on one core; --experiments and --no-loeo cut it (--workers
     helps only where cores are idle: the forward model already spreads its batches over the cores).
     Writes diagnosis.json, report.html and figures."""
