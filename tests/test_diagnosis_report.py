@@ -297,3 +297,15 @@ def test_alignment_conflict_is_stated_when_most_bubbles_need_another_maximum():
     table = html.unescape(re.sub(r"<[^>]+>", " ", _alignment_section(r)))
     assert "-0.50 %" in table and "-5.0" in table and "+1.50" in table and "+5.0" in table and "flagged" in table
     assert alignment_consistency(fit((-0.005, 0.0), (0.001, 0.05)), bound=6.0)["n_conflict"] == 0
+
+
+def test_figures_name_a_candidate_by_its_key_and_show_a_different_model_beside_it():
+    """The verdict names candidates by key (``damage``); a figure that showed only the fitted model
+    (``nhkv-piecewise``) left the reader to guess which bar the verdict meant."""
+    from imrbayes.diagnosis.figures import _labels
+
+    result = {"baseline": {"key": "nhkv", "model": "nhkv"},
+              "candidates": [{"key": "damage", "model": "nhkv-piecewise"}, {"key": "zener", "model": "zener"}]}
+    names = _labels(result)
+    assert names["damage"] == "damage (nhkv-piecewise)"
+    assert names["zener"] == "zener"

@@ -38,10 +38,13 @@ def _baseline_key(result) -> str:
 
 
 def _labels(result) -> dict:
-    """key -> model name shown in figures (candidates and baseline)."""
+    """key -> name shown in figures: the baseline's model, and each candidate's key with its model
+    beside it where the two differ (damage is fitted as ``nhkv-piecewise``: the key is what the
+    report's verdict names)."""
     out = {_baseline_key(result): result.get("baseline", {}).get("model", _baseline_key(result))}
     for c in result.get("candidates", []):
-        out[c.get("key", c.get("model"))] = c.get("model", c.get("key"))
+        key, model = c.get("key", c.get("model")), c.get("model", c.get("key"))
+        out[key] = key if model == key else f"{key} ({model})"
     return out
 
 
@@ -187,7 +190,8 @@ def candidates_figure(d, path):
         span = (hi - lo) or 1.0
         ax[1].set_xlim(lo - 0.3 * span * (lo < 0), hi + 0.3 * span * (hi > 0) + 0.05 * span)
     ax[1].set_yticks(y + h * (len(schemes) - 1) / 2)
-    ax[1].set_yticklabels([c["model"] + ("\n(ruled out)" if c.get("ruled_out") else "") for c in cands], fontsize=8)
+    ax[1].set_yticklabels([names.get(c.get("key", c["model"]), c["model"]) + ("\n(ruled out)" if c.get("ruled_out") else "")
+                           for c in cands], fontsize=8)
     ax[1].invert_yaxis()
     ax[1].axvline(0, color="k", lw=0.6)
     ax[1].set_xlabel("held-out RMSE reduction vs baseline [%]")
