@@ -1,6 +1,5 @@
 """Shared fixtures."""
 
-import importlib.util
 from pathlib import Path
 
 import pytest
@@ -14,15 +13,6 @@ ROOT = Path(__file__).resolve().parents[1]
 def fake(monkeypatch):
     """The fake forward model (tests/_fake_forward.py) in place of the real one; yields its call log."""
     return _fake_forward.install(monkeypatch)
-
-
-@pytest.fixture(scope="module")
-def confusion_script():
-    """scripts/diagnosis_confusion.py as a module (a script, not part of the package)."""
-    spec = importlib.util.spec_from_file_location("diagnosis_confusion", ROOT / "scripts" / "diagnosis_confusion.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def pytest_sessionstart(session):

@@ -7,7 +7,7 @@ maximum and Req *estimated* by the preprocessing, and data made by a finer forwa
 fitted one. The material and the hidden mechanism's parameters are drawn inside (seeded) from the
 realistic ranges of :mod:`imrbayes.diagnosis.candidates`. Quick settings (19 bootstrap replicates,
 no LOEO, no MIEnKS drift). The full classes x seeds confusion matrix and the 20-dataset false-alarm
-rate are ``scripts/diagnosis_confusion.py`` (docs/diagnosis.md).
+rate are ``python -m validation confusion`` (docs/diagnosis.md).
 """
 
 import numpy as np
@@ -67,7 +67,7 @@ def test_stop_when_adequate_keeps_the_verdict(tmp_path):
 
 # each hidden cause against the alternatives it is most often taken for (docs/diagnosis.md: damage and
 # zener tie with stiffening; zener with lambda1 -> 0 and Gilmore stand in for missing bubble physics);
-# every candidate against every class is the confusion matrix's job (scripts/diagnosis_confusion.py)
+# every candidate against every class is the confusion matrix's job (validation/confusion.py)
 RIVALS = {"strain-stiffening": ("qkv", "zener", "damage"),
           "bubble-thermal": ("bubble-thermal", "bubble-gilmore", "zener", "qkv")}
 
