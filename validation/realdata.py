@@ -1,0 +1,103 @@
+"""Every measured data set with R(t) curves through ``fit`` with each method and through ``diagnose``.
+
+Data: every folder of ``--data`` (default ``../shared/data/lic``) that loads as R(t) records
+(folders of summaries or of original .mat files are listed as skipped). Each (data set, method)
+is one ``imrbayes fit`` with the default settings; each data set is also one ``imrbayes
+diagnose``. Table: data set, method, G and mu (posterior mean with the 95 % interval, SI units), rmse
+of the fit in R*; a diagnosis row gives its verdict and cause instead.
+
+``--quick``: the first data set only, methods pimr and en4dvar, a quick diagnosis, the polytropic
+bubble.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from validation._common import SHARED, estimate_of, failures, imrbayes, parser, run_cases, write_table
+
+NAME = "realdata"
+METHODS = ("imr", "pimr", "en4dvar", "mienks")
+
+
+def datasets(root: Path) -> tuple[list[Path], list[str]]:
+    """The folders under ``root`` that load as R(t) data sets, and one line per folder skipped."""
+    from imrbayes.data import load_dataset
+    from imrbayes.errors import InputError
+
+    found, skipped = [], []
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        try:
+            load_dataset(folder)
+            found.append(folder)
+        except InputError as exc:
+            skipped.append(f"{folder.name}: {exc}")
+    return found, skipped
+
+
+def fit_case(folder: Path, method: str, forward: list[str]) -> callable:
+    def run(work: Path) -> dict:
+        imrbayes("fit", folder, "--method", method, *forward, "--out", work / "fit", "--quiet")
+        return {"dataset": folder.name, "method": method, **estimate_of(work / "fit")}
+    return run
+
+
+def diagnose_case(folder: Path, forward: list[str], quick: bool) -> callable:
+    def run(work: Path) -> dict:
+        imrbayes("diagnose", folder, *forward, *(["--quick"] if quick else []), "--out", work / "diagnosis", "--quiet")
+        d = json.loads((work / "diagnosis" / "diagnosis.json").read_text())
+        return {"dataset": folder.name, "method": "diagnose", "cause": d.get("cause"),
+                "verdict": (d.get("constant_parameter_check") or {}).get("verdict")}
+    return run
+
+
+def table_row(row: dict) -> dict:
+    """A case row as the table shows it: G and mu as 'mean [lo, hi]'."""
+    out = {"dataset": row["dataset"], "method": row["method"], "rmse": row.get("rmse")}
+    for name, est in (row.get("estimate") or {}).items():
+        out[name] = f"{est['mean']:.4g} [{est['hdi95'][0]:.4g}, {est['hdi95'][1]:.4g}]"
+    if row["method"] == "diagnose":
+        out["G"] = f"verdict {row['verdict']}, cause {row['cause']}"
+    return out
+
+
+def main(argv=None) -> None:
+    ap = parser(NAME, __doc__)
+    ap.add_argument("--data", type=Path, default=SHARED / "data" / "lic", help="folder of data set folders")
+    ap.add_argument("--datasets", default=None, help="comma-separated folder names [default: all; --quick: the first]")
+    ap.add_argument("--methods", default=None, help=f"comma-separated [default: {','.join(METHODS)}; --quick: pimr,en4dvar]")
+    ap.add_argument("--no-diagnose", action="store_true", help="fits only")
+    ap.add_argument("--forward", action="append", default=None, metavar="KEY=VALUE",
+                    help="forward option for every run [default: the thermal default; --quick: bubble=polytropic]")
+    a = ap.parse_args(argv)
+    if not a.data.is_dir():
+        ap.error(f"--data {a.data}: no such folder")
+    found, skipped = datasets(a.data)
+    if a.datasets:
+        names = a.datasets.split(",")
+        missing = sorted(set(names) - {f.name for f in found})
+        if missing:
+            ap.error(f"--datasets: not R(t) data sets under {a.data}: {missing}")
+        found = [f for f in found if f.name in names]
+    elif a.quick:
+        found = found[:1]
+    methods = (a.methods or ("pimr,en4dvar" if a.quick else ",".join(METHODS))).split(",")
+    fwd = [x for kv in (a.forward if a.forward is not None else (["bubble=polytropic"] if a.quick else []))
+           for x in ("--forward", kv)]
+    cases = []
+    for folder in found:
+        cases += [(f"{folder.name}_{m}", fit_case(folder, m, fwd)) for m in methods]
+        if not a.no_diagnose:
+            cases.append((f"{folder.name}_diagnose", diagnose_case(folder, fwd, a.quick)))
+    rows = run_cases(a.out, cases, a.resume, lambda r: str(table_row(r)))
+    write_table(a.out, "fits", "Measured data sets: every method's estimate and the diagnosis",
+                {"dataset": "data set", "method": "method", "G": "G [Pa] mean [95 %]", "mu": "mu [Pa s] mean [95 %]",
+                 "rmse": "rmse [R*]"},
+                [table_row(r) for r in rows if r["status"] == "ok"],
+                {"data": str(a.data), "forward": fwd[1::2], "quick": a.quick, "skipped": skipped,
+                 "failed_cases": failures(rows)})
+
+
+if __name__ == "__main__":
+    main()
