@@ -1,12 +1,8 @@
 """Shared fixtures."""
 
-from pathlib import Path
-
 import pytest
 
 import _fake_forward
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture

@@ -81,7 +81,7 @@ def main(argv=None) -> None:
                               "rel_l2": c["to_our_limit"], "max_abs_dR": c["max_abs_Rstar"],
                               "ours_s": peer["ours_single_ms"] / 1e3, "peer_s": peer["single_ms"] / 1e3})
     write_table(a.out, "peers", "The forward model against IMRv2 and PyIMR",
-                {"peer": "peer", "case_id": "case", "rel_l2": "relative L2 in R*", "max_abs_dR": "max |dR*|",
+                {"peer": "peer", "case_id": "case", "rel_l2": "relative L2 in R*", "max_abs_dR": "max abs dR*",
                  "ours_s": "imrbayes solve [s]", "imrv2_s": "IMRv2 solve [s] (its machine)", "peer_s": "PyIMR solve [s]"},
                 table, meta)
 
