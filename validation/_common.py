@@ -107,8 +107,9 @@ def _cell(value) -> str:
 def write_table(out: Path, stem: str, title: str, columns: dict[str, str], rows: list[dict], meta: dict) -> Path:
     """Write ``out/<stem>.md`` (a markdown table of ``columns``: key -> heading) and ``out/<stem>.json``
     (``meta``, every row in full); print the markdown. Returns the markdown's path."""
-    lines = [f"# {title}", "", *(f"- {k}: {_cell(v) if not isinstance(v, (dict, list)) else f'{len(v)} (in the JSON)'}"
-                                 for k, v in meta.items()), "",
+    shown = {k: (v if _cell(v) != str(v) or not isinstance(v, (dict, list)) else f"{len(v)} (in the JSON)")
+             for k, v in meta.items()}
+    lines = [f"# {title}", "", *(f"- {k}: {_cell(v)}" for k, v in shown.items()), "",
              "| " + " | ".join(columns.values()) + " |", "|" + "---|" * len(columns)]
     lines += ["| " + " | ".join(_cell(r.get(k)) for k in columns) + " |" for r in rows]
     text = "\n".join(lines) + "\n"
