@@ -107,8 +107,10 @@ def _cell(value) -> str:
 def write_table(out: Path, stem: str, title: str, columns: dict[str, str], rows: list[dict], meta: dict) -> Path:
     """Write ``out/<stem>.md`` (a markdown table of ``columns``: key -> heading) and ``out/<stem>.json``
     (``meta``, every row in full); print the markdown. Returns the markdown's path."""
-    shown = {k: (v if _cell(v) != str(v) or not isinstance(v, (dict, list)) else f"{len(v)} (in the JSON)")
-             for k, v in meta.items()}
+    def pair(v) -> bool:
+        return isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v)
+
+    shown = {k: v if pair(v) or not isinstance(v, (dict, list)) else f"{len(v)} (in the JSON)" for k, v in meta.items()}
     lines = [f"# {title}", "", *(f"- {k}: {_cell(v)}" for k, v in shown.items()), "",
              "| " + " | ".join(columns.values()) + " |", "|" + "---|" * len(columns)]
     lines += ["| " + " | ".join(_cell(r.get(k)) for k in columns) + " |" for r in rows]
