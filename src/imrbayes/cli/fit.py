@@ -39,34 +39,10 @@ METHOD_NAMES = tuple(METHODS)
 def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
     """(units the fit will run, what they are in words) for the progress bar's total, so that it counts
     the whole run from the start (``mienks: 18 windows x 5 experiments``); ``(None, "")`` when not
-    known (the bar then grows batch by batch). A method may declare ``n_units(settings, n_exp,
-    n_steps)`` itself; for the built-in ones the count follows their units (docs/scaling.md)."""
-    own = getattr(meth, "n_units", None)
-    if callable(own):
-        return int(own(settings, n_exp, n_steps)), ""
-    if meth.name == "mienks":
-        from imrbayes.ensemble.windows import n_windows
-
-        nw = n_windows(n_steps, settings.L, settings.h)
-        if getattr(settings, "likelihood", "paper") == "default" and getattr(settings, "adapt", False):
-            # the default likelihood's pilot pass sets the noise level, then the reported pass
-            sp = settings.pilot()
-            nwp = n_windows(n_steps, sp.L, sp.h)
-            if nwp == nw:
-                return 2 * nw * n_exp, f"2 passes x {nw} windows x {n_exp} experiments"
-            return (nwp + nw) * n_exp, f"a pilot pass of {nwp} windows and {nw} windows, x {n_exp} experiments"
-        return nw * n_exp, f"{nw} windows x {n_exp} experiments"
-    if meth.name == "en4dvar":      # each experiment's cycles, then its fitted curves (fast)
-        from imrbayes.ensemble.en4dvar import req_tail_mode
-
-        mode = req_tail_mode(settings, fm)
-        if mode == "model" or (mode == "inline" and settings.n_runs < 2):       # inline runs as model then
-            return 4 * n_exp, (f"a quick pass to place Req by the model's tail, then the fit: 2 x {n_exp} experiments "
-                               "and their fitted curves")
-        return 2 * n_exp, f"{n_exp} experiments, then their fitted curves"
-    if meth.name == "imr":
-        return n_exp, f"grid over {n_exp} experiments"
-    return None, ""
+    known (the bar then grows batch by batch). Each method declares it
+    (:meth:`~imrbayes.ensemble.InferenceMethod.n_units`; docs/scaling.md)."""
+    n, what = meth.n_units(settings, n_exp, n_steps, fm)
+    return (None, "") if n is None else (int(n), what)
 
 
 #: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
