@@ -82,7 +82,7 @@ def test_matches_monte_carlo_with_rtps_and_scatter():
 def test_window_mean_is_the_linear_map_fit_mienks_records():
     """fit_mienks records F = C P and D_g = C (I + Lambda_g T)^-1 per window: with them the
     random-effects gel mean (tau estimated from the data) is exactly F m_prior + sum_g D_g eta_g."""
-    from imrbayes.ensemble.hierarchical import random_effects
+    from imrbayes.ensemble.fusion import random_effects
 
     rng = np.random.default_rng(5)
     d, G = 2, 6

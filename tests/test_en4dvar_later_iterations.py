@@ -38,8 +38,17 @@ def test_later_iterations_are_checked(bad):
         En4DVarSettings(n_iter_later=bad).check()
 
 
-def test_req_is_integrated_against_its_preprocessing_prior():
-    """``nuisance_integral``: the Gauss-Newton paths do not depend on it (the same nuisance
+def _fit_with_req_against(monkeypatch, how, base, obs):
+    """The fit with log Req integrated against its preprocessing prior (``req``, the method) or, for
+    comparison, kept against the last cycle's prior for every bubble (``cycle``: what a bubble in
+    conflict gets, forced by a conflict bound every Req exceeds)."""
+    import imrbayes.ensemble.en4dvar as en4dvar_mod
+    monkeypatch.setattr(en4dvar_mod, "REQ_CONFLICT_Z", -1.0 if how == "cycle" else 3.0)
+    return fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(loglik=False, n_draws=1), seed=0)
+
+
+def test_req_is_integrated_against_its_preprocessing_prior(monkeypatch):
+    """Where Req's integral is taken does not change the Gauss-Newton paths (the same nuisance
     posteriors); with Req inferred each bubble's likelihood changes (log Req integrated against its
     preprocessing prior, not the last cycle's: the algebra is checked against closed-form
     linear-Gaussian marginals in test_ensemble_gaussian.py); with Req known there is nothing to
@@ -50,8 +59,7 @@ def test_req_is_integrated_against_its_preprocessing_prior():
     base = make_candidate(BASELINE.key, OPTS)
 
     def fit(o, how):
-        return fit_en4dvar(base.fm, o, base.space, En4DVarSettings(nuisance_integral=how, loglik=False, n_draws=1),
-                           seed=0)
+        return _fit_with_req_against(monkeypatch, how, base, o)
     cyc, req = fit(obs, "cycle"), fit(obs, "req")
     for a, b in zip(cyc.per_experiment, req.per_experiment):
         assert a["nuisance"] == b["nuisance"]
@@ -61,16 +69,14 @@ def test_req_is_integrated_against_its_preprocessing_prior():
     known = dataclasses.replace(obs, nuisance_sd=obs.nuisance_sd * np.array([1.0, 1.0, 0.0]))
     k1, k2 = fit(known, "cycle"), fit(known, "req")
     assert all(k1.estimate[p] == k2.estimate[p] for p in k1.estimate)
-    with pytest.raises(InputError, match="nuisance_integral"):
-        En4DVarSettings(nuisance_integral="all").check()
 
 
-def test_a_req_in_conflict_is_not_extrapolated():
+def test_a_req_in_conflict_is_not_extrapolated(monkeypatch):
     """A record whose Req is misgiven (15 % too large, its sd kept): the fit moves that bubble's Req
     well beyond 3 prior sd (z -8.4), and integrating log Req against the record's prior would move the material
     linearly along the Req ridge to where that prior sits (real data, xy002: G 13 -> 56 kPa, curve
     rmse 0.025 -> 0.12 R*). That bubble keeps the cycle's Req instead -- its likelihood, and so its
-    estimate, is exactly ``nuisance_integral=cycle``'s -- it is named in a warning, and the other
+    estimate, is exactly the one with Req kept against the last cycle's prior -- it is named in a warning, and the other
     bubbles keep Req integrated against their record's prior (different from ``cycle``). Measured
     with the bound lifted (the old behaviour): that bubble's mu 0.067 -> 0.082 Pa s (5 of its sd),
     G 6.06 -> 7.48 kPa, the gel-level mu 0.061 -> 0.065 (truth 0.059)."""
@@ -82,8 +88,7 @@ def test_a_req_in_conflict_is_not_extrapolated():
     base = make_candidate(BASELINE.key, OPTS)
 
     def fit(how):
-        return fit_en4dvar(base.fm, bad, base.space, En4DVarSettings(nuisance_integral=how, loglik=False, n_draws=1),
-                           seed=0)
+        return _fit_with_req_against(monkeypatch, how, base, bad)
     cyc, rq = fit("cycle"), fit("req")
     z0 = rq.details["cycles"][-1]["req_z"]
     assert abs(z0[0]) > 5 and all(abs(z) < 3 for z in z0[1:]), z0

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from imrbayes.ensemble.gaussian import draw, fuse, marginal_summary, precision_weighted, rtps, rtps_factors
+from imrbayes.ensemble.fusion import fuse
+from imrbayes.ensemble.gaussian import draw, marginal_summary, precision_weighted, rtps, rtps_factors
 from imrbayes.ensemble.problem import ParamSpace
 from imrbayes.forward import get_model
 
@@ -122,7 +123,7 @@ def test_paper_prior_moment_matched():
 def test_fuse_likelihoods_exact_with_other_priors():
     """Posteriors computed from different priors (restarts, windows): dividing each by its own
     prior and multiplying the likelihoods into the shared prior gives the joint posterior."""
-    from imrbayes.ensemble.gaussian import fuse_likelihoods
+    from imrbayes.ensemble.fusion import fuse_likelihoods
 
     rng = np.random.default_rng(5)
     m0, S0 = np.array([0.3, -0.2]), np.array([[1.5, 0.2], [0.2, 0.7]])
@@ -159,8 +160,8 @@ def test_integrate_out_trailing_and_the_reference_prior_give_the_marginal_likeli
     is the likelihood of y given z with a ~ Q(a | z), r ~ N(0, s^2) -- computed here in closed
     form; (2) swapping every nuisance equals the Schur complement of the joint likelihood against
     N(0, diag(s^2)) (``integrate_out_trailing``), and both differ from the ratio of the z marginals."""
-    from imrbayes.ensemble.gaussian import integrate_out_trailing, marginal_under_reference
-    from imrbayes.ensemble.hierarchical import likelihood_terms
+    from imrbayes.ensemble.fusion import integrate_out_trailing, marginal_under_reference
+    from imrbayes.ensemble.fusion import likelihood_terms
     rng = np.random.default_rng(3)
     d, m = 5, 9
     H = rng.standard_normal((m, d))
@@ -208,7 +209,7 @@ def test_likelihood_terms_do_not_depend_on_the_units_of_a_coordinate():
     centre is the scaled copy of the one in microseconds. A ridge sized by the largest prior
     precision (1e-9 x 4e12) swamped the other coordinates and put their centre near 0 (G = 1 Pa on
     real data) -- the test fails on that version."""
-    from imrbayes.ensemble.gaussian import likelihood_terms
+    from imrbayes.ensemble.fusion import likelihood_terms
 
     rng = np.random.default_rng(4)
     q, Q = np.array([8.6, -1.6, 0.0]), np.diag([0.2, 0.16, 0.25])        # the third in us

@@ -6,8 +6,8 @@ finite difference."""
 import numpy as np
 import pytest
 
-from imrbayes.ensemble.gaussian import fuse_likelihoods
-from imrbayes.ensemble.hierarchical import likelihood_terms, random_effects
+from imrbayes.ensemble.fusion import fuse_likelihoods
+from imrbayes.ensemble.fusion import likelihood_terms, random_effects
 from imrbayes.ensemble.likelihood import effective_samples, observation_model, predict, whitening
 
 

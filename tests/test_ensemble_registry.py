@@ -24,10 +24,7 @@ def test_every_method_declares_the_protocol():
     e4 = METHODS["en4dvar"].settings_class
     assert METHODS["en4dvar"].n_forward_runs(e4(req_tail="mean"), 2, 120) == \
         (5 + 2 * 3) * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2
-    # req_tail=model: the quick first pass (one cycle, no screen) before the fit; auto (thermal:
-    # inline): the model's tail after cycle 1 only
-    assert METHODS["en4dvar"].n_forward_runs(e4(req_tail="model"), 2, 120) == \
-        (5 + 2 * 3) * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2 + 5 * 24 * 2 + 3 * 2
+    # auto (thermal: inline): the model's tail after cycle 1
     assert METHODS["en4dvar"].n_forward_runs(e4(), 2, 120) == (5 + 2 * 3) * 24 * 2 + 4 + 96 + 6 + (97 + 5 * 24 + 2) * 2 + 3 * 2
     assert METHODS["en4dvar"].n_forward_runs(e4(n_ens=48, n_iter_later=5, req_tail="mean"), 2, 120) == \
         3 * 5 * 48 * 2 + 4 + 96 + 6 + (97 + 5 * 48 + 2) * 2

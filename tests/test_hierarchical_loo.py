@@ -1,11 +1,11 @@
-"""Leave-one-bubble-out check of the random-effects predictive (ensemble.hierarchical.leave_one_out)
+"""Leave-one-bubble-out check of the random-effects predictive (ensemble.fusion.leave_one_out)
 on per-bubble Gaussian likelihoods drawn from a known gel: the bubbles' own estimates fall in the
 others' 95 % predictive about 95 % of the time, and a bubble from another gel is flagged."""
 
 import numpy as np
 from scipy.stats import binomtest
 
-from imrbayes.ensemble.hierarchical import leave_one_out
+from imrbayes.ensemble.fusion import leave_one_out
 
 
 def _bubbles(rng, n, mu, tau, se):

@@ -123,10 +123,10 @@ def test_default_weights_count_each_sample_once(monkeypatch):
     assert np.all(res.window_posteriors[1].weight == beta[1, 5:20])
 
 
-def test_a_cheaper_pilot_runs_with_its_own_members_iterations_and_shift(monkeypatch):
-    """``pilot_n_ens``, ``pilot_n_iter``, ``pilot_h``: the pilot pass's units run with those (their
-    weights still count every sample once over the pilot's own windows), the reported pass with
-    n_ens, n_iter and h; the forward-run count and the settings check follow."""
+def test_a_cheaper_pilot_runs_with_its_own_members(monkeypatch):
+    """``pilot_n_ens``: the pilot pass's units run with those members (their weights still count
+    every sample once over the pilot's windows), the reported pass with n_ens; the forward-run
+    count and the settings check follow."""
     fm = observations()[0]
     obs = noisy(fm, n_exp=2, n_steps=40, sd=0.01)
     seen = []
@@ -140,13 +140,13 @@ def test_a_cheaper_pilot_runs_with_its_own_members_iterations_and_shift(monkeypa
             assert np.asarray(u.data["E"]).shape[0] == u.data["settings"].n_ens
         return out
     monkeypatch.setattr(mk, "mienks_unit", spy)
-    s = MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=2, pilot_n_ens=4, pilot_n_iter=1, pilot_h=10)
+    s = MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=2, pilot_n_ens=4)
     res = fit_mienks(fm, obs, space(fm), s, seed=0)
     pilot = [x for x in seen if x[0].startswith("pass=pilot")]
     final = [x for x in seen if not x[0].startswith("pass=pilot")]
-    assert {(x[4].n_ens, x[4].n_iter, x[4].h) for x in pilot} == {(4, 1, 10)}
+    assert {(x[4].n_ens, x[4].n_iter, x[4].h) for x in pilot} == {(4, 2, 5)}
     assert {(x[4].n_ens, x[4].n_iter, x[4].h) for x in final} == {(8, 2, 5)}
-    assert len(pilot) == 2 * mk.n_windows(40, 15, 10) and len(final) == 2 * len(res.windows)
+    assert len(pilot) == 2 * mk.n_windows(40, 15, 5) and len(final) == 2 * len(res.windows)
     for g in range(2):
         total = np.zeros(41)
         for uid, a, b, w, _ in pilot:
@@ -156,14 +156,14 @@ def test_a_cheaper_pilot_runs_with_its_own_members_iterations_and_shift(monkeypa
         assert total[0] == 0.0
         np.testing.assert_allclose(total[1:last + 1], 1.0, rtol=0, atol=1e-12)
     runs = mk.MIEnKS.n_forward_runs(s, 2, 40)
-    assert runs == (mk.n_windows(40, 15, 5) * 3 * 8 + mk.n_windows(40, 15, 10) * 2 * 4) * 2
+    assert runs == (mk.n_windows(40, 15, 5) * 3 * 8 + mk.n_windows(40, 15, 5) * 3 * 4) * 2
     d = MIEnKSSettings().pilot()
-    assert (d.n_ens, d.n_iter, d.h) == (24, 5, 5)              # the default pilot: half the members (session 60)
+    assert (d.n_ens, d.n_iter, d.h) == (24, 5, 5)              # the default pilot: half the members
     d = MIEnKSSettings(pilot_n_ens=None).pilot()
     assert (d.n_ens, d.n_iter, d.h) == (48, 5, 5)              # unset: the reported pass's settings
-    d = MIEnKSSettings(n_ens=16, n_iter=2, pilot_n_ens=24, pilot_n_iter=3).pilot()
+    d = MIEnKSSettings(n_ens=16, n_iter=2, pilot_n_ens=24).pilot()
     assert (d.n_ens, d.n_iter) == (16, 2)                       # never dearer than the reported pass
-    for bad in ({"pilot_n_ens": 2}, {"pilot_n_iter": 0}, {"pilot_h": 16}, {"pilot_h": 1.5}):
+    for bad in ({"pilot_n_ens": 2}, {"pilot_n_ens": 3.5}):
         with pytest.raises(InputError, match=next(iter(bad))):
             MIEnKSSettings(L=15, **bad).check(40)
 
@@ -225,9 +225,9 @@ def test_a_flagged_bubbles_pilot_is_run_again_and_the_closer_fit_kept(monkeypatc
 
 
 def test_a_cheaper_pilots_retry_runs_at_the_reported_pass_size(monkeypatch):
-    """With ``pilot_n_ens`` / ``pilot_n_iter`` set, a flagged bubble's second pilot runs with the
-    reported pass's members and iterations over the pilot's windows (``pilot_h``): on stiff PA seed 1
-    a retry at the cheap pilot's own size lost the same bubble again (docs/results.md)."""
+    """With ``pilot_n_ens`` set, a flagged bubble's second pilot runs with the reported pass's
+    members: on stiff PA seed 1 a retry at the cheap pilot's own size lost the same bubble again
+    (docs/results.md)."""
     fm = observations()[0]
     obs = noisy(fm, n_exp=3, n_steps=40, sd=0.01, seed=2)
     flag_second_as_lost(monkeypatch)
@@ -238,14 +238,14 @@ def test_a_cheaper_pilots_retry_runs_at_the_reported_pass_size(monkeypatch):
         seen.append((u.unit_id, st.n_ens, st.n_iter, st.h))
         return unit(u, rng)
     monkeypatch.setattr(mk, "mienks_unit", spy)
-    s = MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=2, pilot_n_ens=4, pilot_n_iter=1, pilot_h=10)
+    s = MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=2, pilot_n_ens=4)
     res = fit_mienks(fm, obs, space(fm), s, seed=0)
     kinds = {}
     for uid, n_ens, n_iter, h in seen:
         kind = "retry" if "/retry=" in uid else "pilot" if uid.startswith("pass=pilot") else "reported"
         kinds.setdefault(kind, set()).add((n_ens, n_iter, h))
-    assert kinds == {"pilot": {(4, 1, 10)}, "retry": {(8, 2, 10)}, "reported": {(8, 2, 5)}}
-    assert sum("/retry=" in x[0] for x in seen) == mk.n_windows(40, 15, 10)
+    assert kinds == {"pilot": {(4, 2, 5)}, "retry": {(8, 2, 5)}, "reported": {(8, 2, 5)}}
+    assert sum("/retry=" in x[0] for x in seen) == mk.n_windows(40, 15, 5)
     assert res.per_experiment[1]["likelihood"]["pilot_retry"]["kept"] == "retry"
 
 
@@ -451,12 +451,6 @@ def test_req_prior_from_a_whole_record_en4dvar_fit():
     summ = summary_dict(res, obs, seed=2)
     assert summ["per_experiment"][0]["nuisance"]["req_m"]["prior_mean"] == pytest.approx(info["req_m"][0])
     assert summ["per_experiment"][1]["nuisance"]["req_m"]["prior_sd"] == 0.0
-    # en4dvar-centre: the same centre (the same En4D-Var fit), the preprocessing's sd kept
-    res_c = fit_mienks(fm, obs, space(fm), dataclasses.replace(st, req_prior="en4dvar-centre"), seed=2)
-    info_c = res_c.details["req_prior"]
-    assert info_c["req_m"] == pytest.approx(info["req_m"], rel=1e-12)
-    assert info_c["req_sd_m"] == pytest.approx(info["preprocessing_req_sd_m"], rel=1e-12)
-    assert info_c["req_sd_m"][0] > info["req_sd_m"][0]
     # every Req given: no En4D-Var fit is run, the stated Req stays
     given = dataclasses.replace(obs, nuisance_sd=np.column_stack([obs.nuisance_sd[:, :2], np.zeros(2)]))
     res_g = fit_mienks(fm, given, space(fm), dataclasses.replace(st, req_prior=None), seed=2)
@@ -581,48 +575,6 @@ def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the
     assert res[1.0].windows[0]["mean_internal"] != res[3.0].windows[0]["mean_internal"]
 
 
-def test_member_start_pilot_centres_window0_on_each_experiments_pilot_estimate(monkeypatch):
-    """``member_start="pilot"``: the reported pass's window-0 members are centred (exactly: the
-    draws have the stated moments) on each experiment's last pilot window posterior mean; the
-    pilot's own members start at the prior mean; the gel chain keeps the parameter prior; the
-    paper likelihood and a run without the pilot refuse the setting."""
-    for bad in ({"member_start": "en4dvar"}, {"member_start": "pilot", "likelihood": "paper"},
-                {"member_start": "pilot", "adapt": False}):
-        with pytest.raises(InputError, match="member_start"):
-            MIEnKSSettings(**bad).check(120)
-    fm = observations()[0]
-    obs = noisy(fm, n_exp=2, n_steps=40, sd=0.01, seed=2)
-    sp = space(fm)
-    window0, last = {}, {}
-    unit = mk.mienks_unit
-
-    def spy(u, rng):
-        out = unit(u, rng)
-        passname = "pilot" if u.unit_id.startswith("pass=pilot") else "reported"
-        exp = u.unit_id.rsplit("exp=", 1)[1]
-        if u.data["E"] is None:
-            window0[(passname, exp)] = (out["qm"], u.data.get("param_start"))
-        if u.data["last"]:
-            last[(passname, exp)] = out["pm"]
-        return out
-    monkeypatch.setattr(mk, "mienks_unit", spy)
-    s = MIEnKSSettings(n_ens=12, n_iter=2, L=20, h=10, n_draws=3, member_start="pilot", pilot_retry=False)
-    res = fit_mienks(fm, obs, sp, s, seed=1)
-    exps = sorted({e for _, e in window0})
-    assert len(exps) == 2
-    for e in exps:
-        qm_pilot, start = window0[("pilot", e)]
-        assert start is None
-        np.testing.assert_allclose(qm_pilot, sp.prior_mean, atol=1e-12)
-        qm, start = window0[("reported", e)]
-        np.testing.assert_allclose(start, last[("pilot", e)], rtol=1e-12)
-        np.testing.assert_allclose(qm, last[("pilot", e)], atol=1e-10)
-        assert np.max(np.abs(qm - sp.prior_mean)) > 1e-3           # it did move
-    p0 = res.window_posteriors[0]
-    np.testing.assert_allclose(p0.prior_mean, sp.prior_mean)          # the gel chain starts at the prior
-    assert res.details["settings"]["member_start"] == "pilot"
-
-
 def test_req_prior_keeps_the_record_req_where_the_whole_record_fit_contradicts_it():
     """An experiment whose En4D-Var Req lies more than ``conflict_z`` preprocessing sd from its own
     Req keeps the preprocessing prior (mean and sd) and is named in ``conflicts`` with its z and a
@@ -653,15 +605,15 @@ def test_req_prior_fit_stops_an_experiment_whose_conflict_is_decided():
     """``stop_z``: an experiment whose Req lies beyond it after a cycle skips its later cycles and
     is still a conflict; the other experiment's fit is the same as without the stop (its own
     random stream); each cycle's recorded Req z ends at the z the comparison uses."""
-    from imrbayes.ensemble.en4dvar import En4DVarSettings, _fit_en4dvar
+    from imrbayes.ensemble.en4dvar import En4DVarSettings, en4dvar_pass
     from imrbayes.ensemble.req_tail import req_shift_z
     from imrbayes.execution import Execution
     from imrbayes.forward import Runner
     fm, obs, _, _, o = _misplaced_geometry([0.15, 0.0])
     obs = dataclasses.replace(obs, nuisance_sd=np.column_stack([obs.nuisance_sd[:, :2], [0.15 * o.req_m[0], 0.03 * o.req_m[1]]]))
     s = En4DVarSettings(n_draws=1, loglik=False)
-    free = _fit_en4dvar(fm, obs, space(fm), s.resolved(), 2, Runner(fm), None, Execution(progress=False),
-                        tag={"req_prior": "en4dvar"})             # the units' streams req_prior_from_en4dvar uses
+    free = en4dvar_pass(fm, obs, space(fm), s.resolved(), 2, Runner(fm), None, Execution(progress=False),
+                        tag={"req_prior": "en4dvar"})              # the units' streams req_prior_from_en4dvar uses
     z_cyc = [c["req_z"] for c in free.details["cycles"]]          # [cycle][experiment]
     z_end = [q["z"] for q in req_shift_z(obs, free.per_experiment)]
     np.testing.assert_allclose(z_cyc[-1], z_end, rtol=1e-9)

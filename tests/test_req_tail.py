@@ -52,14 +52,14 @@ def test_records_without_a_measured_tail_keep_their_req():
 
 
 def test_en4dvar_req_tail_model_runs_two_passes_and_says_so():
-    """``req_tail=model``: the estimate is the second pass's, ``details["req_tail"]`` gives each
+    """``req_tail=inline`` with one cycle (no cycle to move Req before) runs as two passes: the estimate is the second pass's, ``details["req_tail"]`` gives each
     experiment's factor, the first pass's estimate and both Req prior centres; the paper's
     likelihood and unknown values are refused."""
     opts = ForwardOptions(bubble="polytropic")
     obs, truth = camera_obs("none", 2, opts, n_exp=2)
     base = make_candidate(BASELINE.key, opts)
     st = dict(n_ens=12, n_runs=1, n_iter=2, max_iter=2, screen=0, loglik=False, n_draws=1)
-    res = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0)
+    res = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0)
     info = res.details["req_tail"]
     assert info["method"] == "model" and len(info["factor"]) == 2
     assert np.allclose(np.array(info["req_tail_mean_m"]) / np.array(info["req_prior_mean_m"]), info["factor"])
@@ -72,10 +72,10 @@ def test_en4dvar_req_tail_model_runs_two_passes_and_says_so():
     # each experiment's reported Req prior is the corrected one
     for p, r in zip(res.per_experiment, info["req_prior_mean_m"]):
         assert p["nuisance"]["req_m"]["prior_mean"] == pytest.approx(r)
-    with pytest.raises(InputError, match="'model' or 'inline'"):
+    with pytest.raises(InputError, match="'mean' or 'inline'"):
         En4DVarSettings(req_tail="fit").check()
-    with pytest.raises(InputError, match="default likelihood"):
-        En4DVarSettings(likelihood="paper", req_tail="model").check()
+    with pytest.raises(InputError, match="'mean' or 'inline'"):
+        En4DVarSettings(req_tail="model").check()
     with pytest.raises(InputError, match="'inline' needs the default likelihood"):
         En4DVarSettings(likelihood="paper", req_tail="inline").check()
 
@@ -93,9 +93,9 @@ def test_a_given_start_replaces_the_first_pass():
     st = dict(n_ens=12, n_runs=1, n_iter=2, max_iter=2, screen=0, loglik=False, n_draws=1)
     per_bubble = np.stack([theta, theta * [1.1, 0.9]])
     start = ReqTailStart(theta_si=per_bubble, rmax_m=rmax, source="test fit")
-    given = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0,
+    given = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0,
                         req_tail_start=start)
-    two = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0)
+    two = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0)
     info = given.details["req_tail"]
     _, want = model_tail_req(Runner(base.fm), obs, per_bubble, rmax)
     assert np.allclose(info["factor"], want, rtol=0, atol=1e-12) and not np.allclose(want, 1.0)
@@ -105,12 +105,12 @@ def test_a_given_start_replaces_the_first_pass():
     # one pass's member runs instead of two passes'
     assert given.details["member_runs"] < two.details["member_runs"]
     with pytest.raises(ValueError, match="do not match"):
-        fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0,
+        fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0,
                     req_tail_start=ReqTailStart(theta_si=theta, rmax_m=rmax[:1], source="bad"))
     # given exactly where the first pass ended, the fit is the two-pass fit: the same factors, the
     # same unit seeds (one tag for both paths), the same estimate
     t2 = two.details["req_tail"]
-    same = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0,
+    same = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0,
                        req_tail_start=ReqTailStart(theta_si=[t2["first_pass_estimate"][k] for k in ("G", "mu")],
                                                    rmax_m=np.array(t2["first_pass_rmax_m"]), source="first pass"))
     assert same.details["req_tail"]["factor"] == t2["factor"]
@@ -155,7 +155,7 @@ def test_req_tail_model_without_measured_tails_is_one_pass():
     obs.req_tail_t = [np.empty(0), np.empty(0)]
     base = make_candidate(BASELINE.key, opts)
     st = dict(n_ens=12, n_runs=1, n_iter=2, max_iter=2, screen=0, loglik=False, n_draws=1)
-    one = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0)
+    one = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0)
     plain = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st), seed=0)
     assert one.details["req_tail"]["factor"] == [1.0, 1.0] and "one pass" in one.details["req_tail"]["note"]
     assert one.estimate["G"]["mean"] == plain.estimate["G"]["mean"]
@@ -175,11 +175,11 @@ def test_auto_places_req_by_the_model_only_for_the_thermal_bubble():
     assert req_tail_mode(En4DVarSettings(), poly) == "mean"
     assert req_tail_mode(En4DVarSettings(likelihood="paper"), thermal) == "mean"
     assert req_tail_mode(En4DVarSettings(req_tail="mean"), thermal) == "mean"
-    assert req_tail_mode(En4DVarSettings(req_tail="model"), poly) == "model"
+    assert req_tail_mode(En4DVarSettings(req_tail="inline"), poly) == "inline"
 
 
 def test_the_mcmc_target_of_a_req_tail_fit_runs_at_the_moved_req():
-    """The MCMC check samples the density the reported fit approximates: with ``req_tail=model``
+    """The MCMC check samples the density the reported fit approximates: with the model's tail
     each experiment's Req prior is centred on the corrected value, so the target's bubbles start
     from that Req (not the preprocessing's tail mean) with the same nuisance prior sd."""
     from imrbayes.mcmc.fit import fit_window_specs
@@ -188,7 +188,7 @@ def test_the_mcmc_target_of_a_req_tail_fit_runs_at_the_moved_req():
     obs, truth = camera_obs("none", 2, opts, n_exp=2)
     base = make_candidate(BASELINE.key, opts)
     st = dict(n_ens=12, n_runs=1, n_iter=2, max_iter=2, screen=0, loglik=False, n_draws=1)
-    res = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="model"), seed=0)
+    res = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0)
     moved = np.array(res.details["req_tail"]["req_prior_mean_m"])
     assert not np.allclose(moved, obs.req_m, rtol=1e-9, atol=0)
     (spec,) = fit_window_specs(base.fm, obs, base.space, res)

@@ -39,34 +39,10 @@ METHOD_NAMES = tuple(METHODS)
 def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
     """(units the fit will run, what they are in words) for the progress bar's total, so that it counts
     the whole run from the start (``mienks: 18 windows x 5 experiments``); ``(None, "")`` when not
-    known (the bar then grows batch by batch). A method may declare ``n_units(settings, n_exp,
-    n_steps)`` itself; for the built-in ones the count follows their units (docs/scaling.md)."""
-    own = getattr(meth, "n_units", None)
-    if callable(own):
-        return int(own(settings, n_exp, n_steps)), ""
-    if meth.name == "mienks":
-        from imrbayes.ensemble.windows import n_windows
-
-        nw = n_windows(n_steps, settings.L, settings.h)
-        if getattr(settings, "likelihood", "paper") == "default" and getattr(settings, "adapt", False):
-            # the default likelihood's pilot pass sets the noise level, then the reported pass
-            sp = settings.pilot()
-            nwp = n_windows(n_steps, sp.L, sp.h)
-            if nwp == nw:
-                return 2 * nw * n_exp, f"2 passes x {nw} windows x {n_exp} experiments"
-            return (nwp + nw) * n_exp, f"a pilot pass of {nwp} windows and {nw} windows, x {n_exp} experiments"
-        return nw * n_exp, f"{nw} windows x {n_exp} experiments"
-    if meth.name == "en4dvar":      # each experiment's cycles, then its fitted curves (fast)
-        from imrbayes.ensemble.en4dvar import req_tail_mode
-
-        mode = req_tail_mode(settings, fm)
-        if mode == "model" or (mode == "inline" and settings.n_runs < 2):       # inline runs as model then
-            return 4 * n_exp, (f"a quick pass to place Req by the model's tail, then the fit: 2 x {n_exp} experiments "
-                               "and their fitted curves")
-        return 2 * n_exp, f"{n_exp} experiments, then their fitted curves"
-    if meth.name == "imr":
-        return n_exp, f"grid over {n_exp} experiments"
-    return None, ""
+    known (the bar then grows batch by batch). Each method declares it
+    (:meth:`~imrbayes.ensemble.InferenceMethod.n_units`; docs/scaling.md)."""
+    n, what = meth.n_units(settings, n_exp, n_steps, fm)
+    return (None, "") if n is None else (int(n), what)
 
 
 #: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
@@ -111,15 +87,10 @@ def _load_config(path) -> dict:
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Method setting (en4dvar: n_ens (members per bubble: 24; the paper's 48 with --likelihood paper), "
                    "n_iter, n_iter_later (cycles 2..: 3; the paper's 5), n_runs, rtps, t_end [t*], fusion=likelihood|prior, obs_weight=mean|sum, "
-                   "bubble_posterior=gaussian|sampled (sampled: each bubble's posterior by importance sampling, "
-                   "is_rounds x is_draws more forward runs per bubble, under the prior widened "
-                   "is_prior_widen times; its calibration on camera data: docs/results.md), req_tail=auto|mean|model|inline "
-                   "(model: each Req's prior centred by the model's own tail at a quick first fit, then the fit; "
-                   "inline: one pass, each Req moved by the model's tail after cycle 1; auto, the default: inline "
-                   "with the thermal bubble), nuisance_integral=req|prior|cycle (what each bubble's likelihood "
-                   "integrates its nuisances against; req, the default: Req against its preprocessing prior); "
+                   "req_tail=auto|mean|inline (inline: each Req moved by the model's tail after cycle 1; auto, the "
+                   "default: inline with the thermal bubble); "
                    "mienks: L, h [samples], n_ens, n_iter, rtps, likelihood=default|paper, adapt (default likelihood: "
-                   "pilot pass), pilot_n_ens, pilot_n_iter, pilot_h (the pilot's members, iterations, shift; default: 24, n_iter, h), pilot_retry (a bubble whose pilot residual stands out gets a second pilot; default true), min_iter (default likelihood: a window stops iterating once its cost settles or its next step is under step_tol posterior sd, from this many evaluations on: 2; n_iter: never early), step_tol (0.1), prior_widen (window 0's members drawn with the prior sd times K: a number for every parameter or NAME:K[,NAME:K]; default mu:3, 1 = the prior itself), member_start=prior|pilot (where window 0's members are centred: the prior mean, or each experiment's pilot estimate at the record's end), req_prior=preprocessing|en4dvar|en4dvar-centre (each estimated Req's prior: the tail mean, a whole-record En4D-Var posterior fitted first, or that posterior's mean with the preprocessing's sd; default en4dvar, paper: preprocessing), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
+                   "pilot pass), pilot_n_ens (the pilot's members; default 24), pilot_retry (a bubble whose pilot residual stands out gets a second pilot; default true), min_iter (default likelihood: a window stops iterating once its cost settles or its next step is under step_tol posterior sd, from this many evaluations on: 2; n_iter: never early), step_tol (0.1), prior_widen (window 0's members drawn with the prior sd times K: a number for every parameter or NAME:K[,NAME:K]; default mu:3, 1 = the prior itself), req_prior=preprocessing|en4dvar (each estimated Req's prior: the tail mean, or a whole-record En4D-Var posterior fitted first; default en4dvar, paper: preprocessing), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
                    "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
                    "repeatable.")
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",

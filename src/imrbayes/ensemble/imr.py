@@ -385,6 +385,10 @@ class IMR(InferenceMethod):
         fit_indices(obs, settings.window, settings.collapse_prominence)
 
     @staticmethod
+    def n_units(settings, n_exp, n_steps, fm=None):
+        return n_exp, f"grid over {n_exp} experiments"
+
+    @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
         return settings.n_G * settings.n_mu * n_exp + n_exp      # the grid, then the fitted curves
 

@@ -11,6 +11,7 @@ scipy's ``OdeSolver``. The class is never instantiated: its attributes are the d
 >>> res = m.fit(fm, obs, space, s, seed=0, runner=runner, execution=execution)   # FitResult
 >>> m.check_settings(s, obs)                                                    # InputError if refused
 >>> m.n_forward_runs(s, obs.n_exp, obs.n_samples - 1)                            # progress bar total
+>>> m.n_units(s, obs.n_exp, obs.n_samples - 1, fm)                               # (units, in words)
 >>> m.figures(obs, res, out / "figures")                                         # [Path, ...]
 """
 
@@ -68,6 +69,13 @@ class InferenceMethod:
         """Forward member runs the fit will make for ``n_exp`` experiments of ``n_steps`` steps
         (the progress bar's total; an estimate where runs stop early)."""
         raise NotImplementedError
+
+    @staticmethod
+    def n_units(settings, n_exp: int, n_steps: int, fm=None) -> tuple:
+        """(execution units the fit will run for ``n_exp`` experiments of ``n_steps`` steps with
+        forward model ``fm``, what they are in words), e.g. ``(36, "2 passes x 18 windows x 1
+        experiments")``; ``(None, "")`` when not known (the progress bar then grows batch by batch)."""
+        return None, ""
 
     @staticmethod
     def figures(obs, res, fdir: Path) -> list:

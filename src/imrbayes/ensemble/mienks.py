@@ -12,7 +12,7 @@ parameters: log G, log mu)] is carried through the windows:
    likelihood (below);
 3. the experiments' parameter posteriors (the z-block of each augmented posterior) are combined
    (below) -> the window's estimate N(mu_j, Sigma_j);
-4. RTPS (factor a) on the parameter spread (``rtps_state`` also relaxes the state spread);
+4. RTPS (factor a) on the parameter spread (the state's is left alone);
 5. **hand-off**: the posterior ensemble is propagated from t*_{s_j} to t*_{s_j + h}; its full
    evolved state (R, Rdot, p_b, stress and thermal/vapour fields) and its parameters form window
    j+1's prior ensemble. Members whose propagation failed (or whose analysed state is not
@@ -40,8 +40,8 @@ Likelihood ``default`` (methods.md §7)
   *independent* observation counts once. The reported pass uses these (``adapt=False``: no pilot,
   the record noise and alpha = 1). One noise level and one tempering per experiment over the whole
   record (a window of 35 correlated samples is too short to estimate an autocorrelation time).
-  The pilot runs with half the members (``pilot_n_ens`` 24 since session 60: measured in
-  docs/results.md, "A cheaper pilot"), so it costs about half the reported pass. An experiment
+  The pilot runs with half the members (``pilot_n_ens`` 24: docs/results.md, "A cheaper
+  pilot"), so it costs about half the reported pass. An experiment
   whose pilot residual stands out from the others' (:func:`pilot_outliers`) is named in the
   warnings: the smoother may have lost track of it, and the reported pass would then weight it
   far less; its pilot is run once more, alone, on other random streams and with the reported
@@ -133,10 +133,10 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from imrbayes.ensemble.aggregate import chain_aggregate_cov
-from imrbayes.ensemble.gaussian import (Fusion, draw, fuse, fuse_likelihoods, integrate_out_trailing, marginal_summary,
-                                        precision_weighted, rtps_factors)
+from imrbayes.ensemble.fusion import (BubbleFusion, fuse, fuse_bubbles, fuse_likelihoods, integrate_out_trailing,
+                                      likelihood_terms)
+from imrbayes.ensemble.gaussian import draw, marginal_summary, precision_weighted, rtps_factors
 from imrbayes.ensemble.gn import gauss_newton
-from imrbayes.ensemble.hierarchical import leave_one_out, likelihood_terms, random_effects
 from imrbayes.ensemble.likelihood import (check_choice, effective_samples, nuisance_prior_sd, nuisance_summary, predict,
                                           record_noise_sd)
 from imrbayes.ensemble.method import InferenceMethod
@@ -148,7 +148,8 @@ from imrbayes.errors import InputError
 from imrbayes.execution import Execution, Unit, unit_id
 from imrbayes.forward import BatchState, Runner, fm_spec, register_runner, runner_for
 
-__all__ = ["MIEnKS", "MIEnKSSettings", "fit_mienks", "mienks_unit", "rtps_cov"]
+__all__ = ["MIEnKS", "MIEnKSSettings", "fit_mienks", "mienks_unit", "initial_members", "noise_pass", "fuse_windows",
+           "record_level", "req_prior_from_en4dvar", "rtps_cov"]
 
 
 #: the default likelihood's early stop of a window's Gauss-Newton iterations (MIEnKSSettings.resolved)
@@ -156,8 +157,8 @@ DEFAULT_MIN_ITER = 2
 DEFAULT_STEP_TOL = 0.1
 #: the default likelihood's start of window 0's members: mu's prior sd x 3 (docs/results.md)
 DEFAULT_PRIOR_WIDEN = "mu:3"
-#: where each estimated Req's prior comes from (``req_prior``); all but the first fit En4D-Var first
-REQ_PRIORS = ("preprocessing", "en4dvar", "en4dvar-centre")
+#: where each estimated Req's prior comes from (``req_prior``); ``en4dvar`` fits En4D-Var first
+REQ_PRIORS = ("preprocessing", "en4dvar")
 #: the default likelihood's ``req_prior`` (docs/results.md, "Req's prior from a whole-record fit: the default")
 DEFAULT_REQ_PRIOR = "en4dvar"
 #: a whole-record Req further than this many preprocessing prior sd from the record's own Req is a
@@ -171,102 +172,51 @@ REQ_PRIOR_STOP_Z = 6.0
 
 @dataclass
 class MIEnKSSettings:
-    """MIEnKS-MDA settings: members, Gauss–Newton iterations, window length L and shift h
-    [samples], RTPS factor, whether RTPS also acts on the state, redraw rounds for failed members,
-    draws per window written to posterior.nc, transform variant; ``log_pressure``: the analysis
-    updates log p_b rather than p_b (positive by construction; near a collapse the members' p_b
-    spans orders of magnitude and a linear update made most of them negative --
-    docs/ensemble-methods.md).
-
-    ``likelihood``: ``default`` (methods.md §7, module doc) or ``paper`` (the paper's settings:
-    P_k, the 1/L average, and the fusion below). ``fusion`` and ``obs_weight`` apply to ``paper``
-    only (its defaults ``chain`` and ``mean``): the window fusion ``chain``
-    (:func:`imrbayes.ensemble.gaussian.fuse_likelihoods`) or ``prior`` (methods.md's rule with the
-    original prior, :func:`imrbayes.ensemble.gaussian.fuse`), the observation weight
-    ``beta_jk / L`` (``mean``) or ``beta_jk`` (``mda``). ``adapt`` (default likelihood): a pilot pass
-    sets each record's noise level and tempering from its residual (False: the record's noise, no
-    tempering, one pass). ``req_prior`` (default likelihood): where each experiment's Req prior comes
-    from -- ``preprocessing`` (the record's tail), ``en4dvar`` (the Req posterior of a whole-record
-    En4D-Var fit of the same data, run first; see :func:`req_prior_from_en4dvar`) or
-    ``en4dvar-centre`` (that posterior's mean with the preprocessing's sd). Unset: ``en4dvar`` with
-    the default likelihood (:data:`DEFAULT_REQ_PRIOR`), ``preprocessing`` with the paper's. ``pilot_n_ens``,
-    ``pilot_n_iter``, ``pilot_h``: the pilot pass's members and Gauss–Newton iterations (at most)
-    and window shift (None: the reported pass's). The pilot only sets each record's noise level
-    and tempering from its residual (module doc). Default: 24 members (half), ``n_iter`` and h --
-    on stiff PA 1-5 seeds 0-3 the gel-level G and mu within 0.1 and 0.15 posterior sd of the
-    48-member pilot's on average, no bubble lost (the 48-member pilot lost one on two seeds), camera
-    rows unchanged; 3 iterations as well moved mu by 0.3 sd and lost a bubble (docs/results.md, "A
-    cheaper pilot"). ``pilot_retry``: an experiment whose pilot residual stands out
-    (:func:`pilot_outliers`) gets a second pilot of its own at the reported pass's size, and the
-    closer fit is used.
-    ``min_iter``: a window may stop iterating after this many Gauss–Newton evaluations, at the first
-    accepted iterate whose cost fell by <= 1 % (:func:`imrbayes.ensemble.gn.gauss_newton`; ``n_iter``
-    or more: never early, the method before session 60). Unset: 2 with the default likelihood (on
-    stiff PA 1-5 15-17 % fewer forward runs with the gel-level estimate within 0.04 posterior sd,
-    on 40 camera records' paired shifts <= 0.15 sd), ``n_iter`` with the paper's. ``step_tol``:
-    from ``min_iter`` on a window also stops once its next Gauss–Newton step is shorter than this
-    many posterior sd (the Newton decrement). Unset: 0.1 with the default likelihood (another
-    10-14 % of the forward runs off stiff PA 1-5, the estimates within 0.06 sd; docs/results.md,
-    "Settled windows stop early; the pilot has half the members"), never with the paper's.
-    ``prior_widen``: window 0's members draw their parameters from the parameter prior with its sd
-    (in z) times this factor (a number, or ``"mu:3"`` for the parameters named, :func:`widen_factors`) -- a working prior that each window's likelihood (its posterior divided
-    by the ensemble's own prior) divides out again; the gel-level chain, the record-level estimate
-    and the ``--mcmc`` densities keep the parameter prior (as En4D-Var's ``is_prior_widen``). Why: a
-    prior whose bulk is far from the truth (the paper's mu, 3.2x the camera design's) starts every
-    bubble's ensemble there, and the chained ensembles carry that pull to the last window. Unset:
-    ``"mu:3"`` with the default likelihood (:data:`DEFAULT_PRIOR_WIDEN`; a model without mu starts
-    from its prior), 1 with the paper's. mu's start widened takes the thermal camera family (20
-    seeds) from G 0.70 / +24.9 % and mu 0.65 / +14.8 % to 0.95 / +13.9 % and 0.95 / +9.7 %
-    (coverage / bias) and keeps noise-free records right; 3 for every parameter removes more of the
-    pull on the polytropic family (bias G +4.7 %, mu +5.6 %) but on noise-free records (tests'
-    short record, 48 members) ended in a wrong basin (late windows' G -62 %), and 5 put the camera
-    family's G at -21 % (docs/results.md, "A wider start for the members", "mu's start widened").
-    ``member_start``: where the reported pass's window-0 members are centred (default likelihood
-    with its pilot): ``prior`` (the parameter prior's mean) or ``pilot`` (each experiment's pilot
-    estimate at the record's end, the last pilot window's posterior mean; the prior's where the
-    pilot lost the experiment). Either way the members' spread is the prior's times
-    ``prior_widen`` and each window's likelihood divides the members' own prior out, so the gel
-    chain and the record-level estimate keep the parameter prior: what moves is where the ensemble's
-    regression linearises the window. No forward runs are added.
-    ``rtps_regress``: RTPS also moves each member's state along its regression on the inflated
-    columns (:func:`regression_shift`), so inflated parameters keep the posterior's state-parameter
-    slope (default off: on the verification design, 20 seeds, the record-level G sd 5.2 -> 4.5 %
-    against a scatter of 2.9-3.2 %, the rest unchanged).
-    ``aggregate_cov``: the aggregate's covariance, ``chain`` or ``weighting`` (module doc); unset:
-    :data:`DEFAULT_AGGREGATE_COV` with the default likelihood, ``weighting`` with the paper's."""
+    """MIEnKS-MDA settings (``--set KEY=VALUE``); unset (None) fields take their likelihood's value
+    (:meth:`resolved`)."""
 
     n_ens: int = 48
+    """Members per experiment; 48."""
     n_iter: int = 5
+    """Gauss–Newton iterations per window (at most); 5."""
     L: int = 35
+    """Window length [samples]; 35."""
     h: int = 5
+    """Window shift [samples]; 5."""
     rtps: float = 0.7
-    rtps_state: bool = False
-    rtps_regress: bool = False
+    """Relaxation-to-prior-spread factor a in [0, 1] on the parameters' spread; 0.7."""
     aggregate_cov: str | None = None
+    """The aggregate's covariance, ``chain`` or ``weighting`` (module doc); None: chain (paper: weighting)."""
     max_redraw: int = 5
+    """Redraw rounds for members whose forward run failed; 5."""
     n_draws: int = 500
+    """Draws per window written to posterior.nc; 500."""
     transform: bool = True
+    """Gauss–Newton in the transform variant; true."""
     fusion: str | None = None
+    """Paper's likelihood: window fusion ``chain`` or ``prior`` (methods.md's rule); None: chain."""
     obs_weight: str | None = None
-    log_pressure: bool = True
+    """Paper's likelihood: weight ``mean`` (beta_jk / L) or ``mda`` (beta_jk); None: mean."""
     likelihood: str = "default"
+    """``default`` (methods.md §7, module doc) or ``paper``; default."""
     adapt: bool = True
+    """Default likelihood: a pilot pass sets each record's noise level and tempering; true."""
     req_prior: str | None = None
+    """Default likelihood: each estimated Req's prior from ``preprocessing`` or a whole-record ``en4dvar`` fit; None: en4dvar."""
     pilot_n_ens: int | None = 24
-    pilot_n_iter: int | None = None
-    pilot_h: int | None = None
+    """Members of the pilot pass (at most ``n_ens``; None: ``n_ens``); 24."""
     pilot_retry: bool = True
+    """A bubble whose pilot residual stands out gets a second pilot of its own; true."""
     min_iter: int | None = None
+    """A window may stop iterating after this many evaluations once its cost settles; None: 2 (paper: n_iter)."""
     step_tol: float | None = None
+    """From ``min_iter`` on, stop once the next step is shorter than this many posterior sd; None: 0.1 (paper: never)."""
     prior_widen: float | str | None = None
-    member_start: str = "prior"
+    """Window 0's members drawn with the prior sd times K (a number, or ``NAME:K[,NAME:K]``); None: mu:3 (paper: 1)."""
 
     def pilot(self) -> "MIEnKSSettings":
-        """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members and
-        ``pilot_n_iter`` Gauss–Newton iterations (never more than the reported pass's; None: the
-        same) and the window shift ``pilot_h`` (None: h)."""
-        return replace(self, n_ens=min(self.pilot_n_ens or self.n_ens, self.n_ens),
-                       n_iter=min(self.pilot_n_iter or self.n_iter, self.n_iter), h=self.pilot_h or self.h)
+        """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members."""
+        return replace(self, n_ens=min(self.pilot_n_ens or self.n_ens, self.n_ens))
 
     def resolved(self) -> "MIEnKSSettings":
         """The settings with the likelihood's own choices filled in (``paper``: ``chain`` fusion and
@@ -284,6 +234,8 @@ class MIEnKSSettings:
                        req_prior=self.req_prior or DEFAULT_REQ_PRIOR)
 
     def check(self, n_steps: int):
+        """Raise :class:`~imrbayes.errors.InputError` naming the first setting out of range for a
+        record of ``n_steps`` steps."""
         check_choice(self.likelihood, self.fusion, self.obs_weight)
         s = self.resolved()
         if self.n_ens < 3:
@@ -299,16 +251,14 @@ class MIEnKSSettings:
         if s.likelihood == "paper" and s.obs_weight not in ("mean", "mda"):
             raise InputError("obs_weight", f"must be 'mean' or 'mda', got {s.obs_weight!r}")
         if s.req_prior not in REQ_PRIORS:
-            raise InputError("req_prior", f"must be 'preprocessing', 'en4dvar' or 'en4dvar-centre', got {self.req_prior!r}")
+            raise InputError("req_prior", f"must be 'preprocessing' or 'en4dvar', got {self.req_prior!r}")
         if s.req_prior != "preprocessing" and s.likelihood != "default":
             raise InputError("req_prior", "applies to the default likelihood only (the paper's has no Req nuisance)")
         if self.h > self.L:
             raise InputError("h", f"the shift h = {self.h} exceeds the window length L = {self.L}: samples would be skipped")
-        for k in ("pilot_n_ens", "pilot_n_iter", "pilot_h"):
-            v = getattr(self, k)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < (3 if k == "pilot_n_ens" else 1)):
-                raise InputError(k, f"must be {'an integer >= 3' if k == 'pilot_n_ens' else 'a positive integer'} "
-                                    f"or unset, got {v!r}")
+        v = self.pilot_n_ens
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 3):
+            raise InputError("pilot_n_ens", f"must be an integer >= 3 or unset, got {v!r}")
         if self.min_iter is not None and (isinstance(self.min_iter, bool) or not isinstance(self.min_iter, int)
                                           or self.min_iter < 1):
             raise InputError("min_iter", f"must be a positive integer (n_iter or more: never early) or unset, "
@@ -325,12 +275,6 @@ class MIEnKSSettings:
                                               f"got {self.aggregate_cov!r}")
         if s.aggregate_cov == "chain" and s.likelihood != "default":
             raise InputError("aggregate_cov", "'chain' needs the default likelihood (the paper's keeps methods.md §4's weighting)")
-        if self.member_start not in ("prior", "pilot"):
-            raise InputError("member_start", f"must be 'prior' or 'pilot', got {self.member_start!r}")
-        if self.member_start == "pilot" and (s.likelihood != "default" or not self.adapt):
-            raise InputError("member_start", "'pilot' needs the default likelihood with its pilot pass (adapt=true)")
-        if self.pilot_h is not None and self.pilot_h > self.L:
-            raise InputError("pilot_h", f"the pilot's shift {self.pilot_h} exceeds the window length L = {self.L}")
         n_windows(n_steps, self.L, self.h)
 
 
@@ -372,7 +316,7 @@ def widen_factors(value, names, strict: bool = True) -> np.ndarray | None:
 
 
 def _redraw_failed(E, bad, rng):
-    """Replace rows ``bad`` (G, N) of E (G, N, D) by draws from the Gaussian of the valid rows."""
+    """Replace rows ``bad`` (n_exp, N) of E (n_exp, N, D) by draws from the Gaussian of the valid rows."""
     n = 0
     for g in np.flatnonzero(bad.any(axis=1)):
         ok = ~bad[g]
@@ -393,104 +337,53 @@ def rtps_cov(prior_c, post_c, a):
     return post_c * np.outer(f, f)
 
 
-def regression_shift(anoms, f, ns: int) -> np.ndarray:
-    """The state's share of RTPS on the other columns (``rtps_regress``): anomalies (N, n) of a
-    posterior ensemble whose columns ns.. (parameters and nuisances) RTPS scales by f (n,), the
-    first ns (the state) left alone. Returns the shift (N, ns) of the state anomalies along their
-    least-squares regression on the scaled columns, so that the inflated parameters keep the
-    state-parameter slope of the posterior. Why: a member whose G is moved by the inflation but
-    whose state was made with the old G carries a state the new G does not explain, and the next
-    window spends its data on that state instead of the parameters (measured: per-bubble sd of G
-    0.10 with RTPS against 0.07 without, one verification seed). Conditional spread of the state
-    given the parameters is unchanged; only the part the parameters explain is inflated with them."""
-    X = np.asarray(anoms, dtype=np.float64)
-    cols = np.flatnonzero(np.abs(f[ns:] - 1.0) > 0) + ns
-    if cols.size == 0:
-        return np.zeros((X.shape[0], ns))
-    Z = X[:, cols]
-    K = np.linalg.lstsq(Z, X[:, :ns], rcond=None)[0]       # (|cols|, ns): state anomalies ~ Z K
-    return (Z * (f[cols] - 1.0)[None, :]) @ K
+class _WindowRun:
+    """One experiment's forward runs in one window: members Z in the analysis coordinates
+    [state (log p_b in place of p_b), parameters, [rho], [a, delta (window 0)]].
 
+    The analysis sees log p_b instead of p_b: near a collapse the members' p_b spans orders of
+    magnitude, and a linear update of p_b itself drives most of them negative."""
 
-def mienks_unit(unit: Unit, rng) -> dict:
-    """One window of one experiment (methods.md §4, steps 2, 4, 5): Gauss–Newton analysis of the
-    augmented ensemble, RTPS, hand-off to the next window (failed members redrawn; the analysis is
-    rejected, and the window prior handed on, when too few members survive). Window 0 starts from
-    the state at the maximum radius with parameters drawn from the prior.
+    def __init__(self, runner, space, rmax: float, req: float, ns: int, carry: bool):
+        self.runner, self.space, self.rmax, self.req = runner, space, rmax, req
+        self.ns, self.dp, self.carry = ns, space.n, carry
+        self.ipb = runner.fm.layout()["pb"].start
 
-    Default likelihood (``carry_req``): every member also carries rho = log(Req / Req_hat), analysed
-    with the parameters in every window, and window 0's members carry the relative Rmax error a and
-    the time of the maximum delta (t*), drawn from N(0, diag(nuis_sd^2)) (``nuis_sd`` = sds of
-    (a, delta, rho), :func:`imrbayes.ensemble.likelihood.nuisance_prior_sd`) and analysed with the
-    parameters (module doc). Columns: state, parameters, [rho], [a, delta (window 0)]; a and delta
-    are dropped after the hand-off, where they live on in the state."""
-    d = unit.data
-    space, s = d["space"], d["settings"]
-    runner = runner_for(d)
-    before = (runner.n_member_runs, runner.n_failed)
-    t, a, b, a2, last = d["t"], int(d["a"]), int(d["b"]), int(d["a2"]), bool(d["last"])
-    rmax, req, N, dp = float(d["rmax"]), float(d["req"]), int(s.n_ens), space.n
-    carry = bool(d.get("carry_req", False))
-    n_carry = 1 if carry else 0                     # rho after the parameters (default likelihood)
-    E = d["E"]
-    n_aug = 0                                       # window 0 (default likelihood): a and delta after rho
-    if E is None:
-        st0 = runner.fm.initial_state(np.full(N, rmax), np.full(N, req))
-        ns = st0.y.shape[1]
-        n_aug = 2 if carry else 0
-        E = np.zeros((N, ns + dp + n_carry + n_aug))
-        E[:, :ns] = st0.y
-        f = widen_factors(getattr(s, "prior_widen", None), space.names, strict=False)
-        centre = space.prior_mean if d.get("param_start") is None else np.asarray(d["param_start"], dtype=np.float64)
-        E[:, ns:ns + dp] = draw(rng, centre, space.prior_cov * np.outer(f, f), N)
-        if carry:
-            sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
-            E[:, ns + dp] = sd_rho * rng.standard_normal(N)
-            E[:, ns + dp + 1] = sd_a * rng.standard_normal(N)
-            E[:, ns + dp + 2] = sd_delta * rng.standard_normal(N)
-    E = np.array(E, dtype=np.float64)
-    ns = E.shape[1] - dp - n_carry - n_aug
-    t_eval = t[a:b + 1]
-    # The analysis sees log p_b instead of p_b (``log_pressure``): near a collapse the members' p_b
-    # spans orders of magnitude, and a linear update of p_b itself drives most of them negative.
-    ipb = runner.fm.layout()["pb"].start if getattr(s, "log_pressure", False) else None
-
-    def to_analysis(Z):
+    def to_analysis(self, Z):
+        """Members in the analysis coordinates (log p_b)."""
         Z = np.array(Z, dtype=np.float64)
-        if ipb is not None:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                Z[:, ipb] = np.log(Z[:, ipb])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Z[:, self.ipb] = np.log(Z[:, self.ipb])
         return Z
 
-    def from_analysis(Z):
+    def from_analysis(self, Z):
+        """Members with their physical state (p_b)."""
         Z = np.array(Z, dtype=np.float64)
-        if ipb is not None:
-            with np.errstate(over="ignore"):
-                Z[:, ipb] = np.exp(Z[:, ipb])
+        with np.errstate(over="ignore"):
+            Z[:, self.ipb] = np.exp(Z[:, self.ipb])
         return Z
 
-    E = to_analysis(E)
-
-    def propagate(Z, t0, t1, t_ev):
+    def propagate(self, Z, t0, t1, t_ev):
         """R* (M, len(t_ev)), end state (M, ns, physical), failed (M,) of members Z (M, ns + d, analysis
         coordinates). A member whose state is not physical (ForwardModel.state_is_valid: R* <= 0,
         p_b <= 0, vapour fraction outside [0, 1], ...) or whose parameters are not finite is failed
         without a solve."""
-        Z = from_analysis(Z)
+        ns, dp, runner = self.ns, self.dp, self.runner
+        Z = self.from_analysis(Z)
         ok = np.all(np.isfinite(Z[:, ns:]), axis=1) & runner.fm.state_is_valid(Z[:, :ns])
         R = np.full((Z.shape[0], len(t_ev)), np.nan)
         Y = Z[:, :ns].copy()
         failed = ~ok
         if ok.any():
             m = int(ok.sum())
-            reqs = req * np.exp(Z[ok, ns + dp]) if carry else np.full(m, req)
-            st = BatchState(Z[ok, :ns].copy(), t0, np.full(m, rmax), reqs)
-            out = runner.propagate(st, space.to_si(Z[ok, ns:ns + dp]), t1, t_ev)
+            reqs = self.req * np.exp(Z[ok, ns + dp]) if self.carry else np.full(m, self.req)
+            st = BatchState(Z[ok, :ns].copy(), t0, np.full(m, self.rmax), reqs)
+            out = runner.propagate(st, self.space.to_si(Z[ok, ns:ns + dp]), t1, t_ev)
             R[ok], Y[ok] = out.R_star, out.end.y
             failed[ok] = out.failed | ~np.all(np.isfinite(out.R_star), axis=1) | ~np.all(np.isfinite(out.end.y), axis=1)
         return R, Y, failed
 
-    def propagate_window0(Z, t_ev, t_hand=None):
+    def propagate_window0(self, Z, t_ev, t_hand=None):
         """Window 0 with the nuisances augmented: member m is a bubble of maximum radius
         Rmax_hat (1 + a_m) and Req_hat e^rho_m whose maximum is at t* = delta_m on the data's clock.
         R* at ``t_ev`` (:func:`imrbayes.ensemble.likelihood.predict`, En4D-Var's observation model),
@@ -498,7 +391,8 @@ def mienks_unit(unit: Unit, rng) -> dict:
         run to (t_hand - delta_m) / (1 + a_m), then R* times 1 + a_m: every other state variable
         is scaled by p8 or sqrt(p8/rho), not by Rmax, so later windows run all members on one
         clock with their own Req)."""
-        Z = from_analysis(Z)
+        ns, dp, runner, rmax, req = self.ns, self.dp, self.runner, self.rmax, self.req
+        Z = self.from_analysis(Z)
         M = Z.shape[0]
         k = ns + dp
         nu = np.stack([Z[:, k + 1], Z[:, k + 2], Z[:, k]], axis=1)          # (a, delta, rho)
@@ -508,53 +402,106 @@ def mienks_unit(unit: Unit, rng) -> dict:
         failed = ~ok
         if ok.any():
             idx = np.flatnonzero(ok)
-            th = space.to_si(Z[idx, ns:ns + dp])
+            th = self.space.to_si(Z[idx, ns:ns + dp])
             Rk, fk = predict(runner, th, rmax, req, t_ev, nu[idx])
             R[idx] = Rk
             failed[idx] = fk
             if t_hand is not None:
-                scale, req_m = 1.0 + nu[idx, 0], req * np.exp(nu[idx, 2])
-                T = np.maximum((float(t_hand) - nu[idx, 1]) / scale, 0.0)
-                groups = [np.arange(idx.size)] if np.ptp(nu[idx], axis=0).max() == 0 else \
-                    [np.array([i]) for i in range(idx.size)]      # one batch when the members share the geometry
-                for grp in groups:
-                    i0 = int(grp[0])
-                    if req_m[i0] >= rmax * scale[i0]:
-                        failed[idx[grp]] = True
-                        continue
-                    st0 = runner.fm.initial_state(np.full(grp.size, rmax * scale[i0]), np.full(grp.size, req_m[i0]))
-                    out = runner.propagate(st0, th[grp], float(T[i0]), np.array([T[i0]]))
-                    y = np.array(out.end.y, dtype=np.float64)
-                    y[:, 0] *= scale[i0]
-                    Y[idx[grp]] = y
-                    failed[idx[grp]] |= out.failed | ~np.all(np.isfinite(y), axis=1)
+                self._hand_off_window0(Y, failed, idx, th, nu, t_hand)
         return R, Y, failed
 
+    def _hand_off_window0(self, Y, failed, idx, th, nu, t_hand):
+        """Each member's state at data time ``t_hand`` (window 0, nuisances augmented) written into
+        ``Y`` (M, ns) in the data's units; ``failed`` (M,) updated in place."""
+        rmax, req = self.rmax, self.req
+        scale, req_m = 1.0 + nu[idx, 0], req * np.exp(nu[idx, 2])
+        T = np.maximum((float(t_hand) - nu[idx, 1]) / scale, 0.0)
+        groups = [np.arange(idx.size)] if np.ptp(nu[idx], axis=0).max() == 0 else \
+            [np.array([i]) for i in range(idx.size)]      # one batch when the members share the geometry
+        for grp in groups:
+            i0 = int(grp[0])
+            if req_m[i0] >= rmax * scale[i0]:
+                failed[idx[grp]] = True
+                continue
+            st0 = self.runner.fm.initial_state(np.full(grp.size, rmax * scale[i0]), np.full(grp.size, req_m[i0]))
+            out = self.runner.propagate(st0, th[grp], float(T[i0]), np.array([T[i0]]))
+            y = np.array(out.end.y, dtype=np.float64)
+            y[:, 0] *= scale[i0]
+            Y[idx[grp]] = y
+            failed[idx[grp]] |= out.failed | ~np.all(np.isfinite(y), axis=1)
+
+
+def initial_members(runner, space, s, d: dict, rng, carry: bool) -> np.ndarray:
+    """Window 0's prior ensemble of one experiment (N, ns + d + [rho, a, delta]): the state at the
+    maximum radius, parameters drawn from the parameter prior with its sd times ``prior_widen``
+    (:func:`widen_factors`), and (``carry``) the nuisances (rho, a, delta) from N(0, nuis_sd^2)."""
+    N, dp = int(s.n_ens), space.n
+    st0 = runner.fm.initial_state(np.full(N, float(d["rmax"])), np.full(N, float(d["req"])))
+    ns = st0.y.shape[1]
+    E = np.zeros((N, ns + dp + (3 if carry else 0)))
+    E[:, :ns] = st0.y
+    f = widen_factors(getattr(s, "prior_widen", None), space.names, strict=False)
+    E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov * np.outer(f, f), N)
+    if carry:
+        sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
+        E[:, ns + dp] = sd_rho * rng.standard_normal(N)
+        E[:, ns + dp + 1] = sd_a * rng.standard_normal(N)
+        E[:, ns + dp + 2] = sd_delta * rng.standard_normal(N)
+    return E
+
+
+def mienks_unit(unit: Unit, rng) -> dict:
+    """One window of one experiment (methods.md §4, steps 2, 4, 5): Gauss–Newton analysis of the
+    augmented ensemble, RTPS on the parameters, hand-off to the next window (failed members
+    redrawn; the analysis is rejected, and the window prior handed on, when too few members
+    survive). Window 0 starts from :func:`initial_members`.
+
+    Default likelihood (``carry_req``): every member also carries rho = log(Req / Req_hat), analysed
+    with the parameters in every window, and window 0's members carry the relative Rmax error a and
+    the time of the maximum delta (t*) (module doc). Columns: state, parameters, [rho], [a, delta
+    (window 0)]; a and delta are dropped after the hand-off, where they live on in the state.
+    Returns the hand-off ensemble ``E``, the fitted segment, the parameters' posterior and prior
+    moments, failure counts and (default likelihood) the nuisances' posteriors."""
+    d = unit.data
+    space, s = d["space"], d["settings"]
+    runner = runner_for(d)
+    before = (runner.n_member_runs, runner.n_failed)
+    t, a, b, a2, last = d["t"], int(d["a"]), int(d["b"]), int(d["a2"]), bool(d["last"])
+    N, dp = int(s.n_ens), space.n
+    carry = bool(d.get("carry_req", False))
+    n_carry = 1 if carry else 0                     # rho after the parameters (default likelihood)
+    E = d["E"]
+    n_aug = 0                                       # window 0 (default likelihood): a and delta after rho
+    if E is None:
+        E = initial_members(runner, space, s, d, rng, carry)
+        n_aug = 2 if carry else 0
+    E = np.array(E, dtype=np.float64)
+    ns = E.shape[1] - dp - n_carry - n_aug
+    t_eval = t[a:b + 1]
+    run = _WindowRun(runner, space, float(d["rmax"]), float(d["req"]), ns, carry)
+    E = run.to_analysis(E)
     if n_aug:
         def evaluate(groups, Z):
-            R, _, failed = propagate_window0(np.asarray(Z, dtype=np.float64), t_eval)
+            R, _, failed = run.propagate_window0(np.asarray(Z, dtype=np.float64), t_eval)
             return R, failed
 
         def handoff(Z):
-            return propagate_window0(Z, t[a:a2 + 1], t[a2])
+            return run.propagate_window0(Z, t[a:a2 + 1], t[a2])
     else:
         def evaluate(groups, Z):
-            R, _, failed = propagate(np.asarray(Z, dtype=np.float64), t[a], t[b], t_eval)
+            R, _, failed = run.propagate(np.asarray(Z, dtype=np.float64), t[a], t[b], t_eval)
             return R, failed
 
         def handoff(Z):
-            return propagate(Z, t[a], t[a2], t[a:a2 + 1])
+            return run.propagate(Z, t[a], t[a2], t[a:a2 + 1])
 
     res = gauss_newton(E[None], evaluate, d["y"][None], d["weight"][None], n_iter=s.n_iter, rng=rng,
                        max_redraw=s.max_redraw, transform=s.transform, min_iter=s.min_iter,
                        step_tol=s.step_tol)
     f = rtps_factors(res.prior_anoms, res.anoms, s.rtps)[0]
-    if not s.rtps_state:
-        f[:ns] = 1.0
+    f[:ns] = 1.0                                    # RTPS on the parameters (and nuisances), not the state
     Ea = res.mean[0][None, :] + np.sqrt(N - 1.0) * res.anoms[0] * f[None, :]
-    if s.rtps_regress and not s.rtps_state:
-        Ea[:, :ns] += regression_shift(res.anoms[0], f, ns) * np.sqrt(N - 1.0)
-    problems = runner.fm.state_problems(from_analysis(Ea)[:, :ns])     # analysed states that are not physical
+    problems = runner.fm.state_problems(run.from_analysis(Ea)[:, :ns])     # analysed states that are not physical
     n_invalid = int(np.any(np.stack(list(problems.values())), axis=0).sum())
     invalid_why = {k: int(v.sum()) for k, v in problems.items() if v.any()}
     Rseg, Ynew, failed = handoff(Ea)
@@ -572,18 +519,26 @@ def mienks_unit(unit: Unit, rng) -> dict:
         rejected = True
     with np.errstate(invalid="ignore"):
         seg = np.nanmean(np.where(failed[:, None], np.nan, Rseg), axis=0)
-    E_next = to_analysis(np.concatenate([Ynew, Ea[:, ns:ns + dp + n_carry]], axis=1))   # a, delta are not handed on
+    E_next = run.to_analysis(np.concatenate([Ynew, Ea[:, ns:ns + dp + n_carry]], axis=1))   # a, delta are not handed on
     n_fail = int(failed.sum())
     n_red = _redraw_failed(E_next[None], failed[None], rng) if (n_fail and not last) else 0
-    E_next = from_analysis(E_next)                  # handed on as physical states
-    P = slice(ns, ns + dp)
-    qa = res.prior_anoms[0, :, P]
-    out = {"E": None if last else E_next, "seg": seg, "pm": res.mean[0, P], "pc": res.cov[0, P, P],
-           "qm": res.prior_ensemble[0, :, P].mean(axis=0), "qc": qa.T @ qa,
-           "n_failed_iter": res.n_failed[0], "n_redrawn_prior": int(res.n_redrawn[0]), "n_failed_handoff": n_fail,
+    E_next = run.from_analysis(E_next)              # handed on as physical states
+    out = {"E": None if last else E_next, "seg": seg, "n_failed_iter": res.n_failed[0],
+           "n_redrawn_prior": int(res.n_redrawn[0]), "n_failed_handoff": n_fail,
            "n_redrawn_handoff": int(n_red), "stopped": bool(res.stopped[0]), "rejected": rejected,
            "n_invalid_analysed": n_invalid, "n_failed_analysed": n_failed_analysed, "invalid_why": invalid_why,
-           "cost": res.cost[0], "state_size": int(ns), **runner.counts_since(before)}
+           "cost": res.cost[0], "state_size": int(ns), **_window_moments(res, ns, dp, carry, n_aug, rejected),
+           **runner.counts_since(before)}
+    return out
+
+
+def _window_moments(res, ns: int, dp: int, carry: bool, n_aug: int, rejected: bool) -> dict:
+    """The parameters' posterior (``pm``, ``pc``) and prior (``qm``, ``qc``) moments of a window's
+    analysis, and with the nuisances carried: rho's posterior (``log_req``), the joint moments of
+    (parameters, rho) (``joint``) and in window 0 those of a and delta (``rmax_rel``, ``offset``)."""
+    P = slice(ns, ns + dp)
+    qa = res.prior_anoms[0, :, P]
+    out = {"pm": res.mean[0, P], "pc": res.cov[0, P, P], "qm": res.prior_ensemble[0, :, P].mean(axis=0), "qc": qa.T @ qa}
     if carry:
         k = ns + dp
         sd = np.sqrt(np.maximum(np.diag(res.cov[0]), 0.0))
@@ -593,26 +548,25 @@ def mienks_unit(unit: Unit, rng) -> dict:
         qj = res.prior_anoms[0, :, J]
         out["joint"] = {"pm": res.mean[0, J], "pc": res.cov[0, J, J],
                         "qm": res.prior_ensemble[0, :, J].mean(axis=0), "qc": qj.T @ qj}
-    if n_aug:
-        out["offset"] = {"mean": float(res.mean[0, k + 2]), "sd": float(sd[k + 2]), "rejected": rejected}
-        out["rmax_rel"] = {"mean": float(res.mean[0, k + 1]), "sd": float(sd[k + 1]), "rejected": rejected}
+        if n_aug:
+            out["offset"] = {"mean": float(res.mean[0, k + 2]), "sd": float(sd[k + 2]), "rejected": rejected}
+            out["rmax_rel"] = {"mean": float(res.mean[0, k + 1]), "sd": float(sd[k + 1]), "rejected": rejected}
     return out
 
 
-def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw, stream_tag=None, param_start=None):
+def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw, stream_tag=None):
     """Run every window's units in order (one per alive experiment, :func:`mienks_unit`) and collect
     their results; ``weight_for(j, g, a, b)`` gives experiment g's observation weights in window j;
-    ``nuis_sd`` (G, 3): prior sds of each experiment's nuisances (a, delta, rho) (default likelihood;
+    ``nuis_sd`` (n_exp, 3): prior sds of each experiment's nuisances (a, delta, rho) (default likelihood;
     None: the paper's, no nuisances).
     The fusion does not feed back into the ensembles, so it is done afterwards
     (:func:`fit_mienks`). ``tag``: leading parts of the unit ids (e.g. ``{"pass": "pilot"}``);
-    ``stream_tag``: those of the units' random streams when they differ (default ``tag``);
-    ``param_start`` (G, d): where each experiment's window-0 members are centred (None: the prior mean).
+    ``stream_tag``: those of the units' random streams when they differ (default ``tag``).
     Returns a dict of per-window lists."""
-    G = obs.n_exp
+    n_exp = obs.n_exp
     t = obs.t_star
-    alive = list(range(G))
-    handoff = {g: None for g in range(G)}             # each experiment's ensemble entering the next window
+    alive = list(range(n_exp))
+    handoff = {g: None for g in range(n_exp)}             # each experiment's ensemble entering the next window
     failed_units = []
     ns = None
     dp = base["space"].n
@@ -626,8 +580,8 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw
             out["start_means"].append(np.array(base["fm"].initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64))
             out["start_req"].append(np.asarray(obs.req_m, dtype=np.float64).copy())
         else:
-            q = np.full((G, ns), np.nan)
-            rq = np.full(G, np.nan)
+            q = np.full((n_exp, ns), np.nan)
+            rq = np.full(n_exp, np.nan)
             for g in alive:
                 Eg = np.asarray(handoff[g], dtype=np.float64)
                 q[g] = Eg[:, :ns].mean(axis=0)
@@ -640,8 +594,7 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw
                        "a": int(a), "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
                        "req": float(obs.req_m[g]), "y": obs.R_star[g, a:b + 1], "weight": weight_for(j, g, a, b),
                        "E": handoff[g], **({"carry_req": True} if nuis_sd is not None else {}),
-                       **({"nuis_sd": [float(x) for x in nuis_sd[g]]} if j == 0 and nuis_sd is not None else {}),
-                       **({"param_start": [float(x) for x in param_start[g]]} if j == 0 and param_start is not None else {})},
+                       **({"nuis_sd": [float(x) for x in nuis_sd[g]]} if j == 0 and nuis_sd is not None else {})},
                       stream=unit_id(**stag, window=j, exp=g))
                  for g in alive]
         label = "".join(f" ({v})" for v in tag.values())
@@ -783,47 +736,23 @@ def _retry_lost_pilots(ex, base, obs, s, sp, spans_p, seed, w_pilot, nuis_sd, no
     return notes, sweeps, failed
 
 
-def _pilot_centres(pil, retry_sweeps, lik_info, space) -> np.ndarray:
-    """(G, d) internal coordinates: each experiment's parameter posterior mean in the pilot's last
-    window (the retry's where :func:`_retry_lost_pilots` kept it), the prior mean where the pilot
-    lost the experiment before the end (``member_start="pilot"``)."""
-    G = len(lik_info)
-    out = np.tile(space.prior_mean, (G, 1)).astype(np.float64)
-    for g, r in zip(pil["ok"][-1], pil["results"][-1]):
-        out[g] = r["pm"]
-    for pr in retry_sweeps:
-        g = pr["experiment"]
-        if lik_info[g].get("pilot_retry", {}).get("kept") == "retry" and pr["ok"][-1] == [0]:
-            out[g] = pr["results"][-1][0]["pm"]
-    return out
-
-
-def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: bool = False,
+def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution,
                            conflict_z: float = REQ_PRIOR_CONFLICT_Z, stop_z: float | None = REQ_PRIOR_STOP_Z):
     """(Observations with each estimated Req's prior replaced by its whole-record En4D-Var posterior
     [mean, sd], details). Why: the smoother's windows see Req only through the data before them and
-    its prior, while the record's tail, where Req is decided, comes last; with the tail-mean prior (sd
-    ~3-4 % on camera records) the early windows slide along the Req-mu ridge and their mu stays high
-    (docs/results.md: with the true Req given the aggregate bias fell from G +17 %, mu +12 % to +4 %,
-    +1 %). The data inform Req twice (the En4D-Var fit, then the windows): an empirical-Bayes
-    approximation, measured rather than exact. ``keep_sd`` (``req_prior="en4dvar-centre"``): only the
-    centre moves to the En4D-Var mean, the prior keeps the preprocessing's sd -- the record's
-    information on Req's place used to choose the centre, its precision not counted again. A Req
-    given in meta.json (prior sd 0) is kept. An experiment whose En4D-Var Req lies more than
-    ``conflict_z`` preprocessing sd from its preprocessing Req keeps the preprocessing prior, and a
-    warning names it (``details["req_prior"]["conflicts"]``). Why: on camera records of the model's
-    own physics the shift stays within 2.1 sd (120 polytropic bubbles; thermal in docs/results.md);
-    on the 20 stiff-PA bubbles the whole-record fit moved Req by up to 40 sd (-19 % to +32 %) to fit
-    the collapses, and that Req, imported with its En4D-Var precision, doubled the between-bubble sd
-    of G and mu -- model error absorbed by the geometry, which the measured tail contradicts.
-    ``stop_z`` (None: off): an experiment whose Req lies beyond it after a restart cycle skips its
-    later cycles -- its conflict is decided, only the comparison is used (``details["req_prior"]
-    ["stopped_early"]``)."""
-    from imrbayes.ensemble.en4dvar import En4DVarSettings, _fit_en4dvar
+    its prior, while the record's tail, where Req is decided, comes last (docs/results.md). The
+    data inform Req twice (the En4D-Var fit, then the windows): an empirical-Bayes approximation,
+    measured rather than exact. A Req given in meta.json (prior sd 0) is kept. An experiment whose
+    En4D-Var Req lies more than ``conflict_z`` preprocessing sd from its preprocessing Req keeps the
+    preprocessing prior, and a warning names it (``details["req_prior"]["conflicts"]``): model
+    error absorbed by the geometry, which the measured tail contradicts. ``stop_z`` (None: off): an
+    experiment whose Req lies beyond it after a restart cycle skips its later cycles -- its
+    conflict is decided, only the comparison is used (``details["req_prior"]["stopped_early"]``)."""
+    from imrbayes.ensemble.en4dvar import En4DVarSettings, en4dvar_pass
     stop = max(stop_z, conflict_z) if stop_z else None       # never below the conflict bound; inf: no stop
     e4s = En4DVarSettings(n_draws=1, loglik=False, req_conflict_stop=stop if stop is not None and np.isfinite(stop) else None)
     e4s.check()
-    e4 = _fit_en4dvar(fm, obs, space, e4s.resolved(), seed, runner, None, execution, tag={"req_prior": "en4dvar"})
+    e4 = en4dvar_pass(fm, obs, space, e4s.resolved(), seed, runner, None, execution, tag={"req_prior": "en4dvar"})
     req = np.array(obs.req_m, dtype=np.float64).copy()
     sd = np.array(obs.nuisance_sd, dtype=np.float64).copy()
     names = list(obs.names)
@@ -835,8 +764,7 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
                               "en4dvar_req_sd_m": q["fitted_req_sd_m"], "preprocessing_req_m": float(req[g])})
             continue
         req[g] = q["fitted_req_m"]
-        if not keep_sd:
-            sd[g, 2] = q["fitted_req_sd_m"]
+        sd[g, 2] = q["fitted_req_sd_m"]
         used.append(names[g])
     if conflicts:
         each = ", ".join(f"{c['experiment']} {1e6 * c['en4dvar_req_m']:.1f} um against {1e6 * c['preprocessing_req_m']:.1f} "
@@ -859,9 +787,7 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution, keep_sd: boo
             "stop_z": e4s.req_conflict_stop,
             "stopped_early": [{"experiment": nm, "after_cycle": last[nm]} for nm in names
                               if 0 < last.get(nm, 0) < e4s.n_runs],
-            "note": ("each estimated Req's prior is centred at its whole-record En4D-Var posterior mean, run first, "
-                     "with the preprocessing's sd" if keep_sd else
-                     "each estimated Req's prior is its whole-record En4D-Var posterior (mean, sd), run first")}
+            "note": "each estimated Req's prior is its whole-record En4D-Var posterior (mean, sd), run first"}
     return replace(obs, req_m=req, nuisance_sd=sd), info
 
 
@@ -871,11 +797,17 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
 
     Units (:func:`mienks_unit`): one per window and experiment (``window=004/exp=003``, its own
     random stream; the default likelihood's pilot pass: ``pass=pilot/window=004/exp=003``, and its
-    reported pass ``noise=<digest of the noise model>/window=004/exp=003``), windows in order, the experiments of a window independent; each unit's result holds the experiment's
-    hand-off ensemble. ``execution`` (:class:`~imrbayes.execution.Execution`) says where they run and
-    are checkpointed (default: this process, with ``runner``). An experiment whose unit fails is left
-    out of this and every later window of that pass (counted, reported in ``details["failed_units"]``
-    and the warnings)."""
+    reported pass ``noise=<digest of the noise model>/window=004/exp=003``), windows in order, the
+    experiments of a window independent; each unit's result holds the experiment's hand-off
+    ensemble. ``execution`` (:class:`~imrbayes.execution.Execution`) says where they run and are
+    checkpointed (default: this process, with ``runner``). An experiment whose unit fails is left
+    out of this and every later window of that pass (counted, reported in
+    ``details["failed_units"]`` and the warnings).
+
+    Stages: Req's prior (:func:`req_prior_from_en4dvar`), the noise model (:func:`noise_pass`), the
+    reported sweep (:func:`_sweep`), the windows' fusion (:func:`fuse_windows`), the aggregate and
+    the time-resolved estimate, and with the default likelihood the record level
+    (:func:`record_level`)."""
     s = settings or MIEnKSSettings()
     n_steps = obs.n_samples - 1
     s.check(n_steps)
@@ -885,342 +817,429 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     t0c = time.perf_counter()
     ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
-    spec, token = fm_spec(fm), register_runner(runner)
     rng = np.random.default_rng(seed)                   # the posterior draws at the end (units have their own)
     spans = window_spans(n_steps, s.L, s.h)
     beta = mda_weights(n_steps, s.L, s.h)
     nw = spans.shape[0]
-    G = obs.n_exp
-    t = obs.t_star
     req_info = None
     if default and s.req_prior != "preprocessing" and np.any(obs.nuisance_sd[:, 2] > 0):  # some Req estimated
-        obs, req_info = req_prior_from_en4dvar(fm, obs, space, seed, runner, ex, keep_sd=s.req_prior == "en4dvar-centre")
-    base = {"spec": spec, "runner": token, "space": space, "fm": fm}
+        obs, req_info = req_prior_from_en4dvar(fm, obs, space, seed, runner, ex)
+    base = {"spec": fm_spec(fm), "runner": register_runner(runner), "space": space, "fm": fm}
     warnings = list(req_info["warnings"]) if req_info else []
-    lik_info = None
     if default:
         beta = beta.copy()
         beta[:, 0] = 0.0                 # sample 0 is R* = 1 by construction (the maximum): no information
-        noise_var = np.array([record_noise_sd(obs, g) ** 2 for g in range(G)])
-        nuis_sd = np.stack([nuisance_prior_sd(obs, g) for g in range(G)])      # (a, delta, rho)
-        var, alpha = noise_var.copy(), np.ones(G)
-        pilot_failed = []
-        retry_sweeps = []                            # the sweeps of bubbles whose pilot was repeated
-        if s.adapt:
-            # pilot pass: the record's noise, no tempering; its fitted curve sets each experiment's
-            # noise level and tempering for the pass that is reported (module doc)
-            sp = s.pilot()
-            spans_p = window_spans(n_steps, sp.L, sp.h)
-            nw_p = spans_p.shape[0]
-            beta_p = mda_weights(n_steps, sp.L, sp.h)
-            beta_p[:, 0] = 0.0
-
-            def w_pilot(j, g, a, b):
-                return beta_p[j, a:b + 1] / noise_var[g]
-            pil = _sweep(ex, base, obs, sp, spans_p, seed, w_pilot, nuis_sd, {"pass": "pilot"}, progress, nw_p)
-            for w in pil["warnings"]:
-                warnings.extend(w)
-            pilot_failed = pil["failed_units"]
-            var, alpha, lik_info = _noise_model(obs, _fitted(obs, spans_p, pil, nw_p, sp.h), noise_var)
-            flagged = pilot_outliers(lik_info, obs.names)
-            if s.pilot_retry:
-                more, retry_sweeps, failed = _retry_lost_pilots(ex, base, obs, s, sp, spans_p, seed, w_pilot, nuis_sd,
-                                                                noise_var, var, alpha, lik_info)
-                flagged += more
-                pilot_failed = pilot_failed + failed
-            warnings.extend(flagged)
-        else:
-            lik_info = [{"noise_sd": float(np.sqrt(v)), "sd_used": float(np.sqrt(v)), "alpha": 1.0,
-                         "effective_samples": None, "autocorrelation_time": None,
-                         "note": "adapt=False: the record's noise, no tempering"} for v in noise_var]
+        noise = noise_pass(ex, base, obs, s, n_steps, seed, progress)
+        warnings.extend(noise["warnings"])
+        var, alpha = noise["var"], noise["alpha"]
 
         def weight_for(j, g, a, b):
             return beta[j, a:b + 1] * alpha[g] / var[g]
         # the reported pass's units depend on the pilot's outcome: their ids carry a digest of the
         # noise model, so a resume after the pilot changed (e.g. --retry-failed) recomputes them;
         # their random streams do not (window and experiment only), or a last-bit change of the
-        # pilot's fit would redraw every ensemble (one bubble's G moved 2-11 % that way)
-        tag = {}
-        param_start = _pilot_centres(pil, retry_sweeps, lik_info, space) if s.member_start == "pilot" else None
-        if s.adapt:
-            key = [var, alpha] + ([param_start.ravel()] if param_start is not None else [])
-            tag = {"noise": hashlib.sha1(np.concatenate(key).astype("<f8").tobytes()).hexdigest()[:8]}
-        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw, stream_tag={},
-                    param_start=param_start)
+        # pilot's fit would redraw every ensemble
+        tag = {"noise": hashlib.sha1(np.concatenate([var, alpha]).astype("<f8").tobytes()).hexdigest()[:8]} if s.adapt else {}
+        sw = _sweep(ex, base, obs, s, spans, seed, weight_for, noise["nuis_sd"], tag, progress, nw, stream_tag={})
     else:
-        pilot_failed = []
+        noise = None
 
         def weight_for(j, g, a, b):
             return beta[j, a:b + 1] / ((s.L if s.obs_weight == "mean" else 1.0) * obs.P[a:b + 1])
         sw = _sweep(ex, base, obs, s, spans, seed, weight_for, None, {}, progress, nw)
-    ns = sw["state_size"]
-    alive = sw["alive"]
-    failed_units = pilot_failed + sw["failed_units"]
+    fw = fuse_windows(obs, space, s, spans, sw, beta, noise)
+    warnings.extend(fw["warnings"])
     fitted = _fitted(obs, spans, sw, nw, s.h)
-    win_mean, win_cov, windows, total_redraw, total_fail = [], [], [], 0, 0
-    chain_m, chain_c = space.prior_mean.copy(), space.prior_cov.copy()
-    member_runs, failed_runs = 0, 0
-    if default and s.adapt:
-        for sweep in [pil, *retry_sweeps]:
-            member_runs += sum(int(r["member_runs"]) for R in sweep["results"] for r in R)
-            failed_runs += sum(int(r["failed_member_runs"]) for R in sweep["results"] for r in R)
-    posteriors = []                                   # WindowPosterior per window: what --mcmc checks
-    average = s.L if s.obs_weight == "mean" else 1    # the weight's 1/L (paper)
-    lik_terms = {g: [] for g in range(G)}             # default: every window's likelihood of each experiment
-    lik_joint = []                                    # per window, {experiment: its likelihood of (parameters, rho)}
-    influence = np.eye(len(space.names))              # the parameter prior mean's weight in the window means
-    chain_F, chain_D, chain_L = [], [], []            # default: each window mean's linear weights
-    for j, (a, b) in enumerate(spans):
-        ok, R, lost = sw["ok"][j], sw["results"][j], sw["lost"][j]
-        warnings.extend(sw["warnings"][j])
-        pm, pc = np.stack([r["pm"] for r in R]), np.stack([r["pc"] for r in R])
-        qm, qc = np.stack([r["qm"] for r in R]), np.stack([r["qc"] for r in R])
-        prior_m, prior_c = (space.prior_mean, space.prior_cov) if s.fusion == "prior" else (chain_m, chain_c)
-        extra = {}
-        whiten = None
-        if default:
-            # random effects on the experiments' window likelihoods, the gel mean's prior chained
-            # from the previous window (RTPS); the pooled (no scatter) Gaussian is the density's
-            Lam, eta, _, n_clip = likelihood_terms(pm, pc, qm, qc)
-            hier = random_effects(Lam, eta, chain_m, chain_c)
-            for i, g in enumerate(ok):
-                lik_terms[g].append((Lam[i], eta[i]))
-            if all("joint" in r for r in R) and np.all(nuis_sd[np.asarray(ok), 2] > 0):     # rho analysed
-                Lj, ej, _, _ = likelihood_terms(*(np.stack([r["joint"][x] for r in R]) for x in ("pm", "pc", "qm", "qc")))
-                lik_joint.append({g: (Lj[i], ej[i]) for i, g in enumerate(ok)})
-            else:
-                lik_joint.append({})
-            fus = Fusion(hier.pooled_mean, hier.pooled_cov, 1.0, n_clip == 0,
-                         [f"{n_clip} negative eigenvalue(s) of window likelihoods clipped to 0"] if n_clip else [])
-            est_m, est_c = hier.mean, hier.cov
-            h = hier.summaries(space)
-            extra = {"between_experiments": h["between_experiments"], "predictive": h["predictive"],
-                     "random_effects": hier.to_dict(), "pooled_mean_internal": hier.pooled_mean.tolist(),
-                     "pooled_cov_internal": hier.pooled_cov.tolist()}
-            if hier.notes:
-                warnings.append(f"window {j}: " + "; ".join(hier.notes))
-            # the window mean's linear weights (aggregate.chain_aggregate_cov)
-            T_j = np.diag(np.where(np.isfinite(hier.tau), hier.tau, 0.0) ** 2)
-            chain_F.append(hier.cov @ np.linalg.inv(chain_c))
-            chain_D.append({g: hier.cov @ np.linalg.inv(np.eye(len(space.names)) + Lam[i] @ T_j)
-                            for i, g in enumerate(ok)})
-            chain_L.append({g: Lam[i] for i, g in enumerate(ok)})
-            chain_m = hier.mean
-            chain_c = rtps_cov(chain_c, hier.cov, s.rtps)
-            m = b - a + 1
-            whiten = np.full((G, m, m), np.nan)
-            for g in ok:
-                whiten[g] = np.diag(np.sqrt(beta[j, a:b + 1] * alpha[g] / var[g]))
-        elif s.fusion == "prior":
-            fus = fuse(pm, pc, space.prior_mean, space.prior_cov)
-            est_m, est_c = fus.mean, fus.cov
-        else:
-            fus = fuse_likelihoods(pm, pc, qm, qc, chain_m, chain_c)
-            chain_m = fus.mean
-            chain_c = rtps_cov(chain_c, fus.cov, s.rtps)
-            est_m, est_c = fus.mean, fus.cov
-        win_mean.append(est_m)
-        win_cov.append(est_c)
-        # prior_c is the prior this window used: the chain's, or the parameter prior when not chained
-        influence = chained_prior_weight(influence if s.fusion != "prior" else np.eye(len(space.names)), est_c, prior_c)
-        start_j = sw["start_means"][j]
-        entering = np.isfinite(start_j).all(axis=1)
-        if default:
-            desc = {"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
-                    "weight_rule": "default likelihood: ||W_n (y_n - R_n)||^2 with W_n = diag(sqrt(beta_jk alpha_n / "
-                                   "sigma_n^2)) (the MDA weights are inside W_n; weight holds beta_jk)",
-                    "gaussian": "pooled over experiments (no between-bubble scatter)", "L": 1,
-                    "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}
-            if j == 0:
-                desc["nuisance"] = ("the ensemble also analysed each experiment's Rmax, Req and time of the maximum; "
-                                    "this density fixes them at the preprocessing estimates")
-            else:
-                desc["nuisance"] = ("each experiment runs with its handed-off ensemble's mean Req (start_req_m); the "
-                                    "ensemble kept analysing Req")
-            wpost = beta[j, a:b + 1]
-        else:
-            desc = {"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
-                    "weight_rule": f"beta_jk / L, L = {average}", "L": average,
-                    "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}
-            wpost = beta[j, a:b + 1] / average
-        posteriors.append(WindowPosterior(
-            index=j, start=int(a), samples=(int(a), int(b)), mean=fus.mean, cov=fus.cov, prior_mean=prior_m,
-            prior_cov=prior_c, weight=wpost, start_state=start_j, description=desc, whiten=whiten,
-            start_req_m=sw["start_req"][j] if default else None))
-        rejected = []
-        for g, r in zip(ok, R):
-            if r["rejected"]:
-                rejected.append(obs.names[g])
-            member_runs += int(r["member_runs"])
-            failed_runs += int(r["failed_member_runs"])
-        if rejected:
-            warnings.append(f"window {j}: analysis rejected for {', '.join(rejected)} (too few analysed members "
-                            f"survived the hand-off; the window's prior ensemble was handed on)")
-        n_failed_iter = np.sum([r["n_failed_iter"] for r in R], axis=0)
-        n_fail = sum(int(r["n_failed_handoff"]) for r in R)
-        n_red = sum(int(r["n_redrawn_handoff"]) for r in R)
-        n_red_prior = sum(int(r["n_redrawn_prior"]) for r in R)
-        total_redraw += n_red + n_red_prior
-        total_fail += n_fail + int(n_failed_iter.sum())
-        if fus.notes:
-            warnings.append(f"window {j}: " + "; ".join(fus.notes))
-        with np.errstate(invalid="ignore"), _warnings.catch_warnings():
-            _warnings.simplefilter("ignore", RuntimeWarning)
-            cost = np.nanmean(np.stack([r["cost"] for r in R]), axis=0)
-        weight = np.diag(influence)
-        windows.append({"index": j, "t_star": [float(t[a]), float(t[b])], "samples": [int(a), int(b)],
-                        **gaussian_estimate(space, est_m, est_c),
-                        "prior_weight": {nm: float(x) for nm, x in zip(space.names, weight)},
-                        "prior_dominated": bool(np.any(weight > PRIOR_WEIGHT_LIMIT)),
-                        "cov": si_covariance(space, est_m, est_c).tolist(),
-                        "mean_internal": est_m.tolist(), "cov_internal": est_c.tolist(), **extra,
-                        "fusion": fus.to_dict(), "n_failed_iterations": n_failed_iter.tolist(),
-                        "n_redrawn_prior": n_red_prior, "n_failed_handoff": n_fail,
-                        "n_redrawn_handoff": n_red, "stopped_experiments": sum(bool(r["stopped"]) for r in R),
-                        "handoff_failures": {obs.names[g]: {"analysed_invalid_state": int(r.get("n_invalid_analysed", 0)),
-                                                            "analysed_failed": int(r.get("n_failed_analysed", 0)),
-                                                            "invalid_why": dict(r.get("invalid_why", {}))}
-                                             for g, r in zip(ok, R) if r.get("n_failed_analysed", 0)},
-                        "analysis_rejected": rejected, "failed_experiments": lost,
-                        "cost": [float(x) if np.isfinite(x) else None for x in cost],  # None: every bubble stopped
-                        "per_experiment": [{"name": obs.names[g], "mean_internal": pm[i].tolist(),
-                                            "sd_internal": np.sqrt(np.diag(pc[i])).tolist()}
-                                           for i, g in enumerate(ok)]})
-    note = prior_dominated_note(windows, space.names)
-    if note:
-        warnings.append(note)
-    win_mean, win_cov = np.array(win_mean), np.array(win_cov)
-    tr_m, tr_c, covered = time_resolved(win_mean, win_cov, n_steps, s.L, s.h)
-    tr = [{"t_star": float(t[k]), "sample": int(k), **gaussian_estimate(space, tr_m[k], tr_c[k])}
-          for k in np.flatnonzero(covered)]
-    agg_m, agg_c = precision_weighted(win_mean, win_cov)
-    mask = np.isfinite(fitted)
-    mask[:, 0] = False
-    # posterior.nc: draws of every window's fused Gaussian (1 chain), the time-resolved moments
-    draws = np.stack([space.to_si(draw(rng, win_mean[j], win_cov[j], s.n_draws, exact=False)) for j in range(nw)],
-                     axis=-1)                                   # (n_draws, d, nw)
-    post = {nm: draws[None, :, i, :] for i, nm in enumerate(space.names)}
-    kk = np.flatnonzero(covered)
-    tr_group = {}
-    for i, nm in enumerate(space.names):
-        tr_group[f"{nm}_mean"] = np.array([x[nm]["mean"] for x in tr])
-        tr_group[f"{nm}_sd"] = np.array([x[nm]["sd"] for x in tr])
-        tr_group[f"{nm}_hdi95"] = np.array([x[nm]["hdi95"] for x in tr])
+    agg = _aggregate(obs, space, s, fw, n_steps, rng)
+    member_runs, failed_runs = fw["member_runs"], fw["failed_member_runs"]
+    if noise is not None:
+        member_runs += noise["member_runs"]
+        failed_runs += noise["failed_member_runs"]
     details = {"settings": asdict(s), "n_windows": nw, "spans": spans.tolist(),
-               "prior_dominated_windows": [w["index"] for w in windows if w["prior_dominated"]],
+               "prior_dominated_windows": [w["index"] for w in fw["windows"] if w["prior_dominated"]],
                "member_runs": member_runs, "failed_member_runs": failed_runs,
-               "failed_units": failed_units, "experiments_used": [obs.names[g] for g in alive],
-               "failed_members": total_fail, "redrawn_members": total_redraw, "state_size": ns,
-               "aggregate_mean_internal": agg_m.tolist(), "aggregate_cov_internal": agg_c.tolist(),
-               "parameter_space": space.describe(), "rmse": rmse(fitted, obs.R_star, mask),
+               "failed_units": (noise["failed_units"] if noise is not None else []) + sw["failed_units"],
+               "experiments_used": [obs.names[g] for g in sw["alive"]],
+               "failed_members": fw["total_fail"], "redrawn_members": fw["total_redraw"], "state_size": sw["state_size"],
+               "aggregate_mean_internal": agg["mean"].tolist(), "aggregate_cov_internal": agg["cov"].tolist(),
+               "parameter_space": space.describe(), "rmse": rmse(fitted, obs.R_star, agg["mask"](fitted)),
                "mda": "beta_jk = 1/|I(k)|, window cost 1/(2L) sum_k beta_jk ||.||^2_{P_k}",
                "fitted_curve": "ensemble-mean R* of the handed-off (RTPS-inflated) posterior ensembles"}
     if req_info is not None:
         details["req_prior"] = req_info
         details["member_runs"] += req_info["en4dvar_member_runs"]
     per = []
+    agg_c = agg["cov"]
     if default:
-        details["mda"] = ("beta_jk = 1/|I(k)| (sample 0, the maximum, excluded), window cost 1/2 sum_k beta_jk "
-                          "alpha_n ||.||^2 / sigma_n^2: every sample counts once over the windows, no 1/L")
-        details["likelihood"] = {
-            "name": "default", "effective_samples": [x["effective_samples"] for x in lik_info],
-            "autocorrelation_time": [x["autocorrelation_time"] for x in lik_info],
-            "noise_sd": [x["noise_sd"] for x in lik_info], "sd_used": [x["sd_used"] for x in lik_info],
-            "alpha": [x["alpha"] for x in lik_info], "n_samples": [x.get("n_samples") for x in lik_info],
-            "noise": ("each record's noise sd (preprocessing, else fourth differences), raised to the RMS of the "
-                      "pilot pass's residual where the model does not reach the noise; each experiment tempered "
-                      "by alpha = n_eff/K (integrated autocorrelation time of that residual)"
-                      if s.adapt else "each record's noise sd (preprocessing, else fourth differences); no tempering"),
-            "mda": "beta_jk = 1/|I(k)|: the weights of every sample over the windows holding it sum to one",
-            "nuisances": "Rmax and the time of the maximum analysed in window 0's augmented ensemble, log Req in "
-                         "every window's (prior sds from preprocessing)",
-            "fusion": "random effects across experiments in every window (gel-level mean, between-bubble sd, "
-                      "predictive); the gel mean's prior chained from the previous window (RTPS)"}
-        # the record: each experiment's likelihood summed over the windows (each sample counted once;
-        # parameters constant over the record, like the aggregate estimate), random effects on those
-        used = [g for g in range(G) if lik_terms[g]]
-        Lam_r = np.stack([sum(x[0] for x in lik_terms[g]) for g in used])
-        eta_r = np.stack([sum(x[1] for x in lik_terms[g]) for g in used])
-        rec = random_effects(Lam_r, eta_r, space.prior_mean, space.prior_cov)
-        hr = rec.summaries(space)
-        tau2 = np.diag(np.where(np.isfinite(rec.tau), rec.tau, 0.0) ** 2)
-        # the aggregate's covariance propagated through the window chain (module doc, "Aggregate")
-        Q = np.stack([agg_c @ np.linalg.inv(c) / nw for c in win_cov])
-        agg_chain = chain_aggregate_cov(chain_F, chain_D, chain_L, Q, space.prior_cov, tau2)
-        # a new bubble: the gel-level uncertainty plus the between-bubble variance with tau's
-        # uncertainty integrated (the record's predictive less its gel-level covariance)
-        between_var = np.maximum(np.diag(rec.predictive_cov) - np.diag(rec.cov), np.diag(tau2))
-        agg_weighting = agg_c
-        if s.aggregate_cov == "chain":
-            agg_c = agg_chain
-            pred_var, pred_rule = between_var, ("the aggregate (covariance propagated through the window chain) "
-                                                "widened by the between-bubble variance with tau's uncertainty "
-                                                "integrated (record level)")
-        else:
-            pred_var, pred_rule = np.diag(tau2), "the aggregate estimate widened by its between-bubble sd"
-        pred = {nm: marginal_summary(agg_m[i], float(np.sqrt(max(agg_c[i, i] + pred_var[i], 0.0))),
-                                     bool(space.positive[i])) for i, nm in enumerate(space.names)}
-        alt = details.setdefault("alternative_estimates", {})
-        other = "aggregate_precision_weighted" if s.aggregate_cov == "chain" else "aggregate_chain_cov"
-        other_c = agg_weighting if s.aggregate_cov == "chain" else agg_chain
-        alt[other] = {**gaussian_estimate(space, agg_m, other_c), "cov_internal": other_c.tolist(),
-                      "note": ("the aggregate's mean with methods.md §4's normalised precision weighting's "
-                               "covariance (about one window's: the windows treated as one)"
-                               if s.aggregate_cov == "chain" else
-                               "the aggregate's mean with its covariance propagated through the window chain "
-                               "(imrbayes.ensemble.aggregate)")}
-        if s.aggregate_cov != "chain":
-            details.setdefault("alternative_predictives", {})["aggregate_chain_cov"] = {
-                nm: marginal_summary(agg_m[i], float(np.sqrt(max(agg_chain[i, i] + between_var[i], 0.0))),
-                                     bool(space.positive[i])) for i, nm in enumerate(space.names)}
-        details["aggregate_cov_rule"] = s.aggregate_cov
-        details["aggregate_cov_internal"] = agg_c.tolist()
-        details.update({"between_experiments": hr["between_experiments"], "predictive": pred,
-                        "record_random_effects": {**rec.to_dict(), "estimate": hr["estimate"],
-                                                  "note": "each experiment's window likelihoods summed over the "
-                                                          "record (constant parameters) with the parameter prior; "
-                                                          "top-level between_experiments is this; predictive is "
-                                                          + pred_rule}})
-        joint = _record_with_shared_req(lik_joint, used, nuis_sd, space)
-        if joint is not None:
-            details.setdefault("alternative_estimates", {})["record_shared_req"] = joint
-        loo = leave_one_out(Lam_r, eta_r, space.prior_mean, space.prior_cov, names=space.names)
-        if loo is not None:
-            loo["note"] += "; each experiment's window likelihoods summed over the record"
-            details["leave_one_bubble_out"] = loo
-        Pi0 = np.linalg.inv(space.prior_cov)
-        for g in range(G):
-            entry = {"name": obs.names[g]}
-            if g in used:
-                i = used.index(g)
-                C = np.linalg.inv(Pi0 + Lam_r[i])
-                mg = C @ (Pi0 @ space.prior_mean + eta_r[i])
-                entry.update({"estimate": gaussian_estimate(space, mg, C), "mean_internal": mg.tolist(),
-                              "cov_internal": C.tolist(), "estimate_rule": "parameter prior times the experiment's "
-                                                                            "window likelihoods over the record"})
-            else:
-                entry["failed"] = True
-            entry["likelihood"] = lik_info[g]
-            w0 = sw["results"][0][sw["ok"][0].index(g)] if g in sw["ok"][0] else {}
-            last_j = max((j for j in range(nw) if g in sw["ok"][j]), default=None)
-            wl = sw["results"][last_j][sw["ok"][last_j].index(g)] if last_j is not None else {}
-            entry["nuisance"] = _nuisance(obs, g, w0.get("rmax_rel"), w0.get("offset"), wl.get("log_req"))
-            per.append(entry)
+        details.update(_default_likelihood_record(s, noise["lik_info"]))
+        agg_c, per = record_level(obs, space, s, sw, fw, noise, agg["mean"], agg["cov"], details)
     else:
-        details["likelihood"] = {"name": "paper", "noise": f"P_k of preprocessing (beta_jk / {average} cost)",
+        details["likelihood"] = {"name": "paper", "noise": f"P_k of preprocessing (beta_jk / {fw['average']} cost)",
                                  "fusion": str(s.fusion), "effective_samples": None}
+    t = obs.t_star
     return FitResult(
         method="mienks", model=fm.constitutive.name, param_names=tuple(space.names),
-        estimate=gaussian_estimate(space, agg_m, agg_c), fitted=fitted, fit_mask=mask,
-        mean_internal=agg_m, cov_internal=agg_c, windows=windows, time_resolved=tr, details=details,
-        per_experiment=per,
-        posterior=post, posterior_dims={nm: ["window"] for nm in space.names},
-        extra_groups={"time_resolved": tr_group},
+        estimate=gaussian_estimate(space, agg["mean"], agg_c), fitted=fitted, fit_mask=agg["mask"](fitted),
+        mean_internal=agg["mean"], cov_internal=agg_c, windows=fw["windows"], time_resolved=agg["time_resolved"],
+        details=details, per_experiment=per,
+        posterior=agg["posterior"], posterior_dims={nm: ["window"] for nm in space.names},
+        extra_groups={"time_resolved": agg["time_resolved_group"]},
         extra_dims={**{f"{nm}_mean": ["time"] for nm in space.names}, **{f"{nm}_sd": ["time"] for nm in space.names},
                     **{f"{nm}_hdi95": ["time", "bound"] for nm in space.names}},
-        coords={"window": np.arange(nw), "time": t[kk], "bound": ["lower", "upper"],
+        coords={"window": np.arange(nw), "time": t[agg["covered"]], "bound": ["lower", "upper"],
                 "window_start": ("window", t[spans[:, 0]])},
-        runtime_s=time.perf_counter() - t0c, warnings=warnings, window_posteriors=posteriors)
+        runtime_s=time.perf_counter() - t0c, warnings=warnings, window_posteriors=fw["posteriors"])
+
+
+def noise_pass(ex, base, obs, s, n_steps: int, seed: int, progress) -> dict:
+    """The default likelihood's noise model: each record's noise variance and tempering, from a
+    pilot pass (``adapt``; the record's noise and no tempering otherwise), with a second pilot for
+    a bubble whose pilot residual stands out (``pilot_retry``, :func:`_retry_lost_pilots`).
+
+    Returns {"var" (n_exp,), "alpha" (n_exp,), "lik_info" [dict], "nuis_sd" (n_exp, 3): the
+    nuisances' prior sds, "failed_units", "warnings", "member_runs", "failed_member_runs"}."""
+    n_exp = obs.n_exp
+    noise_var = np.array([record_noise_sd(obs, g) ** 2 for g in range(n_exp)])
+    nuis_sd = np.stack([nuisance_prior_sd(obs, g) for g in range(n_exp)])      # (a, delta, rho)
+    out = {"var": noise_var.copy(), "alpha": np.ones(n_exp), "nuis_sd": nuis_sd, "failed_units": [], "warnings": [],
+           "member_runs": 0, "failed_member_runs": 0}
+    if not s.adapt:
+        out["lik_info"] = [{"noise_sd": float(np.sqrt(v)), "sd_used": float(np.sqrt(v)), "alpha": 1.0,
+                            "effective_samples": None, "autocorrelation_time": None,
+                            "note": "adapt=False: the record's noise, no tempering"} for v in noise_var]
+        return out
+    # pilot pass: the record's noise, no tempering; its fitted curve sets each experiment's
+    # noise level and tempering for the pass that is reported (module doc)
+    sp = s.pilot()
+    spans_p = window_spans(n_steps, sp.L, sp.h)
+    nw_p = spans_p.shape[0]
+    beta_p = mda_weights(n_steps, sp.L, sp.h)
+    beta_p[:, 0] = 0.0
+
+    def w_pilot(j, g, a, b):
+        return beta_p[j, a:b + 1] / noise_var[g]
+    pil = _sweep(ex, base, obs, sp, spans_p, seed, w_pilot, nuis_sd, {"pass": "pilot"}, progress, nw_p)
+    for w in pil["warnings"]:
+        out["warnings"].extend(w)
+    failed = pil["failed_units"]
+    var, alpha, lik_info = _noise_model(obs, _fitted(obs, spans_p, pil, nw_p, sp.h), noise_var)
+    flagged = pilot_outliers(lik_info, obs.names)
+    retry_sweeps = []
+    if s.pilot_retry:
+        more, retry_sweeps, retry_failed = _retry_lost_pilots(ex, base, obs, s, sp, spans_p, seed, w_pilot, nuis_sd,
+                                                              noise_var, var, alpha, lik_info)
+        flagged += more
+        failed = failed + retry_failed
+    out["warnings"].extend(flagged)
+    for sweep in [pil, *retry_sweeps]:
+        out["member_runs"] += sum(int(r["member_runs"]) for R in sweep["results"] for r in R)
+        out["failed_member_runs"] += sum(int(r["failed_member_runs"]) for R in sweep["results"] for r in R)
+    out.update({"var": var, "alpha": alpha, "lik_info": lik_info, "failed_units": failed})
+    return out
+
+
+def fuse_windows(obs, space, s, spans, sw: dict, beta, noise: dict | None) -> dict:
+    """Every window's experiments fused (:func:`_window_fusion`) and recorded (:func:`_window_entry`).
+
+    Takes the observations, space, resolved settings, the window spans, the reported sweep, the MDA
+    weights and the noise model (None: the paper's likelihood). Returns {"windows" [dict],
+    "posteriors" [WindowPosterior], "mean" (nw, d), "cov" (nw, d, d), "lik_terms" {experiment:
+    [(Lambda, eta) per window]}, "lik_joint" [per window {experiment: (Lambda, eta) of (parameters,
+    rho)}], "chain" (F, D, L lists for :func:`~imrbayes.ensemble.aggregate.chain_aggregate_cov`),
+    "average", "warnings", "member_runs", "failed_member_runs", "total_fail", "total_redraw"}."""
+    default = noise is not None
+    out = {"windows": [], "posteriors": [], "mean": [], "cov": [], "lik_terms": {g: [] for g in range(obs.n_exp)},
+           "lik_joint": [], "chain": ([], [], []), "average": s.L if s.obs_weight == "mean" else 1,
+           "warnings": [], "member_runs": 0, "failed_member_runs": 0, "total_fail": 0, "total_redraw": 0}
+    chain = (space.prior_mean.copy(), space.prior_cov.copy())
+    influence = np.eye(len(space.names))              # the parameter prior mean's weight in the window means
+    for j, (a, b) in enumerate(spans):
+        ok, R = sw["ok"][j], sw["results"][j]
+        out["warnings"].extend(sw["warnings"][j])
+        prior_m, prior_c = (space.prior_mean, space.prior_cov) if s.fusion == "prior" else chain
+        wf = _window_fusion(space, s, R, ok, chain, noise, out)
+        chain = wf["chain"]
+        est_m, est_c = wf["estimate"]
+        out["mean"].append(est_m)
+        out["cov"].append(est_c)
+        # prior_c is the prior this window used: the chain's, or the parameter prior when not chained
+        influence = chained_prior_weight(influence if s.fusion != "prior" else np.eye(len(space.names)), est_c, prior_c)
+        whiten = None
+        if default:
+            m = b - a + 1
+            whiten = np.full((obs.n_exp, m, m), np.nan)
+            for g in ok:
+                whiten[g] = np.diag(np.sqrt(beta[j, a:b + 1] * noise["alpha"][g] / noise["var"][g]))
+        out["posteriors"].append(_window_posterior(j, a, b, sw, wf["fusion"], prior_m, prior_c, beta, whiten,
+                                                   out["average"], default))
+        out["windows"].append(_window_entry(obs, space, j, a, b, sw, wf, influence, out))
+    note = prior_dominated_note(out["windows"], space.names)
+    if note:
+        out["warnings"].append(note)
+    out["mean"], out["cov"] = np.array(out["mean"]), np.array(out["cov"])
+    return out
+
+
+def _window_fusion(space, s, R: list, ok: list, chain: tuple, noise: dict | None, acc: dict) -> dict:
+    """One window's experiments fused: default likelihood, random effects on their window
+    likelihoods with the gel mean's prior chained from the previous window (RTPS); paper, the
+    product rule (``fusion``). Appends the window's likelihood terms and chain weights to ``acc``
+    (:func:`fuse_windows`). Returns {"fusion": the pooled :class:`~imrbayes.ensemble.fusion.Fusion`
+    (what --mcmc checks), "estimate": (mean, cov), "chain": the next window's prior, "extra": the
+    window entry's random-effects fields, "pm", "pc": each experiment's posterior}."""
+    pm, pc = np.stack([r["pm"] for r in R]), np.stack([r["pc"] for r in R])
+    qm, qc = np.stack([r["qm"] for r in R]), np.stack([r["qc"] for r in R])
+    chain_m, chain_c = chain
+    out = {"pm": pm, "pc": pc, "extra": {}}
+    if noise is not None:
+        bubbles = fuse_bubbles(space, pm, pc, qm, qc, prior=(chain_m, chain_c))
+        hier = bubbles.random
+        for i, g in enumerate(ok):
+            acc["lik_terms"][g].append((bubbles.lam[i], bubbles.eta[i]))
+        if all("joint" in r for r in R) and np.all(noise["nuis_sd"][np.asarray(ok), 2] > 0):     # rho analysed
+            Lj, ej, _, _ = likelihood_terms(*(np.stack([r["joint"][x] for r in R]) for x in ("pm", "pc", "qm", "qc")))
+            acc["lik_joint"].append({g: (Lj[i], ej[i]) for i, g in enumerate(ok)})
+        else:
+            acc["lik_joint"].append({})
+        h = bubbles.summaries()
+        out["extra"] = {"between_experiments": h["between_experiments"], "predictive": h["predictive"],
+                        "random_effects": hier.to_dict(), "pooled_mean_internal": hier.pooled_mean.tolist(),
+                        "pooled_cov_internal": hier.pooled_cov.tolist()}
+        out["notes"] = hier.notes
+        # the window mean's linear weights (aggregate.chain_aggregate_cov)
+        T_j = np.diag(np.where(np.isfinite(hier.tau), hier.tau, 0.0) ** 2)
+        F, D, L = acc["chain"]
+        F.append(hier.cov @ np.linalg.inv(chain_c))
+        D.append({g: hier.cov @ np.linalg.inv(np.eye(len(space.names)) + bubbles.lam[i] @ T_j) for i, g in enumerate(ok)})
+        L.append({g: bubbles.lam[i] for i, g in enumerate(ok)})
+        out.update({"fusion": bubbles.pooled(), "estimate": (hier.mean, hier.cov),
+                    "chain": (hier.mean, rtps_cov(chain_c, hier.cov, s.rtps))})
+    elif s.fusion == "prior":
+        fus = fuse(pm, pc, space.prior_mean, space.prior_cov)
+        out.update({"fusion": fus, "estimate": (fus.mean, fus.cov), "chain": chain})
+    else:
+        fus = fuse_likelihoods(pm, pc, qm, qc, chain_m, chain_c)
+        out.update({"fusion": fus, "estimate": (fus.mean, fus.cov), "chain": (fus.mean, rtps_cov(chain_c, fus.cov, s.rtps))})
+    return out
+
+
+def _window_posterior(j: int, a: int, b: int, sw: dict, fus, prior_m, prior_c, beta, whiten, average, default: bool):
+    """The :class:`WindowPosterior` of window j (what ``--mcmc`` samples): the pooled Gaussian, the
+    prior the window used, the observation weights and each experiment's handed-off start."""
+    start_j = sw["start_means"][j]
+    entering = np.isfinite(start_j).all(axis=1)
+    if default:
+        desc = {"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
+                "weight_rule": "default likelihood: ||W_n (y_n - R_n)||^2 with W_n = diag(sqrt(beta_jk alpha_n / "
+                               "sigma_n^2)) (the MDA weights are inside W_n; weight holds beta_jk)",
+                "gaussian": "pooled over experiments (no between-bubble scatter)", "L": 1,
+                "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}
+        if j == 0:
+            desc["nuisance"] = ("the ensemble also analysed each experiment's Rmax, Req and time of the maximum; "
+                                "this density fixes them at the preprocessing estimates")
+        else:
+            desc["nuisance"] = ("each experiment runs with its handed-off ensemble's mean Req (start_req_m); the "
+                                "ensemble kept analysing Req")
+        wpost = beta[j, a:b + 1]
+    else:
+        desc = {"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
+                "weight_rule": f"beta_jk / L, L = {average}", "L": average,
+                "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}
+        wpost = beta[j, a:b + 1] / average
+    return WindowPosterior(
+        index=j, start=int(a), samples=(int(a), int(b)), mean=fus.mean, cov=fus.cov, prior_mean=prior_m,
+        prior_cov=prior_c, weight=wpost, start_state=start_j, description=desc, whiten=whiten,
+        start_req_m=sw["start_req"][j] if default else None)
+
+
+def _window_entry(obs, space, j: int, a: int, b: int, sw: dict, wf: dict, influence, acc: dict) -> dict:
+    """``windows[j]`` of the result: the window's estimate, prior weight, failures and costs;
+    adds the window's member runs, failures and warnings to ``acc`` (:func:`fuse_windows`)."""
+    ok, R, lost = sw["ok"][j], sw["results"][j], sw["lost"][j]
+    t = obs.t_star
+    est_m, est_c = wf["estimate"]
+    fus = wf["fusion"]
+    if wf.get("notes"):
+        acc["warnings"].append(f"window {j}: " + "; ".join(wf["notes"]))
+    rejected = []
+    for g, r in zip(ok, R):
+        if r["rejected"]:
+            rejected.append(obs.names[g])
+        acc["member_runs"] += int(r["member_runs"])
+        acc["failed_member_runs"] += int(r["failed_member_runs"])
+    if rejected:
+        acc["warnings"].append(f"window {j}: analysis rejected for {', '.join(rejected)} (too few analysed members "
+                               f"survived the hand-off; the window's prior ensemble was handed on)")
+    n_failed_iter = np.sum([r["n_failed_iter"] for r in R], axis=0)
+    n_fail = sum(int(r["n_failed_handoff"]) for r in R)
+    n_red = sum(int(r["n_redrawn_handoff"]) for r in R)
+    n_red_prior = sum(int(r["n_redrawn_prior"]) for r in R)
+    acc["total_redraw"] += n_red + n_red_prior
+    acc["total_fail"] += n_fail + int(n_failed_iter.sum())
+    if fus.notes:
+        acc["warnings"].append(f"window {j}: " + "; ".join(fus.notes))
+    with np.errstate(invalid="ignore"), _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", RuntimeWarning)
+        cost = np.nanmean(np.stack([r["cost"] for r in R]), axis=0)
+    weight = np.diag(influence)
+    pm, pc = wf["pm"], wf["pc"]
+    return {"index": j, "t_star": [float(t[a]), float(t[b])], "samples": [int(a), int(b)],
+            **gaussian_estimate(space, est_m, est_c),
+            "prior_weight": {nm: float(x) for nm, x in zip(space.names, weight)},
+            "prior_dominated": bool(np.any(weight > PRIOR_WEIGHT_LIMIT)),
+            "cov": si_covariance(space, est_m, est_c).tolist(),
+            "mean_internal": est_m.tolist(), "cov_internal": est_c.tolist(), **wf["extra"],
+            "fusion": fus.to_dict(), "n_failed_iterations": n_failed_iter.tolist(),
+            "n_redrawn_prior": n_red_prior, "n_failed_handoff": n_fail,
+            "n_redrawn_handoff": n_red, "stopped_experiments": sum(bool(r["stopped"]) for r in R),
+            "handoff_failures": {obs.names[g]: {"analysed_invalid_state": int(r.get("n_invalid_analysed", 0)),
+                                                "analysed_failed": int(r.get("n_failed_analysed", 0)),
+                                                "invalid_why": dict(r.get("invalid_why", {}))}
+                                 for g, r in zip(ok, R) if r.get("n_failed_analysed", 0)},
+            "analysis_rejected": rejected, "failed_experiments": lost,
+            "cost": [float(x) if np.isfinite(x) else None for x in cost],  # None: every bubble stopped
+            "per_experiment": [{"name": obs.names[g], "mean_internal": pm[i].tolist(),
+                                "sd_internal": np.sqrt(np.diag(pc[i])).tolist()}
+                               for i, g in enumerate(ok)]}
+
+
+def _aggregate(obs, space, s, fw: dict, n_steps: int, rng) -> dict:
+    """The time-resolved estimate (normalised precision weighting of the windows holding each
+    sample), the aggregate (the same over all windows: its "mean", "cov") and posterior.nc's draws
+    of every window's Gaussian. Returns those with "covered" (sample indices), "mask" (the fitted
+    samples of a curve) and the time-resolved group."""
+    win_mean, win_cov = fw["mean"], fw["cov"]
+    nw = win_mean.shape[0]
+    t = obs.t_star
+    tr_m, tr_c, covered = time_resolved(win_mean, win_cov, n_steps, s.L, s.h)
+    tr = [{"t_star": float(t[k]), "sample": int(k), **gaussian_estimate(space, tr_m[k], tr_c[k])}
+          for k in np.flatnonzero(covered)]
+    agg_m, agg_c = precision_weighted(win_mean, win_cov)
+
+    def mask(fitted):
+        m = np.isfinite(fitted)
+        m[:, 0] = False
+        return m
+    # posterior.nc: draws of every window's fused Gaussian (1 chain), the time-resolved moments
+    draws = np.stack([space.to_si(draw(rng, win_mean[j], win_cov[j], s.n_draws, exact=False)) for j in range(nw)],
+                     axis=-1)                                   # (n_draws, d, nw)
+    tr_group = {}
+    for nm in space.names:
+        tr_group[f"{nm}_mean"] = np.array([x[nm]["mean"] for x in tr])
+        tr_group[f"{nm}_sd"] = np.array([x[nm]["sd"] for x in tr])
+        tr_group[f"{nm}_hdi95"] = np.array([x[nm]["hdi95"] for x in tr])
+    return {"mean": agg_m, "cov": agg_c, "time_resolved": tr, "covered": np.flatnonzero(covered), "mask": mask,
+            "posterior": {nm: draws[None, :, i, :] for i, nm in enumerate(space.names)},
+            "time_resolved_group": tr_group}
+
+
+def _default_likelihood_record(s, lik_info: list) -> dict:
+    """``details["mda"]`` and ``details["likelihood"]`` of the default likelihood, in words and numbers."""
+    return {"mda": ("beta_jk = 1/|I(k)| (sample 0, the maximum, excluded), window cost 1/2 sum_k beta_jk "
+                    "alpha_n ||.||^2 / sigma_n^2: every sample counts once over the windows, no 1/L"),
+            "likelihood": {
+                "name": "default", "effective_samples": [x["effective_samples"] for x in lik_info],
+                "autocorrelation_time": [x["autocorrelation_time"] for x in lik_info],
+                "noise_sd": [x["noise_sd"] for x in lik_info], "sd_used": [x["sd_used"] for x in lik_info],
+                "alpha": [x["alpha"] for x in lik_info], "n_samples": [x.get("n_samples") for x in lik_info],
+                "noise": ("each record's noise sd (preprocessing, else fourth differences), raised to the RMS of the "
+                          "pilot pass's residual where the model does not reach the noise; each experiment tempered "
+                          "by alpha = n_eff/K (integrated autocorrelation time of that residual)"
+                          if s.adapt else "each record's noise sd (preprocessing, else fourth differences); no tempering"),
+                "mda": "beta_jk = 1/|I(k)|: the weights of every sample over the windows holding it sum to one",
+                "nuisances": "Rmax and the time of the maximum analysed in window 0's augmented ensemble, log Req in "
+                             "every window's (prior sds from preprocessing)",
+                "fusion": "random effects across experiments in every window (gel-level mean, between-bubble sd, "
+                          "predictive); the gel mean's prior chained from the previous window (RTPS)"}}
+
+
+def record_level(obs, space, s, sw: dict, fw: dict, noise: dict, agg_m, agg_c, details: dict) -> tuple:
+    """The default likelihood's record level: each experiment's window likelihoods summed (each
+    sample counted once; parameters constant over the record, like the aggregate estimate), random
+    effects on those, the aggregate's covariance propagated through the window chain
+    (:func:`~imrbayes.ensemble.aggregate.chain_aggregate_cov`) and the predictive.
+
+    Takes the observations, space, resolved settings, the reported sweep, :func:`fuse_windows`'
+    result, the noise model, the aggregate's mean and (weighting) covariance, and ``details``
+    (updated in place). Returns (the reported aggregate covariance (d, d), ``per_experiment``)."""
+    n_exp, nw = obs.n_exp, fw["mean"].shape[0]
+    lik_terms = fw["lik_terms"]
+    used = [g for g in range(n_exp) if lik_terms[g]]
+    rec = BubbleFusion.from_likelihoods(space, np.stack([sum(x[0] for x in lik_terms[g]) for g in used]),
+                                        np.stack([sum(x[1] for x in lik_terms[g]) for g in used]))
+    hr = rec.summaries()
+    tau2 = np.diag(np.where(np.isfinite(rec.random.tau), rec.random.tau, 0.0) ** 2)
+    # the aggregate's covariance propagated through the window chain (module doc, "Aggregate")
+    Q = np.stack([agg_c @ np.linalg.inv(c) / nw for c in fw["cov"]])
+    agg_chain = chain_aggregate_cov(*fw["chain"], Q, space.prior_cov, tau2)
+    # a new bubble: the gel-level uncertainty plus the between-bubble variance with tau's
+    # uncertainty integrated (the record's predictive less its gel-level covariance)
+    between_var = np.maximum(np.diag(rec.random.predictive_cov) - np.diag(rec.random.cov), np.diag(tau2))
+    agg_weighting = agg_c
+    if s.aggregate_cov == "chain":
+        agg_c = agg_chain
+        pred_var, pred_rule = between_var, ("the aggregate (covariance propagated through the window chain) "
+                                            "widened by the between-bubble variance with tau's uncertainty "
+                                            "integrated (record level)")
+    else:
+        pred_var, pred_rule = np.diag(tau2), "the aggregate estimate widened by its between-bubble sd"
+    pred = {nm: marginal_summary(agg_m[i], float(np.sqrt(max(agg_c[i, i] + pred_var[i], 0.0))),
+                                 bool(space.positive[i])) for i, nm in enumerate(space.names)}
+    alt = details.setdefault("alternative_estimates", {})
+    other = "aggregate_precision_weighted" if s.aggregate_cov == "chain" else "aggregate_chain_cov"
+    other_c = agg_weighting if s.aggregate_cov == "chain" else agg_chain
+    alt[other] = {**gaussian_estimate(space, agg_m, other_c), "cov_internal": other_c.tolist(),
+                  "note": ("the aggregate's mean with methods.md §4's normalised precision weighting's "
+                           "covariance (about one window's: the windows treated as one)"
+                           if s.aggregate_cov == "chain" else
+                           "the aggregate's mean with its covariance propagated through the window chain "
+                           "(imrbayes.ensemble.aggregate)")}
+    if s.aggregate_cov != "chain":
+        details.setdefault("alternative_predictives", {})["aggregate_chain_cov"] = {
+            nm: marginal_summary(agg_m[i], float(np.sqrt(max(agg_chain[i, i] + between_var[i], 0.0))),
+                                 bool(space.positive[i])) for i, nm in enumerate(space.names)}
+    details["aggregate_cov_rule"] = s.aggregate_cov
+    details["aggregate_cov_internal"] = agg_c.tolist()
+    details.update({"between_experiments": hr["between_experiments"], "predictive": pred,
+                    "record_random_effects": {**rec.random.to_dict(), "estimate": hr["estimate"],
+                                              "note": "each experiment's window likelihoods summed over the "
+                                                      "record (constant parameters) with the parameter prior; "
+                                                      "top-level between_experiments is this; predictive is "
+                                                      + pred_rule}})
+    joint = _record_with_shared_req(fw["lik_joint"], used, noise["nuis_sd"], space)
+    if joint is not None:
+        details.setdefault("alternative_estimates", {})["record_shared_req"] = joint
+    loo = rec.leave_one_out()
+    if loo is not None:
+        loo["note"] += "; each experiment's window likelihoods summed over the record"
+        details["leave_one_bubble_out"] = loo
+    return agg_c, _record_per_experiment(obs, space, sw, rec, used, noise["lik_info"])
+
+
+def _record_per_experiment(obs, space, sw: dict, rec: BubbleFusion, used: list, lik_info: list) -> list:
+    """``per_experiment``: each experiment's record-level estimate (the parameter prior times its
+    window likelihoods), its likelihood and its nuisances."""
+    nw = len(sw["ok"])
+    Pi0 = np.linalg.inv(space.prior_cov)
+    per = []
+    for g in range(obs.n_exp):
+        entry = {"name": obs.names[g]}
+        if g in used:
+            i = used.index(g)
+            C = np.linalg.inv(Pi0 + rec.lam[i])
+            mg = C @ (Pi0 @ space.prior_mean + rec.eta[i])
+            entry.update({"estimate": gaussian_estimate(space, mg, C), "mean_internal": mg.tolist(),
+                          "cov_internal": C.tolist(), "estimate_rule": "parameter prior times the experiment's "
+                                                                        "window likelihoods over the record"})
+        else:
+            entry["failed"] = True
+        entry["likelihood"] = lik_info[g]
+        w0 = sw["results"][0][sw["ok"][0].index(g)] if g in sw["ok"][0] else {}
+        last_j = max((j for j in range(nw) if g in sw["ok"][j]), default=None)
+        wl = sw["results"][last_j][sw["ok"][last_j].index(g)] if last_j is not None else {}
+        entry["nuisance"] = _nuisance(obs, g, w0.get("rmax_rel"), w0.get("offset"), wl.get("log_req"))
+        per.append(entry)
+    return per
 
 
 def _record_with_shared_req(lik_joint, used, nuis_sd, space):
@@ -1236,8 +1255,7 @@ def _record_with_shared_req(lik_joint, used, nuis_sd, space):
         L, e = integrate_out_last(sum(w[g][0] for w in lik_joint), sum(w[g][1] for w in lik_joint), float(nuis_sd[g][2]))
         Lz.append(L)
         ez.append(e)
-    rec = random_effects(np.stack(Lz), np.stack(ez), space.prior_mean, space.prior_cov)
-    return rec.summaries(space)["estimate"]
+    return BubbleFusion.from_likelihoods(space, np.stack(Lz), np.stack(ez)).summaries()["estimate"]
 
 
 def integrate_out_last(Lam, eta, prior_sd: float):
@@ -1295,6 +1313,18 @@ class MIEnKS(InferenceMethod):
             p = s.pilot()
             n += n_windows(n_steps, p.L, p.h) * (p.n_iter + 1) * p.n_ens * n_exp
         return n
+
+    @staticmethod
+    def n_units(settings, n_exp, n_steps, fm=None):
+        nw = n_windows(n_steps, settings.L, settings.h)
+        if getattr(settings, "likelihood", "paper") == "default" and getattr(settings, "adapt", False):
+            # the default likelihood's pilot pass sets the noise level, then the reported pass
+            sp = settings.pilot()
+            nwp = n_windows(n_steps, sp.L, sp.h)
+            if nwp == nw:
+                return 2 * nw * n_exp, f"2 passes x {nw} windows x {n_exp} experiments"
+            return (nwp + nw) * n_exp, f"a pilot pass of {nwp} windows and {nw} windows, x {n_exp} experiments"
+        return nw * n_exp, f"{nw} windows x {n_exp} experiments"
 
     @staticmethod
     def figures(obs, res, fdir):

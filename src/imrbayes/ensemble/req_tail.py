@@ -1,4 +1,4 @@
-"""Req from the model's own tail (``--set req_tail=model`` or ``inline``, En4D-Var).
+"""Req from the model's own tail (``--set req_tail=inline``, En4D-Var).
 
 Preprocessing estimates Req as the mean of a record's last frames. A bubble whose contents are
 still cooling (the thermal model) oscillates about a mean that lies *above* Req there and settles
@@ -63,7 +63,7 @@ def tail_req(runner, theta_si, rmax_m, req_hat_m, tails, iterations: int = 3) ->
 
 @dataclass(frozen=True)
 class ReqTailStart:
-    """Where ``req_tail=model`` evaluates the model's tail when a fit of the same records exists.
+    """Where the model's tail is evaluated when a fit of the same records exists (instead of a first pass).
 
     theta_si : (d,) or (E, d) material [SI] (per experiment where the fit has bubble offsets);
     rmax_m : (E,) fitted Rmax [m]; source : what the fit was (written to the run's details).

@@ -22,7 +22,7 @@ from imrbayes.data.noise import noise_variance, paper_sigma
 from imrbayes.ensemble import (En4DVarSettings, IMRSettings, MIEnKSSettings, Observations, ParamSpace, fit_en4dvar,
                                fit_imr, fit_mienks)
 from imrbayes.ensemble import figures as figs
-from imrbayes.ensemble.gaussian import fuse
+from imrbayes.ensemble.fusion import fuse
 from imrbayes.ensemble.pimr import collapse_time
 from imrbayes.forward import ForwardModel
 
