@@ -107,8 +107,8 @@ def check_options(workers, scheduler, resume, retry_failed) -> tuple:
 def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=False, retry_failed=False,
                    quiet: bool = False, desc: str = "run"):
     """RunStore under ``out`` for ``config`` + the executor ``--workers/--scheduler`` ask for, as an
-    :class:`imrbayes.execution.Execution` with, on a terminal and unless ``quiet``, one progress bar
-    (``desc``) over every batch; the command plans its total
+    :class:`imrbayes.execution.Execution` with, unless ``quiet``, one progress bar (``desc``) over
+    every batch on a terminal, one line per batch otherwise; the command plans its total
     (:func:`imrbayes.execution.progress.plan`). Bad options and refused resumes raise InputError."""
     from imrbayes.execution import Execution
     from imrbayes.execution import RunStore, make_executor
@@ -119,10 +119,18 @@ def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=Fa
     with make_executor(workers, scheduler) as ex, \
             RunStore.open(out, jsonable(config), resume=resume) as store:
         bar = None
+        if store.previous_interrupted is not None and not quiet:
+            st = store.previous_interrupted
+            click.echo(f"imrbayes: the earlier run in {out} was interrupted (its last batch: {st.get('n_done', '?')} "
+                       f"of {st.get('n_units', '?')} units done); continuing from its checkpoints", err=True)
         if not quiet and _isatty(sys.stderr):
             from imrbayes.execution.progress import progress_bar
 
             bar = progress_bar(total=None, desc=desc, unit="units", file=sys.stderr)
+        elif not quiet:             # a log file or pipe: one line per stage, never silence until the end
+            from imrbayes.execution.progress import StageLog
+
+            bar = StageLog(desc=desc, file=sys.stderr)
         try:
             yield Execution(store=store, executor=ex, retry_failed=retry_failed, progress=False, bar=bar)
         finally:
