@@ -36,6 +36,17 @@ from imrbayes.execution.progress import finish, plan
 METHOD_NAMES = tuple(METHODS)
 
 
+def set_help() -> str:
+    """``--set``'s help: one line per method naming its first keys; every key with its default and
+    meaning is in docs/cli.md (generated from the settings classes)."""
+    lines = ["Method setting; repeatable. Every key, its default and meaning: docs/cli.md.", "", "\b"]
+    for m in METHODS.values():
+        names = [f.name for f in dataclasses.fields(m.settings_class)]
+        more = f", ... ({len(names)} keys)" if len(names) > 6 else ""
+        lines.append(f"{m.name}: {', '.join(names[:6])}{more}")
+    return "\n".join(lines)
+
+
 def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
     """(units the fit will run, what they are in words) for the progress bar's total, so that it counts
     the whole run from the start (``mienks: 18 windows x 5 experiments``); ``(None, "")`` when not
@@ -108,20 +119,7 @@ def _load_config(path) -> dict:
 @click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
               help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
                    "scheme=imrv2-fd, nt=25, radial=km, ...); repeatable.")
-@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
-              help="Method setting (en4dvar: n_ens (members per bubble: 24; the paper's 48 with --likelihood paper), "
-                   "n_iter, n_iter_later (cycles 2..: 3; the paper's 5), n_runs, rtps, t_end [t*], fusion=likelihood|prior, obs_weight=mean|sum, "
-                   "bubble_posterior=gaussian|sampled (sampled: each bubble's posterior by importance sampling, "
-                   "is_rounds x is_draws more forward runs per bubble, under the prior widened "
-                   "is_prior_widen times; its calibration on camera data: docs/results.md), req_tail=auto|mean|model|inline "
-                   "(model: each Req's prior centred by the model's own tail at a quick first fit, then the fit; "
-                   "inline: one pass, each Req moved by the model's tail after cycle 1; auto, the default: inline "
-                   "with the thermal bubble), nuisance_integral=req|prior|cycle (what each bubble's likelihood "
-                   "integrates its nuisances against; req, the default: Req against its preprocessing prior); "
-                   "mienks: L, h [samples], n_ens, n_iter, rtps, likelihood=default|paper, adapt (default likelihood: "
-                   "pilot pass), pilot_n_ens, pilot_n_iter, pilot_h (the pilot's members, iterations, shift; default: 24, n_iter, h), pilot_retry (a bubble whose pilot residual stands out gets a second pilot; default true), min_iter (default likelihood: a window stops iterating once its cost settles or its next step is under step_tol posterior sd, from this many evaluations on: 2; n_iter: never early), step_tol (0.1), prior_widen (window 0's members drawn with the prior sd times K: a number for every parameter or NAME:K[,NAME:K]; default mu:3, 1 = the prior itself), member_start=prior|pilot (where window 0's members are centred: the prior mean, or each experiment's pilot estimate at the record's end), req_prior=preprocessing|en4dvar|en4dvar-centre (each estimated Req's prior: the tail mean, a whole-record En4D-Var posterior fitted first, or that posterior's mean with the preprocessing's sd; default en4dvar, paper: preprocessing), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
-                   "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
-                   "repeatable.")
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", help=None)
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",
               help="Prior mean and sd in SI units (G [Pa], mu [Pa s]) [default: G=6e3:2.8e3, mu=0.209:0.088].")
 @click.option("--workers", type=int, default=None,
@@ -298,6 +296,9 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     if pre.skipped:
         click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
                    + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)
+
+
+next(p for p in fit_cmd.params if p.name == "settings").help = set_help()
 
 
 def _window_list(value):
