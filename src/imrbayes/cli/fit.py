@@ -26,7 +26,7 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import main, read_config
-from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution, estimate_text,
+from imrbayes.cli.options import (check_options, command_line, compare_line, data_fingerprint, echo_execution, estimate_text,
                                   execution_options, force_option, key_values, method_settings, open_execution,
                                   prepare_out, prior_overrides, select_experiments, EXPERIMENTS_HELP)
 from imrbayes.ensemble import METHODS
@@ -171,6 +171,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     --forward bubble=polytropic the fast one); --mcmc adds minutes to hours (see --mcmc).
     """
     t_start = time.perf_counter()
+    argv = command_line(click.get_current_context())
     cfg = _load_config(config)
 
     def pick(name, value, default):
@@ -262,7 +263,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
         if mcmc:
             # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
             _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
-                       data, execution.summary(), t_start, quiet=True)
+                       data, execution.summary(), t_start, quiet=True, argv=argv)
             if not quiet:
                 click.echo(f"{method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
             from imrbayes.mcmc.fit import run_fit_mcmc
@@ -274,15 +275,26 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
                                    warn=None if quiet else (lambda w: click.echo(f"imrbayes: warning: {w}", err=True)))
         exec_summary = execution.summary()
     written = _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
-                         data, exec_summary, t_start, quiet=quiet, compare=compare)
+                         data, exec_summary, t_start, quiet=quiet, compare=compare, argv=argv)
     if not quiet:
-        for w in list(pre.warnings) + list(res.warnings):       # warnings first: they qualify the result
-            click.echo(f"imrbayes: warning: {w}", err=True)
-        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(res.estimate)}; "
-                   f"rmse {res.rmse:.4g}; {res.runtime_s:.1f} s")
+        from imrbayes.io import read_json
+        from imrbayes.report import fit_check_sentence, grouped_warnings
+
+        summary = read_json(out / "summary.json", required=True)    # what the lead's checks added to it
+        for w in grouped_warnings(list(pre.warnings) + list(res.warnings), res.param_names):
+            click.echo(f"imrbayes: warning: {w}", err=True)        # warnings first: they qualify the result
+        check = fit_check_sentence(summary)
+        if check and (summary.get("fit_check") or {}).get("described") is False:
+            click.echo(check)
+        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(res.estimate, summary)}; "
+                   f"rmse {res.rmse:.3g} R* [-] ({res.rmse * _mean_rmax_um(obs):.3g} µm); {res.runtime_s:.1f} s")
+        if check and (summary.get("fit_check") or {}).get("described") is not False:
+            click.echo(check)
         click.echo(constants_line(fm.physics, ds.physics or {}))
         extra = ", mcmc.nc, compare.json" if compare is not None else ""
-        click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}{extra} and {len(written)} figure(s)")
+        tables = ", time_resolved.csv" if (out / "time_resolved.csv").exists() else ""
+        click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}, estimate.csv{tables}{extra} and "
+                   f"{len(written)} figure(s)")
         if compare is not None:
             click.echo(compare_line(compare))
     if compare is not None:
@@ -301,6 +313,13 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
 next(p for p in fit_cmd.params if p.name == "settings").help = set_help()
 
 
+def _mean_rmax_um(obs) -> float:
+    """The records' mean Rmax [µm]: R* = R/Rmax, so an rmse in R* times it is one in µm."""
+    import numpy as np
+
+    return float(np.mean(obs.rmax_m)) * 1e6
+
+
 def _window_list(value):
     """``--mcmc-windows``: None/"all" -> None (every window), "0,3,5" or [0, 3] -> [0, 3, 5]."""
     if value is None or (isinstance(value, str) and value.strip().lower() == "all"):
@@ -317,8 +336,13 @@ def _window_list(value):
 
 
 def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config, data,
-               exec_summary, t_start, quiet, compare=None) -> list:
-    """summary.json, posterior.nc and the method's figures; returns the figure paths."""
+               exec_summary, t_start, quiet, compare=None, argv=None) -> list:
+    """summary.json, posterior.nc, estimate.csv (and time_resolved.csv where the method resolves
+    time) and the method's figures; returns the figure paths."""
+    import os
+    import shlex
+
+    from imrbayes.results import write_tables
     from imrbayes.ensemble import figures as figs
     from imrbayes.ensemble.output import posterior_tree, summary_dict, write_summary
     exec_summary["skipped_experiments"] = list(pre.skipped)
@@ -330,7 +354,8 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
         "data": str(data), "warnings_preprocessing": list(pre.warnings),
         "command": {"name": "fit", "method": method, "model": model, "seed": seed, "workers": workers,
                     "scheduler": scheduler, "resume": bool(resume),
-                    "config": str(config) if config else None, "imrbayes_version": __version__},
+                    "config": str(config) if config else None, "imrbayes_version": __version__,
+                    **({"argv": list(argv), "line": shlex.join(argv), "cwd": os.getcwd()} if argv else {})},
         "execution": exec_summary,
         "failures": {"skipped_experiments": list(pre.skipped),
                      "failed_units": res.details.get("failed_units", []),
@@ -339,6 +364,7 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
         "total_runtime_s": time.perf_counter() - t_start, **mcmc_part})
     write_summary(out / "summary.json", summary)
     posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
+    write_tables(out, summary)
     fdir = out / "figures"
     # the figures' µs and strain-rate axes: each experiment's time scale t_c [s] (t = t* t_c)
     tcs = {e.get("name"): e.get("tc_s") for e in pre.to_dict(arrays=False).get("experiments", [])
