@@ -878,9 +878,10 @@ def _no_paths(text: str) -> str:
     path's last name in words (``nuisance integral``)."""
     import re
 
+    roots = ("per_experiment", "details", "likelihood", "windows", "estimate", "settings", "preprocessing", "fit")
     return re.sub(r"`?\b[\w]+(?:\[\])?(?:\.[\w]+(?:\[\])?)+`?",
                   lambda m: m.group(0).strip("`").rsplit(".", 1)[-1].replace("_", " ")
-                  if "[]" in m.group(0) or m.group(0).count(".") >= 2 else m.group(0), str(text))
+                  if "[]" in m.group(0) or m.group(0).strip("`").startswith(roots) else m.group(0), str(text))
 
 
 def _rmse_um(s, rmse) -> str:
@@ -1113,7 +1114,8 @@ def _section_warnings(s, compare) -> str:
         items.append(f"MCMC failed in window {esc(f.get('window') if isinstance(f, dict) else f)}: "
                      f"{esc(f.get('error', '') if isinstance(f, dict) else '')}")
     out = "<h2 id='warnings'>Warnings and failures</h2>"
-    out += ("<ul>" + "".join(f"<li>{esc(w)}</li>" for w in warn) + "</ul>") if warn else "<p>No warnings.</p>"
+    out += ("<ul>" + "".join(f"<li>{esc(_no_paths(w))}</li>" for w in warn) + "</ul>") if warn else \
+        "<p>No warnings.</p>"
     out += ("<p><b>Failed or skipped units:</b></p><ul>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
             if items else "<p>No failed or skipped units.</p>")
     return out

@@ -95,7 +95,8 @@ def field_docs(cls) -> list:
             default = repr(f.default_factory())                    # type: ignore[misc]
         else:
             default = "required"
-        typ = str(f.type).replace("typing.", "")
+        typ = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+        typ = str(typ).replace("typing.", "")
         rows.append((f.name, typ, default, own.get(f.name) or mentioned.get(f.name) or
                      f"see the docstring of {cls.__module__}.{cls.__qualname__}"))
     return rows
