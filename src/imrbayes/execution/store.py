@@ -275,6 +275,9 @@ class RunStore:
                 info.setdefault("sessions", []).append({**session, "resume": True})
                 store = cls(out, info, True, lock_fd)
                 store.previous_interrupted = _interrupted_status(out / "status.json")
+                if store.previous_interrupted is not None:       # this session takes the run over
+                    store._last_status = {k: v for k, v in store.previous_interrupted.items()
+                                          if k not in ("owner", "updated")} | {"interrupted": False, "complete": False}
             else:
                 import imrbayes
 
