@@ -238,7 +238,8 @@ def bounds(e: dict, name: str = "", summary=None) -> tuple:
     Otherwise the 95 % interval [lo, hi] is read: an end that reaches the prior box's edge (a grid
     method's ``{name}_min``/``{name}_max``, within 1 %) is not bounded by the data, and an interval
     spanning more than :data:`UNBOUNDED_FACTOR` (hi / lo > 100, or lo <= 0 < hi) bounds neither
-    end: it says where the data are not, not where the parameter is. No interval at all: neither.
+    end: it says where the data are not, not where the parameter is. No interval but an sd: both
+    (the sd is the method's answer); neither an interval nor an sd: neither.
     """
     b = e.get("bounded")
     if isinstance(b, dict):
@@ -246,7 +247,8 @@ def bounds(e: dict, name: str = "", summary=None) -> tuple:
     hdi = e.get("hdi95") or [None, None]
     lo, hi = (_fnum(hdi[0]), _fnum(hdi[1])) if len(hdi) == 2 else (math.nan, math.nan)
     if not (math.isfinite(lo) and math.isfinite(hi)):
-        return False, False
+        sd = _fnum(e.get("sd"))
+        return (True, True) if math.isfinite(sd) else (False, False)
     bmin, bmax = _box(summary, name)
     lower = not (math.isfinite(bmin) and lo <= bmin + 0.01 * abs(bmax - bmin if math.isfinite(bmax) else bmin))
     upper = not (math.isfinite(bmax) and hi >= bmax - 0.01 * abs(bmax - (bmin if math.isfinite(bmin) else 0.0)))
