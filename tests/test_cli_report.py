@@ -302,8 +302,8 @@ def test_report_opens_with_a_conclusion_in_physical_units(runs):
     concl = _text(_section(html, "conclusion"))
     s = json.loads((run / "summary.json").read_text())
     g = s["estimate"]["G"]
-    assert f"G = {g['mean'] * 1e-3:.3g} kPa" in concl
-    assert f"95 % interval {g['hdi95'][0] * 1e-3:.3g}–{g['hdi95'][1] * 1e-3:.3g} kPa" in concl
+    assert f"G = {g['mean'] * 1e-3:.4g} kPa ± {g['sd'] * 1e-3:.2g} kPa" in concl
+    assert f"(95 % {g['hdi95'][0] * 1e-3:.3g}-{g['hdi95'][1] * 1e-3:.3g} kPa)" in concl
     assert " Pa s" in concl
     assert "MCMC check: undecided in windows 0, 6" in concl           # 60 emcee steps never converge
     assert "Caveats:" in concl
