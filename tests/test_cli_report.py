@@ -448,7 +448,7 @@ def test_report_flags_a_gel_level_estimate_outside_the_experiments(runs, tmp_pat
     s = _edit_summary(run, far)
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     concl = _text(_section(html, "conclusion"))
-    assert "the gel-level G (26 kPa) lies outside every experiment's own 95 % interval" in concl
+    assert "The gel-level G (26 kPa) lies outside every experiment's own 95 % interval" in concl
     assert "the gel-level mu" not in concl
     # just below the lowest experiment's mean, but inside its interval: no caveat
     low = min(e["estimate"]["G"]["mean"] - e["estimate"]["G"]["sd"] for e in s["per_experiment"])
@@ -521,7 +521,7 @@ def test_recorded_command_reruns_the_fit_exactly(runs, tmp_path):
     _report(runs["mienks"], "--out", tmp_path / "r.html")
     assert esc(s["command"]["line"]) in (tmp_path / "r.html").read_text()
     i = argv.index("--out")
-    again = argv[2:i + 1] + [str(tmp_path / "again")] + argv[i + 2:]
+    again = argv[1:i + 1] + [str(tmp_path / "again")] + argv[i + 2:]
     r = _run(*again)
     assert r.exit_code == 0, r.output
     s2 = json.loads((tmp_path / "again" / "summary.json").read_text())
