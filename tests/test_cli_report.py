@@ -11,6 +11,7 @@ import shutil
 
 import arviz as az
 import numpy as np
+import pandas as pd
 import pytest
 import xarray as xr
 from click.testing import CliRunner
@@ -301,8 +302,8 @@ def test_report_opens_with_a_conclusion_in_physical_units(runs):
     concl = _text(_section(html, "conclusion"))
     s = json.loads((run / "summary.json").read_text())
     g = s["estimate"]["G"]
-    assert f"G = {g['mean'] * 1e-3:.3g} kPa" in concl
-    assert f"95 % interval {g['hdi95'][0] * 1e-3:.3g}–{g['hdi95'][1] * 1e-3:.3g} kPa" in concl
+    assert f"G = {g['mean'] * 1e-3:.4g} kPa ± {g['sd'] * 1e-3:.2g} kPa" in concl
+    assert f"(95 % {g['hdi95'][0] * 1e-3:.3g}-{g['hdi95'][1] * 1e-3:.3g} kPa)" in concl
     assert " Pa s" in concl
     assert "MCMC check: undecided in windows 0, 6" in concl           # 60 emcee steps never converge
     assert "Caveats:" in concl
@@ -447,7 +448,7 @@ def test_report_flags_a_gel_level_estimate_outside_the_experiments(runs, tmp_pat
     s = _edit_summary(run, far)
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     concl = _text(_section(html, "conclusion"))
-    assert "the gel-level G (26 kPa) lies outside every experiment's own 95 % interval" in concl
+    assert "The gel-level G (26 kPa) lies outside every experiment's own 95 % interval" in concl
     assert "the gel-level mu" not in concl
     # just below the lowest experiment's mean, but inside its interval: no caveat
     low = min(e["estimate"]["G"]["mean"] - e["estimate"]["G"]["sd"] for e in s["per_experiment"])
@@ -507,3 +508,46 @@ def test_report_says_when_reqs_prior_came_from_the_models_tail(runs, tmp_path):
     _edit_summary(one, lambda s: s["details"].update(req_tail={"method": "mean", "setting": "auto", "factor": [1.0] * 3}))
     concl = _text(_section(_report(one, "--quiet") and (one / "report.html").read_text(), "conclusion"))
     assert "model's own tail" not in concl
+
+
+def test_recorded_command_reruns_the_fit_exactly(runs, tmp_path):
+    """The report's command row is the command as typed: run again (into a new folder) it gives the
+    same estimate, --forward, --set and --n-steps included."""
+    s = json.loads((runs["mienks"] / "summary.json").read_text())
+    argv = s["command"]["argv"]
+    assert argv[:2] == ["imrbayes", "fit"] and "--forward" in argv and "--set" in argv
+    from imrbayes.html import esc
+
+    _report(runs["mienks"], "--out", tmp_path / "r.html")
+    assert esc(s["command"]["line"]) in (tmp_path / "r.html").read_text()
+    i = argv.index("--out")
+    again = argv[1:i + 1] + [str(tmp_path / "again")] + argv[i + 2:]
+    r = _run(*again)
+    assert r.exit_code == 0, r.output
+    s2 = json.loads((tmp_path / "again" / "summary.json").read_text())
+    for p in s["parameters"]:
+        assert s2["estimate"][p]["mean"] == s["estimate"][p]["mean"]
+        assert s2["estimate"][p]["sd"] == s["estimate"][p]["sd"]
+
+
+def test_fit_writes_its_results_as_tables_and_load_run_reads_them(runs):
+    import imrbayes
+
+    for kind in ("pimr", "mienks"):
+        s = json.loads((runs[kind] / "summary.json").read_text())
+        est = pd.read_csv(runs[kind] / "estimate.csv")
+        assert list(est.columns) == ["parameter", "unit", "mean", "sd", "hdi95_low", "hdi95_high"]
+        assert list(est["unit"]) == ["Pa", "Pa s"]
+        for _, row in est.iterrows():
+            assert row["mean"] == pytest.approx(s["estimate"][row["parameter"]]["mean"], rel=1e-12)
+        run = imrbayes.load_run(runs[kind])
+        assert run.estimates["G"]["mean"] == pytest.approx(s["estimate"]["G"]["mean"], rel=1e-12)
+        assert "posterior" in run.posterior.children
+        assert list(run.per_experiment["experiment"]) == [x["name"] for x in s["per_experiment"]]
+    assert not (runs["pimr"] / "time_resolved.csv").exists() and imrbayes.load_run(runs["pimr"]).time_resolved is None
+    # G(t) as written to posterior.nc's time_resolved group, read independently of summary.json
+    tr = pd.read_csv(runs["mienks"] / "time_resolved.csv")
+    nc = imrbayes.load_run(runs["mienks"]).posterior["time_resolved"]
+    np.testing.assert_allclose(tr["G_mean [Pa]"], np.asarray(nc["G_mean"]), rtol=1e-12)
+    np.testing.assert_allclose(tr["mu_hdi95_high [Pa s]"], np.asarray(nc["mu_hdi95"])[:, 1], rtol=1e-12)
+    assert imrbayes.load_run(runs["mienks"]).time_resolved.shape[0] == len(tr)

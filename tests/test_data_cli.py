@@ -282,3 +282,15 @@ def test_options_from_toml_config_and_command_line_wins(tmp_path):
     assert res.exit_code == 2 and "unknown option 'bogus'" in res.output
     res = CliRunner().invoke(main, ["simulate", "--config", str(tmp_path / "missing.toml")])
     assert res.exit_code == 2 and "config file not found" in res.output
+
+
+@pytest.mark.parametrize("meta,problem", [({"material": "gel", "phisics": {"rho": 1000.0}},
+                                           "unknown key 'phisics' (did you mean 'physics'?)"),
+                                          ({"material": "gel", "physics": {"rhoo": 1000.0}},
+                                           "unknown physics key 'rhoo' (did you mean 'rho'?)")])
+@pytest.mark.parametrize("command", [["inspect"], ["fit", "--method", "pimr"], ["diagnose", "--quick"]])
+def test_every_command_refuses_an_unknown_meta_key_naming_the_file(tmp_path, meta, problem, command):
+    make_dataset(tmp_path / "ds", n_exp=2, meta=meta)
+    r = run(command[0], tmp_path / "ds", *command[1:], "--out", tmp_path / "out")
+    assert_bad_input(r, "meta.json", problem)
+    assert not (tmp_path / "out").exists()

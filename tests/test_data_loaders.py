@@ -127,11 +127,11 @@ def test_mat_umich_layout_synthetic(tmp_path):
 def test_directory_loads_with_meta_passthrough(tmp_path):
     meta = {"material": "gel", "temperature_C": 21.0, "physics": {"rho": 1000.0, "c8": 1500},
             "forward": {"radial": "km", "bubble": "polytropic", "vapor": False},
-            "experiments": {"exp_002.csv": {"Req_m": 4.0e-5, "note": "kept"}}, "my_key": [1, 2]}
+            "experiments": {"exp_002.csv": {"Req_m": 4.0e-5, "note": "kept"}}, "x_my_key": [1, 2]}
     make_dataset(tmp_path / "ds", n_exp=3, meta=meta)
     ds = load_dataset(tmp_path / "ds")
     assert ds.format == "directory" and ds.names == ["exp_001", "exp_002", "exp_003"]
-    assert ds.material == "gel" and ds.meta["my_key"] == [1, 2]
+    assert ds.material == "gel" and ds.meta["x_my_key"] == [1, 2]
     assert ds.physics == {"rho": 1000.0, "c8": 1500.0} and ds.rho == 1000.0 and ds.p8 == 101325.0
     assert ds.forward == {"radial": "km", "bubble": "polytropic", "vapor": False}
     e2 = ds.experiments[1]

@@ -140,5 +140,7 @@ def test_estimate_text_units():
     from imrbayes.cli.options import estimate_text
 
     assert estimate_text({"G": {"mean": 13500.0, "sd": 600.0}, "mu": {"mean": 0.101, "sd": 0.023}}) == \
-        "G = 13.5 kPa ± 0.6, mu = 0.101 Pa s ± 0.023"
+        "G = 13.5 kPa ± 0.6 kPa, mu = 0.101 Pa s ± 0.023 Pa s"
+    assert estimate_text({"G": {"mean": 7.3e3, "sd": 9e3, "hdi95": [66.5, 5.66e7]}}) == \
+        "G not bounded by the data (best fit 7.3 kPa)"
     assert estimate_text({"alpha": {"mean": 2.0, "sd": float("nan")}}) == "alpha = 2 (no interval)"

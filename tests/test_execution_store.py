@@ -304,3 +304,42 @@ def test_sigterm_stops_the_run_cleanly_and_restores_handlers(tmp_path):
     finally:
         signal.signal(signal.SIGTERM, old)
     assert seen == [signal.SIGTERM] and report.ok
+
+
+# ------------------------------------------------------------------------------ killed outright
+_KILLED_CHILD = """
+import os, signal, sys
+from imrbayes.execution import RunStore, Unit, run_units
+from imrbayes.execution.toy import toy_bubble
+store = RunStore.open(sys.argv[1], {"seed": 0, "workload": "killed"})
+run_units([Unit("exp=000", 0)], lambda u, rng: {"x": 1.0}, seed=0, store=store, progress=False)
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_run_killed_with_sigkill_reads_as_interrupted_and_resume_says_so(tmp_path):
+    import subprocess
+    import sys
+
+    from imrbayes.execution.store import read_status
+
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-c", _KILLED_CHILD, str(out)], capture_output=True, text=True)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    raw = json.loads((out / "status.json").read_text())
+    assert raw["running"] and not raw["complete"]            # what the killed process left: never "complete"
+    status = read_status(out)
+    assert status["interrupted"] and not status["complete"] and not status["running"]
+    with RunStore.open(out, {"seed": 0, "workload": "killed"}, resume=True) as store:
+        assert store.previous_interrupted["interrupted"] and store.previous_interrupted["n_done"] == 1
+    with RunStore.open(out, {"seed": 0, "workload": "killed"}, resume=True) as store:
+        assert store.previous_interrupted is None               # the resumed run closed normally
+
+
+def test_status_is_complete_only_after_the_run_closes(tmp_path):
+    with RunStore.open(tmp_path / "run", CONFIG) as store:
+        run_units(UNITS, toy_bubble, seed=0, store=store, progress=False)
+        mid = json.loads((tmp_path / "run" / "status.json").read_text())
+        assert not mid["complete"] and mid["running"] and mid["owner"]["pid"] == os.getpid()
+    end = json.loads((tmp_path / "run" / "status.json").read_text())
+    assert end["complete"] and not end["running"] and not end["interrupted"]

@@ -91,3 +91,24 @@ def test_fit_bar_counts_windows_times_experiments_from_the_start(tiny_ds, tmp_pa
     assert "0/28 units" in err and "28/28 units" in err
     assert re.search(r"\[\d\d:\d\d<\d\d:\d\d\]", err), err     # elapsed < remaining (the ETA)
     assert "mienks window 7/7" in err
+
+
+def test_stage_log_writes_one_line_per_stage_with_the_elapsed_time():
+    """Output that is not a terminal: one line per batch with the elapsed time, never silence."""
+    import io
+
+    from imrbayes.execution import Execution, Unit
+    from imrbayes.execution.progress import StageLog
+
+    now = [0.0]
+    buf = io.StringIO()
+    log = StageLog(desc="mienks", file=buf, clock=lambda: now[0])
+    plan(log, 4, "mienks")
+    ex = Execution(bar=log)
+    for j in range(2):
+        now[0] += 65.0
+        ex.run([Unit(f"w={j}/e={i}", i) for i in range(2)], _identity, 0, desc=f"mienks window {j + 1}/2")
+    log.close()
+    assert buf.getvalue().splitlines() == ["imrbayes: mienks [1:05] mienks window 1/2 (0/4 units done)",
+                                           "imrbayes: mienks [2:10] mienks window 2/2 (2/4 units done)",
+                                           "imrbayes: mienks [2:10] finished (4/4 units done)"]

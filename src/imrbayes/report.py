@@ -32,7 +32,7 @@ from imrbayes.errors import InputError
 from imrbayes.html import embed_png, esc, is_png, num, table, write_page
 from imrbayes.io import read_json
 
-__all__ = ["load_run", "write_run_report", "flagged_windows", "window_phase"]
+__all__ = ["read_run_dir", "write_run_report", "flagged_windows", "window_phase"]
 
 # Thresholds used when compare.json does not carry its own (imrbayes.mcmc.compare.THRESHOLDS).
 _DEFAULT_THRESHOLDS = {"kl_sym": 0.1, "w2": 0.5, "kl_sample": 0.1, "rhat": 1.01, "ess_bulk": 400.0, "tau_rule": 50.0}
@@ -66,7 +66,7 @@ def _open_tree(path: Path):
         raise InputError(path, f"cannot be read as netCDF ({type(exc).__name__}: {msg})")
 
 
-def load_run(run_dir) -> dict:
+def read_run_dir(run_dir) -> dict:
     """Read and check a run directory; returns its parts (``None`` for absent optional files).
 
     Raises InputError (naming the file) for a missing directory, a missing or invalid
@@ -218,6 +218,171 @@ def _qrange(lo, hi, name, units, spec=".3g") -> str:
     if not (math.isfinite(_fnum(lo)) and math.isfinite(_fnum(hi))):
         return "–"
     return f"{_q(lo, name, units, spec, unit=False)}–{_q(hi, name, units, spec)}"
+
+
+#: an interval wider than this factor (high / low) is not a measurement: the data do not bound it
+UNBOUNDED_FACTOR = 100.0
+
+
+def _box(summary, name) -> tuple:
+    """(low, high) edges of ``name``'s prior box (a grid method's ``{name}_min``/``{name}_max``
+    settings, SI), NaN where the run has none."""
+    st = ((summary or {}).get("details") or {}).get("settings") or {}
+    return _fnum(st.get(f"{name}_min")), _fnum(st.get(f"{name}_max"))
+
+
+def bounds(e: dict, name: str = "", summary=None) -> tuple:
+    """(lower bounded, upper bounded) by the data for estimate object ``e``.
+
+    The fit's own answer (``e["bounded"]``, ``{"lower": bool, "upper": bool}``) wins where present.
+    Otherwise the 95 % interval [lo, hi] is read: an end that reaches the prior box's edge (a grid
+    method's ``{name}_min``/``{name}_max``, within 1 %) is not bounded by the data, and an interval
+    spanning more than :data:`UNBOUNDED_FACTOR` (hi / lo > 100, or lo <= 0 < hi) bounds neither
+    end: it says where the data are not, not where the parameter is. No interval but an sd: both
+    (the sd is the method's answer); neither an interval nor an sd: neither.
+    """
+    b = e.get("bounded")
+    if isinstance(b, dict):
+        return bool(b.get("lower", True)), bool(b.get("upper", True))
+    hdi = e.get("hdi95") or [None, None]
+    lo, hi = (_fnum(hdi[0]), _fnum(hdi[1])) if len(hdi) == 2 else (math.nan, math.nan)
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        sd = _fnum(e.get("sd"))
+        return (True, True) if math.isfinite(sd) else (False, False)
+    bmin, bmax = _box(summary, name)
+    lower = not (math.isfinite(bmin) and lo <= bmin + 0.01 * abs(bmax - bmin if math.isfinite(bmax) else bmin))
+    upper = not (math.isfinite(bmax) and hi >= bmax - 0.01 * abs(bmax - (bmin if math.isfinite(bmin) else 0.0)))
+    if hi > 0 and (lo <= 0 or hi / lo > UNBOUNDED_FACTOR):
+        return False, False
+    return lower, upper
+
+
+def estimate_phrase(name: str, e: dict, units: dict, summary=None) -> str:
+    """One parameter's estimate in words with units on every number (plain text):
+    ``G = 13.5 kPa ± 0.6 kPa (95 % 12.3-14.7 kPa)``, ``G not bounded by the data (best fit 7.3 kPa)``,
+    ``G consistent with 0 (95 % upper bound 1.2 kPa)``, ``G on a ridge 2.1-30 kPa (best fit 7.3 kPa)``."""
+    mean, sd = _fnum(e.get("mean")), _fnum(e.get("sd"))
+    if e.get("consistent_with_zero"):
+        up = _fnum(e.get("upper95"))
+        return f"{name} consistent with 0" + (f" (95 % upper bound {_txt(up, name, units)})" if math.isfinite(up) else "")
+    if not math.isfinite(mean):
+        return f"{name}: no estimate"
+    hdi = e.get("hdi95") or [None, None]
+    lo, hi = (_fnum(hdi[0]), _fnum(hdi[1])) if len(hdi) == 2 else (math.nan, math.nan)
+    if e.get("ridge") and not math.isfinite(sd):
+        r = e["ridge"]
+        return (f"{name} on a ridge {_txt(r[0], name, units, unit=False)}-{_txt(r[1], name, units)} "
+                f"(best fit {_txt(mean, name, units)})")
+    if not (math.isfinite(sd) or math.isfinite(lo)):
+        return f"{name} = {_txt(mean, name, units, '.4g')} (no interval)"
+    lower, upper = bounds(e, name, summary)
+    if not lower and not upper:
+        return f"{name} not bounded by the data (best fit {_txt(mean, name, units)})"
+    if lower and not upper:
+        return f"{name} above {_txt(lo, name, units)} (upper end not bounded by the data; best fit {_txt(mean, name, units)})"
+    if upper and not lower:
+        return f"{name} below {_txt(hi, name, units)} (lower end not bounded by the data; best fit {_txt(mean, name, units)})"
+    out = f"{name} = {_txt(mean, name, units, '.4g')}"
+    if math.isfinite(sd):
+        out += f" ± {_txt(sd, name, units, '.2g')}"
+    if math.isfinite(lo) and math.isfinite(hi):
+        out += f" (95 % {_txt(lo, name, units, unit=False)}-{_txt(hi, name, units)})"
+    return out
+
+
+def _txt(x, name, units, spec=".3g", unit=True) -> str:
+    """``x`` (SI) as plain text in ``name``'s display unit: ``13.5 kPa``."""
+    f, u = _disp(name, units)
+    v = _fnum(x)
+    if not math.isfinite(v):
+        return "–"
+    return format(v * f, spec) + (f" {u}" if unit and u else "")
+
+
+def model_label(summary) -> str:
+    """The constitutive model's name as people write it (``NHKV``)."""
+    return str((summary or {}).get("model", "the model")).upper()
+
+
+def fit_check_sentence(summary) -> str | None:
+    """The fit-adequacy check in one plain sentence (``summary["fit_check"]``), or None without one.
+    A model that does not describe the records says so first and points at ``imrbayes diagnose``."""
+    fc = (summary or {}).get("fit_check")
+    if not isinstance(fc, dict) or "described" not in fc:
+        return None
+    model = model_label(summary)
+    ratio = _fnum(fc.get("residual_to_noise"))
+    times = f"{ratio:.2g}x" if math.isfinite(ratio) else "several times"
+    if fc.get("described") is False:
+        return (f"{model} does not describe these records: the residual is {times} their noise; these numbers are "
+                f"the best {model} fit, not the material's properties -- `imrbayes diagnose` looks for the cause.")
+    msg = str(fc.get("message") or "").strip()
+    return msg or f"{model} describes these records: the residual is {times} their noise."
+
+
+def prior_sentence(summary, units) -> str | None:
+    """Which prior the run used and how much of each posterior is the data's (``summary["prior"]``
+    ``name`` and ``data_share``: 1 - posterior var / prior var), or None when the run records neither."""
+    prior = (summary or {}).get("prior") or {}
+    name, share = prior.get("name"), prior.get("data_share")
+    if name is None and not isinstance(share, dict):
+        return None
+    words = {"wide": "the wide default prior", "paper": "the paper's prior", "custom": "a prior set for this run"}
+    out = f"Prior: {words.get(name, str(name))}" if name is not None else "Prior"
+    if isinstance(share, dict) and share:
+        bits = [f"{p} {100 * _fnum(v):.0f} %" for p, v in share.items() if math.isfinite(_fnum(v))]
+        out += "; share of the posterior that comes from the data: " + ", ".join(bits)
+        weak = [p for p, v in share.items() if _fnum(v) < 0.5]
+        if weak:
+            out += f" ({' and '.join(weak)} mostly the prior)"
+    return out + "."
+
+
+def name_parameters(text: str, names) -> str:
+    """``parameter 1`` (a 0-based index into ``names``) written as the parameter's name (``mu``)."""
+    import re
+
+    names = list(names or [])
+
+    def sub(m):
+        i = int(m.group(1))
+        return names[i] if 0 <= i < len(names) else m.group(0)
+
+    return re.sub(r"\bparameter (\d+)\b", sub, str(text))
+
+
+def grouped_warnings(warnings, names=()) -> list:
+    """Warnings with parameter indices named, near-identical ones (the same words, other numbers:
+    one per window) said once with their count: ``... (14 times, e.g. windows 3-16)`` style."""
+    import re
+
+    groups: dict = {}
+    for w in warnings:
+        w = name_parameters(w, names)
+        key = re.sub(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", "#", w)
+        groups.setdefault(key, []).append(w)
+    out = []
+    for items in groups.values():
+        out.append(items[0] if len(items) == 1 else f"{items[0]} (and {len(items) - 1} more like it: "
+                                                     f"{len(items)} in all)")
+    return out
+
+
+def truth(summary) -> dict:
+    """Synthetic data's true parameters (``truth.json`` beside the data: ``parameters``, SI), or {}."""
+    data = (summary or {}).get("data")
+    if not data:
+        return {}
+    from imrbayes.io import read_json
+
+    path = Path(data)
+    path = path if path.is_dir() else path.parent
+    try:
+        t = read_json(path / "truth.json", required=False)
+    except Exception:  # an unreadable truth file marks nothing
+        return {}
+    params = (t or {}).get("parameters") if isinstance(t, dict) else None
+    return {k: float(v) for k, v in (params or {}).items() if math.isfinite(_fnum(v))}
 
 
 def _prior_log_sd(s) -> dict:
@@ -558,20 +723,23 @@ def _section_conclusion(run) -> str:
     meth = _method(s)
     n_exp = s.get("n_experiments")
     label = meth.label if meth is not None else s.get("method", "?")
-    parts = []
+    true = truth(s)
+    phrases = []
     for p in params:
-        e = est.get(p) or {}
-        hdi = e.get("hdi95") or [None, None]
-        lo, hi = (hdi + [None, None])[:2]
-        if math.isfinite(_fnum(lo)) and math.isfinite(_fnum(hi)):
-            parts.append(f"<b>{esc(p)} = {_q(e.get('mean'), p, units)}</b> (95 % interval {_qrange(lo, hi, p, units)})")
-        elif e.get("ridge") and len(e["ridge"]) == 2:
-            parts.append(f"<b>{esc(p)} ≈ {_q(e.get('mean'), p, units)}</b> (best fit on a ridge "
-                         f"{_qrange(e['ridge'][0], e['ridge'][1], p, units)}: not fixed on its own)")
-        else:
-            parts.append(f"<b>{esc(p)} = {_q(e.get('mean'), p, units)}</b> (no interval from this method)")
-    head = (f"<p><b>Gel-level estimate</b> ({esc(s.get('model', '?'))}, {esc(n_exp)} experiment(s), "
-            f"{esc(label)}): {'; '.join(parts)}.</p>")
+        txt = esc(estimate_phrase(p, est.get(p) or {}, units, s))
+        if p in true:
+            txt += f" (truth {esc(_txt(true[p], p, units, '.4g'))})"
+        phrases.append(txt)
+    what = f"({esc(s.get('model', '?'))}, {esc(n_exp)} experiment(s), {esc(label)})"
+    check = fit_check_sentence(s)
+    if check and (s.get("fit_check") or {}).get("described") is False:
+        # the model does not describe the records: that is the conclusion, the numbers only its detail
+        head = (f"<p class='caveat'><b>{esc(check)}</b></p><p>Best {esc(model_label(s))} fit {what}: "
+                f"{'; '.join(phrases)}.</p>")
+    else:
+        head = f"<p><b>Gel-level estimate</b> {what}: <b>{'</b>; <b>'.join(phrases)}</b>.</p>"
+        if check:
+            head += f"<p>{esc(check)}</p>"
     items = []
     # bubble-to-bubble spread and a new bubble
     be, pred = s.get("between_experiments"), s.get("predictive")
@@ -600,6 +768,9 @@ def _section_conclusion(run) -> str:
             bits.append(f"{esc(p)} {_qrange(hd[0], hd[1], p, units)}" if len(hd) == 2 else f"{esc(p)} –")
         items.append("A new bubble of this gel (95 % predictive range): " + "; ".join(bits) + ".")
     items.append(_mcmc_words(run))
+    prior_words = prior_sentence(s, units)
+    if prior_words:
+        items.append(esc(prior_words))
     # what the data did not constrain
     ratios = constraint_ratios(s)
     ridge = [p for p in params if p not in ratios and (est.get(p) or {}).get("ridge")]
@@ -675,12 +846,12 @@ def _section_conclusion(run) -> str:
                          "flat, both within 5 %). A decline of mu(t) of that size is not evidence of time-dependent "
                          "material; where Req was measured, give it in meta.json (Req_m, Req_sd_m).</span>")
     # caveats
-    warn = _warnings_list(s)
+    warn = grouped_warnings(_warnings_list(s), params)
     fail = s.get("failures") or {}
     n_failed = len(fail.get("failed_units") or []) + len(fail.get("skipped_experiments") or [])
-    cav = [esc(w) for w in warn[:6]]
+    cav = [esc(_no_paths(w)) for w in warn[:6]]
     if len(warn) > 6:
-        cav.append(f"and {len(warn) - 6} more (see Warnings and failures)")
+        cav.append(f"{len(warn) - 6} more warnings (see Warnings and failures)")
     if n_failed:
         cav.append(f"{n_failed} experiment(s) or unit(s) failed or were left out (see Warnings and failures)")
     for p, (lo, hi) in _per_experiment_range(s, width=1.96).items():
@@ -693,14 +864,33 @@ def _section_conclusion(run) -> str:
     if meth is not None and meth.name == "pimr":
         cav.append("pIMR fits the collapse time only, not the shape of R(t)")
     if cav:
-        items.append("<span class='caveat'>Caveats: " + "; ".join(cav) + ".</span>")
+        items.append("<span class='caveat'>Caveats:</span><ul class='caveats'>"
+                     + "".join(f"<li>{c[:1].upper() + c[1:]}</li>" for c in cav) + "</ul>")
     else:
         items.append("Caveats: none recorded.")
     if fit.get("rmse") is not None:
-        items.append(f"Fit: RMSE {num(fit.get('rmse'), '.3g')} in R* = R/Rmax over {esc(fit.get('n_samples', '–'))} "
-                     "samples.")
+        items.append(f"Fit: RMSE {num(fit.get('rmse'), '.3g')} R* [-] (R* = R/Rmax){_rmse_um(s, fit.get('rmse'))} over "
+                     f"{esc(fit.get('n_samples', '–'))} samples.")
     return ("<h2 id='conclusion'>Conclusion</h2><div class='conclusion'>" + head + "<ul>"
             + "".join(f"<li>{i}</li>" for i in items) + "</ul></div>")
+
+
+def _no_paths(text: str) -> str:
+    """A warning without summary.json paths (``per_experiment[].likelihood.nuisance_integral``): the
+    path's last name in words (``nuisance integral``)."""
+    import re
+
+    roots = ("per_experiment", "details", "likelihood", "windows", "estimate", "settings", "preprocessing", "fit")
+    return re.sub(r"`?\b[\w]+(?:\[\])?(?:\.[\w]+(?:\[\])?)+`?",
+                  lambda m: m.group(0).strip("`").rsplit(".", 1)[-1].replace("_", " ")
+                  if "[]" in m.group(0) or m.group(0).strip("`").startswith(roots) else m.group(0), str(text))
+
+
+def _rmse_um(s, rmse) -> str:
+    """`` (2.1 µm)``: an rmse in R* times the records' mean Rmax; empty without Rmax."""
+    rm = _fnum((((s.get("preprocessing") or {}).get("summary") or {}).get("rmax_um") or {}).get("mean"))
+    r = _fnum(rmse)
+    return f", {r * rm:.3g} µm" if math.isfinite(rm) and math.isfinite(r) else ""
 
 
 def _per_experiment_range(s, width: float = 0.0) -> dict:
@@ -861,10 +1051,7 @@ def _section_config(s) -> str:
             ("parameters", esc(", ".join(f"{p} [{units.get(p, '?')}]" for p in s.get("parameters", [])))),
             ("seed", esc(s.get("seed", cmd.get("seed", "–")))),
             ("imrbayes version", esc(cmd.get("imrbayes_version", "–"))),
-            ("command", "<code>imrbayes fit " + esc(s.get("data", "DATA")) + " " +
-             esc(" ".join(f"--{k.replace('_', '-')} {v}" for k, v in cmd.items()
-                          if k not in ("name", "imrbayes_version", "resume") and v is not None)) +
-             (" --resume" if cmd.get("resume") else "") + "</code>"),
+            ("command", _command_cell(s, cmd)),
             ("runtime", f"method {num(s.get('runtime_s'), '.3g')} s; whole command "
                         f"{num(s.get('total_runtime_s'), '.3g')} s")]
     ex = s.get("execution") or {}
@@ -892,8 +1079,23 @@ def _section_config(s) -> str:
     return out
 
 
+def _command_cell(s, cmd) -> str:
+    """The command that ran, as typed (recorded by ``fit``), with the folder it ran in; runs written
+    before the command was recorded: rebuilt from the recorded options (``--forward``, ``--set``
+    and ``--experiments`` then missing), and said to be incomplete."""
+    if cmd.get("line"):
+        where = f" <span class='note'>(run in <code>{esc(cmd['cwd'])}</code>)</span>" if cmd.get("cwd") else ""
+        return f"<code>{esc(cmd['line'])}</code>{where}"
+    rebuilt = ("imrbayes fit " + str(s.get("data", "DATA")) + " " +
+               " ".join(f"--{k.replace('_', '-')} {v}" for k, v in cmd.items()
+                        if k not in ("name", "imrbayes_version", "resume") and v is not None)
+               + (" --resume" if cmd.get("resume") else ""))
+    return (f"<code>{esc(rebuilt)}</code> <span class='note'>(rebuilt: this run did not record its command line, "
+            "so options such as --forward and --set may be missing)</span>")
+
+
 def _section_warnings(s, compare) -> str:
-    warn = _warnings_list(s)
+    warn = grouped_warnings(_warnings_list(s), s.get("parameters", []))
     fail = s.get("failures") or {}
     items = []
     if fail.get("skipped_experiments"):
@@ -914,7 +1116,8 @@ def _section_warnings(s, compare) -> str:
         items.append(f"MCMC failed in window {esc(f.get('window') if isinstance(f, dict) else f)}: "
                      f"{esc(f.get('error', '') if isinstance(f, dict) else '')}")
     out = "<h2 id='warnings'>Warnings and failures</h2>"
-    out += ("<ul>" + "".join(f"<li>{esc(w)}</li>" for w in warn) + "</ul>") if warn else "<p>No warnings.</p>"
+    out += ("<ul>" + "".join(f"<li>{esc(_no_paths(w))}</li>" for w in warn) + "</ul>") if warn else \
+        "<p>No warnings.</p>"
     out += ("<p><b>Failed or skipped units:</b></p><ul>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
             if items else "<p>No failed or skipped units.</p>")
     return out
@@ -923,17 +1126,22 @@ def _section_warnings(s, compare) -> str:
 def _section_estimate(s) -> str:
     units = _units(s)
     rows = []
+    true = truth(s)
     for p in s.get("parameters", []):
         e = s["estimate"].get(p) or {}
         hdi = e.get("hdi95") or [None, None]
+        lower, upper = bounds(e, p, s) if len(hdi) == 2 and None not in hdi else (True, True)
         rows.append((esc(p), esc(units.get(p, "?")), _ncell(e.get("mean")), _ncell(e.get("sd"), ".3g"),
-                     _ncell(e.get("median")), _ncell(hdi[0]), _ncell(hdi[1])))
+                     _ncell(e.get("median")), _ncell(hdi[0]) if lower else ("not bounded by the data", ""),
+                     _ncell(hdi[1]) if upper else ("not bounded by the data", ""))
+                    + ((_ncell(true.get(p)),) if true else ()))
     out = ("<h2 id='estimate'>Estimate (SI units)</h2><p class='note'>The numbers of summary.json, the one "
            "source of every estimate in this report (the conclusion shows them in kPa and Pa s).</p>")
     note = _method(s).estimate_note if _method(s) is not None else ""
     if note:
         out += f"<p>{esc(note)}</p>"
-    out += table(["parameter", "unit", "mean", "sd", "median", "95 % HDI lower", "95 % HDI upper"], rows)
+    out += table(["parameter", "unit", "mean", "sd", "median", "95 % HDI lower", "95 % HDI upper"]
+                 + (["truth (truth.json)"] if true else []), rows)
     if any((s["estimate"].get(p) or {}).get("sd") is None for p in s.get("parameters", [])):
         det = s.get("details") or {}
         why = det.get("uncertainty") or det.get("note")
@@ -1228,7 +1436,7 @@ def write_run_report(run_dir, path=None) -> Path:
     Order: the conclusion first (what a rheologist reads), then the estimate, experiments, windows
     and figures, the MCMC check where it applies, and the dataset, warnings, configuration, raw
     sampling diagnostics and files at the bottom."""
-    run = load_run(run_dir)
+    run = read_run_dir(run_dir)
     s = run["summary"]
     path = Path(path) if path is not None else run["run_dir"] / "report.html"
     title = f"imrbayes report: {s.get('method', '?')} fit ({s.get('model', '?')}) of {s.get('data', '?')}"

@@ -26,7 +26,7 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import main, read_config
-from imrbayes.cli.options import (check_options, compare_line, data_fingerprint, echo_execution, estimate_text,
+from imrbayes.cli.options import (check_options, command_line, compare_line, data_fingerprint, echo_execution, estimate_text,
                                   execution_options, force_option, key_values, method_settings, open_execution,
                                   prepare_out, prior_overrides, select_experiments, EXPERIMENTS_HELP)
 from imrbayes.ensemble import METHODS
@@ -34,6 +34,17 @@ from imrbayes.errors import InputError
 from imrbayes.execution.progress import finish, plan
 
 METHOD_NAMES = tuple(METHODS)
+
+
+def set_help() -> str:
+    """``--set``'s help: one line per method naming its first keys; every key with its default and
+    meaning is in docs/cli.md (generated from the settings classes)."""
+    lines = ["Method setting; repeatable. Every key, its default and meaning: docs/cli.md.", "", "\b"]
+    for m in METHODS.values():
+        names = [f.name for f in dataclasses.fields(m.settings_class)]
+        more = f", ... ({len(names)} keys)" if len(names) > 6 else ""
+        lines.append(f"{m.name}: {', '.join(names[:6])}{more}")
+    return "\n".join(lines)
 
 
 def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
@@ -84,15 +95,7 @@ def _load_config(path) -> dict:
 @click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
               help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
                    "scheme=imrv2-fd, nt=25, radial=km, ...); repeatable.")
-@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
-              help="Method setting (en4dvar: n_ens (members per bubble: 24; the paper's 48 with --likelihood paper), "
-                   "n_iter, n_iter_later (cycles 2..: 3; the paper's 5), n_runs, rtps, t_end [t*], fusion=likelihood|prior, obs_weight=mean|sum, "
-                   "req_tail=auto|mean|inline (inline: each Req moved by the model's tail after cycle 1; auto, the "
-                   "default: inline with the thermal bubble); "
-                   "mienks: L, h [samples], n_ens, n_iter, rtps, likelihood=default|paper, adapt (default likelihood: "
-                   "pilot pass), pilot_n_ens (the pilot's members; default 24), pilot_retry (a bubble whose pilot residual stands out gets a second pilot; default true), min_iter (default likelihood: a window stops iterating once its cost settles or its next step is under step_tol posterior sd, from this many evaluations on: 2; n_iter: never early), step_tol (0.1), prior_widen (window 0's members drawn with the prior sd times K: a number for every parameter or NAME:K[,NAME:K]; default mu:3, 1 = the prior itself), req_prior=preprocessing|en4dvar (each estimated Req's prior: the tail mean, or a whole-record En4D-Var posterior fitted first; default en4dvar, paper: preprocessing), obs_weight=mean|mda, fusion=chain|prior (paper); imr: n_G, "
-                   "n_mu, G_max [Pa], mu_max [Pa s], window=all|t:T|collapse:k, weighting=none|P; pimr: kappa); "
-                   "repeatable.")
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", help=None)
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",
               help="Prior mean and sd in SI units (G [Pa], mu [Pa s]) [default: G=6e3:2.8e3, mu=0.209:0.088].")
 @click.option("--workers", type=int, default=None,
@@ -144,6 +147,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     --forward bubble=polytropic the fast one); --mcmc adds minutes to hours (see --mcmc).
     """
     t_start = time.perf_counter()
+    argv = command_line(click.get_current_context())
     cfg = _load_config(config)
 
     def pick(name, value, default):
@@ -235,7 +239,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
         if mcmc:
             # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
             _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
-                       data, execution.summary(), t_start, quiet=True)
+                       data, execution.summary(), t_start, quiet=True, argv=argv)
             if not quiet:
                 click.echo(f"{method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
             from imrbayes.mcmc.fit import run_fit_mcmc
@@ -247,15 +251,26 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
                                    warn=None if quiet else (lambda w: click.echo(f"imrbayes: warning: {w}", err=True)))
         exec_summary = execution.summary()
     written = _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
-                         data, exec_summary, t_start, quiet=quiet, compare=compare)
+                         data, exec_summary, t_start, quiet=quiet, compare=compare, argv=argv)
     if not quiet:
-        for w in list(pre.warnings) + list(res.warnings):       # warnings first: they qualify the result
-            click.echo(f"imrbayes: warning: {w}", err=True)
-        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(res.estimate)}; "
-                   f"rmse {res.rmse:.4g}; {res.runtime_s:.1f} s")
+        from imrbayes.io import read_json
+        from imrbayes.report import fit_check_sentence, grouped_warnings
+
+        summary = read_json(out / "summary.json", required=True)    # what the lead's checks added to it
+        for w in grouped_warnings(list(pre.warnings) + list(res.warnings), res.param_names):
+            click.echo(f"imrbayes: warning: {w}", err=True)        # warnings first: they qualify the result
+        check = fit_check_sentence(summary)
+        if check and (summary.get("fit_check") or {}).get("described") is False:
+            click.echo(check)
+        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(res.estimate, summary)}; "
+                   f"rmse {res.rmse:.3g} R* [-] ({res.rmse * _mean_rmax_um(obs):.3g} µm); {res.runtime_s:.1f} s")
+        if check and (summary.get("fit_check") or {}).get("described") is not False:
+            click.echo(check)
         click.echo(constants_line(fm.physics, ds.physics or {}))
         extra = ", mcmc.nc, compare.json" if compare is not None else ""
-        click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}{extra} and {len(written)} figure(s)")
+        tables = ", time_resolved.csv" if (out / "time_resolved.csv").exists() else ""
+        click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}, estimate.csv{tables}{extra} and "
+                   f"{len(written)} figure(s)")
         if compare is not None:
             click.echo(compare_line(compare))
     if compare is not None:
@@ -269,6 +284,16 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     if pre.skipped:
         click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
                    + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)
+
+
+next(p for p in fit_cmd.params if p.name == "settings").help = set_help()
+
+
+def _mean_rmax_um(obs) -> float:
+    """The records' mean Rmax [µm]: R* = R/Rmax, so an rmse in R* times it is one in µm."""
+    import numpy as np
+
+    return float(np.mean(obs.rmax_m)) * 1e6
 
 
 def _window_list(value):
@@ -287,8 +312,13 @@ def _window_list(value):
 
 
 def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config, data,
-               exec_summary, t_start, quiet, compare=None) -> list:
-    """summary.json, posterior.nc and the method's figures; returns the figure paths."""
+               exec_summary, t_start, quiet, compare=None, argv=None) -> list:
+    """summary.json, posterior.nc, estimate.csv (and time_resolved.csv where the method resolves
+    time) and the method's figures; returns the figure paths."""
+    import os
+    import shlex
+
+    from imrbayes.results import write_tables
     from imrbayes.ensemble import figures as figs
     from imrbayes.ensemble.output import posterior_tree, summary_dict, write_summary
     exec_summary["skipped_experiments"] = list(pre.skipped)
@@ -300,7 +330,8 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
         "data": str(data), "warnings_preprocessing": list(pre.warnings),
         "command": {"name": "fit", "method": method, "model": model, "seed": seed, "workers": workers,
                     "scheduler": scheduler, "resume": bool(resume),
-                    "config": str(config) if config else None, "imrbayes_version": __version__},
+                    "config": str(config) if config else None, "imrbayes_version": __version__,
+                    **({"argv": list(argv), "line": shlex.join(argv), "cwd": os.getcwd()} if argv else {})},
         "execution": exec_summary,
         "failures": {"skipped_experiments": list(pre.skipped),
                      "failed_units": res.details.get("failed_units", []),
@@ -309,6 +340,7 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
         "total_runtime_s": time.perf_counter() - t_start, **mcmc_part})
     write_summary(out / "summary.json", summary)
     posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
+    write_tables(out, summary)
     fdir = out / "figures"
     # the figures' µs and strain-rate axes: each experiment's time scale t_c [s] (t = t* t_c)
     tcs = {e.get("name"): e.get("tc_s") for e in pre.to_dict(arrays=False).get("experiments", [])

@@ -25,28 +25,14 @@ __all__ = ["execution_options", "estimate_text", "force_option", "open_execution
            "prepare_out", "key_values", "coerce_setting", "method_settings", "prior_overrides", "compare_line"]
 
 
-#: display unit and scale of the parameters people read most (SI otherwise)
-_DISPLAY = {"G": ("kPa", 1e-3), "mu": ("Pa s", 1.0)}
+def estimate_text(estimate: dict, summary: dict | None = None) -> str:
+    """One line of a fit's estimate with units on every number: ``G = 13.5 kPa ± 0.6 kPa (95 %
+    12.3-14.7 kPa), mu = ...``; a range the data do not bound reads ``G not bounded by the data (best
+    fit 7.3 kPa)`` (:func:`imrbayes.report.estimate_phrase` decides, for the report too)."""
+    from imrbayes.report import _units, estimate_phrase
 
-
-def estimate_text(estimate: dict) -> str:
-    """One line of a fit's estimate with units: ``G = 13.5 kPa ± 0.6, mu = 0.101 Pa s ± 0.02``; a
-    parameter the data fix only along a ridge reads ``G on a ridge 2.1-30 kPa (best fit 7.3)``."""
-    parts = []
-    for name, e in estimate.items():
-        unit, scale = _DISPLAY.get(name, ("", 1.0))
-        u = f" {unit}" if unit else ""
-        mean, sd, ridge = e.get("mean"), e.get("sd"), e.get("ridge")
-        if mean is None or not math.isfinite(mean):
-            parts.append(f"{name}: no estimate")
-        elif sd is not None and math.isfinite(sd):
-            parts.append(f"{name} = {mean * scale:.4g}{u} ± {sd * scale:.2g}")
-        elif ridge:
-            parts.append(f"{name} on a ridge {ridge[0] * scale:.3g}-{ridge[1] * scale:.3g}{u} "
-                         f"(best fit {mean * scale:.4g})")
-        else:
-            parts.append(f"{name} = {mean * scale:.4g}{u} (no interval)")
-    return ", ".join(parts)
+    units = _units(summary or {})
+    return ", ".join(estimate_phrase(name, e or {}, units, summary) for name, e in estimate.items())
 
 
 def force_option(f):
@@ -107,8 +93,8 @@ def check_options(workers, scheduler, resume, retry_failed) -> tuple:
 def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=False, retry_failed=False,
                    quiet: bool = False, desc: str = "run"):
     """RunStore under ``out`` for ``config`` + the executor ``--workers/--scheduler`` ask for, as an
-    :class:`imrbayes.execution.Execution` with, on a terminal and unless ``quiet``, one progress bar
-    (``desc``) over every batch; the command plans its total
+    :class:`imrbayes.execution.Execution` with, unless ``quiet``, one progress bar (``desc``) over
+    every batch on a terminal, one line per batch otherwise; the command plans its total
     (:func:`imrbayes.execution.progress.plan`). Bad options and refused resumes raise InputError."""
     from imrbayes.execution import Execution
     from imrbayes.execution import RunStore, make_executor
@@ -119,10 +105,18 @@ def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=Fa
     with make_executor(workers, scheduler) as ex, \
             RunStore.open(out, jsonable(config), resume=resume) as store:
         bar = None
+        if store.previous_interrupted is not None and not quiet:
+            st = store.previous_interrupted
+            click.echo(f"imrbayes: the earlier run in {out} was interrupted (its last batch: {st.get('n_done', '?')} "
+                       f"of {st.get('n_units', '?')} units done); continuing from its checkpoints", err=True)
         if not quiet and _isatty(sys.stderr):
             from imrbayes.execution.progress import progress_bar
 
             bar = progress_bar(total=None, desc=desc, unit="units", file=sys.stderr)
+        elif not quiet:             # a log file or pipe: one line per stage, never silence until the end
+            from imrbayes.execution.progress import StageLog
+
+            bar = StageLog(desc=desc, file=sys.stderr)
         try:
             yield Execution(store=store, executor=ex, retry_failed=retry_failed, progress=False, bar=bar)
         finally:
@@ -283,3 +277,32 @@ def compare_line(compare: dict) -> str:
         if o.get("worst_window") is not None and o.get("max_kl_sample") is not None else ""
     return (f"ensemble vs MCMC: {o['n_agree']} window(s) agree, {o['n_disagree']} disagree, {o['n_undecided']} "
             f"undecided (chains not converged){worst}; see compare.json")
+
+
+def command_line(ctx: click.Context) -> list:
+    """The command as typed, rebuilt from what click parsed (``sys.argv`` is not the command under a
+    test runner or a Python caller): ``["imrbayes", "fit", DATA, "--method", "mienks", ...]`` with
+    every option given on the command line, in the command's option order, so that running it again
+    repeats the run (defaults from ``--config`` are kept by keeping ``--config``)."""
+    from click.core import ParameterSource
+
+    words = ["imrbayes", ctx.info_name]
+    options = []
+    for prm in ctx.command.params:
+        src = ctx.get_parameter_source(prm.name) if prm.name else None
+        value = ctx.params.get(prm.name)
+        if isinstance(prm, click.Argument):
+            words += [str(v) for v in (value if isinstance(value, (list, tuple)) else [value]) if v is not None]
+            continue
+        if src is not ParameterSource.COMMANDLINE or value is None:
+            continue
+        opt = max(prm.opts, key=len)
+        if prm.is_flag:
+            if value:
+                options.append(opt)
+        elif prm.multiple:
+            for v in value:
+                options += [opt, str(v)]
+        else:
+            options += [opt, str(value)]
+    return words + options

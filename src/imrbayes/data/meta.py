@@ -5,11 +5,18 @@ Only the keys the data layer needs are checked: ``material`` (string; a warning 
 ``experiments`` (per-experiment objects, optionally with ``Req_m`` and ``Req_sd_m`` in metres).
 ``experiments`` may be an object keyed by file name (``"exp_001.csv"``) or experiment name
 (``"exp_001"``), or a list of objects each with a ``file`` key (the shape the shared datasets use).
-Every other key is kept untouched in ``Meta.raw``.
+
+Every top-level key must be one of :data:`KNOWN_KEYS` (the ones above and the descriptive ones
+the shared datasets and ``imrbayes simulate`` write), or start with ``x_`` (the user's own), and
+every ``physics`` key a constant the forward model knows: a misspelt key (``phisics``) would
+otherwise be ignored without a word. Every command that reads data checks this here, so each
+refuses the same file with the same one-line error. The keys' values are kept untouched in
+``Meta.raw``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
@@ -18,7 +25,19 @@ from pathlib import Path
 from imrbayes.data.checks import MAX_RADIUS_M, MIN_RADIUS_M
 from imrbayes.errors import InputError
 
-__all__ = ["Meta", "read_meta", "parse_meta"]
+__all__ = ["Meta", "read_meta", "parse_meta", "KNOWN_KEYS"]
+
+#: top-level keys of meta.json: read by imrbayes, or descriptive ones kept in ``Meta.raw``
+KNOWN_KEYS = frozenset({
+    "material", "physics", "forward", "experiments",                       # read by the data layer
+    "description", "synthetic", "truth", "temperature", "temperature_C", "concentration", "dataset", "source",
+    "real_or_synthetic", "n_experiments", "n_files", "caveats", "conversion", "checks", "notes", "physics_note",
+    "camera", "cameras", "frame_interval_s", "frame_rate_fps", "frame_rate_note", "frames", "frames_per_record",
+    "pixel_size_m", "pixel_size_note", "time_origin", "source_variables", "source_scalars", "reference_estimates",
+    "Req_in_file", "Req_note", "Req_stored_m", "Rmax_stats_um", "Rmax_stored_sample_m", "UNIT_BUG_WARNING",
+    "authors_selection", "collapse_times_from_tloc_s", "columns", "derived_files_not_converted",
+    "missing_full_curves", "not_converted", "use",
+})
 
 
 @dataclass
@@ -80,6 +99,7 @@ def parse_meta(raw, path=None) -> Meta:
     if not isinstance(raw, dict):
         raise InputError(src, f"must hold a JSON object, found {type(raw).__name__}")
     meta = Meta(raw=raw, path=None if path is None else str(path))
+    _check_keys(raw, src)
     material = raw.get("material")
     if material is None:
         meta.warnings.append("meta.json has no 'material' (say what the gel is, e.g. \"10 % PAAm\")")
@@ -118,6 +138,31 @@ def parse_meta(raw, path=None) -> Meta:
                                           f"(looks like µm?)")
         meta.experiments[_stem(str(key))] = entry
     return meta
+
+
+def _suggest(key: str, known) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(key, sorted(known), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _check_keys(raw: dict, src) -> None:
+    """Refuse an unknown top-level key or ``physics`` key with one line naming the file."""
+    for key in raw:
+        if key not in KNOWN_KEYS and not str(key).startswith("x_"):
+            raise InputError(src, f"unknown key {key!r}{_suggest(str(key), KNOWN_KEYS)}; imrbayes reads material, "
+                                  "physics, forward and experiments (every known key: docs/cli.md, meta.json); "
+                                  "prefix your own keys with x_")
+    physics = raw.get("physics")
+    if isinstance(physics, dict):
+        from imrbayes.forward.constants import Physics
+
+        known = {f.name for f in dataclasses.fields(Physics)} | set(Physics._ALIASES)
+        for key in physics:
+            if key not in known:
+                raise InputError(src, f"unknown physics key {key!r}{_suggest(str(key), known)}; known: "
+                                      f"{', '.join(sorted(known, key=str.lower))}")
 
 
 def _nonneg(value, where, path) -> float:

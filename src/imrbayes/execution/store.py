@@ -3,7 +3,8 @@
 Layout under the run directory (``--out DIR``)::
 
     run.json                      configuration, its fingerprint, package version, start time, sessions
-    status.json                   counts after the latest run_units call (informative only)
+    status.json                   counts after the latest run_units call; ``complete`` only once the run
+                                  closed normally, ``running`` with the owner's pid while it is open
     units/<safe id>.npz           one finished unit: its value and a JSON header (id, seed, timing)
     units/<safe id>.failed.json   one failed unit: its error message and traceback
     .lock                         held (flock) while a process has the run open
@@ -38,7 +39,8 @@ from imrbayes.errors import InputError
 from imrbayes.execution.units import SEEDING_SCHEME, safe_name
 from imrbayes.io import atomic_write, write_json
 
-__all__ = ["RunStore", "canonical_config", "config_fingerprint", "CorruptUnitError", "encode_value", "decode_value"]
+__all__ = ["RunStore", "canonical_config", "config_fingerprint", "CorruptUnitError", "encode_value", "decode_value",
+           "read_status", "pid_alive"]
 
 RUN_FORMAT = "imrbayes-run/1"
 UNIT_FORMAT = 1
@@ -221,6 +223,10 @@ class RunStore:
         self.info = info
         self.resumed = resumed
         self._lock_fd = lock_fd
+        self._last_status: dict = {}
+        #: the status.json an earlier session left behind when it ended without closing the run
+        #: (killed, SIGKILL included): None when it ended normally or there was none
+        self.previous_interrupted: dict | None = None
 
     # -- opening -----------------------------------------------------------------------------------
     @classmethod
@@ -268,6 +274,10 @@ class RunStore:
                     raise InputError(out, "cannot resume: the run used another random-seeding scheme")
                 info.setdefault("sessions", []).append({**session, "resume": True})
                 store = cls(out, info, True, lock_fd)
+                store.previous_interrupted = _interrupted_status(out / "status.json")
+                if store.previous_interrupted is not None:       # this session takes the run over
+                    store._last_status = {k: v for k, v in store.previous_interrupted.items()
+                                          if k not in ("owner", "updated")} | {"interrupted": False, "complete": False}
             else:
                 import imrbayes
 
@@ -303,16 +313,26 @@ class RunStore:
                 except OSError:
                     pass
 
-    def close(self) -> None:
-        """Release the run's lock (the files stay)."""
+    def close(self, interrupted: bool = False) -> None:
+        """Mark ``status.json`` finished (``complete`` when the last batch finished every unit and
+        nothing interrupted it) and release the run's lock (the files stay)."""
         fd, self._lock_fd = self._lock_fd, None
+        if fd is not None and self._last_status:
+            last = self._last_status
+            done = bool(last.get("complete")) and not interrupted and not last.get("interrupted")
+            try:
+                write_json(self.path / "status.json",
+                           {**last, "complete": done, "interrupted": bool(interrupted or last.get("interrupted")),
+                            "running": False, "updated": _now()}, indent=2)
+            except OSError:  # never mask the original problem
+                pass
         _unlock(fd)
 
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, exc, tb):
+        self.close(interrupted=exc_type is not None and issubclass(exc_type, KeyboardInterrupt))
 
     def __del__(self):  # pragma: no cover - best effort
         try:
@@ -415,10 +435,62 @@ class RunStore:
         return doc
 
     def write_status(self, status: dict) -> None:
-        write_json(self.path / "status.json", {**status, "updated": _now()}, indent=2)
+        """Write the latest batch's counts to ``status.json``. While the run is open the file says
+        ``running`` with this process's pid and never ``complete``: a process killed outright
+        (SIGKILL) cannot mark its run, so only :meth:`close` writes ``complete``."""
+        self._last_status = dict(status)
+        write_json(self.path / "status.json",
+                   {**status, "complete": False, "running": True, "owner": _owner(), "updated": _now()}, indent=2)
 
 
 # ------------------------------------------------------------------------------------------- lock
+def _owner() -> dict:
+    return {"pid": os.getpid(), "host": socket.gethostname()}
+
+
+def pid_alive(pid) -> bool:
+    """Whether process ``pid`` exists on this host (a zombie counts as gone only once reaped)."""
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:        # someone else's process: alive
+        return True
+    except (OSError, TypeError, ValueError, OverflowError):
+        return False
+    return True
+
+
+def read_status(out) -> dict | None:
+    """``status.json`` of run directory ``out`` with ``interrupted`` decided: a status that still
+    says ``running`` whose owner is gone (killed, SIGKILL included) reads as interrupted; None when
+    there is no readable status."""
+    path = Path(out) / "status.json"
+    try:
+        status = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    if not isinstance(status, dict):
+        return None
+    owner = status.get("owner") or {}
+    if status.get("running") and not (owner.get("host") == socket.gethostname() and pid_alive(owner.get("pid"))):
+        status = {**status, "running": False, "interrupted": True, "complete": False}
+    return status
+
+
+def _interrupted_status(path: Path) -> dict | None:
+    """The earlier session's status when it ended without closing the run (the caller holds the
+    lock, so an owner that still says ``running`` is gone)."""
+    try:
+        status = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    if not isinstance(status, dict):
+        return None
+    if status.get("running") or status.get("interrupted"):
+        return {**status, "running": False, "interrupted": True, "complete": False}
+    return None
+
 
 def _lock(out: Path) -> int | None:
     try:
