@@ -25,8 +25,9 @@ def write_table(out: Path, rows: list, study: dict) -> list:
 
 def write_tree(out: Path, results, draws: dict) -> Path:
     """``study.nc``: an xarray DataTree with a group per condition (labels as attributes): ``gel``,
-    the draws of G and mu [SI] from its gel-level posterior, and ``time_resolved``, G(t) and mu(t)
-    from MIEnKS-MDA where it ran."""
+    the draws of G and mu [SI] from its gel-level posterior, each fit's own ``posterior`` group
+    (named after the run: ``en4dvar``, ``mienks``, ...), and ``time_resolved``, G(t) and mu(t) from
+    MIEnKS-MDA where it ran."""
     import xarray as xr
 
     groups = {}
@@ -37,6 +38,11 @@ def write_tree(out: Path, results, draws: dict) -> Path:
             groups[f"/{r.name}/gel"] = xr.Dataset({p: ("draw", np.exp(v)) for p, v in draws[r.name].items()},
                                                   attrs={"units": "G [Pa], mu [Pa s]",
                                                          "source": f"{r.method} gel-level posterior (log-space Gaussian)"})
+        for job, folder in r.folders.items():
+            post = Path(folder) / "posterior.nc"
+            if job != "diagnose" and post.is_file():
+                with xr.open_datatree(post) as tree:
+                    groups[f"/{r.name}/{job}"] = tree["posterior"].to_dataset().load()
         if r.time_resolved:
             t = [e["t_star"] for e in r.time_resolved]
             data = {f"{p}_{s}": ("t_star", [(e.get(p) or {}).get(s, np.nan) for e in r.time_resolved])
@@ -63,10 +69,10 @@ def write_figures(out: Path, rows: list, results, numeric: dict) -> list:
     axes_x = [(k, u) for k, u in numeric.items()] or [(None, "")]
     from imrbayes.study.spec import parse_label_value
 
-    for key, unit in axes_x:
+    have = [r for r in rows if r.get("G_mean") is not None]
+    for key, unit in axes_x if have else ():
         fig = pl.figure(8.5, 3.4)
         axs = fig.subplots(1, 2)
-        have = [r for r in rows if r.get("G_mean") is not None]
         x = (np.array([parse_label_value(r[key])[0] for r in have]) if key else np.arange(len(have)))
         for ax, p in zip(axs, _PARAMS):
             s = pl.scale(p)
