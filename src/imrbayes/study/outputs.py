@@ -101,15 +101,16 @@ def write_figures(out: Path, rows: list, results, numeric: dict) -> list:
             t = np.array([e["t_star"] for e in r.time_resolved], float)
             for ax, p in zip(axs, _PARAMS):
                 s = pl.scale(p)
-                m = np.array([(e.get(p) or {}).get("mean", np.nan) for e in r.time_resolved], float) * s
-                sd = np.array([(e.get(p) or {}).get("sd", np.nan) for e in r.time_resolved], float) * s
+                est = [e.get(p) or {} for e in r.time_resolved]
+                m = np.array([x.get("mean", np.nan) for x in est], float) * s
+                band = np.array([x.get("hdi95") or [np.nan, np.nan] for x in est], float) * s
                 line, = ax.plot(t, m, label=r.name)
-                ax.fill_between(t, m - 1.96 * sd, m + 1.96 * sd, color=line.get_color(), alpha=0.2)
+                ax.fill_between(t, band[:, 0], band[:, 1], color=line.get_color(), alpha=0.2)
         for ax, p in zip(axs, _PARAMS):
             ax.set_xlabel(pl.label("t_star"))
             ax.set_ylabel(pl.label(p))
         axs[0].legend(fontsize=7)
-        fig.suptitle("MIEnKS-MDA G(t), mu(t) per condition (band: mean ± 1.96 sd)", fontsize=10)
+        fig.suptitle("MIEnKS-MDA G(t), mu(t) per condition (band: 95 % interval)", fontsize=10)
         written.append(pl.save(fig, fdir / "time_resolved.png"))
     return written
 
