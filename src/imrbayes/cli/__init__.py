@@ -222,7 +222,7 @@ def main():
 
 
 # Each command is one module that registers itself on `main` (add a module, then its name here).
-COMMANDS = ("inspect", "simulate", "fit", "validate", "diagnose", "compare", "report")
+COMMANDS = ("inspect", "simulate", "fit", "validate", "diagnose", "compare", "report", "study")
 
 
 def _register_commands():
