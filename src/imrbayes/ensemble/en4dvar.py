@@ -285,7 +285,8 @@ def en4dvar_unit(unit: Unit, rng) -> dict:
         out = runner.simulate(space.to_si(Z), np.full(len(Z), rmax), np.full(len(Z), req), t_eval)
         return out.R_star[:, 1:], out.failed | ~np.all(np.isfinite(out.R_star), axis=1)
 
-    mean, cov = space.prior_mean.copy(), space.prior_cov.copy()
+    # the first cycle's ensemble: the global search's start where one was made, else the prior
+    mean, cov = space.start_mean.copy(), space.start_cov.copy()
     cycles = []
     res = None
     req_factor = 1.0
@@ -902,6 +903,10 @@ class En4DVar(InferenceMethod):
     settings_class = En4DVarSettings
     gaussian_posterior = True
     fit = staticmethod(fit_en4dvar)
+
+    @staticmethod
+    def global_start(settings, space) -> bool:
+        return settings.likelihood == "default" and {"G", "mu"} <= set(space.names)
 
     @staticmethod
     def check_settings(settings, obs):

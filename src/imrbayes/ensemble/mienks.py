@@ -441,8 +441,9 @@ def mienks_unit(unit: Unit, rng) -> dict:
         E = np.zeros((N, ns + dp + n_carry + n_aug))
         E[:, :ns] = st0.y
         f = widen_factors(getattr(s, "prior_widen", None), space.names, strict=False)
-        centre = space.prior_mean if d.get("param_start") is None else np.asarray(d["param_start"], dtype=np.float64)
-        E[:, ns:ns + dp] = draw(rng, centre, space.prior_cov * np.outer(f, f), N)
+        # window 0's members: around the global search's start where one was made, else the prior
+        centre = space.start_mean if d.get("param_start") is None else np.asarray(d["param_start"], dtype=np.float64)
+        E[:, ns:ns + dp] = draw(rng, centre, space.start_cov * np.outer(f, f), N)
         if carry:
             sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
             E[:, ns + dp] = sd_rho * rng.standard_normal(N)
@@ -1280,6 +1281,10 @@ class MIEnKS(InferenceMethod):
                      "shared by its windows; details.aggregate_cov_rule 'chain'; with the paper's likelihood "
                      "the weighting's own covariance, 'weighting').")
     fit = staticmethod(fit_mienks)
+
+    @staticmethod
+    def global_start(settings, space) -> bool:
+        return settings.likelihood == "default" and {"G", "mu"} <= set(space.names)
 
     @staticmethod
     def check_settings(settings, obs):
