@@ -28,8 +28,10 @@ from imrbayes import __version__
 from imrbayes.cli import main, read_config
 from imrbayes.cli.options import (check_options, command_line, compare_line, data_fingerprint, echo_execution, estimate_text,
                                   execution_options, force_option, key_values, method_settings, open_execution,
-                                  prepare_out, prior_overrides, select_experiments, EXPERIMENTS_HELP)
+                                  prepare_out, prior_base_name, prior_overrides, select_experiments,
+                                  EXPERIMENTS_HELP)
 from imrbayes.ensemble import METHODS
+from imrbayes.ensemble.search import global_search
 from imrbayes.errors import InputError
 from imrbayes.execution.progress import finish, plan
 
@@ -57,7 +59,7 @@ def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
 
 
 #: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
-CONFIG_OPTIONS = ("method", "model", "out", "seed", "workers", "scheduler", "quiet", "camera", "experiments", "dt_star", "n_steps",
+CONFIG_OPTIONS = ("method", "model", "out", "seed", "prior_name", "workers", "scheduler", "quiet", "camera", "experiments", "dt_star", "n_steps",
                   "noise", "likelihood", "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES)
 CONFIG_TABLES = ("forward", "prior", "mcmc", *METHOD_NAMES)
 
@@ -97,7 +99,9 @@ def _load_config(path) -> dict:
                    "scheme=imrv2-fd, nt=25, radial=km, ...); repeatable.")
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", help=None)
 @click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",
-              help="Prior mean and sd in SI units (G [Pa], mu [Pa s]) [default: G=6e3:2.8e3, mu=0.209:0.088].")
+              help="A named prior (wide: weakly informative over G 10 Pa-0.9 MPa and mu 1e-4-9 Pa s; paper: "
+                   "G 6 kPa sd 2.8, mu 0.209 Pa s sd 0.088), or NAME=MEAN:SD in SI units (G [Pa], mu [Pa s]) over "
+                   "it; repeatable  [default: wide; paper with --likelihood paper].")
 @click.option("--workers", type=int, default=None,
               help="Worker processes for the units (imr, en4dvar: experiments; mienks: the experiments of each "
                    "window) [default: 1: in this process].")
@@ -198,6 +202,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
                                                  "observation model")
         else:
             s = dataclasses.replace(s, likelihood=likelihood)
+    prior_base, priors = prior_base_name(priors, cfg.get("prior_name"), likelihood)
     prior = prior_overrides(cfg.get("prior", {}), key_values(priors, "--prior"))
     mcmc_s = None
     if mcmc:
@@ -210,7 +215,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     fm = ForwardModel(model, options=ForwardOptions.from_dict(fopts, source="forward options"),
                       physics_overrides=ds.physics or None)
     obs = Observations.from_preprocessed(pre)
-    space = ParamSpace.for_model(fm.constitutive, prior)
+    space = ParamSpace.for_model(fm.constitutive, prior, base=prior_base)
     meth.check_settings(s, obs)                # before any output: a refused --set leaves no folder behind
     if mcmc_s is not None:
         mcmc_s.check(space.n)                  # before the fit: a bad walker count must not cost a fit
@@ -233,13 +238,18 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
         n_units, what = planned_units(meth, s, obs.n_exp, obs.n_samples - 1, fm)
         if what and execution.bar is not None:
             execution.bar.write(f"imrbayes: {method}: {n_units} units ({what})", file=sys.stderr)
+        search = None
+        if meth.global_start(s, space):
+            search = global_search(fm, obs, runner, progress=None if quiet else _stage_line)
+            space = space.with_start(*search.start(space))
         plan(execution.bar, n_units, method)
         res = meth.fit(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
         finish(execution.bar)
+        adequacy = _adequacy(res, obs, space, model, search)
         if mcmc:
             # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
             _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
-                       data, execution.summary(), t_start, quiet=True, argv=argv)
+                       data, execution.summary(), t_start, quiet=True, argv=argv, adequacy=adequacy)
             if not quiet:
                 click.echo(f"{method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
             from imrbayes.mcmc.fit import run_fit_mcmc
@@ -251,7 +261,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
                                    warn=None if quiet else (lambda w: click.echo(f"imrbayes: warning: {w}", err=True)))
         exec_summary = execution.summary()
     written = _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
-                         data, exec_summary, t_start, quiet=quiet, compare=compare, argv=argv)
+                         data, exec_summary, t_start, quiet=quiet, compare=compare, argv=argv, adequacy=adequacy)
     if not quiet:
         from imrbayes.io import read_json
         from imrbayes.report import fit_check_sentence, grouped_warnings
@@ -262,7 +272,7 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
         check = fit_check_sentence(summary)
         if check and (summary.get("fit_check") or {}).get("described") is False:
             click.echo(check)
-        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(res.estimate, summary)}; "
+        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(summary["estimate"], summary)}; "
                    f"rmse {res.rmse:.3g} R* [-] ({res.rmse * _mean_rmax_um(obs):.3g} µm); {res.runtime_s:.1f} s")
         if check and (summary.get("fit_check") or {}).get("described") is not False:
             click.echo(check)
@@ -311,8 +321,24 @@ def _window_list(value):
 
 
 
+def _stage_line(text: str) -> None:
+    click.echo(f"imrbayes: {text}", err=True)
+
+
+def _adequacy(res, obs, space, model, search) -> dict:
+    """What summary.json says beside the estimate: the fit check, the annotated estimate (bounded,
+    G consistent with 0), the data's share of the posterior, the global search."""
+    from imrbayes.ensemble.adequacy import annotate_estimate, fit_check
+
+    out = {"fit_check": fit_check(res, obs, model),
+           "estimate": annotate_estimate(res.estimate, space, res.cov_internal, search),
+           "search": search.describe() if search is not None else None,
+           "data_share": space.data_share(res.cov_internal) if res.cov_internal is not None else None}
+    return out
+
+
 def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config, data,
-               exec_summary, t_start, quiet, compare=None, argv=None) -> list:
+               exec_summary, t_start, quiet, compare=None, argv=None, adequacy=None) -> list:
     """summary.json, posterior.nc, estimate.csv (and time_resolved.csv where the method resolves
     time) and the method's figures; returns the figure paths."""
     import os
@@ -325,8 +351,13 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     mcmc_part = {}
     if compare is not None:
         mcmc_part = {"mcmc": {"files": ["mcmc.nc", "compare.json"], "overall": compare["overall"]}}
+    prior = space.describe()
+    checks = {}
+    if adequacy is not None:
+        prior["data_share"] = adequacy["data_share"]
+        checks = {"fit_check": adequacy["fit_check"], **({"search": adequacy["search"]} if adequacy["search"] else {})}
     summary = summary_dict(res, obs, seed=seed, extra={
-        "forward": fm.describe(), "prior": space.describe(), "preprocessing": pre.to_dict(arrays=False),
+        **checks, "forward": fm.describe(), "prior": prior, "preprocessing": pre.to_dict(arrays=False),
         "data": str(data), "warnings_preprocessing": list(pre.warnings),
         "command": {"name": "fit", "method": method, "model": model, "seed": seed, "workers": workers,
                     "scheduler": scheduler, "resume": bool(resume),
@@ -338,6 +369,8 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
                      "failed_member_runs": res.details.get("failed_member_runs", res.details.get("failed_grid_runs")),
                      "redrawn_members": res.details.get("redrawn_members")},
         "total_runtime_s": time.perf_counter() - t_start, **mcmc_part})
+    if adequacy is not None:
+        summary["estimate"] = adequacy["estimate"]
     write_summary(out / "summary.json", summary)
     posterior_tree(res, obs).to_netcdf(out / "posterior.nc")
     write_tables(out, summary)

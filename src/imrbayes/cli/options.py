@@ -254,6 +254,22 @@ def method_settings(cls, table: dict, cli: dict, option: str = "--set"):
     return cls(**kwargs)
 
 
+def prior_base_name(priors, config_name, likelihood) -> tuple:
+    """(the named base prior, the remaining ``NAME=MEAN:SD`` items) from ``--prior`` values: a value
+    without ``=`` names the base (``wide``, ``paper``); the default is ``wide``, and ``paper`` with
+    ``--likelihood paper`` (the paper's settings together)."""
+    from imrbayes.ensemble.problem import PRIORS
+
+    named = [p for p in priors if "=" not in str(p)]
+    rest = [p for p in priors if "=" in str(p)]
+    if len(named) > 1:
+        raise InputError("--prior", f"name one prior, got {', '.join(named)}")
+    name = named[0] if named else (config_name or ("paper" if likelihood == "paper" else "wide"))
+    if name not in PRIORS:
+        raise InputError("--prior", f"unknown prior {name!r}; choose one of {', '.join(PRIORS)} or give NAME=MEAN:SD")
+    return name, rest
+
+
 def prior_overrides(table: dict, cli: dict) -> dict:
     out = {}
     for k, v in (table or {}).items():

@@ -193,9 +193,10 @@ class _Bubble:
         self.j_rho = self.n_p + int(np.flatnonzero(self.active == 2)[0]) if 2 in self.active else None
 
     def start_prior(self) -> tuple:
-        """Cycle 1's prior (mean (d,), cov (d, d)): the parameter prior, augmented by the active
-        nuisances' preprocessing prior N(0, nu_sd^2) with the default likelihood."""
-        mean, cov = self.space.prior_mean.copy(), self.space.prior_cov.copy()
+        """Cycle 1's prior (mean (d,), cov (d, d)): the parameters' start (the global search's best
+        point where ``fit`` made one, else the prior; the fusion divides it out again), augmented by
+        the active nuisances' preprocessing prior N(0, nu_sd^2) with the default likelihood."""
+        mean, cov = self.space.start_mean.copy(), self.space.start_cov.copy()
         if not self.default:
             return mean, cov
         n_p, k = self.n_p, self.k
@@ -872,6 +873,10 @@ class En4DVar(InferenceMethod):
     settings_class = En4DVarSettings
     gaussian_posterior = True
     fit = staticmethod(fit_en4dvar)
+
+    @staticmethod
+    def global_start(settings, space) -> bool:
+        return settings.likelihood == "default" and {"G", "mu"} <= set(space.names)
 
     @staticmethod
     def check_settings(settings, obs):

@@ -9,8 +9,10 @@ c_k = 1 (``weighting="none"``, methods.md) or 1/P_k (``"P"``); the window is sam
 ``"collapse:k"`` (through the k-th collapse, the k-th local minimum of experiment n's measured
 curve with prominence >= ``collapse_prominence``).
 
-Grid: G in [G_min, G_max], mu in [mu_min, mu_max], n_G x n_mu points (paper: [0, 25] kPa x
-[0, 0.5] Pa s, 120 x 74). Other parameters of the model are held at their defaults.
+Grid: G in [G_min, G_max], mu in [mu_min, mu_max], n_G x n_mu points, log-spaced by default over
+the whole range a user can bring (G = 0 and 10 Pa to 1 MPa, mu 1e-4 to 10 Pa s; a liquid's G = 0 is a
+grid point); ``spacing=linear`` with the paper's [0, 25] kPa x [0, 0.5] Pa s reproduces the paper's
+grid. Other parameters of the model are held at their defaults.
 
 Reported: the overall optimum (grid argmin; ``refine`` adds a sub-grid optimum from a quadratic
 fit to the 3 x 3 neighbourhood), the optimum of every J_n, the landscape, and a 95 % confidence
@@ -56,12 +58,13 @@ __all__ = ["IMR", "IMRSettings", "fit_imr", "imr_unit", "fit_indices", "collapse
 class IMRSettings:
     """Grid, window and cost weighting of standard IMR (see module doc). SI units."""
 
-    G_min: float = 0.0
-    G_max: float = 25e3
-    mu_min: float = 0.0
-    mu_max: float = 0.5
-    n_G: int = 120
-    n_mu: int = 74
+    G_min: float = 0.0         #: lowest G [Pa] (0: a liquid)
+    G_max: float = 1e6         #: highest G [Pa]
+    mu_min: float = 1e-4       #: lowest mu [Pa s]
+    mu_max: float = 10.0       #: highest mu [Pa s]
+    n_G: int = 120             #: grid points in G
+    n_mu: int = 74             #: grid points in mu
+    spacing: str = "log"       #: log (from 1e-5 of the top where the bottom is 0, which is kept) | linear
     window: str = "all"
     weighting: str = "none"
     level: float = 0.95
@@ -74,10 +77,22 @@ class IMRSettings:
             raise InputError("grid", "needs at least 3 points per axis")
         if not (self.G_max > self.G_min >= 0 and self.mu_max > self.mu_min >= 0):
             raise InputError("grid", "needs 0 <= G_min < G_max and 0 <= mu_min < mu_max")
+        if self.spacing not in ("log", "linear"):
+            raise InputError("spacing", f"must be 'log' or 'linear', got {self.spacing!r}")
         if self.weighting not in ("none", "P"):
             raise InputError("weighting", f"must be 'none' or 'P', got {self.weighting!r}")
         if not 0 < self.level < 1:
             raise InputError("level", f"must lie in (0, 1), got {self.level}")
+
+
+def grid_axis(lo: float, hi: float, n: int, spacing: str = "log") -> np.ndarray:
+    """(n,) grid from ``lo`` to ``hi``: linear, or log-spaced (where ``lo`` is 0 it stays the first
+    point and the log spacing starts at 1e-5 ``hi``: 10 Pa for a 1 MPa top)."""
+    if spacing == "linear":
+        return np.linspace(lo, hi, n)
+    if lo > 0:
+        return np.logspace(np.log10(lo), np.log10(hi), n)
+    return np.concatenate([[0.0], np.logspace(np.log10(hi) - 5.0, np.log10(hi), n - 1)])
 
 
 def collapse_indices(y, prominence: float = 0.05) -> np.ndarray:
@@ -241,8 +256,8 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
     Kn = fit_indices(obs, s.window, s.collapse_prominence)
     Kmax = int(Kn.max())
     t_eval = obs.t_star[:Kmax + 1]
-    Gg = np.linspace(s.G_min, s.G_max, s.n_G)
-    mg = np.linspace(s.mu_min, s.mu_max, s.n_mu)
+    Gg = grid_axis(s.G_min, s.G_max, s.n_G, s.spacing)
+    mg = grid_axis(s.mu_min, s.mu_max, s.n_mu, s.spacing)
     GG, MM = np.meshgrid(Gg, mg, indexing="ij")
     n_pts = GG.size
     defaults = fm.constitutive.defaults

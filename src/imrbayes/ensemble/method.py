@@ -65,6 +65,12 @@ class InferenceMethod:
             check()
 
     @staticmethod
+    def global_start(settings, space) -> bool:
+        """Whether ``fit`` runs the global search (:mod:`imrbayes.ensemble.search`) first and
+        starts this method at its best point (local methods with the default likelihood)."""
+        return False
+
+    @staticmethod
     def n_forward_runs(settings, n_exp: int, n_steps: int) -> int:
         """Forward member runs the fit will make for ``n_exp`` experiments of ``n_steps`` steps
         (the progress bar's total; an estimate where runs stop early)."""

@@ -433,7 +433,8 @@ class _WindowRun:
 
 def initial_members(runner, space, s, d: dict, rng, carry: bool) -> np.ndarray:
     """Window 0's prior ensemble of one experiment (N, ns + d + [rho, a, delta]): the state at the
-    maximum radius, parameters drawn from the parameter prior with its sd times ``prior_widen``
+    maximum radius, parameters drawn around the start (``space.start_mean``: the global search's best
+    point, else the prior mean) with its sd times ``prior_widen``
     (:func:`widen_factors`), and (``carry``) the nuisances (rho, a, delta) from N(0, nuis_sd^2)."""
     N, dp = int(s.n_ens), space.n
     st0 = runner.fm.initial_state(np.full(N, float(d["rmax"])), np.full(N, float(d["req"])))
@@ -441,7 +442,8 @@ def initial_members(runner, space, s, d: dict, rng, carry: bool) -> np.ndarray:
     E = np.zeros((N, ns + dp + (3 if carry else 0)))
     E[:, :ns] = st0.y
     f = widen_factors(getattr(s, "prior_widen", None), space.names, strict=False)
-    E[:, ns:ns + dp] = draw(rng, space.prior_mean, space.prior_cov * np.outer(f, f), N)
+    # around the global search's best point where ``fit`` made one, else the prior
+    E[:, ns:ns + dp] = draw(rng, space.start_mean, space.start_cov * np.outer(f, f), N)
     if carry:
         sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
         E[:, ns + dp] = sd_rho * rng.standard_normal(N)
@@ -1298,6 +1300,10 @@ class MIEnKS(InferenceMethod):
                      "shared by its windows; details.aggregate_cov_rule 'chain'; with the paper's likelihood "
                      "the weighting's own covariance, 'weighting').")
     fit = staticmethod(fit_mienks)
+
+    @staticmethod
+    def global_start(settings, space) -> bool:
+        return settings.likelihood == "default" and {"G", "mu"} <= set(space.names)
 
     @staticmethod
     def check_settings(settings, obs):

@@ -38,6 +38,7 @@ import numpy as np
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, rmse
 from imrbayes.errors import InputError
+from imrbayes.ensemble.imr import grid_axis
 
 __all__ = ["PIMR", "T_RC", "contents_factor", "PIMRSettings", "collapse_terms", "collapse_time", "fit_pimr"]
 
@@ -77,12 +78,13 @@ class PIMRSettings:
     landscape and the starting point)."""
 
     kappa: float | None = None
-    G_min: float = 0.0
-    G_max: float = 25e3
-    mu_min: float = 0.0
-    mu_max: float = 0.5
-    n_G: int = 120
-    n_mu: int = 74
+    G_min: float = 0.0         #: lowest G [Pa] (0: a liquid)
+    G_max: float = 1e6         #: highest G [Pa]
+    mu_min: float = 1e-4       #: lowest mu [Pa s]
+    mu_max: float = 10.0       #: highest mu [Pa s]
+    n_G: int = 120             #: grid points in G
+    n_mu: int = 74             #: grid points in mu
+    spacing: str = "log"       #: as IMR's (:func:`imrbayes.ensemble.imr.grid_axis`)
     refine: bool = True
     level: float = 0.95
 
@@ -152,8 +154,8 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
     PIMR.check_settings(s, obs)
     tm = np.asarray(obs.t_collapse_star, dtype=float)
     q = _groups(fm, obs.rmax_m, obs.req_m, s.kappa)
-    Gg = np.linspace(s.G_min, s.G_max, s.n_G)
-    mg = np.linspace(s.mu_min, s.mu_max, s.n_mu)
+    Gg = grid_axis(s.G_min, s.G_max, s.n_G, s.spacing)
+    mg = grid_axis(s.mu_min, s.mu_max, s.n_mu, s.spacing)
     qq = {k: (v[None, None, :] if isinstance(v, np.ndarray) else v) for k, v in q.items()}
     terms = collapse_terms(Gg[:, None, None], mg[None, :, None], qq)
     fbar = sum(terms.values())

@@ -27,11 +27,28 @@ import numpy as np
 
 from imrbayes.errors import InputError
 
-__all__ = ["Observations", "ParamSpace", "PAPER_PRIOR"]
+__all__ = ["Observations", "ParamSpace", "PAPER_PRIOR", "WIDE_PRIOR", "PRIORS", "lognormal_moments"]
 
 #: Prior of methods.md §3 (mean, sd) in SI units; parameters not listed use the model default
-#: with a 50 % sd.
+#: with a 50 % sd. Set for the paper's gels: on other materials it decides the answer
+#: (docs/methods.md, "Priors").
 PAPER_PRIOR = {"G": (6.0e3, 2.8e3), "mu": (0.209, 0.088)}
+
+
+def lognormal_moments(median: float, log_sd: float) -> tuple:
+    """(mean, sd) in SI of the log-normal with this median and sd of the log: the form
+    :meth:`ParamSpace.for_model` takes, which maps it back to exactly this median and log-sd."""
+    s2 = log_sd ** 2
+    mean = median * math.exp(0.5 * s2)
+    return mean, mean * math.sqrt(math.expm1(s2))
+
+
+#: The default prior: weakly informative over every material a user can bring. Log-normal with
+#: median 3 kPa and log-sd 2.9 for G (95 %: 10 Pa to 0.9 MPa) and median 0.03 Pa s, log-sd 2.9
+#: for mu (95 %: 1e-4 to 9 Pa s).
+WIDE_PRIOR = {"G": lognormal_moments(3.0e3, 2.9), "mu": lognormal_moments(0.03, 2.9)}
+#: Named priors (``fit --prior NAME``).
+PRIORS = {"wide": WIDE_PRIOR, "paper": PAPER_PRIOR}
 
 
 @dataclass
@@ -185,6 +202,12 @@ class ParamSpace:
         and must be positive definite.
     prior_si : dict name -> (mean, sd)
         The prior as given, in SI units ({} for a prior stated directly in z, e.g. a window's).
+    prior_name : str
+        ``"wide"``, ``"paper"`` or ``"custom"`` (what the report names).
+    start_mean, start_cov : ndarray (n_p,), (n_p, n_p) or None
+        Where the local methods start and the working spread of their first ensemble (internal
+        coordinates), e.g. the global search's best point (:mod:`imrbayes.ensemble.search`); None:
+        the prior's. The prior itself stays the prior of every fused estimate.
     scale : ``"internal"`` | ``"natural"``
         Where the Gaussian is stated. ``natural`` (MCMC only): theta ~ N(prior_mean, prior_cov)
         truncated to theta > 0 for positive parameters, sampled in z with the Jacobian
@@ -205,6 +228,9 @@ class ParamSpace:
     prior_si: dict = field(default_factory=dict)
     scale: str = "internal"
     box_sd: float = 10.0
+    prior_name: str = "custom"
+    start_mean: np.ndarray | None = None
+    start_cov: np.ndarray | None = None
     lower: np.ndarray = field(init=False, repr=False)
     upper: np.ndarray = field(init=False, repr=False)
     _prec: np.ndarray = field(init=False, repr=False)
@@ -235,17 +261,27 @@ class ParamSpace:
             s = np.where(self.positive, np.sqrt(s2), s)
         self.lower = m - self.box_sd * s
         self.upper = m + self.box_sd * s
+        self.start_mean = self.prior_mean.copy() if self.start_mean is None else \
+            np.asarray(self.start_mean, dtype=np.float64).reshape(d)
+        self.start_cov = self.prior_cov.copy() if self.start_cov is None else \
+            _sym(np.asarray(self.start_cov, dtype=np.float64).reshape(d, d))
 
     @property
     def n(self) -> int:
         return len(self.names)
 
     @classmethod
-    def for_model(cls, constitutive, prior: dict | None = None, box_sd: float = 10.0) -> "ParamSpace":
-        """From a ``ConstitutiveModel``; ``prior`` maps name -> (mean, sd) in SI (default
-        :data:`PAPER_PRIOR`, else the model default with a 50 % sd, or with the parameter's own
-        ``prior_sd`` where the default is 0: a Zener's retardation time 0 +- 0.5 us), uncorrelated."""
-        prior = {**PAPER_PRIOR, **(prior or {})}
+    def for_model(cls, constitutive, prior: dict | None = None, box_sd: float = 10.0,
+                  base: str = "paper") -> "ParamSpace":
+        """From a ``ConstitutiveModel``; ``prior`` maps name -> (mean, sd) in SI over the named
+        ``base`` prior (:data:`PRIORS`: ``"paper"``, the default of the library's internal callers,
+        or ``"wide"``, ``fit``'s default); other parameters get the model default with a 50 % sd, or
+        the parameter's own ``prior_sd`` where the default is 0 (a Zener's retardation time 0 +- 0.5
+        us), uncorrelated."""
+        if base not in PRIORS:
+            raise InputError("--prior", f"unknown prior {base!r}; choose one of {', '.join(PRIORS)}")
+        name = base if not prior else "custom"
+        prior = {**PRIORS[base], **(prior or {})}
         names, pos, means, sds, si = [], [], [], [], {}
         for p in constitutive.parameters:
             fallback = 0.5 * abs(p.default) if p.default else (p.prior_sd or 1.0)
@@ -265,13 +301,25 @@ class ParamSpace:
             else:
                 means.append(mean)
                 sds.append(sd)
-        return cls(tuple(names), np.array(pos), np.array(means), np.diag(np.square(sds)), si, box_sd=box_sd)
+        return cls(tuple(names), np.array(pos), np.array(means), np.diag(np.square(sds)), si, box_sd=box_sd,
+                   prior_name=name)
 
     def with_prior(self, mean, cov, box_sd: float | None = None) -> "ParamSpace":
         """The same parameters with the prior N(mean, cov) stated on z (e.g. a window's chained
         prior), and ``box_sd`` (default: this space's)."""
         return ParamSpace(self.names, self.positive, mean, cov, {}, "internal",
                           self.box_sd if box_sd is None else float(box_sd))
+
+    def with_start(self, mean, cov) -> "ParamSpace":
+        """The same prior, with the methods' start N(mean, cov) on z (see ``start_mean``)."""
+        return ParamSpace(self.names, self.positive, self.prior_mean, self.prior_cov, dict(self.prior_si),
+                          self.scale, self.box_sd, self.prior_name, mean, cov)
+
+    def data_share(self, post_cov) -> dict:
+        """How much of the posterior is the data's, per parameter: ``1 - var_post / var_prior`` of
+        the internal coordinate (0: the prior unchanged; 1: the data alone)."""
+        v = np.diag(np.asarray(post_cov, dtype=np.float64).reshape(self.n, self.n))
+        return {nm: float(np.clip(1.0 - v[i] / self.prior_cov[i, i], 0.0, 1.0)) for i, nm in enumerate(self.names)}
 
     def to_internal(self, theta):
         """(..., n_p) SI -> internal z (log for positive parameters)."""
@@ -305,8 +353,15 @@ class ParamSpace:
 
     def describe(self) -> dict:
         """The parameter space as the methods use it (``summary.json["prior"]``, the run config)."""
-        return {"names": list(self.names), "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)},
+        sd = np.sqrt(np.diag(self.prior_cov))
+        return {"name": self.prior_name, "names": list(self.names),
+                "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)},
                 "prior_si": {k: {"mean": v[0], "sd": v[1]} for k, v in self.prior_si.items()},
+                "central_95_si": {n: self.to_si(np.array([self.prior_mean[i] - 1.96 * sd[i],
+                                                          self.prior_mean[i] + 1.96 * sd[i]])).tolist()
+                                  if self.positive[i] else [self.prior_mean[i] - 1.96 * sd[i], self.prior_mean[i] + 1.96 * sd[i]]
+                                  for i, n in enumerate(self.names)},
+                "start_internal_mean": self.start_mean.tolist(), "start_internal_cov": self.start_cov.tolist(),
                 "prior_internal_mean": self.prior_mean.tolist(), "prior_internal_cov": self.prior_cov.tolist(),
                 "prior_rule": "positive parameters: log-normal with the given SI mean and sd "
                               "(s^2 = log(1 + (sd/mean)^2), m = log(mean) - s^2/2); others Gaussian"}
