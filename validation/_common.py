@@ -126,8 +126,9 @@ def coverage_rows(rows: list[dict], group: Sequence[str], truth_key: str = "trut
     """Per group of finished case rows (same values of ``group`` keys) and per parameter: the
     coverage of the 95 % interval with its Wilson interval and the mean relative error.
 
-    Each case row holds ``estimate`` (name -> ``{"mean", "hdi95"}``, SI) and ``truth`` (name -> value);
-    a parameter whose truth is 0 gets no relative error (``nan``).
+    Each case row holds ``estimate`` (name -> ``{"mean", "hdi95"}``, SI) and ``truth`` (name -> value).
+    A parameter whose truth is 0 is left out (scored on "consistent with 0"); seeds whose fit says the
+    parameter is not identifiable (:func:`said_unidentifiable`) are counted, not scored on coverage.
     """
     ok = [r for r in rows if r["status"] == "ok"]
     keys = list(dict.fromkeys(tuple(r[g] for g in group) for r in ok))
@@ -136,10 +137,16 @@ def coverage_rows(rows: list[dict], group: Sequence[str], truth_key: str = "trut
         rr = [r for r in ok if tuple(r[g] for g in group) == key]
         for name in rr[0][truth_key]:
             true = rr[0][truth_key][name]
-            hits = sum(r["estimate"][name]["hdi95"][0] <= true <= r["estimate"][name]["hdi95"][1] for r in rr)
-            rel = [r["estimate"][name]["mean"] / true - 1 for r in rr] if true else []
+            if true == 0:           # a zero truth is scored on "consistent with 0", not on an interval
+                continue
+            # a seed whose fit says the parameter is not identifiable is scored on saying so
+            scored = [r for r in rr if not said_unidentifiable(r["estimate"][name])]
+            hits = sum(r["estimate"][name]["hdi95"][0] <= true <= r["estimate"][name]["hdi95"][1] for r in scored)
+            rel = [r["estimate"][name]["mean"] / true - 1 for r in scored]
             table.append({**dict(zip(group, key)), "parameter": name, "truth": true, "n_seeds": len(rr),
-                          "coverage": hits / len(rr), "wilson95": wilson(hits, len(rr)),
+                          "said_unidentifiable": len(rr) - len(scored),
+                          "coverage": hits / len(scored) if scored else math.nan,
+                          "wilson95": wilson(hits, len(scored)),
                           "mean_rel_error": sum(rel) / len(rel) if rel else math.nan})
     return table
 
@@ -153,9 +160,33 @@ def estimate_of(run_dir: Path, names: Sequence[str] = ("G", "mu")) -> dict:
     """A fit's gel-level estimate (name -> mean, sd, hdi95 in SI) and rmse from its ``summary.json``."""
     summary = json.loads((run_dir / "summary.json").read_text())
     est = summary["estimate"]
-    return {"estimate": {n: {k: est[n].get(k) for k in ("mean", "sd", "hdi95", "consistent_with_zero") if k in est[n]}
-                         for n in names if n in est},
-            "rmse": (summary.get("fit") or {}).get("rmse")}
+    check = summary.get("fit_check") or {}
+    keys = ("mean", "sd", "hdi95", "consistent_with_zero", "upper95", "bounded")
+    return {"estimate": {n: {k: est[n].get(k) for k in keys if k in est[n]} for n in names if n in est},
+            "rmse": (summary.get("fit") or {}).get("rmse"),
+            "described": check.get("described"), "residual_to_noise": check.get("residual_to_noise")}
+
+
+def said_unidentifiable(estimate: dict) -> bool:
+    """Whether a fit said the data do not pin this parameter down: consistent with 0, or an end of
+    its interval not bounded by the data."""
+    b = estimate.get("bounded") or {}
+    return bool(estimate.get("consistent_with_zero")) or (bool(b) and not (b.get("lower") and b.get("upper")))
+
+
+def fit_check_rows(rows: list[dict], group: Sequence[str]) -> list[dict]:
+    """Per group of finished case rows: how often the fit check said the (true) model describes the
+    records, with its Wilson interval, and the largest residual-to-noise ratio seen -- on data made
+    by the fitted model, its false-alarm rate."""
+    ok = [r for r in rows if r["status"] == "ok" and r.get("described") is not None]
+    out = []
+    for key in dict.fromkeys(tuple(r[g] for g in group) for r in ok):
+        rr = [r for r in ok if tuple(r[g] for g in group) == key]
+        k = sum(bool(r["described"]) for r in rr)
+        out.append({**dict(zip(group, key)), "n_seeds": len(rr), "described": k, "false_alarms": len(rr) - k,
+                    "wilson95_false_alarm": wilson(len(rr) - k, len(rr)),
+                    "max_ratio": max(float(r["residual_to_noise"]) for r in rr)})
+    return out
 
 
 def coverage_figure(path: Path, table: list[dict], label: Callable[[dict], str]) -> Path:

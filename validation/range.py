@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from validation._common import (coverage_figure, coverage_rows, estimate_of, failures, imrbayes, parser, run_cases,
-                                wilson, write_table)
+from validation._common import (coverage_figure, coverage_rows, estimate_of, failures, fit_check_rows, imrbayes, parser,
+                                run_cases, wilson, write_table)
 
 NAME = "range"
 G_VALUES = (0.0, 300.0, 3e3, 3e4, 3e5)
@@ -91,7 +91,12 @@ def main(argv=None) -> None:
     meta = {"bubble": bubble, "seeds_per_cell": n_seeds, "quick": a.quick, "failed_cases": failures(rows)}
     write_table(a.out, "coverage", "En4D-Var over the range of gels: gel-level 95 % coverage and relative bias",
                 {"lab": "lab", "G_true": "G [Pa]", "mu_true": "mu [Pa s]", "parameter": "parameter", "n_seeds": "seeds",
-                 "coverage": "coverage", "wilson95": "Wilson 95 %", "mean_rel_error": "relative bias"}, table, meta)
+                 "said_unidentifiable": "said not identifiable", "coverage": "coverage", "wilson95": "Wilson 95 %",
+                 "mean_rel_error": "relative bias"}, table, meta)
+    write_table(a.out, "fit_check", "The fit check on data from the fitted model: false alarms",
+                {"lab": "lab", "G_true": "G [Pa]", "mu_true": "mu [Pa s]", "n_seeds": "seeds", "described": "described",
+                 "false_alarms": "false alarms", "wilson95_false_alarm": "Wilson 95 %", "max_ratio": "largest ratio"},
+                fit_check_rows(ok, ("lab", "G_true", "mu_true")), meta)
     write_table(a.out, "zero_modulus", "G = 0: seeds reporting G consistent with 0",
                 {"lab": "lab", "mu_true": "mu [Pa s]", "n_seeds": "seeds", "missing": "field missing",
                  "consistent_with_zero": "consistent with 0", "fraction": "fraction", "wilson95": "Wilson 95 %"},

@@ -36,6 +36,15 @@ def datasets(root: Path) -> tuple[list[Path], list[str]]:
     return found, skipped
 
 
+def data_options(folder: Path, experiments: str | None) -> list[str]:
+    """Options every command needs for ``folder``: two camera views are averaged frame by frame;
+    ``--experiments`` where given."""
+    from imrbayes.data import load_dataset
+
+    views = {e.camera for e in load_dataset(folder).experiments if getattr(e, "camera", None)}
+    return (["--camera", "mean"] if len(views) > 1 else []) + (["--experiments", experiments] if experiments else [])
+
+
 def fit_case(folder: Path, method: str, forward: list[str]) -> callable:
     def run(work: Path) -> dict:
         imrbayes("fit", folder, "--method", method, *forward, "--out", work / "fit", "--quiet")
@@ -53,12 +62,48 @@ def diagnose_case(folder: Path, forward: list[str], quick: bool) -> callable:
 
 
 def table_row(row: dict) -> dict:
-    """A case row as the table shows it: G and mu as 'mean [lo, hi]'."""
+    """A case row as the table shows it: G and mu as 'mean [lo, hi]' (or 'consistent with 0 (< up)'),
+    whether the fit describes the records (residual / noise)."""
     out = {"dataset": row["dataset"], "method": row["method"], "rmse": row.get("rmse")}
     for name, est in (row.get("estimate") or {}).items():
-        out[name] = f"{est['mean']:.4g} [{est['hdi95'][0]:.4g}, {est['hdi95'][1]:.4g}]"
+        if est.get("consistent_with_zero"):
+            up = est.get("upper95")
+            out[name] = "consistent with 0" + (f" (< {up:.3g})" if up is not None else "")
+        else:
+            out[name] = f"{est['mean']:.4g} [{est['hdi95'][0]:.4g}, {est['hdi95'][1]:.4g}]"
+    if row.get("residual_to_noise") is not None:
+        out["fit"] = f"{'described' if row['described'] else 'NOT described'} ({row['residual_to_noise']:.3g}x noise)"
     if row["method"] == "diagnose":
         out["G"] = f"verdict {row['verdict']}, cause {row['cause']}"
+    return out
+
+
+#: what must hold whatever the numbers: (name, data sets in increasing concentration, what rises)
+ORDERINGS = (("agarose G rises with concentration", ("ut_agarose0p5pct", "ut_agarose5p0pct"), "G"),
+             ("PEG-8000 solutions: mu rises with the fraction", ("ut_PEG8K_020pct_1Mfps_from_nondim",
+              "ut_PEG8K_060pct_1Mfps_from_nondim", "ut_PEG8K_100pct_1Mfps_from_nondim"), "mu"))
+LIQUIDS = ("ut_PEG8K_020pct_1Mfps_from_nondim", "ut_PEG8K_060pct_1Mfps_from_nondim", "ut_PEG8K_100pct_1Mfps_from_nondim")
+
+
+def physics_checks(rows: list[dict]) -> list[dict]:
+    """Per method: the orderings hold with separated 95 % intervals, and every liquid's G is
+    consistent with 0 (rows of data sets not run are left out)."""
+    out = []
+    for method in dict.fromkeys(r["method"] for r in rows if r["method"] != "diagnose"):
+        by = {r["dataset"]: r["estimate"] for r in rows if r["method"] == method and r.get("estimate")}
+        for name, series, par in ORDERINGS:
+            est = [by[d][par] for d in series if d in by and par in by[d]]
+            if len(est) < 2:
+                continue
+            holds = all(b["hdi95"][0] > a["hdi95"][1] for a, b in zip(est, est[1:]))
+            out.append({"check": name, "method": method, "holds": holds,
+                        "evidence": "; ".join(f"{e['mean']:.3g} [{e['hdi95'][0]:.3g}, {e['hdi95'][1]:.3g}]" for e in est)})
+        for d in LIQUIDS:
+            if d in by and "G" in by[d]:
+                g = by[d]["G"]
+                out.append({"check": f"{d}: G consistent with 0", "method": method,
+                            "holds": bool(g.get("consistent_with_zero")),
+                            "evidence": f"G {g['mean']:.3g} [{g['hdi95'][0]:.3g}, {g['hdi95'][1]:.3g}] Pa"})
     return out
 
 
@@ -68,6 +113,7 @@ def main(argv=None) -> None:
     ap.add_argument("--datasets", default=None, help="comma-separated folder names [default: all; --quick: the first]")
     ap.add_argument("--methods", default=None, help=f"comma-separated [default: {','.join(METHODS)}; --quick: pimr,en4dvar]")
     ap.add_argument("--no-diagnose", action="store_true", help="fits only")
+    ap.add_argument("--experiments", default=None, help="experiments of every data set, e.g. 1-5 [default: all]")
     ap.add_argument("--forward", action="append", default=None, metavar="KEY=VALUE",
                     help="forward option for every run [default: the thermal default; --quick: bubble=polytropic]")
     a = ap.parse_args(argv)
@@ -87,13 +133,18 @@ def main(argv=None) -> None:
            for x in ("--forward", kv)]
     cases = []
     for folder in found:
-        cases += [(f"{folder.name}_{m}", fit_case(folder, m, fwd)) for m in methods]
+        opts = fwd + data_options(folder, a.experiments)
+        cases += [(f"{folder.name}_{m}", fit_case(folder, m, opts)) for m in methods]
         if not a.no_diagnose:
-            cases.append((f"{folder.name}_diagnose", diagnose_case(folder, fwd, a.quick)))
+            cases.append((f"{folder.name}_diagnose", diagnose_case(folder, opts, a.quick)))
     rows = run_cases(a.out, cases, a.resume, lambda r: str(table_row(r)))
+    ok = [r for r in rows if r["status"] == "ok"]
+    write_table(a.out, "physics", "What physics demands of the measured data sets",
+                {"check": "check", "method": "method", "holds": "holds", "evidence": "evidence"},
+                physics_checks(ok), {"data": str(a.data), "forward": fwd[1::2], "experiments": a.experiments})
     write_table(a.out, "fits", "Measured data sets: every method's estimate and the diagnosis",
                 {"dataset": "data set", "method": "method", "G": "G [Pa] mean [95 %]", "mu": "mu [Pa s] mean [95 %]",
-                 "rmse": "rmse [R*]"},
+                 "rmse": "rmse [R*]", "fit": "fit check"},
                 [table_row(r) for r in rows if r["status"] == "ok"],
                 {"data": str(a.data), "forward": fwd[1::2], "quick": a.quick, "skipped": skipped,
                  "failed_cases": failures(rows)})

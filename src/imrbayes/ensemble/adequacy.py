@@ -89,6 +89,9 @@ def annotate_estimate(estimate: dict, space, cov_internal=None, search=None) -> 
                 out[nm]["bounded"] = {"lower": ok, "upper": ok}
     zero = (search or {}).get("zero_modulus") if isinstance(search, dict) else \
         (search.zero_modulus if search is not None else None)
+    if zero is None and "G" in out and (out["G"].get("hdi95") or [1.0])[0] <= 0.0:
+        # a grid method's interval that reaches G = 0 (IMR, pIMR: G = 0 is a grid point)
+        zero = {"consistent_with_zero": True}
     if zero and "G" in out:
         out["G"]["consistent_with_zero"] = bool(zero["consistent_with_zero"])
         if zero["consistent_with_zero"]:
