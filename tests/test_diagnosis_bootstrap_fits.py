@@ -1,6 +1,5 @@
-"""The check's fits: nuisance basins (restarts) and the bootstrap replicates' simplified
-Gauss-Newton fits (one Jacobian at the generating point), against the full procedure and against
-fits started at the replicate's known truth."""
+"""The check's fits: nuisance basins (restarts) against fits started at the replicate's known
+truth, and the candidates' starts from the preprocessing's nuisances."""
 
 from pathlib import Path
 
@@ -9,7 +8,7 @@ import pytest
 
 from imrbayes.data import load_dataset, preprocess_dataset
 from imrbayes.data.noise import noise_variance
-from imrbayes.diagnosis import check, linearised, lsq
+from imrbayes.diagnosis import check, lsq
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.diagnosis.synthetic import camera_obs
@@ -51,30 +50,6 @@ def test_restarts_find_the_nuisance_basin_of_the_truth():
     ref = lsq.fit_map(base, rep, minima=phases.minima, om=om0.without_random_effects(), starts=[full.z],
                       nu0=np.where(np.arange(5) < 3, full.nu, 0.0), fix_material=True)
     assert held.cost <= ref.cost * 1.005, (held.cost, ref.cost)
-    # the replicates' simplified Gauss-Newton fit from the truth lands there too
-    lin = linearised.Linearisation.at(base, obs, phases.minima, full.z, full.nu, observed["om"])
-    g = linearised.fit_linearised(base, rep, lin, minima=phases.minima, om=om0)
-    assert g.converged and g.cost <= truth.cost * 1.005
-    assert np.all(np.abs(g.z - truth.z) < 0.1 * sd)
-
-
-@pytest.mark.parametrize("seed", [3, 4])
-def test_linearised_replicates_give_the_full_fits_statistics(seed):
-    obs, _ = camera_obs("none", seed, POLY, design="270kfps-2um-3")
-    base, phases, observed, full, rep = _baseline_and_replicate(obs, seed)
-    lin = linearised.Linearisation.at(base, obs, phases.minima, full.z, full.nu, observed["om"])
-    assert lin.usable()
-    a = check.statistics(base, rep, phases, starts=[full.z])
-    b = check.statistics(base, rep, phases, starts=[full.z], lin=lin)
-    assert b["misfit"] == pytest.approx(a["misfit"], rel=2e-3)
-    assert b["phase_misfit"] == pytest.approx(a["phase_misfit"], rel=5e-3)
-    assert b["drift"] == pytest.approx(a["drift"], rel=0.05, abs=0.05)
-    sd = np.sqrt(np.diag(a["fits"]["all"].cov))
-    for k in a["fits"]:
-        assert np.all(np.abs(b["fits"][k].z - a["fits"][k].z) < 0.1 * np.sqrt(np.diag(a["fits"][k].cov))), k
-    assert np.all(np.abs(b["fits"]["all"].z - a["fits"]["all"].z) < 0.1 * sd)
-    # the cost: one prediction per iteration instead of a Jacobian and three trials
-    assert all(f.converged for f in b["fits"].values())
 
 
 def test_candidate_fit_also_starts_from_the_preprocessing_nuisances():

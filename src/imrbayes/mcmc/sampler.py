@@ -21,7 +21,7 @@ where the draws that would be kept are diagnosed exactly as :func:`imrbayes.mcmc
 diagnoses them (same burn-in, thinning, ArviZ R-hat and bulk/tail ESS); sampling stops at the first
 check where max R-hat <= ``rhat_max``, min bulk and tail ESS >= ``ess_min`` and every ensemble is
 at least ``tau_rule`` tau long (emcee's guidance: check every few tau, stop when the estimates are
-trustworthy). Checks start at ``min_steps`` and follow every ``check_tau`` tau (at least 10 steps),
+trustworthy). Checks start at ``min_steps`` and follow every :data:`CHECK_EVERY_TAU` tau (at least 10 steps),
 jumping ahead (at most doubling the length) to where the tau rule or the ESS would be met.
 ``n_steps`` is the **hard cap**: a run that reaches it unconverged says so (``stop_reason = "cap"``,
 ``cap_hit``), and its comparison is undecided (``agree: null``). ``stop="fixed"`` runs exactly
@@ -113,6 +113,10 @@ AUTO_MOVES = {"plain": "indep:0.7,de:0.3", "nuisances": "ridge:0.5,blocks:0.5"}
 LAPLACE_MAX_RESIDUAL = 0.6
 LAPLACE_MAX_BLOCK = 1
 LAPLACE_INDEP = {"moves": "indep", "indep_dof": 20.0, "indep_scale": 1.1, "indep_adapt": 0}
+#: rounds of the quadratic placement of the start (``place="laplace"``)
+PLACE_ROUNDS = 3
+#: after a failed convergence check the next comes this many tau later (emcee: check every few tau)
+CHECK_EVERY_TAU = 5.0
 
 
 def nuisances_per_experiment(target) -> int:
@@ -279,7 +283,7 @@ class MCMCSettings:
         halve it while their ESS (~600 at the stop) still clears 400 (docs/mcmc.md).
     stop : ``"converged"`` (stop at the first check where the convergence criteria hold, module
         docstring) or ``"fixed"`` (exactly ``n_steps``).
-    min_steps : first convergence check (steps); check_tau : later checks every ``check_tau`` tau.
+    min_steps : first convergence check (steps); later checks follow every :data:`CHECK_EVERY_TAU` tau.
     rhat_max, ess_min : the criteria (max R-hat; min bulk and tail ESS), as ``compare.THRESHOLDS``.
     moves : emcee move mixture, e.g. ``"indep:0.7,de:0.3"`` or ``"stretch"`` (:func:`parse_moves`);
         ``"auto"`` (default): :data:`AUTO_MOVES` -- ``indep:0.7,de:0.3``, or ``ridge:0.5,blocks:0.5``
@@ -294,7 +298,7 @@ class MCMCSettings:
         which then also picks the moves, :data:`LAPLACE_MAX_RESIDUAL`; else ``"start"``), ``"start"``
         (the walkers' start Gaussian and the ``indep`` proposal are the one given: the ensemble
         smoother's) or ``"laplace"`` (moved first to a quadratic fit of the target's own
-        log-density around it, :func:`imrbayes.mcmc.laplace.quadratic_placement`: ``place_rounds``
+        log-density around it, :func:`imrbayes.mcmc.laplace.quadratic_placement`: :data:`PLACE_ROUNDS`
         rounds of (d + 1)(d + 2)/2 x 3 evaluations, seeded, done again identically on resume).
     indep_adapt : 0, or the step at which each ensemble moves its ``indep`` proposal once to the
         mean and covariance of its own draws in the second half of the steps so far (then fixed;
@@ -314,7 +318,6 @@ class MCMCSettings:
     n_chains: int = 2
     stop: str = "converged"
     min_steps: int = 100
-    check_tau: float = 5.0
     rhat_max: float = 1.01
     ess_min: float = 400.0
     moves: str = "auto"
@@ -326,7 +329,6 @@ class MCMCSettings:
     indep_dof: float = 4.0
     indep_adapt: int = 50
     place: str = "auto"
-    place_rounds: int = 3
     tau_rule: float = 50.0
     lockstep: bool = True
     loglik: bool = True
@@ -345,8 +347,6 @@ class MCMCSettings:
             raise InputError("stop", f"must be 'converged' or 'fixed', got {self.stop!r}")
         if not 4 <= self.min_steps:
             raise InputError("min_steps", f"must be at least 4, got {self.min_steps}")
-        if not (math.isfinite(self.check_tau) and self.check_tau > 0):
-            raise InputError("check_tau", f"must be positive, got {self.check_tau}")
         if not self.rhat_max >= 1.0:
             raise InputError("rhat_max", f"must be >= 1, got {self.rhat_max}")
         if not self.ess_min > 0:
@@ -363,8 +363,6 @@ class MCMCSettings:
             raise InputError("indep_dof", f"must be positive, got {self.indep_dof}")
         if self.place not in ("auto", "start", "laplace"):
             raise InputError("place", f"must be 'auto', 'start' or 'laplace', got {self.place!r}")
-        if not self.place_rounds >= 1:
-            raise InputError("place_rounds", f"must be >= 1, got {self.place_rounds}")
         if not (self.indep_adapt == 0 or self.indep_adapt >= 4):
             raise InputError("indep_adapt", f"must be 0 (never) or a step >= 4, got {self.indep_adapt}")
         moves = [m for spec in (AUTO_MOVES.values() if self.moves.strip().lower() == "auto" else [self.moves])
@@ -453,7 +451,7 @@ def check_line(chk: dict, s: "MCMCSettings", n_evals: int | None = None, resumed
 def _next_check(n: int, chk: dict, s: "MCMCSettings") -> int:
     """The next check point after a failed check at n steps (module docstring), capped at n_steps."""
     tau = chk["tau_max"] if math.isfinite(chk["tau_max"]) else float(n)
-    step = max(10, math.ceil(s.check_tau * tau))
+    step = max(10, math.ceil(CHECK_EVERY_TAU * tau))
     want = n + step
     if not chk["criteria"]["tau_rule"]:
         want = max(want, math.ceil(s.tau_rule * tau))
@@ -716,7 +714,7 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
     placement = None
     if s.place == "laplace":          # its own seed stream: the chains' seeds below are those of place="start"
         start_mean, start_cov, placement = quadratic_placement(
-            target.log_prob, start_mean, start_cov, rounds=s.place_rounds,
+            target.log_prob, start_mean, start_cov, rounds=PLACE_ROUNDS,
             seed=int(np.random.SeedSequence([int(seed), 7919]).generate_state(1)[0]))
         last = placement["rounds"][-1] if placement["rounds"] else {}
         per_exp = nuisances_per_experiment(target)
