@@ -40,7 +40,7 @@ def test_restarts_find_the_nuisance_basin_of_the_truth():
     base, phases, observed, full, rep = _baseline_and_replicate(obs, 100)
     om0 = lsq.ObsModel.of(rep)
     truth = lsq.fit_map(base, rep, minima=phases.minima, om=om0, starts=[full.z], nu0=full.nu)
-    f = lsq.fit_map(base, rep, minima=phases.minima, om=om0, restarts=True)
+    f = lsq.fit_map(base, rep, minima=phases.minima, om=om0, options=lsq.MapOptions(restarts=True))
     assert f.cost <= truth.cost * 1.005, (f.cost, truth.cost)
     sd = np.sqrt(np.diag(truth.cov))
     assert np.all(np.abs(f.z - truth.z) < 0.1 * sd)
@@ -48,7 +48,7 @@ def test_restarts_find_the_nuisance_basin_of_the_truth():
     # the truth's geometry
     held = lsq.fit_nuisances(base, rep, np.arange(5), full.z, minima=phases.minima, om=om0)
     ref = lsq.fit_map(base, rep, minima=phases.minima, om=om0.without_random_effects(), starts=[full.z],
-                      nu0=np.where(np.arange(5) < 3, full.nu, 0.0), fix_material=True)
+                      nu0=np.where(np.arange(5) < 3, full.nu, 0.0), options=lsq.MapOptions(fix_material=True))
     assert held.cost <= ref.cost * 1.005, (held.cost, ref.cost)
 
 
@@ -62,9 +62,13 @@ def test_candidate_fit_also_starts_from_the_preprocessing_nuisances():
     nhkv, zener = make_candidate("nhkv", POLY), make_candidate("zener", POLY)
     phases = phases_of(obs, 2)
     om0 = lsq.ObsModel.of(obs)
-    base = lsq.fit_map(nhkv, obs, minima=phases.minima, om=om0, restarts=True)
+    base = lsq.fit_map(nhkv, obs, minima=phases.minima, om=om0, options=lsq.MapOptions(restarts=True))
     extra = [np.concatenate([base.z, zener.prior_mean[2:]])]
-    fits = {name: lsq.fit_map(zener, obs, minima=phases.minima, om=om0, extra_starts=extra, **kw)
+
+    def fit_zener(nu0=None, alt_nu0=None):
+        return lsq.fit_map(zener, obs, minima=phases.minima, om=om0, nu0=nu0,
+                           options=lsq.MapOptions(extra_starts=extra, alt_nu0=alt_nu0))
+    fits = {name: fit_zener(**kw)
             for name, kw in (("baseline's", {"nu0": base.nu}), ("preprocessing's", {}),
                              ("both", {"nu0": base.nu, "alt_nu0": np.zeros_like(base.nu)}))}
     assert fits["baseline's"].cost > 2.0 * fits["preprocessing's"].cost      # the trap is there

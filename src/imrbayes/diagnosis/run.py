@@ -309,7 +309,7 @@ def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
     ``chi2`` the chi-square that refit leaves on ``om`` (the evidence against B were A true)."""
     from dataclasses import replace as _replace
 
-    from imrbayes.diagnosis.lsq import fit_map
+    from imrbayes.diagnosis.lsq import MapOptions, fit_map
 
     keys = list(cands)
     M = np.zeros((len(keys), len(keys)))
@@ -321,7 +321,8 @@ def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
         for j, b in enumerate(keys):
             if i == j:
                 continue
-            f = fit_map(cands[b], oa, minima=phases.minima, om=om, starts=[fits[b].z], nu0=fits[b].nu, max_iter=20)
+            f = fit_map(cands[b], oa, minima=phases.minima, om=om, starts=[fits[b].z], nu0=fits[b].nu,
+                        options=MapOptions(max_iter=20))
             r = (ya[:, 1:] - f.fitted[:, 1:])
             M[i, j] = float(np.sqrt(np.nanmean(r ** 2 / om.noise_sd[:, None] ** 2)))
             C[i, j] = float(np.nansum((om.weight ** 2)[:, None] * r ** 2))
