@@ -675,44 +675,13 @@ def _progress_bar(progress, total):
     return tqdm(total=total, desc="emcee", unit="step", leave=False)
 
 
-def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | None = None, seed: int = 0,
-             backend=None, name: str = "mcmc", progress=None, resume: bool = True, log=None) -> MCMCRun:
-    """Sample ``target`` with ``n_chains`` independent emcee ensembles (module docstring).
-
-    Parameters
-    ----------
-    target : WindowTarget (or anything with ``log_prob(Z (n, d)) -> (n,)``, ``ndim``, ``prior``)
-    start_mean, start_cov : (d,), (d, d)
-        Gaussian the starts are drawn from, internal coordinates (default: the target's prior
-        when it is stated on z). Starts with log-density -inf are redrawn.
-    settings : MCMCSettings
-    seed : int
-    backend : path of an HDF5 file, or None (in memory, no resume)
-    name : HDF5 group prefix, e.g. ``"window_03"``; ensemble c is ``{name}/chain_{c}``.
-    progress : show a progress bar (None: only when stderr is a terminal).
-    resume : continue ensembles already in the file (False: start them afresh).
-    log : None, or a callable taking one line of text, called after every convergence check
-        (:func:`check_line`, prefixed by ``name``): the progress of a run without a terminal.
-    """
-    import emcee
-
-    s = settings or MCMCSettings()
-    d = int(target.ndim)
-    auto = s.moves.strip().lower() == "auto"
-    nuisances = resolve_moves("auto", target) == AUTO_MOVES["nuisances"]
-    place = s.place if s.place != "auto" else ("laplace" if auto and nuisances else "start")
-    s = replace(s, moves=resolve_moves(s.moves, target), place=place)
-    t0 = time.perf_counter()
-    if start_mean is None:
-        if getattr(target.prior, "scale", "internal") != "internal":
-            raise InputError("start_mean", "give the start Gaussian for a prior stated on the natural scale")
-        start_mean, start_cov = target.prior.prior_mean, target.prior.prior_cov
-    start_mean = np.asarray(start_mean, dtype=np.float64).reshape(d)
-    start_cov = np.asarray(start_cov, dtype=np.float64).reshape(d, d)
-    given = (start_mean, start_cov)
-    evals0 = int(getattr(target, "n_evals", 0))
+def _place_start(target, s: MCMCSettings, start_mean, start_cov, seed: int, auto: bool, nuisances: bool,
+                 name: str, log) -> tuple:
+    """The start Gaussian moved onto the target by a quadratic fit (``place="laplace"``) and, on a
+    window with sampled nuisances whose fit is Gaussian, the independent-walker settings; takes the
+    given start mean (d,) and cov (d, d), returns (settings, mean, cov, placement or None)."""
     placement = None
-    if s.place == "laplace":          # its own seed stream: the chains' seeds below are those of place="start"
+    if s.place == "laplace":          # its own seed stream: the chains' seeds are those of place="start"
         start_mean, start_cov, placement = quadratic_placement(
             target.log_prob, start_mean, start_cov, rounds=PLACE_ROUNDS,
             seed=int(np.random.SeedSequence([int(seed), 7919]).generate_state(1)[0]))
@@ -734,20 +703,14 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
         log(f"{name}: start placed on the target in {placement['n_evals']} evaluations (quadratic fit's residual sd "
             f"{', '.join(f'{r['residual_sd_nats']:.2f}' for r in fits) or 'none'} nats by round)"
             + (f"; {placement['moves_rule']}" if "moves_rule" in placement else ""))
-    if s.n_walkers < 2 * d and not independent_walkers(s.moves):
-        # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
-        # (fewer with the block and ridge moves did not pay: docs/mcmc.md)
-        s = replace(s, n_walkers=2 * d)
-    s.check(d)
-    # independent walkers (indep alone): fewer walkers than coordinates are fine, so emcee's check that the
-    # start spans the space does not apply
-    solo = independent_walkers(s.moves)
-    Lc = np.linalg.cholesky(0.5 * (start_cov + start_cov.T))
-    C, W = s.n_chains, s.n_walkers
-    children = np.random.SeedSequence(int(seed)).spawn(C)
-    seeds = [int(ch.generate_state(1)[0]) for ch in children]
+    return s, start_mean, start_cov, placement
 
-    # ----- backends and where each ensemble stands
+
+def _open_backends(backend, name: str, C: int, W: int, d: int, resume: bool, n_steps: int) -> tuple:
+    """One emcee backend per ensemble (in memory, or the HDF5 group ``{name}/chain_{c}``, resumed when
+    it holds this run's shape); returns (backends, steps each already holds)."""
+    import emcee
+
     backends, done = [], []
     for c in range(C):
         if backend is None:
@@ -762,104 +725,122 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                                                f"this run needs {(W, d)} (use resume=False or another name)")
         backends.append(be)
         done.append(int(be.iteration))
-    if any(n > s.n_steps for n in done):
-        raise InputError(str(backend), f"the file already holds {max(done)} steps, more than n_steps = {s.n_steps}")
+    if any(n > n_steps for n in done):
+        raise InputError(str(backend), f"the file already holds {max(done)} steps, more than n_steps = {n_steps}")
+    return backends, done
 
-    # ----- starting states of fresh ensembles: one batched evaluation, -inf starts redrawn
-    states = [None] * C
-    fresh = [c for c in range(C) if done[c] == 0]
-    if fresh:
-        rngs = {c: np.random.default_rng(children[c]) for c in fresh}
-        P0 = {c: start_mean + s.init_scale * rngs[c].standard_normal((W, d)) @ Lc.T for c in fresh}
-        LP = {c: np.full(W, -np.inf) for c in fresh}
-        for _ in range(100):
-            todo = [(c, i) for c in fresh for i in np.flatnonzero(~np.isfinite(LP[c]))]
-            if not todo:
-                break
-            X = np.array([P0[c][i] for c, i in todo])
-            lp = np.asarray(target.log_prob(X), dtype=np.float64)
-            for (c, i), v in zip(todo, lp):
-                if np.isfinite(v):
-                    LP[c][i] = v
-                else:
-                    P0[c][i] = start_mean + s.init_scale * Lc @ rngs[c].standard_normal(d)
-        else:
-            raise RuntimeError("could not find starting points with a finite log-posterior in 100 rounds")
-        for c in fresh:
-            states[c] = emcee.State(P0[c], log_prob=LP[c],
-                                    random_state=np.random.RandomState(seeds[c]).get_state())
 
-    # one move list per ensemble: an adapted independence proposal must see only its own ensemble
-    moves = [emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof, target) for _ in range(C)]
-    placed = [False] * C
-    samplers = [None] * C
-    route = [None] * C                  # the batcher each ensemble's log-prob calls go through (None: direct)
-    lengths = list(done)
-    failed = {}
-    bar = _progress_bar(progress, sum(max(0, s.n_steps - n) for n in done))
-    bar_lock = threading.Lock()
+def _initial_states(target, fresh: list, children: list, seeds: list, start_mean, Lc, init_scale: float,
+                    W: int, d: int) -> dict:
+    """emcee states of the fresh ensembles ``fresh``: W starts each from N(start_mean, init_scale^2 Lc Lc^T)
+    in one batched evaluation, starts with a -inf log-density redrawn; returns {c: emcee.State}."""
+    import emcee
 
-    def place_proposal(c):
+    rngs = {c: np.random.default_rng(children[c]) for c in fresh}
+    P0 = {c: start_mean + init_scale * rngs[c].standard_normal((W, d)) @ Lc.T for c in fresh}
+    LP = {c: np.full(W, -np.inf) for c in fresh}
+    for _ in range(100):
+        todo = [(c, i) for c in fresh for i in np.flatnonzero(~np.isfinite(LP[c]))]
+        if not todo:
+            break
+        X = np.array([P0[c][i] for c, i in todo])
+        lp = np.asarray(target.log_prob(X), dtype=np.float64)
+        for (c, i), v in zip(todo, lp):
+            if np.isfinite(v):
+                LP[c][i] = v
+            else:
+                P0[c][i] = start_mean + init_scale * Lc @ rngs[c].standard_normal(d)
+    else:
+        raise RuntimeError("could not find starting points with a finite log-posterior in 100 rounds")
+    return {c: emcee.State(P0[c], log_prob=LP[c], random_state=np.random.RandomState(seeds[c]).get_state())
+            for c in fresh}
+
+
+class _Ensembles:
+    """The C ensembles of one run as they advance: their backends, moves, samplers, lengths and the
+    failed ones (index -> error); :meth:`advance` takes them to a step count."""
+
+    def __init__(self, target, s: MCMCSettings, backends: list, done: list, states: list, moves: list,
+                 start_cov, bar):
+        self.target, self.s, self.backends, self.states, self.moves = target, s, backends, states, moves
+        self.C, self.W, self.d = len(backends), s.n_walkers, int(target.ndim)
+        self.start_cov, self.bar = start_cov, bar
+        # independent walkers (indep alone): fewer walkers than coordinates are fine, so emcee's check
+        # that the start spans the space does not apply
+        self.solo = independent_walkers(s.moves)
+        self.placed = [False] * self.C
+        self.samplers = [None] * self.C
+        self.route = [None] * self.C       # the batcher each ensemble's log-prob calls go through (None: direct)
+        self.lengths = list(done)
+        self.failed = {}
+        self.bar_lock = threading.Lock()
+
+    def place_proposal(self, c):
         """Once ensemble c holds ``indep_adapt`` steps: its independence proposal moves to the mean
         and covariance of its own draws in the second half of them (a replay on resume). One
         adaptation at a fixed step leaves every later step a fixed, target-invariant kernel."""
-        n_a = int(s.indep_adapt)
-        if not n_a or placed[c] or lengths[c] < n_a:
+        n_a, d = int(self.s.indep_adapt), self.d
+        if not n_a or self.placed[c] or self.lengths[c] < n_a:
             return
-        x = np.asarray(backends[c].get_chain()[n_a // 2:n_a], dtype=np.float64).reshape(-1, d)
-        cov = np.cov(x.T).reshape(d, d) + 1e-12 * np.diag(np.diag(start_cov))
-        for mv, _ in moves[c]:
+        x = np.asarray(self.backends[c].get_chain()[n_a // 2:n_a], dtype=np.float64).reshape(-1, d)
+        cov = np.cov(x.T).reshape(d, d) + 1e-12 * np.diag(np.diag(self.start_cov))
+        for mv, _ in self.moves[c]:
             if hasattr(mv, "proposal"):
                 mv.proposal.place(x.mean(axis=0), cov)
-        placed[c] = True
+        self.placed[c] = True
 
-    def run_one(c, upto, batcher):
+    def run_one(self, c, upto, batcher):
         """Advance ensemble c to ``upto`` steps in total."""
+        import emcee
+
         try:
-            if upto <= lengths[c]:
+            if upto <= self.lengths[c]:
                 return
-            route[c] = batcher
-            if samplers[c] is None:
+            self.route[c] = batcher
+            if self.samplers[c] is None:
+                route, target = self.route, self.target
                 fn = lambda x, c=c: route[c].call(c, x) if route[c] is not None else target.log_prob(x)  # noqa: E731
-                samplers[c] = emcee.EnsembleSampler(W, d, fn, vectorize=True, backend=backends[c], moves=moves[c])
-                if states[c] is None:
-                    states[c] = samplers[c].get_last_sample()
-            place_proposal(c)
-            n_a = int(s.indep_adapt)
-            stops = ([n_a] if lengths[c] < n_a < upto else []) + [upto]
+                self.samplers[c] = emcee.EnsembleSampler(self.W, self.d, fn, vectorize=True,
+                                                         backend=self.backends[c], moves=self.moves[c])
+                if self.states[c] is None:
+                    self.states[c] = self.samplers[c].get_last_sample()
+            self.place_proposal(c)
+            n_a = int(self.s.indep_adapt)
+            stops = ([n_a] if self.lengths[c] < n_a < upto else []) + [upto]
             for stop in stops:
-                for st in samplers[c].sample(states[c], iterations=stop - lengths[c], store=True,
-                                             skip_initial_state_check=lengths[c] > 0 or solo):
-                    states[c] = st
-                    lengths[c] += 1
-                    if bar is not None:
-                        with bar_lock:
-                            bar.update(1)
-                place_proposal(c)
+                for st in self.samplers[c].sample(self.states[c], iterations=stop - self.lengths[c], store=True,
+                                                  skip_initial_state_check=self.lengths[c] > 0 or self.solo):
+                    self.states[c] = st
+                    self.lengths[c] += 1
+                    if self.bar is not None:
+                        with self.bar_lock:
+                            self.bar.update(1)
+                self.place_proposal(c)
         finally:
             if batcher is not None:
                 batcher.leave()
 
-    def advance(upto):
+    def advance(self, upto):
         """Every surviving ensemble to ``upto`` steps. A failed ensemble (an exception in emcee or in
         its part of the evaluation) is contained: left out, recorded in ``failed``; the others go on.
         KeyboardInterrupt and the like still stop everything."""
-        todo = [c for c in range(C) if c not in failed and lengths[c] < upto]
+        failed = self.failed
+        todo = [c for c in range(self.C) if c not in failed and self.lengths[c] < upto]
         if not todo:
             return
-        if not s.lockstep:
+        if not self.s.lockstep:
             for c in todo:
                 try:
-                    run_one(c, upto, None)
+                    self.run_one(c, upto, None)
                 except Exception as exc:                        # noqa: BLE001
                     failed[c] = f"{type(exc).__name__}: {exc}"
             return
-        batcher = _Batcher(target.log_prob, len(todo))
+        batcher = _Batcher(self.target.log_prob, len(todo))
         errors = []
 
         def worker(c):
             try:
-                run_one(c, upto, batcher)
+                self.run_one(c, upto, batcher)
             except Exception as exc:                            # noqa: BLE001
                 failed[c] = f"{type(exc).__name__}: {exc}"
             except BaseException as exc:                        # noqa: BLE001
@@ -881,16 +862,23 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
         if errors:
             raise errors[0]
 
-    def stacked(n):
-        alive = [c for c in range(C) if c not in failed]
-        return alive, np.stack([backends[c].get_chain()[:n] for c in alive])
+    def alive(self) -> list:
+        """Indices of the ensembles that have not failed."""
+        return [c for c in range(self.C) if c not in self.failed]
 
-    # ----- the check schedule: replayed on what the file holds, then sampled on
+    def stacked(self, n):
+        """(C_alive, n, W, d) first n steps of the surviving ensembles."""
+        return np.stack([self.backends[c].get_chain()[:n] for c in self.alive()])
+
+
+def _sample_to_stop(ens: _Ensembles, s: MCMCSettings, target, name: str, log, resumed: bool, evals0: int) -> tuple:
+    """The check schedule (module docstring): replayed on what the backends hold, then sampled on
+    until converged, the cap, or ``n_steps`` (``stop="fixed"``); returns (checks, stop reason, steps)."""
     checks, reason, n_chk = [], None, s.n_steps
     if s.stop == "converged":
         n_chk = min(s.min_steps, s.n_steps)
-        while n_chk <= min(lengths):                          # replay (resume): no forward run
-            chk = convergence_check(stacked(n_chk)[1], s)
+        while n_chk <= min(ens.lengths):                          # replay (resume): no forward run
+            chk = convergence_check(ens.stacked(n_chk), s)
             checks.append(chk)
             if chk["ok"] or n_chk >= s.n_steps:
                 reason = "converged" if chk["ok"] else "cap"
@@ -898,17 +886,17 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             n_chk = _next_check(n_chk, chk, s)
     try:
         while reason is None:
-            advance(n_chk)
-            if sum(1 for c in range(C) if c not in failed) < 2:
+            ens.advance(n_chk)
+            if len(ens.alive()) < 2:
                 break
             if s.stop == "fixed":
                 reason = "fixed"
                 break
-            chk = convergence_check(stacked(n_chk)[1], s)
+            chk = convergence_check(ens.stacked(n_chk), s)
             checks.append(chk)
             if log is not None:
                 made = int(getattr(target, "n_evals", 0)) - evals0
-                log(f"{name}: " + check_line(chk, s, made or None, resumed=any(done)))
+                log(f"{name}: " + check_line(chk, s, made or None, resumed=resumed))
             if chk["ok"]:
                 reason = "converged"
             elif n_chk >= s.n_steps:
@@ -919,14 +907,72 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             else:
                 n_chk = _next_check(n_chk, chk, s)
     finally:
-        if bar is not None:
-            bar.close()
+        if ens.bar is not None:
+            ens.bar.close()
+    return checks, reason, n_chk
 
+
+def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | None = None, seed: int = 0,
+             backend=None, name: str = "mcmc", progress=None, resume: bool = True, log=None) -> MCMCRun:
+    """Sample ``target`` with ``n_chains`` independent emcee ensembles (module docstring).
+
+    Parameters
+    ----------
+    target : WindowTarget (or anything with ``log_prob(Z (n, d)) -> (n,)``, ``ndim``, ``prior``)
+    start_mean, start_cov : (d,), (d, d)
+        Gaussian the starts are drawn from, internal coordinates (default: the target's prior
+        when it is stated on z). Starts with log-density -inf are redrawn.
+    settings : MCMCSettings
+    seed : int
+    backend : path of an HDF5 file, or None (in memory, no resume)
+    name : HDF5 group prefix, e.g. ``"window_03"``; ensemble c is ``{name}/chain_{c}``.
+    progress : show a progress bar (None: only when stderr is a terminal).
+    resume : continue ensembles already in the file (False: start them afresh).
+    log : None, or a callable taking one line of text, called after every convergence check
+        (:func:`check_line`, prefixed by ``name``): the progress of a run without a terminal.
+    """
+    s = settings or MCMCSettings()
+    d = int(target.ndim)
+    auto = s.moves.strip().lower() == "auto"
+    nuisances = resolve_moves("auto", target) == AUTO_MOVES["nuisances"]
+    place = s.place if s.place != "auto" else ("laplace" if auto and nuisances else "start")
+    s = replace(s, moves=resolve_moves(s.moves, target), place=place)
+    t0 = time.perf_counter()
+    if start_mean is None:
+        if getattr(target.prior, "scale", "internal") != "internal":
+            raise InputError("start_mean", "give the start Gaussian for a prior stated on the natural scale")
+        start_mean, start_cov = target.prior.prior_mean, target.prior.prior_cov
+    start_mean = np.asarray(start_mean, dtype=np.float64).reshape(d)
+    start_cov = np.asarray(start_cov, dtype=np.float64).reshape(d, d)
+    given = (start_mean, start_cov)
+    evals0 = int(getattr(target, "n_evals", 0))
+    s, start_mean, start_cov, placement = _place_start(target, s, start_mean, start_cov, seed, auto, nuisances,
+                                                       name, log)
+    if s.n_walkers < 2 * d and not independent_walkers(s.moves):
+        # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
+        # (fewer with the block and ridge moves did not pay: docs/mcmc.md)
+        s = replace(s, n_walkers=2 * d)
+    s.check(d)
+    Lc = np.linalg.cholesky(0.5 * (start_cov + start_cov.T))
+    C, W = s.n_chains, s.n_walkers
+    children = np.random.SeedSequence(int(seed)).spawn(C)
+    seeds = [int(ch.generate_state(1)[0]) for ch in children]
+    backends, done = _open_backends(backend, name, C, W, d, resume, s.n_steps)
+    states = [None] * C
+    fresh = [c for c in range(C) if done[c] == 0]
+    if fresh:
+        for c, st in _initial_states(target, fresh, children, seeds, start_mean, Lc, s.init_scale, W, d).items():
+            states[c] = st
+    # one move list per ensemble: an adapted independence proposal must see only its own ensemble
+    moves = [emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof, target) for _ in range(C)]
+    ens = _Ensembles(target, s, backends, done, states, moves, start_cov,
+                     _progress_bar(progress, sum(max(0, s.n_steps - n) for n in done)))
+    checks, reason, n_chk = _sample_to_stop(ens, s, target, name, log, any(done), evals0)
     # ----- collect, diagnose
-    alive = [c for c in range(C) if c not in failed]
+    alive = ens.alive()
     if len(alive) < 2:
-        raise RuntimeError(f"emcee: {len(failed)} of {C} ensembles failed, fewer than the 2 that R-hat needs; "
-                           f"first error: {next(iter(failed.values()))}")
+        raise RuntimeError(f"emcee: {len(ens.failed)} of {C} ensembles failed, fewer than the 2 that R-hat needs; "
+                           f"first error: {next(iter(ens.failed.values()))}")
     backends = [backends[c] for c in alive]
     seeds = [seeds[c] for c in alive]
     steps_run = [max(0, n_chk - done[c]) for c in alive]
@@ -946,7 +992,7 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                    tau=tau, burn=burn, thin=thin, seeds=seeds, runtime_s=time.perf_counter() - t0,
                    n_evals=int(getattr(target, "n_evals", 0)) - evals0, steps_run=steps_run,
                    backend=None if backend is None else {"path": str(backend), "name": name},
-                   failed_chains=dict(sorted(failed.items())), stop=stop,
+                   failed_chains=dict(sorted(ens.failed.items())), stop=stop,
                    settings={**asdict(s), "seed": int(seed), "start_mean": start_mean.tolist(),
                              "start_cov": start_cov.tolist(),
                              **({} if placement is None else {"given_mean": given[0].tolist(),
