@@ -381,20 +381,20 @@ Z_STEP = 0.01
 class MapOptions:
     """How :func:`fit_map` searches, besides the starts it is given."""
 
-    #: further material starts screened with the grid's (internal coordinates; default none)
     extra_starts: tuple = ()
-    #: a second set of starting nuisances (E_all, q): the screen is repeated from them (default None)
+    """Further material starts screened with the grid's (internal coordinates; default none)."""
     alt_nu0: np.ndarray | None = None
-    #: fit the nuisances only, the material held at ``starts[0]`` (default off)
+    """A second set of starting nuisances (E_all, q): the screen is repeated from them (default None)."""
     fix_material: bool = False
-    #: after convergence, look for better nuisance basins per experiment and refit (default off)
+    """Fit the nuisances only, the material held at ``starts[0]`` (default off)."""
     restarts: bool = False
-    #: most Levenberg-Marquardt iterations (default 40)
+    """After convergence, look for better nuisance basins per experiment and refit (default off)."""
     max_iter: int = 40
-    #: stop when an accepted step lowers the cost by less than this fraction (default 1e-6)
+    """Most Levenberg-Marquardt iterations (default 40)."""
     tol: float = 1e-6
-    #: a list that receives one dict per iteration, to study the fit's path (default None)
+    """Stop when an accepted step lowers the cost by less than this fraction (default 1e-6)."""
     trace: list | None = None
+    """A list that receives one dict per iteration, to study the fit's path (default None)."""
 
 
 def _nuisance_units(nu0, idx, active, s_nu) -> tuple:

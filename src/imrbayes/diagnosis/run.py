@@ -36,40 +36,40 @@ __all__ = ["DiagnoseSettings", "diagnose"]
 class DiagnoseSettings:
     """Settings of :func:`diagnose`; ``quick()`` the exploration preset (MAP baseline, fewer draws)."""
 
-    #: bootstrap replicates of the check (default 19, the smallest B at which a 5 % rank test can reject)
     n_bootstrap: int = 19
-    #: keys of :data:`imrbayes.diagnosis.candidates.CANDIDATES` compared (default: those marked ``default``)
+    """Bootstrap replicates of the check (default 19, the smallest B at which a 5 % rank test can reject)."""
     candidates: tuple = DEFAULT_CANDIDATES
-    #: the baseline's reported estimate: ``en4dvar`` (default; En4D-Var of all experiments) or ``map``
+    """Keys of :data:`imrbayes.diagnosis.candidates.CANDIDATES` compared (default: those marked ``default``)."""
     baseline_method: str = "en4dvar"
-    #: run leave-one-experiment-out for the baseline and the candidates still in contention (default on)
+    """The baseline's reported estimate: ``en4dvar`` (default; En4D-Var of all experiments) or ``map``."""
     loeo: bool = True
-    #: leave-one-experiment-out for every candidate, not only those in contention (default off)
+    """Run leave-one-experiment-out for the baseline and the candidates still in contention (default on)."""
     loeo_all: bool = False
-    #: Laplace draws per model for the ELPD (default 100)
+    """Leave-one-experiment-out for every candidate, not only those in contention (default off)."""
     n_draws: int = 100
-    #: level of the constant-parameter check (default 0.05)
+    """Laplace draws per model for the ELPD (default 100)."""
     alpha: float = 0.05
-    #: ensemble size of the baseline En4D-Var (default None: the fit's own default)
+    """Level of the constant-parameter check (default 0.05)."""
     en4dvar_n_ens: int | None = None
-    #: independent En4D-Var runs of the baseline (default 3)
+    """Ensemble size of the baseline En4D-Var (default None: the fit's own default)."""
     en4dvar_n_runs: int = 3
-    #: collapses the phases and windows reach (default 3)
+    """Independent En4D-Var runs of the baseline (default 3)."""
     max_collapses: int = 3
-    #: add the MIEnKS-MDA G(t), mu(t) slope to the check's statistics (default off)
+    """Collapses the phases and windows reach (default 3)."""
     mienks_drift: bool = False
-    #: MIEnKS ensemble size of that statistic (default 16)
+    """Add the MIEnKS-MDA G(t), mu(t) slope to the check's statistics (default off)."""
     mienks_n_ens: int = 16
-    #: MIEnKS iterations of that statistic (default 2)
+    """MIEnKS ensemble size of that statistic (default 16)."""
     mienks_n_iter: int = 2
-    #: compute the MIEnKS G(t), mu(t) signature of the data and of every contender (default on)
+    """MIEnKS iterations of that statistic (default 2)."""
     signature: bool = True
-    #: replicates per candidate for its predicted signature (default 4)
+    """Compute the MIEnKS G(t), mu(t) signature of the data and of every contender (default on)."""
     signature_n_rep: int = 4
-    #: held-out differences within this many paired SE are not decided (default 2)
+    """Replicates per candidate for its predicted signature (default 4)."""
     tie_se: float = 2.0
-    #: compare the candidates also when the check finds the baseline adequate (default on)
+    """Held-out differences within this many paired SE are not decided (default 2)."""
     compare_when_adequate: bool = True
+    """Compare the candidates also when the check finds the baseline adequate (default on)."""
 
     @classmethod
     def quick(cls, **kw):

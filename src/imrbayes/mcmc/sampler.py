@@ -273,66 +273,48 @@ def emcee_moves(spec: str, center=None, cov=None, indep_scale: float = 1.5, inde
 
 @dataclass
 class MCMCSettings:
-    """emcee settings.
-
-    n_walkers : walkers per ensemble (even, >= 2 d; default 8: docs/mcmc.md, ESS per forward solve).
-    n_steps : ``stop="converged"``: the hard cap on steps per ensemble; ``stop="fixed"``: the total
-        steps per ensemble (a resumed run continues to it).
-    n_chains : independent ensembles (>= 2; 2 by default; R-hat is computed across them). The stop
-        rule's 50 tau fixes the steps, so the cost is n_chains x n_walkers x ~50 tau: two ensembles
-        halve it while their ESS (~600 at the stop) still clears 400 (docs/mcmc.md).
-    stop : ``"converged"`` (stop at the first check where the convergence criteria hold, module
-        docstring) or ``"fixed"`` (exactly ``n_steps``).
-    min_steps : first convergence check (steps); later checks follow every :data:`CHECK_EVERY_TAU` tau.
-    rhat_max, ess_min : the criteria (max R-hat; min bulk and tail ESS), as ``compare.THRESHOLDS``.
-    moves : emcee move mixture, e.g. ``"indep:0.7,de:0.3"`` or ``"stretch"`` (:func:`parse_moves`);
-        ``"auto"`` (default): :data:`AUTO_MOVES` -- ``indep:0.7,de:0.3``, or ``ridge:0.5,blocks:0.5``
-        on a window with sampled nuisances (:mod:`imrbayes.mcmc.blocks`).
-    burn, thin : steps discarded / kept every ``thin`` steps; None = automatic (module docstring).
-    max_draws : most draws kept per ensemble in the DataTree (thinning is increased to respect it).
-    init_scale : start spread, in units of the start covariance's standard deviations (> 1:
-        over-dispersed).
-    indep_scale, indep_dof : the ``indep`` move's Student-t proposal: scale (in start sd) and degrees
-        of freedom (:func:`independence_move`).
-    place : ``"auto"`` (default: ``"laplace"`` with ``moves="auto"`` on a window with sampled nuisances,
-        which then also picks the moves, :data:`LAPLACE_MAX_RESIDUAL`; else ``"start"``), ``"start"``
-        (the walkers' start Gaussian and the ``indep`` proposal are the one given: the ensemble
-        smoother's) or ``"laplace"`` (moved first to a quadratic fit of the target's own
-        log-density around it, :func:`imrbayes.mcmc.laplace.quadratic_placement`: :data:`PLACE_ROUNDS`
-        rounds of (d + 1)(d + 2)/2 x 3 evaluations, seeded, done again identically on resume).
-    indep_adapt : 0, or the step at which each ensemble moves its ``indep`` proposal once to the
-        mean and covariance of its own draws in the second half of the steps so far (then fixed;
-        default 50, before the first convergence check at ``min_steps`` = 100).
-    tau_rule : the chain should be at least ``tau_rule`` tau long (emcee's advice: 50).
-    lockstep : share forward batches between the ensembles (threads); False runs them one by one.
-    loglik : recompute the pointwise log-likelihood of the kept draws for the DataTree.
-    quadrature : also compute the exact grid posterior of 2-parameter windows
-        (:mod:`imrbayes.mcmc.quadrature`; used by ``imrbayes fit --mcmc``). Off by default since
-        2026-11-27: it agreed with the converged MCMC in all 18 windows of the verification case's
-        whole run and cost 29 % of that run (docs/mcmc.md); a check of the sampler, not of the
-        ensemble Gaussian.
-    """
+    """emcee settings of :func:`run_mcmc` (the stop rule, moves and placement: module docstring)."""
 
     n_walkers: int = 8
+    """Walkers per ensemble (even, >= 2 d unless the walkers are independent; default 8)."""
     n_steps: int = 5000
+    """Hard cap on steps per ensemble (``stop="fixed"``: exactly these; default 5000)."""
     n_chains: int = 2
+    """Independent ensembles, >= 2, across which R-hat is computed (default 2)."""
     stop: str = "converged"
+    """``"converged"`` (stop at the first check where the criteria hold; default) or ``"fixed"``."""
     min_steps: int = 100
+    """Steps at the first convergence check (default 100)."""
     rhat_max: float = 1.01
+    """Largest R-hat of a converged run (default 1.01, as ``compare.THRESHOLDS``)."""
     ess_min: float = 400.0
+    """Smallest bulk and tail ESS of a converged run (default 400)."""
     moves: str = "auto"
+    """emcee move mixture, e.g. ``"indep:0.7,de:0.3"`` (default ``"auto"``: :data:`AUTO_MOVES`)."""
     burn: int | None = None
+    """Steps discarded (default None: automatic, module docstring)."""
     thin: int | None = None
+    """Keep every ``thin``-th step (default None: automatic, module docstring)."""
     max_draws: int = 1000
+    """Most draws kept per ensemble (thinning is raised to respect it; default 1000)."""
     init_scale: float = 2.0
+    """Start spread in start-covariance sd (> 1: over-dispersed; default 2)."""
     indep_scale: float = 1.5
+    """Scale of the ``indep`` move's Student-t proposal, in start sd (default 1.5)."""
     indep_dof: float = 4.0
+    """Degrees of freedom of the ``indep`` move's Student-t proposal (default 4)."""
     indep_adapt: int = 50
+    """Step at which each ensemble re-places its ``indep`` proposal once on its own draws (0: never; default 50)."""
     place: str = "auto"
+    """Start placement: ``"start"``, ``"laplace"`` (quadratic fit to the target) or ``"auto"`` (default)."""
     tau_rule: float = 50.0
+    """A converged chain is at least this many autocorrelation times long (default 50)."""
     lockstep: bool = True
+    """Share forward batches between the ensembles (threads); False runs them one by one (default on)."""
     loglik: bool = True
+    """Recompute the pointwise log-likelihood of the kept draws for the DataTree (default on)."""
     quadrature: bool = False
+    """Also compute the exact grid posterior of 2-parameter windows (default off)."""
 
     def check(self, ndim: int):
         need = 2 if independent_walkers(self.moves) else 2 * ndim
