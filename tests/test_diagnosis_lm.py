@@ -54,7 +54,7 @@ def test_extension_held_at_its_box_and_the_rest_converges(problem, monkeypatch):
     monkeypatch.setattr(lsq, "predict", _linear_model(target, np.array([0.1, 0.1, 1.0])))
     phases = phases_of(obs, 2)
     om = lsq.ObsModel.of(obs)
-    f = lsq.fit_map(zener, obs, minima=phases.minima, om=om, tol=1e-10)
+    f = lsq.fit_map(zener, obs, minima=phases.minima, om=om, options=lsq.MapOptions(tol=1e-10))
     floor = m[2] - lsq.EXTENSION_BOX_SD * s[2]
     assert f.z[2] == pytest.approx(floor, abs=1e-9)                 # held at the bound, not 8 sd out
     assert f.converged and f.n_iter < 40
@@ -70,7 +70,7 @@ def test_without_the_box_the_same_fit_goes_out_of_it(problem, monkeypatch):
     monkeypatch.setattr(lsq, "predict", _linear_model(target, np.array([0.1, 0.1, 1.0])))
     monkeypatch.setattr(lsq, "EXTENSION_BOX_SD", np.inf)
     phases = phases_of(obs, 2)
-    f = lsq.fit_map(zener, obs, minima=phases.minima, om=lsq.ObsModel.of(obs), tol=1e-10)
+    f = lsq.fit_map(zener, obs, minima=phases.minima, om=lsq.ObsModel.of(obs), options=lsq.MapOptions(tol=1e-10))
     assert f.z[2] < m[2] - 7.0 * s[2]
 
 
@@ -92,7 +92,7 @@ def _qkv_fit_on_relaxation_data(monkeypatch):
 
     monkeypatch.setattr(lsq, "predict", recording)
     trace = []
-    lsq.fit_map(qkv, obs, minima=phases.minima, om=om, trace=trace)
+    lsq.fit_map(qkv, obs, minima=phases.minima, om=om, options=lsq.MapOptions(trace=trace))
     its = [e for e in trace if "it" in e]
     rejected = sum(b["it"] == a["it"] + 1 and b["z"] == a["z"] and b["cost"] == a["cost"] for a, b in zip(its, its[1:]))
     assert rejected >= 1                                  # the situation under test occurs
@@ -141,7 +141,7 @@ def test_a_restart_that_does_not_pay_is_not_kept(monkeypatch):
         return moved, np.ones(len(idx), dtype=bool)
 
     monkeypatch.setattr(lsq, "nuisance_restarts", misleading)
-    f = lsq.fit_map(nhkv, obs, minima=phases.minima, om=om, restarts=True)
+    f = lsq.fit_map(nhkv, obs, minima=phases.minima, om=om, options=lsq.MapOptions(restarts=True))
     assert len(calls) == 1
     assert f.cost <= plain.cost * (1.0 + 1e-9)
     np.testing.assert_allclose(f.z, plain.z, atol=1e-3)

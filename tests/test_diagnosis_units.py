@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from imrbayes.diagnosis.heldout import elpd_compare
-from imrbayes.diagnosis.lsq import EXT_KEEP, EXT_LOG_G, extension_starts, fit_map, predict
+from imrbayes.diagnosis.lsq import EXT_KEEP, EXT_LOG_G, MapOptions, extension_starts, fit_map, predict
 from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.ensemble import Observations
@@ -262,13 +262,13 @@ def test_newton_decrement_stop_leaves_nothing_to_gain(monkeypatch):
     obs = _obs(R + 0.004 * rng.standard_normal(R.shape), P=0.004 ** 2)
     zener = make_candidate("zener", OPTS)
     path = []
-    fast = fit_map(zener, obs, starts=[np.concatenate([z, [np.log(1e-6)]])], trace=path)
+    fast = fit_map(zener, obs, starts=[np.concatenate([z, [np.log(1e-6)]])], options=MapOptions(trace=path))
     # the trace (one start): one row per iteration, the cost never rising
     assert len(path) == fast.n_iter and [r["it"] for r in path] == list(range(1, fast.n_iter + 1))
     assert np.all(np.diff([r["cost"] for r in path]) <= 0.0) and path[-1]["cost"] >= fast.cost
     monkeypatch.setattr(lsq, "TRUST_SD", np.inf)
     monkeypatch.setattr(lsq, "NEWTON_DECREMENT", 0.0)
-    more = fit_map(zener, obs, starts=[fast.z], tol=1e-12, max_iter=80)
+    more = fit_map(zener, obs, starts=[fast.z], options=MapOptions(tol=1e-12, max_iter=80))
     assert fast.converged
     assert 0.0 <= fast.cost - more.cost < 0.05, (fast.cost, more.cost)
     sd = np.sqrt(np.diag(more.cov))[:2]
@@ -377,8 +377,9 @@ def test_candidate_fit_leaves_the_baseline_basin_on_camera_stiffening_data(seed)
     ph = phases_of(obs, 2)
     om = ObsModel.of(obs)
     base, qkv = make_candidate("nhkv", OPTS), make_candidate("qkv", OPTS)
-    fb = fit_map(base, obs, minima=ph.minima, om=om, restarts=True)
-    f = fit_map(qkv, obs, minima=ph.minima, om=om, nu0=fb.nu, extra_starts=[np.r_[fb.z, qkv.prior_mean[2:]]])
+    fb = fit_map(base, obs, minima=ph.minima, om=om, options=MapOptions(restarts=True))
+    f = fit_map(qkv, obs, minima=ph.minima, om=om, nu0=fb.nu,
+                options=MapOptions(extra_starts=[np.r_[fb.z, qkv.prior_mean[2:]]]))
     zt = qkv.to_internal([truth["theta"][n] for n in qkv.names])
     ft = fit_map(qkv, obs, minima=ph.minima, om=om, nu0=fb.nu, starts=[zt])
     assert f.cost <= 1.01 * ft.cost, (f.cost, ft.cost)

@@ -128,7 +128,7 @@ def _load_config(path) -> dict:
                    "MIEnKS-MDA run, its fit included (fewer windows with --mcmc-windows).")
 @click.option("--mcmc-set", "mcmc_settings", multiple=True, metavar="KEY=VALUE",
               help="emcee setting: n_walkers, n_chains (independent ensembles), n_steps (hard cap), moves, "
-                   "indep_scale, indep_dof, indep_adapt, place (auto, start, laplace), place_rounds, min_steps, "
+                   "indep_scale, indep_dof, indep_adapt, place (auto, start, laplace), min_steps, "
                    "rhat_max, ess_min, tau_rule, burn, thin, "
                    "max_draws, init_scale, lockstep, loglik, quadrature (true: also the exact grid posterior of "
                    "2-parameter windows, ~40 % more time) [default: 2 ensembles x 8 walkers (2 per coordinate "

@@ -48,7 +48,6 @@ from __future__ import annotations
 import numpy as np
 
 from imrbayes.data.noise import noise_variance
-from imrbayes.diagnosis.linearised import Linearisation, fit_linearised
 from imrbayes.diagnosis.lsq import ObsModel, fit_map, fit_tempered, frame_values
 from imrbayes.ensemble import Observations
 
@@ -56,6 +55,8 @@ __all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift", "com
            "inadequate_already", "p_value_text", "min_replicates"]
 
 STATS = ("drift", "misfit", "phase_misfit")
+#: replicate counts after which the sequential check looks at its verdict before running the rest
+LOOKS = (5, 10)
 #: statistics that may decide "inadequate" after the first batch: means of squared residuals over
 #: hundreds of samples, whose replicates are tight and light-tailed (the drift statistics are not:
 #: a Mahalanobis distance between window fits has a heavy right tail)
@@ -105,17 +106,14 @@ def mienks_drift(base, obs, settings, seed: int = 0) -> tuple:
                "G_windows": np.exp(m[:, 0]).tolist(), "mu_windows": np.exp(m[:, 1]).tolist()}
 
 
-def window_drift(cand, obs, phases, full, om=None, lin: Linearisation | None = None) -> tuple:
+def window_drift(cand, obs, phases, full, om=None) -> tuple:
     """Largest squared Mahalanobis distance between the (log G, log mu) of the whole-record fit
-    ``full`` and fits of ``cand`` to the 1st and 2nd collapse (observation model ``om``; with
-    ``lin``, by :func:`fit_linearised`); returns (drift, fits)."""
+    ``full`` and fits of ``cand`` to the 1st and 2nd collapse (observation model ``om``); returns
+    (drift, fits)."""
     K1, K2 = phases.collapse_index(1), phases.collapse_index(2)
     fits = {"all": full}
     for name, K in (("collapse-1", K1), ("collapse-2", K2)):
-        if lin is None:
-            fits[name] = fit_map(cand, obs, K=K, minima=phases.minima, om=om, starts=[full.z], nu0=full.nu)
-        else:
-            fits[name] = fit_linearised(cand, obs, lin, K=K, minima=phases.minima, om=om, z=full.z, nu=full.nu)
+        fits[name] = fit_map(cand, obs, K=K, minima=phases.minima, om=om, starts=[full.z], nu0=full.nu)
     keys = list(fits)
     drift = 0.0
     for i in range(len(keys)):
@@ -131,23 +129,17 @@ def window_drift(cand, obs, phases, full, om=None, lin: Linearisation | None = N
 
 
 def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0, nuisances: bool = True,
-               lin: Linearisation | None = None, nu0=None) -> dict:
+               nu0=None) -> dict:
     """Window fits and the statistics of ``obs`` under the baseline candidate ``base`` (with
     ``mienks``, an :class:`~imrbayes.ensemble.mienks.MIEnKSSettings`, also ``mienks_drift``, or,
     when it cannot be computed, ``mienks_error``: the one-line error). The whole-record fit is made
     twice: on the record's noise, then on the likelihood tempered at that fit (``om`` in the output,
-    the observation model every later fit of this dataset uses). With ``lin`` (a bootstrap
-    replicate: the linearisation at its generating point) every fit is :func:`fit_linearised`'s.
+    the observation model every later fit of this dataset uses).
     ``nu0`` (E, q): the nuisances' start (a replicate: its truth); without it the whole-record fit
     also searches the nuisances' other basins (:func:`lsq.nuisance_restarts`)."""
     om0 = ObsModel.of(obs, nuisances=nuisances)
-    if lin is None:
-        full, om = fit_tempered(base, obs, phases.minima, om0, starts=starts, nu0=nu0)
-    else:
-        first = fit_linearised(base, obs, lin, minima=phases.minima, om=om0)
-        om = om0.tempered(obs, first.fitted)
-        full = fit_linearised(base, obs, lin, minima=phases.minima, om=om, z=first.z, nu=first.nu)
-    drift, fits = window_drift(base, obs, phases, full, om, lin=lin)
+    full, om = fit_tempered(base, obs, phases.minima, om0, starts=starts, nu0=nu0)
+    drift, fits = window_drift(base, obs, phases, full, om)
     r2 = (obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2 / om.noise_sd[:, None] ** 2
     per_phase = []
     for m in phases.masks():
@@ -212,9 +204,9 @@ def bootstrap_unit(unit, rng) -> dict:
     obs = d["obs"]
     base = make_candidate(BASELINE.key, d["options"], d["physics"], d["prior"])
     ob = replicate(obs, d["R0"], d["sd"], rng)
-    # both ways a replicate's fits start from its truth (z0, nu0): in the basin it was made in
+    # a replicate's fits start from its truth (z0, nu0): in the basin it was made in
     st = statistics(base, ob, d["phases"], starts=[d["z0"]], mienks=d["mienks"], seed=int(d["seed"]),
-                    nuisances=d.get("nuisances", True), lin=d.get("lin"), nu0=d.get("nu0"))
+                    nuisances=d.get("nuisances", True), nu0=d.get("nu0"))
     return {k: float(st.get(k, float("nan"))) for k in d["stats"]}
 
 
@@ -286,23 +278,16 @@ def p_value_text(ev: dict) -> str:
 
 
 def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 0, alpha: float = 0.05,
-                    progress=None, mienks=None, execution=None, build: dict | None = None,
-                    first_batch=(5, 10), replicate_fits: str = "full") -> dict:
+                    progress=None, mienks=None, execution=None, build: dict | None = None) -> dict:
     """Verdict ``adequate``/``inadequate`` with the evidence (see module doc); ``mienks``: the
     MIEnKS settings the observed ``mienks_drift`` was computed with (None: not used).
 
     The B replicates are units of the execution layer (``bootstrap=007``, each with its own random
     stream from (seed, id)): parallel with ``--workers``, checkpointed, resumed. ``build`` =
     {options, physics, prior} rebuilds ``base`` in a unit (default: ``base``'s own). A replicate
-    whose unit fails counts against rejection (its statistics are treated as +inf).
-
-    ``replicate_fits``: ``full`` (default) fits every replicate by the data's Levenberg-Marquardt
-    fits, started at its truth; ``linearised`` by :func:`fit_linearised` with one Jacobian taken at
-    the generating point for all replicates -- on the polytropic bubble the same statistics (1e-3)
-    for 1/12 of the time; on the thermal bubble the solver's tolerance makes the objective noisy at
-    ~0.1 nats, the simplified iteration stops at that floor up to 1 sd along the (G, mu) ridge and
-    the replicates' window drift comes out larger (a conservative check, ~2.3x faster), so it is
-    opt-in."""
+    whose unit fails counts against rejection (its statistics are treated as +inf). Every replicate
+    is fitted by the data's Levenberg-Marquardt fits, started at its truth; the verdict is looked
+    at after each of :data:`LOOKS` replicates (module doc)."""
     import dataclasses
 
     from imrbayes.execution import Execution
@@ -314,15 +299,7 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     R0 = frame_values(base, z0, obs, phases.minima, full.nu)    # at every experiment's fitted geometry, alignment
     sd = observed["om"].noise_sd
     build = build or {"options": base.fm.options, "physics": base.fm.physics, "prior": dict(base.space.prior_si)}
-    if replicate_fits not in ("linearised", "full"):
-        raise ValueError(f"replicate_fits must be 'linearised' or 'full', got {replicate_fits!r}")
-    lin = None
-    if replicate_fits == "linearised":
-        lin = Linearisation.at(base, obs, phases.minima, z0, full.nu, observed["om"])
-        if not lin.usable():        # a failed solve at the baseline's own neighbourhood: fit in full
-            lin = None
     common = {**build, "obs": obs, "phases": phases, "R0": R0, "sd": sd, "z0": z0, "nu0": full.nu, "stats": list(stats),
-              "lin": lin,
               "nuisances": bool(np.any(observed["om"].nu_sd > 0)),
               "mienks": mienks if "mienks_drift" in stats else None}
     units = [Unit(f"bootstrap={b:03d}", {**common, "seed": seed + 1000 + b}) for b in range(B)]
@@ -336,8 +313,7 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     # Symmetrically, data far beyond every first replicate on a chi-square-like statistic cannot be
     # made adequate by the rest except at odds below Cantelli's bound (inadequate_already): the
     # real records lie hundreds of replicate sd out, and the other half of the check is not run.
-    # ``first_batch``: the replicate counts after which to look (an int: one look; 0: none)
-    looks = sorted({int(n) for n in np.atleast_1d(first_batch) if 0 < int(n) < B})
+    looks = [n for n in LOOKS if n < B]
     results, decided, done, p_bound, z_first = {}, None, 0, 1.0, {}
     for n in looks + [B]:
         rep = ex.run(units[done:n], bootstrap_unit, seed, desc="diagnose bootstrap")
@@ -360,7 +336,7 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     ev = {"n_bootstrap": B, "alpha": alpha, "p_value": p_bound if decided == "inadequate" else p_comb,
           "p_value_kind": "bound" if decided == "inadequate" else "rank",
           "p_value_rank": p_comb,
-          "replicate_fits": "full" if lin is None else "linearised",
+          "replicate_fits": "full",
           "sequential": {"first_batch": len(first),
                          "looks": looks, "n_planned": len(units), "stopped_early": decided is not None,
                          "decided": decided, "n_dominating": int(n_dom),

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["ObsModel", "predict", "frame_values", "fit_map", "fit_tempered", "fit_nuisances", "MapFit",
+__all__ = ["ObsModel", "predict", "frame_values", "fit_map", "MapOptions", "fit_tempered", "fit_nuisances", "MapFit",
            "nuisance_restarts"]
 
 FAIL_RESIDUAL = 1.0  # R* error assigned to a failed solve (per sample)
@@ -359,7 +359,7 @@ def nuisance_restarts(cand, obs, idx, K, minima, om: ObsModel, z, nu, levels=(-2
     sub = obs.take(rows)
     mins = None if minima is None else [minima[e] for e in rows]
     f = fit_map(cand, sub, K=K, minima=mins, om=om.take(rows), starts=[np.asarray(z, dtype=float)],
-                nu0=np.vstack(starts), fix_material=True, max_iter=max_iter)
+                nu0=np.vstack(starts), options=MapOptions(fix_material=True, max_iter=max_iter))
     w = om.weight[rows]
     y = obs.R_star[rows, 1:K + 1]
     u = np.where(om.nu_sd[rows] > 0, f.nu / np.where(om.nu_sd[rows] > 0, om.nu_sd[rows], 1.0), 0.0)
@@ -373,132 +373,138 @@ def nuisance_restarts(cand, obs, idx, K, minima, om: ObsModel, z, nu, levels=(-2
     return np.where(improved[:, None], out, nu), improved
 
 
-def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None, starts=None, nu0=None,
-            max_iter: int = 40, h: float = 0.01, tol: float = 1e-6, extra_starts=(), fix_material: bool = False,
-            restarts: bool = False, trace: list | None = None, alt_nu0=None) -> MapFit:
-    """MAP + Laplace fit of ``cand`` to experiments ``idx`` over samples 1..K (module doc).
+#: forward-difference step of the material coordinates in the Jacobian [internal units]
+Z_STEP = 0.01
 
-    om : the observation model (default :meth:`ObsModel.of` ``obs``: record noise, nuisances free);
-        indexed by experiment of ``obs`` (``idx`` picks from it).
-    starts : internal starting points of the material (default: grid + prior draws); the best wins.
-    nu0 : (E_all, q) starting nuisances (default 0).
-    fix_material : fit the nuisances only, the material held at ``starts[0]``.
-    restarts : after convergence, look for better nuisance basins per experiment
-        (:func:`nuisance_restarts`) and refit jointly from them (up to twice).
-    trace : a list that receives one dict per Levenberg-Marquardt iteration (cost, Newton
-        decrement, damping, accepted, the material at the iterate) -- for studying the fit's path.
-    alt_nu0 : a second set of starting nuisances (E_all, q): the screen's best material start at
-        these nuisances and ``extra_starts`` are also tried from them; the best start of each set
-        goes on to convergence, and the better end wins.
-    tol : stop when an accepted step lowers the cost by less than this fraction.
-    """
-    idx = np.arange(obs.n_exp) if idx is None else np.atleast_1d(np.asarray(idx, dtype=int))
-    K = obs.n_samples - 1 if K is None else int(K)
-    om = ObsModel.of(obs) if om is None else om
-    E = idx.size
-    w = om.weight[idx]
-    s_nu = om.nu_sd[idx]                              # (E, q)
-    q = s_nu.shape[1]
-    active = s_nu > 0
-    jn = [j for j in range(q) if active[:, j].any()]  # nuisance coordinates with a column
-    y = obs.R_star[idx, 1:K + 1]
-    m0, s0 = cand.prior_mean, cand.prior_sd
-    d = 0 if fix_material else cand.d
-    nu_start = np.zeros((E, q))
+
+@dataclass
+class MapOptions:
+    """How :func:`fit_map` searches, besides the starts it is given."""
+
+    extra_starts: tuple = ()
+    """Further material starts screened with the grid's (internal coordinates; default none)."""
+    alt_nu0: np.ndarray | None = None
+    """A second set of starting nuisances (E_all, q): the screen is repeated from them (default None)."""
+    fix_material: bool = False
+    """Fit the nuisances only, the material held at ``starts[0]`` (default off)."""
+    restarts: bool = False
+    """After convergence, look for better nuisance basins per experiment and refit (default off)."""
+    max_iter: int = 40
+    """Most Levenberg-Marquardt iterations (default 40)."""
+    tol: float = 1e-6
+    """Stop when an accepted step lowers the cost by less than this fraction (default 1e-6)."""
+    trace: list | None = None
+    """A list that receives one dict per iteration, to study the fit's path (default None)."""
+
+
+def _nuisance_units(nu0, idx, active, s_nu) -> tuple:
+    """(nuisances (E, q), the same in prior-sd units, 0 where inactive) from ``nu0`` (E_all, q' ) rows
+    ``idx`` (default 0)."""
+    E, q = s_nu.shape
+    nu = np.zeros((E, q))
     if nu0 is not None:
         n0 = np.asarray(nu0, dtype=float)[idx]
-        nu_start[:, :min(q, n0.shape[1])] = n0[:, :q]
-    u_start = np.where(active, nu_start / np.where(active, s_nu, 1.0), 0.0)
-    if starts is None:
-        starts = grid_starts(cand, obs, idx, K, minima, om, nu_start, extra_starts)
-    starts = [np.asarray(s, dtype=float) for s in starts]
-    pairs = [(z0, u_start) for z0 in starts]
-    if alt_nu0 is not None and not fix_material:
-        nu_alt = np.zeros((E, q))
-        n1 = np.asarray(alt_nu0, dtype=float)[idx]
-        nu_alt[:, :min(q, n1.shape[1])] = n1[:, :q]
-        u_alt = np.where(active, nu_alt / np.where(active, s_nu, 1.0), 0.0)
-        if not np.array_equal(u_alt, u_start):   # the same nuisances would repeat every start's fit
-            # screened again at these nuisances: the first set's material starts raced from them
-            # miss relaxation 2002's better basin (zener stage-1 cost 334 against 269; docs/diagnosis.md, Runtime)
-            alt = grid_starts(cand, obs, idx, K, minima, om, nu_alt, extra_starts)
-            pairs += [(np.asarray(z0, dtype=float), u_alt) for z0 in alt]
-    z_fixed = starts[0]
-    fr = om.frames
+        nu[:, :min(q, n0.shape[1])] = n0[:, :q]
+    return nu, np.where(active, nu / np.where(active, s_nu, 1.0), 0.0)
 
-    def res(Z, U):
-        """Z (M, d_all) material, U (M, E, 3) nuisances in prior-sd units -> (M, n_res), R."""
-        R = predict(cand, Z, obs, idx, minima, K, U * s_nu[None], fr)
-        parts = [_residuals(R, y, w)]
-        if d:
-            parts.append((Z - m0) / s0)
-        parts.append(U[:, active])
+
+class _LMProblem:
+    """The least-squares system :func:`fit_map` solves for experiments ``idx``, samples 1..K: the
+    residual vector of x = (material z (d,), active nuisances in prior sd), its forward-difference
+    Jacobian and the projected, damped Levenberg-Marquardt iteration. A state of the iteration is the
+    list [x, r, cost, R, damping, converged, iterations, J at x if converged, (x, J, rejected
+    dampings)]."""
+
+    def __init__(self, cand, obs, idx, K, minima, om, z_fixed, o: MapOptions):
+        self.cand, self.obs, self.idx, self.K, self.minima = cand, obs, idx, K, minima
+        self.tol, self.trace = o.tol, o.trace
+        self.E = E = idx.size
+        self.w = om.weight[idx]
+        self.s_nu = om.nu_sd[idx]                              # (E, q)
+        self.q = q = self.s_nu.shape[1]
+        self.active = active = self.s_nu > 0
+        self.jn = [j for j in range(q) if active[:, j].any()]  # nuisance coordinates with a column
+        self.y = obs.R_star[idx, 1:K + 1]
+        self.m0, self.s0 = m0, s0 = cand.prior_mean, cand.prior_sd
+        self.d = d = 0 if o.fix_material else cand.d
+        self.z_fixed = z_fixed
+        self.frames = om.frames
+        self.n_x = n_x = d + int(active.sum())
+        self.lo, self.hi = np.full(n_x, -np.inf), np.full(n_x, np.inf)
+        if d > 2:
+            self.lo[2:d], self.hi[2:d] = m0[2:d] - EXTENSION_BOX_SD * s0[2:d], m0[2:d] + EXTENSION_BOX_SD * s0[2:d]
+        # column of the Jacobian for nuisance (e, j)
+        self.col = -np.ones((E, q), dtype=int)
+        self.col[active] = d + np.arange(int(active.sum()))
+        self.n_y = E * K
+        self.step_scale = np.concatenate([s0[:d], np.full(n_x - d, np.inf)])   # material steps in prior sd
+
+    def res(self, Z, U):
+        """Z (M, d_all) material, U (M, E, q) nuisances in prior-sd units -> (M, n_res) residuals, R."""
+        R = predict(self.cand, Z, self.obs, self.idx, self.minima, self.K, U * self.s_nu[None], self.frames)
+        parts = [_residuals(R, self.y, self.w)]
+        if self.d:
+            parts.append((Z - self.m0) / self.s0)
+        parts.append(U[:, self.active])
         return np.hstack(parts), R
 
-    def pack(z, u):
-        return np.concatenate([z[:d], u[active]])
+    def pack(self, z, u):
+        """x of material z and nuisances u (prior sd)."""
+        return np.concatenate([z[:self.d], u[self.active]])
 
-    def unpack(x):
-        z = x[:d] if d else z_fixed
-        u = np.zeros((E, q))
-        u[active] = x[d:]
+    def unpack(self, x):
+        """(material z, nuisances u (E, q) in prior sd) of x."""
+        z = x[:self.d] if self.d else self.z_fixed
+        u = np.zeros((self.E, self.q))
+        u[self.active] = x[self.d:]
         return z, u
 
-    n_x = d + int(active.sum())
-    lo, hi = np.full(n_x, -np.inf), np.full(n_x, np.inf)
-    if d > 2:
-        lo[2:d], hi[2:d] = m0[2:d] - EXTENSION_BOX_SD * s0[2:d], m0[2:d] + EXTENSION_BOX_SD * s0[2:d]
-    # column of the Jacobian for nuisance (e, j)
-    col = -np.ones((E, q), dtype=int)
-    col[active] = d + np.arange(int(active.sum()))
-    n_y = E * K
-
-    def jacobian(z, u, r):
-        Zs = [z + h * np.eye(cand.d)[i] for i in range(d)]
+    def jacobian(self, z, u, r):
+        """(n_res, n_x) forward-difference Jacobian at (z, u) with residuals r: one batch."""
+        d, E, q, K = self.d, self.E, self.q, self.K
+        Zs = [z + Z_STEP * np.eye(self.cand.d)[i] for i in range(d)]
         Us = [u] * d
-        for j in jn:
+        for j in self.jn:
             du = np.zeros((E, q))
             du[:, j] = NU_STEP
             Zs.append(z)
             Us.append(u + du)
         if not Zs:
             return np.zeros((r.size, 0))
-        rp, _ = res(np.array(Zs), np.array(Us))
-        J = np.zeros((r.size, n_x))
+        rp, _ = self.res(np.array(Zs), np.array(Us))
+        J = np.zeros((r.size, self.n_x))
         for i in range(d):
-            J[:, i] = (rp[i] - r) / h
-        for i_j, j in enumerate(jn):
+            J[:, i] = (rp[i] - r) / Z_STEP
+        for i_j, j in enumerate(self.jn):
             diff = (rp[d + i_j] - r) / NU_STEP
             for e in range(E):
-                if active[e, j]:
-                    c = col[e, j]
+                if self.active[e, j]:
+                    c = self.col[e, j]
                     J[e * K:(e + 1) * K, c] = diff[e * K:(e + 1) * K]
-                    J[n_y + c, c] = 1.0
+                    J[self.n_y + c, c] = 1.0
         return J
 
-    step_scale = np.concatenate([s0[:d], np.full(n_x - d, np.inf)])   # material steps in prior sd
-
-    def capped(step):
-        m = np.max(np.abs(step) / step_scale) if d else 0.0
+    def capped(self, step):
+        """``step`` shortened so that no material coordinate moves more than TRUST_SD prior sd."""
+        m = np.max(np.abs(step) / self.step_scale) if self.d else 0.0
         return step * (TRUST_SD / m) if m > TRUST_SD else step
 
-    def jacobian_at(x, r, J_at):
+    def jacobian_at(self, x, r, J_at):
         """(the Jacobian at x, the dampings already rejected there): ``J_at``'s (x', J, rejected)
         when x' is x (after a rejected step the point is unchanged, and its Jacobian is d + 5
-        batched solves, ~3/4 of an iteration; 11-18 % of the iterations on UMich PA10's fits),
-        else computed, with none rejected."""
+        batched solves, ~3/4 of an iteration), else computed, with none rejected."""
         if J_at is not None and np.array_equal(J_at[0], x):
             return J_at[1], J_at[2]
-        return jacobian(*unpack(x), r), np.zeros(0)
+        return self.jacobian(*self.unpack(x), r), np.zeros(0)
 
-    def lm(x, r, cost, Rz, lam, n_iter, J_at=None):
+    def lm(self, x, r, cost, Rz, lam, n_iter, J_at=None):
         """Up to n_iter iterations from x; ``J_at`` (x, J, dampings rejected at x) a Jacobian already
-        computed. Returns [x, r, cost, R, damping, converged, iterations, J at x if converged, the
-        last (x, J, rejected dampings)]."""
+        computed. Returns the state (class doc)."""
         conv, it, J_x = False, 0, None
+        lo, hi, trace = self.lo, self.hi, self.trace
         for it in range(1, n_iter + 1):
-            z, u = unpack(x)
-            J, rejected = jacobian_at(x, r, J_at)
+            z, u = self.unpack(x)
+            J, rejected = self.jacobian_at(x, r, J_at)
             J_at = (x, J, rejected)
             A, g = J.T @ J, J.T @ r
             # a coordinate at its bound that the gradient pushes outwards is held (projected LM)
@@ -520,21 +526,21 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
             lams = lams[~np.isclose(lams[:, None], rejected[None, :], rtol=1e-9, atol=0.0).any(axis=1)]
             steps = []
             for lm_ in lams:
-                step = np.zeros(n_x)
+                step = np.zeros(self.n_x)
                 try:
                     step[free] = -np.linalg.solve(A + lm_ * np.diag(np.diag(A) + 1e-9), g)
                 except np.linalg.LinAlgError:
                     pass
-                steps.append(np.clip(x + capped(step), lo, hi) - x)
-            trials = [unpack(x + s) for s in steps]
-            rt, Rt = res(np.array([t[0] for t in trials]), np.array([t[1] for t in trials]))
+                steps.append(np.clip(x + self.capped(step), lo, hi) - x)
+            trials = [self.unpack(x + s) for s in steps]
+            rt, Rt = self.res(np.array([t[0] for t in trials]), np.array([t[1] for t in trials]))
             costs = 0.5 * np.einsum("ij,ij->i", rt, rt)
             k = int(np.argmin(costs))
             if costs[k] < cost:
                 rel = (cost - costs[k]) / max(cost, 1e-300)
                 x, r, cost, Rz = x + steps[k], rt[k], float(costs[k]), Rt[k]
                 lam = max(lams[k] * 0.3, 1e-7)
-                if rel < tol or np.max(np.abs(steps[k])) < 1e-5:
+                if rel < self.tol or np.max(np.abs(steps[k])) < 1e-5:
                     conv = True
                     break
             else:
@@ -545,29 +551,76 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
                     break
         return [x, r, cost, Rz, lam, conv, it, J_x, J_at]
 
-    # every start a few iterations, then only the best one to convergence
+    def lm_from(self, z, u, n_iter):
+        """The state after up to n_iter iterations from material z and nuisances u (prior sd)."""
+        r0, R0 = self.res(z[None], u[None])
+        return self.lm(self.pack(z, u), r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2, n_iter)
+
+    def map_fit(self, state) -> "MapFit":
+        """The :class:`MapFit` of a final state, with the Laplace covariance (J^T J)^-1 at it."""
+        x, r, cost, Rz, _, conv, it, J, J_at = state
+        d, s0 = self.d, self.s0
+        z, u = self.unpack(x)
+        if J is None:
+            J = self.jacobian_at(x, r, J_at)[0]
+        try:
+            C = np.linalg.inv(J.T @ J)
+        except np.linalg.LinAlgError:
+            C = np.diag(np.concatenate([s0[:d] ** 2, np.ones(self.n_x - d)]))
+        cov = C[:d, :d] if d else np.zeros((self.cand.d, self.cand.d))
+        nu_sd = np.zeros((self.E, self.q))
+        nu_sd[self.active] = np.sqrt(np.clip(np.diag(C)[d:], 0, None)) * self.s_nu[self.active]
+        chi2 = float(np.sum(r[:self.n_y] ** 2))
+        return MapFit(self.cand.key, np.asarray(z, dtype=float).copy(), cov, cost, chi2, int(self.y.size), Rz, self.K,
+                      self.idx, it, conv, u * self.s_nu, nu_sd)
+
+
+def _start_pairs(p: _LMProblem, om, starts, nu0, o: MapOptions) -> tuple:
+    """(material starts, [(z0, u0)] the (material, nuisances in prior sd) pairs raced): ``starts``
+    (default: the grid screen) at ``nu0``'s nuisances, and with ``o.alt_nu0`` the screen again
+    at those."""
+    nu_start, u_start = _nuisance_units(nu0, p.idx, p.active, p.s_nu)
+    if starts is None:
+        starts = grid_starts(p.cand, p.obs, p.idx, p.K, p.minima, om, nu_start, o.extra_starts)
+    starts = [np.asarray(s, dtype=float) for s in starts]
+    pairs = [(z0, u_start) for z0 in starts]
+    if o.alt_nu0 is not None and not o.fix_material:
+        nu_alt, u_alt = _nuisance_units(o.alt_nu0, p.idx, p.active, p.s_nu)
+        if not np.array_equal(u_alt, u_start):   # the same nuisances would repeat every start's fit
+            # screened again at these nuisances: the first set's material starts raced from them
+            # miss better basins (docs/diagnosis.md, Runtime)
+            alt = grid_starts(p.cand, p.obs, p.idx, p.K, p.minima, om, nu_alt, o.extra_starts)
+            pairs += [(np.asarray(z0, dtype=float), u_alt) for z0 in alt]
+    return starts, pairs
+
+
+def _race(p: _LMProblem, pairs: list, n_main: int, max_iter: int) -> list:
+    """Every start a few iterations, then the best of each set of starting nuisances (the first
+    ``n_main`` pairs, the rest) and a distinct close runner-up to convergence; returns the best state."""
+    trace, d = p.trace, p.d
     states = []
     for i_s, (z0, u0) in enumerate(pairs if d else pairs[:1]):
         if trace is not None and len(pairs) > 1:      # a marker per raced start
-            trace.append({"start": i_s, "set": int(i_s >= len(starts)), "t": time.perf_counter()})
-        x0 = np.clip(pack(z0, u0), lo, hi)
-        z0 = unpack(x0)[0] if d else z0
-        r0, R0 = res(z0[None], u0[None])
-        states.append(lm(x0, r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2,
-                         max_iter if len(pairs) == 1 or not d else min(6, max_iter)))
+            trace.append({"start": i_s, "set": int(i_s >= n_main), "t": time.perf_counter()})
+        x0 = np.clip(p.pack(z0, u0), p.lo, p.hi)
+        z0 = p.unpack(x0)[0] if d else z0
+        r0, R0 = p.res(z0[None], u0[None])
+        states.append(p.lm(x0, r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2,
+                           max_iter if len(pairs) == 1 or not d else min(6, max_iter)))
+
     def converge(st):
         if trace is not None and len(states) > 1:
             trace.append({"converge": True, "t": time.perf_counter()})
         if len(states) > 1 and not st[5]:
             it0 = st[6]
-            st = lm(st[0], st[1], st[2], st[3], st[4], max(1, max_iter - it0), st[8])
+            st = p.lm(st[0], st[1], st[2], st[3], st[4], max(1, max_iter - it0), st[8])
             st[6] += it0
         return st
 
     # each set of starting nuisances sends its best start on to convergence: a start far from its
     # set's nuisance optimum (the preprocessing's, when the baseline's have adapted to the wrong
     # model) is costly after a few iterations and only shows its basin at the end
-    n_main = len(starts) if d else 1
+    n_main = n_main if d else 1
     sets = [states[:n_main], states[n_main:]] if d else [states]
     finalists = []
     for st in sets:
@@ -578,52 +631,74 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
         lead_ext = leader[0][2:d]                     # the extension's coordinates (x starts with z)
         close = [q_ for q_ in rest if lead_ext.size and q_[2] <= leader[2] * (1.0 + RUNNER_UP_BEHIND)]
         finalists += [q_ for q_ in close if np.max(np.abs(q_[0][2:d] - lead_ext)) > RUNNER_UP_APART][:1]
-    best = min((converge(st) for st in finalists), key=lambda q: q[2])
-    if restarts and d and active.any():
-        for _ in range(2):
-            z, u = unpack(best[0])
-            nu_new, better = nuisance_restarts(cand, obs, idx, K, minima, om, z, u * s_nu)
-            if not better.any():
-                break
-            u_new = np.where(active, nu_new / np.where(active, s_nu, 1.0), 0.0)
-            r0, R0 = res(z[None], u_new[None])
-            it0 = best[6]
-            refit = lm(pack(z, u_new), r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2, max_iter)
-            refit[6] += it0
-            # the restarts compare nuisance-only fits of each bubble; the joint refit from their
-            # basins may still end higher (stiff PA 1-5, thermal: +1.5 nats of 22 515, the better
-            # fit lost) -- keep the better, and without a gain another round would start from the
-            # same point (66 s of the baseline fits' 202 s there)
-            gained = refit[2] < best[2] * (1.0 - tol)
-            if refit[2] < best[2]:
-                best = refit
-            if not gained:
-                break
-    x, r, cost, Rz, _, conv, it, J, J_at = best
-    z, u = unpack(x)
-    if J is None:
-        J = jacobian_at(x, r, J_at)[0]
-    try:
-        C = np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        C = np.diag(np.concatenate([s0[:d] ** 2, np.ones(n_x - d)]))
-    cov = C[:d, :d] if d else np.zeros((cand.d, cand.d))
-    nu_sd = np.zeros((E, q))
-    nu_sd[active] = np.sqrt(np.clip(np.diag(C)[d:], 0, None)) * s_nu[active]
-    chi2 = float(np.sum(r[:n_y] ** 2))
-    return MapFit(cand.key, np.asarray(z, dtype=float).copy(), cov, cost, chi2, int(y.size), Rz, K, idx, it, conv,
-                  u * s_nu, nu_sd)
+    return min((converge(st) for st in finalists), key=lambda q: q[2])
 
 
-def fit_tempered(cand, obs, minima, om0: ObsModel, first_tol: float = 1e-6, **kw) -> tuple:
+def _restart_nuisances(p: _LMProblem, best: list, om, max_iter: int) -> list:
+    """Up to two rounds of per-experiment nuisance restarts (:func:`nuisance_restarts`) from the
+    converged state ``best``, each refitted jointly; returns the better state."""
+    for _ in range(2):
+        z, u = p.unpack(best[0])
+        nu_new, better = nuisance_restarts(p.cand, p.obs, p.idx, p.K, p.minima, om, z, u * p.s_nu)
+        if not better.any():
+            break
+        u_new = np.where(p.active, nu_new / np.where(p.active, p.s_nu, 1.0), 0.0)
+        it0 = best[6]
+        refit = p.lm_from(z, u_new, max_iter)
+        refit[6] += it0
+        # the restarts compare nuisance-only fits of each bubble; the joint refit from their basins
+        # may still end higher -- keep the better, and without a gain another round would start
+        # from the same point
+        gained = refit[2] < best[2] * (1.0 - p.tol)
+        if refit[2] < best[2]:
+            best = refit
+        if not gained:
+            break
+    return best
+
+
+def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None, starts=None, nu0=None,
+            options: MapOptions | None = None) -> MapFit:
+    """MAP + Laplace fit of ``cand`` to experiments ``idx`` over samples 1..K (module doc).
+
+    Parameters
+    ----------
+    cand : the candidate (:func:`imrbayes.diagnosis.models.make_candidate`).
+    obs : Observations, E_all experiments.
+    idx : (E,) int, experiments fitted (default all).
+    K : last sample fitted (default the record's last).
+    minima : (E_all, m) collapse indices (:class:`imrbayes.diagnosis.phases.Phases`).
+    om : the observation model (default :meth:`ObsModel.of` ``obs``: record noise, nuisances free);
+        indexed by experiment of ``obs`` (``idx`` picks from it).
+    starts : internal starting points of the material (default: grid + prior draws); the best wins.
+    nu0 : (E_all, q) starting nuisances (default 0).
+    options : :class:`MapOptions` (extra starts, a second nuisance start, nuisances only, restarts,
+        iterations, tolerance, trace).
+    """
+    o = options or MapOptions()
+    idx = np.arange(obs.n_exp) if idx is None else np.atleast_1d(np.asarray(idx, dtype=int))
+    K = obs.n_samples - 1 if K is None else int(K)
+    om = ObsModel.of(obs) if om is None else om
+    p = _LMProblem(cand, obs, idx, K, minima, om, None, o)
+    starts, pairs = _start_pairs(p, om, starts, nu0, o)
+    p.z_fixed = starts[0]
+    best = _race(p, pairs, len(starts), o.max_iter)
+    if o.restarts and p.d and p.active.any():
+        best = _restart_nuisances(p, best, om, o.max_iter)
+    return p.map_fit(best)
+
+
+def fit_tempered(cand, obs, minima, om0: ObsModel, first_tol: float = 1e-6, starts=None, nu0=None,
+                 extra_starts=(), alt_nu0=None) -> tuple:
     """``fit``'s two-step fit of one model: on the records' noise (``om0``), then on the likelihood
-    tempered at that fit, from its optimum. Returns (MapFit, the tempered ObsModel); ``kw`` go to
-    the first :func:`fit_map` (starts, extra_starts, nu0), which, without ``nu0``, also searches the
+    tempered at that fit, from its optimum. Returns (MapFit, the tempered ObsModel); ``starts``,
+    ``nu0``, ``extra_starts`` and ``alt_nu0`` go to the first :func:`fit_map`, which, without ``nu0``, also searches the
     nuisances' other basins (``restarts``); ``first_tol`` is its relative stop (the candidates use
     :data:`CANDIDATE_FIRST_TOL`)."""
     # nuisance restarts when the fit has no informed nuisance start (the baseline); the candidates
     # start from the baseline's nuisances, found with them
-    first = fit_map(cand, obs, minima=minima, om=om0, restarts=kw.get("nu0") is None, tol=first_tol, **kw)
+    first = fit_map(cand, obs, minima=minima, om=om0, starts=starts, nu0=nu0,
+                    options=MapOptions(extra_starts=extra_starts, alt_nu0=alt_nu0, restarts=nu0 is None, tol=first_tol))
     om = om0.tempered(obs, first.fitted)
     return fit_map(cand, obs, minima=minima, om=om, starts=[first.z], nu0=first.nu), om
 
@@ -652,4 +727,5 @@ def fit_nuisances(cand, obs, idx, z, minima=None, om: ObsModel | None = None, K=
         best, _ = nuisance_restarts(cand, obs, idx, K, minima, om, z, start[idx], levels=(-2.0, -1.0, 1.0, 2.0),
                                     max_iter=3)
         start[idx] = best
-    return fit_map(cand, obs, idx=idx, K=K, minima=minima, om=om, starts=[z], nu0=start, fix_material=True)
+    return fit_map(cand, obs, idx=idx, K=K, minima=minima, om=om, starts=[z], nu0=start,
+                   options=MapOptions(fix_material=True))

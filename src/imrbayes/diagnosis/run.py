@@ -34,42 +34,42 @@ __all__ = ["DiagnoseSettings", "diagnose"]
 
 @dataclass
 class DiagnoseSettings:
-    """n_bootstrap: synthetic replicates of the check (>= 19 for a 5 % test); candidates: keys of
-    :data:`imrbayes.diagnosis.candidates.CANDIDATES` (default: those marked ``default``);
-    baseline_method: ``en4dvar`` (also runs En4D-Var on the baseline and reports it) or ``map``;
-    loeo: run leave-one-experiment-out for the baseline and every candidate the forecast scheme leaves
-    in contention (consistent, positive forecast gain; ``loeo_all``: every candidate); n_draws: Laplace draws for the ELPD; alpha: level of the
-    check; en4dvar_*: its settings."""
+    """Settings of :func:`diagnose`; ``quick()`` the exploration preset (MAP baseline, fewer draws)."""
 
-    # 19 replicates: the smallest B at which a 5 % rank test can reject (p = 1/20), and the B of the
-    # measured confusion matrix and false-alarm rate (docs/diagnosis.md); 39 only sharpens the p-value
-    # and doubles the check's cost, the largest share of a thermal diagnosis
     n_bootstrap: int = 19
-    bootstrap_first_batch: tuple = (5, 10)  # sequential check: looks after these many replicates (0: all B at once)
-    bootstrap_fits: str = "full"    # replicates' fits: "linearised" reuses one Jacobian (polytropic only: docs/diagnosis.md)
+    """Bootstrap replicates of the check (default 19, the smallest B at which a 5 % rank test can reject)."""
     candidates: tuple = DEFAULT_CANDIDATES
+    """Keys of :data:`imrbayes.diagnosis.candidates.CANDIDATES` compared (default: those marked ``default``)."""
     baseline_method: str = "en4dvar"
+    """The baseline's reported estimate: ``en4dvar`` (default; En4D-Var of all experiments) or ``map``."""
     loeo: bool = True
+    """Run leave-one-experiment-out for the baseline and the candidates still in contention (default on)."""
     loeo_all: bool = False
+    """Leave-one-experiment-out for every candidate, not only those in contention (default off)."""
     n_draws: int = 100
+    """Laplace draws per model for the ELPD (default 100)."""
     alpha: float = 0.05
-    en4dvar_n_ens: int | None = None     # None: fit's default (en4dvar.DEFAULT_N_ENS)
+    """Level of the constant-parameter check (default 0.05)."""
+    en4dvar_n_ens: int | None = None
+    """Ensemble size of the baseline En4D-Var (default None: the fit's own default)."""
     en4dvar_n_runs: int = 3
+    """Independent En4D-Var runs of the baseline (default 3)."""
     max_collapses: int = 3
-    # MIEnKS-MDA G(t), mu(t) slope statistic in the check: off by default -- half of every thermal
-    # replicate's cost, and the measured power and false alarms were obtained without it; the same
-    # smoother still gives the signature that ranks the contenders (``signature``)
+    """Collapses the phases and windows reach (default 3)."""
     mienks_drift: bool = False
+    """Add the MIEnKS-MDA G(t), mu(t) slope to the check's statistics (default off)."""
     mienks_n_ens: int = 16
+    """MIEnKS ensemble size of that statistic (default 16)."""
     mienks_n_iter: int = 2
-    signature: bool = True          # the MIEnKS G(t), mu(t) signature of the data and of every contender
-    signature_n_rep: int = 4        # replicates per candidate for its predicted signature
-    n_absorb: int = 3               # candidates (best first) whose mutual absorption is measured
-    tie_se: float = 2.0             # held-out differences within tie_se paired SEs are not decided
-    tie_chi2: float = 4.0           # nor in-sample fits within this tempered chi-square (2 x log-lik)
-    # compare the candidates also when the check finds the constant model adequate (cause "none"
-    # either way: the verdict is the check's alone); off, such a diagnosis ends after the check
+    """MIEnKS iterations of that statistic (default 2)."""
+    signature: bool = True
+    """Compute the MIEnKS G(t), mu(t) signature of the data and of every contender (default on)."""
+    signature_n_rep: int = 4
+    """Replicates per candidate for its predicted signature (default 4)."""
+    tie_se: float = 2.0
+    """Held-out differences within this many paired SE are not decided (default 2)."""
     compare_when_adequate: bool = True
+    """Compare the candidates also when the check finds the baseline adequate (default on)."""
 
     @classmethod
     def quick(cls, **kw):
@@ -224,6 +224,10 @@ def heldout_unit(unit, rng) -> dict:
 
 
 LOEO_BEHIND_SE = 1.0
+#: contenders (best first) whose mutual absorption is measured and that may tie with the top one
+N_ABSORB = 3
+#: with no held-out scheme separating two contenders, in-sample fits within this AIC difference tie
+TIE_CHI2 = 4.0
 
 
 def loeo_keys(held: dict, fits: dict, cands: dict, base_key: str, loeo_all: bool = False) -> list:
@@ -305,7 +309,7 @@ def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
     ``chi2`` the chi-square that refit leaves on ``om`` (the evidence against B were A true)."""
     from dataclasses import replace as _replace
 
-    from imrbayes.diagnosis.lsq import fit_map
+    from imrbayes.diagnosis.lsq import MapOptions, fit_map
 
     keys = list(cands)
     M = np.zeros((len(keys), len(keys)))
@@ -317,7 +321,8 @@ def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
         for j, b in enumerate(keys):
             if i == j:
                 continue
-            f = fit_map(cands[b], oa, minima=phases.minima, om=om, starts=[fits[b].z], nu0=fits[b].nu, max_iter=20)
+            f = fit_map(cands[b], oa, minima=phases.minima, om=om, starts=[fits[b].z], nu0=fits[b].nu,
+                        options=MapOptions(max_iter=20))
             r = (ya[:, 1:] - f.fitted[:, 1:])
             M[i, j] = float(np.sqrt(np.nanmean(r ** 2 / om.noise_sd[:, None] ** 2)))
             C[i, j] = float(np.nansum((om.weight ** 2)[:, None] * r ** 2))
@@ -327,8 +332,7 @@ def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
                     "the tempered chi-square of that refit"}
 
 
-def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, tie_se: float = 2.0,
-         tie_chi2: float = 4.0) -> tuple:
+def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, tie_se: float = 2.0) -> tuple:
     """The candidates the data cannot tell apart from the top one: (keys, reason).
 
     Per held-out scheme, the paired per-experiment RMSE difference between a contender (not ruled
@@ -337,8 +341,8 @@ def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, ti
     disagree (one favours each, or the only separating scheme favours the lower-ranked contender:
     the ranking is the mean over schemes, so it can put a candidate first that a scheme rejects).
     With no scheme separating them, they tie when their in-sample fits differ by less than
-    ``tie_chi2`` in AIC (chi-square + 2 x material parameters), or each absorbs the other's curves to
-    within ``tie_chi2`` (``absorption``). The chi-squares use the likelihood tempered at the *top*
+    :data:`TIE_CHI2` in AIC (chi-square + 2 x material parameters), or each absorbs the other's curves to
+    within :data:`TIE_CHI2` (``absorption``). The chi-squares use the likelihood tempered at the *top*
     candidate's fit (``om`` -- were it the truth, its residuals would be the noise; the baseline's
     tempering, made of its own model error, would shrink every difference)."""
     from imrbayes.diagnosis.heldout import paired
@@ -374,14 +378,14 @@ def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, ti
             continue
         if for_top:
             continue
-        close = abs(chi2[k] - chi2[top]) < tie_chi2
-        mutual = (k in A and top in A and absorption["chi2"][A[top]][A[k]] < tie_chi2
-                  and absorption["chi2"][A[k]][A[top]] < tie_chi2)
+        close = abs(chi2[k] - chi2[top]) < TIE_CHI2
+        mutual = (k in A and top in A and absorption["chi2"][A[top]][A[k]] < TIE_CHI2
+                  and absorption["chi2"][A[k]][A[top]] < TIE_CHI2)
         if close or mutual:
             out.append(k)
             why.append(f"{k}: held-out difference to {top} within {tie_se:g} SE; "
-                       + (f"in-sample AIC within {tie_chi2:g} ({chi2[k] - chi2[top]:+.1f})" if close else
-                          f"each refits the other's curves to a chi-square < {tie_chi2:g}"))
+                       + (f"in-sample AIC within {TIE_CHI2:g} ({chi2[k] - chi2[top]:+.1f})" if close else
+                          f"each refits the other's curves to a chi-square < {TIE_CHI2:g}"))
     return out, "; ".join(why)
 
 
@@ -427,175 +431,209 @@ def name_cause(verdict: str, top: dict | None, tied: list, mech: dict, name_se: 
     return cause, top["model"], tied, note
 
 
-def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = None, seed: int = 0,
-             prior: dict | None = None, progress=None, log=None, execution=None) -> Diagnosis:
-    """Run the whole diagnosis on ``obs`` (Observations) with forward ``options`` (ForwardOptions).
+@dataclass
+class _DiagnoseRun:
+    """What every stage of one :func:`diagnose` call shares: its inputs, settings, execution, the
+    warnings collected and the stage clock (``say`` starts a stage, ``tick`` advances the progress)."""
 
-    The candidate fits (units ``candidate=<key>``) and the held-out fits of every model (units
-    ``heldout=<key>``) run through the execution layer: ``execution``
-    (:class:`imrbayes.execution.Execution`) says where, and checkpoints them (default: this
-    process). A candidate whose unit fails is left out of the ranking (reported in
-    ``failed_units``); the baseline's own held-out fit must succeed."""
-    from dataclasses import asdict as _asdict
-
-    from imrbayes.diagnosis.lsq import MapFit
-    from imrbayes.execution import Execution
-    from imrbayes.execution import Unit
-
-    s = settings or DiagnoseSettings()
-    ex = execution or Execution(progress=False)
-    t0 = time.perf_counter()
+    obs: object
+    options: object
+    physics: object
+    prior: dict | None
+    s: DiagnoseSettings
+    seed: int
+    ex: object
+    phases: object
+    base: object
+    build: dict                  # what a unit rebuilds its models from
+    log: object
+    tick: object
+    t0: float = field(default_factory=time.perf_counter)
+    warnings: list = field(default_factory=list)
     # (stage message, wall and CPU time at its start): diagnosis.json's stage_seconds; CPU / wall
     # says whether a stage keeps both cores busy (the forward batches' threads count; units run by
     # worker processes (--workers, --scheduler) do not)
-    marks = []
-    _log = log or (lambda msg: None)
+    marks: list = field(default_factory=list)
 
-    def say(msg):
-        marks.append((msg, time.perf_counter(), time.process_time()))
-        _log(msg)
-    tick = progress or (lambda n=1: None)
-    phases = phases_of(obs, s.max_collapses)
-    base = make_candidate(BASELINE.key, options, physics, prior)
+    def say(self, msg):
+        self.marks.append((msg, time.perf_counter(), time.process_time()))
+        self.log(msg)
+
+    def stage_seconds(self) -> list:
+        """Wall and CPU seconds of every stage said so far, up to now."""
+        ends = [(t, c) for _, t, c in self.marks[1:]] + [(time.perf_counter(), time.process_time())]
+        return [{"stage": m, "seconds": float(e[0] - t), "cpu_seconds": float(e[1] - c)}
+                for (m, t, c), e in zip(self.marks, ends)]
+
+
+def _precompile(run: _DiagnoseRun) -> None:
+    """Compile the kernels of the baseline and every candidate not yet compiled, all at once."""
     from imrbayes.forward.codegen import not_compiled, precompile
     from imrbayes.forward.constitutive.base import REGISTRY
-    cold = not_compiled(sorted({REGISTRY[spec_of(k).forward_model] for k in (BASELINE.key, *s.candidates)}))
+
+    cold = not_compiled(sorted({REGISTRY[spec_of(k).forward_model] for k in (BASELINE.key, *run.s.candidates)}))
     if cold:
         # all at once, a child process per CPU: compiled on first use instead, each candidate's kernel
-        # took a minute or more of one core while the other waited (stiff PA 1-5 on a fresh machine:
-        # candidates 652 s against 330 s warm, docs/diagnosis.md "Runtime")
-        say(f"compiling the forward-model kernels of {', '.join(m.rsplit('.', 1)[-1] for m in cold)} (first use only)")
+        # took a minute or more of one core while the other waited
+        run.say(f"compiling the forward-model kernels of {', '.join(m.rsplit('.', 1)[-1] for m in cold)} "
+                "(first use only)")
         precompile(cold)
-    say("baseline fits (whole record, to the 1st and 2nd collapse)")
-    warnings = []               # what the diagnosis left out, one line each (diagnosis.json, stderr)
+
+
+def _setup_warnings(run: _DiagnoseRun) -> None:
+    """Warn of settings and records the check cannot decide well on (too few replicates, one collapse)."""
+    s, phases = run.s, run.phases
     if s.n_bootstrap < min_replicates(s.alpha):
-        warnings.append(f"n_bootstrap = {s.n_bootstrap}: the check's smallest possible p-value is 1/{s.n_bootstrap + 1}"
-                        f" > alpha = {s.alpha:g}, so it cannot find the constant-parameter model inadequate; use at "
-                        f"least {min_replicates(s.alpha)} replicates")
+        run.warnings.append(f"n_bootstrap = {s.n_bootstrap}: the check's smallest possible p-value is "
+                            f"1/{s.n_bootstrap + 1} > alpha = {s.alpha:g}, so it cannot find the constant-parameter "
+                            f"model inadequate; use at least {min_replicates(s.alpha)} replicates")
     if phases.minima.shape[1] < 2 or phases.collapse_index(2) <= phases.collapse_index(1):
-        warnings.append("only one collapse found in the records (minima of prominence >= 4 noise sd): the "
-                        "'2nd collapse' window and the forecast scheme end just after the first collapse")
-    mk = None
-    if s.mienks_drift:
-        from imrbayes.ensemble.mienks import MIEnKSSettings
-        # a test statistic, computed alike on the data and on every bootstrap replicate: the paper's
-        # likelihood (one pass) keeps it as calibrated and as cheap as before; the default's pilot
-        # pass would double the cost of every replicate (moving the diagnosis onto it is issue #21)
-        mk = MIEnKSSettings(n_ens=s.mienks_n_ens, n_iter=s.mienks_n_iter, n_draws=1, likelihood="paper")
-        try:
-            mk.check(obs.n_samples - 1)
-        except InputError as exc:   # settings this record cannot hold (e.g. a window longer than it)
-            warnings.append(f"mienks_drift left out of the check: {exc}")
-            mk = None
-    build = {"options": options, "physics": physics, "prior": prior}      # what a unit rebuilds its models from
-    rep = ex.run([Unit("observed", {**build, "obs": obs, "phases": phases, "mienks": mk, "seed": seed})],
-                 observed_unit, seed, desc="diagnose baseline fits")
+        run.warnings.append("only one collapse found in the records (minima of prominence >= 4 noise sd): the "
+                            "'2nd collapse' window and the forecast scheme end just after the first collapse")
+
+
+def _mienks_statistic(run: _DiagnoseRun):
+    """The MIEnKS settings of the check's optional drift statistic, or None (off, or not possible)."""
+    if not run.s.mienks_drift:
+        return None
+    from imrbayes.ensemble.mienks import MIEnKSSettings
+
+    # a test statistic, computed alike on the data and on every bootstrap replicate: the paper's
+    # likelihood (one pass) keeps it calibrated and cheap; the default's pilot pass would double it
+    mk = MIEnKSSettings(n_ens=run.s.mienks_n_ens, n_iter=run.s.mienks_n_iter, n_draws=1, likelihood="paper")
+    try:
+        mk.check(run.obs.n_samples - 1)
+    except InputError as exc:   # settings this record cannot hold (e.g. a window longer than it)
+        run.warnings.append(f"mienks_drift left out of the check: {exc}")
+        return None
+    return mk
+
+
+def _baseline_stage(run: _DiagnoseRun, mk) -> tuple:
+    """The baseline's fits and the check's statistics of the data (unit ``observed``); returns
+    (observed: :func:`check.statistics`' dict, baseline: diagnosis.json's ``baseline`` block)."""
+    from imrbayes.execution import Unit
+
+    obs, phases = run.obs, run.phases
+    rep = run.ex.run([Unit("observed", {**run.build, "obs": obs, "phases": phases, "mienks": mk, "seed": run.seed})],
+                     observed_unit, run.seed, desc="diagnose baseline fits")
     if "observed" not in rep.results:
         raise RuntimeError(f"the baseline's fits to the data failed ({rep.failures['observed'].error})")
     observed = _observed_back(rep.results["observed"])
     if "mienks_error" in observed:
-        warnings.append(f"mienks_drift left out of the check: {observed['mienks_error']}")
-    full = observed["fits"]["all"]
-    om = observed["om"]
-    tick(1)
-    baseline = {"model": BASELINE.model, "method": "map", "estimate": base.estimate(full.z, full.cov),
+        run.warnings.append(f"mienks_drift left out of the check: {observed['mienks_error']}")
+    full, om = observed["fits"]["all"], observed["om"]
+    run.tick(1)
+    baseline = {"model": BASELINE.model, "method": "map", "estimate": run.base.estimate(full.z, full.cov),
                 "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2))),
                 "chi2_norm": observed["misfit"],
                 "misfit_by_phase": _phase_misfit(obs, phases, full.fitted, om),
                 "nuisance": _nuisance_si(obs, full),
                 "estimate_note": "MAP of all experiments jointly (each with its own Rmax, Req and time of the maximum "
                                  "fitted) with a Laplace posterior on the tempered likelihood"}
-    if s.baseline_method == "en4dvar":
-        say("baseline En4D-Var")
-        from imrbayes.ensemble import En4DVarSettings, fit_en4dvar
-        from imrbayes.ensemble.req_tail import ReqTailStart
-        # with the thermal default (req_tail=auto: inline, run as model when given a start) the model's
-        # tail is evaluated once at the least-squares baseline of the same model and records, each
-        # bubble with its own material offsets and Rmax: a first pass or cycle would only re-estimate them
-        zz = np.repeat(full.z[None], obs.n_exp, axis=0)
-        if full.nu.shape[1] > 3:
-            zz[:, :2] += full.nu[:, 3:5]
-        start = ReqTailStart(theta_si=base.to_si(zz), rmax_m=obs.rmax_m * (1.0 + full.nu[:, 0]),
-                             source="least-squares baseline (material with each bubble's offsets, fitted Rmax)")
-        # its units (exp=..., post/exp=...) go through ``ex`` like every other: checkpointed, resumed
-        en = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(n_ens=s.en4dvar_n_ens, n_runs=s.en4dvar_n_runs,
-                                                                   loglik=False, n_draws=1), seed=seed, execution=ex,
-                         req_tail_start=start)
-        rt = en.details.get("req_tail") or {}
-        moved = [f for f in rt.get("factor", []) if f != 1.0]
-        req_note = (f"; each Req's prior centred by the model's tail at the least-squares baseline (the records' tail "
-                    f"means {100 * (min(moved) - 1):+.1f} to {100 * (max(moved) - 1):+.1f} % from Req)"
-                    if rt.get("method") == "model" and moved else "")
-        baseline["req_consistency"] = req_consistency(obs, en.per_experiment)
-        baseline["alignment_consistency"] = alignment_consistency(en.per_experiment)
-        baseline.update({"method": "en4dvar", "estimate": en.estimate, "rmse_en4dvar": en.rmse,
-                         "estimate_map": baseline["estimate"], "req_tail": rt or None,
-                         "estimate_note": "En4D-Var of all experiments as `fit --method en4dvar` runs it, fused across bubbles"
-                                          f"{req_note}; the candidates are compared with the MAP (estimate_map: "
-                                          + baseline["estimate_note"] + ")"})
-        warnings += [f"baseline En4D-Var: {w}" for w in en.warnings]
-    say(f"constant-parameter check ({s.n_bootstrap} bootstrap replicates)")
-    check = bootstrap_check(base, obs, phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
-                            first_batch=s.bootstrap_first_batch, replicate_fits=s.bootstrap_fits,
-                            progress=tick, mienks=mk, execution=ex,
-                            build=build)
-    base_key = BASELINE.key
+    return observed, baseline
 
-    def finish(result_parts: dict, curves: dict) -> Diagnosis:
-        result = {"baseline": baseline, "constant_parameter_check": check, **result_parts,
-                  "phases": phases.to_list(), "minima_t_star": phases.minima_t().tolist(),
-                  "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": seed,
-                  "likelihood": om.describe(), "warnings": warnings, "runtime_s": time.perf_counter() - t0}
-        ends = [(t, c) for _, t, c in marks[1:]] + [(time.perf_counter(), time.process_time())]
-        result["stage_seconds"] = [{"stage": m, "seconds": float(e[0] - t), "cpu_seconds": float(e[1] - c)}
-                                   for (m, t, c), e in zip(marks, ends)]
-        return Diagnosis(result, obs, phases, curves, observed)
 
-    if check["verdict"] == "adequate" and not s.compare_when_adequate:
-        return finish({"candidates": [], "cause": "none", "extended_model": None, "gain": {}, "candidates_tied": [],
-                       "tie_reason": "", "absorption": {}, "signature": {}, "failed_units": [],
-                       "comparison_note": "the constant-parameter model is adequate; the candidates were not compared "
-                                          "(compare_when_adequate off)"}, {base_key: full.fitted})
-    # candidates
-    fits = {base_key: full}
-    cands = {base_key: base}
-    from dataclasses import replace as _replace
+def _en4dvar_baseline(run: _DiagnoseRun, full, baseline: dict) -> None:
+    """En4D-Var of the baseline on all experiments, started at its least-squares fit ``full``;
+    updates ``baseline`` with its estimate and the Req and alignment consistency."""
+    from imrbayes.ensemble import En4DVarSettings, fit_en4dvar
+    from imrbayes.ensemble.req_tail import ReqTailStart
 
-    om0 = _replace(om, sd_used=om.noise_sd.copy(), alpha=np.ones(obs.n_exp), n_eff=None, tau=None)
-    oms = {BASELINE.key: om}          # each model's own observation model (tempered at its own fit)
-    common = {**build, "obs": obs, "phases": phases, "om0": om0}
+    obs, base, s = run.obs, run.base, run.s
+    # with the thermal default (req_tail=auto: inline, run as model when given a start) the model's
+    # tail is evaluated once at the least-squares baseline of the same model and records, each
+    # bubble with its own material offsets and Rmax: a first pass or cycle would only re-estimate them
+    zz = np.repeat(full.z[None], obs.n_exp, axis=0)
+    if full.nu.shape[1] > 3:
+        zz[:, :2] += full.nu[:, 3:5]
+    start = ReqTailStart(theta_si=base.to_si(zz), rmax_m=obs.rmax_m * (1.0 + full.nu[:, 0]),
+                         source="least-squares baseline (material with each bubble's offsets, fitted Rmax)")
+    # its units (exp=..., post/exp=...) go through ``ex`` like every other: checkpointed, resumed
+    en = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(n_ens=s.en4dvar_n_ens, n_runs=s.en4dvar_n_runs,
+                                                               loglik=False, n_draws=1), seed=run.seed, execution=run.ex,
+                     req_tail_start=start)
+    rt = en.details.get("req_tail") or {}
+    moved = [f for f in rt.get("factor", []) if f != 1.0]
+    req_note = (f"; each Req's prior centred by the model's tail at the least-squares baseline (the records' tail "
+                f"means {100 * (min(moved) - 1):+.1f} to {100 * (max(moved) - 1):+.1f} % from Req)"
+                if rt.get("method") == "model" and moved else "")
+    baseline["req_consistency"] = req_consistency(obs, en.per_experiment)
+    baseline["alignment_consistency"] = alignment_consistency(en.per_experiment)
+    baseline.update({"method": "en4dvar", "estimate": en.estimate, "rmse_en4dvar": en.rmse,
+                     "estimate_map": baseline["estimate"], "req_tail": rt or None,
+                     "estimate_note": "En4D-Var of all experiments as `fit --method en4dvar` runs it, fused across bubbles"
+                                      f"{req_note}; the candidates are compared with the MAP (estimate_map: "
+                                      + baseline["estimate_note"] + ")"})
+    run.warnings.extend(f"baseline En4D-Var: {w}" for w in en.warnings)
+
+
+@dataclass
+class _Models:
+    """The models being compared, keyed by candidate key (the baseline's included): ``cands``
+    candidate objects, ``fits`` their whole-record :class:`~imrbayes.diagnosis.lsq.MapFit`, ``oms``
+    the observation model tempered at each one's own fit; ``held`` their held-out results by scheme."""
+
+    cands: dict
+    fits: dict
+    oms: dict
+    held: dict = field(default_factory=dict)
+    failed_units: list = field(default_factory=list)
+
+
+def _fit_candidates(run: _DiagnoseRun, full, om, common: dict) -> tuple:
+    """The whole-record fit of every applicable candidate (units ``candidate=<key>``); takes the
+    baseline's fit ``full`` and tempered ``om``; returns (:class:`_Models`, the keys attempted)."""
+    from dataclasses import replace
+
+    from imrbayes.diagnosis.lsq import MapFit
     from imrbayes.diagnosis.models import applicable
-    keys = [k for k in s.candidates if applicable(k, options)]
-    not_applicable = [k for k in s.candidates if k not in keys]
-    for k in not_applicable:
-        warnings.append(f"candidate {k} left out: it has no alternative to the baseline's forward options")
-    say(f"candidates {', '.join(keys)}")
-    rep = ex.run([Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z, "nu_base": full.nu}) for key in keys],
-                 candidate_unit, seed, desc="diagnose candidates")
-    failed_units = [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
+    from imrbayes.execution import Unit
+
+    base_key = BASELINE.key
+    models = _Models({base_key: run.base}, {base_key: full}, {base_key: om})
+    keys = [k for k in run.s.candidates if applicable(k, run.options)]
+    for k in run.s.candidates:
+        if k not in keys:
+            run.warnings.append(f"candidate {k} left out: it has no alternative to the baseline's forward options")
+    run.say(f"candidates {', '.join(keys)}")
+    rep = run.ex.run([Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z, "nu_base": full.nu})
+                      for key in keys], candidate_unit, run.seed, desc="diagnose candidates")
+    models.failed_units = [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
     for key in keys:
         if f"candidate={key}" in rep.results:
             res_k = rep.results[f"candidate={key}"]
-            fits[key] = MapFit(**res_k["fit"])
-            oms[key] = _replace(om, sd_used=np.asarray(res_k["sd_used"]), alpha=np.asarray(res_k["alpha"]),
-                                n_eff=np.asarray(res_k["effective_samples"]))
-            cands[key] = make_candidate(key, options, physics, prior)
-        tick(1)
-    say("held-out predictions (forecast)")
-    rep = ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
-                                          "schemes": ["forecast"]})
-                  for key in cands], heldout_unit, seed, desc="diagnose held-out fits")
-    failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
+            models.fits[key] = MapFit(**res_k["fit"])
+            models.oms[key] = replace(om, sd_used=np.asarray(res_k["sd_used"]), alpha=np.asarray(res_k["alpha"]),
+                                      n_eff=np.asarray(res_k["effective_samples"]))
+            models.cands[key] = make_candidate(key, run.options, run.physics, run.prior)
+        run.tick(1)
+    return models, keys
+
+
+def _heldout_stage(run: _DiagnoseRun, models: _Models, common: dict) -> None:
+    """The forecast of every model, then leave-one-experiment-out of those :func:`loeo_keys` picks;
+    fills ``models.held`` and drops the models whose held-out fits failed."""
+    from dataclasses import asdict as _asdict
+
+    from imrbayes.execution import Unit
+
+    base_key, cands, fits, oms = BASELINE.key, models.cands, models.fits, models.oms
+    run.say("held-out predictions (forecast)")
+    rep = run.ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
+                                              "schemes": ["forecast"]})
+                      for key in cands], heldout_unit, run.seed, desc="diagnose held-out fits")
+    models.failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
     if f"heldout={base_key}" not in rep.results:
         raise RuntimeError(f"the baseline's held-out fits failed ({rep.failures[f'heldout={base_key}'].error})")
     held = {key: rep.results[f"heldout={key}"] for key in cands if f"heldout={key}" in rep.results}
-    loeo_run = loeo_keys(held, fits, cands, base_key, s.loeo_all) if s.loeo else []
+    loeo_run = loeo_keys(held, fits, cands, base_key, run.s.loeo_all) if run.s.loeo else []
     if loeo_run:
-        say(f"held-out predictions (leave one experiment out: {', '.join(loeo_run)})")
-        rep = ex.run([Unit(f"loeo={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
-                                           "schemes": ["loeo"]})
-                      for key in loeo_run], heldout_unit, seed, desc="diagnose leave-one-out fits")
-        failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
+        run.say(f"held-out predictions (leave one experiment out: {', '.join(loeo_run)})")
+        rep = run.ex.run([Unit(f"loeo={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
+                                               "schemes": ["loeo"]})
+                          for key in loeo_run], heldout_unit, run.seed, desc="diagnose leave-one-out fits")
+        models.failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
         for key in loeo_run:
             if f"loeo={key}" in rep.results:
                 held[key].update(rep.results[f"loeo={key}"])
@@ -606,35 +644,49 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         if key not in held:
             cands.pop(key)
             fits.pop(key)
-        tick(1)
-    kept = [k for k in keys if k in cands]
-    lls = {k: loglik_draws(c, obs, phases, fits[k], s.n_draws, seed + 7, om=om) for k, c in cands.items()}
+        run.tick(1)
+    models.held = held
+
+
+def _candidate_row(key: str, c, f, held: dict, schemes: list, elpd: dict, obs, phases, om) -> dict:
+    """diagnosis.json's entry of one candidate (before ranking): estimate, misfit, held-out score
+    (mean relative RMSE reduction over ``schemes``), ELPD and physical consistency."""
+    base_key = BASELINE.key
+    rel = {k: 1.0 - held[key][k]["rmse"] / held[base_key][k]["rmse"] for k in schemes if k in held[key]}
+    score = float(np.mean(list(rel.values()))) if rel else float("nan")
+    row = {
+        "model": c.spec.model, "key": key, "mechanism": c.mechanism, "kind": c.spec.kind,
+        "forward_model": c.forward_name, "estimate": c.estimate(f.z, f.cov),
+        "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2))),
+        "chi2_norm": float(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2 / om.noise_sd[:, None] ** 2)),
+        "misfit_by_phase": _phase_misfit(obs, phases, f.fitted, om),
+        "heldout_rmse": held[key][schemes[0]]["rmse"] if schemes else float("nan"),
+        "heldout_scheme": schemes[0] if schemes else None,
+        "loeo_note": "" if "loeo" in held[key] or "loeo" not in schemes else
+                     "leave-one-experiment-out not run: the forecast leaves it out of contention "
+                     "(inconsistent, or its forecast behind the baseline's by more than a paired SE)",
+        "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held[base_key][k]["per_experiment"],
+                                                                      held[key][k]["per_experiment"])}
+                    for k in held[key]},
+        "relative_reduction": rel, "score": score,
+        "elpd_diff": elpd[key]["elpd_diff"], "elpd_se": elpd[key]["elpd_se"],
+        "elpd": elpd[key], "converged": bool(f.converged)}
+    row["consistent"], row["consistency_note"] = c.spec.consistent(
+        {n: e["median"] for n, e in row["estimate"].items()}, row["estimate"])
+    return row
+
+
+def _rank_candidates(run: _DiagnoseRun, models: _Models, keys: list, om) -> tuple:
+    """Rank the fitted candidates (consistent first, then held-out score, then ELPD) and say which
+    are ruled out; returns (ranked rows, ELPD comparison by key, the held-out schemes used)."""
+    obs, phases, base_key, held = run.obs, run.phases, BASELINE.key, models.held
+    kept = [k for k in keys if k in models.cands]
+    lls = {k: loglik_draws(c, obs, phases, models.fits[k], run.s.n_draws, run.seed + 7, om=om)
+           for k, c in models.cands.items()}
     elpd = elpd_compare(lls, base_key)
     schemes = [k for k in ("forecast", "loeo") if k in held[base_key] and np.isfinite(held[base_key][k]["rmse"])]
-    candidates = []
-    for key in kept:
-        c, f = cands[key], fits[key]
-        rel = {k: 1.0 - held[key][k]["rmse"] / held[base_key][k]["rmse"] for k in schemes if k in held[key]}
-        score = float(np.mean(list(rel.values()))) if rel else float("nan")
-        candidates.append({
-            "model": c.spec.model, "key": key, "mechanism": c.mechanism, "kind": c.spec.kind,
-            "forward_model": c.forward_name, "estimate": c.estimate(f.z, f.cov),
-            "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2))),
-            "chi2_norm": float(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2 / om.noise_sd[:, None] ** 2)),
-            "misfit_by_phase": _phase_misfit(obs, phases, f.fitted, om),
-            "heldout_rmse": held[key][schemes[0]]["rmse"] if schemes else float("nan"),
-            "heldout_scheme": schemes[0] if schemes else None,
-            "loeo_note": "" if "loeo" in held[key] or "loeo" not in schemes else
-                         "leave-one-experiment-out not run: the forecast leaves it out of contention "
-                         "(inconsistent, or its forecast behind the baseline's by more than a paired SE)",
-            "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held[base_key][k]["per_experiment"],
-                                                                          held[key][k]["per_experiment"])}
-                        for k in held[key]},
-            "relative_reduction": rel, "score": score,
-            "elpd_diff": elpd[key]["elpd_diff"], "elpd_se": elpd[key]["elpd_se"],
-            "elpd": elpd[key], "converged": bool(f.converged)})
-        candidates[-1]["consistent"], candidates[-1]["consistency_note"] = c.spec.consistent(
-            {n: e["median"] for n, e in candidates[-1]["estimate"].items()}, candidates[-1]["estimate"])
+    candidates = [_candidate_row(key, models.cands[key], models.fits[key], held, schemes, elpd, obs, phases, om)
+                  for key in kept]
     candidates.sort(key=lambda d: (not d["consistent"], -(d["score"] if np.isfinite(d["score"]) else -np.inf),
                                    -d["elpd_diff"]))
     for i, d in enumerate(candidates):
@@ -642,75 +694,159 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         d["ruled_out"] = ("" if d["consistent"] and d["score"] > 0 else
                           d["consistency_note"] if not d["consistent"] else
                           "no held-out gain over the baseline (score <= 0)")
-    absorption, tied, tie_reason = {}, [], ""
-    contenders = [d["key"] for d in candidates if not d["ruled_out"]][:s.n_absorb]
-    if check["verdict"] != "adequate" and contenders:
-        om_top = oms[contenders[0]]
-        if len(contenders) >= 2:
-            say(f"absorption between {', '.join(contenders)}")
-            absorption = absorption_matrix({k: cands[k] for k in contenders}, {k: fits[k] for k in contenders},
-                                           obs, phases, om_top)
-        tied, tie_reason = ties(candidates, held, absorption, fits, obs, om_top, s.tie_se, s.tie_chi2)
-    signature = {}
-    if s.signature and check["verdict"] != "adequate" and contenders:
-        signature = _signature(s, fits, [base_key, *dict.fromkeys(contenders + tied)], obs, phases, om, seed, say,
-                               warnings, ex, build)
-    top = candidates[0] if candidates else None
+    return candidates, elpd, schemes
+
+
+def _settle_by_signature(candidates: list, tied: list, tie_reason: str, signature: dict, top) -> tuple:
+    """A tie between mechanisms settled by the MIEnKS signature, when one tied candidate reproduces
+    the observed G(t), mu(t) clearly (2x) better than every other; returns (top, tied, tie_reason)."""
     mech = {d["key"]: d["mechanism"] for d in candidates}
-    if len({mech[k] for k in tied}) > 1 and signature.get("score"):
-        # the signature is an instrument the held-out schemes did not use: it settles a tie when one
-        # tied candidate reproduces the observed G(t), mu(t) clearly (2x) better than every other
-        sc = {k: signature["score"].get(k) for k in tied}
-        sc = {k: v for k, v in sc.items() if v is not None and np.isfinite(v)}
-        if len(sc) == len(tied):
-            best = min(sc, key=sc.get)
-            if all(sc[best] * 2.0 <= v for k, v in sc.items() if k != best):
-                tie_reason += f"; settled by the MIEnKS signature ({best} score {sc[best]:.2f}, next " \
-                              f"{min(v for k, v in sc.items() if k != best):.2f})"
-                signature["settled_tie"] = {"tied": list(tied), "chosen": best}
-                top = next(d for d in candidates if d["key"] == best)
-                tied = [best]
-    if top is not None:   # does the top candidate remove the baseline's drift and phase misfit?
-        say(f"window drift of {top['key']}")
-        dr, wf = window_drift(cands[top["key"]], obs, phases, fits[top["key"]], oms[top["key"]])
-        top["removes_baseline_symptoms"] = {
-            "drift_baseline": observed["drift"], "drift_extended": dr,
-            "drift_note": "largest squared Mahalanobis distance of (log G, log mu) between fits to the 1st, 2nd "
-                          "collapse and the whole record (same statistic as the check, not recalibrated)",
-            "window_estimates_extended": {k: dict(zip(top["estimate"], cands[top["key"]].to_si(f.z).tolist()))
-                                          for k, f in wf.items()},
-            "phase_chi2_baseline": [p["chi2_norm"] for p in baseline["misfit_by_phase"]],
-            "phase_chi2_extended": [p["chi2_norm"] for p in top["misfit_by_phase"]]}
-    cause, ext, tied, cause_note = name_cause(check["verdict"], top, tied, mech, s.tie_se)
-    gain = {}
-    if top is not None:
-        sch = top["heldout_scheme"]
-        gain = {"candidate": top["model"], "heldout_scheme": held[base_key][sch]["scheme"] if sch else None,
-                "heldout_rmse_baseline": held[base_key][sch]["rmse"] if sch else float("nan"),
-                "heldout_rmse_extended": top["heldout_rmse"],
-                "relative_reduction": top["relative_reduction"].get(sch, float("nan")) if sch else float("nan"),
-                "paired_difference": top["heldout"][sch]["paired_vs_baseline"] if sch else None,
-                "by_scheme": {k: {"scheme": held[base_key][k]["scheme"], "baseline": held[base_key][k]["rmse"],
-                                  "extended": held[top["key"]][k]["rmse"],
-                                  "relative_reduction": top["relative_reduction"][k],
-                                  "paired_vs_baseline": top["heldout"][k]["paired_vs_baseline"]}
-                              for k in schemes if k in top["heldout"]},
-                "elpd_diff": top["elpd_diff"], "elpd_se": top["elpd_se"],
-                "elpd_scheme": ("PSIS-LOO (az.loo) of the Laplace posterior of the whole-record fit, leaving out one "
-                                + ("experiment (log-likelihood summed over time)"
-                                   if elpd[base_key].get("level") == "experiment"
-                                   else "sample (PSIS failed at the experiment level)")
-                                + "; elpd_diff = extended - baseline, elpd_se from az.compare")}
-    baseline["heldout"] = held[base_key]
-    baseline["elpd"] = elpd[base_key]
+    if not (len({mech[k] for k in tied}) > 1 and signature.get("score")):
+        return top, tied, tie_reason
+    # the signature is an instrument the held-out schemes did not use
+    sc = {k: signature["score"].get(k) for k in tied}
+    sc = {k: v for k, v in sc.items() if v is not None and np.isfinite(v)}
+    if len(sc) == len(tied):
+        best = min(sc, key=sc.get)
+        if all(sc[best] * 2.0 <= v for k, v in sc.items() if k != best):
+            tie_reason += f"; settled by the MIEnKS signature ({best} score {sc[best]:.2f}, next " \
+                          f"{min(v for k, v in sc.items() if k != best):.2f})"
+            signature["settled_tie"] = {"tied": list(tied), "chosen": best}
+            top = next(d for d in candidates if d["key"] == best)
+            tied = [best]
+    return top, tied, tie_reason
+
+
+def _contenders_stage(run: _DiagnoseRun, models: _Models, candidates: list, verdict: str, om) -> dict:
+    """Absorption and ties among the contenders, and their MIEnKS signature (all only when the check
+    finds the baseline inadequate); returns {top, tied, tie_reason, absorption, signature}."""
+    absorption, tied, tie_reason, signature = {}, [], "", {}
+    contenders = [d["key"] for d in candidates if not d["ruled_out"]][:N_ABSORB]
+    if verdict != "adequate" and contenders:
+        om_top = models.oms[contenders[0]]
+        if len(contenders) >= 2:
+            run.say(f"absorption between {', '.join(contenders)}")
+            absorption = absorption_matrix({k: models.cands[k] for k in contenders},
+                                           {k: models.fits[k] for k in contenders}, run.obs, run.phases, om_top)
+        tied, tie_reason = ties(candidates, models.held, absorption, models.fits, run.obs, om_top, run.s.tie_se)
+        if run.s.signature:
+            signature = _signature(run.s, models.fits, [BASELINE.key, *dict.fromkeys(contenders + tied)], run.obs,
+                                   run.phases, om, run.seed, run.say, run.warnings, run.ex, run.build)
+    top = candidates[0] if candidates else None
+    top, tied, tie_reason = _settle_by_signature(candidates, tied, tie_reason, signature, top)
+    return {"top": top, "tied": tied, "tie_reason": tie_reason, "absorption": absorption, "signature": signature}
+
+
+def _symptoms_removed(run: _DiagnoseRun, models: _Models, top: dict, observed: dict, baseline: dict) -> None:
+    """Whether the top candidate removes the baseline's drift and phase misfit: adds
+    ``removes_baseline_symptoms`` to ``top``."""
+    run.say(f"window drift of {top['key']}")
+    cand = models.cands[top["key"]]
+    dr, wf = window_drift(cand, run.obs, run.phases, models.fits[top["key"]], models.oms[top["key"]])
+    top["removes_baseline_symptoms"] = {
+        "drift_baseline": observed["drift"], "drift_extended": dr,
+        "drift_note": "largest squared Mahalanobis distance of (log G, log mu) between fits to the 1st, 2nd "
+                      "collapse and the whole record (same statistic as the check, not recalibrated)",
+        "window_estimates_extended": {k: dict(zip(top["estimate"], cand.to_si(f.z).tolist())) for k, f in wf.items()},
+        "phase_chi2_baseline": [p["chi2_norm"] for p in baseline["misfit_by_phase"]],
+        "phase_chi2_extended": [p["chi2_norm"] for p in top["misfit_by_phase"]]}
+
+
+def _gain(top: dict, held: dict, schemes: list, elpd: dict) -> dict:
+    """diagnosis.json's ``gain``: the top candidate's held-out RMSE and ELPD against the baseline's."""
+    base_key = BASELINE.key
+    sch = top["heldout_scheme"]
+    return {"candidate": top["model"], "heldout_scheme": held[base_key][sch]["scheme"] if sch else None,
+            "heldout_rmse_baseline": held[base_key][sch]["rmse"] if sch else float("nan"),
+            "heldout_rmse_extended": top["heldout_rmse"],
+            "relative_reduction": top["relative_reduction"].get(sch, float("nan")) if sch else float("nan"),
+            "paired_difference": top["heldout"][sch]["paired_vs_baseline"] if sch else None,
+            "by_scheme": {k: {"scheme": held[base_key][k]["scheme"], "baseline": held[base_key][k]["rmse"],
+                              "extended": held[top["key"]][k]["rmse"],
+                              "relative_reduction": top["relative_reduction"][k],
+                              "paired_vs_baseline": top["heldout"][k]["paired_vs_baseline"]}
+                          for k in schemes if k in top["heldout"]},
+            "elpd_diff": top["elpd_diff"], "elpd_se": top["elpd_se"],
+            "elpd_scheme": ("PSIS-LOO (az.loo) of the Laplace posterior of the whole-record fit, leaving out one "
+                            + ("experiment (log-likelihood summed over time)"
+                               if elpd[base_key].get("level") == "experiment"
+                               else "sample (PSIS failed at the experiment level)")
+                            + "; elpd_diff = extended - baseline, elpd_se from az.compare")}
+
+
+def _finish(run: _DiagnoseRun, baseline: dict, check: dict, observed: dict, om, parts: dict,
+            curves: dict) -> Diagnosis:
+    """The :class:`Diagnosis`: ``parts`` (the comparison's results) with the baseline, the check,
+    the phases, settings, warnings and stage times; ``curves`` key -> (n_exp, n) fitted R*."""
+    s = run.s
+    result = {"baseline": baseline, "constant_parameter_check": check, **parts,
+              "phases": run.phases.to_list(), "minima_t_star": run.phases.minima_t().tolist(),
+              "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": run.seed,
+              "likelihood": om.describe(), "warnings": run.warnings, "runtime_s": time.perf_counter() - run.t0}
+    result["stage_seconds"] = run.stage_seconds()
+    return Diagnosis(result, run.obs, run.phases, curves, observed)
+
+
+def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = None, seed: int = 0,
+             prior: dict | None = None, progress=None, log=None, execution=None) -> Diagnosis:
+    """Run the whole diagnosis on ``obs`` (Observations) with forward ``options`` (ForwardOptions).
+
+    The candidate fits (units ``candidate=<key>``) and the held-out fits of every model (units
+    ``heldout=<key>``) run through the execution layer: ``execution``
+    (:class:`imrbayes.execution.Execution`) says where, and checkpoints them (default: this
+    process). A candidate whose unit fails is left out of the ranking (reported in
+    ``failed_units``); the baseline's own held-out fit must succeed."""
+    from dataclasses import replace
+
     from imrbayes.diagnosis.sensitivity import bubble_model_sensitivity
+    from imrbayes.execution import Execution
+
+    s = settings or DiagnoseSettings()
+    t0 = time.perf_counter()
+    run = _DiagnoseRun(obs, options, physics, prior, s, seed, execution or Execution(progress=False),
+                       phases_of(obs, s.max_collapses), make_candidate(BASELINE.key, options, physics, prior),
+                       {"options": options, "physics": physics, "prior": prior},
+                       log or (lambda msg: None), progress or (lambda n=1: None), t0=t0)
+    _precompile(run)
+    run.say("baseline fits (whole record, to the 1st and 2nd collapse)")
+    _setup_warnings(run)
+    mk = _mienks_statistic(run)
+    observed, baseline = _baseline_stage(run, mk)
+    full, om = observed["fits"]["all"], observed["om"]
+    if s.baseline_method == "en4dvar":
+        run.say("baseline En4D-Var")
+        _en4dvar_baseline(run, full, baseline)
+    run.say(f"constant-parameter check ({s.n_bootstrap} bootstrap replicates)")
+    check = bootstrap_check(run.base, obs, run.phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
+                            progress=run.tick, mienks=mk, execution=run.ex, build=run.build)
+    base_key = BASELINE.key
+    if check["verdict"] == "adequate" and not s.compare_when_adequate:
+        return _finish(run, baseline, check, observed, om, {
+            "candidates": [], "cause": "none", "extended_model": None, "gain": {}, "candidates_tied": [],
+            "tie_reason": "", "absorption": {}, "signature": {}, "failed_units": [],
+            "comparison_note": "the constant-parameter model is adequate; the candidates were not compared "
+                               "(compare_when_adequate off)"}, {base_key: full.fitted})
+    om0 = replace(om, sd_used=om.noise_sd.copy(), alpha=np.ones(obs.n_exp), n_eff=None, tau=None)
+    common = {**run.build, "obs": obs, "phases": run.phases, "om0": om0}
+    models, keys = _fit_candidates(run, full, om, common)
+    _heldout_stage(run, models, common)
+    candidates, elpd, schemes = _rank_candidates(run, models, keys, om)
+    cont = _contenders_stage(run, models, candidates, check["verdict"], om)
+    top = cont["top"]
+    if top is not None:
+        _symptoms_removed(run, models, top, observed, baseline)
+    mech = {d["key"]: d["mechanism"] for d in candidates}
+    cause, ext, tied, cause_note = name_cause(check["verdict"], top, cont["tied"], mech, s.tie_se)
+    gain = _gain(top, models.held, schemes, elpd) if top is not None else {}
+    baseline["heldout"] = models.held[base_key]
+    baseline["elpd"] = elpd[base_key]
     sensitivity = bubble_model_sensitivity(
         candidates, baseline.get("estimate_map", baseline["estimate"]), s.tie_se,
         overrides={d["key"]: spec_of(d["key"]).forward_options(options) for d in candidates if d["kind"] == "bubble"})
-    return finish({"candidates": candidates, "cause": cause, "cause_note": cause_note, "extended_model": ext,
-                   "gain": gain,
-                   "bubble_model_sensitivity": sensitivity,
-                   "candidates_tied": tied if cause == "ambiguous" else [],
-                   "tie_reason": tie_reason if cause == "ambiguous" else "",
-                   "absorption": absorption, "signature": signature, "failed_units": failed_units},
-                  {k: fits[k].fitted for k in cands})
+    return _finish(run, baseline, check, observed, om, {
+        "candidates": candidates, "cause": cause, "cause_note": cause_note, "extended_model": ext, "gain": gain,
+        "bubble_model_sensitivity": sensitivity,
+        "candidates_tied": tied if cause == "ambiguous" else [],
+        "tie_reason": cont["tie_reason"] if cause == "ambiguous" else "",
+        "absorption": cont["absorption"], "signature": cont["signature"], "failed_units": models.failed_units},
+        {k: models.fits[k].fitted for k in models.cands})

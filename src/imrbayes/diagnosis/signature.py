@@ -95,20 +95,25 @@ PARAMS = ("G", "mu")
 
 @dataclass
 class SignatureSettings:
-    """The smoother that makes a signature and how many replicates a candidate gets (module doc).
-
-    ``n_ens``, ``n_iter``, ``L``, ``h``, ``rtps``, ``likelihood``: the MIEnKS-MDA settings (the
-    same for the data and every replicate); ``n_rep``: replicates per candidate; ``band``: the
-    central probability of the predicted band (0.8: 10 / 90 %)."""
+    """The smoother that makes a signature (the same for the data and every replicate) and how many
+    replicates a candidate gets (module doc)."""
 
     n_ens: int = 16
+    """MIEnKS-MDA ensemble size (default 16)."""
     n_iter: int = 2
+    """MIEnKS-MDA iterations per window (default 2)."""
     L: int = 35
+    """MIEnKS window length [samples] (default 35)."""
     h: int = 5
+    """MIEnKS window shift [samples] (default 5)."""
     rtps: float = 0.7
+    """MIEnKS relaxation to the prior spread (default 0.7)."""
     likelihood: str = "paper"
+    """MIEnKS likelihood (default ``paper``: one pass)."""
     n_rep: int = 4
+    """Replicates per candidate for its predicted signature (default 4)."""
     band: float = 0.8
+    """Central probability of the predicted band (default 0.8: 10 / 90 %)."""
 
     def mienks(self) -> MIEnKSSettings:
         """The :class:`MIEnKSSettings` (one posterior draw per window: the draws are not used)."""

@@ -38,8 +38,8 @@ from imrbayes.errors import InputError
 from imrbayes.execution import Execution, Unit, unit_id
 from imrbayes.forward import BatchState, fm_spec, register_runner, runner_for
 from imrbayes.mcmc.compare import compare_window
-from imrbayes.mcmc.sampler import (LAPLACE_MAX_BLOCK, LAPLACE_MAX_RESIDUAL, MCMCSettings, nuisances_per_experiment,
-                                   parse_moves, resolve_moves, run_mcmc)
+from imrbayes.mcmc.sampler import (LAPLACE_MAX_BLOCK, LAPLACE_MAX_RESIDUAL, PLACE_ROUNDS, MCMCSettings,
+                                   nuisances_per_experiment, parse_moves, resolve_moves, run_mcmc)
 from imrbayes.mcmc.target import WindowTarget
 from imrbayes.mcmc.windows import WindowMCMC, mcmc_tree, window_seed, start_gaussian, window_specs, write_compare
 
@@ -207,7 +207,7 @@ def cost_warnings(specs, s: MCMCSettings) -> list:
                 and nuisances_per_experiment(tg) <= LAPLACE_MAX_BLOCK):
             out.append(f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} "
                        f"nuisances of {tg.n_exp} experiments: Rmax, time of the maximum, Req); its start is first "
-                       f"placed on the target by a quadratic fit ({3 * s.place_rounds * (d + 1) * (d + 2) // 2:,} "
+                       f"placed on the target by a quadratic fit ({3 * PLACE_ROUNDS * (d + 1) * (d + 2) // 2:,} "
                        f"evaluations); if the fit is Gaussian to {LAPLACE_MAX_RESIDUAL:g} nat, {s.n_chains} x "
                        f"{s.n_walkers} independent walkers sample it (measured on the 7-coordinate verification "
                        f"window: tau ~3 steps, ~3 000 evaluations; docs/mcmc.md), else the block and ridge moves (tau 35-40 steps, about "

@@ -21,7 +21,7 @@ where the draws that would be kept are diagnosed exactly as :func:`imrbayes.mcmc
 diagnoses them (same burn-in, thinning, ArviZ R-hat and bulk/tail ESS); sampling stops at the first
 check where max R-hat <= ``rhat_max``, min bulk and tail ESS >= ``ess_min`` and every ensemble is
 at least ``tau_rule`` tau long (emcee's guidance: check every few tau, stop when the estimates are
-trustworthy). Checks start at ``min_steps`` and follow every ``check_tau`` tau (at least 10 steps),
+trustworthy). Checks start at ``min_steps`` and follow every :data:`CHECK_EVERY_TAU` tau (at least 10 steps),
 jumping ahead (at most doubling the length) to where the tau rule or the ESS would be met.
 ``n_steps`` is the **hard cap**: a run that reaches it unconverged says so (``stop_reason = "cap"``,
 ``cap_hit``), and its comparison is undecided (``agree: null``). ``stop="fixed"`` runs exactly
@@ -113,6 +113,10 @@ AUTO_MOVES = {"plain": "indep:0.7,de:0.3", "nuisances": "ridge:0.5,blocks:0.5"}
 LAPLACE_MAX_RESIDUAL = 0.6
 LAPLACE_MAX_BLOCK = 1
 LAPLACE_INDEP = {"moves": "indep", "indep_dof": 20.0, "indep_scale": 1.1, "indep_adapt": 0}
+#: rounds of the quadratic placement of the start (``place="laplace"``)
+PLACE_ROUNDS = 3
+#: after a failed convergence check the next comes this many tau later (emcee: check every few tau)
+CHECK_EVERY_TAU = 5.0
 
 
 def nuisances_per_experiment(target) -> int:
@@ -269,68 +273,48 @@ def emcee_moves(spec: str, center=None, cov=None, indep_scale: float = 1.5, inde
 
 @dataclass
 class MCMCSettings:
-    """emcee settings.
-
-    n_walkers : walkers per ensemble (even, >= 2 d; default 8: docs/mcmc.md, ESS per forward solve).
-    n_steps : ``stop="converged"``: the hard cap on steps per ensemble; ``stop="fixed"``: the total
-        steps per ensemble (a resumed run continues to it).
-    n_chains : independent ensembles (>= 2; 2 by default; R-hat is computed across them). The stop
-        rule's 50 tau fixes the steps, so the cost is n_chains x n_walkers x ~50 tau: two ensembles
-        halve it while their ESS (~600 at the stop) still clears 400 (docs/mcmc.md).
-    stop : ``"converged"`` (stop at the first check where the convergence criteria hold, module
-        docstring) or ``"fixed"`` (exactly ``n_steps``).
-    min_steps : first convergence check (steps); check_tau : later checks every ``check_tau`` tau.
-    rhat_max, ess_min : the criteria (max R-hat; min bulk and tail ESS), as ``compare.THRESHOLDS``.
-    moves : emcee move mixture, e.g. ``"indep:0.7,de:0.3"`` or ``"stretch"`` (:func:`parse_moves`);
-        ``"auto"`` (default): :data:`AUTO_MOVES` -- ``indep:0.7,de:0.3``, or ``ridge:0.5,blocks:0.5``
-        on a window with sampled nuisances (:mod:`imrbayes.mcmc.blocks`).
-    burn, thin : steps discarded / kept every ``thin`` steps; None = automatic (module docstring).
-    max_draws : most draws kept per ensemble in the DataTree (thinning is increased to respect it).
-    init_scale : start spread, in units of the start covariance's standard deviations (> 1:
-        over-dispersed).
-    indep_scale, indep_dof : the ``indep`` move's Student-t proposal: scale (in start sd) and degrees
-        of freedom (:func:`independence_move`).
-    place : ``"auto"`` (default: ``"laplace"`` with ``moves="auto"`` on a window with sampled nuisances,
-        which then also picks the moves, :data:`LAPLACE_MAX_RESIDUAL`; else ``"start"``), ``"start"``
-        (the walkers' start Gaussian and the ``indep`` proposal are the one given: the ensemble
-        smoother's) or ``"laplace"`` (moved first to a quadratic fit of the target's own
-        log-density around it, :func:`imrbayes.mcmc.laplace.quadratic_placement`: ``place_rounds``
-        rounds of (d + 1)(d + 2)/2 x 3 evaluations, seeded, done again identically on resume).
-    indep_adapt : 0, or the step at which each ensemble moves its ``indep`` proposal once to the
-        mean and covariance of its own draws in the second half of the steps so far (then fixed;
-        default 50, before the first convergence check at ``min_steps`` = 100).
-    tau_rule : the chain should be at least ``tau_rule`` tau long (emcee's advice: 50).
-    lockstep : share forward batches between the ensembles (threads); False runs them one by one.
-    loglik : recompute the pointwise log-likelihood of the kept draws for the DataTree.
-    quadrature : also compute the exact grid posterior of 2-parameter windows
-        (:mod:`imrbayes.mcmc.quadrature`; used by ``imrbayes fit --mcmc``). Off by default since
-        2026-11-27: it agreed with the converged MCMC in all 18 windows of the verification case's
-        whole run and cost 29 % of that run (docs/mcmc.md); a check of the sampler, not of the
-        ensemble Gaussian.
-    """
+    """emcee settings of :func:`run_mcmc` (the stop rule, moves and placement: module docstring)."""
 
     n_walkers: int = 8
+    """Walkers per ensemble (even, >= 2 d unless the walkers are independent; default 8)."""
     n_steps: int = 5000
+    """Hard cap on steps per ensemble (``stop="fixed"``: exactly these; default 5000)."""
     n_chains: int = 2
+    """Independent ensembles, >= 2, across which R-hat is computed (default 2)."""
     stop: str = "converged"
+    """``"converged"`` (stop at the first check where the criteria hold; default) or ``"fixed"``."""
     min_steps: int = 100
-    check_tau: float = 5.0
+    """Steps at the first convergence check (default 100)."""
     rhat_max: float = 1.01
+    """Largest R-hat of a converged run (default 1.01, as ``compare.THRESHOLDS``)."""
     ess_min: float = 400.0
+    """Smallest bulk and tail ESS of a converged run (default 400)."""
     moves: str = "auto"
+    """emcee move mixture, e.g. ``"indep:0.7,de:0.3"`` (default ``"auto"``: :data:`AUTO_MOVES`)."""
     burn: int | None = None
+    """Steps discarded (default None: automatic, module docstring)."""
     thin: int | None = None
+    """Keep every ``thin``-th step (default None: automatic, module docstring)."""
     max_draws: int = 1000
+    """Most draws kept per ensemble (thinning is raised to respect it; default 1000)."""
     init_scale: float = 2.0
+    """Start spread in start-covariance sd (> 1: over-dispersed; default 2)."""
     indep_scale: float = 1.5
+    """Scale of the ``indep`` move's Student-t proposal, in start sd (default 1.5)."""
     indep_dof: float = 4.0
+    """Degrees of freedom of the ``indep`` move's Student-t proposal (default 4)."""
     indep_adapt: int = 50
+    """Step at which each ensemble re-places its ``indep`` proposal once on its own draws (0: never; default 50)."""
     place: str = "auto"
-    place_rounds: int = 3
+    """Start placement: ``"start"``, ``"laplace"`` (quadratic fit to the target) or ``"auto"`` (default)."""
     tau_rule: float = 50.0
+    """A converged chain is at least this many autocorrelation times long (default 50)."""
     lockstep: bool = True
+    """Share forward batches between the ensembles (threads); False runs them one by one (default on)."""
     loglik: bool = True
+    """Recompute the pointwise log-likelihood of the kept draws for the DataTree (default on)."""
     quadrature: bool = False
+    """Also compute the exact grid posterior of 2-parameter windows (default off)."""
 
     def check(self, ndim: int):
         need = 2 if independent_walkers(self.moves) else 2 * ndim
@@ -345,8 +329,6 @@ class MCMCSettings:
             raise InputError("stop", f"must be 'converged' or 'fixed', got {self.stop!r}")
         if not 4 <= self.min_steps:
             raise InputError("min_steps", f"must be at least 4, got {self.min_steps}")
-        if not (math.isfinite(self.check_tau) and self.check_tau > 0):
-            raise InputError("check_tau", f"must be positive, got {self.check_tau}")
         if not self.rhat_max >= 1.0:
             raise InputError("rhat_max", f"must be >= 1, got {self.rhat_max}")
         if not self.ess_min > 0:
@@ -363,8 +345,6 @@ class MCMCSettings:
             raise InputError("indep_dof", f"must be positive, got {self.indep_dof}")
         if self.place not in ("auto", "start", "laplace"):
             raise InputError("place", f"must be 'auto', 'start' or 'laplace', got {self.place!r}")
-        if not self.place_rounds >= 1:
-            raise InputError("place_rounds", f"must be >= 1, got {self.place_rounds}")
         if not (self.indep_adapt == 0 or self.indep_adapt >= 4):
             raise InputError("indep_adapt", f"must be 0 (never) or a step >= 4, got {self.indep_adapt}")
         moves = [m for spec in (AUTO_MOVES.values() if self.moves.strip().lower() == "auto" else [self.moves])
@@ -453,7 +433,7 @@ def check_line(chk: dict, s: "MCMCSettings", n_evals: int | None = None, resumed
 def _next_check(n: int, chk: dict, s: "MCMCSettings") -> int:
     """The next check point after a failed check at n steps (module docstring), capped at n_steps."""
     tau = chk["tau_max"] if math.isfinite(chk["tau_max"]) else float(n)
-    step = max(10, math.ceil(s.check_tau * tau))
+    step = max(10, math.ceil(CHECK_EVERY_TAU * tau))
     want = n + step
     if not chk["criteria"]["tau_rule"]:
         want = max(want, math.ceil(s.tau_rule * tau))
@@ -677,46 +657,15 @@ def _progress_bar(progress, total):
     return tqdm(total=total, desc="emcee", unit="step", leave=False)
 
 
-def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | None = None, seed: int = 0,
-             backend=None, name: str = "mcmc", progress=None, resume: bool = True, log=None) -> MCMCRun:
-    """Sample ``target`` with ``n_chains`` independent emcee ensembles (module docstring).
-
-    Parameters
-    ----------
-    target : WindowTarget (or anything with ``log_prob(Z (n, d)) -> (n,)``, ``ndim``, ``prior``)
-    start_mean, start_cov : (d,), (d, d)
-        Gaussian the starts are drawn from, internal coordinates (default: the target's prior
-        when it is stated on z). Starts with log-density -inf are redrawn.
-    settings : MCMCSettings
-    seed : int
-    backend : path of an HDF5 file, or None (in memory, no resume)
-    name : HDF5 group prefix, e.g. ``"window_03"``; ensemble c is ``{name}/chain_{c}``.
-    progress : show a progress bar (None: only when stderr is a terminal).
-    resume : continue ensembles already in the file (False: start them afresh).
-    log : None, or a callable taking one line of text, called after every convergence check
-        (:func:`check_line`, prefixed by ``name``): the progress of a run without a terminal.
-    """
-    import emcee
-
-    s = settings or MCMCSettings()
-    d = int(target.ndim)
-    auto = s.moves.strip().lower() == "auto"
-    nuisances = resolve_moves("auto", target) == AUTO_MOVES["nuisances"]
-    place = s.place if s.place != "auto" else ("laplace" if auto and nuisances else "start")
-    s = replace(s, moves=resolve_moves(s.moves, target), place=place)
-    t0 = time.perf_counter()
-    if start_mean is None:
-        if getattr(target.prior, "scale", "internal") != "internal":
-            raise InputError("start_mean", "give the start Gaussian for a prior stated on the natural scale")
-        start_mean, start_cov = target.prior.prior_mean, target.prior.prior_cov
-    start_mean = np.asarray(start_mean, dtype=np.float64).reshape(d)
-    start_cov = np.asarray(start_cov, dtype=np.float64).reshape(d, d)
-    given = (start_mean, start_cov)
-    evals0 = int(getattr(target, "n_evals", 0))
+def _place_start(target, s: MCMCSettings, start_mean, start_cov, seed: int, auto: bool, nuisances: bool,
+                 name: str, log) -> tuple:
+    """The start Gaussian moved onto the target by a quadratic fit (``place="laplace"``) and, on a
+    window with sampled nuisances whose fit is Gaussian, the independent-walker settings; takes the
+    given start mean (d,) and cov (d, d), returns (settings, mean, cov, placement or None)."""
     placement = None
-    if s.place == "laplace":          # its own seed stream: the chains' seeds below are those of place="start"
+    if s.place == "laplace":          # its own seed stream: the chains' seeds are those of place="start"
         start_mean, start_cov, placement = quadratic_placement(
-            target.log_prob, start_mean, start_cov, rounds=s.place_rounds,
+            target.log_prob, start_mean, start_cov, rounds=PLACE_ROUNDS,
             seed=int(np.random.SeedSequence([int(seed), 7919]).generate_state(1)[0]))
         last = placement["rounds"][-1] if placement["rounds"] else {}
         per_exp = nuisances_per_experiment(target)
@@ -736,20 +685,14 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
         log(f"{name}: start placed on the target in {placement['n_evals']} evaluations (quadratic fit's residual sd "
             f"{', '.join(f'{r['residual_sd_nats']:.2f}' for r in fits) or 'none'} nats by round)"
             + (f"; {placement['moves_rule']}" if "moves_rule" in placement else ""))
-    if s.n_walkers < 2 * d and not independent_walkers(s.moves):
-        # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
-        # (fewer with the block and ridge moves did not pay: docs/mcmc.md)
-        s = replace(s, n_walkers=2 * d)
-    s.check(d)
-    # independent walkers (indep alone): fewer walkers than coordinates are fine, so emcee's check that the
-    # start spans the space does not apply
-    solo = independent_walkers(s.moves)
-    Lc = np.linalg.cholesky(0.5 * (start_cov + start_cov.T))
-    C, W = s.n_chains, s.n_walkers
-    children = np.random.SeedSequence(int(seed)).spawn(C)
-    seeds = [int(ch.generate_state(1)[0]) for ch in children]
+    return s, start_mean, start_cov, placement
 
-    # ----- backends and where each ensemble stands
+
+def _open_backends(backend, name: str, C: int, W: int, d: int, resume: bool, n_steps: int) -> tuple:
+    """One emcee backend per ensemble (in memory, or the HDF5 group ``{name}/chain_{c}``, resumed when
+    it holds this run's shape); returns (backends, steps each already holds)."""
+    import emcee
+
     backends, done = [], []
     for c in range(C):
         if backend is None:
@@ -764,104 +707,122 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                                                f"this run needs {(W, d)} (use resume=False or another name)")
         backends.append(be)
         done.append(int(be.iteration))
-    if any(n > s.n_steps for n in done):
-        raise InputError(str(backend), f"the file already holds {max(done)} steps, more than n_steps = {s.n_steps}")
+    if any(n > n_steps for n in done):
+        raise InputError(str(backend), f"the file already holds {max(done)} steps, more than n_steps = {n_steps}")
+    return backends, done
 
-    # ----- starting states of fresh ensembles: one batched evaluation, -inf starts redrawn
-    states = [None] * C
-    fresh = [c for c in range(C) if done[c] == 0]
-    if fresh:
-        rngs = {c: np.random.default_rng(children[c]) for c in fresh}
-        P0 = {c: start_mean + s.init_scale * rngs[c].standard_normal((W, d)) @ Lc.T for c in fresh}
-        LP = {c: np.full(W, -np.inf) for c in fresh}
-        for _ in range(100):
-            todo = [(c, i) for c in fresh for i in np.flatnonzero(~np.isfinite(LP[c]))]
-            if not todo:
-                break
-            X = np.array([P0[c][i] for c, i in todo])
-            lp = np.asarray(target.log_prob(X), dtype=np.float64)
-            for (c, i), v in zip(todo, lp):
-                if np.isfinite(v):
-                    LP[c][i] = v
-                else:
-                    P0[c][i] = start_mean + s.init_scale * Lc @ rngs[c].standard_normal(d)
-        else:
-            raise RuntimeError("could not find starting points with a finite log-posterior in 100 rounds")
-        for c in fresh:
-            states[c] = emcee.State(P0[c], log_prob=LP[c],
-                                    random_state=np.random.RandomState(seeds[c]).get_state())
 
-    # one move list per ensemble: an adapted independence proposal must see only its own ensemble
-    moves = [emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof, target) for _ in range(C)]
-    placed = [False] * C
-    samplers = [None] * C
-    route = [None] * C                  # the batcher each ensemble's log-prob calls go through (None: direct)
-    lengths = list(done)
-    failed = {}
-    bar = _progress_bar(progress, sum(max(0, s.n_steps - n) for n in done))
-    bar_lock = threading.Lock()
+def _initial_states(target, fresh: list, children: list, seeds: list, start_mean, Lc, init_scale: float,
+                    W: int, d: int) -> dict:
+    """emcee states of the fresh ensembles ``fresh``: W starts each from N(start_mean, init_scale^2 Lc Lc^T)
+    in one batched evaluation, starts with a -inf log-density redrawn; returns {c: emcee.State}."""
+    import emcee
 
-    def place_proposal(c):
+    rngs = {c: np.random.default_rng(children[c]) for c in fresh}
+    P0 = {c: start_mean + init_scale * rngs[c].standard_normal((W, d)) @ Lc.T for c in fresh}
+    LP = {c: np.full(W, -np.inf) for c in fresh}
+    for _ in range(100):
+        todo = [(c, i) for c in fresh for i in np.flatnonzero(~np.isfinite(LP[c]))]
+        if not todo:
+            break
+        X = np.array([P0[c][i] for c, i in todo])
+        lp = np.asarray(target.log_prob(X), dtype=np.float64)
+        for (c, i), v in zip(todo, lp):
+            if np.isfinite(v):
+                LP[c][i] = v
+            else:
+                P0[c][i] = start_mean + init_scale * Lc @ rngs[c].standard_normal(d)
+    else:
+        raise RuntimeError("could not find starting points with a finite log-posterior in 100 rounds")
+    return {c: emcee.State(P0[c], log_prob=LP[c], random_state=np.random.RandomState(seeds[c]).get_state())
+            for c in fresh}
+
+
+class _Ensembles:
+    """The C ensembles of one run as they advance: their backends, moves, samplers, lengths and the
+    failed ones (index -> error); :meth:`advance` takes them to a step count."""
+
+    def __init__(self, target, s: MCMCSettings, backends: list, done: list, states: list, moves: list,
+                 start_cov, bar):
+        self.target, self.s, self.backends, self.states, self.moves = target, s, backends, states, moves
+        self.C, self.W, self.d = len(backends), s.n_walkers, int(target.ndim)
+        self.start_cov, self.bar = start_cov, bar
+        # independent walkers (indep alone): fewer walkers than coordinates are fine, so emcee's check
+        # that the start spans the space does not apply
+        self.solo = independent_walkers(s.moves)
+        self.placed = [False] * self.C
+        self.samplers = [None] * self.C
+        self.route = [None] * self.C       # the batcher each ensemble's log-prob calls go through (None: direct)
+        self.lengths = list(done)
+        self.failed = {}
+        self.bar_lock = threading.Lock()
+
+    def place_proposal(self, c):
         """Once ensemble c holds ``indep_adapt`` steps: its independence proposal moves to the mean
         and covariance of its own draws in the second half of them (a replay on resume). One
         adaptation at a fixed step leaves every later step a fixed, target-invariant kernel."""
-        n_a = int(s.indep_adapt)
-        if not n_a or placed[c] or lengths[c] < n_a:
+        n_a, d = int(self.s.indep_adapt), self.d
+        if not n_a or self.placed[c] or self.lengths[c] < n_a:
             return
-        x = np.asarray(backends[c].get_chain()[n_a // 2:n_a], dtype=np.float64).reshape(-1, d)
-        cov = np.cov(x.T).reshape(d, d) + 1e-12 * np.diag(np.diag(start_cov))
-        for mv, _ in moves[c]:
+        x = np.asarray(self.backends[c].get_chain()[n_a // 2:n_a], dtype=np.float64).reshape(-1, d)
+        cov = np.cov(x.T).reshape(d, d) + 1e-12 * np.diag(np.diag(self.start_cov))
+        for mv, _ in self.moves[c]:
             if hasattr(mv, "proposal"):
                 mv.proposal.place(x.mean(axis=0), cov)
-        placed[c] = True
+        self.placed[c] = True
 
-    def run_one(c, upto, batcher):
+    def run_one(self, c, upto, batcher):
         """Advance ensemble c to ``upto`` steps in total."""
+        import emcee
+
         try:
-            if upto <= lengths[c]:
+            if upto <= self.lengths[c]:
                 return
-            route[c] = batcher
-            if samplers[c] is None:
+            self.route[c] = batcher
+            if self.samplers[c] is None:
+                route, target = self.route, self.target
                 fn = lambda x, c=c: route[c].call(c, x) if route[c] is not None else target.log_prob(x)  # noqa: E731
-                samplers[c] = emcee.EnsembleSampler(W, d, fn, vectorize=True, backend=backends[c], moves=moves[c])
-                if states[c] is None:
-                    states[c] = samplers[c].get_last_sample()
-            place_proposal(c)
-            n_a = int(s.indep_adapt)
-            stops = ([n_a] if lengths[c] < n_a < upto else []) + [upto]
+                self.samplers[c] = emcee.EnsembleSampler(self.W, self.d, fn, vectorize=True,
+                                                         backend=self.backends[c], moves=self.moves[c])
+                if self.states[c] is None:
+                    self.states[c] = self.samplers[c].get_last_sample()
+            self.place_proposal(c)
+            n_a = int(self.s.indep_adapt)
+            stops = ([n_a] if self.lengths[c] < n_a < upto else []) + [upto]
             for stop in stops:
-                for st in samplers[c].sample(states[c], iterations=stop - lengths[c], store=True,
-                                             skip_initial_state_check=lengths[c] > 0 or solo):
-                    states[c] = st
-                    lengths[c] += 1
-                    if bar is not None:
-                        with bar_lock:
-                            bar.update(1)
-                place_proposal(c)
+                for st in self.samplers[c].sample(self.states[c], iterations=stop - self.lengths[c], store=True,
+                                                  skip_initial_state_check=self.lengths[c] > 0 or self.solo):
+                    self.states[c] = st
+                    self.lengths[c] += 1
+                    if self.bar is not None:
+                        with self.bar_lock:
+                            self.bar.update(1)
+                self.place_proposal(c)
         finally:
             if batcher is not None:
                 batcher.leave()
 
-    def advance(upto):
+    def advance(self, upto):
         """Every surviving ensemble to ``upto`` steps. A failed ensemble (an exception in emcee or in
         its part of the evaluation) is contained: left out, recorded in ``failed``; the others go on.
         KeyboardInterrupt and the like still stop everything."""
-        todo = [c for c in range(C) if c not in failed and lengths[c] < upto]
+        failed = self.failed
+        todo = [c for c in range(self.C) if c not in failed and self.lengths[c] < upto]
         if not todo:
             return
-        if not s.lockstep:
+        if not self.s.lockstep:
             for c in todo:
                 try:
-                    run_one(c, upto, None)
+                    self.run_one(c, upto, None)
                 except Exception as exc:                        # noqa: BLE001
                     failed[c] = f"{type(exc).__name__}: {exc}"
             return
-        batcher = _Batcher(target.log_prob, len(todo))
+        batcher = _Batcher(self.target.log_prob, len(todo))
         errors = []
 
         def worker(c):
             try:
-                run_one(c, upto, batcher)
+                self.run_one(c, upto, batcher)
             except Exception as exc:                            # noqa: BLE001
                 failed[c] = f"{type(exc).__name__}: {exc}"
             except BaseException as exc:                        # noqa: BLE001
@@ -883,16 +844,23 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
         if errors:
             raise errors[0]
 
-    def stacked(n):
-        alive = [c for c in range(C) if c not in failed]
-        return alive, np.stack([backends[c].get_chain()[:n] for c in alive])
+    def alive(self) -> list:
+        """Indices of the ensembles that have not failed."""
+        return [c for c in range(self.C) if c not in self.failed]
 
-    # ----- the check schedule: replayed on what the file holds, then sampled on
+    def stacked(self, n):
+        """(C_alive, n, W, d) first n steps of the surviving ensembles."""
+        return np.stack([self.backends[c].get_chain()[:n] for c in self.alive()])
+
+
+def _sample_to_stop(ens: _Ensembles, s: MCMCSettings, target, name: str, log, resumed: bool, evals0: int) -> tuple:
+    """The check schedule (module docstring): replayed on what the backends hold, then sampled on
+    until converged, the cap, or ``n_steps`` (``stop="fixed"``); returns (checks, stop reason, steps)."""
     checks, reason, n_chk = [], None, s.n_steps
     if s.stop == "converged":
         n_chk = min(s.min_steps, s.n_steps)
-        while n_chk <= min(lengths):                          # replay (resume): no forward run
-            chk = convergence_check(stacked(n_chk)[1], s)
+        while n_chk <= min(ens.lengths):                          # replay (resume): no forward run
+            chk = convergence_check(ens.stacked(n_chk), s)
             checks.append(chk)
             if chk["ok"] or n_chk >= s.n_steps:
                 reason = "converged" if chk["ok"] else "cap"
@@ -900,17 +868,17 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             n_chk = _next_check(n_chk, chk, s)
     try:
         while reason is None:
-            advance(n_chk)
-            if sum(1 for c in range(C) if c not in failed) < 2:
+            ens.advance(n_chk)
+            if len(ens.alive()) < 2:
                 break
             if s.stop == "fixed":
                 reason = "fixed"
                 break
-            chk = convergence_check(stacked(n_chk)[1], s)
+            chk = convergence_check(ens.stacked(n_chk), s)
             checks.append(chk)
             if log is not None:
                 made = int(getattr(target, "n_evals", 0)) - evals0
-                log(f"{name}: " + check_line(chk, s, made or None, resumed=any(done)))
+                log(f"{name}: " + check_line(chk, s, made or None, resumed=resumed))
             if chk["ok"]:
                 reason = "converged"
             elif n_chk >= s.n_steps:
@@ -921,14 +889,72 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             else:
                 n_chk = _next_check(n_chk, chk, s)
     finally:
-        if bar is not None:
-            bar.close()
+        if ens.bar is not None:
+            ens.bar.close()
+    return checks, reason, n_chk
 
+
+def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | None = None, seed: int = 0,
+             backend=None, name: str = "mcmc", progress=None, resume: bool = True, log=None) -> MCMCRun:
+    """Sample ``target`` with ``n_chains`` independent emcee ensembles (module docstring).
+
+    Parameters
+    ----------
+    target : WindowTarget (or anything with ``log_prob(Z (n, d)) -> (n,)``, ``ndim``, ``prior``)
+    start_mean, start_cov : (d,), (d, d)
+        Gaussian the starts are drawn from, internal coordinates (default: the target's prior
+        when it is stated on z). Starts with log-density -inf are redrawn.
+    settings : MCMCSettings
+    seed : int
+    backend : path of an HDF5 file, or None (in memory, no resume)
+    name : HDF5 group prefix, e.g. ``"window_03"``; ensemble c is ``{name}/chain_{c}``.
+    progress : show a progress bar (None: only when stderr is a terminal).
+    resume : continue ensembles already in the file (False: start them afresh).
+    log : None, or a callable taking one line of text, called after every convergence check
+        (:func:`check_line`, prefixed by ``name``): the progress of a run without a terminal.
+    """
+    s = settings or MCMCSettings()
+    d = int(target.ndim)
+    auto = s.moves.strip().lower() == "auto"
+    nuisances = resolve_moves("auto", target) == AUTO_MOVES["nuisances"]
+    place = s.place if s.place != "auto" else ("laplace" if auto and nuisances else "start")
+    s = replace(s, moves=resolve_moves(s.moves, target), place=place)
+    t0 = time.perf_counter()
+    if start_mean is None:
+        if getattr(target.prior, "scale", "internal") != "internal":
+            raise InputError("start_mean", "give the start Gaussian for a prior stated on the natural scale")
+        start_mean, start_cov = target.prior.prior_mean, target.prior.prior_cov
+    start_mean = np.asarray(start_mean, dtype=np.float64).reshape(d)
+    start_cov = np.asarray(start_cov, dtype=np.float64).reshape(d, d)
+    given = (start_mean, start_cov)
+    evals0 = int(getattr(target, "n_evals", 0))
+    s, start_mean, start_cov, placement = _place_start(target, s, start_mean, start_cov, seed, auto, nuisances,
+                                                       name, log)
+    if s.n_walkers < 2 * d and not independent_walkers(s.moves):
+        # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
+        # (fewer with the block and ridge moves did not pay: docs/mcmc.md)
+        s = replace(s, n_walkers=2 * d)
+    s.check(d)
+    Lc = np.linalg.cholesky(0.5 * (start_cov + start_cov.T))
+    C, W = s.n_chains, s.n_walkers
+    children = np.random.SeedSequence(int(seed)).spawn(C)
+    seeds = [int(ch.generate_state(1)[0]) for ch in children]
+    backends, done = _open_backends(backend, name, C, W, d, resume, s.n_steps)
+    states = [None] * C
+    fresh = [c for c in range(C) if done[c] == 0]
+    if fresh:
+        for c, st in _initial_states(target, fresh, children, seeds, start_mean, Lc, s.init_scale, W, d).items():
+            states[c] = st
+    # one move list per ensemble: an adapted independence proposal must see only its own ensemble
+    moves = [emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof, target) for _ in range(C)]
+    ens = _Ensembles(target, s, backends, done, states, moves, start_cov,
+                     _progress_bar(progress, sum(max(0, s.n_steps - n) for n in done)))
+    checks, reason, n_chk = _sample_to_stop(ens, s, target, name, log, any(done), evals0)
     # ----- collect, diagnose
-    alive = [c for c in range(C) if c not in failed]
+    alive = ens.alive()
     if len(alive) < 2:
-        raise RuntimeError(f"emcee: {len(failed)} of {C} ensembles failed, fewer than the 2 that R-hat needs; "
-                           f"first error: {next(iter(failed.values()))}")
+        raise RuntimeError(f"emcee: {len(ens.failed)} of {C} ensembles failed, fewer than the 2 that R-hat needs; "
+                           f"first error: {next(iter(ens.failed.values()))}")
     backends = [backends[c] for c in alive]
     seeds = [seeds[c] for c in alive]
     steps_run = [max(0, n_chk - done[c]) for c in alive]
@@ -948,7 +974,7 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
                    tau=tau, burn=burn, thin=thin, seeds=seeds, runtime_s=time.perf_counter() - t0,
                    n_evals=int(getattr(target, "n_evals", 0)) - evals0, steps_run=steps_run,
                    backend=None if backend is None else {"path": str(backend), "name": name},
-                   failed_chains=dict(sorted(failed.items())), stop=stop,
+                   failed_chains=dict(sorted(ens.failed.items())), stop=stop,
                    settings={**asdict(s), "seed": int(seed), "start_mean": start_mean.tolist(),
                              "start_cov": start_cov.tolist(),
                              **({} if placement is None else {"given_mean": given[0].tolist(),
