@@ -77,6 +77,7 @@ def test_search_calls_a_liquid_a_liquid():
     z = res.zero_modulus
     assert z["consistent_with_zero"] and z["lr"] <= z["threshold"]
     assert z["best_liquid"]["mu"] == pytest.approx(0.05, rel=0.05)
+    assert 10.0 < z["upper95_pa"] < 1e3                 # the data bound G from above, far below a gel's
     assert abs(math.log10(res.best["mu"] / 0.05)) <= 0.5 + 1e-9
 
 

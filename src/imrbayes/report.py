@@ -257,6 +257,11 @@ def bounds(e: dict, name: str = "", summary=None) -> tuple:
     return lower, upper
 
 
+def _liquid(summary, name: str) -> bool:
+    """Whether the fit found ``name`` consistent with 0 (a liquid's G): no spread to report."""
+    return bool((((summary or {}).get("estimate") or {}).get(name) or {}).get("consistent_with_zero"))
+
+
 def estimate_phrase(name: str, e: dict, units: dict, summary=None) -> str:
     """One parameter's estimate in words with units on every number (plain text):
     ``G = 13.5 kPa ± 0.6 kPa (95 % 12.3-14.7 kPa)``, ``G not bounded by the data (best fit 7.3 kPa)``,
@@ -751,8 +756,15 @@ def _section_conclusion(run) -> str:
         for p in params:
             b = be.get(p) or {}
             hd = b.get("hdi95") or [None, None]
-            bits.append(f"{esc(p)} sd {_q(b.get('sd'), p, units)}"
-                        + (f" (95 % {_qrange(hd[0], hd[1], p, units)})" if len(hd) == 2 and hd[0] is not None else ""))
+            if _liquid(s, p):
+                bits.append(f"{esc(p)}: none to report (consistent with 0)")
+            elif len(hd) == 2 and hd[0] is not None and _fnum(hd[0]) <= 0 < _fnum(hd[1]):
+                bits.append(f"{esc(p)} sd below {_q(hd[1], p, units)} (consistent with no scatter)")
+            elif len(hd) == 2 and hd[0] is not None and not all(bounds({"hdi95": hd}, p, s)):
+                bits.append(f"{esc(p)} sd not bounded by the data")
+            else:
+                bits.append(f"{esc(p)} sd {_q(b.get('sd'), p, units)}"
+                            + (f" (95 % {_qrange(hd[0], hd[1], p, units)})" if len(hd) == 2 and hd[0] is not None else ""))
         items.append("Between bubbles (scatter of the gel from bubble to bubble): " + "; ".join(bits) + ".")
     else:
         rng = []
@@ -765,7 +777,12 @@ def _section_conclusion(run) -> str:
         for p in params:
             b = pred.get(p) or {}
             hd = b.get("hdi95") or [None, None]
-            bits.append(f"{esc(p)} {_qrange(hd[0], hd[1], p, units)}" if len(hd) == 2 else f"{esc(p)} –")
+            if _liquid(s, p):
+                bits.append(f"{esc(p)} consistent with 0")
+            elif len(hd) == 2 and hd[0] is not None and not all(bounds({"hdi95": hd}, p, s)):
+                bits.append(f"{esc(p)} not bounded by the data")
+            else:
+                bits.append(f"{esc(p)} {_qrange(hd[0], hd[1], p, units)}" if len(hd) == 2 else f"{esc(p)} –")
         items.append("A new bubble of this gel (95 % predictive range): " + "; ".join(bits) + ".")
     items.append(_mcmc_words(run))
     prior_words = prior_sentence(s, units)

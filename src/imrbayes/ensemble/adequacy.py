@@ -11,7 +11,7 @@ records and the estimate is the best fit of a wrong model.
 :func:`annotate_estimate` adds what the headline needs: whether the data bound each parameter
 (the posterior narrower than half the prior in the internal coordinate), how much of the
 posterior is the data's, and, from the global search (:mod:`imrbayes.ensemble.search`), whether
-G is consistent with 0 (then its 95 % upper bound is the fitted interval's upper end).
+G is consistent with 0 and its 95 % upper bound (the profile likelihood's).
 """
 
 from __future__ import annotations
@@ -95,8 +95,9 @@ def annotate_estimate(estimate: dict, space, cov_internal=None, search=None) -> 
     if zero and "G" in out:
         out["G"]["consistent_with_zero"] = bool(zero["consistent_with_zero"])
         if zero["consistent_with_zero"]:
-            # the data bound a liquid's G from above only: the fitted interval's upper end
-            up = (out["G"].get("hdi95") or [None, None])[1]
+            # the data bound a liquid's G from above only: the search's profile-likelihood bound (a
+            # Gaussian in log G describes a one-sided likelihood badly), else the interval's upper end
+            up = zero.get("upper95_pa") or (out["G"].get("hdi95") or [None, None])[1]
             ok = up is not None and math.isfinite(up)
             out["G"]["upper95"] = float(up) if ok else None
             out["G"]["bounded"] = {"lower": False, "upper": ok}

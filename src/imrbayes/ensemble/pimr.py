@@ -177,7 +177,10 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
         x0 = np.log(np.maximum(best, [0.5 * (Gg[1] - Gg[0]), 0.5 * (mg[1] - mg[0])]))
         res = optimize.minimize(f, x0, method="Nelder-Mead", options={"xatol": 1e-6, "fatol": 1e-10, "maxiter": 2000})
         if np.isfinite(res.fun) and res.fun <= logJ[i, j]:
-            refined = np.exp(res.x)
+            # inside the grid's box: below its lowest positive value the closed form is flat to the
+            # data, and Nelder-Mead in log space would walk off towards 0 (mu 5e-15 Pa s)
+            lo = np.array([Gg[Gg > 0].min() if Gg[0] > 0 else 0.0, mg[mg > 0].min() if mg[0] > 0 else 0.0])
+            refined = np.clip(np.exp(res.x), lo, [Gg[-1], mg[-1]])
     Jmin = float(np.exp(f(np.log(np.maximum(refined, 1e-300)))))
     tc_fit = collapse_time_from_q(refined[0], refined[1], q)
     # pseudo-posterior on the grid: exp(-(n - p)/2 J/Jmin) (noise scale from the residuals)

@@ -65,9 +65,10 @@ class SearchResult:
         Local minima of ``fused`` within :data:`BASIN_DELTA` of the best, best first:
         ``{"G", "mu", "delta_cost"}``.
     zero_modulus : dict
-        ``{"lr", "threshold", "consistent_with_zero", "best_liquid", "best_solid"}``: the
-        likelihood-ratio statistic of G = 0 (refined cost at G = 0 minus the refined best), the
-        test's answer, and the two refined points.
+        ``{"lr", "threshold", "consistent_with_zero", "upper95_pa", "best_liquid", "best_solid"}``:
+        the likelihood-ratio statistic of G = 0 (refined cost at G = 0 minus the refined best), the
+        test's answer, where consistent the G at which the profile cost (over mu) rises by the
+        threshold (the 95 % one-sided upper bound; None beyond the range), and the two refined points.
     n_runs : int
         Forward runs made.
     seconds : float
@@ -180,6 +181,34 @@ def _refine(runner, obs, K, temper, row, iG, imu, G0, mu0, liquid: bool) -> tupl
     return float(r.fun), float(math.exp(r.x[0])), float(math.exp(r.x[1])), int(r.nfev)
 
 
+def _profile_upper_bound(runner, obs, K, temper, row, iG, imu, f_best, mu_start, G_pa, fused) -> float | None:
+    """The G [Pa] where the profile cost (minimised over mu at fixed G) rises :data:`LR_ZERO_THRESHOLD`
+    above the best: the 95 % one-sided upper bound of a liquid's G. None when it lies beyond 1 MPa."""
+    from scipy import optimize
+
+    def profile(log_g):
+        th = row.copy()
+        th[iG] = math.exp(log_g)
+        x0 = math.log(mu_start)
+
+        def at(x):
+            th[imu] = math.exp(x)
+            return _fused_at(runner, obs, th, K, temper)
+        r = optimize.minimize_scalar(at, bounds=(x0 - 1.2, x0 + 1.2), method="bounded",
+                                     options={"xatol": 1e-2, "maxiter": 20})
+        return float(r.fun) - f_best - LR_ZERO_THRESHOLD
+
+    lo = math.log(float(G_pa[1]) / 10.0)
+    # the first coarse G whose row is clearly above the threshold brackets the bound from above
+    rows = np.min(fused, axis=1) - np.min(fused)
+    above = [i for i in range(1, len(G_pa)) if rows[i] > 4.0 * LR_ZERO_THRESHOLD]
+    for i in above:
+        hi = math.log(float(G_pa[i]))
+        if profile(hi) > 0:
+            return float(math.exp(optimize.brentq(profile, lo, hi, xtol=0.05, maxiter=12)))
+    return None
+
+
 def _grid_chi2(runner, obs, theta, K) -> tuple:
     """Every bubble's chi-square with its record's noise at every row of ``theta``: (chi2 (n_exp,
     n_points), inf where a run failed; the residual (n_exp, K - 1) at each bubble's best row)."""
@@ -218,6 +247,7 @@ def global_search(fm, obs, runner, n_samples: int | None = None, G_pa=None, mu_p
         Called at the end with a line of text.
     """
     t_start = time.perf_counter()
+    runs_before = int(getattr(runner, "n_member_runs", 0))
     G_pa = np.asarray(G_GRID_PA if G_pa is None else G_pa, dtype=np.float64)
     mu_pas = np.asarray(MU_GRID_PAS if mu_pas is None else mu_pas, dtype=np.float64)
     names = [p.name for p in fm.constitutive.parameters]
@@ -264,8 +294,11 @@ def global_search(fm, obs, runner, n_samples: int | None = None, G_pa=None, mu_p
                  for n, k in enumerate(theta_best)]
     lr = float(c_zero - f_best)
     consistent = lr <= LR_ZERO_THRESHOLD
+    upper = _profile_upper_bound(runner, obs, K, temper, defaults, iG, imu, f_best, mu_zero, G_pa, fused) \
+        if consistent else None
     zero = {"lr": lr, "threshold": LR_ZERO_THRESHOLD, "consistent_with_zero": bool(consistent),
-            "best_liquid": {"mu": mu_zero, "cost": c_zero}, "best_solid": {"G": G_pos, "mu": mu_pos, "cost": c_pos}}
+            "upper95_pa": upper, "best_liquid": {"mu": mu_zero, "cost": c_zero},
+            "best_solid": {"G": G_pos, "mu": mu_pos, "cost": c_pos}}
     for edge, where in ((best["G"] >= G_pa[-1], "G's largest grid value"), (best["mu"] <= mu_pas[0], "mu's smallest grid value"),
                         (best["mu"] >= mu_pas[-1], "mu's largest grid value")):
         if edge:
@@ -274,4 +307,4 @@ def global_search(fm, obs, runner, n_samples: int | None = None, G_pa=None, mu_p
         progress(f"global search: {len(pairs)} grid points x {obs.n_exp} bubbles; best G {best['G']:.3g} Pa, "
                  f"mu {best['mu']:.3g} Pa s")
     return SearchResult(G_pa, mu_pas, cost, fused, best, best_each, basins, zero,
-                        int((len(pairs) + n_zero + n_pos) * obs.n_exp), time.perf_counter() - t_start, notes)
+                        int(getattr(runner, "n_member_runs", 0)) - runs_before, time.perf_counter() - t_start, notes)
