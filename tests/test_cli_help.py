@@ -1,4 +1,4 @@
-"""``--help`` (issue #22): required options marked, defaults shown, the models and methods listed (not
+"""``--help``: required options marked, defaults shown, the models and methods listed (not
 "see the error"), and the expected runtime of the long commands."""
 
 import re

@@ -61,7 +61,7 @@ def test_window0_ensemble_and_mcmc_agree(window0):
         assert "log_likelihood" in dt["window_00"].children
     for f in ("mcmc_forest.png", "mcmc_divergence.png", "mcmc_pair_window_00.png"):
         assert (out / "figures" / f).stat().st_size > 10_000
-    # stopped on convergence under the cap, and the exact grid posterior agrees with it (issue #20)
+    # stopped on convergence under the cap, and the exact grid posterior agrees with it
     s = e["mcmc"]["sampler"]
     assert s["stop_reason"] == "converged" and not s["cap_hit"] and s["n_steps"] < 2000
     q = e["quadrature"]

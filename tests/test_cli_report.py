@@ -275,7 +275,7 @@ def test_report_bad_run_dir(runs, tmp_path, kind):
     assert not (tmp_path / "run" / "report.html").exists()
 
 
-# ------------------------------------------------------------------ issue #22: what a rheologist sees
+# ------------------------------------------------------------------ what a rheologist sees
 def _first_h2(html):
     return re.search(r"<h2 id='([^']+)'>", html).group(1)
 

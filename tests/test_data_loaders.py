@@ -249,7 +249,7 @@ def test_shared_datasets_load(folder):
 def test_no_measured_maximum_is_taken_as_exact(folder):
     """Every real record's Rmax and time of the maximum reach the fits with a positive uncertainty
     (a nuisance prior sd of 0 means 'known'): three stiff-PA bubbles fall back to the three-point
-    parabola, whose time had none before 2026-11-27 (bubble 18's fit then sat in a wrong basin)."""
+    parabola, whose time once had none (bubble 18's fit then sat in a wrong basin)."""
     from imrbayes.data import preprocess_dataset
     from imrbayes.ensemble import Observations
 

@@ -125,7 +125,7 @@ def test_unsettled_tail_req_brackets_a_bubble_still_rebounding():
 def test_fallback_of_the_local_fit_keeps_an_honest_time_uncertainty():
     """A record that starts 2 µs before its maximum (2 % noise) leaves the local fit too few frames
     on the early side in ~1 draw in 10; the three-point parabola that takes over must not claim to
-    know the time of the maximum (before 2026-11-27 its sd was NaN, i.e. zero in the fits: a frame
+    know the time of the maximum (once its sd was NaN, i.e. zero in the fits: a frame
     off and taken as exact)."""
     fm = ForwardModel("nhkv", options=ForwardOptions.from_dict({"bubble": "polytropic"}))
     rmax, req = 320e-6, 320e-6 / 7.9

@@ -1,4 +1,4 @@
-"""The ``imrbayes diagnose`` report (issue #21 item 7): the verdict first in plain words, then the
+"""The ``imrbayes diagnose`` report: the verdict first in plain words, then the
 evidence; candidates say why they were not chosen; optional keys of the rewritten diagnosis
 (ambiguous cause and its tie, absorption, signature, likelihood, nuisance, ruled-out candidates)
 each get their section; every figure is legible (no 1 x N strips).

@@ -1,4 +1,4 @@
-"""The MIEnKS-MDA signature (imrbayes.diagnosis.signature, issue #21): polytropic bubble, 3
+"""The MIEnKS-MDA signature (imrbayes.diagnosis.signature): polytropic bubble, 3
 experiments, 61 samples, windows L = 20, h = 5 (9 windows), 16 members, 2 iterations."""
 
 import json

@@ -251,7 +251,7 @@ def test_newton_decrement_stop_leaves_nothing_to_gain(monkeypatch):
     prior-sd trust region and the Newton-decrement stop ends where a fit continued from it without
     either (and a 1e-12 relative tolerance) gains < 0.05 in cost (a likelihood ratio of 1.05; the
     crawl gains ~1e-3 per iteration, which is what the decrement stop refuses to chase: 0.016 over
-    16 more iterations on 2026-11-27's fresh install, which failed an earlier bound of 0.01 that
+    16 more iterations on a fresh install, which failed an earlier bound of 0.01 that
     the install before had passed) and moves (G, mu) by < 0.15 of their posterior sd -- the stop
     ends a crawl, not the search."""
     import imrbayes.diagnosis.lsq as lsq

@@ -180,7 +180,7 @@ def test_validate_mcmc_layer_can_fail(tmp_path):
     """The constructed non-Gaussian window (a curved ridge around the first collapse) is flagged
     against even its own moment-matched Gaussian (suite case ``mcmc-non-gaussian``). With the DE and
     stretch moves the window did not converge within its cap (R-hat 1.01-1.014, tail ESS 156-230:
-    undecided, an xfail until 2026-11-27); the adapted independence proposal converges on it."""
+    undecided, once an xfail); the adapted independence proposal converges on it."""
     out = tmp_path / "val"
     res = CliRunner().invoke(main, ["validate", "--suite", "quick", "--case", "mcmc-non-gaussian", "--out", str(out)])
     assert res.exit_code == 0, res.output

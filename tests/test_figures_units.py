@@ -1,4 +1,4 @@
-"""Figures in physical units (issue #22): the MCMC pair plot in kPa and Pa s, G(t)/mu(t) with the prior
+"""Figures in physical units: the MCMC pair plot in kPa and Pa s, G(t)/mu(t) with the prior
 band, a µs axis, a strain-rate axis and the windows the data barely moved, fit panels with the legend
 off the data and sized for a screen, pIMR's curve labelled as fitting the collapse time only.
 

@@ -47,7 +47,7 @@ def _default(case, mass_transfer=True, **kw):
 
 @pytest.mark.parametrize("case, mass_transfer", [("lic", True), ("lic", False), ("soft", True)])
 def test_default_grid_is_within_1_5e3_of_the_grid_limit(case, mass_transfer):
-    """Issue #20: the default discretisation, at its default tolerance, is within 1.5e-3 (relative L2
+    """The default discretisation, at its default tolerance, is within 1.5e-3 (relative L2
     in R*, t* <= 3) of the grid limit. Study (benchmarks/grid_refinement.py, limit nt = 2048;
     default stretch 2.75, nt 96): LIC 2.6e-4 / 1.3e-4 without mass transfer, soft gel 5.6e-4, stiff
     gel 6.0e-4; the previous default (stretch 1.5, nt 64) was 5.3e-3 / 1.6e-3 / 7.2e-3."""

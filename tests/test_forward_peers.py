@@ -63,7 +63,7 @@ def test_zener_agrees_with_pyimr_with_the_consistent_coefficient(lambda2):
 @pytest.mark.slow
 def test_thermal_bubble_agrees_with_pyimr_within_the_grid_bound():
     """Thermal bubble with vapour and mass transfer (LIC case): our default grid against PyIMR's
-    spectral Nt = 65, both near their grid limits: within #20's 1.5e-3 bound (measured 6.8e-4)."""
+    spectral Nt = 65, both near their grid limits: within the converged grid's 1.5e-3 bound (measured 6.8e-4)."""
     pytest.importorskip("pyimr")
     from imrbayes.forward.peers import PyIMRModel
 

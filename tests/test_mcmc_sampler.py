@@ -18,7 +18,7 @@ COV = np.array([[0.04, 0.018], [0.018, 0.09]])
 
 
 def _toy(n_steps=400, **kw):
-    """The settings before issue #20 (fixed length, stretch move, start at the given spread)."""
+    """The earlier settings (fixed length, stretch move, start at the given spread)."""
     return MCMCSettings(**{"n_walkers": 16, "n_steps": n_steps, "n_chains": 4, "stop": "fixed", "moves": "stretch",
                            "init_scale": 1.0,
                            **kw})
@@ -200,7 +200,7 @@ def test_a_failed_ensemble_is_contained_and_reported():
         run_mcmc(_FailingTarget(range(30, 10_000)), MEAN, COV, _toy(80, lockstep=True), seed=1)
 
 
-# ---------------------------------------------------------------- stop on convergence (issue #20)
+# ---------------------------------------------------------------- stop on convergence
 
 def _conv(**kw):
     return MCMCSettings(**{"n_walkers": 8, "n_steps": 3000, **kw})

@@ -1,4 +1,4 @@
-"""The progress bar of long commands (issue #22): it draws on terminals that report no size, and
+"""The progress bar of long commands: it draws on terminals that report no size, and
 ``fit`` counts the whole run (windows x experiments) from the start, with an ETA."""
 
 import os

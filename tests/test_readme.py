@@ -1,17 +1,28 @@
-"""Every README snippet runs: the Python blocks are executed, and every ``imrbayes ...`` line of the
-shell blocks is parsed by the real command-line parser (command and options exist, values are of
-the right type). Running those commands is what the rest of the suite does at small scale."""
+"""README.md as written: its size, its links, the test command CI runs, every ``imrbayes ...`` line
+parsed by the real command-line parser, and the five-minute walk-through run on the shared dataset
+it names, with the files it promises checked and what its prose says of the result checked against
+the run's summary.json.
+
+The walk-through's ``runs/...`` folders are put under pytest's ``tmp_path`` and ``../shared`` is
+resolved from the repository root; without the shared data the run tests skip.
+"""
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
+import subprocess
+import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+SHARED = ROOT / ".." / "shared"
+#: The largest README a user should have to read before the first command [bytes].
+README_MAX_BYTES = 8 * 1024
 
 
 def _blocks(lang: str) -> list[str]:
@@ -21,6 +32,7 @@ def _blocks(lang: str) -> list[str]:
 
 
 def _imrbayes_lines() -> list[str]:
+    """Every ``imrbayes ...`` command line of the README's shell blocks, continuation lines joined."""
     lines = []
     for block in _blocks("") + _blocks("bash"):
         for line in block.replace("\\\n", " ").splitlines():
@@ -30,20 +42,52 @@ def _imrbayes_lines() -> list[str]:
     return lines
 
 
-def test_readme_has_snippets():
-    assert len(_blocks("python")) >= 1
-    assert len(_imrbayes_lines()) >= 10
+def _walkthrough() -> list[list[str]]:
+    """The walk-through's commands as argument lists (without the leading ``imrbayes``)."""
+    return [shlex.split(line)[1:] for line in _imrbayes_lines() if "../shared/" in line or " runs/" in line]
 
 
-@pytest.mark.parametrize("index", range(len(_blocks("python"))))
-def test_python_snippet_runs(index):
-    namespace: dict = {}
-    exec(compile(_blocks("python")[index], f"README.md python block {index}", "exec"), namespace)
-    if "R_star" in namespace:     # the forward-model snippet: R* starts at 1 and collapses
-        R = np.asarray(namespace["R_star"])
-        assert R[0] == pytest.approx(1.0) and np.all(np.isfinite(R)) and R.min() < 0.3
-        out = namespace["out"]
-        assert out.R_star.shape == (48, 35) and not out.failed.any()
+def _localise(argv: list[str], runs: Path) -> list[str]:
+    """``argv`` with ``runs/...`` under ``runs`` and ``../shared/...`` from the repository root."""
+    out = []
+    for arg in argv:
+        if arg.startswith("runs/"):
+            arg = str(runs / arg.removeprefix("runs/"))
+        elif arg.startswith("../shared/"):
+            arg = str(ROOT / arg)
+        out.append(arg)
+    return out
+
+
+def _run(argv: list[str], runs: Path) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "imrbayes.cli", *_localise(argv, runs), "--quiet"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
+    assert proc.returncode == 0, f"{shlex.join(cmd)} failed:\n{proc.stderr[-2000:]}"
+    return proc
+
+
+needs_shared = pytest.mark.skipif(not (SHARED / "data" / "lic").is_dir(),
+                                  reason="shared data (../shared/data/lic) not present")
+
+
+def test_readme_is_short_and_gives_the_ci_test_command():
+    assert len(README.read_bytes()) <= README_MAX_BYTES
+    assert ".venv/bin/python -m pytest\n" in "".join(_blocks("bash"))
+    assert "bash scripts/example.sh\n" in "".join(_blocks("bash"))
+
+
+def test_readme_links_resolve():
+    """Every relative link to a file the repository keeps (docs, figures, the changelog) exists;
+    validation/results/ is written by ``python -m validation`` and is not checked."""
+    targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", README.read_text())
+    local = [t for t in targets if not t.startswith(("http://", "https://", "validation/results/"))]
+    assert local, "README links to nothing"
+    missing = [t for t in local if not (ROOT / t).exists()]
+    assert not missing, f"README links to missing files: {missing}"
+
+
+def test_readme_walkthrough_is_inspect_fit_report_diagnose():
+    assert [argv[0] for argv in _walkthrough()] == ["inspect", "fit", "report", "diagnose"]
 
 
 @pytest.mark.parametrize("line", _imrbayes_lines())
@@ -51,9 +95,46 @@ def test_command_line_parses(line):
     from imrbayes.cli import main
 
     argv = shlex.split(line)[1:]
-    if argv == ["--help"]:
-        return
     cmd = main.get_command(None, argv[0])
     assert cmd is not None, f"README names an unknown command: {line}"
     ctx = cmd.make_context(argv[0], argv[1:], parent=None)   # raises click.UsageError on a bad option
     assert ctx.params
+
+
+@needs_shared
+def test_walkthrough_inspect_fit_report(tmp_path):
+    """The first three commands as written (polytropic, three bubbles: well under a minute with a
+    compiled kernel): the files the README's table names exist, and the result is what its prose
+    says -- a liquid whose G is consistent with 0, and NHKV flagged as not describing the records."""
+    inspect, fit, report, _ = _walkthrough()
+    for argv in (inspect, fit, report):
+        _run(argv, tmp_path)
+    out = tmp_path / "fit"
+    assert (tmp_path / "inspect" / "dataset.json").is_file()
+    assert (tmp_path / "inspect" / "figures" / "radius.png").is_file()
+    for name in ("summary.json", "estimate.csv", "posterior.nc", "report.html"):
+        assert (out / name).is_file(), name
+    assert list((out / "figures").glob("*.png"))
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_experiments"] == 3
+    assert summary["estimate"]["G"]["consistent_with_zero"] is True
+    assert summary["fit_check"]["described"] is False
+    assert summary["prior"]["name"] == "wide"
+
+    import imrbayes
+
+    run = imrbayes.load_run(out)
+    assert run.estimates["mu"]["unit"] == "Pa s" and run.estimates["mu"]["mean"] > 0
+
+
+@pytest.mark.slow
+@needs_shared
+def test_walkthrough_diagnose(tmp_path):
+    """The walk-through's ``diagnose`` as written (several minutes: its candidates include the
+    thermal bubble): diagnosis.json with a verdict, and its report."""
+    diagnose = _walkthrough()[-1]
+    _run(diagnose, tmp_path)
+    out = tmp_path / "diagnose"
+    result = json.loads((out / "diagnosis.json").read_text())
+    assert result["cause"]
+    assert (out / "report.html").is_file()

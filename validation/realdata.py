@@ -41,7 +41,12 @@ def data_options(folder: Path, experiments: str | None) -> list[str]:
     ``--experiments`` where given."""
     from imrbayes.data import load_dataset
 
-    views = {e.camera for e in load_dataset(folder).experiments if getattr(e, "camera", None)}
+    ds = load_dataset(folder)
+    views = {e.camera for e in ds.experiments if getattr(e, "camera", None)}
+    n = len(ds.experiments) // max(1, len(views))
+    if experiments and "-" in experiments and experiments.split("-")[0] == "1":
+        # "1-5": the first five, or all of a smaller data set
+        experiments = f"1-{min(int(experiments.split('-')[1]), n)}"
     return (["--camera", "mean"] if len(views) > 1 else []) + (["--experiments", experiments] if experiments else [])
 
 

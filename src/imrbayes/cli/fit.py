@@ -395,4 +395,4 @@ def constants_line(physics, given: dict) -> str:
         src = "meta.json" if key in given else "default"
         parts.append(f"{label} {getattr(physics, key):g}{' ' + unit if unit else ''} ({src})")
     return ("constants: " + ", ".join(parts) + "; defaults are IMRv2's, meta.json \"physics\" sets them "
-            "(G depends on rho: docs/results.md 2a'')")
+            "(G depends on rho: docs/guide.md)")

@@ -160,7 +160,7 @@ def locate_rmax(t_s, R_m, method: str = "parabola", u_c: float | None = None, ha
     flat_top = v is None or not (t[i - 1] < v[0] < t[i + 1]) or v[1] < R[i]
     t_sd = r_sd = float("nan")
     if method == "local-fit" and noise_sd_m > 0:
-        # a fallback of the local fit keeps an honest uncertainty (before 2026-11-27 it had none, so
+        # a fallback of the local fit keeps an honest uncertainty (once it had none, so
         # the time of the maximum was taken as known: a frame off on a camera record). Where the
         # noise hides the top, the time is capped by its half-width, the radius by two noise sd.
         flat = _flat_top_sd(R[i], noise_sd_m, R[i] / u_c)

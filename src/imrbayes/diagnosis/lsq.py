@@ -60,7 +60,7 @@ CANDIDATE_FIRST_TOL = 1e-4
 #: leader and in another basin of the candidate's extension (its parameters beyond G and mu more
 #: than RUNNER_UP_APART apart, internal units): relaxation 2001's zener on three bubbles led at
 #: cost 105 after the race and ended at 94.9 (lambda1 1.5 us) while the runner-up (119, lambda1
-#: 2.8 us) ends at 87.7 (3.4 us; truth 3.9 us); session 37 traced a runner-up 18 % behind that
+#: 2.8 us) ends at 87.7 (3.4 us; truth 3.9 us); a trace found a runner-up 18 % behind that
 #: ended 3.6 % lower. Any basin (G and mu too) cost stiff PA 1-5 50 s for no change of any fit
 #: (docs/diagnosis.md, Runtime)
 RUNNER_UP_BEHIND = 0.25

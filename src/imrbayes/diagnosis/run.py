@@ -409,7 +409,7 @@ def name_cause(verdict: str, top: dict | None, tied: list, mech: dict, name_se: 
     (score > 0) and that gain is separated from the baseline: >= ``name_se`` paired SE on at least one
     held-out scheme (the tie rule's bar, here against the baseline). Else ``unexplained``, the note
     saying why. Without any paired SE (one experiment) the separation cannot be measured and the rule
-    names on the score alone, as the note says. Bubble-thermal 5001 (thermal matrix, session 49):
+    names on the score alone, as the note says. Bubble-thermal 5001 (thermal matrix):
     inadequate at p = 0.05 and named Gilmore for a forecast gain of 1.7 % at 1.8 SE and 0.1 % at
     0.7 SE on leave-one-out -- a guess; every right row of the thermal matrix clears 2.7 SE."""
     if verdict == "adequate":

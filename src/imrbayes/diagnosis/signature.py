@@ -1,4 +1,4 @@
-"""The MIEnKS-MDA signature of a dataset, and how well a fitted candidate reproduces it (issue #21).
+"""The MIEnKS-MDA signature of a dataset, and how well a fitted candidate reproduces it.
 
 The paper's instrument as a statistic: the sliding-window smoother (MIEnKS-MDA,
 :func:`imrbayes.ensemble.mienks.fit_mienks`) run with the constant-parameter NHKV baseline on the

@@ -82,7 +82,7 @@ def synthetic_obs(mechanism: str, seed: int, options, n_exp: int = 5, noise_scal
 
 
 # ----------------------------------------------------------------------------------------------------
-# Camera-style datasets, processed as real data (issue #21)
+# Camera-style datasets, processed as real data
 # ----------------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -145,7 +145,7 @@ DESIGNS = {
 #: and large Rmax/Req (soft, weakly viscous gels; the paper's second truth is G 2 kPa, mu 0.05 Pa s,
 #: Rmax/Req 9) filmed with little noise. Gilmore against Keller-Miksis, noise-free, thermal, t* <= 3,
 #: seeds 6000-6003: 5.6-8.1 µm RMS (max 39-52 µm) here against 0.4-2.9 µm (max 2-23 µm) on the
-#: default design (`bubble_effect`-style comparison, 2026-11-27).
+#: default design (`bubble_effect`-style comparison).
 STRENGTH_DESIGNS = {
     "1Mfps-1um-5-violent": Design("1Mfps-1um-5-violent", noise="1um", ratio=(9.5, 0.3),
                                   material={"mu": Range(0.02, 0.05, log=True)}),

@@ -22,7 +22,7 @@ DEFAULT_RESOLUTION = {"imrv2-fd": (25, 25), "converged": (96, 64)}
 DEFAULT_STRETCH = 2.75
 # (rtol, atol) per integrator, chosen so that R has <= 1e-4 pointwise relative error against a
 # tight solve on the LIC benchmark batch (benchmarks/forward.py, row d) on the previous default grid
-# (stretch 1.5, nt 64). On the default grid since issue #20 (stretch 2.75, nt 96) Radau's 2e-5 gives
+# (stretch 1.5, nt 64). On the converged default grid (stretch 2.75, nt 96) Radau's 2e-5 gives
 # 1.1e-4 at the worst instant of that batch and 2.5e-6 relative L2 (the grid's error is ~5e-4).
 DEFAULT_TOLERANCES = {"ark548": (3e-6, 3e-8), "ark324": (1e-7, 1e-9), "dopri5": (1e-7, 1e-9),
                       "dop853": (3e-6, 3e-8), "radau5": (2e-5, 2e-7)}

@@ -1,4 +1,4 @@
-"""MCMC reference posteriors for the ensemble methods (issue 5).
+"""MCMC reference posteriors for the ensemble methods.
 
 * :mod:`~imrbayes.mcmc.target` -- the log-posterior of constant parameters over a window
   (Gaussian likelihood with the methods' observation weights, the Gaussian prior of a

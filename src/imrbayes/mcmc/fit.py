@@ -189,7 +189,7 @@ def _plain(obj):
 #: Above this many sampled coordinates a window's chains are slow to mix: a measured 19-coordinate
 #: En4D-Var window (six camera bubbles' nuisances) had tau 149-358 steps with DE and independence
 #: moves and stopped at the 5000- and 12000-step caps unconverged; with the block and ridge moves
-#: (the default there since 2026-11-29) tau was 39-40 steps (docs/mcmc.md, "En4D-Var's check on camera data").
+#: (the default there) tau was 39-40 steps (docs/methods.md, "The MCMC check").
 MANY_COORDINATES = 8
 
 
@@ -210,14 +210,14 @@ def cost_warnings(specs, s: MCMCSettings) -> list:
                        f"placed on the target by a quadratic fit ({3 * PLACE_ROUNDS * (d + 1) * (d + 2) // 2:,} "
                        f"evaluations); if the fit is Gaussian to {LAPLACE_MAX_RESIDUAL:g} nat, {s.n_chains} x "
                        f"{s.n_walkers} independent walkers sample it (measured on the 7-coordinate verification "
-                       f"window: tau ~3 steps, ~3 000 evaluations; docs/mcmc.md), else the block and ridge moves (tau 35-40 steps, about "
+                       f"window: tau ~3 steps, ~3 000 evaluations; docs/methods.md), else the block and ridge moves (tau 35-40 steps, about "
                        f"2 000 steps of {s.n_chains} x {W} walkers); at most {s.n_chains * W * s.n_steps:,} "
                        f"likelihood evaluations (the cap of {s.n_steps} steps)")
             continue
         tau, steps = ("35-40", "about 2 000") if structured else ("150-360", "7 500-18 000")
         head = (f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} nuisances "
                 f"of {tg.n_exp} experiments: Rmax, time of the maximum, Req); with these moves measured runs "
-                f"needed {tau} steps per autocorrelation time, so {steps} steps for 50 of them (docs/mcmc.md), "
+                f"needed {tau} steps per autocorrelation time, so {steps} steps for 50 of them (docs/methods.md), "
                 f"each {s.n_chains} x {W} walkers")
         n_cap = s.n_chains * W * s.n_steps
         tail = (f": at the cap of {s.n_steps} steps expect agree = null, after {n_cap:,} likelihood evaluations"

@@ -25,7 +25,7 @@ trustworthy). Checks start at ``min_steps`` and follow every :data:`CHECK_EVERY_
 jumping ahead (at most doubling the length) to where the tau rule or the ESS would be met.
 ``n_steps`` is the **hard cap**: a run that reaches it unconverged says so (``stop_reason = "cap"``,
 ``cap_hit``), and its comparison is undecided (``agree: null``). ``stop="fixed"`` runs exactly
-``n_steps`` (the behaviour before issue #20). The check schedule depends only on the chain, so it is
+``n_steps`` (the earlier behaviour). The check schedule depends only on the chain, so it is
 replayed from the HDF5 file on resume and a resumed run stops where the uninterrupted one did.
 
 Moves (``moves``): a weighted mixture of emcee moves named ``stretch``, ``de`` (differential
@@ -33,12 +33,12 @@ evolution), ``snooker`` (the DE snooker, corrected: :func:`snooker_move`), ``wal
 (independence Metropolis-Hastings from a Student-t on the start Gaussian: :func:`independence_move`),
 ``blocks`` and ``ridge`` (per-experiment nuisance blocks and the parameters with the nuisances'
 regression: :mod:`imrbayes.mcmc.blocks`), e.g. ``"indep:0.7,de:0.3"``. The default ``"auto"``
-(2026-11-29) is ``"indep:0.7,de:0.3"`` (with ``indep_adapt`` = 50: each ensemble's independence
-proposal re-placed once on its own draws; the default since 2026-11-27, before it
+is ``"indep:0.7,de:0.3"`` (with ``indep_adapt`` = 50: each ensemble's independence
+proposal re-placed once on its own draws; before it
 ``"de:0.8,snooker:0.2"``) and ``"ridge:0.5,blocks:0.5"`` on windows with sampled nuisances. On those, the start Gaussian is first
 placed on the target (``place``, :mod:`imrbayes.mcmc.laplace`), and a window with one nuisance per
 experiment whose placed fit is Gaussian (:data:`LAPLACE_MAX_RESIDUAL`) is sampled by independent
-walkers on it instead (:data:`LAPLACE_INDEP`; 2026-12-02). The
+walkers on it instead (:data:`LAPLACE_INDEP`). The
 choice is measured by evaluations to convergence and ESS per forward solve (docs/mcmc.md).
 
 Sampling is seeded: ensemble c uses ``emcee.State(p0_c, random_state=RandomState(seed_c).get_state())``
@@ -105,7 +105,7 @@ AUTO_MOVES = {"plain": "indep:0.7,de:0.3", "nuisances": "ridge:0.5,blocks:0.5"}
 #: at most :data:`LAPLACE_MAX_RESIDUAL` [nats] and no experiment has more than
 #: :data:`LAPLACE_MAX_BLOCK` nuisances, the window is sampled by independent walkers on the placed
 #: proposal (:data:`LAPLACE_INDEP`), else by :data:`AUTO_MOVES` ``["nuisances"]`` from the placed start.
-#: Measured (docs/mcmc.md, session 66): on the verification window (Rmax alone per experiment, d = 7)
+#: Measured (docs/methods.md, "The MCMC check"): on the verification window (Rmax alone per experiment, d = 7)
 #: residual 0.18-0.48 nats, the independent walkers' draws as the block moves' (sds within 6 %) on
 #: 13-22x fewer evaluations; on a camera window (Rmax, time of the maximum and Req, d = 20) 0.45-0.68
 #: nats, acceptance 0.4, and G's sd 15 % short of the block moves' (the alignment's non-Gaussian

@@ -128,7 +128,7 @@ def prior_dominated(res, space) -> list:
 def case_second_truth(suite, fm, out, seed):
     """En4D-Var and MIEnKS-MDA on a second synthetic case (G 2 kPa, mu 0.05 Pa s, Rmax/Req 9: 2.3
     and 3.3 prior sds below the paper prior's means, log scale), default likelihood. Criteria
-    (issue #19): each method's gel-level estimate within 10 % of the truth with the truth inside
+    : each method's gel-level estimate within 10 % of the truth with the truth inside
     its 95 % interval; MIEnKS-MDA's windows decided by their data (:func:`prior_dominated`) hold
     the truth in >= 90 % of cases and stay within 2 sd of the aggregate. The prior-dominated
     windows are reported, not judged."""
