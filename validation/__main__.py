@@ -18,6 +18,7 @@ CLAIMS = {
     "mcmc": "validation.mcmc",
     "peers": "validation.peers",
     "range": "validation.range",
+    "study_trend": "validation.study_trend",
 }
 
 

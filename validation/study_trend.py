@@ -86,11 +86,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=20, help="Studies to make [-] (the claim: >= 20).")
     ap.add_argument("--quick", action="store_true", help="2 seeds, 2 bubbles per gel, records to t* = 1.5.")
     ap.add_argument("--json", type=Path, default=None,
-                    help="Result file [default: validation/results/study_trend[_quick].json].")
+                    help="Result file [default: validation/results/study_trend/trend[_quick].json].")
     ap.add_argument("--workdir", type=Path, default=None, help="Keep the datasets and studies here.")
     a = ap.parse_args(argv)
     n_seeds = 2 if a.quick else a.seeds
-    path = a.json or Path("validation/results") / f"study_trend{'_quick' if a.quick else ''}.json"
+    path = a.json or Path(__file__).resolve().parent / "results" / "study_trend" / f"trend{'_quick' if a.quick else ''}.json"
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         root = a.workdir or Path(tmp)

@@ -5,7 +5,7 @@ their noise. :func:`fit_check` compares, per bubble, the RMS of the fitted curve
 the record's own noise sd (:func:`imrbayes.ensemble.likelihood.record_noise_sd`: fourth
 differences), and takes the median over bubbles. On camera-style synthetic data made with the
 fitted model the ratio stays below :data:`FIT_CHECK_THRESHOLD` (calibrated by
-``python -m validation fitcheck``; docs/validation.md); above it the model does not describe the
+``python -m validation calibration`` and ``range``: docs/validation.md); above it the model does not describe the
 records and the estimate is the best fit of a wrong model.
 
 :func:`annotate_estimate` adds what the headline needs: whether the data bound each parameter
