@@ -309,3 +309,38 @@ def test_figures_name_a_candidate_by_its_key_and_show_a_different_model_beside_i
     names = _labels(result)
     assert names["damage"] == "damage (nhkv-piecewise)"
     assert names["zener"] == "zener"
+
+
+def test_headline_says_the_misfit_and_the_explanation_apart():
+    """The first sentence: how far the constant model misses the records, and separately whether a
+    mechanism explains it and how much of the held-out error it recovers."""
+    named = _minimal("strain-stiffening", misfit={"residual_to_noise": 4.2}, naming={"best_gain": 0.57, "min_gain": 0.1})
+    first = html.unescape(re.sub(r"<[^>]+>", "", verdict_sentences(named)[0]))
+    assert first == ("The constant model misses these records by 4.2 x their noise; strain stiffening explains it: "
+                     "held-out error down 57 %.")
+    small = _minimal("unexplained", misfit={"residual_to_noise": 1.3}, naming={"best_gain": 0.005, "min_gain": 0.1},
+                     cause_note="the best extension (qkv, strain-stiffening) recovers 0.5 % of the held-out error -- "
+                                "too little to name a cause")
+    small["candidates"][0]["score"] = 0.005
+    s = [html.unescape(re.sub(r"<[^>]+>", "", x)) for x in verdict_sentences(small)]
+    assert s[0] == "The constant model misses these records by 1.3 x their noise; no mechanism explains it."
+    assert any("recovers 0.5 % of the held-out error -- too little to name a cause" in x for x in s)
+    assert why_not(small["candidates"][0], small) == ("best-ranked, but it recovers only 0.5 % of the held-out "
+                                                      "error (a cause needs 10 %)")
+    old = _minimal("viscoelastic-relaxation")           # a result without misfit: the explanation alone
+    assert html.unescape(verdict_sentences(old)[0]) == "Viscoelastic relaxation explains it: held-out error down 31 %."
+
+
+def test_diagnosis_has_the_misfit_block(real):
+    """diagnose's result keeps its keys and adds ``misfit``: the median residual / noise of the
+    baseline's whole-record fit, recomputed here from the curves and the records' noise."""
+    r = real.result
+    for key in ("baseline", "constant_parameter_check", "candidates", "cause", "cause_note", "extended_model", "gain"):
+        assert key in r
+    obs = real.obs
+    res = obs.R_star[:, 1:] - real.curves["nhkv"][:, 1:]
+    sd = np.asarray(r["likelihood"]["noise_sd"])
+    want = np.median(np.sqrt(np.mean(res ** 2, axis=1)) / sd)
+    assert r["misfit"]["residual_to_noise"] == pytest.approx(want, rel=1e-9)
+    assert r["misfit"]["sentence"].startswith("the constant model misses these records by")
+    assert r["naming"]["min_gain"] == 0.10

@@ -200,50 +200,112 @@ def test_too_few_replicates_to_reject_are_named():
     assert r["constant_parameter_check"]["verdict"] == "adequate"
 
 
-def _top(z_forecast, z_loeo=None, score=0.05, consistent=True):
-    """A top-ranked candidate as ``diagnose`` ranks it: per-scheme paired differences against the
-    baseline (mean_diff > 0: the candidate predicts better), se fixed, z set by mean_diff."""
-    held = {"forecast": {"paired_vs_baseline": {"mean_diff": z_forecast * 1e-4, "se": 1e-4}}}
-    if z_loeo is not None:
-        held["loeo"] = {"paired_vs_baseline": {"mean_diff": z_loeo * 1e-4, "se": 1e-4}}
-    return {"key": "bubble-gilmore", "model": "bubble-gilmore", "mechanism": "bubble-compressibility",
-            "score": score, "consistent": consistent, "heldout": held}
+#: a zero-mean, unit-sd pattern over 8 experiments: a scheme's per-experiment relative gains are m + s P
+P = np.array([-1.5, -1.0, -0.5, 0.0, 0.0, 0.5, 1.0, 1.5])
+P = P / P.std(ddof=1)
+BASE_RMSE = 0.01
 
 
-MECH = {"bubble-gilmore": "bubble-compressibility", "qkv": "strain-stiffening"}
+def gains(mean, z, sign=1.0):
+    """Per-experiment relative gains over 8 experiments with this mean and this paired z."""
+    return mean + sign * mean * np.sqrt(P.size) / z * P
 
 
-@pytest.mark.parametrize("top, tied, cause", [
-    # bubble-thermal 5001 of the thermal matrix: inadequate, Gilmore ahead by 1.8 and 0.7 SE -- a guess
-    (_top(1.79, 0.68), [], "unexplained"),
-    (_top(1.79, 2.4), [], "bubble-compressibility"),         # leave-one-out separates it
-    (_top(2.1), [], "bubble-compressibility"),               # the forecast alone (no LOEO run)
-    (_top(2.1, -0.5), ["bubble-gilmore", "qkv"], "ambiguous"),
-    (_top(1.0, 1.5), ["bubble-gilmore", "qkv"], "unexplained"),  # a tie of guesses is no cause either
-    (_top(5.0, 5.0, consistent=False), [], "unexplained"),
-    (_top(5.0, 5.0, score=-0.01), [], "unexplained"),
+def _top(per_scheme, consistent=True, key="qkv", mechanism="strain-stiffening"):
+    """A top-ranked candidate as ``diagnose`` ranks it, from its per-experiment relative gains per
+    scheme (baseline RMSE BASE_RMSE in every experiment): the real paired, score and combined rows."""
+    from imrbayes.diagnosis.heldout import paired
+
+    base = {k: {"per_experiment": [BASE_RMSE] * len(g), "rmse": BASE_RMSE} for k, g in per_scheme.items()}
+    cand = {}
+    for k, g in per_scheme.items():
+        per = BASE_RMSE * (1 - np.asarray(g, dtype=float))
+        cand[k] = {"per_experiment": per.tolist(), "rmse": float(np.sqrt(np.mean(per ** 2)))}
+    score = float(np.mean([1 - cand[k]["rmse"] / base[k]["rmse"] for k in cand]))
+    held = {k: {**cand[k], "paired_vs_baseline": paired(base[k]["per_experiment"], cand[k]["per_experiment"])}
+            for k in cand}
+    return {"key": key, "model": key, "mechanism": mechanism, "score": score, "consistent": consistent,
+            "heldout": held, "combined_vs_baseline": run_mod.combined_paired(base, cand, list(per_scheme))}
+
+
+MECH = {"qkv": "strain-stiffening", "damage": "damage-softening", "carreau": "rate-dependent-viscosity"}
+
+
+def test_combined_gain_is_the_mean_over_schemes_per_experiment():
+    """The combined z is the paired z of the per-experiment mean of the schemes' relative gains,
+    so two schemes that err together (same records) do not add up as independent evidence."""
+    gf, gl = gains(0.15, 0.8), gains(0.15, 2.4)
+    top = _top({"forecast": gf, "loeo": gl})
+    d = (gf + gl) / 2
+    assert top["combined_vs_baseline"]["z"] == pytest.approx(d.mean() / (d.std(ddof=1) / np.sqrt(d.size)))
+    assert top["combined_vs_baseline"]["mean_diff"] == pytest.approx(0.15)
+    assert run_mod.separation_se(top) == pytest.approx({"forecast": 0.8, "loeo": 2.4})
+    # the same gains, the leave-one-out errors opposite to the forecast's: they cancel, the evidence adds
+    anti = _top({"forecast": gf, "loeo": gains(0.15, 2.4, sign=-1)})
+    assert anti["combined_vs_baseline"]["z"] > 2.4 > top["combined_vs_baseline"]["z"]
+    assert _top({"forecast": gf})["combined_vs_baseline"]["z"] == pytest.approx(0.8)
+
+
+@pytest.mark.parametrize("top, tied, cause, words", [
+    # the PyIMR null: 0.5 % at 0.3 SE on the forecast and 2.4 SE on leave-one-out
+    (_top({"forecast": gains(0.005, 0.3), "loeo": gains(0.005, 2.4)}), [], "unexplained",
+     "of the held-out error -- too little to name a cause"),
+    # the IMRv2 null: 5 %, clear on both schemes -- real, but too small to be a mechanism's
+    (_top({"forecast": gains(0.05, 3.0), "loeo": gains(0.05, 3.0)}, key="carreau", mechanism="rate-dependent-viscosity"),
+     ["carreau", "damage"], "unexplained", "(carreau, rate-dependent-viscosity) recovers"),
+    (_top({"forecast": gains(0.57, 6.0), "loeo": gains(0.57, 8.0)}), [], "strain-stiffening", "held-out gain"),
+    (_top({"forecast": gains(0.11, 3.0), "loeo": gains(0.11, 4.0)}, key="damage", mechanism="damage-softening"), [],
+     "damage-softening", "held-out gain"),
+    (_top({"forecast": gains(0.15, 2.1)}), [], "strain-stiffening", "2.1 paired SE"),   # the forecast alone
+    # 13 %, named by the old any-scheme rule on leave-one-out alone: together 2 / (1/1.2 + 1/2.4) = 1.6 SE
+    (_top({"forecast": gains(0.2, 1.2), "loeo": gains(0.2, 2.4)}), [], "unexplained",
+     "within 2 paired SE of the baseline over the schemes taken together"),
+    # thermal relaxation: a weak forecast (few samples) does not hide a clear leave-one-out
+    (_top({"forecast": gains(0.15, 1.6), "loeo": gains(0.15, 4.2)}), [], "strain-stiffening", "forecast 1.6"),
+    (_top({"forecast": gains(0.3, 5.0)}), ["qkv", "damage"], "ambiguous", ""),
+    (_top({"forecast": gains(0.3, 5.0)}, consistent=False), [], "unexplained", "no consistent candidate"),
+    (_top({"forecast": gains(-0.01, 5.0)}), [], "unexplained", "no consistent candidate"),
 ])
-def test_a_cause_is_named_only_when_its_gain_is_separated_from_the_baseline(top, tied, cause):
-    got, ext, got_tied, note = run_mod.name_cause("inadequate", top, tied, MECH, name_se=2.0)
-    assert got == cause
+def test_a_cause_is_named_only_when_its_gain_is_large_and_clear_over_the_schemes(top, tied, cause, words):
+    got, ext, got_tied, note = run_mod.name_cause("inadequate", top, tied, MECH, name_se=2.0, min_gain=0.10)
+    assert got == cause, note
     assert (ext is None) == (cause == "unexplained")
-    if cause == "ambiguous":
-        assert got_tied == tied
-    if cause == "unexplained":
-        assert got_tied == []
-    if cause == "unexplained" and top["consistent"] and top["score"] > 0:
-        assert "within 2 paired SE on every scheme" in note and "forecast 1." in note
+    assert got_tied == (tied if cause == "ambiguous" else [] if cause == "unexplained" else tied)
+    assert words in note
+    if top["consistent"] and top["score"] > 0 and cause != "ambiguous":
+        assert f"{100 * top['score']:.2g} %" in note          # the gain the floor was compared with
     assert run_mod.name_cause("adequate", top, tied, MECH)[0] == "none"
+
+
+def test_the_floor_is_a_module_constant_the_rule_uses_by_default():
+    top = _top({"forecast": gains(0.08, 5.0), "loeo": gains(0.08, 5.0)})
+    assert run_mod.MIN_GAIN == 0.10
+    assert run_mod.name_cause("inadequate", top, [], MECH)[0] == "unexplained"
+    assert run_mod.name_cause("inadequate", top, [], MECH, min_gain=0.05)[0] == "strain-stiffening"
 
 
 def test_one_experiment_names_on_the_score_and_says_so():
     """No paired SE exists for one experiment: the separation cannot be measured, the rule names on
-    the score (as before) and the note says that it did."""
-    top = _top(0.0)
-    top["heldout"]["forecast"]["paired_vs_baseline"] = {"mean_diff": float("nan"), "se": float("nan")}
+    the score (above the floor) and the note says that it did."""
+    top = _top({"forecast": [0.3]})
+    assert np.isnan(top["combined_vs_baseline"]["z"]) and run_mod.separation_se(top) == {}
     cause, ext, _, note = run_mod.name_cause("inadequate", top, [], MECH)
-    assert cause == "bubble-compressibility" and ext == "bubble-gilmore" and "not measured" in note
-    assert run_mod.separation_se(top) == {}
+    assert cause == "strain-stiffening" and ext == "qkv" and "not measured" in note
+    assert run_mod.name_cause("inadequate", _top({"forecast": [0.02]}), [], MECH)[0] == "unexplained"
+
+
+def test_misfit_summary_is_the_median_residual_over_noise():
+    """Residual RMS / noise sd per record (samples 1..n), the median over records, and the sentence."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(1)
+    fitted = np.zeros((3, 2001))
+    sd = np.array([0.01, 0.02, 0.005])
+    scale = np.array([1.0, 3.0, 10.0])        # how far each record is missed, in its noise
+    R = fitted + (scale * sd)[:, None] * rng.standard_normal(fitted.shape)
+    m = run_mod.misfit_summary(SimpleNamespace(R_star=R), fitted, sd)
+    assert m["residual_to_noise"] == pytest.approx(3.0, rel=0.05)
+    assert m["sentence"] == "the constant model misses these records by 3 x their noise"
 
 
 def test_the_en4dvar_baseline_places_req_at_the_least_squares_fit(monkeypatch):

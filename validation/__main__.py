@@ -19,6 +19,7 @@ CLAIMS = {
     "peers": "validation.peers",
     "range": "validation.range",
     "study_trend": "validation.study_trend",
+    "diagnosis_nulls": "validation.diagnosis_nulls",
 }
 
 

@@ -41,8 +41,9 @@ from imrbayes.errors import InputError
                    + f" [default: {','.join(DEFAULT_CANDIDATES)}].")
 @click.option("--no-loeo", is_flag=True, default=False,
               help="Skip leave-one-experiment-out (N_exp extra fits per model; by default run for the baseline and "
-                   "the candidates the forecast leaves in contention). A cause is named only at >= 2 paired SE "
-                   "over the baseline on some held-out scheme, so without it the forecast alone must show that.")
+                   "the candidates the forecast leaves in contention). A cause is named only for a held-out gain "
+                   ">= 10 % at >= 2 paired SE over the baseline on the schemes taken together, so without it the "
+                   "forecast alone must show that.")
 @click.option("--loeo-all", is_flag=True, default=False,
               help="Leave-one-experiment-out for every candidate, not only those the forecast leaves in contention.")
 @click.option("--mienks-drift", is_flag=True, default=False,

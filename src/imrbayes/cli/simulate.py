@@ -26,7 +26,10 @@ from imrbayes.errors import InputError
 @click.option("--n-exp", type=int, default=5, show_default=True, help="Number of experiments [-].")
 @click.option("--noise", default="paper", show_default=True,
               help="paper (sd |R*-1|/20 + (1-exp(-t*/10))/30 in R*), none, a number (sd in R* [-]), a number "
-                   "with um (sd in µm, e.g. 3um), or a sum of these joined by + (e.g. 2um+0.01: variances add).")
+                   "with um (sd in µm, e.g. 3um), a number with R (sd that fraction of R*, e.g. 0.02R: grows with "
+                   "the radius), a number with C (e.g. 0.01C: sd 0.01 (1 + 4 exp(-((R* - R*_c)/0.05)^2)), R*_c the "
+                   "nearest collapse's radius: 5x larger at collapses), or a sum of these joined by + (e.g. "
+                   "2um+0.01: variances add).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
 @click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
               help="Forward-model option (radial=km, bubble=polytropic, vapor=false, ...); repeatable.")

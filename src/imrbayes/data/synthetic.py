@@ -6,6 +6,13 @@ noise of experiment 1, 2, ... Draws from ``MEAN:SD`` are normal, redrawn while n
 (Rmax <= 0 or Rmax/Req <= 1). Noise is added to R* independently per sample; a noisy radius <= 0 is
 redrawn (a truncated Gaussian, counted in ``truth.json``).
 
+Noise shapes (:func:`parse_noise`, evaluated on the noise-free record by :func:`noise_sd`): constant
+in R* (``0.01``) or in µm (``2um``), the paper's verification noise (``paper``), proportional to the
+radius (``0.02R``: sd = 0.02 R*, as an edge located to a fixed fraction of the bubble's size) and
+larger near collapses (``0.01C``: sd = 0.01 (1 + 4 exp(-((R* - R*_c)/0.05)^2)), R*_c the radius at
+the nearest collapse in time, a collapse being a local minimum of the noise-free R* of prominence
+>= 0.05; a blurred, small bubble is located worst). Terms joined by ``+`` add their variances.
+
 Camera-style records (interfaces.md §4) draw from two further streams of the same seed, so that a
 dataset made without them is unchanged: the sub-frame phase of each experiment's first frame
 (``SeedSequence(seed, spawn_key=(1,))``, uniform in one frame) and the per-bubble material scatter
@@ -28,11 +35,15 @@ from imrbayes.data.noise import paper_sigma
 from imrbayes.errors import InputError
 from imrbayes.io import write_json
 
-__all__ = ["Spec", "parse_spec", "parse_noise", "noise_sd", "draw_values", "noisy", "simulate_dataset", "write_dataset",
-           "camera_times", "draw_phases", "draw_scatter", "PHASE_STREAM", "SCATTER_STREAM"]
+__all__ = ["Spec", "parse_spec", "parse_noise", "noise_sd", "collapse_weight", "draw_values", "noisy",
+           "simulate_dataset", "write_dataset", "camera_times", "draw_phases", "draw_scatter", "PHASE_STREAM",
+           "SCATTER_STREAM", "COLLAPSE_PEAK", "COLLAPSE_WIDTH", "COLLAPSE_PROMINENCE"]
 
 #: spawn keys of the camera-phase and material-scatter streams (module docstring)
 PHASE_STREAM, SCATTER_STREAM = (1,), (2,)
+#: the collapse-weighted noise (``0.01C``): sd = s (1 + COLLAPSE_PEAK w), w = exp(-((R* - R*_c)/COLLAPSE_WIDTH)^2),
+#: R*_c the nearest collapse's radius, a collapse a local minimum of prominence >= COLLAPSE_PROMINENCE [R*]
+COLLAPSE_PEAK, COLLAPSE_WIDTH, COLLAPSE_PROMINENCE = 4.0, 0.05, 0.05
 
 
 @dataclass(frozen=True)
@@ -61,28 +72,40 @@ def parse_spec(text: str, option: str) -> Spec:
     return Spec(mean, sd)
 
 
+_NOISE_SYNTAX = ("paper, none, a number (sd in R*), a number with um (sd in µm), a number with R (sd = that "
+                 "fraction of R*), a number with C (larger near collapses) or a sum of these joined by '+'")
+
+
 def _noise_term(term: str, text: str) -> dict:
     t = term.strip().lower()
     if t == "paper":
         return {"kind": "paper", "sigma": "|R*-1|/20 + (1-exp(-t*/10))/30 (the paper's verification noise)"}
     if t == "none":
         return {"kind": "none"}
-    unit = "um" if t.endswith("um") else ""
+    suffix = next((u for u in ("um", "r", "c") if t.endswith(u)), "")
     try:
-        sd = float(t[:-2] if unit else t)
+        sd = float(t[:len(t) - len(suffix)])
     except ValueError:
-        raise InputError("--noise", f"expected paper, none, a number (sd in R*), a number with um (sd in µm) "
-                                    f"or a sum of these joined by '+', got {text!r}")
+        raise InputError("--noise", f"expected {_NOISE_SYNTAX}, got {text!r}")
     if not math.isfinite(sd) or sd < 0:
         raise InputError("--noise", f"sd must be a finite number >= 0, got {text!r}")
     if sd == 0:
         return {"kind": "none"}
-    return {"kind": "gaussian_um", "sd_um": sd} if unit else {"kind": "gaussian", "sd": sd}
+    if suffix == "r":
+        return {"kind": "proportional", "fraction": sd, "sigma": f"{sd:g} R*"}
+    if suffix == "c":
+        return {"kind": "collapse", "sd": sd, "peak": COLLAPSE_PEAK, "width_r_star": COLLAPSE_WIDTH,
+                "prominence_r_star": COLLAPSE_PROMINENCE,
+                "sigma": f"{sd:g} (1 + {COLLAPSE_PEAK:g} exp(-((R* - R*_c)/{COLLAPSE_WIDTH:g})^2)), R*_c the radius "
+                         f"at the nearest collapse (local minimum of prominence >= {COLLAPSE_PROMINENCE:g})"}
+    return {"kind": "gaussian_um", "sd_um": sd} if suffix == "um" else {"kind": "gaussian", "sd": sd}
 
 
 def parse_noise(text: str) -> dict:
-    """``paper`` | ``none`` | a number (sd in R*) | a number with ``um`` (sd in µm) | a sum of these
-    joined by ``+`` (independent terms: their variances add) -> a description dict."""
+    """``paper`` | ``none`` | a number (sd in R*) | a number with ``um`` (sd in µm) | a number with
+    ``R`` (sd = that fraction of R*) | a number with ``C`` (sd larger near collapses, module
+    docstring) | a sum of these joined by ``+`` (independent terms: their variances add) -> a
+    description dict."""
     terms = [_noise_term(term, text) for term in str(text).split("+")]
     terms = [t for t in terms if t["kind"] != "none"]
     if not terms:
@@ -90,9 +113,41 @@ def parse_noise(text: str) -> dict:
     return terms[0] if len(terms) == 1 else {"kind": "sum", "terms": terms}
 
 
+def collapse_weight(t_star, R_star, peak: float = COLLAPSE_PEAK, width: float = COLLAPSE_WIDTH,
+                    prominence: float = COLLAPSE_PROMINENCE) -> np.ndarray:
+    """The factor 1 + peak exp(-((R* - R*_c)/width)^2) of the collapse-weighted noise, per sample.
+
+    Parameters
+    ----------
+    t_star : array (n,)
+        Times of the samples [-] (t* from the maximum), in any order.
+    R_star : array (n,)
+        Noise-free R* = R/Rmax [-] at those times.
+    peak, width, prominence : float
+        Excess sd at a collapse [-], the R* width of the excess [-], and the prominence [R*] a local
+        minimum needs to count as a collapse.
+
+    Returns
+    -------
+    array (n,)
+        The factor [-]; 1 everywhere when the record has no collapse.
+    """
+    from scipy.signal import find_peaks
+
+    t = np.asarray(t_star, dtype=float)
+    R = np.asarray(R_star, dtype=float)
+    order = np.argsort(t, kind="stable")
+    mins, _ = find_peaks(-R[order], prominence=prominence)
+    if mins.size == 0:
+        return np.ones(R.shape)
+    tc, rc = t[order][mins], R[order][mins]
+    nearest = np.abs(t[..., None] - tc).argmin(axis=-1)
+    return 1.0 + peak * np.exp(-(((R - rc[nearest]) / width) ** 2))
+
+
 def noise_sd(t_star, R_star, noise: dict, rmax_m: float) -> np.ndarray:
-    """The noise sd [R*] of every sample of a record (R* = R/Rmax, t* from the maximum: negative
-    before it; the paper's model is evaluated at |t*|)."""
+    """The noise sd [R*] of every sample of a record (R* = R/Rmax, noise-free; t* from the maximum:
+    negative before it; the paper's model is evaluated at |t*|)."""
     R = np.asarray(R_star, dtype=float)
     terms = noise["terms"] if noise["kind"] == "sum" else [noise]
     sds = []
@@ -103,6 +158,11 @@ def noise_sd(t_star, R_star, noise: dict, rmax_m: float) -> np.ndarray:
             sds.append(np.full(R.shape, float(term["sd"])))
         elif term["kind"] == "gaussian_um":
             sds.append(np.full(R.shape, float(term["sd_um"]) * 1e-6 / float(rmax_m)))
+        elif term["kind"] == "proportional":
+            sds.append(float(term["fraction"]) * np.abs(R))
+        elif term["kind"] == "collapse":
+            sds.append(float(term["sd"]) * collapse_weight(t_star, R, term["peak"], term["width_r_star"],
+                                                           term["prominence_r_star"]))
     if not sds:
         return np.zeros(R.shape)
     return sds[0] if len(sds) == 1 else np.sqrt(np.sum(np.square(sds), axis=0))

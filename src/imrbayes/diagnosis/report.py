@@ -17,7 +17,7 @@ from pathlib import Path
 from imrbayes.diagnosis.sensitivity import flagged, options_text
 from imrbayes.html import embed_png, esc, num, pm, table, write_page
 
-__all__ = ["write_report", "verdict_sentences", "why_not"]
+__all__ = ["write_report", "verdict_sentences", "headline", "why_not"]
 
 #: cause -> what it means, in words (the sentence "The most likely cause is ...")
 CAUSE_WORDS = {
@@ -122,8 +122,46 @@ def _names(r) -> dict:
     return {c.get("key", c.get("model")): c.get("model", c.get("key")) for c in r.get("candidates", [])}
 
 
+#: bubble mechanisms as the subject of "... explains it" (material ones: their key in words)
+_MECHANISM_SUBJECT = {"bubble-thermal": "heat exchange of the bubble's gas",
+                      "bubble-compressibility": "compressibility of the surrounding liquid"}
+
+
+def _mechanism_text(mechanism: str) -> str:
+    """``strain-stiffening`` -> ``strain stiffening`` (a mechanism key as words)."""
+    return _MECHANISM_SUBJECT.get(mechanism, str(mechanism).replace("-", " "))
+
+
+def headline(r: dict) -> str:
+    """The verdict's first sentence: how far the constant model misses the records (``misfit``)
+    and, apart from that, whether a mechanism explains it and by how much of the held-out error
+    (HTML-escaped). A result without ``misfit`` (older ones) gets the second statement alone."""
+    ratio = (r.get("misfit") or {}).get("residual_to_noise")
+    first = (f"The constant model misses these records by {_f(ratio, '.2g')} x their noise"
+             if _finite(ratio) else "")
+    cause = r.get("cause")
+    top = next((c for c in r.get("candidates") or [] if c.get("rank") == 1), None)
+    gain = (r.get("naming") or {}).get("best_gain", top.get("score") if top else None)
+    if cause in (None, "none"):
+        second = "no extension is needed" if r.get("constant_parameter_check", {}).get("verdict") == "adequate" \
+            else "no mechanism is named"
+    elif cause == "unexplained":
+        second = "no mechanism explains it"
+    elif cause == "ambiguous":
+        second = ("it is explained, but the data cannot tell by which of "
+                  + esc(", ".join(r.get("candidates_tied") or [])))
+    else:
+        second = f"{esc(_mechanism_text(cause))} explains it"
+    if cause not in (None, "none", "unexplained") and _finite(gain) and float(gain) > 0:
+        second += f": held-out error down {_pct(gain)}"
+    if not first:
+        return second[:1].upper() + second[1:] + "."
+    return f"{first}; {second}."
+
+
 def verdict_sentences(r: dict) -> list:
-    """The verdict of diagnosis.json's object ``r`` in 2-6 plain sentences (HTML-escaped)."""
+    """The verdict of diagnosis.json's object ``r`` in 2-7 plain sentences (HTML-escaped), the
+    :func:`headline` first."""
     chk = r["constant_parameter_check"]
     ev = chk.get("evidence", {})
     base = r["baseline"]
@@ -192,7 +230,7 @@ def verdict_sentences(r: dict) -> list:
     bubble = _bubble_sentence(r)
     out = out[:4] + [bubble] if bubble else out[:5]
     extra = [x for x in (_req_sentence(r), _alignment_sentence(r)) if x]
-    return out + extra
+    return [headline(r)] + out + extra
 
 
 def _baseline_part(r, key: str) -> dict:
@@ -335,11 +373,17 @@ def why_not(c: dict, r: dict) -> str:
         return "chosen"
     if r.get("constant_parameter_check", {}).get("verdict") == "adequate":
         return "not needed: the baseline is adequate"
-    if r.get("cause") == "unexplained":     # the naming rule (run.name_cause): not separated from the baseline
-        bar = (r.get("settings") or {}).get("tie_se", 2.0)
-        return (f"best-ranked, but its held-out gain is within {bar:g} paired SE of the baseline on every scheme"
-                if c.get("rank") == 1 else
-                "lower held-out score than the best-ranked, which is itself not separated from the baseline")
+    if r.get("cause") == "unexplained":     # the naming rule (run.name_cause): too small, or not separated
+        naming = r.get("naming") or {}
+        bar = naming.get("bar_se", (r.get("settings") or {}).get("tie_se", 2.0))
+        floor = naming.get("min_gain")
+        if c.get("rank") != 1:
+            return "lower held-out score than the best-ranked, which is itself too small or not separated from the baseline"
+        if _finite(floor) and float(sc) < float(floor):
+            return (f"best-ranked, but it recovers only {_pct(sc)} of the held-out error (a cause needs "
+                    f"{_pct(floor)})")
+        return (f"best-ranked, but its held-out gain is within {bar:g} paired SE of the baseline over the schemes "
+                "taken together")
     return "lower held-out score than the chosen candidate"
 
 
