@@ -34,7 +34,7 @@ def test_imr_says_when_the_grid_bounds_the_answer():
     """A grid that stops below the truth (G_max 5 kPa, truth 7.29) puts the optimum on its upper
     edge: the estimate is a bound and the fit says so; a grid holding the truth says nothing."""
     fm, obs = observations(n_exp=2)
-    s = IMRSettings(G_min=1e3, G_max=5e3, n_G=9, mu_min=0.0612, mu_max=0.1212, n_mu=7)
+    s = IMRSettings(G_min=1e3, G_max=5e3, n_G=9, mu_min=0.0612, mu_max=0.1212, n_mu=7, spacing="linear")
     res = fit_imr(fm, obs, space(fm), s)
     assert res.details["grid_optimum"]["G"] == 5e3
     assert any("G at the grid's upper end" in w and "G_max" in w for w in res.warnings)

@@ -121,7 +121,9 @@ def test_fit_pimr_on_one_bubble_reports_the_ridge_not_nan():
     tc = collapse_time(fm, 7.29e3, 0.088, rmax, req)
     t = np.arange(121) * 0.025
     obs = Observations(t, np.ones((1, t.size)), np.full(t.size, 1e-4), rmax, req, tc)
-    res = fit_pimr(fm, obs, space(fm), PIMRSettings(n_G=60, n_mu=40))
+    # the paper's linear grid: the ridge is linear in mu between its nodes
+    res = fit_pimr(fm, obs, space(fm), PIMRSettings(n_G=60, n_mu=40, G_max=25e3, mu_min=0.0, mu_max=0.5,
+                                                    spacing="linear"))
     ridge = res.details["ridge"]
     assert len(ridge["G"]) >= 10
     pred = collapse_time(fm, np.array(ridge["G"]), np.array(ridge["mu"]), rmax[0], req[0])

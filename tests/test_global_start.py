@@ -107,7 +107,7 @@ def test_annotate_says_consistent_with_zero_and_bounds():
     assert out["mu"]["bounded"] == {"lower": True, "upper": True}
     from imrbayes.cli.options import estimate_text
 
-    assert estimate_text(out, {"estimate": out}).startswith("G consistent with 0 (95 % upper bound 120 Pa)")
+    assert estimate_text(out, {"estimate": out}).startswith("G consistent with 0 (95 % upper bound 0.12 kPa)")
 
 
 def test_log_grid_keeps_zero_and_spans_the_range():

@@ -333,6 +333,7 @@ def _adequacy(res, obs, space, model, search) -> dict:
     out = {"fit_check": fit_check(res, obs, model),
            "estimate": annotate_estimate(res.estimate, space, res.cov_internal, search),
            "search": search.describe() if search is not None else None,
+           "search_s": round(search.seconds, 2) if search is not None else None,
            "data_share": space.data_share(res.cov_internal) if res.cov_internal is not None else None}
     return out
 
@@ -348,6 +349,8 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     from imrbayes.ensemble import figures as figs
     from imrbayes.ensemble.output import posterior_tree, summary_dict, write_summary
     exec_summary["skipped_experiments"] = list(pre.skipped)
+    if adequacy is not None and adequacy.get("search_s") is not None:
+        exec_summary["global_search_s"] = adequacy["search_s"]
     mcmc_part = {}
     if compare is not None:
         mcmc_part = {"mcmc": {"files": ["mcmc.nc", "compare.json"], "overall": compare["overall"]}}

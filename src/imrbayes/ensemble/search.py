@@ -102,10 +102,11 @@ class SearchResult:
         return mean, np.diag(sd ** 2)
 
     def describe(self) -> dict:
-        """JSON-ready summary (``summary.json["search"]``)."""
+        """JSON-ready summary (``summary.json["search"]``; its wall time goes to the run's execution
+        block, so that the same data give the same summary)."""
         return {"grid": {"G_pa": self.G_pa.tolist(), "mu_pas": self.mu_pas.tolist()},
                 "best": self.best, "best_per_experiment": self.best_per_experiment, "basins": self.basins,
-                "zero_modulus": self.zero_modulus, "n_runs": int(self.n_runs), "seconds": round(self.seconds, 2),
+                "zero_modulus": self.zero_modulus, "n_runs": int(self.n_runs),
                 "notes": list(self.notes),
                 "rule": "tempered chi-square of each record on a log grid of full forward runs at the "
                         "preprocessing's geometry, summed over bubbles"}

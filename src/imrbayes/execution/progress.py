@@ -61,7 +61,7 @@ def plan(bar, total: int, desc: str | None = None) -> None:
     its clock so that the ETA counts from here."""
     if bar is None:
         return
-    bar.reset(total=max(int(total), 0) or None)
+    bar.reset(total=max(int(total or 0), 0) or None)     # None: not known ahead (a method without units)
     if total:
         bar.bar_format = BAR_FORMAT
     if desc is not None:
