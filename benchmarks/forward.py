@@ -269,18 +269,18 @@ def main(argv=None):
         for r in rows:
             err = max(r["max_rel_err_R_full"], r["max_rel_err_R_window"])
             aerr = max(r["max_abs_err_Rstar_full"], r["max_abs_err_Rstar_window"])
-            print(f"{r['label']:36s} {r['full_ms_per_yardstick']:10.3f} {r['window_ms_per_yardstick']:10.3f} "
+            print(f"{r['label']:36s} {r['full_ms_per_yardstick']:10.3g} {r['window_ms_per_yardstick']:10.3g} "
                   f"{r['steps_per_member_full']:9.0f} {err:11.1e} {aerr:8.1e} {r['failed']:4d}")
     if args.grid_study:
         result["grid_study"] = [add_yardstick_ratios(g, yard, ms_keys=("ms_per_member",)) for g in grid_study()]
         print(f"\n{'grid (mass transfer)':22s} {'L2 to limit':>11s} {'max|dR*|':>9s} {'steps':>6s} {'member x yard':>13s}")
         for g in result["grid_study"]:
             print(f"stretch {g['stretch']:.1f}, nt {g['nt']:<5d}   {g['rel_l2_to_limit_max']:11.1e} "
-                  f"{g['max_abs_err_Rstar']:9.1e} {g['steps_per_member']:6.0f} {g['ms_per_member_per_yardstick']:13.4f}")
+                  f"{g['max_abs_err_Rstar']:9.1e} {g['steps_per_member']:6.0f} {g['ms_per_member_per_yardstick']:13.3g}")
     if "compile" in result:
         c = result["compile"]
-        print(f"(e) first process (compile) {c['first_process_s_per_yardstick']:.0f} x yard; cached process "
-              f"{c['cached_process_s_per_yardstick']:.1f} x yard; "
+        print(f"(e) first process (compile) {c['first_process_s_per_yardstick']:.3g} x yard; cached process "
+              f"{c['cached_process_s_per_yardstick']:.3g} x yard; "
               f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0:.0f} MB")
     if args.peers or args.only_peers:
         result["peers"] = {"pyimr": peer_rows(batch=args.peer_batch, limit_nt=args.peer_limit_nt)}

@@ -371,8 +371,8 @@ def main():
         yard = host_yardstick()
         for r in rows:
             add_yardstick_ratios(r, yard, ms_keys=("cpu_ms_per_eval", "wall_ms_per_eval"))
-            print(f"window {r['window']:>3}: CPU per evaluation {r['cpu_ms_per_eval_per_yardstick']:.4f} x yard, "
-                  f"wall {r['wall_ms_per_eval_per_yardstick']:.4f} x yard")
+            print(f"window {r['window']:>3}: CPU per evaluation {r['cpu_ms_per_eval_per_yardstick']:.3g} x yard, "
+                  f"wall {r['wall_ms_per_eval_per_yardstick']:.3g} x yard")
         if args.json:
             with open(args.json, "w") as fh:
                 json.dump(jsonable({"meta": {"cpu": machine_info(), "host_yardstick": yard}, "cpu_costs": rows}), fh,
@@ -415,7 +415,7 @@ def main():
         yard = host_yardstick()
         for r in rows:
             add_yardstick_ratios(r, yard, seconds_keys=("wall_s",), ms_keys=("ms_per_member_run",))
-            print(f"w{r['window']:02d} {r['moves']:<22} W={r['walkers']:<3} wall {r['wall_s_per_yardstick']:.0f} x yard")
+            print(f"w{r['window']:02d} {r['moves']:<22} W={r['walkers']:<3} wall {r['wall_s_per_yardstick']:.3g} x yard")
         if args.json:
             meta = {"cpu": machine_info(), "host_yardstick": yard, "forward": fkey, "options": fm.options.to_dict(), "seed": args.seed,
                     "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "
@@ -472,7 +472,7 @@ def main():
             row["window_costs"] = window_costs(fm, obs, seed=args.seed)
         rows.append(row)
         p = row["posterior"]
-        print(f"{fkey:<11} {row['wall_s_per_yardstick']:9.1f} {run.n_evals:8d} {row['ms_per_member_run_per_yardstick']:9.5f} "
+        print(f"{fkey:<11} {row['wall_s_per_yardstick']:9.3g} {run.n_evals:8d} {row['ms_per_member_run_per_yardstick']:9.3g} "
               f"{row['steps_per_s']:8.1f} {run.tau_max:6.1f} "
               f"{row['n_steps_over_tau']:6.1f} {row['rhat_max']:6.3f} {ess:6.0f} {row['ess_per_s']:7.2f} "
               f"{row['acceptance']:5.2f} {p['G']['mean'] / 1e3:7.3f}±{p['G']['sd'] / 1e3:6.3f} "

@@ -74,7 +74,7 @@ def main():
                    "failed_runs": runner.n_failed, "estimate": e,
                    "relative_error": {n: e[n]["mean"] / TRUTH[n] - 1.0 for n in TRUTH}, "rmse": res.rmse}
             rows.append(add_yardstick_ratios(row, yard, seconds_keys=("wall_s",)))
-            print(f"{fkey:<11} {m:<8} {row['wall_s_per_yardstick']:9.0f} {runner.n_member_runs:8d} {runner.n_failed:6d} "
+            print(f"{fkey:<11} {m:<8} {row['wall_s_per_yardstick']:9.3g} {runner.n_member_runs:8d} {runner.n_failed:6d} "
                   f"{e['G']['mean'] / 1e3:8.3f} ± {e['G']['sd'] / 1e3:5.3f} {e['mu']['mean']:8.4f} ± {e['mu']['sd']:6.4f}",
                   flush=True)
     meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),

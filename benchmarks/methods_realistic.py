@@ -122,8 +122,8 @@ def main(argv=None) -> int:
         add_yardstick_ratios(r, fastest, seconds_keys=("wall_s", "cpu_s"))
         if r["target_s"]:
             r["target_s_per_yardstick"] = r["target_s"] / (1e-3 * fastest["reference_ms"])
-        tgt = f" (target {r['target_s_per_yardstick']:.0f} x yard, {r['target_s']:.0f} s)" if r["target_s"] else ""
-        print(f"  {r['case']:<20} {r['wall_s_per_yardstick']:7.0f} x yard, {r['wall_s'] / factor:7.1f} s{tgt}")
+        tgt = f" (target {r['target_s_per_yardstick']:.3g} x yard, {r['target_s']:.0f} s)" if r["target_s"] else ""
+        print(f"  {r['case']:<20} {r['wall_s_per_yardstick']:7.3g} x yard, {r['wall_s'] / factor:7.1f} s{tgt}")
     if a.json:
         Path(a.json).write_text(json.dumps({"meta": {"machine": machine_info(), "seed": a.seed, "host_yardstick": yard,
                                                       "note": "one timed run per case, imrbayes fit as a subprocess"},

@@ -132,8 +132,8 @@ def fit_benchmark(args) -> dict:
           f"{args.repeat}{load}")
     print(f"{'backend':<28}{'workers':>8}{'x yard':>9}{'speedup':>9}{'start-up x yard':>16}{'identical':>11}")
     for r in rows:
-        print(f"{r['backend']:<28}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.1f}{r['speedup']:>9.2f}"
-              f"{r['startup_s_per_yardstick']:>16.1f}{str(r['identical']):>11}")
+        print(f"{r['backend']:<28}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.3g}{r['speedup']:>9.2f}"
+              f"{r['startup_s_per_yardstick']:>16.3g}{str(r['identical']):>11}")
     print("speed-up bound from the unit counts (windows in order, experiments of a window in parallel):")
     for n, b in bound.items():
         print(f"  {n:>3} experiments: " + ", ".join(f"W={k}: {v:.2f}" for k, v in b.items()))
@@ -202,8 +202,8 @@ def main(argv=None) -> int:
     print(f"{args.units} toy units x {args.steps} RK4 steps; {os.cpu_count()} CPUs; best of {args.repeat}{load}")
     print(f"{'backend':<26}{'workers':>8}{'x yard':>9}{'speedup':>9}{'start-up x yard':>16}{'identical':>11}")
     for r in rows:
-        print(f"{r['backend']:<26}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.1f}{r['speedup']:>9.2f}"
-              f"{r['startup_s_per_yardstick']:>16.1f}{str(r['identical']):>11}")
+        print(f"{r['backend']:<26}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.3g}{r['speedup']:>9.2f}"
+              f"{r['startup_s_per_yardstick']:>16.3g}{str(r['identical']):>11}")
     if args.json:
         meta = {"units": args.units, "steps": args.steps, "repeat": args.repeat, "cpus": os.cpu_count(),
                 "python": sys.version.split()[0], "platform": platform.platform(), "numpy": np.__version__,
