@@ -20,6 +20,10 @@ from click.testing import CliRunner
 from _ens_synth import observations, space
 from imrbayes.cli import main
 
+# Whole fits on every backend, killed and resumed: the default tier's execution tests are
+# test_execution_resume.py and test_execution_backends.py (toy units).
+pytestmark = pytest.mark.slow
+
 TINY = {
     "imr": ["n_G=9", "n_mu=7", "G_max=15e3", "mu_max=0.2", "n_draws=20"],
     "en4dvar": ["n_ens=8", "n_runs=2", "n_iter=2", "n_draws=4"],
@@ -82,7 +86,6 @@ def _same(a, b):
         assert a["arrays"][k] == b["arrays"][k], k
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("method,extra", [
     ("imr", ["--workers", "2"]),
     ("en4dvar", ["--workers", "2"]),
@@ -101,7 +104,6 @@ def test_same_numbers_on_every_backend(dataset, tmp_path, method, extra, request
     assert ex["n_failed"] == 0 and ex["n_computed"] == ex["n_units"] > 0
 
 
-@pytest.mark.slow
 def test_resume_after_lost_units_and_refusals(dataset, tmp_path, mienks_ref):
     out = tmp_path / "run"
     _fit(_args(dataset, "mienks", out))
@@ -132,7 +134,6 @@ def test_resume_after_lost_units_and_refusals(dataset, tmp_path, mienks_ref):
     assert "--retry-failed" in res.output
 
 
-@pytest.mark.slow
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 @pytest.mark.parametrize("sig,extra", [(signal.SIGTERM, []), (signal.SIGKILL, []),
                                        (signal.SIGKILL, ["--workers", "2"])],
@@ -174,7 +175,6 @@ def test_fit_killed_and_resumed(dataset, tmp_path, sig, extra, mienks_ref):
     _same(numbers(out), mienks_ref)
 
 
-@pytest.mark.slow
 def test_bad_experiment_left_out_and_reported(dataset, tmp_path):
     """One experiment whose record ends before its first collapse: the others are fitted, the bad one
     is listed in summary.json and on stderr."""

@@ -1,6 +1,7 @@
 """Sampled per-experiment posteriors and their fusion (imrbayes.ensemble.sampled) against exact answers."""
 
 import numpy as np
+import pytest
 
 from imrbayes.ensemble.hierarchical import _conditional
 from imrbayes.ensemble.sampled import adaptive_importance, fuse_draws, weighted_quantiles, WeightedDraws
@@ -39,6 +40,7 @@ def _gaussian_bubbles(rng, n_exp=5, d=2, n=4000):
     return m0, C0, np.array(Lam), np.array(eta), draws
 
 
+@pytest.mark.slow
 def test_fusing_gaussian_draws_gives_the_exact_product_rule_and_random_effects_answer():
     rng = np.random.default_rng(11)
     m0, C0, Lam, eta, draws = _gaussian_bubbles(rng)
