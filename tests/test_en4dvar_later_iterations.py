@@ -38,6 +38,7 @@ def test_later_iterations_are_checked(bad):
         En4DVarSettings(n_iter_later=bad).check()
 
 
+@pytest.mark.slow
 def test_req_is_integrated_against_its_preprocessing_prior():
     """``nuisance_integral``: the Gauss-Newton paths do not depend on it (the same nuisance
     posteriors); with Req inferred each bubble's likelihood changes (log Req integrated against its
