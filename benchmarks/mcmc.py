@@ -28,7 +28,7 @@ of G and mu against the truth. ``--json FILE`` writes the rows. The brief's defa
 2000 steps x 4 ensembles x 5 experiments = 1.28 M member-runs) takes hours with the thermal bubble
 on a laptop: use ``--steps``/``--chains`` to scale it down; the table's ``proj_default_h`` column
 gives the projected time of the default run from the measured cost per member-run, and
-``one_ens_s`` the time of the issue's unit -- one ensemble of 32 walkers x 2000 steps over all
+``one_ens_s`` the time of the target's unit -- one ensemble of 32 walkers x 2000 steps over all
 experiments -- from the same cost (sampling only: the wall time excludes the pointwise
 log-likelihood recompute, reported as ``loglik_recompute_s``).
 
@@ -69,7 +69,7 @@ from _machine import add_yardstick_ratios, host_yardstick, machine_info, results
 
 FORWARD = {"converged": {}, "imrv2-fd": {"scheme": "imrv2-fd"}, "polytropic": {"bubble": "polytropic"}}
 DEFAULT_RUNS = 32 * 2000 * 4 * 5          # member-runs of the default benchmark (5 experiments)
-ENSEMBLE_RUNS = 32 * 2000 * 5             # one ensemble of 32 walkers x 2000 steps (the target unit)
+ENSEMBLE_RUNS = 32 * 2000 * 5             # one ensemble of 32 walkers x 2000 steps (the speed target's unit)
 
 
 def window_target(fm, obs, j: int, L: int = 35, h: int = 5):
