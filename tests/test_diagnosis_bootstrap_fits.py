@@ -77,6 +77,7 @@ def test_linearised_replicates_give_the_full_fits_statistics(seed):
     assert all(f.converged for f in b["fits"].values())
 
 
+@pytest.mark.slow
 def test_candidate_fit_also_starts_from_the_preprocessing_nuisances():
     # relaxation data (lambda1 3.9 us, 3 camera-style bubbles): the NHKV baseline mimics the
     # relaxation with Req 0.6-1.3 prior sd above the preprocessing's, and zener started from those
