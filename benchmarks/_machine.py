@@ -1,6 +1,6 @@
 """What a benchmark ran on: the CPU decides the numbers as much as the code does.
 
-The shared 2-core VM lands on different hosts from session to session (the same code ran the
+The shared 2-core VM lands on different hosts from run to run (the same code ran the
 forward benchmark's window batch in 79 ms on one and 64 ms on another, an AMD family-26 /
 znver5 with AVX-512), and numba compiles for the host it finds, so a timing is only comparable
 with one taken on the same CPU. Every benchmark JSON carries :func:`machine_info`.
@@ -48,9 +48,9 @@ def cpu_label(info: dict | None = None) -> str:
     return f"{info['cpu_model_name']}, family {info['cpu_family']} ({info['numba_target_cpu']}), {vec}"
 
 
-# Issue #20's own reference: the previous default forward row (a) -- 48 members of the LIC case,
-# thermal bubble, stretch 1.5, nt 64, t* in [0, 3] -- took 113 ms on the host the speed targets of
-# #19-#21 were set on. Timing the same row beside a benchmark says how fast *this* host is, so that
+# The speed targets' reference: the previous default forward row (a) -- 48 members of the LIC case,
+# thermal bubble, stretch 1.5, nt 64, t* in [0, 3] -- took 113 ms on the host the speed targets
+# were set on. Timing the same row beside a benchmark says how fast *this* host is, so that
 # a target missed here can be told apart from a target missed by the code (docs/open-work.md).
 YARDSTICK_REFERENCE_MS = 113.0
 
@@ -78,3 +78,28 @@ def host_yardstick(repeat: int = 5) -> dict:
     ms = 1e3 * best
     return {"row": "forward (a), previous default grid (stretch 1.5, nt 64), 48 members, t* <= 3",
             "ms": ms, "reference_ms": YARDSTICK_REFERENCE_MS, "host_factor": ms / YARDSTICK_REFERENCE_MS}
+
+
+RESULTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+
+
+def results_path(name: str) -> str:
+    """Where a benchmark writes its JSON by default: ``benchmarks/results/<name>.json``, the name
+    saying what the file holds (the host and the run's yardstick are inside it)."""
+    return os.path.join(RESULTS_DIR, f"{name}.json")
+
+
+def per_yardstick(seconds: float, yardstick: dict) -> float:
+    """A wall time [s] as a multiple of the host yardstick's time (:func:`host_yardstick`, measured
+    in the same run): the number that compares across hosts, where absolute times do not."""
+    return seconds / (1e-3 * yardstick["ms"])
+
+
+def add_yardstick_ratios(row: dict, yardstick: dict, seconds_keys=(), ms_keys=()) -> dict:
+    """Add ``<key>_per_yardstick`` to ``row`` for each timing in it, ``seconds_keys`` in s and
+    ``ms_keys`` in ms (keys absent or None are skipped); returns ``row``."""
+    for keys, to_seconds in ((seconds_keys, 1.0), (ms_keys, 1e-3)):
+        for key in keys:
+            if row.get(key) is not None:
+                row[f"{key}_per_yardstick"] = per_yardstick(to_seconds * row[key], yardstick)
+    return row

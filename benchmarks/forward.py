@@ -1,7 +1,6 @@
 """Forward-model benchmark: prints a table and writes JSON (``--json FILE``).
 
-Rows (issue: Foundation, §4; issue #20), each for the converged default resolution (stretch 2.75,
-nt 96 since issue #20), the previous default grid (stretch 1.5, nt 64) and IMRv2's Nt = 25:
+Rows, each for the converged default resolution (stretch 2.75, nt 96), the previous default grid (stretch 1.5, nt 64) and IMRv2's Nt = 25:
   (a) one 48-member batch of the full-physics LIC case (Rmax 263 um, Rmax/Req 7.58, NHKV,
       G 7.29 kPa +- 40 %, mu 0.088 Pa s +- 40 %) over t* in [0, 3] on the dt* = 0.025 grid;
   (b) the same batch over one window (35 samples) starting mid-trajectory across the first collapse;
@@ -22,7 +21,11 @@ rtol 1e-9; PyIMR's: spectral, ``--peer-limit-nt`` points, rtol 1e-10), with PyIM
 and with ours (PyIMR's polytropic exponent 1.4 against IMRv2's 1.47). Without pyimr it prints one
 line saying so.
 
-Usage: python benchmarks/forward.py [--json out.json] [--repeat 5] [--grid-study] [--peers]
+Speed is reported as ratios measured in the same run: every time also as a multiple of the host
+yardstick (``_machine.host_yardstick``, ``*_per_yardstick``), and with ``--peers`` ours against
+PyIMR's (``*_over_pyimr``); the absolute times are kept in the JSON as facts of the host named there.
+
+Usage: python benchmarks/forward.py [--json results/forward.json] [--repeat 5] [--grid-study] [--peers]
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ import numpy as np
 from imrbayes.forward import ForwardModel, ForwardOptions
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import cpu_label, machine_info  # noqa: E402
+from _machine import add_yardstick_ratios, cpu_label, host_yardstick, machine_info, results_path  # noqa: E402
 
 RMAX, RATIO = 263e-6, 7.58
 T_STAR = np.arange(121) * 0.025
@@ -187,6 +190,8 @@ def peer_rows(repeat: int = 3, batch: int = 8, limit_nt: int = 65) -> dict:
     pb = {"G": p["G"][:batch], "mu": p["mu"][:batch]}
     t_ours_b, _ = _time(lambda: fm.simulate(pb, RMAX, RMAX / RATIO, T_STAR), repeat)
     res["ours_batch_ms_per_member"] = 1e3 * t_ours_b / batch
+    res["single_over_pyimr"] = res["ours_single_ms"] / res["single_ms"]
+    res["batch_per_member_over_pyimr"] = res["ours_batch_ms_per_member"] / res["batch_ms_per_member"]
     # grid limits
     lim = ForwardModel("nhkv", options=ForwardOptions(nt=2048, mt=2048, stretch=3.0, rtol=1e-9, atol=1e-11))
     R_lim = lim.simulate({"G": 7290.0, "mu": 0.088}, RMAX, RMAX / RATIO, T_STAR, max_steps=50_000_000).R_star[0]
@@ -214,9 +219,9 @@ def _print_peers(pr: dict) -> None:
         return
     d = pr["defaults"]
     print(f"\npeer PyIMR {pr['version']} ({d['thermal']}, Nt {d['Nt']}, rtol {d['rtol']:g}), {pr['case']}:")
-    print(f"  first solve (JAX compile) {pr['first_solve_s']:.1f} s; single solve {pr['single_ms']:.1f} ms "
-          f"(imrbayes {pr['ours_single_ms']:.1f} ms); per member of a {pr['batch']}-member batch "
-          f"{pr['batch_ms_per_member']:.1f} ms (imrbayes {pr['ours_batch_ms_per_member']:.2f} ms)")
+    print(f"  imrbayes time / PyIMR time, same run: single solve {pr['single_over_pyimr']:.3f}; per member of a "
+          f"{pr['batch']}-member batch {pr['batch_per_member_over_pyimr']:.3f} (PyIMR's first solve, JAX compile "
+          f"included: {pr['first_solve_s']:.1f} s)")
     print(f"  rel. L2 in R* to our grid limit: PyIMR default {pr['peer_default_to_our_limit']:.1e}, "
           f"imrbayes default {pr['ours_default_to_our_limit']:.1e}")
     for label, c in pr["limits"].items():
@@ -227,7 +232,7 @@ def _print_peers(pr: dict) -> None:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--json", help="write the results here")
+    ap.add_argument("--json", default=results_path("forward"), help="write the results here")
     ap.add_argument("--repeat", type=int, default=5, help="timing repeats (best is reported)")
     ap.add_argument("--no-compile", action="store_true", help="skip the compile-time measurement")
     ap.add_argument("--grid-study", action="store_true", help="add the grid-convergence cost table")
@@ -244,32 +249,38 @@ def main(argv=None):
         ("polytropic + vapour", {"bubble": "polytropic"}),
     ]
     load_before = os.getloadavg()     # other jobs on the machine inflate every timing: recorded beside them
+    yard = host_yardstick(args.repeat)
     rows = [] if args.only_peers else [bench_case(label, opts, args.repeat) for label, opts in cases]
-    result = {"machine": machine_info(),
+    for r in rows:
+        add_yardstick_ratios(r, yard, ms_keys=("full_ms", "window_ms"))
+    result = {"machine": machine_info(), "host_yardstick": yard,
               "n_members": N_MEMBERS, "rows": rows, "load_average_before": load_before}
     if not args.no_compile and not args.only_peers:
-        result["compile"] = compile_times({})
+        result["compile"] = add_yardstick_ratios(compile_times({}), yard,
+                                                 seconds_keys=("first_process_s", "cached_process_s"))
     print(f"CPU: {cpu_label(result['machine'])}, {result['machine']['cpus']} cores; load average "
           f"{', '.join(f'{x:.2f}' for x in result['load_average_before'])}")
+    print(f"times in host yardsticks (x yard): {yard['row']}, {yard['ms']:.1f} ms in this run")
     if rows:
-        hdr = (f"{'case':36s} {'(a) 0-3 ms':>11s} {'(b) win ms':>10s} {'steps/mbr':>9s} {'(d) rel err':>11s} "
+        hdr = (f"{'case':36s} {'(a) x yard':>10s} {'(b) x yard':>10s} {'steps/mbr':>9s} {'(d) rel err':>11s} "
                f"{'abs err':>8s} {'fail':>4s}")
         print(hdr)
         print("-" * len(hdr))
         for r in rows:
             err = max(r["max_rel_err_R_full"], r["max_rel_err_R_window"])
             aerr = max(r["max_abs_err_Rstar_full"], r["max_abs_err_Rstar_window"])
-            print(f"{r['label']:36s} {r['full_ms']:11.1f} {r['window_ms']:10.1f} {r['steps_per_member_full']:9.0f} "
-                  f"{err:11.1e} {aerr:8.1e} {r['failed']:4d}")
+            print(f"{r['label']:36s} {r['full_ms_per_yardstick']:10.3g} {r['window_ms_per_yardstick']:10.3g} "
+                  f"{r['steps_per_member_full']:9.0f} {err:11.1e} {aerr:8.1e} {r['failed']:4d}")
     if args.grid_study:
-        result["grid_study"] = grid_study()
-        print(f"\n{'grid (mass transfer)':22s} {'L2 to limit':>11s} {'max|dR*|':>9s} {'steps':>6s} {'ms/member':>9s}")
+        result["grid_study"] = [add_yardstick_ratios(g, yard, ms_keys=("ms_per_member",)) for g in grid_study()]
+        print(f"\n{'grid (mass transfer)':22s} {'L2 to limit':>11s} {'max|dR*|':>9s} {'steps':>6s} {'member x yard':>13s}")
         for g in result["grid_study"]:
             print(f"stretch {g['stretch']:.1f}, nt {g['nt']:<5d}   {g['rel_l2_to_limit_max']:11.1e} "
-                  f"{g['max_abs_err_Rstar']:9.1e} {g['steps_per_member']:6.0f} {g['ms_per_member']:9.1f}")
+                  f"{g['max_abs_err_Rstar']:9.1e} {g['steps_per_member']:6.0f} {g['ms_per_member_per_yardstick']:13.3g}")
     if "compile" in result:
         c = result["compile"]
-        print(f"(e) first process (compile) {c['first_process_s']:.1f} s; cached process {c['cached_process_s']:.1f} s; "
+        print(f"(e) first process (compile) {c['first_process_s_per_yardstick']:.3g} x yard; cached process "
+              f"{c['cached_process_s_per_yardstick']:.3g} x yard; "
               f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0:.0f} MB")
     if args.peers or args.only_peers:
         result["peers"] = {"pyimr": peer_rows(batch=args.peer_batch, limit_nt=args.peer_limit_nt)}

@@ -13,7 +13,7 @@ mixture x walker count sampled to convergence on the targets ``fit --mcmc`` buil
 fit of the verification case; evaluations (forward solves of all experiments) to convergence,
 tau, ESS per evaluation (docs/mcmc.md).
 
-**One window** (the default mode, below; kept from before issue #20):
+**One window** (the default mode, below):
 
 Window j (default 0) of L = 35 samples shifted by h = 5 (the paper's windows) over the 5 noisy
 experiments, weights beta_jk / L, the paper prior on (log G, log mu), each experiment started from
@@ -28,15 +28,20 @@ of G and mu against the truth. ``--json FILE`` writes the rows. The brief's defa
 2000 steps x 4 ensembles x 5 experiments = 1.28 M member-runs) takes hours with the thermal bubble
 on a laptop: use ``--steps``/``--chains`` to scale it down; the table's ``proj_default_h`` column
 gives the projected time of the default run from the measured cost per member-run, and
-``one_ens_s`` the time of the issue's unit -- one ensemble of 32 walkers x 2000 steps over all
+``one_ens_s`` the time of the target's unit -- one ensemble of 32 walkers x 2000 steps over all
 experiments -- from the same cost (sampling only: the wall time excludes the pointwise
 log-likelihood recompute, reported as ``loglik_recompute_s``).
 
 ``--window-costs`` also times one log-probability batch in each of the 18 windows: windows across
 a collapse take several times more steps than window 0, and the 18-window projection sums them.
 
+Every mode that times something in this run also times the host yardstick
+(``_machine.host_yardstick``) and writes each time as a multiple of it (``*_per_yardstick``; printed
+as ``x yard``): the number that compares across hosts. The absolute times stay in the JSON as facts
+of the host named there. ``--collect`` reads times from an earlier run and adds no ratio.
+
 Usage: python benchmarks/mcmc.py [--forward converged imrv2-fd polytropic] [--walkers 32] [--steps 2000]
-                                 [--chains 4] [--window 0] [--seed 0] [--window-costs] [--json out.json]
+                                 [--chains 4] [--window 0] [--seed 0] [--window-costs] [--json results/mcmc_window.json]
 """
 
 from __future__ import annotations
@@ -45,26 +50,26 @@ import argparse
 import json
 import os
 import platform
-import tempfile
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from imrbayes.ensemble import ParamSpace
-from imrbayes.io import jsonable
 from imrbayes.ensemble.windows import mda_weights, window_spans
 from imrbayes.forward import ForwardModel
+from imrbayes.io import jsonable
 from imrbayes.mcmc import MCMCSettings, WindowTarget, run_mcmc
 from imrbayes.validation.suite import TRUTH, verification_data
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import machine_info  # noqa: E402
+from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
 
 FORWARD = {"converged": {}, "imrv2-fd": {"scheme": "imrv2-fd"}, "polytropic": {"bubble": "polytropic"}}
 DEFAULT_RUNS = 32 * 2000 * 4 * 5          # member-runs of the default benchmark (5 experiments)
-ENSEMBLE_RUNS = 32 * 2000 * 5             # one ensemble of 32 walkers x 2000 steps (the issue's target unit)
+ENSEMBLE_RUNS = 32 * 2000 * 5             # one ensemble of 32 walkers x 2000 steps (the speed target's unit)
 
 
 def window_target(fm, obs, j: int, L: int = 35, h: int = 5):
@@ -334,7 +339,8 @@ def main():
     ap.add_argument("--hdf5", default=None, help="HDF5 file for the chains (default: a temporary file)")
     ap.add_argument("--window-costs", action="store_true",
                     help="also time one log-probability batch in every window (projects all 18 windows)")
-    ap.add_argument("--json", default=None)
+    ap.add_argument("--json", default=None, help="[default: results/mcmc_<mode>.json: window, sweep, whole_run, "
+                                                 "cpu_costs or collected_run]")
     ap.add_argument("--sweep", nargs="*", default=None, metavar="MOVES@WALKERS",
                     help="measure move mixtures x walker counts to convergence on the fit's windows "
                          "(--sweep-windows), e.g. stretch@8 de@8 'de:0.8,snooker:0.2'@16")
@@ -355,12 +361,22 @@ def main():
     ap.add_argument("--cpu-costs", default=None, metavar="RUN_DIR",
                     help="CPU time per evaluation in every window of a finished fit --mcmc run (NUMBA_NUM_THREADS=1)")
     args = ap.parse_args()
+    if args.json is None:
+        mode = ("cpu_costs" if args.cpu_costs is not None else "collected_run" if args.collect is not None
+                else "whole_run" if args.whole_run is not None else "sweep" if args.sweep is not None else "window")
+        args.json = results_path(f"mcmc_{mode}")
     if args.cpu_costs is not None:
         fm = ForwardModel("nhkv", options=FORWARD[args.forward[0]])
         rows = cpu_costs(fm, args.cpu_costs, args.fit_cache, seed=args.seed)
+        yard = host_yardstick()
+        for r in rows:
+            add_yardstick_ratios(r, yard, ms_keys=("cpu_ms_per_eval", "wall_ms_per_eval"))
+            print(f"window {r['window']:>3}: CPU per evaluation {r['cpu_ms_per_eval_per_yardstick']:.3g} x yard, "
+                  f"wall {r['wall_ms_per_eval_per_yardstick']:.3g} x yard")
         if args.json:
             with open(args.json, "w") as fh:
-                json.dump(jsonable({"meta": {"cpu": machine_info()}, "cpu_costs": rows}), fh, indent=1)
+                json.dump(jsonable({"meta": {"cpu": machine_info(), "host_yardstick": yard}, "cpu_costs": rows}), fh,
+                          indent=1)
         return
     if args.collect is not None:
         row = {"run": args.collect, **collect_units(args.collect), "cpu": machine_info()}
@@ -379,6 +395,9 @@ def main():
         return
     if args.whole_run is not None:
         row = whole_run(args.whole_run[0], args.whole_run[1], args.method, args.fit_args)
+        yard = host_yardstick()
+        add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "cpu_s", "fit_runtime_s", "total_runtime_s"))
+        row["host_yardstick"] = yard
         print(json.dumps({k: v for k, v in row.items() if k not in ("windows", "cpu")}, indent=1, default=str))
         for w in row.get("windows", []):
             print(w)
@@ -393,8 +412,12 @@ def main():
         rows = sweep(fm, args.sweep_windows, configs, seed=args.seed, cap=args.cap, fit_cache=args.fit_cache,
                      n_chains=args.chains, init_scale=args.init_scale, quadrature=args.sweep_quadrature,
                      settings=_setting_values(args.sweep_set))
+        yard = host_yardstick()
+        for r in rows:
+            add_yardstick_ratios(r, yard, seconds_keys=("wall_s",), ms_keys=("ms_per_member_run",))
+            print(f"w{r['window']:02d} {r['moves']:<22} W={r['walkers']:<3} wall {r['wall_s_per_yardstick']:.3g} x yard")
         if args.json:
-            meta = {"cpu": machine_info(), "forward": fkey, "options": fm.options.to_dict(), "seed": args.seed,
+            meta = {"cpu": machine_info(), "host_yardstick": yard, "forward": fkey, "options": fm.options.to_dict(), "seed": args.seed,
                     "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "
                             "window targets as imrbayes fit --mcmc builds them, start = ensemble Gaussian x init_scale",
                     "init_scale": args.init_scale, "cap": args.cap}
@@ -404,7 +427,9 @@ def main():
     import arviz as az
 
     rows = []
-    print(f"{'forward':<11} {'wall [s]':>9} {'evals':>8} {'ms/run':>7} {'steps/s':>8} {'tau':>6} {'n/tau':>6} "
+    yard = host_yardstick()
+    print(f"host yardstick (x yard): {yard['row']}, {yard['ms']:.1f} ms in this run")
+    print(f"{'forward':<11} {'x yard':>9} {'evals':>8} {'run/yard':>9} {'steps/s':>8} {'tau':>6} {'n/tau':>6} "
           f"{'R-hat':>6} {'ESS':>6} {'ESS/s':>7} {'acc':>5} {'G [kPa]':>15} {'mu [Pa s]':>17} {'proj_default_h':>14} "
           f"{'one_ens_s':>9}")
     tmp = tempfile.TemporaryDirectory()
@@ -441,11 +466,14 @@ def main():
                              for n in TRUTH},
                "truth_inside_eti95": inside, "projected_default_h": DEFAULT_RUNS * ms / 3.6e6,
                "one_ensemble_s": ENSEMBLE_RUNS * ms / 1e3}
+        add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "loglik_recompute_s", "one_ensemble_s"),
+                             ms_keys=("ms_per_member_run",))
         if args.window_costs:
             row["window_costs"] = window_costs(fm, obs, seed=args.seed)
         rows.append(row)
         p = row["posterior"]
-        print(f"{fkey:<11} {wall:9.1f} {run.n_evals:8d} {ms:7.3f} {row['steps_per_s']:8.1f} {run.tau_max:6.1f} "
+        print(f"{fkey:<11} {row['wall_s_per_yardstick']:9.3g} {run.n_evals:8d} {row['ms_per_member_run_per_yardstick']:9.3g} "
+              f"{row['steps_per_s']:8.1f} {run.tau_max:6.1f} "
               f"{row['n_steps_over_tau']:6.1f} {row['rhat_max']:6.3f} {ess:6.0f} {row['ess_per_s']:7.2f} "
               f"{row['acceptance']:5.2f} {p['G']['mean'] / 1e3:7.3f}±{p['G']['sd'] / 1e3:6.3f} "
               f"{p['mu']['mean']:8.4f}±{p['mu']['sd']:7.4f} {row['projected_default_h']:14.2f} {row['one_ensemble_s']:9.1f}",
@@ -463,7 +491,7 @@ def main():
             print(f"all {len(wc)} windows, 32 x 2000 x 4 each: {row['projected_all_windows_h']:.2f} h (plus "
                   f"{overhead:.3f} ms per member-run of sampling overhead measured on window {row['window']})")
     meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
-            "cpu": machine_info(),
+            "cpu": machine_info(), "host_yardstick": yard,
             "case": "methods.md §5 verification, 5 experiments, paper noise; MIEnKS window (L=35, h=5), weights "
                     "beta/L, paper prior, true start state", "truth": TRUTH, "seed": args.seed,
             "lockstep": not args.sequential}

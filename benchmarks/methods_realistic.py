@@ -1,9 +1,9 @@
-"""#19's speed targets at today's defaults, timed as a user pays them: ``imrbayes fit`` end to end.
+"""The realistic fits' speed targets at today's defaults, timed as a user pays them: ``imrbayes fit`` end to end.
 
 ``benchmarks/methods.py`` times the methods on the paper's verification case (no nuisances, paper
-noise). Issue #19's targets are for realistic fits: **En4D-Var on 20 bubbles with nuisances
+noise). The speed targets are for realistic fits: **En4D-Var on 20 bubbles with nuisances
 <= 3 min, MIEnKS-MDA on 5 <= 2 min**. This script runs the CLI on real data (and, with
-``--cases``, on the issue's camera design) with every default -- thermal bubble on the converged
+``--cases``, on the camera design of the targets) with every default -- thermal bubble on the converged
 grid, each experiment's Rmax, Req and time of the maximum inferred, the default likelihood -- in a
 subprocess, and reports wall and CPU time, the load average around the run, and the estimate.
 
@@ -11,15 +11,15 @@ Cases (``--cases``; default: the two targets):
 
 ``en4dvar-stiffpa20``   En4D-Var, estrada2018_stiffPA_270kfps, all 20 bubbles (target 180 s)
 ``mienks-stiffpa5``     MIEnKS-MDA, the same data, bubbles 1-5 (target 120 s)
-``en4dvar-camera6``     En4D-Var on the #19 camera design (6 bubbles, 1 Mfps, random phase, noise 0.02 R*)
+``en4dvar-camera6``     En4D-Var on that camera design (6 bubbles, 1 Mfps, random phase, noise 0.02 R*)
 ``mienks-camera5``      MIEnKS-MDA on the first 5 bubbles of that design
 
-Usage: python benchmarks/methods_realistic.py [--cases ...] [--json out.json]
+Usage: python benchmarks/methods_realistic.py [--cases ...] [--json results/methods_realistic.json]
 Each case is timed once (a fit takes minutes); run it on a quiet machine -- the load average is
 recorded so that a loaded run can be recognised. The 2-core VM lands on hosts up to ~2x apart, so
-the run also times a host yardstick before and after the fits (``_machine.host_yardstick``: #20's
+the run also times a host yardstick before and after the fits (``_machine.host_yardstick``: the
 previous-default forward row, 113 ms on the host the targets were set on) and prints each wall
-divided by the host factor beside the raw one; the JSON keeps both.
+in yardsticks (the faster of the two) and divided by the host factor; the JSON keeps the raw times too.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import cpu_label, host_yardstick, machine_info  # noqa: E402
+from _machine import add_yardstick_ratios, cpu_label, host_yardstick, machine_info, results_path  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 LIC = ROOT.parent / "shared" / "data" / "lic"
@@ -73,7 +73,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", nargs="+", default=["en4dvar-stiffpa20", "mienks-stiffpa5"], choices=list(CASES))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--json", default=None)
+    ap.add_argument("--json", default=results_path("methods_realistic"))
     a = ap.parse_args(argv)
     rows = []
     print(f"host: {cpu_label()}; load average now {os.getloadavg()[0]:.2f}")
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
                 data = camera
             out = Path(tmp) / name
             r = timed(imrbayes() + ["fit", str(data), *args, "--seed", str(a.seed), "--quiet", "--out", str(out)])
-            row = {"case": name, "data": str(data if data != camera else "camera design (issue #19)"),
+            row = {"case": name, "data": str(data if data != camera else "camera design of the speed targets"),
                    "command": ["imrbayes", "fit", "DATA", *args, "--seed", str(a.seed)], "target_s": target, **r}
             if r["returncode"] == 0:
                 s = json.loads((out / "summary.json").read_text())
@@ -113,12 +113,17 @@ def main(argv=None) -> int:
             print(f"{name:<20} {r['wall_s']:9.1f} {tgt} {r['cpu_s']:8.1f} {r['load_before']:4.2f}-{r['load_after']:4.2f} "
                   f"{row.get('n_experiments', '-')!s:>7} {est}", flush=True)
     yard.append(host_yardstick())
-    factor = min(y["host_factor"] for y in yard)
-    print(f"host yardstick after the fits: {yard[1]['ms']:.1f} ms; with the faster of the two (factor {factor:.2f}) "
-          "the walls above correspond on the reference host to:")
+    fastest = min(yard, key=lambda y: y["ms"])
+    factor = fastest["host_factor"]
+    print(f"host yardstick after the fits: {yard[1]['ms']:.1f} ms; against the faster of the two ({fastest['ms']:.1f} ms) "
+          "the walls above are, in yardsticks, and on the reference host (factor "
+          f"{factor:.2f}):")
     for r in rows:
-        tgt = f" (target {r['target_s']:.0f} s)" if r["target_s"] else ""
-        print(f"  {r['case']:<20} {r['wall_s'] / factor:7.1f} s{tgt}")
+        add_yardstick_ratios(r, fastest, seconds_keys=("wall_s", "cpu_s"))
+        if r["target_s"]:
+            r["target_s_per_yardstick"] = r["target_s"] / (1e-3 * fastest["reference_ms"])
+        tgt = f" (target {r['target_s_per_yardstick']:.3g} x yard, {r['target_s']:.0f} s)" if r["target_s"] else ""
+        print(f"  {r['case']:<20} {r['wall_s_per_yardstick']:7.3g} x yard, {r['wall_s'] / factor:7.1f} s{tgt}")
     if a.json:
         Path(a.json).write_text(json.dumps({"meta": {"machine": machine_info(), "seed": a.seed, "host_yardstick": yard,
                                                       "note": "one timed run per case, imrbayes fit as a subprocess"},

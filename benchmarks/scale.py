@@ -15,8 +15,12 @@ Rows: in-process; a local process pool for each ``--workers`` value; a Dask ``Lo
 largest worker count (start-up timed separately); in-process with checkpoints to a run directory
 (the cost of the atomic writes). Every row's results are checked bit-identical to the first row.
 
-Usage: python benchmarks/scale.py [--units 16] [--steps 60000] [--workers 1 2] [--repeat 1] [--json out.json]
-       python benchmarks/scale.py --fit [--fit-n-ens 16] [--fit-bubble polytropic] [--workers 2] [--json out.json]
+Speed is printed as ratios measured in the same run: the speed-up against the first row, and the
+wall time as a multiple of the host yardstick (``_machine.host_yardstick``, ``wall_s_per_yardstick``);
+the JSON keeps the absolute times as facts of the host named there.
+
+Usage: python benchmarks/scale.py [--units 16] [--steps 60000] [--workers 1 2] [--repeat 1] [--json results/scale_toy_units.json]
+       python benchmarks/scale.py --fit [--fit-n-ens 16] [--fit-bubble polytropic] [--workers 2] [--json results/scale_fit.json]
 """
 
 from __future__ import annotations
@@ -33,6 +37,9 @@ import numpy as np
 
 from imrbayes.execution import DaskExecutor, InProcessExecutor, ProcessPoolExecutor, RunStore, run_units
 from imrbayes.execution.toy import toy_bubble, toy_units
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
 
 
 def _identical(a: dict, b: dict) -> bool:
@@ -113,23 +120,26 @@ def fit_benchmark(args) -> dict:
         ref = numbers if ref is None else ref
         rows.append({"backend": label, "workers": nw, "wall_s": best, "startup_s": start, "units": summ["n_units"],
                      "identical": numbers == ref})
+    yard = host_yardstick()
     for r in rows:
         r["speedup"] = rows[0]["wall_s"] / r["wall_s"]
+        add_yardstick_ratios(r, yard, seconds_keys=("wall_s", "startup_s"))
     n_windows = rows[0]["units"] // obs.n_exp
     bound = {str(n): {str(k): expected_speedup(n, k) for k in (1, 2, 4, 5, 8, 16, 32, 64)} for n in (obs.n_exp, 60)}
     load = f"; load average {os.getloadavg()[0]:.1f}" if hasattr(os, "getloadavg") else ""
     print(f"MIEnKS-MDA on the §5 verification case ({obs.n_exp} experiments, {args.fit_bubble} bubble, N_En = "
           f"{args.fit_n_ens}, {n_windows} windows = {rows[0]['units']} units); {os.cpu_count()} CPUs; best of "
           f"{args.repeat}{load}")
-    print(f"{'backend':<28}{'workers':>8}{'wall s':>9}{'speedup':>9}{'start-up s':>12}{'identical':>11}")
+    print(f"{'backend':<28}{'workers':>8}{'x yard':>9}{'speedup':>9}{'start-up x yard':>16}{'identical':>11}")
     for r in rows:
-        print(f"{r['backend']:<28}{r['workers']:>8}{r['wall_s']:>9.2f}{r['speedup']:>9.2f}{r['startup_s']:>12.2f}"
-              f"{str(r['identical']):>11}")
+        print(f"{r['backend']:<28}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.3g}{r['speedup']:>9.2f}"
+              f"{r['startup_s_per_yardstick']:>16.3g}{str(r['identical']):>11}")
     print("speed-up bound from the unit counts (windows in order, experiments of a window in parallel):")
     for n, b in bound.items():
         print(f"  {n:>3} experiments: " + ", ".join(f"W={k}: {v:.2f}" for k, v in b.items()))
     return {"case": "methods.md §5 verification, MIEnKS-MDA", "n_experiments": obs.n_exp, "n_windows": n_windows,
-            "n_ens": args.fit_n_ens, "bubble": args.fit_bubble, "rows": rows, "speedup_bound": bound}
+            "n_ens": args.fit_n_ens, "bubble": args.fit_bubble, "rows": rows, "speedup_bound": bound,
+            "host_yardstick": yard}
 
 
 def main(argv=None) -> int:
@@ -140,16 +150,18 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-dask", action="store_true")
-    ap.add_argument("--json", default=None)
+    ap.add_argument("--json", default=None, help="[default: results/scale_toy_units.json, with --fit results/scale_fit.json]")
     ap.add_argument("--fit", action="store_true", help="the §5 verification case through MIEnKS-MDA instead of toy units")
     ap.add_argument("--fit-n-ens", type=int, default=16)
     ap.add_argument("--fit-bubble", choices=["polytropic", "imrv2-fd"], default="polytropic")
     args = ap.parse_args(argv)
+    if args.json is None:
+        args.json = results_path("scale_fit" if args.fit else "scale_toy_units")
     if args.fit:
         res = fit_benchmark(args)
         if args.json:
             meta = {"cpus": os.cpu_count(), "python": sys.version.split()[0], "platform": platform.platform(),
-                    "numpy": np.__version__, "repeat": args.repeat,
+                    "machine": machine_info(), "numpy": np.__version__, "repeat": args.repeat,
                     "load_average_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
             with open(args.json, "w") as fh:
                 json.dump({"meta": meta, **res}, fh, indent=2)
@@ -178,21 +190,24 @@ def main(argv=None) -> int:
         for ex, _ in started:
             ex.close()
     base_t = best[0]
+    yard = host_yardstick()
     rows = [{"backend": label, "workers": w, "wall_s": best[i], "startup_s": started[i][1],
              "identical": _identical(results[i], results[0])} for i, (label, w, _, _) in enumerate(specs)]
     for row in rows:
         row["speedup"] = base_t / row["wall_s"]
         row["per_unit_s"] = row["wall_s"] / args.units
+        add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "startup_s", "per_unit_s"))
 
     load = f"; load average {os.getloadavg()[0]:.1f}" if hasattr(os, "getloadavg") else ""
     print(f"{args.units} toy units x {args.steps} RK4 steps; {os.cpu_count()} CPUs; best of {args.repeat}{load}")
-    print(f"{'backend':<26}{'workers':>8}{'wall s':>9}{'speedup':>9}{'start-up s':>12}{'identical':>11}")
+    print(f"{'backend':<26}{'workers':>8}{'x yard':>9}{'speedup':>9}{'start-up x yard':>16}{'identical':>11}")
     for r in rows:
-        print(f"{r['backend']:<26}{r['workers']:>8}{r['wall_s']:>9.2f}{r['speedup']:>9.2f}{r['startup_s']:>12.2f}"
-              f"{str(r['identical']):>11}")
+        print(f"{r['backend']:<26}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.3g}{r['speedup']:>9.2f}"
+              f"{r['startup_s_per_yardstick']:>16.3g}{str(r['identical']):>11}")
     if args.json:
         meta = {"units": args.units, "steps": args.steps, "repeat": args.repeat, "cpus": os.cpu_count(),
                 "python": sys.version.split()[0], "platform": platform.platform(), "numpy": np.__version__,
+                "machine": machine_info(), "host_yardstick": yard,
                 "load_average_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
         with open(args.json, "w") as fh:
             json.dump({"meta": meta, "rows": rows}, fh, indent=2)

@@ -14,8 +14,12 @@ bubble on IMRv2's coarse finite-difference scheme (~5 ms per member and window: 
 ``--bubble thermal`` the grid-converged thermal default (hours for 60 experiments on two shared
 cores).
 
+The wall time is also printed as a multiple of the host yardstick timed in the same run
+(``_machine.host_yardstick``, ``*_per_yardstick``); the JSON keeps the absolute times as facts of the
+host named there.
+
 Usage: python benchmarks/stress.py [--n-exp 60] [--n-ens 16] [--workers 1] [--bubble polytropic]
-                                   [--keep DIR] [--json FILE]
+                                   [--keep DIR] [--json results/stress.json]
 """
 
 from __future__ import annotations
@@ -30,6 +34,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
 
 TARGET_GB = 4.0
 
@@ -47,7 +54,7 @@ def main(argv=None) -> int:
     ap.add_argument("--bubble", choices=["polytropic", "imrv2-fd", "thermal"], default="polytropic")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--keep", default=None, help="keep the dataset and the run directory here")
-    ap.add_argument("--json", default=None)
+    ap.add_argument("--json", default=results_path("stress"))
     args = ap.parse_args(argv)
 
     tmp = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="imrbayes-stress-"))
@@ -98,13 +105,15 @@ def main(argv=None) -> int:
            "checkpoints_mib": units_bytes / 2**20, "cpu_user_s": ru.ru_utime, "cpu_sys_s": ru.ru_stime,
            "estimate": {k: {"mean": v["mean"], "sd": v["sd"]} for k, v in s["estimate"].items()},
            "rmse": s["fit"]["rmse"]}
+    yard = host_yardstick()
+    add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "simulate_s", "cpu_user_s"))
     load = os.getloadavg() if hasattr(os, "getloadavg") else None
     print(f"MIEnKS-MDA stress: {row['n_experiments']} experiments, {args.bubble} bubble, N_En = {args.n_ens}, "
           f"{row['n_iter']} iterations, L = {row['L']}, h = {row['h']}; {os.cpu_count()} CPUs"
           + (f"; load average {load[0]:.1f}" if load else ""))
     cols = [("experiments", "n_experiments", "d"), ("windows", "n_windows", "d"), ("units", "units", "d"),
-            ("workers", "workers", "d"), ("member runs", "member_runs", "d"), ("wall s", "wall_s", ".1f"),
-            ("CPU s", "cpu_user_s", ".1f"), ("peak RSS MiB", "peak_rss_mib", ".0f"),
+            ("workers", "workers", "d"), ("member runs", "member_runs", "d"),
+            ("wall x yard", "wall_s_per_yardstick", ".0f"), ("CPU x yard", "cpu_user_s_per_yardstick", ".0f"), ("peak RSS MiB", "peak_rss_mib", ".0f"),
             ("checkpoints MiB", "checkpoints_mib", ".1f")]
     print("  ".join(f"{c[0]:>{max(len(c[0]), 8)}}" for c in cols))
     print("  ".join(f"{row[c[1]]:>{max(len(c[0]), 8)}{c[2]}}" for c in cols))
@@ -114,6 +123,7 @@ def main(argv=None) -> int:
           f"peak memory {'within' if row['within_target'] else 'ABOVE'} the {TARGET_GB:g} GB target")
     if args.json:
         meta = {"cpus": os.cpu_count(), "python": sys.version.split()[0], "platform": platform.platform(),
+                "machine": machine_info(), "host_yardstick": yard,
                 "load_average_1_5_15": list(load) if load else None,
                 "peak_rss": "wait4 ru_maxrss of the fit process (max over it and its waited-for descendants)"}
         Path(args.json).write_text(json.dumps({"meta": meta, "rows": [row]}, indent=2) + "\n")

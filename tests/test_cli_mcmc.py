@@ -40,6 +40,7 @@ def window0(syn, tmp_path_factory):
     return out, res
 
 
+@pytest.mark.slow
 def test_window0_ensemble_and_mcmc_agree(window0):
     out, res = window0
     assert "ensemble vs MCMC: 1 window(s) agree" in res.output
@@ -71,6 +72,7 @@ def test_window0_ensemble_and_mcmc_agree(window0):
         assert "quadrature_json" in dt["window_00"].attrs
 
 
+@pytest.mark.slow
 def test_compare_recomputes_from_the_files(window0, tmp_path):
     out, _ = window0
     before = json.loads((out / "compare.json").read_text())
@@ -83,6 +85,7 @@ def test_compare_recomputes_from_the_files(window0, tmp_path):
     assert "1 window(s) agree" in res.output and (tmp_path / "again" / "figures" / "mcmc_forest.png").exists()
 
 
+@pytest.mark.slow
 def test_resume_reads_finished_windows_back(window0, syn, tmp_path):
     """A rerun with --resume computes nothing: fit units and the MCMC window come from checkpoints,
     and compare.json is the same."""
@@ -102,6 +105,7 @@ def test_resume_reads_finished_windows_back(window0, syn, tmp_path):
     assert "n_steps" in bad.output
 
 
+@pytest.mark.slow
 def test_en4dvar_mcmc_one_exact_window(syn, tmp_path):
     out = tmp_path / "en"
     res = _run("fit", syn, "--method", "en4dvar", "--n-steps", 40, "--set", "n_ens=16", "--set", "n_runs=1",
@@ -117,6 +121,7 @@ def test_en4dvar_mcmc_one_exact_window(syn, tmp_path):
     assert s["cap_hit"] and s["stop_reason"] == "cap" and s["n_steps"] == 60 and "hard cap of 60 steps" in e["notes"]
 
 
+@pytest.mark.slow
 def test_en4dvar_plain_likelihood_mcmc_samples_the_same_density(syn, tmp_path):
     """With ``obs_weight=sum`` the MCMC target counts every sample once too (a 1/N_t target would
     be ~6x wider and the comparison would disagree)."""
@@ -146,11 +151,13 @@ def test_bad_mcmc_options_fail_before_the_fit(syn, tmp_path, args, needle):
     assert not (tmp_path / "x" / "summary.json").exists()
 
 
+@pytest.mark.slow
 def test_window_out_of_range_is_a_clear_error(syn, tmp_path):
     res = _run("fit", syn, *MIENKS, *FWD, "--mcmc", "--mcmc-windows", "99", "--out", tmp_path / "x", expect=2)
     assert "window(s) [99] do not exist" in res.output
 
 
+@pytest.mark.slow
 def test_compare_bad_run_dirs(window0, tmp_path):
     out, _ = window0
     res = _run("compare", tmp_path / "nope", expect=2)
@@ -182,6 +189,7 @@ def _window_arrays(out):
         return {k: dt[k]["posterior"]["log_G"].values.copy() for k in ("window_00", "window_01")}
 
 
+@pytest.mark.slow
 def test_sigkill_mid_window_then_resume_gives_the_uninterrupted_chains(syn, tmp_path):
     """Killed (SIGKILL) while window 0's emcee runs, resumed: the chains continue from the HDF5
     file and equal those of an uninterrupted run bit for bit; --workers 2 gives them too."""

@@ -52,6 +52,7 @@ def test_restarts_find_the_nuisance_basin_of_the_truth():
     assert held.cost <= ref.cost * 1.005, (held.cost, ref.cost)
 
 
+@pytest.mark.slow
 def test_candidate_fit_also_starts_from_the_preprocessing_nuisances():
     # relaxation data (lambda1 3.9 us, 3 camera-style bubbles): the NHKV baseline mimics the
     # relaxation with Req 0.6-1.3 prior sd above the preprocessing's, and zener started from those

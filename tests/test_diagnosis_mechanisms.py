@@ -17,6 +17,9 @@ from imrbayes.diagnosis import DiagnoseSettings, diagnose
 from imrbayes.diagnosis.synthetic import camera_obs
 from imrbayes.forward import ForwardOptions
 
+# Each test is a full diagnose run (minutes): the default tier's diagnose is test_diagnosis_cli.py.
+pytestmark = pytest.mark.slow
+
 OPTS = ForwardOptions(bubble="polytropic")
 
 
@@ -91,7 +94,6 @@ def test_hidden_cause_is_found(mechanism, seed):
         assert abs(np.log(top["estimate"]["mu"]["median"] / truth["theta"]["mu"])) < 0.3
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("mechanism,seed", [("viscoelastic-relaxation", 7), ("rate-dependent-viscosity", 9),
                                             ("damage-softening", 5)])
 def test_hidden_mechanism_is_found_more(mechanism, seed):

@@ -128,6 +128,7 @@ def test_loeo_runs_for_the_baseline_and_the_candidates_in_contention():
                                                             "level", "behind"]
 
 
+@pytest.mark.slow
 def test_diagnose_reports_loeo_where_it_ran():
     """A run with LOEO: the baseline has both schemes; every candidate has LOEO exactly when the
     rule gives it, a note when not, and its score averages only the schemes it has."""

@@ -364,6 +364,7 @@ def test_extension_starts_point_the_mechanisms_way():
     assert np.all(extension_starts(qkv, np.r_[np.log([5e3, 0.07]), 0.0])[:, 2] > 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [1014, 1016])
 def test_candidate_fit_leaves_the_baseline_basin_on_camera_stiffening_data(seed):
     """Camera-style stiffening data (polytropic; of seeds 1000-1019 these are the two where the fit

@@ -47,6 +47,7 @@ def _fit_with_req_against(monkeypatch, how, base, obs):
     return fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(loglik=False, n_draws=1), seed=0)
 
 
+@pytest.mark.slow
 def test_req_is_integrated_against_its_preprocessing_prior(monkeypatch):
     """Where Req's integral is taken does not change the Gauss-Newton paths (the same nuisance
     posteriors); with Req inferred each bubble's likelihood changes (log Req integrated against its

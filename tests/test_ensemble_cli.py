@@ -176,6 +176,7 @@ def test_validate_second_truth_case(tmp_path):
     assert all(k >= 0.9 * mi["n_decided"] for k in mi["decided_windows_containing_truth"].values())
 
 
+@pytest.mark.slow
 def test_validate_mcmc_layer_can_fail(tmp_path):
     """The constructed non-Gaussian window (a curved ridge around the first collapse) is flagged
     against even its own moment-matched Gaussian (suite case ``mcmc-non-gaussian``). With the DE and

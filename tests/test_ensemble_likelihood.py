@@ -20,6 +20,7 @@ def _toy(rng, tau, N=6, se=(0.05, 0.03)):
     return mu, theta, Lam, np.einsum("nij,nj->ni", Lam, m)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tau", [0.15, 0.0])
 def test_random_effects_covers_on_a_linear_gaussian_toy(tau):
     """Between-bubble sd interval and the gel-level mean cover the truth in most of 60 replicates;
@@ -143,6 +144,7 @@ def test_member_whose_req_reaches_rmax_fails_instead_of_raising():
     np.testing.assert_allclose(R[0], fm.simulate(theta[None], [rmax], [req], t).R_star[0], atol=1e-9)
 
 
+@pytest.mark.slow
 def test_predictive_with_the_scatters_uncertainty_holds_a_new_bubble():
     """Linear-Gaussian toy, 6 bubbles with 15 % scatter: a *new* bubble lies in the 95 % predictive
     interval at about the nominal rate once tau's uncertainty is integrated; the plug-in

@@ -65,6 +65,7 @@ def test_imr_windows():
             fit_indices(obs, bad)
 
 
+@pytest.mark.slow
 def test_en4dvar_recovers_truth():
     fm, obs = observations()
     res = fit_en4dvar(fm, obs, space(fm), En4DVarSettings(n_draws=8), seed=0)
@@ -126,6 +127,7 @@ def test_runner_chunks_match_single_call():
     assert done == [3, 3, 3, 1]
 
 
+@pytest.mark.slow
 def test_mienks_rejects_analysis_when_handoff_fails():
     """Every analysed member of one experiment fails its hand-off: that window's analysis is
     rejected for it (prior ensemble handed on, reported) and the run goes on."""
@@ -195,6 +197,7 @@ def test_en4dvar_obs_weight_is_checked():
         En4DVarSettings(obs_weight="median").check()
 
 
+@pytest.mark.slow
 def test_mienks_mda_weights_recover_the_truth_in_every_late_window():
     """Each observation counted once in total (obs_weight=mda) on noise-free records: after the
     first collapse every window's mean is within 5 % of the truth and inside its 95 % HDI."""

@@ -53,6 +53,7 @@ def gel(tmp_path_factory):
     return d
 
 
+@pytest.mark.slow
 def test_diagnose_resume_on_two_processes_gives_the_same_diagnosis(gel, tmp_path):
     out = tmp_path / "run"
     args = ["diagnose", gel, "--out", out, "--quick", "--n-bootstrap", "2", "--candidates", "qkv", "--no-loeo",
@@ -72,6 +73,7 @@ def test_diagnose_resume_on_two_processes_gives_the_same_diagnosis(gel, tmp_path
     assert "cannot resume" in res.output and len(res.output.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_validate_cases_are_units(tmp_path):
     cases = ["--case", "fusion-linear-gaussian", "--case", "pimr-collapse-time"]
     _run("validate", *cases, "--out", tmp_path / "a", "--quiet")

@@ -55,10 +55,14 @@ def uninterrupted(tmp_path_factory):
         return run_units(units, toy_bubble, seed=SEED, store=store, progress=False).results
 
 
-@pytest.mark.parametrize("sig,extra", [(signal.SIGTERM, ["--workers", "2"]), (signal.SIGKILL, ["--workers", "2"]),
-                                       (signal.SIGTERM, []), (signal.SIGKILL, []),
-                                       (signal.SIGTERM, ["--scheduler", "local", "--workers", "2"])],
-                         ids=["sigterm-2proc", "sigkill-2proc", "sigterm-inproc", "sigkill-inproc", "sigterm-dask"])
+# One kill in the default tier; the other signals and backends in the slow tier.
+@pytest.mark.parametrize("sig,extra", [
+    pytest.param(signal.SIGTERM, ["--workers", "2"], id="sigterm-2proc", marks=pytest.mark.slow),
+    pytest.param(signal.SIGKILL, ["--workers", "2"], id="sigkill-2proc", marks=pytest.mark.slow),
+    pytest.param(signal.SIGTERM, [], id="sigterm-inproc", marks=pytest.mark.slow),
+    pytest.param(signal.SIGKILL, [], id="sigkill-inproc"),
+    pytest.param(signal.SIGTERM, ["--scheduler", "local", "--workers", "2"], id="sigterm-dask", marks=pytest.mark.slow),
+])
 def test_kill_and_resume_loses_nothing(tmp_path, uninterrupted, sig, extra):
     out = tmp_path / "run"
     proc = subprocess.Popen(_cmd(out, *extra), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

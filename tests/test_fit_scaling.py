@@ -20,6 +20,10 @@ from click.testing import CliRunner
 from _ens_synth import observations, space
 from imrbayes.cli import main
 
+# Whole fits on every backend, killed and resumed: the default tier's execution tests are
+# test_execution_resume.py and test_execution_backends.py (toy units).
+pytestmark = pytest.mark.slow
+
 TINY = {
     "imr": ["n_G=9", "n_mu=7", "G_max=15e3", "mu_max=0.2", "n_draws=20"],
     "en4dvar": ["n_ens=8", "n_runs=2", "n_iter=2", "n_draws=4"],

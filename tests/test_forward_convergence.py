@@ -45,6 +45,7 @@ def _default(case, mass_transfer=True, **kw):
     return fm.simulate({"G": G, "mu": mu}, rmax, rmax / ratio, T121).R_star[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case, mass_transfer", [("lic", True), ("lic", False), ("soft", True)])
 def test_default_grid_is_within_1_5e3_of_the_grid_limit(case, mass_transfer):
     """The default discretisation, at its default tolerance, is within 1.5e-3 (relative L2
@@ -58,6 +59,7 @@ def test_default_grid_is_within_1_5e3_of_the_grid_limit(case, mass_transfer):
     assert err < old
 
 
+@pytest.mark.slow
 @needs_ref
 @pytest.mark.parametrize("physics", ["therm_vap", "therm_vap_mass"])
 def test_imrv2_200_point_references_are_a_comparison_not_the_target(physics):
@@ -106,6 +108,7 @@ def _lic(nt, stretch, **kw):
     return out.R_star[0]
 
 
+@pytest.mark.slow
 def test_wall_clustered_grid_converges_over_three_collapses():
     """At each collapse the cold wall's thermal layer becomes thinner than a mildly clustered grid's
     wall cell (the gas there is cold and at high pressure, so its diffusivity is small). With the
@@ -157,6 +160,7 @@ def _two_processes(env):
                                       check=True).stdout.strip().splitlines()[-1]) for _ in range(2)]
 
 
+@pytest.mark.slow
 def test_every_process_runs_the_cached_kernel():
     """Two processes on the session's kernel cache (conftest compiled it) both run numba's cached
     machine code -- no signature compiled in memory (a miss) -- and give bit-identical trajectories."""

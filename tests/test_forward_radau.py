@@ -28,7 +28,7 @@ def test_radau_is_the_default_for_the_cold_thermal_bubble_only():
         ForwardOptions(integrator="radau5", bubble="polytropic")
 
 
-@pytest.mark.parametrize("model", ["nhkv", "zener"])
+@pytest.mark.parametrize("model", ["nhkv", pytest.param("zener", marks=pytest.mark.slow)])
 def test_default_tolerance_is_within_1e4_of_an_independent_tight_solve(model):
     """The default Radau run against the ARK (IMEX) integrator at rtol 1e-10 over three collapses:
     two different integrators, so agreement is not a shared bias. Tight Radau and tight ARK agree

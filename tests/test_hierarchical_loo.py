@@ -3,6 +3,7 @@ on per-bubble Gaussian likelihoods drawn from a known gel: the bubbles' own esti
 others' 95 % predictive about 95 % of the time, and a bubble from another gel is flagged."""
 
 import numpy as np
+import pytest
 from scipy.stats import binomtest
 
 from imrbayes.ensemble.fusion import leave_one_out
@@ -18,6 +19,7 @@ def _bubbles(rng, n, mu, tau, se):
     return Lam, eta
 
 
+@pytest.mark.slow
 def test_coverage_on_a_known_gel():
     rng = np.random.default_rng(7)
     mu, tau, se = np.array([9.0, -2.3]), np.array([0.2, 0.3]), np.array([0.08, 0.1])

@@ -102,7 +102,7 @@ def test_accepted_blocks_carry_their_exact_log_density():
         tg.accept_blocks(X, Q2, np.random.RandomState(0))
 
 
-@pytest.mark.parametrize("moves", ["ridge:0.5,blocks:0.5", "ridge:0.3,blocks:0.4,de:0.3"])
+@pytest.mark.parametrize("moves", [pytest.param("ridge:0.5,blocks:0.5", marks=pytest.mark.slow), "ridge:0.3,blocks:0.4,de:0.3"])
 def test_block_and_ridge_moves_sample_the_exact_posterior(moves):
     tg = LinearWindow()
     mean, cov = tg.exact()

@@ -306,7 +306,11 @@ def test_moves_are_parsed_and_checked():
             MCMCSettings(**bad).check(2)
 
 
-@pytest.mark.parametrize("moves", ["stretch", "de", "snooker", "de:0.8,snooker:0.2", "walk"])
+# The default tier samples with DE (part of the default mixture); the other moves in the slow tier.
+@pytest.mark.parametrize("moves", [pytest.param("stretch", marks=pytest.mark.slow), "de",
+                                   pytest.param("snooker", marks=pytest.mark.slow),
+                                   pytest.param("de:0.8,snooker:0.2", marks=pytest.mark.slow),
+                                   pytest.param("walk", marks=pytest.mark.slow)])
 def test_every_move_samples_the_target(moves):
     """Each selectable move leaves the target invariant: on a correlated 2-D Gaussian, 4 x 8 walkers
     x 3000 steps give the exact sds within 4 % (about 5 Monte-Carlo sd) and the mean within 0.1 sd.
@@ -319,6 +323,7 @@ def test_every_move_samples_the_target(moves):
     np.testing.assert_allclose(np.corrcoef(x.T)[0, 1], COV[0, 1] / sd.prod(), atol=0.03)
 
 
+@pytest.mark.slow
 def test_emcee_3_1_6_snooker_move_is_biased_and_ours_is_not():
     """Why ``snooker`` is our own move: emcee's DESnookerMove (before dfm/emcee#531) shrinks a 2-D
     Gaussian's sd to ~0.6-0.7; the same check passes with :func:`snooker_move`."""
@@ -340,7 +345,7 @@ def test_emcee_3_1_6_snooker_move_is_biased_and_ours_is_not():
         assert np.all(np.abs(ratio - 1) < 0.06) == ok, (move, ratio)
 
 
-@pytest.mark.parametrize("moves", ["indep", "indep:0.5,de:0.4,snooker:0.1"])
+@pytest.mark.parametrize("moves", ["indep", pytest.param("indep:0.5,de:0.4,snooker:0.1", marks=pytest.mark.slow)])
 def test_independence_move_samples_the_target_from_a_wrong_proposal(moves):
     """The ``indep`` move proposes from a Student-t on the start Gaussian; here that Gaussian is
     1.5 sd off-centre and half as wide as the target, so only a correct Hastings ratio gives the
@@ -370,6 +375,7 @@ def test_independence_move_ratio_is_the_student_t_density_ratio():
     np.testing.assert_allclose(f, t.logpdf(x0) - t.logpdf(q), rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_adapted_independence_proposal_samples_the_target_and_resumes_identically(tmp_path):
     """``indep_adapt``: each ensemble re-places its proposal once, on its own draws, at a fixed step.
     From a start Gaussian 3 sd off and at 0.3 of the variance (where the fixed proposal is accepted

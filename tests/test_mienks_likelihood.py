@@ -188,6 +188,7 @@ def test_a_bubble_the_pilot_lost_is_named():
         "experiment 'd'")
 
 
+@pytest.mark.slow
 def test_a_flagged_bubbles_pilot_is_run_again_and_the_closer_fit_kept(monkeypatch):
     """``pilot_retry``: an experiment the outlier rule flags gets one more pilot of its own (units
     ``pass=pilot/retry=<g>/...``, other random streams); the closer of the two fits sets its noise
@@ -249,6 +250,7 @@ def test_a_cheaper_pilots_retry_runs_at_the_reported_pass_size(monkeypatch):
     assert res.per_experiment[1]["likelihood"]["pilot_retry"]["kept"] == "retry"
 
 
+@pytest.mark.slow
 def test_stopping_settled_windows_early_saves_runs_not_the_answer():
     """``min_iter`` (default 2): windows whose cost has settled stop before ``n_iter``; the same
     records give the gel-level estimate of the fully iterated smoother (None) to a tenth of its sd
@@ -427,6 +429,7 @@ def test_default_infers_rmax_and_req():
     assert err < abs(res_fixed.estimate["mu"]["mean"] / TRUTH["mu"] - 1)
 
 
+@pytest.mark.slow
 def test_req_prior_from_a_whole_record_en4dvar_fit():
     """``req_prior="en4dvar"``: the records' Req is 12 % above the stated one (prior sd 15 %). Each
     estimated Req's prior becomes its whole-record En4D-Var posterior -- closer to the true Req than
@@ -484,6 +487,7 @@ def test_integrating_out_req_is_the_marginal_of_the_joint_posterior():
     np.testing.assert_array_equal(e0, eta[:2])
 
 
+@pytest.mark.slow
 def test_record_with_shared_req_is_reported():
     """With Req analysed, the fit reports the record-level estimate with each Req shared by the
     windows (details["alternative_estimates"]["record_shared_req"]) next to the reported one."""
@@ -499,6 +503,7 @@ def test_record_with_shared_req_is_reported():
                                                                          rec[nm]["sd"] / rec[nm]["mean"])
 
 
+@pytest.mark.slow
 def test_reported_pass_is_continuous_in_the_pilots_last_bits(monkeypatch):
     """The reported pass's unit ids carry a digest of the pilot's noise model (resume), but their
     random streams must not: a 1e-13 change of the data moves the noise model in its last bits, and
@@ -525,6 +530,7 @@ def test_reported_pass_is_continuous_in_the_pilots_last_bits(monkeypatch):
     assert np.allclose(c1, c2, rtol=1e-2, atol=0.0), (c1, c2)
 
 
+@pytest.mark.slow
 def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the_prior(monkeypatch):
     """``prior_widen`` (default ``mu:3``; the default likelihood only): window 0's members are drawn
     with the parameter prior's sd times the factor (their covariance, exactly), while the gel-level

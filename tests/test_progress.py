@@ -75,6 +75,7 @@ def tiny_ds(tmp_path_factory):
     return ds
 
 
+@pytest.mark.slow
 def test_fit_bar_counts_windows_times_experiments_from_the_start(tiny_ds, tmp_path, monkeypatch):
     import imrbayes.cli.options as opts
 

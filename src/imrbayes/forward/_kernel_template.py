@@ -5,7 +5,7 @@
 # argument). Only what calls the model lives here: the right-hand side (Keller-Miksis and the
 # bubble's fields), the finite-difference Jacobians and the three integration loops. The linear
 # algebra they solve (Thomas / block Thomas sweeps, Woodbury, small LU) is in solver_algebra.py and
-# what the loops share (dense output, parameter pieces, final status) in integration_common.py,
+# what the loops share (dense output, parameter pieces, step control, final status) in integration_common.py,
 # both compiled once for all models; codegen hashes them into this copy's name.
 #
 # Physics: shared/docs/forward-model.md (IMRv2, in our words). Everything here is dimensionless.
@@ -28,12 +28,12 @@ from imrbayes.forward.layout import (
     G_PV, G_REQ, G_RG, G_RV, G_T8, G_TAIT_B, G_TAIT_N, GR_D1C, GR_D1L, GR_D1U, GR_D2C, GR_D2L,
     GR_D2U, GR_WALL, GR_Y, OK)
 from imrbayes.forward.integration_common import (
-    MIN_STEP, T_BREAK_SLACK, before_end, clip_step, crossed_break, final_status, outputs_at_start,
-    outputs_in_step, parameter_piece, piece_end)
+    MIN_STEP, T_BREAK_SLACK, accepted_step_factor, all_finite, batch_outputs, before_end, clip_step, crossed_break, final_status,
+    next_step, outputs_at_start, outputs_in_step, parameter_piece, piece_end, rejected_step_factor, step_failure)
 from imrbayes.forward.solver_algebra import (
     FASTMATH, apply_tridiag, build_tridiag, field_blocks, lu_small, lu_solve_small, radau_factor_pair,
     radau_solve, radau_solve_pair, rms_norm, thomas_factor, thomas_solve, thomas_solve_many)
-from imrbayes.forward.constitutive.nhkv import stress as _stress, dissipation_q as _dissipation_q  # PLUGIN
+from imrbayes.forward.constitutive.nhkv import dissipation_q as _dissipation_q, stress as _stress  # PLUGIN
 
 @njit(cache=True, error_model="numpy")
 def _temperature(theta, alpha):
@@ -389,14 +389,10 @@ def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, a
     h_acc = -1.0
     err_acc = 1.0
     while before_end(t, t1):
-        if nsteps >= max_steps:
-            status = FAIL_MAXSTEPS
+        status = step_failure(nsteps, max_steps, h)
+        if status != OK:
             break
-        t_stop = piece_end(t1, piece, breaks)
-        if h < MIN_STEP:
-            status = FAIL_STEP
-            break
-        h, last = clip_step(t, h, t_stop)
+        t_stop, h, last = next_step(t, h, t1, piece, breaks)
         pr = ptab[piece]
         ok = True
         for s in range(1, ns):
@@ -424,7 +420,7 @@ def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, a
             if not math.isfinite(err) or not (ynew[0] > 0.0):
                 ok = False
         if not ok or err > 1.0:
-            h *= 0.25 if not ok else max(0.2, 0.9 * err ** expo)
+            h *= rejected_step_factor(ok, err, expo)
             nrej += 1
             continue
         t_new = t_stop if last else t + h
@@ -433,11 +429,7 @@ def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, a
                 fnew[k] = F[ns - 1, k]
         else:
             _rhs_gas(ynew, g, pr, flags, fnew)
-        bad = False
-        for k in range(n):
-            if not math.isfinite(fnew[k]):
-                bad = True
-        if bad:
+        if not all_finite(fnew):
             h *= 0.25
             nrej += 1
             continue
@@ -451,7 +443,7 @@ def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, a
             # New parameters from here: the dense output above used the left limit.
             piece += 1
             _rhs_gas(y, g, ptab[piece], flags, F[0])
-        fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** expo))
+        fac = accepted_step_factor(err, expo)
         if not last:
             if h_acc > 0.0 and err > 0.0:
                 fac = min(fac, max(0.2, min(5.0, 0.9 * (h / h_acc) * (err * err / err_acc) ** expo)))
@@ -554,14 +546,10 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
     jac_age = -1
     status = OK
     while before_end(t, t1):
-        if nsteps >= max_steps:
-            status = FAIL_MAXSTEPS
+        status = step_failure(nsteps, max_steps, h)
+        if status != OK:
             break
-        t_stop = piece_end(t1, piece, breaks)
-        if h < MIN_STEP:
-            status = FAIL_STEP
-            break
-        h, last = clip_step(t, h, t_stop)
+        t_stop, h, last = next_step(t, h, t1, piece, breaks)
         pr = ptab[piece]
         hg = h * gamma
         if implicit:
@@ -647,7 +635,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
             if not math.isfinite(err) or not (ynew[0] > 0.0):
                 ok = False
         if not ok or err > 1.0:
-            h *= 0.25 if not ok else max(0.2, 0.9 * err ** expo)
+            h *= rejected_step_factor(ok, err, expo)
             if not ok:
                 jac_age = -1
             nrej += 1
@@ -662,11 +650,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
         t_new = t_stop if last else t + h
         work[0] = root_acc
         rhs(t_new, ynew, g, pr, flags, grid, mgrid, fnew, coef_new, work)
-        bad = False
-        for k in range(n):
-            if not math.isfinite(fnew[k]):
-                bad = True
-        if bad:
+        if not all_finite(fnew):
             h *= 0.25
             nrej += 1
             continue
@@ -690,7 +674,7 @@ def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
                 jac_age = -1
         if crossed_break(last, t, piece, breaks):
             piece += 1
-        fac = 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** expo))
+        fac = accepted_step_factor(err, expo)
         h *= fac
     return final_status(status, y, r_out, k_eval), nsteps, nrej
 
@@ -1191,11 +1175,7 @@ def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
     change at the member's ``breaks`` (N, n_pieces - 1) in t*.
     """
     N = Y0.shape[0]
-    Y = Y0.copy()
-    R = np.full((N, t_eval.shape[1]), np.nan)
-    status = np.zeros(N, dtype=np.int64)
-    nsteps = np.zeros(N, dtype=np.int64)
-    nrej = np.zeros(N, dtype=np.int64)
+    Y, R, status, nsteps, nrej = batch_outputs(Y0, t_eval.shape[1])
     for m in range(N):
         _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
                         rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau)
@@ -1208,11 +1188,7 @@ def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgri
                              radau):
     """As integrate_batch, with the members spread over numba threads (prange)."""
     N = Y0.shape[0]
-    Y = Y0.copy()
-    R = np.full((N, t_eval.shape[1]), np.nan)
-    status = np.zeros(N, dtype=np.int64)
-    nsteps = np.zeros(N, dtype=np.int64)
-    nrej = np.zeros(N, dtype=np.int64)
+    Y, R, status, nsteps, nrej = batch_outputs(Y0, t_eval.shape[1])
     for m in prange(N):
         _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
                         rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau)

@@ -1,5 +1,6 @@
 """What the forward kernel's three integration loops (Radau IIA, ARK, explicit pair) share: R on
-the output grid, the time pieces of piecewise-constant parameters, and the member's final status.
+the output grid, the time pieces of piecewise-constant parameters, the step control, and the
+member's final status.
 
 numba functions; ``codegen`` hashes this file into the per-model kernel's name. The loop helpers
 are inlined into the loops in numba's IR (``inline="always"``): as separate compiled functions they
@@ -14,7 +15,7 @@ import math
 import numpy as np
 from numba import njit
 
-from imrbayes.forward.layout import FAIL_NONFINITE, FAIL_RADIUS, OK
+from imrbayes.forward.layout import FAIL_MAXSTEPS, FAIL_NONFINITE, FAIL_RADIUS, FAIL_STEP, OK
 from imrbayes.forward.solver_algebra import FASTMATH
 
 # Steps below this (in t*) mean the step control has collapsed (status FAIL_STEP).
@@ -54,6 +55,51 @@ def clip_step(t, h, t_stop):
     if t + h >= t_stop - T_BREAK_SLACK:
         return t_stop - t, True
     return h, False
+
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath=FASTMATH)
+def step_failure(nsteps, max_steps, h):
+    """The status that stops the loop before its next attempt: FAIL_MAXSTEPS once ``nsteps``
+    accepted steps reach ``max_steps``, FAIL_STEP once the step size h (t*) is below MIN_STEP,
+    else OK."""
+    if nsteps >= max_steps:
+        return FAIL_MAXSTEPS
+    if h < MIN_STEP:
+        return FAIL_STEP
+    return OK
+
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath=FASTMATH)
+def next_step(t, h, t1, piece, breaks):
+    """(t_stop, h, last): the end of the current piece's step sequence (:func:`piece_end`) and the
+    step from t clipped to it (:func:`clip_step`)."""
+    t_stop = piece_end(t1, piece, breaks)
+    h, last = clip_step(t, h, t_stop)
+    return t_stop, h, last
+
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath=FASTMATH)
+def rejected_step_factor(ok, err, expo):
+    """Factor on the step size after a rejected attempt: 1/4 when the attempt failed outright
+    (``ok`` false: non-finite or R <= 0), else from the error norm ``err`` > 1 and the exponent
+    ``expo`` = -1/order, no smaller than 1/5."""
+    return 0.25 if not ok else max(0.2, 0.9 * err ** expo)
+
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath=FASTMATH)
+def accepted_step_factor(err, expo):
+    """Factor on the step size after an accepted step with error norm ``err`` <= 1 and exponent
+    ``expo`` = -1/order: between 1/5 and 5."""
+    return 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** expo))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def all_finite(x):
+    """True when every entry of ``x`` (n,) is finite (a rate at an accepted state must be)."""
+    for k in range(x.shape[0]):
+        if not math.isfinite(x[k]):
+            return False
+    return True
 
 
 @njit(cache=True, error_model="numpy", inline="always", fastmath=FASTMATH)
@@ -123,3 +169,12 @@ def final_status(status, y, r_out, k_eval):
     if not (y[0] > 0.0):
         status = FAIL_RADIUS
     return status
+
+
+@njit(cache=True, error_model="numpy")
+def batch_outputs(Y0, n_out):
+    """What a batch driver fills: (Y, R, status, nsteps, nrejected) for the N members of ``Y0``
+    (N, n): a copy of Y0 to advance in place, R* (N, n_out) all NaN, and zero counts (N,)."""
+    n_members = Y0.shape[0]
+    return (Y0.copy(), np.full((n_members, n_out), np.nan), np.zeros(n_members, dtype=np.int64),
+            np.zeros(n_members, dtype=np.int64), np.zeros(n_members, dtype=np.int64))
