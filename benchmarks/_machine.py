@@ -18,7 +18,7 @@ def _cpuinfo() -> dict:
         with open("/proc/cpuinfo") as fh:
             for line in fh:
                 if not line.strip():
-                    break                      # first processor only
+                    break  # first processor only
                 key, _, value = line.partition(":")
                 info[key.strip()] = value.strip()
     except OSError:
@@ -32,13 +32,22 @@ def machine_info() -> dict:
     flags = set(cpu.get("flags", "").split())
     try:
         import llvmlite.binding as llvm
+
         target = llvm.get_host_cpu_name()
     except Exception:  # pragma: no cover - llvmlite is a numba dependency
         target = None
-    return {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
-            "cpu_model_name": cpu.get("model name"), "cpu_family": cpu.get("cpu family"), "cpu_model": cpu.get("model"),
-            "avx2": "avx2" in flags, "avx512f": "avx512f" in flags, "numba_target_cpu": target,
-            "numba_threads": os.environ.get("NUMBA_NUM_THREADS")}
+    return {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "cpu_model_name": cpu.get("model name"),
+        "cpu_family": cpu.get("cpu family"),
+        "cpu_model": cpu.get("model"),
+        "avx2": "avx2" in flags,
+        "avx512f": "avx512f" in flags,
+        "numba_target_cpu": target,
+        "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
+    }
 
 
 def cpu_label(info: dict | None = None) -> str:
@@ -69,15 +78,19 @@ def host_yardstick(repeat: int = 5) -> dict:
     fm = ForwardModel("nhkv", options=ForwardOptions(stretch=1.5, nt=64))
     t_star = np.arange(121) * 0.025
     rmax, ratio = 263e-6, 7.58
-    fm.simulate({"G": 7290.0, "mu": 0.088}, rmax, rmax / ratio, t_star[:3])     # load / compile
+    fm.simulate({"G": 7290.0, "mu": 0.088}, rmax, rmax / ratio, t_star[:3])  # load / compile
     best = float("inf")
     for _ in range(repeat):
         t0 = time.perf_counter()
         fm.simulate(params, rmax, rmax / ratio, t_star)
         best = min(best, time.perf_counter() - t0)
     ms = 1e3 * best
-    return {"row": "forward (a), previous default grid (stretch 1.5, nt 64), 48 members, t* <= 3",
-            "ms": ms, "reference_ms": YARDSTICK_REFERENCE_MS, "host_factor": ms / YARDSTICK_REFERENCE_MS}
+    return {
+        "row": "forward (a), previous default grid (stretch 1.5, nt 64), 48 members, t* <= 3",
+        "ms": ms,
+        "reference_ms": YARDSTICK_REFERENCE_MS,
+        "host_factor": ms / YARDSTICK_REFERENCE_MS,
+    }
 
 
 RESULTS_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

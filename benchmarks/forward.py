@@ -48,14 +48,16 @@ from _machine import add_yardstick_ratios, cpu_label, host_yardstick, machine_in
 
 RMAX, RATIO = 263e-6, 7.58
 T_STAR = np.arange(121) * 0.025
-WINDOW_START = 0.6          # t*; 35 samples to 1.45 cover the first collapse (t* ~ 0.9)
+WINDOW_START = 0.6  # t*; 35 samples to 1.45 cover the first collapse (t* ~ 0.9)
 N_MEMBERS = 48
 
 
 def _params(seed=0):
     rng = np.random.default_rng(seed)
-    return {"G": 7290.0 * (1 + 0.4 * rng.uniform(-1, 1, N_MEMBERS)),
-            "mu": 0.088 * (1 + 0.4 * rng.uniform(-1, 1, N_MEMBERS))}
+    return {
+        "G": 7290.0 * (1 + 0.4 * rng.uniform(-1, 1, N_MEMBERS)),
+        "mu": 0.088 * (1 + 0.4 * rng.uniform(-1, 1, N_MEMBERS)),
+    }
 
 
 def _time(fn, repeat, min_total_s=2.0, max_repeat=200):
@@ -96,12 +98,20 @@ def bench_case(label, options: dict, repeat: int) -> dict:
     ref_win = tight.propagate(start, params, t_win_grid[-1], t_win_grid)
     rel_full, abs_full = _errors(full.R_star, ref_full.R_star)
     rel_win, abs_win = _errors(win.R_star, ref_win.R_star)
-    return {"label": label, "options": fm.options.to_dict(), "n_state": fm.n_state,
-            "full_ms": 1e3 * t_full, "window_ms": 1e3 * t_win,
-            "steps_per_member_full": float(full.n_steps.mean()), "steps_per_member_window": float(win.n_steps.mean()),
-            "failed": int(full.failed.sum() + win.failed.sum()),
-            "max_rel_err_R_full": rel_full, "max_abs_err_Rstar_full": abs_full,
-            "max_rel_err_R_window": rel_win, "max_abs_err_Rstar_window": abs_win}
+    return {
+        "label": label,
+        "options": fm.options.to_dict(),
+        "n_state": fm.n_state,
+        "full_ms": 1e3 * t_full,
+        "window_ms": 1e3 * t_win,
+        "steps_per_member_full": float(full.n_steps.mean()),
+        "steps_per_member_window": float(win.n_steps.mean()),
+        "failed": int(full.failed.sum() + win.failed.sum()),
+        "max_rel_err_R_full": rel_full,
+        "max_abs_err_Rstar_full": abs_full,
+        "max_rel_err_R_window": rel_win,
+        "max_abs_err_Rstar_window": abs_win,
+    }
 
 
 _COMPILE_SNIPPET = """
@@ -119,10 +129,16 @@ def compile_times(options: dict) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "IMRBAYES_CACHE_DIR": tmp, "NUMBA_CACHE_DIR": tmp}
         code = _COMPILE_SNIPPET.format(opts=json.dumps(options))
-        first = float(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                                     check=True).stdout.split()[-1])
-        second = float(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                                      check=True).stdout.split()[-1])
+        first = float(
+            subprocess.run(
+                [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+            ).stdout.split()[-1]
+        )
+        second = float(
+            subprocess.run(
+                [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+            ).stdout.split()[-1]
+        )
     return {"first_process_s": first, "cached_process_s": second}
 
 
@@ -139,11 +155,18 @@ def grid_study(n_members: int = 8) -> list[dict]:
         fm = ForwardModel("nhkv", options=ForwardOptions(nt=nt, mt=nt, stretch=stretch))
         fm.simulate({"G": 7290.0, "mu": 0.088}, RMAX, RMAX / RATIO, T_STAR[:3])
         dt, out = _time(lambda: fm.simulate(params, RMAX, RMAX / RATIO, T_STAR), 3)
-        l2 = np.sqrt(np.sum((out.R_star - limit) ** 2, axis=1) / np.sum(limit ** 2, axis=1))
-        rows.append({"stretch": stretch, "nt": nt, "rel_l2_to_limit_max": float(l2.max()),
-                     "max_abs_err_Rstar": float(np.max(np.abs(out.R_star - limit))),
-                     "steps_per_member": float(out.n_steps.mean()), "ms_per_member": 1e3 * dt / n_members,
-                     "failed": int(out.failed.sum())})
+        l2 = np.sqrt(np.sum((out.R_star - limit) ** 2, axis=1) / np.sum(limit**2, axis=1))
+        rows.append(
+            {
+                "stretch": stretch,
+                "nt": nt,
+                "rel_l2_to_limit_max": float(l2.max()),
+                "max_abs_err_Rstar": float(np.max(np.abs(out.R_star - limit))),
+                "steps_per_member": float(out.n_steps.mean()),
+                "ms_per_member": 1e3 * dt / n_members,
+                "failed": int(out.failed.sum()),
+            }
+        )
     return rows
 
 
@@ -159,18 +182,28 @@ def peer_rows(repeat: int = 3, batch: int = 8, limit_nt: int = 65) -> dict:
     except ImportError:
         return {"installed": False}
     from pyimr import NeoHookeanKelvinVoigt, PhysicalParameters, SimulationConfig, prepare
+
     ours_physics = ForwardModel("nhkv").physics
     tc = RMAX / np.sqrt(ours_physics.p8 / ours_physics.rho)
     tv = T_STAR * tc
     mat = NeoHookeanKelvinVoigt(7290.0, 0.088)
-    res = {"installed": True, "version": pyimr.__version__, "case": "LIC, KM, thermal, vapour, mass transfer, cold medium"}
+    res = {
+        "installed": True,
+        "version": pyimr.__version__,
+        "case": "LIC, KM, thermal, vapour, mass transfer, cold medium",
+    }
     cfg = SimulationConfig(material=mat, **_peer_case())
-    res["defaults"] = {"thermal": cfg.thermal, "Nt": cfg.Nt, "rtol": cfg.rtol, "atol": cfg.atol,
-                       "polytropic_exponent": cfg.physics.polytropic_exponent}
+    res["defaults"] = {
+        "thermal": cfg.thermal,
+        "Nt": cfg.Nt,
+        "rtol": cfg.rtol,
+        "atol": cfg.atol,
+        "polytropic_exponent": cfg.physics.polytropic_exponent,
+    }
     t0 = time.perf_counter()
     prob = prepare(cfg)
     first = prob.solve(tv)
-    res["first_solve_s"] = time.perf_counter() - t0            # includes JAX tracing and compilation
+    res["first_solve_s"] = time.perf_counter() - t0  # includes JAX tracing and compilation
     t_single, _ = _time(lambda: prob.solve(tv), repeat, min_total_s=0.0, max_repeat=repeat)
     res["single_ms"] = 1e3 * t_single
     res["single_success"] = bool(first.stats.success)
@@ -178,7 +211,7 @@ def peer_rows(repeat: int = 3, batch: int = 8, limit_nt: int = 65) -> dict:
     p = _params()
     vals = np.column_stack([p["G"][:batch], p["mu"][:batch]])
     paths = ["material.shear_modulus_pa", "material.viscosity_pa_s"]
-    prob.solve_sweep(tv, paths, vals)                           # trace/compile at this width
+    prob.solve_sweep(tv, paths, vals)  # trace/compile at this width
     t_batch, _ = _time(lambda: prob.solve_sweep(tv, paths, vals), 1, min_total_s=0.0, max_repeat=1)
     res["batch"] = batch
     res["batch_ms_per_member"] = 1e3 * t_batch / batch
@@ -199,16 +232,21 @@ def peer_rows(repeat: int = 3, batch: int = 8, limit_nt: int = 65) -> dict:
     res["ours_default_to_our_limit"] = rel(ours_default.R_star[0], R_lim)
     res["peer_default_to_our_limit"] = rel(np.asarray(first.radius_ratio), R_lim)
     comparisons = {}
-    for label, phys in (("pyimr_constants", PhysicalParameters()),
-                        ("our_constants", PhysicalParameters(polytropic_exponent=ours_physics.kappa))):
+    for label, phys in (
+        ("pyimr_constants", PhysicalParameters()),
+        ("our_constants", PhysicalParameters(polytropic_exponent=ours_physics.kappa)),
+    ):
         rows = {}
         for nt in (limit_nt // 2 + 1, limit_nt):
             c = SimulationConfig(material=mat, Nt=nt, rtol=1e-10, atol=1e-12, physics=phys, **_peer_case())
             rows[nt] = np.asarray(prepare(c).solve(tv).radius_ratio)
         lo, hi = sorted(rows)
-        comparisons[label] = {"peer_nt": hi, "peer_self_refinement": rel(rows[lo], rows[hi]),
-                              "to_our_limit": rel(rows[hi], R_lim),
-                              "max_abs_Rstar": float(np.max(np.abs(rows[hi] - R_lim)))}
+        comparisons[label] = {
+            "peer_nt": hi,
+            "peer_self_refinement": rel(rows[lo], rows[hi]),
+            "to_our_limit": rel(rows[hi], R_lim),
+            "max_abs_Rstar": float(np.max(np.abs(rows[hi] - R_lim))),
+        }
     res["limits"] = comparisons
     return res
 
@@ -219,15 +257,21 @@ def _print_peers(pr: dict) -> None:
         return
     d = pr["defaults"]
     print(f"\npeer PyIMR {pr['version']} ({d['thermal']}, Nt {d['Nt']}, rtol {d['rtol']:g}), {pr['case']}:")
-    print(f"  imrbayes time / PyIMR time, same run: single solve {pr['single_over_pyimr']:.3f}; per member of a "
-          f"{pr['batch']}-member batch {pr['batch_per_member_over_pyimr']:.3f} (PyIMR's first solve, JAX compile "
-          f"included: {pr['first_solve_s']:.1f} s)")
-    print(f"  rel. L2 in R* to our grid limit: PyIMR default {pr['peer_default_to_our_limit']:.1e}, "
-          f"imrbayes default {pr['ours_default_to_our_limit']:.1e}")
+    print(
+        f"  imrbayes time / PyIMR time, same run: single solve {pr['single_over_pyimr']:.3f}; per member of a "
+        f"{pr['batch']}-member batch {pr['batch_per_member_over_pyimr']:.3f} (PyIMR's first solve, JAX compile "
+        f"included: {pr['first_solve_s']:.1f} s)"
+    )
+    print(
+        f"  rel. L2 in R* to our grid limit: PyIMR default {pr['peer_default_to_our_limit']:.1e}, "
+        f"imrbayes default {pr['ours_default_to_our_limit']:.1e}"
+    )
     for label, c in pr["limits"].items():
-        print(f"  at the grid limits ({label}): PyIMR Nt {c['peer_nt']} vs imrbayes stretch 3 nt 2048: "
-              f"rel. L2 {c['to_our_limit']:.1e}, max |dR*| {c['max_abs_Rstar']:.1e} "
-              f"(PyIMR's own Nt refinement {c['peer_self_refinement']:.1e})")
+        print(
+            f"  at the grid limits ({label}): PyIMR Nt {c['peer_nt']} vs imrbayes stretch 3 nt 2048: "
+            f"rel. L2 {c['to_our_limit']:.1e}, max |dR*| {c['max_abs_Rstar']:.1e} "
+            f"(PyIMR's own Nt refinement {c['peer_self_refinement']:.1e})"
+        )
 
 
 def main(argv=None):
@@ -248,40 +292,58 @@ def main(argv=None):
         ("full physics, IMRv2 grid Nt=25", {"scheme": "imrv2-fd"}),
         ("polytropic + vapour", {"bubble": "polytropic"}),
     ]
-    load_before = os.getloadavg()     # other jobs on the machine inflate every timing: recorded beside them
+    load_before = os.getloadavg()  # other jobs on the machine inflate every timing: recorded beside them
     yard = host_yardstick(args.repeat)
     rows = [] if args.only_peers else [bench_case(label, opts, args.repeat) for label, opts in cases]
     for r in rows:
         add_yardstick_ratios(r, yard, ms_keys=("full_ms", "window_ms"))
-    result = {"machine": machine_info(), "host_yardstick": yard,
-              "n_members": N_MEMBERS, "rows": rows, "load_average_before": load_before}
+    result = {
+        "machine": machine_info(),
+        "host_yardstick": yard,
+        "n_members": N_MEMBERS,
+        "rows": rows,
+        "load_average_before": load_before,
+    }
     if not args.no_compile and not args.only_peers:
-        result["compile"] = add_yardstick_ratios(compile_times({}), yard,
-                                                 seconds_keys=("first_process_s", "cached_process_s"))
-    print(f"CPU: {cpu_label(result['machine'])}, {result['machine']['cpus']} cores; load average "
-          f"{', '.join(f'{x:.2f}' for x in result['load_average_before'])}")
+        result["compile"] = add_yardstick_ratios(
+            compile_times({}), yard, seconds_keys=("first_process_s", "cached_process_s")
+        )
+    print(
+        f"CPU: {cpu_label(result['machine'])}, {result['machine']['cpus']} cores; load average "
+        f"{', '.join(f'{x:.2f}' for x in result['load_average_before'])}"
+    )
     print(f"times in host yardsticks (x yard): {yard['row']}, {yard['ms']:.1f} ms in this run")
     if rows:
-        hdr = (f"{'case':36s} {'(a) x yard':>10s} {'(b) x yard':>10s} {'steps/mbr':>9s} {'(d) rel err':>11s} "
-               f"{'abs err':>8s} {'fail':>4s}")
+        hdr = (
+            f"{'case':36s} {'(a) x yard':>10s} {'(b) x yard':>10s} {'steps/mbr':>9s} {'(d) rel err':>11s} "
+            f"{'abs err':>8s} {'fail':>4s}"
+        )
         print(hdr)
         print("-" * len(hdr))
         for r in rows:
             err = max(r["max_rel_err_R_full"], r["max_rel_err_R_window"])
             aerr = max(r["max_abs_err_Rstar_full"], r["max_abs_err_Rstar_window"])
-            print(f"{r['label']:36s} {r['full_ms_per_yardstick']:10.3g} {r['window_ms_per_yardstick']:10.3g} "
-                  f"{r['steps_per_member_full']:9.0f} {err:11.1e} {aerr:8.1e} {r['failed']:4d}")
+            print(
+                f"{r['label']:36s} {r['full_ms_per_yardstick']:10.3g} {r['window_ms_per_yardstick']:10.3g} "
+                f"{r['steps_per_member_full']:9.0f} {err:11.1e} {aerr:8.1e} {r['failed']:4d}"
+            )
     if args.grid_study:
         result["grid_study"] = [add_yardstick_ratios(g, yard, ms_keys=("ms_per_member",)) for g in grid_study()]
-        print(f"\n{'grid (mass transfer)':22s} {'L2 to limit':>11s} {'max|dR*|':>9s} {'steps':>6s} {'member x yard':>13s}")
+        print(
+            f"\n{'grid (mass transfer)':22s} {'L2 to limit':>11s} {'max|dR*|':>9s} {'steps':>6s} {'member x yard':>13s}"
+        )
         for g in result["grid_study"]:
-            print(f"stretch {g['stretch']:.1f}, nt {g['nt']:<5d}   {g['rel_l2_to_limit_max']:11.1e} "
-                  f"{g['max_abs_err_Rstar']:9.1e} {g['steps_per_member']:6.0f} {g['ms_per_member_per_yardstick']:13.3g}")
+            print(
+                f"stretch {g['stretch']:.1f}, nt {g['nt']:<5d}   {g['rel_l2_to_limit_max']:11.1e} "
+                f"{g['max_abs_err_Rstar']:9.1e} {g['steps_per_member']:6.0f} {g['ms_per_member_per_yardstick']:13.3g}"
+            )
     if "compile" in result:
         c = result["compile"]
-        print(f"(e) first process (compile) {c['first_process_s_per_yardstick']:.3g} x yard; cached process "
-              f"{c['cached_process_s_per_yardstick']:.3g} x yard; "
-              f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0:.0f} MB")
+        print(
+            f"(e) first process (compile) {c['first_process_s_per_yardstick']:.3g} x yard; cached process "
+            f"{c['cached_process_s_per_yardstick']:.3g} x yard; "
+            f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0:.0f} MB"
+        )
     if args.peers or args.only_peers:
         result["peers"] = {"pyimr": peer_rows(batch=args.peer_batch, limit_nt=args.peer_limit_nt)}
         _print_peers(result["peers"]["pyimr"])

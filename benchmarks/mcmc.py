@@ -68,24 +68,38 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
 
 FORWARD = {"converged": {}, "imrv2-fd": {"scheme": "imrv2-fd"}, "polytropic": {"bubble": "polytropic"}}
-DEFAULT_RUNS = 32 * 2000 * 4 * 5          # member-runs of the default benchmark (5 experiments)
-ENSEMBLE_RUNS = 32 * 2000 * 5             # one ensemble of 32 walkers x 2000 steps (the speed target's unit)
+DEFAULT_RUNS = 32 * 2000 * 4 * 5  # member-runs of the default benchmark (5 experiments)
+ENSEMBLE_RUNS = 32 * 2000 * 5  # one ensemble of 32 walkers x 2000 steps (the speed target's unit)
 
 
 def window_target(fm, obs, j: int, L: int = 35, h: int = 5):
     """Window j's target with the experiments' true states at its start (see module doc)."""
     n_steps = obs.t_star.size - 1
     a, b = window_spans(n_steps, L, h)[j]
-    beta = mda_weights(n_steps, L, h)[j, a:b + 1]
+    beta = mda_weights(n_steps, L, h)[j, a : b + 1]
     st = fm.initial_state(obs.rmax_m, obs.req_m)
     if a > 0:
         ne = obs.rmax_m.size
         out = fm.propagate(st, {"G": np.full(ne, TRUTH["G"]), "mu": np.full(ne, TRUTH["mu"])}, float(obs.t_star[a]))
         st = out.end
     prior = ParamSpace.for_model(fm.constitutive)
-    tg = WindowTarget(fm, st, obs.t_star[a:b + 1], obs.R_star[:, a:b + 1], obs.P[a:b + 1], prior, beta / L,
-                      list(obs.names), description={"kind": "verification window", "index": int(j), "L": L, "h": h,
-                                                    "state": "truth propagated to the window start"})
+    tg = WindowTarget(
+        fm,
+        st,
+        obs.t_star[a : b + 1],
+        obs.R_star[:, a : b + 1],
+        obs.P[a : b + 1],
+        prior,
+        beta / L,
+        list(obs.names),
+        description={
+            "kind": "verification window",
+            "index": int(j),
+            "L": L,
+            "h": h,
+            "state": "truth propagated to the window start",
+        },
+    )
     return tg, (float(obs.t_star[a]), float(obs.t_star[b]))
 
 
@@ -107,8 +121,9 @@ def window_costs(fm, obs, n_draws: int = 64, seed: int = 0, repeat: int = 3) -> 
             tg.log_prob(Z)
             best = min(best, time.perf_counter() - t0)
         ms = 1e3 * best / (n_draws * tg.n_exp)
-        out.append({"window": j, "t_star": span, "ms_per_member_run": ms,
-                    "projected_default_h": DEFAULT_RUNS * ms / 3.6e6})
+        out.append(
+            {"window": j, "t_star": span, "ms_per_member_run": ms, "projected_default_h": DEFAULT_RUNS * ms / 3.6e6}
+        )
     return out
 
 
@@ -143,8 +158,18 @@ def _setting_values(pairs) -> dict | None:
     return {k: (int(v) if v.isdigit() else float(v)) for k, v in (kv.split("=", 1) for kv in pairs)}
 
 
-def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, n_chains: int = 4,
-          init_scale: float = 2.0, quadrature: bool = False, settings: dict | None = None) -> list[dict]:
+def sweep(
+    fm,
+    windows,
+    configs,
+    seed: int = 0,
+    cap: int = 5000,
+    fit_cache=None,
+    n_chains: int = 4,
+    init_scale: float = 2.0,
+    quadrature: bool = False,
+    settings: dict | None = None,
+) -> list[dict]:
     """Move mixture x walker count by the cost of a converged run: each configuration samples the
     MIEnKS window's exact target (started from the window's ensemble Gaussian, over-dispersed by
     ``init_scale``) with the stop rule; reported: steps and evaluations to convergence, tau, min
@@ -164,8 +189,17 @@ def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, 
         grid = grid_posterior(sp.target, sp.ens_mean, sp.ens_cov) if quadrature and sp.target.ndim == 2 else None
         for moves, W in configs:
             tg = sp.target
-            s = MCMCSettings(**{"n_walkers": W, "n_steps": cap, "n_chains": n_chains, "moves": moves,
-                                "init_scale": init_scale, "loglik": False, **(settings or {})})
+            s = MCMCSettings(
+                **{
+                    "n_walkers": W,
+                    "n_steps": cap,
+                    "n_chains": n_chains,
+                    "moves": moves,
+                    "init_scale": init_scale,
+                    "loglik": False,
+                    **(settings or {}),
+                }
+            )
             load0 = os.getloadavg()
             e0, t0 = tg.n_evals, time.perf_counter()
             run = run_mcmc(tg, sp.ens_mean, sp.ens_cov, s, seed=seed)
@@ -173,27 +207,52 @@ def sweep(fm, windows, configs, seed: int = 0, cap: int = 5000, fit_cache=None, 
             evals = tg.n_evals - e0
             last = run.stop["checks"][-1] if run.stop["checks"] else {}
             ess = min(last.get("ess_bulk_min", 0.0), last.get("ess_tail_min", 0.0))
-            row = {"window": j, "t_star": list(sp.t_star), "moves": moves, "walkers": W, "chains": n_chains,
-                   "stop_reason": run.stop["reason"], "n_steps": run.n_steps, "n_checks": len(run.stop["checks"]),
-                   "evals": evals, "member_runs": evals * tg.n_exp, "tau_max": run.tau_max,
-                   "tau_mean": float(np.mean(run.tau)), "walkers_x_tau": W * run.tau_max,
-                   "rhat_max": last.get("rhat_max"), "ess_bulk_min": last.get("ess_bulk_min"),
-                   "ess_tail_min": last.get("ess_tail_min"), "ess_per_1k_evals": 1e3 * ess / max(1, evals),
-                   "acceptance": float(run.acceptance.mean()), "wall_s": wall,
-                   "ms_per_member_run": 1e3 * wall / max(1, evals * tg.n_exp),
-                   "loadavg_before": list(load0), "loadavg_after": list(os.getloadavg()),
-                   "settings": settings or {}}
+            row = {
+                "window": j,
+                "t_star": list(sp.t_star),
+                "moves": moves,
+                "walkers": W,
+                "chains": n_chains,
+                "stop_reason": run.stop["reason"],
+                "n_steps": run.n_steps,
+                "n_checks": len(run.stop["checks"]),
+                "evals": evals,
+                "member_runs": evals * tg.n_exp,
+                "tau_max": run.tau_max,
+                "tau_mean": float(np.mean(run.tau)),
+                "walkers_x_tau": W * run.tau_max,
+                "rhat_max": last.get("rhat_max"),
+                "ess_bulk_min": last.get("ess_bulk_min"),
+                "ess_tail_min": last.get("ess_tail_min"),
+                "ess_per_1k_evals": 1e3 * ess / max(1, evals),
+                "acceptance": float(run.acceptance.mean()),
+                "wall_s": wall,
+                "ms_per_member_run": 1e3 * wall / max(1, evals * tg.n_exp),
+                "loadavg_before": list(load0),
+                "loadavg_after": list(os.getloadavg()),
+                "settings": settings or {},
+            }
             if grid is not None:
                 vs = compare_to_mcmc(grid, walker_major(run.chain, run.burn, run.thin))
-                row["quadrature"] = {"within_mc_error": vs["within_mc_error"], "mean_z": vs["mean_z"],
-                                     "sd_z": vs["sd_z"], "sd_ratio": vs["sd_ratio"]}
+                row["quadrature"] = {
+                    "within_mc_error": vs["within_mc_error"],
+                    "mean_z": vs["mean_z"],
+                    "sd_z": vs["sd_z"],
+                    "sd_ratio": vs["sd_ratio"],
+                }
             rows.append(row)
-            print(f"w{j:02d} {moves:<22} W={W:<3} {row['stop_reason']:<9} n={run.n_steps:<5} evals={evals:<7} "
-                  f"tau={run.tau_max:6.1f} Wtau={row['walkers_x_tau']:6.0f} R={row['rhat_max']:.4f} "
-                  f"ESS b/t={row['ess_bulk_min']:.0f}/{row['ess_tail_min']:.0f} ESS/1k={row['ess_per_1k_evals']:.1f} "
-                  f"acc={row['acceptance']:.2f} wall={wall:.1f}s load={load0[0]:.2f}"
-                  + (f" quad ok={row['quadrature']['within_mc_error']} z={_max_abs_z(row['quadrature']):.1f}"
-                     if "quadrature" in row else ""), flush=True)
+            print(
+                f"w{j:02d} {moves:<22} W={W:<3} {row['stop_reason']:<9} n={run.n_steps:<5} evals={evals:<7} "
+                f"tau={run.tau_max:6.1f} Wtau={row['walkers_x_tau']:6.0f} R={row['rhat_max']:.4f} "
+                f"ESS b/t={row['ess_bulk_min']:.0f}/{row['ess_tail_min']:.0f} ESS/1k={row['ess_per_1k_evals']:.1f} "
+                f"acc={row['acceptance']:.2f} wall={wall:.1f}s load={load0[0]:.2f}"
+                + (
+                    f" quad ok={row['quadrature']['within_mc_error']} z={_max_abs_z(row['quadrature']):.1f}"
+                    if "quadrature" in row
+                    else ""
+                ),
+                flush=True,
+            )
     return rows
 
 
@@ -225,9 +284,17 @@ def cpu_costs(fm, run_dir, fit_cache=None, seed: int = 0, n_draws: int = 64, rep
             tg.log_prob(Z)
             best_cpu = min(best_cpu, time.process_time() - c0)
             best_wall = min(best_wall, time.perf_counter() - t0)
-        out.append({"window": sp.index, "t_star": list(sp.t_star), "cpu_ms_per_eval": 1e3 * best_cpu / n_draws,
-                    "wall_ms_per_eval": 1e3 * best_wall / n_draws, "n_exp": tg.n_exp,
-                    "loadavg": list(os.getloadavg()), "numba_threads": os.environ.get("NUMBA_NUM_THREADS")})
+        out.append(
+            {
+                "window": sp.index,
+                "t_star": list(sp.t_star),
+                "cpu_ms_per_eval": 1e3 * best_cpu / n_draws,
+                "wall_ms_per_eval": 1e3 * best_wall / n_draws,
+                "n_exp": tg.n_exp,
+                "loadavg": list(os.getloadavg()),
+                "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
+            }
+        )
         print(out[-1], flush=True)
     return out
 
@@ -243,8 +310,20 @@ def whole_run(data, out, method: str = "mienks", extra=(), load_every: float = 3
     import subprocess
     import threading
 
-    cmd = [sys.executable, "-m", "imrbayes.cli", "fit", str(data), "--method", method, "--mcmc", "--out", str(out),
-           "--quiet", *map(str, extra)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "imrbayes.cli",
+        "fit",
+        str(data),
+        "--method",
+        method,
+        "--mcmc",
+        "--out",
+        str(out),
+        "--quiet",
+        *map(str, extra),
+    ]
     loads, stop = [], threading.Event()
 
     def sample():
@@ -261,9 +340,17 @@ def whole_run(data, out, method: str = "mienks", extra=(), load_every: float = 3
     stop.set()
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-    row = {"command": " ".join(cmd[1:]), "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:],
-           "wall_s": wall, "cpu_s": cpu, "loadavg_start": list(load0), "loadavg_samples": loads,
-           "loadavg_mean": float(np.mean(loads)) if loads else load0[0], "cpu": machine_info()}
+    row = {
+        "command": " ".join(cmd[1:]),
+        "returncode": proc.returncode,
+        "stderr_tail": proc.stderr[-2000:],
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "loadavg_start": list(load0),
+        "loadavg_samples": loads,
+        "loadavg_mean": float(np.mean(loads)) if loads else load0[0],
+        "cpu": machine_info(),
+    }
     summ = Path(out) / "summary.json"
     comp = Path(out) / "compare.json"
     if summ.is_file():
@@ -273,9 +360,10 @@ def whole_run(data, out, method: str = "mienks", extra=(), load_every: float = 3
     if comp.is_file():
         c = json.loads(comp.read_text())
         row["windows"] = [_window_row(e) for e in c["windows"]]
-        row["overall"] = {k: c["overall"].get(k) for k in ("n_windows", "n_agree", "n_disagree", "n_undecided",
-                                                           "all_converged")}
-    else:       # an interrupted run: the windows it finished, from their checkpointed units
+        row["overall"] = {
+            k: c["overall"].get(k) for k in ("n_windows", "n_agree", "n_disagree", "n_undecided", "all_converged")
+        }
+    else:  # an interrupted run: the windows it finished, from their checkpointed units
         row.update(collect_units(out))
     if row.get("windows"):
         row["mcmc_evals"] = int(sum(w["n_evals"] or 0 for w in row["windows"]))
@@ -289,19 +377,34 @@ def _window_row(e: dict) -> dict:
     smp = m.get("sampler", {})
     ess = min(min(m["ess_bulk"].values()), min(m["ess_tail"].values()))
     q = e.get("quadrature") or {}
-    return {"window": e["index"], "t_star": e["t_star"], "agree": e["agree"],
-            "converged": m["converged"], "stop_reason": smp.get("stop_reason"),
-            "n_steps": smp.get("n_steps"), "n_evals": e.get("n_evals"), "runtime_s": e.get("runtime_s"),
-            "tau_max": smp.get("tau_max"), "n_over_tau": smp.get("n_steps_over_tau"),
-            "rhat_max": max(m["rhat"].values()), "ess_bulk_min": min(m["ess_bulk"].values()),
-            "ess_tail_min": min(m["ess_tail"].values()),
-            "ess_per_s": ess / e["runtime_s"] if e.get("runtime_s") else None,
-            "kl_sym": e.get("kl_sym"), "w2": e.get("w2"), "kl_sample": e.get("kl_sample"),
-            "ensemble_mean": (e.get("ensemble") or {}).get("mean"), "ensemble_sd": (e.get("ensemble") or {}).get("sd"),
-            "mcmc_mean": m.get("mean"), "mcmc_sd": m.get("sd"), "quadrature_mean": q.get("mean"),
-            "quadrature_sd": q.get("sd"),
-            "quadrature_evals": q.get("n_evals"), "quadrature_s": q.get("runtime_s"),
-            "quadrature_within_mc_error": (q.get("vs_mcmc") or {}).get("within_mc_error")}
+    return {
+        "window": e["index"],
+        "t_star": e["t_star"],
+        "agree": e["agree"],
+        "converged": m["converged"],
+        "stop_reason": smp.get("stop_reason"),
+        "n_steps": smp.get("n_steps"),
+        "n_evals": e.get("n_evals"),
+        "runtime_s": e.get("runtime_s"),
+        "tau_max": smp.get("tau_max"),
+        "n_over_tau": smp.get("n_steps_over_tau"),
+        "rhat_max": max(m["rhat"].values()),
+        "ess_bulk_min": min(m["ess_bulk"].values()),
+        "ess_tail_min": min(m["ess_tail"].values()),
+        "ess_per_s": ess / e["runtime_s"] if e.get("runtime_s") else None,
+        "kl_sym": e.get("kl_sym"),
+        "w2": e.get("w2"),
+        "kl_sample": e.get("kl_sample"),
+        "ensemble_mean": (e.get("ensemble") or {}).get("mean"),
+        "ensemble_sd": (e.get("ensemble") or {}).get("sd"),
+        "mcmc_mean": m.get("mean"),
+        "mcmc_sd": m.get("sd"),
+        "quadrature_mean": q.get("mean"),
+        "quadrature_sd": q.get("sd"),
+        "quadrature_evals": q.get("n_evals"),
+        "quadrature_s": q.get("runtime_s"),
+        "quadrature_within_mc_error": (q.get("vs_mcmc") or {}).get("within_mc_error"),
+    }
 
 
 def collect_units(out) -> dict:
@@ -337,33 +440,74 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--sequential", action="store_true", help="run the ensembles one by one (no shared batches)")
     ap.add_argument("--hdf5", default=None, help="HDF5 file for the chains (default: a temporary file)")
-    ap.add_argument("--window-costs", action="store_true",
-                    help="also time one log-probability batch in every window (projects all 18 windows)")
-    ap.add_argument("--json", default=None, help="[default: results/mcmc_<mode>.json: window, sweep, whole_run, "
-                                                 "cpu_costs or collected_run]")
-    ap.add_argument("--sweep", nargs="*", default=None, metavar="MOVES@WALKERS",
-                    help="measure move mixtures x walker counts to convergence on the fit's windows "
-                         "(--sweep-windows), e.g. stretch@8 de@8 'de:0.8,snooker:0.2'@16")
+    ap.add_argument(
+        "--window-costs",
+        action="store_true",
+        help="also time one log-probability batch in every window (projects all 18 windows)",
+    )
+    ap.add_argument(
+        "--json",
+        default=None,
+        help="[default: results/mcmc_<mode>.json: window, sweep, whole_run, cpu_costs or collected_run]",
+    )
+    ap.add_argument(
+        "--sweep",
+        nargs="*",
+        default=None,
+        metavar="MOVES@WALKERS",
+        help="measure move mixtures x walker counts to convergence on the fit's windows "
+        "(--sweep-windows), e.g. stretch@8 de@8 'de:0.8,snooker:0.2'@16",
+    )
     ap.add_argument("--sweep-windows", type=int, nargs="+", default=[0])
-    ap.add_argument("--sweep-quadrature", action="store_true",
-                    help="also compare each sweep row with the window's exact grid posterior")
-    ap.add_argument("--sweep-set", nargs="*", default=None, metavar="FIELD=VALUE",
-                    help="further MCMCSettings for the sweep, e.g. indep_scale=2 (numbers only)")
+    ap.add_argument(
+        "--sweep-quadrature",
+        action="store_true",
+        help="also compare each sweep row with the window's exact grid posterior",
+    )
+    ap.add_argument(
+        "--sweep-set",
+        nargs="*",
+        default=None,
+        metavar="FIELD=VALUE",
+        help="further MCMCSettings for the sweep, e.g. indep_scale=2 (numbers only)",
+    )
     ap.add_argument("--fit-cache", default=None, help="pickle of the MIEnKS fit (reused when present)")
     ap.add_argument("--cap", type=int, default=5000)
     ap.add_argument("--init-scale", type=float, default=2.0)
-    ap.add_argument("--whole-run", nargs=2, default=None, metavar=("DATA", "OUT"),
-                    help="time 'imrbayes fit DATA --method METHOD --mcmc --out OUT' (the headline row)")
+    ap.add_argument(
+        "--whole-run",
+        nargs=2,
+        default=None,
+        metavar=("DATA", "OUT"),
+        help="time 'imrbayes fit DATA --method METHOD --mcmc --out OUT' (the headline row)",
+    )
     ap.add_argument("--method", default="mienks")
     ap.add_argument("--fit-args", nargs="*", default=[], help="extra arguments for --whole-run's fit")
-    ap.add_argument("--collect", default=None, metavar="RUN_DIR",
-                    help="the windows an interrupted (or finished) fit --mcmc run finished, from its units")
-    ap.add_argument("--cpu-costs", default=None, metavar="RUN_DIR",
-                    help="CPU time per evaluation in every window of a finished fit --mcmc run (NUMBA_NUM_THREADS=1)")
+    ap.add_argument(
+        "--collect",
+        default=None,
+        metavar="RUN_DIR",
+        help="the windows an interrupted (or finished) fit --mcmc run finished, from its units",
+    )
+    ap.add_argument(
+        "--cpu-costs",
+        default=None,
+        metavar="RUN_DIR",
+        help="CPU time per evaluation in every window of a finished fit --mcmc run (NUMBA_NUM_THREADS=1)",
+    )
     args = ap.parse_args()
     if args.json is None:
-        mode = ("cpu_costs" if args.cpu_costs is not None else "collected_run" if args.collect is not None
-                else "whole_run" if args.whole_run is not None else "sweep" if args.sweep is not None else "window")
+        mode = (
+            "cpu_costs"
+            if args.cpu_costs is not None
+            else "collected_run"
+            if args.collect is not None
+            else "whole_run"
+            if args.whole_run is not None
+            else "sweep"
+            if args.sweep is not None
+            else "window"
+        )
         args.json = results_path(f"mcmc_{mode}")
     if args.cpu_costs is not None:
         fm = ForwardModel("nhkv", options=FORWARD[args.forward[0]])
@@ -371,24 +515,33 @@ def main():
         yard = host_yardstick()
         for r in rows:
             add_yardstick_ratios(r, yard, ms_keys=("cpu_ms_per_eval", "wall_ms_per_eval"))
-            print(f"window {r['window']:>3}: CPU per evaluation {r['cpu_ms_per_eval_per_yardstick']:.3g} x yard, "
-                  f"wall {r['wall_ms_per_eval_per_yardstick']:.3g} x yard")
+            print(
+                f"window {r['window']:>3}: CPU per evaluation {r['cpu_ms_per_eval_per_yardstick']:.3g} x yard, "
+                f"wall {r['wall_ms_per_eval_per_yardstick']:.3g} x yard"
+            )
         if args.json:
             with open(args.json, "w") as fh:
-                json.dump(jsonable({"meta": {"cpu": machine_info(), "host_yardstick": yard}, "cpu_costs": rows}), fh,
-                          indent=1)
+                json.dump(
+                    jsonable({"meta": {"cpu": machine_info(), "host_yardstick": yard}, "cpu_costs": rows}), fh, indent=1
+                )
         return
     if args.collect is not None:
         row = {"run": args.collect, **collect_units(args.collect), "cpu": machine_info()}
-        print(f"fit {row.get('fit_runtime_s') or float('nan'):.0f} s; {len(row['windows'])} windows finished, "
-              f"{row['mcmc_unit_s_total']:.0f} s of MCMC")
-        print(f"{'window':>6} {'t*':>13} {'s':>6} {'evals':>6} {'steps':>5} {'tau':>5} {'R-hat':>6} {'ESS':>5} "
-              f"{'agree':>6} {'KL':>6} {'W2':>5}")
+        print(
+            f"fit {row.get('fit_runtime_s') or float('nan'):.0f} s; {len(row['windows'])} windows finished, "
+            f"{row['mcmc_unit_s_total']:.0f} s of MCMC"
+        )
+        print(
+            f"{'window':>6} {'t*':>13} {'s':>6} {'evals':>6} {'steps':>5} {'tau':>5} {'R-hat':>6} {'ESS':>5} "
+            f"{'agree':>6} {'KL':>6} {'W2':>5}"
+        )
         for w in row["windows"]:
-            print(f"{w['window']:>6} {w['t_star'][0]:>6.3f}-{w['t_star'][1]:<6.3f} {w['unit_s']:>6.0f} {w['n_evals']:>6} "
-                  f"{w['n_steps']:>5} {w['tau_max']:>5.1f} {w['rhat_max']:>6.3f} "
-                  f"{min(w['ess_bulk_min'], w['ess_tail_min']):>5.0f} {str(w['agree']):>6} {w['kl_sym']:>6.2f} "
-                  f"{w['w2']:>5.2f}")
+            print(
+                f"{w['window']:>6} {w['t_star'][0]:>6.3f}-{w['t_star'][1]:<6.3f} {w['unit_s']:>6.0f} {w['n_evals']:>6} "
+                f"{w['n_steps']:>5} {w['tau_max']:>5.1f} {w['rhat_max']:>6.3f} "
+                f"{min(w['ess_bulk_min'], w['ess_tail_min']):>5.0f} {str(w['agree']):>6} {w['kl_sym']:>6.2f} "
+                f"{w['w2']:>5.2f}"
+            )
         if args.json:
             with open(args.json, "w") as fh:
                 json.dump(jsonable({"meta": {"cpu": machine_info()}, "collected_run": row}), fh, indent=1)
@@ -409,18 +562,36 @@ def main():
         fkey = args.forward[0]
         fm = ForwardModel("nhkv", options=FORWARD[fkey])
         configs = [(c.rsplit("@", 1)[0], int(c.rsplit("@", 1)[1])) for c in args.sweep]
-        rows = sweep(fm, args.sweep_windows, configs, seed=args.seed, cap=args.cap, fit_cache=args.fit_cache,
-                     n_chains=args.chains, init_scale=args.init_scale, quadrature=args.sweep_quadrature,
-                     settings=_setting_values(args.sweep_set))
+        rows = sweep(
+            fm,
+            args.sweep_windows,
+            configs,
+            seed=args.seed,
+            cap=args.cap,
+            fit_cache=args.fit_cache,
+            n_chains=args.chains,
+            init_scale=args.init_scale,
+            quadrature=args.sweep_quadrature,
+            settings=_setting_values(args.sweep_set),
+        )
         yard = host_yardstick()
         for r in rows:
             add_yardstick_ratios(r, yard, seconds_keys=("wall_s",), ms_keys=("ms_per_member_run",))
-            print(f"w{r['window']:02d} {r['moves']:<22} W={r['walkers']:<3} wall {r['wall_s_per_yardstick']:.3g} x yard")
+            print(
+                f"w{r['window']:02d} {r['moves']:<22} W={r['walkers']:<3} wall {r['wall_s_per_yardstick']:.3g} x yard"
+            )
         if args.json:
-            meta = {"cpu": machine_info(), "host_yardstick": yard, "forward": fkey, "options": fm.options.to_dict(), "seed": args.seed,
-                    "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "
-                            "window targets as imrbayes fit --mcmc builds them, start = ensemble Gaussian x init_scale",
-                    "init_scale": args.init_scale, "cap": args.cap}
+            meta = {
+                "cpu": machine_info(),
+                "host_yardstick": yard,
+                "forward": fkey,
+                "options": fm.options.to_dict(),
+                "seed": args.seed,
+                "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "
+                "window targets as imrbayes fit --mcmc builds them, start = ensemble Gaussian x init_scale",
+                "init_scale": args.init_scale,
+                "cap": args.cap,
+            }
             with open(args.json, "w") as fh:
                 json.dump(jsonable({"meta": meta, "sweep": rows}), fh, indent=1)
         return
@@ -429,21 +600,23 @@ def main():
     rows = []
     yard = host_yardstick()
     print(f"host yardstick (x yard): {yard['row']}, {yard['ms']:.1f} ms in this run")
-    print(f"{'forward':<11} {'x yard':>9} {'evals':>8} {'run/yard':>9} {'steps/s':>8} {'tau':>6} {'n/tau':>6} "
-          f"{'R-hat':>6} {'ESS':>6} {'ESS/s':>7} {'acc':>5} {'G [kPa]':>15} {'mu [Pa s]':>17} {'proj_default_h':>14} "
-          f"{'one_ens_s':>9}")
+    print(
+        f"{'forward':<11} {'x yard':>9} {'evals':>8} {'run/yard':>9} {'steps/s':>8} {'tau':>6} {'n/tau':>6} "
+        f"{'R-hat':>6} {'ESS':>6} {'ESS/s':>7} {'acc':>5} {'G [kPa]':>15} {'mu [Pa s]':>17} {'proj_default_h':>14} "
+        f"{'one_ens_s':>9}"
+    )
     tmp = tempfile.TemporaryDirectory()
     for fkey in args.forward:
         fm = ForwardModel("nhkv", options=FORWARD[fkey])
-        fm.simulate({"G": [7e3, 7e3], "mu": [0.1, 0.1]}, 263e-6, 263e-6 / 7.58, [0.0, 0.1])   # compile/load
+        fm.simulate({"G": [7e3, 7e3], "mu": [0.1, 0.1]}, 263e-6, 263e-6 / 7.58, [0.0, 0.1])  # compile/load
         obs = verification_data(fm, args.seed)
         tg, span = window_target(fm, obs, args.window)
-        s = MCMCSettings(n_walkers=args.walkers, n_steps=args.steps, n_chains=args.chains,
-                         lockstep=not args.sequential)
+        s = MCMCSettings(n_walkers=args.walkers, n_steps=args.steps, n_chains=args.chains, lockstep=not args.sequential)
         h5 = Path(args.hdf5) if args.hdf5 else Path(tmp.name) / f"{fkey}.h5"
         t0 = time.perf_counter()
-        run = run_mcmc(tg, settings=s, seed=args.seed, backend=h5, name=f"{fkey}/window_{args.window:02d}",
-                       resume=False)
+        run = run_mcmc(
+            tg, settings=s, seed=args.seed, backend=h5, name=f"{fkey}/window_{args.window:02d}", resume=False
+        )
         wall = time.perf_counter() - t0
         t1 = time.perf_counter()
         dt = run.to_datatree(tg)
@@ -453,31 +626,59 @@ def main():
         ms = 1e3 * wall / max(1, runs)
         ess = float(summ.loc[["log_G", "log_mu"], "ess_bulk"].min())
         inside = {n: bool(summ.loc[n, "eti95_lb"] <= TRUTH[n] <= summ.loc[n, "eti95_ub"]) for n in TRUTH}
-        row = {"forward": fkey, "options": fm.options.to_dict(), "window": args.window, "t_star": span,
-               "walkers": args.walkers, "steps": args.steps, "chains": args.chains, "n_experiments": tg.n_exp,
-               "wall_s": wall, "loglik_recompute_s": ll_wall, "evals": run.n_evals, "member_runs": runs,
-               "failed_evals": tg.n_failed, "ms_per_member_run": ms, "steps_per_s": args.steps * args.chains / wall,
-               "tau_max": run.tau_max, "n_steps_over_tau": args.steps / run.tau_max, "tau_ok": bool(np.all(run.tau_ok)),
-               "rhat_max": float(summ.loc[["log_G", "log_mu"], "r_hat"].max()), "ess_bulk_min": ess,
-               "ess_tail_min": float(summ.loc[["log_G", "log_mu"], "ess_tail"].min()), "ess_per_s": ess / wall,
-               "acceptance": float(run.acceptance.mean()), "burn": run.burn, "thin": run.thin,
-               "posterior": {n: {"mean": float(summ.loc[n, "mean"]), "sd": float(summ.loc[n, "sd"]),
-                                 "eti95": [float(summ.loc[n, "eti95_lb"]), float(summ.loc[n, "eti95_ub"])]}
-                             for n in TRUTH},
-               "truth_inside_eti95": inside, "projected_default_h": DEFAULT_RUNS * ms / 3.6e6,
-               "one_ensemble_s": ENSEMBLE_RUNS * ms / 1e3}
-        add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "loglik_recompute_s", "one_ensemble_s"),
-                             ms_keys=("ms_per_member_run",))
+        row = {
+            "forward": fkey,
+            "options": fm.options.to_dict(),
+            "window": args.window,
+            "t_star": span,
+            "walkers": args.walkers,
+            "steps": args.steps,
+            "chains": args.chains,
+            "n_experiments": tg.n_exp,
+            "wall_s": wall,
+            "loglik_recompute_s": ll_wall,
+            "evals": run.n_evals,
+            "member_runs": runs,
+            "failed_evals": tg.n_failed,
+            "ms_per_member_run": ms,
+            "steps_per_s": args.steps * args.chains / wall,
+            "tau_max": run.tau_max,
+            "n_steps_over_tau": args.steps / run.tau_max,
+            "tau_ok": bool(np.all(run.tau_ok)),
+            "rhat_max": float(summ.loc[["log_G", "log_mu"], "r_hat"].max()),
+            "ess_bulk_min": ess,
+            "ess_tail_min": float(summ.loc[["log_G", "log_mu"], "ess_tail"].min()),
+            "ess_per_s": ess / wall,
+            "acceptance": float(run.acceptance.mean()),
+            "burn": run.burn,
+            "thin": run.thin,
+            "posterior": {
+                n: {
+                    "mean": float(summ.loc[n, "mean"]),
+                    "sd": float(summ.loc[n, "sd"]),
+                    "eti95": [float(summ.loc[n, "eti95_lb"]), float(summ.loc[n, "eti95_ub"])],
+                }
+                for n in TRUTH
+            },
+            "truth_inside_eti95": inside,
+            "projected_default_h": DEFAULT_RUNS * ms / 3.6e6,
+            "one_ensemble_s": ENSEMBLE_RUNS * ms / 1e3,
+        }
+        add_yardstick_ratios(
+            row, yard, seconds_keys=("wall_s", "loglik_recompute_s", "one_ensemble_s"), ms_keys=("ms_per_member_run",)
+        )
         if args.window_costs:
             row["window_costs"] = window_costs(fm, obs, seed=args.seed)
         rows.append(row)
         p = row["posterior"]
-        print(f"{fkey:<11} {row['wall_s_per_yardstick']:9.3g} {run.n_evals:8d} {row['ms_per_member_run_per_yardstick']:9.3g} "
-              f"{row['steps_per_s']:8.1f} {run.tau_max:6.1f} "
-              f"{row['n_steps_over_tau']:6.1f} {row['rhat_max']:6.3f} {ess:6.0f} {row['ess_per_s']:7.2f} "
-              f"{row['acceptance']:5.2f} {p['G']['mean'] / 1e3:7.3f}±{p['G']['sd'] / 1e3:6.3f} "
-              f"{p['mu']['mean']:8.4f}±{p['mu']['sd']:7.4f} {row['projected_default_h']:14.2f} {row['one_ensemble_s']:9.1f}",
-              flush=True)
+        print(
+            f"{fkey:<11} {row['wall_s_per_yardstick']:9.3g} {run.n_evals:8d} {row['ms_per_member_run_per_yardstick']:9.3g} "
+            f"{row['steps_per_s']:8.1f} {run.tau_max:6.1f} "
+            f"{row['n_steps_over_tau']:6.1f} {row['rhat_max']:6.3f} {ess:6.0f} {row['ess_per_s']:7.2f} "
+            f"{row['acceptance']:5.2f} {p['G']['mean'] / 1e3:7.3f}±{p['G']['sd'] / 1e3:6.3f} "
+            f"{p['mu']['mean']:8.4f}±{p['mu']['sd']:7.4f} {row['projected_default_h']:14.2f} {row['one_ensemble_s']:9.1f}",
+            flush=True,
+        )
     for row in rows:
         if "window_costs" in row:
             # emcee's own cost and the log-likelihood recompute are per evaluation, not per integrator
@@ -488,13 +689,22 @@ def main():
             row["projected_all_windows_h"] = sum(DEFAULT_RUNS * (w["ms_per_member_run"] + overhead) / 3.6e6 for w in wc)
             print(f"\n{row['forward']}: log-prob batch per window [ms per member-run]")
             print("  ".join(f"{w['window']}:{w['ms_per_member_run']:.2f}" for w in wc))
-            print(f"all {len(wc)} windows, 32 x 2000 x 4 each: {row['projected_all_windows_h']:.2f} h (plus "
-                  f"{overhead:.3f} ms per member-run of sampling overhead measured on window {row['window']})")
-    meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
-            "cpu": machine_info(), "host_yardstick": yard,
-            "case": "methods.md §5 verification, 5 experiments, paper noise; MIEnKS window (L=35, h=5), weights "
-                    "beta/L, paper prior, true start state", "truth": TRUTH, "seed": args.seed,
-            "lockstep": not args.sequential}
+            print(
+                f"all {len(wc)} windows, 32 x 2000 x 4 each: {row['projected_all_windows_h']:.2f} h (plus "
+                f"{overhead:.3f} ms per member-run of sampling overhead measured on window {row['window']})"
+            )
+    meta = {
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
+        "cpu": machine_info(),
+        "host_yardstick": yard,
+        "case": "methods.md §5 verification, 5 experiments, paper noise; MIEnKS window (L=35, h=5), weights "
+        "beta/L, paper prior, true start state",
+        "truth": TRUTH,
+        "seed": args.seed,
+        "lockstep": not args.sequential,
+    }
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(jsonable({"meta": meta, "rows": rows}), fh, indent=1)

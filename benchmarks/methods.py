@@ -53,11 +53,10 @@ def main():
     rows = []
     yard = host_yardstick()
     print(f"host yardstick (x yard): {yard['row']}, {yard['ms']:.1f} ms in this run")
-    print(f"{'forward':<11} {'method':<8} {'x yard':>9} {'runs':>8} {'failed':>6} "
-          f"{'G [kPa]':>16} {'mu [Pa s]':>18}")
+    print(f"{'forward':<11} {'method':<8} {'x yard':>9} {'runs':>8} {'failed':>6} {'G [kPa]':>16} {'mu [Pa s]':>18}")
     for fkey in args.forward:
         fm = ForwardModel("nhkv", options=FORWARD[fkey])
-        fm.simulate({"G": [7e3, 7e3], "mu": [0.1, 0.1]}, 263e-6, 263e-6 / 7.58, [0.0, 0.1])   # compile/load
+        fm.simulate({"G": [7e3, 7e3], "mu": [0.1, 0.1]}, 263e-6, 263e-6 / 7.58, [0.0, 0.1])  # compile/load
         obs = verification_data(fm, args.seed)
         obs.t_collapse_star = _collapse_times(fm, obs)
         space = ParamSpace.for_model(fm.constitutive)
@@ -70,16 +69,32 @@ def main():
             res = METHODS[m].fit(fm, obs, space, s, seed=args.seed, runner=runner)
             wall = time.perf_counter() - t0
             e = res.estimate
-            row = {"forward": fkey, "method": m, "wall_s": wall, "member_runs": runner.n_member_runs,
-                   "failed_runs": runner.n_failed, "estimate": e,
-                   "relative_error": {n: e[n]["mean"] / TRUTH[n] - 1.0 for n in TRUTH}, "rmse": res.rmse}
+            row = {
+                "forward": fkey,
+                "method": m,
+                "wall_s": wall,
+                "member_runs": runner.n_member_runs,
+                "failed_runs": runner.n_failed,
+                "estimate": e,
+                "relative_error": {n: e[n]["mean"] / TRUTH[n] - 1.0 for n in TRUTH},
+                "rmse": res.rmse,
+            }
             rows.append(add_yardstick_ratios(row, yard, seconds_keys=("wall_s",)))
-            print(f"{fkey:<11} {m:<8} {row['wall_s_per_yardstick']:9.3g} {runner.n_member_runs:8d} {runner.n_failed:6d} "
-                  f"{e['G']['mean'] / 1e3:8.3f} ± {e['G']['sd'] / 1e3:5.3f} {e['mu']['mean']:8.4f} ± {e['mu']['sd']:6.4f}",
-                  flush=True)
-    meta = {"machine": platform.platform(), "cpus": os.cpu_count(), "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
-            "cpu": machine_info(), "host_yardstick": yard,
-            "case": "methods.md §5 verification, 5 experiments, paper noise", "truth": TRUTH, "seed": args.seed}
+            print(
+                f"{fkey:<11} {m:<8} {row['wall_s_per_yardstick']:9.3g} {runner.n_member_runs:8d} {runner.n_failed:6d} "
+                f"{e['G']['mean'] / 1e3:8.3f} ± {e['G']['sd'] / 1e3:5.3f} {e['mu']['mean']:8.4f} ± {e['mu']['sd']:6.4f}",
+                flush=True,
+            )
+    meta = {
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
+        "cpu": machine_info(),
+        "host_yardstick": yard,
+        "case": "methods.md §5 verification, 5 experiments, paper noise",
+        "truth": TRUTH,
+        "seed": args.seed,
+    }
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(jsonable({"meta": meta, "rows": rows}), fh, indent=1)

@@ -40,9 +40,28 @@ from _machine import add_yardstick_ratios, cpu_label, host_yardstick, machine_in
 ROOT = Path(__file__).resolve().parents[1]
 LIC = ROOT.parent / "shared" / "data" / "lic"
 STIFF = LIC / "estrada2018_stiffPA_270kfps"
-CAMERA = ["--model", "nhkv", "--param", "G=5200", "--param", "mu=0.065", "--rmax", "320e-6:45e-6",
-          "--ratio", "7.9:0.45", "--n-exp", "6", "--noise", "0.02", "--frame-s", "1e-6", "--t-end", "3.6",
-          "--seed", "11"]
+CAMERA = [
+    "--model",
+    "nhkv",
+    "--param",
+    "G=5200",
+    "--param",
+    "mu=0.065",
+    "--rmax",
+    "320e-6:45e-6",
+    "--ratio",
+    "7.9:0.45",
+    "--n-exp",
+    "6",
+    "--noise",
+    "0.02",
+    "--frame-s",
+    "1e-6",
+    "--t-end",
+    "3.6",
+    "--seed",
+    "11",
+]
 CASES = {  # name: (data, fit arguments, target [s])
     "en4dvar-stiffpa20": (STIFF, ["--method", "en4dvar"], 180.0),
     "mienks-stiffpa5": (STIFF, ["--method", "mienks", "--experiments", "1-5"], 120.0),
@@ -65,8 +84,14 @@ def timed(cmd: list) -> dict:
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return {"wall_s": wall, "cpu_s": cpu, "load_before": load0, "load_after": os.getloadavg()[0],
-            "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:]}
+    return {
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "load_before": load0,
+        "load_after": os.getloadavg()[0],
+        "returncode": proc.returncode,
+        "stderr_tail": proc.stderr[-2000:],
+    }
 
 
 def main(argv=None) -> int:
@@ -78,46 +103,70 @@ def main(argv=None) -> int:
     rows = []
     print(f"host: {cpu_label()}; load average now {os.getloadavg()[0]:.2f}")
     yard = [host_yardstick()]
-    print(f"host yardstick: {yard[0]['row']}: {yard[0]['ms']:.1f} ms against {yard[0]['reference_ms']:.0f} ms on "
-          f"the host the targets were set on (host factor {yard[0]['host_factor']:.2f})", flush=True)
-    print(f"{'case':<20} {'wall [s]':>9} {'target':>7} {'CPU [s]':>8} {'load':>10} {'bubbles':>7} "
-          f"{'G [kPa]':>16} {'mu [Pa s]':>18}")
+    print(
+        f"host yardstick: {yard[0]['row']}: {yard[0]['ms']:.1f} ms against {yard[0]['reference_ms']:.0f} ms on "
+        f"the host the targets were set on (host factor {yard[0]['host_factor']:.2f})",
+        flush=True,
+    )
+    print(
+        f"{'case':<20} {'wall [s]':>9} {'target':>7} {'CPU [s]':>8} {'load':>10} {'bubbles':>7} "
+        f"{'G [kPa]':>16} {'mu [Pa s]':>18}"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         camera = Path(tmp) / "camera"
         for name in a.cases:
             data, args, target = CASES[name]
             if data == "camera":
                 if not camera.exists():
-                    sim = subprocess.run(imrbayes() + ["simulate", *CAMERA, "--out", str(camera), "--quiet"],
-                                         capture_output=True, text=True)
+                    sim = subprocess.run(
+                        imrbayes() + ["simulate", *CAMERA, "--out", str(camera), "--quiet"],
+                        capture_output=True,
+                        text=True,
+                    )
                     if sim.returncode:
                         raise SystemExit(f"simulate failed: {sim.stderr.strip()}")
                 data = camera
             out = Path(tmp) / name
             r = timed(imrbayes() + ["fit", str(data), *args, "--seed", str(a.seed), "--quiet", "--out", str(out)])
-            row = {"case": name, "data": str(data if data != camera else "camera design of the speed targets"),
-                   "command": ["imrbayes", "fit", "DATA", *args, "--seed", str(a.seed)], "target_s": target, **r}
+            row = {
+                "case": name,
+                "data": str(data if data != camera else "camera design of the speed targets"),
+                "command": ["imrbayes", "fit", "DATA", *args, "--seed", str(a.seed)],
+                "target_s": target,
+                **r,
+            }
             if r["returncode"] == 0:
                 s = json.loads((out / "summary.json").read_text())
-                row.update(n_experiments=s.get("n_experiments"), runtime_s=s.get("runtime_s"),
-                           estimate={k: {"median": v.get("median"), "hdi95": v.get("hdi95")}
-                                     for k, v in s["estimate"].items()},
-                           forward=s.get("forward"))
+                row.update(
+                    n_experiments=s.get("n_experiments"),
+                    runtime_s=s.get("runtime_s"),
+                    estimate={
+                        k: {"median": v.get("median"), "hdi95": v.get("hdi95")} for k, v in s["estimate"].items()
+                    },
+                    forward=s.get("forward"),
+                )
                 e = row["estimate"]
-                est = (f"{e['G']['median'] / 1e3:7.2f} [{e['G']['hdi95'][0] / 1e3:.1f}, {e['G']['hdi95'][1] / 1e3:.1f}] "
-                       f"{e['mu']['median']:7.4f} [{e['mu']['hdi95'][0]:.3f}, {e['mu']['hdi95'][1]:.3f}]")
+                est = (
+                    f"{e['G']['median'] / 1e3:7.2f} [{e['G']['hdi95'][0] / 1e3:.1f}, {e['G']['hdi95'][1] / 1e3:.1f}] "
+                    f"{e['mu']['median']:7.4f} [{e['mu']['hdi95'][0]:.3f}, {e['mu']['hdi95'][1]:.3f}]"
+                )
             else:
                 est = "FAILED: " + r["stderr_tail"].strip().splitlines()[-1][:60]
             rows.append(row)
             tgt = f"{target:7.0f}" if target else "      -"
-            print(f"{name:<20} {r['wall_s']:9.1f} {tgt} {r['cpu_s']:8.1f} {r['load_before']:4.2f}-{r['load_after']:4.2f} "
-                  f"{row.get('n_experiments', '-')!s:>7} {est}", flush=True)
+            print(
+                f"{name:<20} {r['wall_s']:9.1f} {tgt} {r['cpu_s']:8.1f} {r['load_before']:4.2f}-{r['load_after']:4.2f} "
+                f"{row.get('n_experiments', '-')!s:>7} {est}",
+                flush=True,
+            )
     yard.append(host_yardstick())
     fastest = min(yard, key=lambda y: y["ms"])
     factor = fastest["host_factor"]
-    print(f"host yardstick after the fits: {yard[1]['ms']:.1f} ms; against the faster of the two ({fastest['ms']:.1f} ms) "
-          "the walls above are, in yardsticks, and on the reference host (factor "
-          f"{factor:.2f}):")
+    print(
+        f"host yardstick after the fits: {yard[1]['ms']:.1f} ms; against the faster of the two ({fastest['ms']:.1f} ms) "
+        "the walls above are, in yardsticks, and on the reference host (factor "
+        f"{factor:.2f}):"
+    )
     for r in rows:
         add_yardstick_ratios(r, fastest, seconds_keys=("wall_s", "cpu_s"))
         if r["target_s"]:
@@ -125,9 +174,21 @@ def main(argv=None) -> int:
         tgt = f" (target {r['target_s_per_yardstick']:.3g} x yard, {r['target_s']:.0f} s)" if r["target_s"] else ""
         print(f"  {r['case']:<20} {r['wall_s_per_yardstick']:7.3g} x yard, {r['wall_s'] / factor:7.1f} s{tgt}")
     if a.json:
-        Path(a.json).write_text(json.dumps({"meta": {"machine": machine_info(), "seed": a.seed, "host_yardstick": yard,
-                                                      "note": "one timed run per case, imrbayes fit as a subprocess"},
-                                             "rows": rows}, indent=1, default=str))
+        Path(a.json).write_text(
+            json.dumps(
+                {
+                    "meta": {
+                        "machine": machine_info(),
+                        "seed": a.seed,
+                        "host_yardstick": yard,
+                        "note": "one timed run per case, imrbayes fit as a subprocess",
+                    },
+                    "rows": rows,
+                },
+                indent=1,
+                default=str,
+            )
+        )
     return 0 if all(r["returncode"] == 0 for r in rows) else 1
 
 

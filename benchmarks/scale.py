@@ -45,7 +45,8 @@ from _machine import add_yardstick_ratios, host_yardstick, machine_info, results
 def _identical(a: dict, b: dict) -> bool:
     return list(a) == list(b) and all(
         all(np.array_equal(a[k][f], b[k][f]) and a[k][f].dtype == b[k][f].dtype for f in ("params", "R", "draws"))
-        for k in a)
+        for k in a
+    )
 
 
 def _start(factory, seed):
@@ -97,18 +98,22 @@ def fit_benchmark(args) -> dict:
     space = ParamSpace.for_model(fm_threads.constitutive)
     st = MIEnKSSettings(n_ens=args.fit_n_ens, n_draws=10)
     w = max(args.workers)
-    specs = [("in-process, serial kernel", 1, fm_serial, InProcessExecutor),
-             ("in-process, numba threads", os.cpu_count(), fm_threads, InProcessExecutor),
-             ("process pool", w, fm_serial, lambda: ProcessPoolExecutor(w))]
+    specs = [
+        ("in-process, serial kernel", 1, fm_serial, InProcessExecutor),
+        ("in-process, numba threads", os.cpu_count(), fm_threads, InProcessExecutor),
+        ("process pool", w, fm_serial, lambda: ProcessPoolExecutor(w)),
+    ]
     if not args.no_dask:
-        specs.append(("Dask LocalCluster", w, fm_serial, lambda: DaskExecutor("local", n_workers=w, threads_per_worker=1)))
+        specs.append(
+            ("Dask LocalCluster", w, fm_serial, lambda: DaskExecutor("local", n_workers=w, threads_per_worker=1))
+        )
     rows, ref = [], None
     tiny = MIEnKSSettings(n_ens=4, n_iter=1, n_draws=2)
-    _fit_once(fm_serial, obs, space, tiny, args.seed, InProcessExecutor())        # compile (numba cache)
+    _fit_once(fm_serial, obs, space, tiny, args.seed, InProcessExecutor())  # compile (numba cache)
     for label, nw, fm, factory in specs:
         t0 = time.perf_counter()
         ex = factory()
-        _fit_once(fm, obs, space, tiny, args.seed, ex)          # start the workers, load the kernels there
+        _fit_once(fm, obs, space, tiny, args.seed, ex)  # start the workers, load the kernels there
         start = time.perf_counter() - t0
         try:
             best, numbers, summ = np.inf, None, None
@@ -118,8 +123,16 @@ def fit_benchmark(args) -> dict:
         finally:
             ex.close()
         ref = numbers if ref is None else ref
-        rows.append({"backend": label, "workers": nw, "wall_s": best, "startup_s": start, "units": summ["n_units"],
-                     "identical": numbers == ref})
+        rows.append(
+            {
+                "backend": label,
+                "workers": nw,
+                "wall_s": best,
+                "startup_s": start,
+                "units": summ["n_units"],
+                "identical": numbers == ref,
+            }
+        )
     yard = host_yardstick()
     for r in rows:
         r["speedup"] = rows[0]["wall_s"] / r["wall_s"]
@@ -127,19 +140,30 @@ def fit_benchmark(args) -> dict:
     n_windows = rows[0]["units"] // obs.n_exp
     bound = {str(n): {str(k): expected_speedup(n, k) for k in (1, 2, 4, 5, 8, 16, 32, 64)} for n in (obs.n_exp, 60)}
     load = f"; load average {os.getloadavg()[0]:.1f}" if hasattr(os, "getloadavg") else ""
-    print(f"MIEnKS-MDA on the §5 verification case ({obs.n_exp} experiments, {args.fit_bubble} bubble, N_En = "
-          f"{args.fit_n_ens}, {n_windows} windows = {rows[0]['units']} units); {os.cpu_count()} CPUs; best of "
-          f"{args.repeat}{load}")
+    print(
+        f"MIEnKS-MDA on the §5 verification case ({obs.n_exp} experiments, {args.fit_bubble} bubble, N_En = "
+        f"{args.fit_n_ens}, {n_windows} windows = {rows[0]['units']} units); {os.cpu_count()} CPUs; best of "
+        f"{args.repeat}{load}"
+    )
     print(f"{'backend':<28}{'workers':>8}{'x yard':>9}{'speedup':>9}{'start-up x yard':>16}{'identical':>11}")
     for r in rows:
-        print(f"{r['backend']:<28}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.3g}{r['speedup']:>9.2f}"
-              f"{r['startup_s_per_yardstick']:>16.3g}{str(r['identical']):>11}")
+        print(
+            f"{r['backend']:<28}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.3g}{r['speedup']:>9.2f}"
+            f"{r['startup_s_per_yardstick']:>16.3g}{str(r['identical']):>11}"
+        )
     print("speed-up bound from the unit counts (windows in order, experiments of a window in parallel):")
     for n, b in bound.items():
         print(f"  {n:>3} experiments: " + ", ".join(f"W={k}: {v:.2f}" for k, v in b.items()))
-    return {"case": "methods.md §5 verification, MIEnKS-MDA", "n_experiments": obs.n_exp, "n_windows": n_windows,
-            "n_ens": args.fit_n_ens, "bubble": args.fit_bubble, "rows": rows, "speedup_bound": bound,
-            "host_yardstick": yard}
+    return {
+        "case": "methods.md §5 verification, MIEnKS-MDA",
+        "n_experiments": obs.n_exp,
+        "n_windows": n_windows,
+        "n_ens": args.fit_n_ens,
+        "bubble": args.fit_bubble,
+        "rows": rows,
+        "speedup_bound": bound,
+        "host_yardstick": yard,
+    }
 
 
 def main(argv=None) -> int:
@@ -150,8 +174,12 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-dask", action="store_true")
-    ap.add_argument("--json", default=None, help="[default: results/scale_toy_units.json, with --fit results/scale_fit.json]")
-    ap.add_argument("--fit", action="store_true", help="the §5 verification case through MIEnKS-MDA instead of toy units")
+    ap.add_argument(
+        "--json", default=None, help="[default: results/scale_toy_units.json, with --fit results/scale_fit.json]"
+    )
+    ap.add_argument(
+        "--fit", action="store_true", help="the §5 verification case through MIEnKS-MDA instead of toy units"
+    )
     ap.add_argument("--fit-n-ens", type=int, default=16)
     ap.add_argument("--fit-bubble", choices=["polytropic", "imrv2-fd"], default="polytropic")
     args = ap.parse_args(argv)
@@ -160,9 +188,15 @@ def main(argv=None) -> int:
     if args.fit:
         res = fit_benchmark(args)
         if args.json:
-            meta = {"cpus": os.cpu_count(), "python": sys.version.split()[0], "platform": platform.platform(),
-                    "machine": machine_info(), "numpy": np.__version__, "repeat": args.repeat,
-                    "load_average_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
+            meta = {
+                "cpus": os.cpu_count(),
+                "python": sys.version.split()[0],
+                "platform": platform.platform(),
+                "machine": machine_info(),
+                "numpy": np.__version__,
+                "repeat": args.repeat,
+                "load_average_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+            }
             with open(args.json, "w") as fh:
                 json.dump({"meta": meta, **res}, fh, indent=2)
         return 0 if all(r["identical"] for r in res["rows"]) else 1
@@ -191,8 +225,16 @@ def main(argv=None) -> int:
             ex.close()
     base_t = best[0]
     yard = host_yardstick()
-    rows = [{"backend": label, "workers": w, "wall_s": best[i], "startup_s": started[i][1],
-             "identical": _identical(results[i], results[0])} for i, (label, w, _, _) in enumerate(specs)]
+    rows = [
+        {
+            "backend": label,
+            "workers": w,
+            "wall_s": best[i],
+            "startup_s": started[i][1],
+            "identical": _identical(results[i], results[0]),
+        }
+        for i, (label, w, _, _) in enumerate(specs)
+    ]
     for row in rows:
         row["speedup"] = base_t / row["wall_s"]
         row["per_unit_s"] = row["wall_s"] / args.units
@@ -202,13 +244,23 @@ def main(argv=None) -> int:
     print(f"{args.units} toy units x {args.steps} RK4 steps; {os.cpu_count()} CPUs; best of {args.repeat}{load}")
     print(f"{'backend':<26}{'workers':>8}{'x yard':>9}{'speedup':>9}{'start-up x yard':>16}{'identical':>11}")
     for r in rows:
-        print(f"{r['backend']:<26}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.3g}{r['speedup']:>9.2f}"
-              f"{r['startup_s_per_yardstick']:>16.3g}{str(r['identical']):>11}")
+        print(
+            f"{r['backend']:<26}{r['workers']:>8}{r['wall_s_per_yardstick']:>9.3g}{r['speedup']:>9.2f}"
+            f"{r['startup_s_per_yardstick']:>16.3g}{str(r['identical']):>11}"
+        )
     if args.json:
-        meta = {"units": args.units, "steps": args.steps, "repeat": args.repeat, "cpus": os.cpu_count(),
-                "python": sys.version.split()[0], "platform": platform.platform(), "numpy": np.__version__,
-                "machine": machine_info(), "host_yardstick": yard,
-                "load_average_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
+        meta = {
+            "units": args.units,
+            "steps": args.steps,
+            "repeat": args.repeat,
+            "cpus": os.cpu_count(),
+            "python": sys.version.split()[0],
+            "platform": platform.platform(),
+            "numpy": np.__version__,
+            "machine": machine_info(),
+            "host_yardstick": yard,
+            "load_average_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        }
         with open(args.json, "w") as fh:
             json.dump({"meta": meta, "rows": rows}, fh, indent=2)
     return 0 if all(r["identical"] for r in rows) else 1

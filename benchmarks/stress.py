@@ -63,20 +63,61 @@ def main(argv=None) -> int:
     for p in (data, out):
         if p.exists():
             shutil.rmtree(p)
-    fwd = {"polytropic": ["--forward", "bubble=polytropic"], "imrv2-fd": ["--forward", "scheme=imrv2-fd"],
-           "thermal": []}[args.bubble]
+    fwd = {
+        "polytropic": ["--forward", "bubble=polytropic"],
+        "imrv2-fd": ["--forward", "scheme=imrv2-fd"],
+        "thermal": [],
+    }[args.bubble]
     t0 = time.perf_counter()
-    sim = subprocess.run(_cli() + ["simulate", "--model", "nhkv", "--param", "G=7.29e3", "--param", "mu=0.088",
-                                   "--rmax", "263e-6:25e-6", "--ratio", "7.58:0.5", "--n-exp", str(args.n_exp),
-                                   "--noise", "paper", "--seed", str(args.seed), *fwd, "--out", str(data), "--quiet"],
-                         capture_output=True, text=True)
+    sim = subprocess.run(
+        _cli()
+        + [
+            "simulate",
+            "--model",
+            "nhkv",
+            "--param",
+            "G=7.29e3",
+            "--param",
+            "mu=0.088",
+            "--rmax",
+            "263e-6:25e-6",
+            "--ratio",
+            "7.58:0.5",
+            "--n-exp",
+            str(args.n_exp),
+            "--noise",
+            "paper",
+            "--seed",
+            str(args.seed),
+            *fwd,
+            "--out",
+            str(data),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+    )
     if sim.returncode != 0:
         print(sim.stderr, file=sys.stderr)
         return 1
     t_sim = time.perf_counter() - t0
 
-    fit_args = ["fit", str(data), "--method", "mienks", "--out", str(out), "--seed", str(args.seed),
-                "--set", f"n_ens={args.n_ens}", "--workers", str(args.workers), "--quiet", *fwd]
+    fit_args = [
+        "fit",
+        str(data),
+        "--method",
+        "mienks",
+        "--out",
+        str(out),
+        "--seed",
+        str(args.seed),
+        "--set",
+        f"n_ens={args.n_ens}",
+        "--workers",
+        str(args.workers),
+        "--quiet",
+        *fwd,
+    ]
     if args.n_iter is not None:
         fit_args += ["--set", f"n_iter={args.n_iter}"]
     t0 = time.perf_counter()
@@ -91,41 +132,73 @@ def main(argv=None) -> int:
     if rc != 0:
         print(err, file=sys.stderr)
         return 1
-    scale = 1024.0 if sys.platform != "darwin" else 1024.0 * 1024.0     # ru_maxrss: KiB (Linux), bytes (macOS)
+    scale = 1024.0 if sys.platform != "darwin" else 1024.0 * 1024.0  # ru_maxrss: KiB (Linux), bytes (macOS)
     peak_mib = ru.ru_maxrss / scale
     s = json.loads((out / "summary.json").read_text())
     d, ex = s["details"], s["execution"]
     units_bytes = sum(p.stat().st_size for p in (out / "units").iterdir())
-    row = {"n_experiments": s["n_experiments"], "bubble": args.bubble, "n_ens": args.n_ens,
-           "n_iter": d["settings"]["n_iter"], "L": d["settings"]["L"], "h": d["settings"]["h"],
-           "n_windows": d["n_windows"], "workers": args.workers, "units": ex["n_units"], "units_failed": ex["n_failed"],
-           "member_runs": d["member_runs"], "failed_member_runs": d["failed_member_runs"],
-           "redrawn_members": d["redrawn_members"], "wall_s": wall, "simulate_s": t_sim,
-           "peak_rss_mib": peak_mib, "peak_rss_target_gb": TARGET_GB, "within_target": peak_mib / 1024 <= TARGET_GB,
-           "checkpoints_mib": units_bytes / 2**20, "cpu_user_s": ru.ru_utime, "cpu_sys_s": ru.ru_stime,
-           "estimate": {k: {"mean": v["mean"], "sd": v["sd"]} for k, v in s["estimate"].items()},
-           "rmse": s["fit"]["rmse"]}
+    row = {
+        "n_experiments": s["n_experiments"],
+        "bubble": args.bubble,
+        "n_ens": args.n_ens,
+        "n_iter": d["settings"]["n_iter"],
+        "L": d["settings"]["L"],
+        "h": d["settings"]["h"],
+        "n_windows": d["n_windows"],
+        "workers": args.workers,
+        "units": ex["n_units"],
+        "units_failed": ex["n_failed"],
+        "member_runs": d["member_runs"],
+        "failed_member_runs": d["failed_member_runs"],
+        "redrawn_members": d["redrawn_members"],
+        "wall_s": wall,
+        "simulate_s": t_sim,
+        "peak_rss_mib": peak_mib,
+        "peak_rss_target_gb": TARGET_GB,
+        "within_target": peak_mib / 1024 <= TARGET_GB,
+        "checkpoints_mib": units_bytes / 2**20,
+        "cpu_user_s": ru.ru_utime,
+        "cpu_sys_s": ru.ru_stime,
+        "estimate": {k: {"mean": v["mean"], "sd": v["sd"]} for k, v in s["estimate"].items()},
+        "rmse": s["fit"]["rmse"],
+    }
     yard = host_yardstick()
     add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "simulate_s", "cpu_user_s"))
     load = os.getloadavg() if hasattr(os, "getloadavg") else None
-    print(f"MIEnKS-MDA stress: {row['n_experiments']} experiments, {args.bubble} bubble, N_En = {args.n_ens}, "
-          f"{row['n_iter']} iterations, L = {row['L']}, h = {row['h']}; {os.cpu_count()} CPUs"
-          + (f"; load average {load[0]:.1f}" if load else ""))
-    cols = [("experiments", "n_experiments", "d"), ("windows", "n_windows", "d"), ("units", "units", "d"),
-            ("workers", "workers", "d"), ("member runs", "member_runs", "d"),
-            ("wall x yard", "wall_s_per_yardstick", ".0f"), ("CPU x yard", "cpu_user_s_per_yardstick", ".0f"), ("peak RSS MiB", "peak_rss_mib", ".0f"),
-            ("checkpoints MiB", "checkpoints_mib", ".1f")]
+    print(
+        f"MIEnKS-MDA stress: {row['n_experiments']} experiments, {args.bubble} bubble, N_En = {args.n_ens}, "
+        f"{row['n_iter']} iterations, L = {row['L']}, h = {row['h']}; {os.cpu_count()} CPUs"
+        + (f"; load average {load[0]:.1f}" if load else "")
+    )
+    cols = [
+        ("experiments", "n_experiments", "d"),
+        ("windows", "n_windows", "d"),
+        ("units", "units", "d"),
+        ("workers", "workers", "d"),
+        ("member runs", "member_runs", "d"),
+        ("wall x yard", "wall_s_per_yardstick", ".0f"),
+        ("CPU x yard", "cpu_user_s_per_yardstick", ".0f"),
+        ("peak RSS MiB", "peak_rss_mib", ".0f"),
+        ("checkpoints MiB", "checkpoints_mib", ".1f"),
+    ]
     print("  ".join(f"{c[0]:>{max(len(c[0]), 8)}}" for c in cols))
     print("  ".join(f"{row[c[1]]:>{max(len(c[0]), 8)}{c[2]}}" for c in cols))
     e = row["estimate"]
-    print(f"G = {e['G']['mean']:.4g} ± {e['G']['sd']:.2g} Pa, mu = {e['mu']['mean']:.4g} ± {e['mu']['sd']:.2g} Pa s "
-          f"(truth 7290, 0.088); rmse {row['rmse']:.4g}; failed units {row['units_failed']}; "
-          f"peak memory {'within' if row['within_target'] else 'ABOVE'} the {TARGET_GB:g} GB target")
+    print(
+        f"G = {e['G']['mean']:.4g} ± {e['G']['sd']:.2g} Pa, mu = {e['mu']['mean']:.4g} ± {e['mu']['sd']:.2g} Pa s "
+        f"(truth 7290, 0.088); rmse {row['rmse']:.4g}; failed units {row['units_failed']}; "
+        f"peak memory {'within' if row['within_target'] else 'ABOVE'} the {TARGET_GB:g} GB target"
+    )
     if args.json:
-        meta = {"cpus": os.cpu_count(), "python": sys.version.split()[0], "platform": platform.platform(),
-                "machine": machine_info(), "host_yardstick": yard,
-                "load_average_1_5_15": list(load) if load else None,
-                "peak_rss": "wait4 ru_maxrss of the fit process (max over it and its waited-for descendants)"}
+        meta = {
+            "cpus": os.cpu_count(),
+            "python": sys.version.split()[0],
+            "platform": platform.platform(),
+            "machine": machine_info(),
+            "host_yardstick": yard,
+            "load_average_1_5_15": list(load) if load else None,
+            "peak_rss": "wait4 ru_maxrss of the fit process (max over it and its waited-for descendants)",
+        }
         Path(args.json).write_text(json.dumps({"meta": meta, "rows": [row]}, indent=2) + "\n")
     if not args.keep:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -48,11 +48,13 @@ window.addEventListener('load', function () {
 </script>"""
 
 # raw JSON / escapes a reader must not see in the rendered text
-_BAD_TEXT = [(re.compile(r"\{\s*\"[^\"]+\"\s*:"), "a JSON object"),
-             (re.compile(r"\[\s*\"[^\"]*\"\s*,"), "a JSON list of strings"),
-             (re.compile(r"\\u[0-9a-fA-F]{4}"), "a \\u escape"),
-             (re.compile(r"\\[nt\"]"), "a backslash escape"),
-             (re.compile(r"&(amp|lt|gt|quot|#\d+);"), "an HTML entity shown as text")]
+_BAD_TEXT = [
+    (re.compile(r"\{\s*\"[^\"]+\"\s*:"), "a JSON object"),
+    (re.compile(r"\[\s*\"[^\"]*\"\s*,"), "a JSON list of strings"),
+    (re.compile(r"\\u[0-9a-fA-F]{4}"), "a \\u escape"),
+    (re.compile(r"\\[nt\"]"), "a backslash escape"),
+    (re.compile(r"&(amp|lt|gt|quot|#\d+);"), "an HTML entity shown as text"),
+]
 
 
 def find_browser() -> str | None:
@@ -64,8 +66,18 @@ def find_browser() -> str | None:
 
 
 def _run(browser, args, timeout=120) -> str:
-    cmd = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--hide-scrollbars",
-           "--no-first-run", "--disable-extensions", "--virtual-time-budget=10000", *args]
+    cmd = [
+        browser,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-dev-shm-usage",
+        "--hide-scrollbars",
+        "--no-first-run",
+        "--disable-extensions",
+        "--virtual-time-budget=10000",
+        *args,
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     if proc.returncode != 0:
         raise RuntimeError(f"{Path(browser).name} failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
@@ -80,8 +92,9 @@ def check(report: Path, png: Path | None = None, width: int = 1280, browser: str
     page = report.read_text(encoding="utf-8")
     with tempfile.TemporaryDirectory() as tmp:
         probe = Path(tmp) / "probe.html"
-        probe.write_text(page.replace("</body>", _PROBE + "</body>") if "</body>" in page else page + _PROBE,
-                         encoding="utf-8")
+        probe.write_text(
+            page.replace("</body>", _PROBE + "</body>") if "</body>" in page else page + _PROBE, encoding="utf-8"
+        )
         dom = _run(browser, [f"--window-size={width},1000", "--dump-dom", probe.as_uri()])
         m = re.search(r"id=\"imrbayes-probe\" data-probe=\"([^\"]*)\"", dom)
         if not m:
@@ -90,7 +103,9 @@ def check(report: Path, png: Path | None = None, width: int = 1280, browser: str
         if png is not None:
             height = max(600, min(int(res.get("height") or 4000) + 40, 30000))
             png.parent.mkdir(parents=True, exist_ok=True)
-            _run(browser, [f"--window-size={width},{height}", f"--screenshot={png.resolve()}", report.resolve().as_uri()])
+            _run(
+                browser, [f"--window-size={width},{height}", f"--screenshot={png.resolve()}", report.resolve().as_uri()]
+            )
     problems = []
     if res["broken"]:
         problems.append(f"{len(res['broken'])} of {res['n_images']} image(s) did not load: {res['broken'][:5]}")
@@ -99,11 +114,16 @@ def check(report: Path, png: Path | None = None, width: int = 1280, browser: str
         hit = rx.search(text)
         if hit:
             a = max(hit.start() - 60, 0)
-            problems.append(f"{what} in the visible text: …{text[a:hit.end() + 60]!r}…")
+            problems.append(f"{what} in the visible text: …{text[a : hit.end() + 60]!r}…")
     if res.get("first_h2") != "conclusion":
         problems.append(f"the page does not open with the conclusion block (first section: {res.get('first_h2')!r})")
-    return {"ok": not problems, "problems": problems, "n_images": res["n_images"], "height": res.get("height"),
-            "browser": browser}
+    return {
+        "ok": not problems,
+        "problems": problems,
+        "n_images": res["n_images"],
+        "height": res.get("height"),
+        "browser": browser,
+    }
 
 
 def main(argv=None) -> int:
@@ -125,8 +145,7 @@ def main(argv=None) -> int:
         print(f"check_report_browser: {report}: {p}", file=sys.stderr)
     if res["ok"]:
         extra = f"; screenshot {a.png}" if a.png else ""
-        print(f"check_report_browser: {report}: ok ({res['n_images']} image(s) loaded, no raw JSON or escapes"
-              f"{extra})")
+        print(f"check_report_browser: {report}: ok ({res['n_images']} image(s) loaded, no raw JSON or escapes{extra})")
     return 0 if res["ok"] else 1
 
 

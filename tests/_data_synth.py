@@ -23,14 +23,23 @@ def curve(t_star, q=0.14, tc=0.9, g=1.0):
     return q + (1.0 - q) * np.exp(-g * t**2) * (1.0 + np.cos(np.pi * t / tc)) / 2.0
 
 
-def record(rmax_m=400e-6, q=0.14, tc_star=0.9, h_star=0.09, offset=0.3, t_start=-0.3, t_end=3.3,
-           clock_s=1.234e-5, rho=RHO, p8=P8):
+def record(
+    rmax_m=400e-6,
+    q=0.14,
+    tc_star=0.9,
+    h_star=0.09,
+    offset=0.3,
+    t_start=-0.3,
+    t_end=3.3,
+    clock_s=1.234e-5,
+    rho=RHO,
+    p8=P8,
+):
     """(t_s, R_m, truth) sampled every h_star (in t*) with sample phase ``offset`` (fraction of h)."""
     tcs = rmax_m / math.sqrt(p8 / rho)
     ts = t_start + offset * h_star + np.arange(int((t_end - t_start) / h_star)) * h_star
     R = rmax_m * curve(ts, q, tc_star)
-    truth = {"rmax_m": rmax_m, "req_m": q * rmax_m, "tc_s": tcs, "t_collapse_star": tc_star,
-             "t0_s": clock_s}
+    truth = {"rmax_m": rmax_m, "req_m": q * rmax_m, "tc_s": tcs, "t_collapse_star": tc_star, "t0_s": clock_s}
     return ts * tcs + clock_s, R, truth
 
 

@@ -3,7 +3,7 @@ ensemble-method tests."""
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -15,7 +15,7 @@ RMAX = np.array([263e-6, 250e-6, 280e-6, 300e-6, 240e-6])
 RATIO = np.array([7.58, 7.2, 7.9, 7.4, 7.7])
 
 
-@lru_cache(maxsize=None)
+@cache
 def model(bubble: str = "polytropic") -> ForwardModel:
     return ForwardModel("nhkv", options={"bubble": bubble} if bubble == "polytropic" else {"scheme": "imrv2-fd"})
 

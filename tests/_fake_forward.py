@@ -4,8 +4,8 @@ The ``fake`` fixture (conftest.py) installs it in place of ``imrbayes.forward.Fo
 from types import SimpleNamespace
 
 import numpy as np
-
 from _data_synth import curve
+
 from imrbayes.errors import ForwardModelError, InputError
 
 CALLS = []

@@ -3,13 +3,13 @@ analytic Gaussian target with the interface of :class:`imrbayes.mcmc.target.Wind
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
 from imrbayes.data.noise import paper_sigma
-from imrbayes.forward import ForwardModel, ForwardOptions
 from imrbayes.ensemble import ParamSpace
+from imrbayes.forward import ForwardModel, ForwardOptions
 
 TRUTH = {"G": 7.29e3, "mu": 0.088}
 RMAX = np.array([263e-6, 250e-6, 280e-6])
@@ -18,7 +18,7 @@ RATIO = np.array([7.58, 7.2, 7.9])
 PAPER_PRIOR_SI = {"G": (6.0e3, 2.8e3), "mu": (0.209, 0.088)}
 
 
-@lru_cache(maxsize=None)
+@cache
 def model() -> ForwardModel:
     return ForwardModel("nhkv", options=ForwardOptions(bubble="polytropic"))
 
@@ -55,7 +55,7 @@ def observations(n_exp=1, n_steps=40, noise=None, seed=0, truth=None):
         P = np.full(t.size, 1e-4)
     elif noise == "paper":
         sd = paper_sigma(t, Y.mean(axis=0))
-        P = np.maximum(sd ** 2, 1e-8)
+        P = np.maximum(sd**2, 1e-8)
         Y = Y + rng.standard_normal(Y.shape) * sd
     else:
         P = np.full(t.size, float(noise) ** 2)

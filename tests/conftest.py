@@ -1,8 +1,7 @@
 """Shared fixtures."""
 
-import pytest
-
 import _fake_forward
+import pytest
 
 
 @pytest.fixture

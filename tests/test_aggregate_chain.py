@@ -90,12 +90,12 @@ def test_window_mean_is_the_linear_map_fit_mienks_records():
     for g in range(G):
         A = rng.standard_normal((d, d))
         Lam[g] = 40.0 * (A @ A.T + 0.5 * np.eye(d))
-    theta = np.array([0.2, -0.1]) + 0.3 * rng.standard_normal((G, d))     # real scatter: tau > 0
+    theta = np.array([0.2, -0.1]) + 0.3 * rng.standard_normal((G, d))  # real scatter: tau > 0
     eta = np.stack([Lam[g] @ theta[g] + rng.multivariate_normal(np.zeros(d), Lam[g]) for g in range(G)])
     prior_m, prior_c = np.array([0.0, 0.3]), np.diag([0.8, 0.5])
     hier = random_effects(Lam, eta, prior_m, prior_c, intervals=False)
     assert np.all(hier.tau > 0)
-    T = np.diag(hier.tau ** 2)
+    T = np.diag(hier.tau**2)
     F = hier.cov @ np.linalg.inv(prior_c)
     D = [hier.cov @ np.linalg.inv(np.eye(d) + Lam[g] @ T) for g in range(G)]
     np.testing.assert_allclose(F @ prior_m + sum(D[g] @ eta[g] for g in range(G)), hier.mean, rtol=1e-9, atol=1e-12)

@@ -28,8 +28,24 @@ def _one_line_error(res, *needles):
 def gel(tmp_path_factory):
     """Two polytropic bubbles (meta.json's forward block: bubble = polytropic)."""
     d = tmp_path_factory.mktemp("gel") / "data"
-    _run("simulate", "--model", "nhkv", "--param", "G=6e3", "--param", "mu=0.08", "--n-exp", "2",
-         "--noise", "paper", "--forward", "bubble=polytropic", "--out", d, "--quiet")
+    _run(
+        "simulate",
+        "--model",
+        "nhkv",
+        "--param",
+        "G=6e3",
+        "--param",
+        "mu=0.08",
+        "--n-exp",
+        "2",
+        "--noise",
+        "paper",
+        "--forward",
+        "bubble=polytropic",
+        "--out",
+        d,
+        "--quiet",
+    )
     return d
 
 
@@ -37,19 +53,24 @@ def test_read_config_gives_the_command_table_with_its_sub_tables(tmp_path):
     from imrbayes.cli import read_config
 
     cfg = tmp_path / "run.toml"
-    cfg.write_text('[fit]\nmethod = "imr"\nn-steps = 80\n[fit.forward]\nbubble = "polytropic"\n'
-                   '[prior]\nG = [6e3, 2e3]\n[simulate]\nn-exp = 2\n')
+    cfg.write_text(
+        '[fit]\nmethod = "imr"\nn-steps = 80\n[fit.forward]\nbubble = "polytropic"\n'
+        "[prior]\nG = [6e3, 2e3]\n[simulate]\nn-exp = 2\n"
+    )
     got = read_config(cfg, "fit", options={"method", "n_steps"}, tables={"forward", "prior"})
     # dashes read as underscores; a top-level table the command understands is used when its own lacks it
     assert got == {"method": "imr", "n_steps": 80, "forward": {"bubble": "polytropic"}, "prior": {"G": [6e3, 2e3]}}
     assert read_config(None, "fit", options=(), tables=()) == {}
 
 
-@pytest.mark.parametrize("text,needle", [
-    ("[diagnose]\nseed = 1\n[diagnose.bogus]\nx = 1\n", "[diagnose.bogus]"),
-    ("[diagnose]\nbogus = 1\n", "'bogus'"),
-    ("[diagnose\n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "text,needle",
+    [
+        ("[diagnose]\nseed = 1\n[diagnose.bogus]\nx = 1\n", "[diagnose.bogus]"),
+        ("[diagnose]\nbogus = 1\n", "'bogus'"),
+        ("[diagnose\n", "not valid TOML"),
+    ],
+)
 def test_read_config_refuses_what_the_command_does_not_understand(tmp_path, text, needle):
     from imrbayes.cli import read_config
     from imrbayes.errors import InputError
@@ -63,8 +84,10 @@ def test_read_config_refuses_what_the_command_does_not_understand(tmp_path, text
 
 def test_simulate_sub_tables_are_applied_and_the_command_line_wins_per_key(tmp_path):
     cfg = tmp_path / "run.toml"
-    cfg.write_text('[simulate]\nmodel = "nhkv"\nn-exp = 1\nnoise = "none"\nt-end = 0.5\n'
-                   '[simulate.param]\nG = 4e3\nmu = 0.05\n[simulate.forward]\nbubble = "polytropic"\nvapor = false\n')
+    cfg.write_text(
+        '[simulate]\nmodel = "nhkv"\nn-exp = 1\nnoise = "none"\nt-end = 0.5\n'
+        '[simulate.param]\nG = 4e3\nmu = 0.05\n[simulate.forward]\nbubble = "polytropic"\nvapor = false\n'
+    )
     out = tmp_path / "d"
     _run("simulate", "--config", cfg, "--param", "G=5e3", "--out", out, "--quiet")
     truth = json.loads((out / "truth.json").read_text())
@@ -84,8 +107,7 @@ def test_diagnose_forward_sub_table_is_applied(gel, tmp_path):
 
 def test_validate_reads_its_table_and_forward_sub_table(tmp_path):
     cfg = tmp_path / "run.toml"
-    cfg.write_text('[validate]\ncase = ["fusion-linear-gaussian"]\nquiet = true\n'
-                   '[validate.forward]\nvapor = false\n')
+    cfg.write_text('[validate]\ncase = ["fusion-linear-gaussian"]\nquiet = true\n[validate.forward]\nvapor = false\n')
     out = tmp_path / "v"
     _run("validate", "--config", cfg, "--out", out)
     rep = json.loads((out / "validation.json").read_text())
@@ -93,19 +115,22 @@ def test_validate_reads_its_table_and_forward_sub_table(tmp_path):
     assert rep["forward"]["options"]["vapor"] is False and rep["forward"]["options"]["bubble"] == "polytropic"
 
 
-@pytest.mark.parametrize("command,text,key", [
-    ("simulate", '[simulate]\nmodel = "nhkv"\n[simulate.prior]\nG = 1\n', "[simulate.prior]"),
-    ("diagnose", "[diagnose.bogus]\nx = 1\n", "[diagnose.bogus]"),
-    ("fit", '[fit]\nmethod = "imr"\n[fit.bogus]\nx = 1\n', "[fit.bogus]"),
-    ("inspect", "[inspect.forward]\nbubble = 'polytropic'\n", "[inspect.forward]"),
-])
-def test_a_sub_table_the_command_does_not_understand_is_one_line_naming_file_and_key(gel, tmp_path, command,
-                                                                                      text, key):
+@pytest.mark.parametrize(
+    "command,text,key",
+    [
+        ("simulate", '[simulate]\nmodel = "nhkv"\n[simulate.prior]\nG = 1\n', "[simulate.prior]"),
+        ("diagnose", "[diagnose.bogus]\nx = 1\n", "[diagnose.bogus]"),
+        ("fit", '[fit]\nmethod = "imr"\n[fit.bogus]\nx = 1\n', "[fit.bogus]"),
+        ("inspect", "[inspect.forward]\nbubble = 'polytropic'\n", "[inspect.forward]"),
+    ],
+)
+def test_a_sub_table_the_command_does_not_understand_is_one_line_naming_file_and_key(gel, tmp_path, command, text, key):
     cfg = tmp_path / "bad.toml"
     cfg.write_text(text)
-    (tmp_path / "o").write_text("a file")           # ignoring the table would end at --out, quickly
-    args = [command] + ([] if command == "simulate" else [str(gel)]) + ["--config", str(cfg), "--out",
-                                                                       str(tmp_path / "o")]
+    (tmp_path / "o").write_text("a file")  # ignoring the table would end at --out, quickly
+    args = (
+        [command] + ([] if command == "simulate" else [str(gel)]) + ["--config", str(cfg), "--out", str(tmp_path / "o")]
+    )
     _one_line_error(CliRunner().invoke(main, args), "bad.toml", key)
 
 

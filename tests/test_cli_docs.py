@@ -15,7 +15,8 @@ DOC = Path(__file__).resolve().parents[1] / "docs" / "cli.md"
 
 def test_docs_cli_md_is_current():
     assert DOC.read_text(encoding="utf-8") == cli_markdown(), (
-        "docs/cli.md is stale: regenerate it with `python -m imrbayes.cli.docs > docs/cli.md`")
+        "docs/cli.md is stale: regenerate it with `python -m imrbayes.cli.docs > docs/cli.md`"
+    )
 
 
 def test_docs_name_every_command_option_and_setting():
@@ -40,14 +41,16 @@ def test_field_docs_reads_defaults_and_attribute_docstrings():
         h: int = 5
         rtps: float = 0.7  # relaxation to prior spread
 
-    assert field_docs(Toy) == [("n_ens", "int", "24", "members per bubble"),
-                               ("h", "int", "5", "window shift [samples]"),
-                               ("rtps", "float", "0.7", "relaxation to prior spread")]
+    assert field_docs(Toy) == [
+        ("n_ens", "int", "24", "members per bubble"),
+        ("h", "int", "5", "window shift [samples]"),
+        ("rtps", "float", "0.7", "relaxation to prior spread"),
+    ]
 
 
 def test_fit_help_gives_set_one_line_per_method():
     out = CliRunner().invoke(main, ["fit", "--help"]).output
-    block = out[out.index("--set KEY=VALUE"):out.index("--prior")]
+    block = out[out.index("--set KEY=VALUE") : out.index("--prior")]
     lines = [ln for ln in block.splitlines() if ln.strip()]
     assert "docs/cli.md" in block
     assert len(lines) <= len(METHODS) + 3, block

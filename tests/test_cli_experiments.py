@@ -5,19 +5,37 @@ import json
 
 import pytest
 from click.testing import CliRunner
+from test_data_simulate import BASE
 
 from imrbayes.cli import main
 from imrbayes.cli.options import select_experiments
 from imrbayes.data import load_dataset
 from imrbayes.errors import InputError
-from test_data_simulate import BASE
 
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     d = tmp_path_factory.mktemp("sel") / "data"
-    res = CliRunner().invoke(main, ["simulate", *BASE, "--n-exp", "4", "--noise", "0.005", "--t-end", "2.0",
-                                    "--forward", "bubble=polytropic", "--seed", "3", "--out", str(d), "--quiet"])
+    res = CliRunner().invoke(
+        main,
+        [
+            "simulate",
+            *BASE,
+            "--n-exp",
+            "4",
+            "--noise",
+            "0.005",
+            "--t-end",
+            "2.0",
+            "--forward",
+            "bubble=polytropic",
+            "--seed",
+            "3",
+            "--out",
+            str(d),
+            "--quiet",
+        ],
+    )
     assert res.exit_code == 0, res.output
     return d
 
@@ -29,11 +47,20 @@ def test_positions_and_ranges_keep_the_datasets_order(data):
     sub = select_experiments(ds, "4,1-2")
     assert [e.name for e in sub.experiments] == [names[0], names[1], names[3]]
     assert any("kept experiments 4,1-2 of 4" in n for n in sub.notes)
-    assert len(ds.experiments) == 4                       # the original is untouched
+    assert len(ds.experiments) == 4  # the original is untouched
 
 
-@pytest.mark.parametrize("spec, words", [("0", "1..4"), ("2,5", "1..4"), ("3-1", "backwards"),
-                                         ("a", "positions or ranges"), ("1-b", "positions or ranges"), (",", "no experiment")])
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("0", "1..4"),
+        ("2,5", "1..4"),
+        ("3-1", "backwards"),
+        ("a", "positions or ranges"),
+        ("1-b", "positions or ranges"),
+        (",", "no experiment"),
+    ],
+)
 def test_bad_selections_say_what_is_wrong(data, spec, words):
     with pytest.raises(InputError, match="--experiments") as exc:
         select_experiments(load_dataset(data), spec)

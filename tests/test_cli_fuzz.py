@@ -10,8 +10,7 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 
 from imrbayes.cli import main
 
@@ -25,9 +24,27 @@ class Reached(Exception):
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     d = tmp_path_factory.mktemp("fuzz") / "data"
-    res = CliRunner().invoke(main, ["simulate", "--model", "nhkv", "--param", "G=7e3", "--param", "mu=0.09",
-                                    "--n-exp", "2", "--t-end", "2.0", "--forward", "bubble=polytropic",
-                                    "--out", str(d), "--quiet"])
+    res = CliRunner().invoke(
+        main,
+        [
+            "simulate",
+            "--model",
+            "nhkv",
+            "--param",
+            "G=7e3",
+            "--param",
+            "mu=0.09",
+            "--n-exp",
+            "2",
+            "--t-end",
+            "2.0",
+            "--forward",
+            "bubble=polytropic",
+            "--out",
+            str(d),
+            "--quiet",
+        ],
+    )
     assert res.exit_code == 0, res.output
     return d
 
@@ -49,6 +66,7 @@ def stubs():
             except TypeError:
                 s.check()
             raise Reached()
+
         return fit
 
     for name, meth in list(METHODS.items()):
@@ -66,7 +84,7 @@ def stubs():
 def check(args):
     with tempfile.TemporaryDirectory() as tmp:
         res = CliRunner().invoke(main, [str(a) for a in args] + ["--out", str(Path(tmp) / "out")])
-    text = res.output                            # stdout and stderr, as a terminal shows them
+    text = res.output  # stdout and stderr, as a terminal shows them
     # first: no exception escaped the command (CliRunner gives any escaped one exit status 1); if one
     # did -- a programming error above all -- the failure names it
     assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)
@@ -76,7 +94,7 @@ def check(args):
     internal = ("AssertionError", "TypeError", "KeyError", "AttributeError", "IndexError")
     assert not any(f"imrbayes: error: {name}:" in text for name in internal), text
     if res.exit_code == 1:
-        assert "Reached" in text, text          # the only status-1 path: the stubbed computation
+        assert "Reached" in text, text  # the only status-1 path: the stubbed computation
     else:
         assert res.exit_code in (0, 2), (res.exit_code, text, res.exception)
     if res.exit_code == 2:
@@ -86,15 +104,28 @@ def check(args):
 
 
 _word = st.text(alphabet=st.characters(codec="utf-8", exclude_categories=("Cs", "Cc")), max_size=12)
-_number = st.one_of(st.integers(-5, 10**6).map(str), st.floats(allow_nan=True, allow_infinity=True).map(repr),
-                    _word)
+_number = st.one_of(st.integers(-5, 10**6).map(str), st.floats(allow_nan=True, allow_infinity=True).map(repr), _word)
 _scheduler = st.one_of(st.none(), st.just("localhost"), _word.filter(lambda s: "://" not in s and s.strip() != "local"))
 _common = {
     "--seed": st.one_of(st.integers(-3, 2**40).map(str), _word),
     "--workers": st.one_of(st.integers(-2, 3).map(str), _word),
     "--scheduler": _scheduler,
-    "--forward": st.one_of(st.sampled_from(["bubble=polytropic", "bubble=thermal", "nt=3", "scheme=imrv2-fd",
-                                            "radial=km", "radial=xx", "nt=-1", "bogus=1", "bubble"]), _word),
+    "--forward": st.one_of(
+        st.sampled_from(
+            [
+                "bubble=polytropic",
+                "bubble=thermal",
+                "nt=3",
+                "scheme=imrv2-fd",
+                "radial=km",
+                "radial=xx",
+                "nt=-1",
+                "bogus=1",
+                "bubble",
+            ]
+        ),
+        _word,
+    ),
 }
 _flags = st.lists(st.sampled_from(["--resume", "--retry-failed", "--quiet"]), unique=True, max_size=3)
 
@@ -102,7 +133,7 @@ _flags = st.lists(st.sampled_from(["--resume", "--retry-failed", "--quiet"]), un
 def _options(draw, table):
     args = []
     for opt, strat in table.items():
-        if draw(st.integers(0, 2)) == 0:             # a third of the options at a time: some runs get through
+        if draw(st.integers(0, 2)) == 0:  # a third of the options at a time: some runs get through
             val = draw(strat)
             if val is not None:
                 args += [opt, val]
@@ -120,13 +151,19 @@ _settings = {
 @st.composite
 def fit_args(draw):
     method = draw(st.sampled_from(["imr", "pimr", "en4dvar", "mienks", "bogus"]))
-    args = ["fit", "DATA", "--method", method] + _options(draw, {
-        **_common, "--model": st.sampled_from(["nhkv", "qkv", "zener", "bogus"]),
-        "--dt-star": _number, "--n-steps": st.one_of(st.integers(-2, 400).map(str), _word),
-        "--noise": st.sampled_from(["auto", "sample", "paper", "bogus"]),
-        "--prior": st.one_of(st.sampled_from(["G=6e3:2e3", "mu=0.1:0", "G=-1:1", "G=1", "x=1:1"]), _word),
-        "--camera": _word,
-        "--experiments": st.one_of(st.sampled_from(["1", "1,2", "0", "2-1", "1-2", "a"]), _word)})
+    args = ["fit", "DATA", "--method", method] + _options(
+        draw,
+        {
+            **_common,
+            "--model": st.sampled_from(["nhkv", "qkv", "zener", "bogus"]),
+            "--dt-star": _number,
+            "--n-steps": st.one_of(st.integers(-2, 400).map(str), _word),
+            "--noise": st.sampled_from(["auto", "sample", "paper", "bogus"]),
+            "--prior": st.one_of(st.sampled_from(["G=6e3:2e3", "mu=0.1:0", "G=-1:1", "G=1", "x=1:1"]), _word),
+            "--camera": _word,
+            "--experiments": st.one_of(st.sampled_from(["1", "1,2", "0", "2-1", "1-2", "a"]), _word),
+        },
+    )
     for _ in range(draw(st.integers(0, 3))):
         key = draw(st.sampled_from(_settings.get(method, ["n_ens"])))
         args += ["--set", f"{key}={draw(_number)}"]
@@ -135,12 +172,21 @@ def fit_args(draw):
 
 @st.composite
 def diagnose_args(draw):
-    return ["diagnose", "DATA"] + _options(draw, {
-        **_common, "--n-bootstrap": st.one_of(st.integers(-2, 50).map(str), _word),
-        "--candidates": st.one_of(st.sampled_from(["qkv", "qkv,zener", "nhkv", "", "damage,x"]), _word),
-        "--experiments": st.one_of(st.sampled_from(["1", "1,2", "0", "3", "a"]), _word),
-        "--dt-star": _number, "--n-steps": st.one_of(st.integers(-2, 400).map(str), _word)}) \
+    return (
+        ["diagnose", "DATA"]
+        + _options(
+            draw,
+            {
+                **_common,
+                "--n-bootstrap": st.one_of(st.integers(-2, 50).map(str), _word),
+                "--candidates": st.one_of(st.sampled_from(["qkv", "qkv,zener", "nhkv", "", "damage,x"]), _word),
+                "--experiments": st.one_of(st.sampled_from(["1", "1,2", "0", "3", "a"]), _word),
+                "--dt-star": _number,
+                "--n-steps": st.one_of(st.integers(-2, 400).map(str), _word),
+            },
+        )
         + draw(st.lists(st.sampled_from(["--quick", "--no-loeo"]), unique=True))
+    )
 
 
 @st.composite

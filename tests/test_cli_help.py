@@ -18,7 +18,7 @@ def _raw(*cmd):
 
 
 def _help(*cmd):
-    return " ".join(_raw(*cmd).split())       # one line: click wraps the help text
+    return " ".join(_raw(*cmd).split())  # one line: click wraps the help text
 
 
 def _option(text, name):
@@ -34,7 +34,7 @@ def test_fit_help_marks_required_and_shows_defaults():
     assert "[required]" in _option(raw, "--method")
     assert "[default: auto]" in _option(raw, "--noise")
     assert "[default: nhkv]" in _option(raw, "--model")
-    assert "convergence" in _option(raw, "--mcmc") and "min on 2 cores" in _option(raw, "--mcmc")    # its cost
+    assert "convergence" in _option(raw, "--mcmc") and "min on 2 cores" in _option(raw, "--mcmc")  # its cost
     assert "Runtime:" in text
 
 

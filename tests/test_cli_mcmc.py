@@ -12,8 +12,22 @@ from imrbayes.cli import main
 
 FWD = ["--forward", "bubble=polytropic"]
 # the paper's density: the MCMC target does not use the default likelihood's ``whiten`` yet
-MIENKS = ["--method", "mienks", "--n-steps", 60, "--set", "n_ens=32", "--set", "n_iter=5", "--set", "L=20",
-          "--set", "h=10", "--set", "likelihood=paper"]
+MIENKS = [
+    "--method",
+    "mienks",
+    "--n-steps",
+    60,
+    "--set",
+    "n_ens=32",
+    "--set",
+    "n_iter=5",
+    "--set",
+    "L=20",
+    "--set",
+    "h=10",
+    "--set",
+    "likelihood=paper",
+]
 
 
 def _run(*args, expect=0):
@@ -25,8 +39,30 @@ def _run(*args, expect=0):
 @pytest.fixture(scope="module")
 def syn(tmp_path_factory):
     d = tmp_path_factory.mktemp("mcmc") / "syn"
-    _run("simulate", "--model", "nhkv", "--param", "G=7.29e3", "--param", "mu=0.088", "--rmax", "263e-6",
-         "--ratio", "7.58", "--n-exp", 2, "--noise", "paper", "--seed", 0, *FWD, "--t-end", 1.5, "--out", d)
+    _run(
+        "simulate",
+        "--model",
+        "nhkv",
+        "--param",
+        "G=7.29e3",
+        "--param",
+        "mu=0.088",
+        "--rmax",
+        "263e-6",
+        "--ratio",
+        "7.58",
+        "--n-exp",
+        2,
+        "--noise",
+        "paper",
+        "--seed",
+        0,
+        *FWD,
+        "--t-end",
+        1.5,
+        "--out",
+        d,
+    )
     return d
 
 
@@ -34,9 +70,27 @@ def syn(tmp_path_factory):
 def window0(syn, tmp_path_factory):
     """MIEnKS-MDA and MCMC of its window 0 (exact target: every member starts at the maximum)."""
     out = tmp_path_factory.mktemp("mcmc") / "run"
-    res = _run("fit", syn, *MIENKS, *FWD, "--mcmc", "--mcmc-windows", "0", "--mcmc-set", "n_walkers=16",
-               "--mcmc-set", "n_steps=2000", "--mcmc-set", "n_chains=4", "--mcmc-set", "quadrature=true",
-               "--out", out, "--seed", 1)
+    res = _run(
+        "fit",
+        syn,
+        *MIENKS,
+        *FWD,
+        "--mcmc",
+        "--mcmc-windows",
+        "0",
+        "--mcmc-set",
+        "n_walkers=16",
+        "--mcmc-set",
+        "n_steps=2000",
+        "--mcmc-set",
+        "n_chains=4",
+        "--mcmc-set",
+        "quadrature=true",
+        "--out",
+        out,
+        "--seed",
+        1,
+    )
     return out, res
 
 
@@ -91,33 +145,94 @@ def test_resume_reads_finished_windows_back(window0, syn, tmp_path):
     and compare.json is the same."""
     out, _ = window0
     before = json.loads((out / "compare.json").read_text())
-    res = _run("fit", syn, *MIENKS, *FWD, "--mcmc", "--mcmc-windows", "0", "--mcmc-set", "n_walkers=16",
-               "--mcmc-set", "n_steps=2000", "--mcmc-set", "n_chains=4", "--mcmc-set", "quadrature=true",
-               "--out", out, "--seed", 1, "--resume")
+    res = _run(
+        "fit",
+        syn,
+        *MIENKS,
+        *FWD,
+        "--mcmc",
+        "--mcmc-windows",
+        "0",
+        "--mcmc-set",
+        "n_walkers=16",
+        "--mcmc-set",
+        "n_steps=2000",
+        "--mcmc-set",
+        "n_chains=4",
+        "--mcmc-set",
+        "quadrature=true",
+        "--out",
+        out,
+        "--seed",
+        1,
+        "--resume",
+    )
     assert "0 computed" in res.output
     after = json.loads((out / "compare.json").read_text())
     assert after["windows"][0]["kl_sym"] == before["windows"][0]["kl_sym"]
     # other MCMC settings are another run: refused, not mixed
-    bad = _run("fit", syn, *MIENKS, *FWD, "--mcmc", "--mcmc-windows", "0", "--mcmc-set", "n_walkers=16",
-               "--mcmc-set", "n_steps=2100", "--mcmc-set", "n_chains=4", "--mcmc-set", "quadrature=true",
-               "--out", out, "--seed", 1, "--resume",
-               expect=2)
+    bad = _run(
+        "fit",
+        syn,
+        *MIENKS,
+        *FWD,
+        "--mcmc",
+        "--mcmc-windows",
+        "0",
+        "--mcmc-set",
+        "n_walkers=16",
+        "--mcmc-set",
+        "n_steps=2100",
+        "--mcmc-set",
+        "n_chains=4",
+        "--mcmc-set",
+        "quadrature=true",
+        "--out",
+        out,
+        "--seed",
+        1,
+        "--resume",
+        expect=2,
+    )
     assert "n_steps" in bad.output
 
 
 @pytest.mark.slow
 def test_en4dvar_mcmc_one_exact_window(syn, tmp_path):
     out = tmp_path / "en"
-    res = _run("fit", syn, "--method", "en4dvar", "--n-steps", 40, "--set", "n_ens=16", "--set", "n_runs=1",
-               "--set", "n_iter=3", "--set", "n_draws=5", *FWD, "--mcmc", "--mcmc-set", "n_walkers=8",
-               "--mcmc-set", "n_steps=60", "--mcmc-set", "n_chains=2", "--out", out)
+    res = _run(
+        "fit",
+        syn,
+        "--method",
+        "en4dvar",
+        "--n-steps",
+        40,
+        "--set",
+        "n_ens=16",
+        "--set",
+        "n_runs=1",
+        "--set",
+        "n_iter=3",
+        "--set",
+        "n_draws=5",
+        *FWD,
+        "--mcmc",
+        "--mcmc-set",
+        "n_walkers=8",
+        "--mcmc-set",
+        "n_steps=60",
+        "--mcmc-set",
+        "n_chains=2",
+        "--out",
+        out,
+    )
     comp = json.loads((out / "compare.json").read_text())
     (e,) = comp["windows"]
     assert e["index"] == 0 and e["state_source"] == "maximum radius (exact)"
     assert e["t_star"][0] == 0.0 and e["t_star"][1] == pytest.approx(1.0)
-    assert e["agree"] is None            # 60 steps cannot meet the 50-tau rule: undecided, never "agree"
+    assert e["agree"] is None  # 60 steps cannot meet the 50-tau rule: undecided, never "agree"
     assert "undecided" in res.output
-    s = e["mcmc"]["sampler"]             # the hard cap is hit and says so
+    s = e["mcmc"]["sampler"]  # the hard cap is hit and says so
     assert s["cap_hit"] and s["stop_reason"] == "cap" and s["n_steps"] == 60 and "hard cap of 60 steps" in e["notes"]
 
 
@@ -126,9 +241,30 @@ def test_en4dvar_plain_likelihood_mcmc_samples_the_same_density(syn, tmp_path):
     """With ``obs_weight=sum`` the MCMC target counts every sample once too (a 1/N_t target would
     be ~6x wider and the comparison would disagree)."""
     out = tmp_path / "sum"
-    _run("fit", syn, "--method", "en4dvar", "--n-steps", 60, "--likelihood", "paper", "--set", "obs_weight=sum",
-         "--set", "n_draws=5", *FWD, "--mcmc", "--mcmc-set", "n_walkers=16", "--mcmc-set", "n_steps=2500",
-         "--mcmc-set", "n_chains=4", "--out", out)
+    _run(
+        "fit",
+        syn,
+        "--method",
+        "en4dvar",
+        "--n-steps",
+        60,
+        "--likelihood",
+        "paper",
+        "--set",
+        "obs_weight=sum",
+        "--set",
+        "n_draws=5",
+        *FWD,
+        "--mcmc",
+        "--mcmc-set",
+        "n_walkers=16",
+        "--mcmc-set",
+        "n_steps=2500",
+        "--mcmc-set",
+        "n_chains=4",
+        "--out",
+        out,
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["details"]["settings"]["obs_weight"] == "sum"
     (e,) = json.loads((out / "compare.json").read_text())["windows"]
@@ -137,14 +273,17 @@ def test_en4dvar_plain_likelihood_mcmc_samples_the_same_density(syn, tmp_path):
     np.testing.assert_allclose(ens_sd, mc_sd, rtol=0.1)
 
 
-@pytest.mark.parametrize("args,needle", [
-    (["--method", "imr", "--mcmc"], "--mcmc"),
-    (["--method", "mienks", "--mcmc", "--mcmc-set", "n_walkers=3"], "n_walkers"),
-    (["--method", "mienks", "--mcmc-set", "n_steps=10"], "needs --mcmc"),
-    (["--method", "mienks", "--mcmc", "--mcmc-windows", "a,b"], "--mcmc-windows"),
-    (["--method", "mienks", "--mcmc", "--mcmc-set", "bogus=1"], "bogus"),
-    (["--method", "en4dvar", "--set", "req_tail=tail"], "req_tail"),
-])
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["--method", "imr", "--mcmc"], "--mcmc"),
+        (["--method", "mienks", "--mcmc", "--mcmc-set", "n_walkers=3"], "n_walkers"),
+        (["--method", "mienks", "--mcmc-set", "n_steps=10"], "needs --mcmc"),
+        (["--method", "mienks", "--mcmc", "--mcmc-windows", "a,b"], "--mcmc-windows"),
+        (["--method", "mienks", "--mcmc", "--mcmc-set", "bogus=1"], "bogus"),
+        (["--method", "en4dvar", "--set", "req_tail=tail"], "req_tail"),
+    ],
+)
 def test_bad_mcmc_options_fail_before_the_fit(syn, tmp_path, args, needle):
     res = _run("fit", syn, *args, *FWD, "--out", tmp_path / "x", expect=2)
     assert needle in res.output and len(res.output.strip().splitlines()) == 1
@@ -178,10 +317,30 @@ def test_compare_bad_run_dirs(window0, tmp_path):
 def _mcmc_cmd(syn, out, *extra):
     import sys
     from pathlib import Path
+
     exe = Path(sys.executable).parent / "imrbayes"
-    return [str(exe), "fit", str(syn), *map(str, MIENKS), *FWD, "--mcmc", "--mcmc-windows", "0,1",
-            "--mcmc-set", "n_walkers=8", "--mcmc-set", "n_steps=1200", "--mcmc-set", "n_chains=2",
-            "--out", str(out), "--seed", "4", "--quiet", *extra]
+    return [
+        str(exe),
+        "fit",
+        str(syn),
+        *map(str, MIENKS),
+        *FWD,
+        "--mcmc",
+        "--mcmc-windows",
+        "0,1",
+        "--mcmc-set",
+        "n_walkers=8",
+        "--mcmc-set",
+        "n_steps=1200",
+        "--mcmc-set",
+        "n_chains=2",
+        "--out",
+        str(out),
+        "--seed",
+        "4",
+        "--quiet",
+        *extra,
+    ]
 
 
 def _window_arrays(out):
@@ -209,12 +368,13 @@ def test_sigkill_mid_window_then_resume_gives_the_uninterrupted_chains(syn, tmp_
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=60)
     assert not (out / "compare.json").exists()
-    try:                                    # the kill came mid-window (unless it left the file unreadable)
+    try:  # the kill came mid-window (unless it left the file unreadable)
         import h5py
+
         with h5py.File(h5, "r") as f:
             its = [int(f[f"window_00/chain_{c}"].attrs["iteration"]) for c in range(2) if f"window_00/chain_{c}" in f]
         assert its and max(its) < 1200
-    except (OSError, KeyError):         # h5py raises either for a file cut mid-write
+    except (OSError, KeyError):  # h5py raises either for a file cut mid-write
         pass
     done = subprocess.run(_mcmc_cmd(syn, out, "--resume"), capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr

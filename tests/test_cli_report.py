@@ -19,8 +19,23 @@ from click.testing import CliRunner
 from imrbayes.cli import main
 from imrbayes.mcmc.compare import THRESHOLDS
 
-TINY_MIENKS = ["--method", "mienks", "--forward", "bubble=polytropic", "--set", "n_ens=8", "--set", "n_iter=2",
-               "--set", "L=10", "--set", "h=5", "--n-steps", "40", "--quiet"]
+TINY_MIENKS = [
+    "--method",
+    "mienks",
+    "--forward",
+    "bubble=polytropic",
+    "--set",
+    "n_ens=8",
+    "--set",
+    "n_iter=2",
+    "--set",
+    "L=10",
+    "--set",
+    "h=5",
+    "--n-steps",
+    "40",
+    "--quiet",
+]
 
 
 def _run(*args):
@@ -31,8 +46,26 @@ def _run(*args):
 def runs(tmp_path_factory):
     base = tmp_path_factory.mktemp("report")
     ds = base / "ds"
-    r = _run("simulate", "--model", "nhkv", "--param", "G=7.29e3", "--param", "mu=0.088", "--n-exp", "2",
-             "--forward", "bubble=polytropic", "--t-end", "1.0", "--seed", "0", "--out", ds, "--quiet")
+    r = _run(
+        "simulate",
+        "--model",
+        "nhkv",
+        "--param",
+        "G=7.29e3",
+        "--param",
+        "mu=0.088",
+        "--n-exp",
+        "2",
+        "--forward",
+        "bubble=polytropic",
+        "--t-end",
+        "1.0",
+        "--seed",
+        "0",
+        "--out",
+        ds,
+        "--quiet",
+    )
     assert r.exit_code == 0, r.output
     out = {"ds": ds}
     r = _run("fit", ds, "--method", "pimr", "--out", base / "pimr", "--quiet")
@@ -44,13 +77,47 @@ def runs(tmp_path_factory):
     # a tiny run to report on, started at the prior mean with exactly two iterations (screen=0,
     # max_iter=2): with 8 members the converged, screened fit leaves the two bubbles' mu apart and the
     # two-bubble gel level outside both, which the flag test below must not see
-    r = _run("fit", ds, "--method", "en4dvar", "--forward", "bubble=polytropic", "--set", "n_ens=8", "--set",
-             "n_iter=2", "--set", "max_iter=2", "--set", "screen=0", "--set", "n_runs=1", "--n-steps", "40",
-             "--out", base / "en4dvar", "--quiet")
+    r = _run(
+        "fit",
+        ds,
+        "--method",
+        "en4dvar",
+        "--forward",
+        "bubble=polytropic",
+        "--set",
+        "n_ens=8",
+        "--set",
+        "n_iter=2",
+        "--set",
+        "max_iter=2",
+        "--set",
+        "screen=0",
+        "--set",
+        "n_runs=1",
+        "--n-steps",
+        "40",
+        "--out",
+        base / "en4dvar",
+        "--quiet",
+    )
     assert r.exit_code == 0, r.output
     out["en4dvar"] = base / "en4dvar"
-    r = _run("fit", ds, *TINY_MIENKS, "--out", base / "mcmc", "--mcmc", "--mcmc-set", "n_walkers=8",
-             "--mcmc-set", "n_steps=60", "--mcmc-set", "n_chains=2", "--mcmc-windows", "0,6")
+    r = _run(
+        "fit",
+        ds,
+        *TINY_MIENKS,
+        "--out",
+        base / "mcmc",
+        "--mcmc",
+        "--mcmc-set",
+        "n_walkers=8",
+        "--mcmc-set",
+        "n_steps=60",
+        "--mcmc-set",
+        "n_chains=2",
+        "--mcmc-windows",
+        "0,6",
+    )
     assert r.exit_code == 0, r.output
     out["mcmc"] = base / "mcmc"
     return out
@@ -66,17 +133,18 @@ def _section(html, anchor):
     """The HTML from <h2 id='anchor'> to the next <h2."""
     i = html.index(f"<h2 id='{anchor}'>")
     j = html.find("<h2", i + 4)
-    return html[i:j if j > 0 else None]
+    return html[i : j if j > 0 else None]
 
 
 def _text(fragment):
     import html as _h
+
     return _h.unescape(re.sub(r"<[^>]+>", "", fragment)).replace("\xa0", " ")
 
 
 def _self_contained(html):
     low = html.lower()
-    for bad in ("src=\"http", "src='http", "href=\"http", "href='http", "<script", "<link", "@import", "url("):
+    for bad in ('src="http', "src='http", 'href="http', "href='http", "<script", "<link", "@import", "url("):
         assert bad not in low, bad
 
 
@@ -131,7 +199,7 @@ def test_report_mienks_with_mcmc(runs):
     for e in compare["windows"]:
         assert f"title='{e['kl_gauss']!r}'" in cmp_ and f"title='{e['kl_gauss_reverse']!r}'" in cmp_
         assert f"title='{e['w2']!r}'" in cmp_
-    assert [e["agree"] for e in compare["windows"]] == [None, None]     # 60 steps: never converged
+    assert [e["agree"] for e in compare["windows"]] == [None, None]  # 60 steps: never converged
     flagged = _text(_section(html, "flagged"))
     for e in compare["windows"]:
         t0, t1 = e["t_star"]
@@ -142,12 +210,15 @@ def test_report_mienks_with_mcmc(runs):
     for e, para in zip(compare["windows"], re.split(r"(?=Window \d+ \(t\*)", flagged)[1:]):
         m = e["mcmc"]
         rhat, ess = max(m["rhat"].values()), min(m["ess_bulk"].values())
-        failing = {"max R-hat": rhat > THRESHOLDS["rhat"], "min bulk ESS": ess < THRESHOLDS["ess_bulk"],
-                   "autocorrelation times long": m["sampler"]["all_tau_ok"] is False}
+        failing = {
+            "max R-hat": rhat > THRESHOLDS["rhat"],
+            "min bulk ESS": ess < THRESHOLDS["ess_bulk"],
+            "autocorrelation times long": m["sampler"]["all_tau_ok"] is False,
+        }
         assert any(failing.values())
         for words, fails in failing.items():
             assert (words in para) == fails, (words, fails, para)
-    assert "around the first collapse" in flagged                       # window 6 ends at t* 0.975
+    assert "around the first collapse" in flagged  # window 6 ends at t* 0.975
     assert "Not sampled by MCMC (no comparison): windows 1, 2, 3, 4, 5" in flagged
 
     # every figure embedded, with a caption naming its file
@@ -170,12 +241,21 @@ def test_report_lists_a_disagreeing_window_in_words(runs, tmp_path):
     w6 = next(w for w in old["windows"] if w["index"] == 6)
     rng = np.random.default_rng(0)
     x1 = rng.standard_normal((2, 1000))
-    x2 = 0.6 * (x1 ** 2 - 1.0) + 0.5 * rng.standard_normal((2, 1000))
-    draws = np.stack([8.9 + 0.3 * x1, -2.0 + 0.3 * x2], axis=-1)             # (chain, draw, [log_G, log_mu])
+    x2 = 0.6 * (x1**2 - 1.0) + 0.5 * rng.standard_normal((2, 1000))
+    draws = np.stack([8.9 + 0.3 * x1, -2.0 + 0.3 * x2], axis=-1)  # (chain, draw, [log_G, log_mu])
     flat = draws.reshape(-1, 2)
     m, C = flat.mean(axis=0), np.cov(flat, rowvar=False)
-    bad = compare_window(m + np.array([np.sqrt(C[0, 0]), 0.0]), C, draws, ["G", "mu"], [True, True], index=6,
-                         t_star=w6["t_star"], n_max=400, n_null=20)
+    bad = compare_window(
+        m + np.array([np.sqrt(C[0, 0]), 0.0]),
+        C,
+        draws,
+        ["G", "mu"],
+        [True, True],
+        index=6,
+        t_star=w6["t_star"],
+        n_max=400,
+        n_null=20,
+    )
     assert bad["agree"] is False and bad["mcmc"]["converged"]
     write_compare(run / "compare.json", [old["windows"][0], bad])
     _report(run, "--quiet")
@@ -190,10 +270,12 @@ def test_report_lists_a_disagreeing_window_in_words(runs, tmp_path):
     assert any(i.startswith("Window 0 ") and "undecided" in i for i in items)
     table = _text(_section((run / "report.html").read_text(), "compare"))
     assert "1 disagree, 1 undecided" in table
-    concl = _text(_section((run / "report.html").read_text(), "conclusion"))    # the numbers to believe instead
+    concl = _text(_section((run / "report.html").read_text(), "conclusion"))  # the numbers to believe instead
     g = bad["mcmc"]["mean"]["G"]
-    assert f"disagrees in window 6: believe the MCMC posterior there, not the Gaussian (emcee: window 6: G = " \
-           f"{g * 1e-3:.3g} kPa ±" in concl
+    assert (
+        f"disagrees in window 6: believe the MCMC posterior there, not the Gaussian (emcee: window 6: G = "
+        f"{g * 1e-3:.3g} kPa ±" in concl
+    )
 
 
 def test_report_without_mcmc_says_so(runs, tmp_path):
@@ -238,7 +320,7 @@ def _corrupt(kind, src, tmp_path):
         run.mkdir()
         return run, "summary.json"
     shutil.copytree(src, run)
-    (run / "report.html").unlink(missing_ok=True)         # from another test
+    (run / "report.html").unlink(missing_ok=True)  # from another test
     if kind == "summary-garbage":
         (run / "summary.json").write_text("{not json")
         return run, "summary.json"
@@ -263,8 +345,21 @@ def _corrupt(kind, src, tmp_path):
     raise AssertionError(kind)
 
 
-@pytest.mark.parametrize("kind", ["missing", "file", "empty", "summary-garbage", "summary-list", "summary-keys",
-                                  "posterior", "mcmc", "compare-garbage", "compare-layout"])
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "missing",
+        "file",
+        "empty",
+        "summary-garbage",
+        "summary-list",
+        "summary-keys",
+        "posterior",
+        "mcmc",
+        "compare-garbage",
+        "compare-layout",
+    ],
+)
 def test_report_bad_run_dir(runs, tmp_path, kind):
     path, name = _corrupt(kind, runs["mcmc"], tmp_path)
     r = CliRunner().invoke(main, ["report", str(path)])
@@ -305,7 +400,7 @@ def test_report_opens_with_a_conclusion_in_physical_units(runs):
     assert f"G = {g['mean'] * 1e-3:.4g} kPa ± {g['sd'] * 1e-3:.2g} kPa" in concl
     assert f"(95 % {g['hdi95'][0] * 1e-3:.3g}-{g['hdi95'][1] * 1e-3:.3g} kPa)" in concl
     assert " Pa s" in concl
-    assert "MCMC check: undecided in windows 0, 6" in concl           # 60 emcee steps never converge
+    assert "MCMC check: undecided in windows 0, 6" in concl  # 60 emcee steps never converge
     assert "Caveats:" in concl
     # configuration and raw settings at the bottom
     order = re.findall(r"<h2 id='([^']+)'>", html)
@@ -316,14 +411,22 @@ def test_report_conclusion_shows_between_predictive_and_nuisance(runs, tmp_path)
     run = _copy(runs, "en4dvar", tmp_path)
 
     def add(s):
-        s["between_experiments"] = {"G": {"sd": 1500.0, "hdi95": [400.0, 3100.0]},
-                                    "mu": {"sd": 0.02, "hdi95": [0.004, 0.05]}}
-        s["predictive"] = {"G": {"mean": 7300.0, "sd": 1600.0, "hdi95": [4200.0, 10900.0]},
-                           "mu": {"mean": 0.09, "sd": 0.03, "hdi95": [0.04, 0.16]}}
+        s["between_experiments"] = {
+            "G": {"sd": 1500.0, "hdi95": [400.0, 3100.0]},
+            "mu": {"sd": 0.02, "hdi95": [0.004, 0.05]},
+        }
+        s["predictive"] = {
+            "G": {"mean": 7300.0, "sd": 1600.0, "hdi95": [4200.0, 10900.0]},
+            "mu": {"mean": 0.09, "sd": 0.03, "hdi95": [0.04, 0.16]},
+        }
         for i, e in enumerate(s["per_experiment"]):
-            e["nuisance"] = {"rmax_m": {"mean": 263e-6 + i * 1e-6, "sd": 0.8e-6},
-                             "req_m": {"mean": 34.7e-6, "sd": 0.3e-6}, "t0_s": {"mean": 0.12e-6, "sd": 0.05e-6}}
+            e["nuisance"] = {
+                "rmax_m": {"mean": 263e-6 + i * 1e-6, "sd": 0.8e-6},
+                "req_m": {"mean": 34.7e-6, "sd": 0.3e-6},
+                "t0_s": {"mean": 0.12e-6, "sd": 0.05e-6},
+            }
         s["likelihood"] = {"name": "default", "noise": "x", "effective_samples": [31.5, 28.0]}
+
     _edit_summary(run, add)
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     concl = _text(_section(html, "conclusion"))
@@ -351,9 +454,10 @@ def test_report_conclusion_one_bubble_and_absent_keys(runs, tmp_path):
 def test_report_says_when_the_data_say_little(runs, tmp_path):
     run = _copy(runs, "en4dvar", tmp_path)
 
-    def wide(s):          # mu's posterior as wide as its prior (log-normal 0.209 +- 0.088 Pa s)
+    def wide(s):  # mu's posterior as wide as its prior (log-normal 0.209 +- 0.088 Pa s)
         s["estimate"]["mu"].update(mean=0.21, sd=0.085, hdi95=[0.09, 0.41])
-        s["estimate"]["G"].update(mean=7.0e3, sd=3.0e2, hdi95=[6.4e3, 7.6e3])     # and G well inside its prior
+        s["estimate"]["G"].update(mean=7.0e3, sd=3.0e2, hdi95=[6.4e3, 7.6e3])  # and G well inside its prior
+
     _edit_summary(run, wide)
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     concl = _text(_section(html, "conclusion"))
@@ -379,22 +483,28 @@ def test_report_has_no_raw_json_escapes_or_empty_headers(runs, tmp_path):
     run = _copy(runs, "mienks", tmp_path)
 
     def odd(s):
-        s["preprocessing"]["choices"]["noise_model"] = {"method": "paper", "ref": "methods.md §5",
-                                                        "levels": [1, 2], "nested": {"a": None}}
+        s["preprocessing"]["choices"]["noise_model"] = {
+            "method": "paper",
+            "ref": "methods.md §5",
+            "levels": [1, 2],
+            "nested": {"a": None},
+        }
         s["details"]["uncertainty"] = {"why": "closed form §4"}
+
     _edit_summary(run, odd)
     html = _report(run, "--quiet") and (run / "report.html").read_text(encoding="utf-8")
     text = _text(html)
     assert "\\u00" not in html and "\\u00" not in text
     assert '{"' not in text and "{'" not in _text(_section(html, "dataset")).replace(
-        json.loads((run / "summary.json").read_text())["preprocessing"]["dataset"]["meta"].get("description", ""), "")
+        json.loads((run / "summary.json").read_text())["preprocessing"]["dataset"]["meta"].get("description", ""), ""
+    )
     assert "methods.md §5" in text and "paper" in _text(_section(html, "dataset"))
     assert "<tr><th></th><th></th></tr>" not in html and "<th></th>" not in html
 
 
 def test_report_pimr_shows_no_sections_that_do_not_apply(runs):
     html = _report(runs["pimr"], "--quiet") and (runs["pimr"] / "report.html").read_text()
-    text = _text(html[html.index("<body>"):])
+    text = _text(html[html.index("<body>") :])
     assert "Absent" not in text and "absent" not in text
     for anchor in ("flagged", "mcmc", "compare", "windows"):
         assert f"<h2 id='{anchor}'>" not in html, anchor
@@ -445,6 +555,7 @@ def test_report_flags_a_gel_level_estimate_outside_the_experiments(runs, tmp_pat
 
     def far(s):
         s["estimate"]["G"].update(mean=26000.0, sd=1400.0, hdi95=[23200.0, 28800.0], median=25900.0)
+
     s = _edit_summary(run, far)
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     concl = _text(_section(html, "conclusion"))
@@ -465,13 +576,14 @@ def test_report_warns_that_an_inferred_req_can_make_mu_windows_decline(runs, tmp
     run = _copy(runs, "mienks", tmp_path)
     s = json.loads((run / "summary.json").read_text())
     assert len(s["windows"]) > 1
-    assert all(e["nuisance"]["req_m"]["prior_sd"] == 0 for e in s["per_experiment"])     # simulate gives Req
+    assert all(e["nuisance"]["req_m"]["prior_sd"] == 0 for e in s["per_experiment"])  # simulate gives Req
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     assert key not in _text(_section(html, "conclusion"))
 
     def inferred(s):
         for e in s["per_experiment"]:
             e["nuisance"]["req_m"]["prior_sd"] = 0.04 * e["nuisance"]["req_m"]["prior_mean"]
+
     _edit_summary(run, inferred)
     html = _report(run, "--quiet") and (run / "report.html").read_text()
     assert key in _text(_section(html, "conclusion"))
@@ -485,8 +597,10 @@ def test_report_warns_that_an_inferred_req_can_make_mu_windows_decline(runs, tmp
     concl = _text(_section(html, "conclusion"))
     assert "In 1 experiment (exp02)" in concl and "kept the record's Req prior" in concl
     one = _copy(runs, "en4dvar", tmp_path)
-    _edit_summary(one, lambda s: [e.update(nuisance={"req_m": {"prior_mean": 3e-5, "prior_sd": 1e-6}})
-                                  for e in s["per_experiment"]])
+    _edit_summary(
+        one,
+        lambda s: [e.update(nuisance={"req_m": {"prior_mean": 3e-5, "prior_sd": 1e-6}}) for e in s["per_experiment"]],
+    )
     html = _report(one, "--quiet") and (one / "report.html").read_text()
     assert key not in _text(_section(html, "conclusion"))
 
@@ -495,17 +609,25 @@ def test_report_says_when_reqs_prior_came_from_the_models_tail(runs, tmp_path):
     """A req_tail=model fit (the thermal default) moved each Req's prior: the conclusion says by how
     much and that the estimate is the fit after the quick first pass; a fit that moved nothing says nothing."""
     one = _copy(runs, "en4dvar", tmp_path)
-    _edit_summary(one, lambda s: s.setdefault("details", {}).update(
-        req_tail={"method": "model", "setting": "auto", "factor": [1.012, 1.0, 1.047]}))
+    _edit_summary(
+        one,
+        lambda s: s.setdefault("details", {}).update(
+            req_tail={"method": "model", "setting": "auto", "factor": [1.012, 1.0, 1.047]}
+        ),
+    )
     concl = _text(_section(_report(one, "--quiet") and (one / "report.html").read_text(), "conclusion"))
     assert "centred by the model's own tail" in concl and "1.2–4.7 % above Req in 2 of 3" in concl
     assert "default for the thermal bubble" in concl
-    _edit_summary(one, lambda s: s["details"].update(req_tail={"method": "inline", "setting": "auto",
-                                                                "factor": [1.012, 1.0, 1.047]}))
+    _edit_summary(
+        one,
+        lambda s: s["details"].update(req_tail={"method": "inline", "setting": "auto", "factor": [1.012, 1.0, 1.047]}),
+    )
     concl = _text(_section(_report(one, "--quiet") and (one / "report.html").read_text(), "conclusion"))
     assert "req_tail=inline, the default for the thermal bubble" in concl and "1.2–4.7 % above Req in 2 of 3" in concl
     assert "first-cycle posterior placed the material" in concl and "quick first fit" not in concl
-    _edit_summary(one, lambda s: s["details"].update(req_tail={"method": "mean", "setting": "auto", "factor": [1.0] * 3}))
+    _edit_summary(
+        one, lambda s: s["details"].update(req_tail={"method": "mean", "setting": "auto", "factor": [1.0] * 3})
+    )
     concl = _text(_section(_report(one, "--quiet") and (one / "report.html").read_text(), "conclusion"))
     assert "model's own tail" not in concl
 
@@ -521,7 +643,7 @@ def test_recorded_command_reruns_the_fit_exactly(runs, tmp_path):
     _report(runs["mienks"], "--out", tmp_path / "r.html")
     assert esc(s["command"]["line"]) in (tmp_path / "r.html").read_text()
     i = argv.index("--out")
-    again = argv[1:i + 1] + [str(tmp_path / "again")] + argv[i + 2:]
+    again = argv[1 : i + 1] + [str(tmp_path / "again")] + argv[i + 2 :]
     r = _run(*again)
     assert r.exit_code == 0, r.output
     s2 = json.loads((tmp_path / "again" / "summary.json").read_text())

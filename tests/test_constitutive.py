@@ -53,8 +53,9 @@ def test_consistent_j_and_rate_of_models_with_memory(name, R, U):
     model = get_model(name)
     theta = {k: (v if v else 0.1) for k, v in model.defaults.items()}
     theta.update({k: 3e-7 for k in ("lambda2",) if k in theta})
-    p = model.nondimensionalise(np.array([[theta[k] for k in model.param_names]]), rho=1064.0,
-                                p8=101325.0, uc=9.7586, rmax_m=np.array([263e-6]))[0]
+    p = model.nondimensionalise(
+        np.array([[theta[k] for k in model.param_names]]), rho=1064.0, p8=101325.0, uc=9.7586, rmax_m=np.array([263e-6])
+    )[0]
     req = 0.13
     z = np.linspace(0.02, -0.03, model.n_aux)
     for flag in (1.0, 0.0):
@@ -64,6 +65,7 @@ def test_consistent_j_and_rate_of_models_with_memory(name, R, U):
 
         def S(r, u, zz):
             return mod.stress(r, u, zz, pf, req, np.zeros_like(zz))[0]
+
         h = 1e-6
         dSdR = (S(R * (1 + h), U, z) - S(R * (1 - h), U, z)) / (2 * R * h)
         dU = h * max(1.0, abs(U))
@@ -73,7 +75,7 @@ def test_consistent_j_and_rate_of_models_with_memory(name, R, U):
         assert abs(Sdot - expected) < 1e-5 * max(abs(Sdot), abs(expected), 1e-8)
         if flag == 1.0 or name not in ("zener", "maxwell", "qzener"):
             assert abs(J + R * dSdU) < 1e-5 * max(abs(J), 1e-8)
-        else:                           # IMRv2's stress 3/4: J = 4/Re whatever Lambda
+        else:  # IMRv2's stress 3/4: J = 4/Re whatever Lambda
             assert J == pytest.approx(4.0 * p[1], rel=1e-12)
             assert abs(J + R * dSdU) > 0.5 * J
 
@@ -94,10 +96,12 @@ def test_zener_j_is_irrelevant_at_lambda2_equal_lambda1_and_moves_the_curve_at_l
     out = {}
     for lam2 in (1e-6, 0.0):
         for mode in ("consistent", "imrv2"):
-            fm = ForwardModel("zener", options=ForwardOptions(bubble="polytropic", zener_j=mode,
-                                                              rtol=1e-10, atol=1e-12))
-            out[lam2, mode] = fm.simulate_radius({"G": 7290.0, "mu": 0.088, "lambda1": 1e-6, "lambda2": lam2},
-                                                 263e-6, 263e-6 / 7.58, t)
+            fm = ForwardModel(
+                "zener", options=ForwardOptions(bubble="polytropic", zener_j=mode, rtol=1e-10, atol=1e-12)
+            )
+            out[lam2, mode] = fm.simulate_radius(
+                {"G": 7290.0, "mu": 0.088, "lambda1": 1e-6, "lambda2": lam2}, 263e-6, 263e-6 / 7.58, t
+            )
     np.testing.assert_array_equal(out[1e-6, "consistent"], out[1e-6, "imrv2"])
     d = out[0.0, "consistent"] - out[0.0, "imrv2"]
     assert 3e-3 < np.linalg.norm(d) / np.linalg.norm(out[0.0, "imrv2"]) < 1e-1
@@ -116,9 +120,10 @@ def test_zener_tends_to_nhkv_as_lambda1_vanishes_only_with_the_consistent_coeffi
         fm = ForwardModel("zener", options=ForwardOptions(**opts, zener_j=mode))
         z = fm.simulate_radius({**mat, "lambda1": lam1, "lambda2": 0.0}, 320e-6, 320e-6 / 7.9, t)
         return np.linalg.norm(z - nh) / np.linalg.norm(nh)
+
     coarse, fine = dist(3e-8, "consistent"), dist(1e-8, "consistent")
-    assert fine < coarse / 2.5 and fine < 5e-3                # first order in lambda1 (measured 3.7e-3)
-    assert dist(1e-8, "imrv2") > 2.0 * fine                    # measured 9.7e-3: an offset that stays
+    assert fine < coarse / 2.5 and fine < 5e-3  # first order in lambda1 (measured 3.7e-3)
+    assert dist(1e-8, "imrv2") > 2.0 * fine  # measured 9.7e-3: an offset that stays
 
 
 def test_fung_elastic_integral_matches_hyperelastic_formula():
@@ -126,9 +131,11 @@ def test_fung_elastic_integral_matches_hyperelastic_formula():
     mod = importlib.import_module("imrbayes.forward.constitutive.fung")
     a, G = 0.08, 0.07
     for lam_w in (0.35, 0.9, 2.0, 7.0):
+
         def integrand(lam):
             i1 = 2 * lam**2 + lam**-4
             return 0.5 * G * np.exp(a * (i1 - 3)) * (4 * lam - 4 * lam**-5) / (lam**3 - 1)
+
         pe, _ = quad(integrand, 1.0, lam_w, limit=200)
         S, _, _ = mod.stress(1.0, 0.0, np.zeros(0), np.array([G, 0.0, a]), 1.0 / lam_w, np.zeros(0))
         assert abs(S + pe) < 1e-8 * max(1.0, abs(pe))
@@ -144,12 +151,15 @@ def test_carreau_viscosity_integral_matches_quadrature():
         assert abs(I - ref) < 2e-4 * ref
 
 
-@pytest.mark.parametrize("name,params", [
-    ("fung", {"G": 7290.0, "mu": 0.088, "alpha": 0.0}),
-    ("carreau", {"G": 7290.0, "mu": 0.088, "mu_inf": 0.0, "lambda_c": 1e-6, "n": 1.0}),
-    ("qkv", {"G": 7290.0, "mu": 0.088, "alpha": 0.0}),
-    ("kv", {"G": 0.0, "mu": 0.088}),
-])
+@pytest.mark.parametrize(
+    "name,params",
+    [
+        ("fung", {"G": 7290.0, "mu": 0.088, "alpha": 0.0}),
+        ("carreau", {"G": 7290.0, "mu": 0.088, "mu_inf": 0.0, "lambda_c": 1e-6, "n": 1.0}),
+        ("qkv", {"G": 7290.0, "mu": 0.088, "alpha": 0.0}),
+        ("kv", {"G": 0.0, "mu": 0.088}),
+    ],
+)
 def test_extended_models_reduce_to_nhkv(name, params):
     opts = ForwardOptions(scheme="imrv2-fd", rtol=1e-9, atol=1e-11)
     t = np.arange(121) * 0.025
@@ -165,10 +175,16 @@ def test_shear_thinning_and_stiffening_change_the_dynamics():
     opts = ForwardOptions(bubble="polytropic")
     t = np.arange(121) * 0.025
     nh = ForwardModel("nhkv", options=opts).simulate({"G": 7290.0, "mu": 0.088}, 263e-6, 263e-6 / 7.58, t).R_star[0]
-    thin = ForwardModel("carreau", options=opts).simulate(
-        {"G": 7290.0, "mu": 0.088, "mu_inf": 0.0, "lambda_c": 1e-5, "n": 0.3}, 263e-6, 263e-6 / 7.58, t).R_star[0]
-    stiff = ForwardModel("fung", options=opts).simulate({"G": 7290.0, "mu": 0.088, "alpha": 0.3},
-                                                        263e-6, 263e-6 / 7.58, t).R_star[0]
+    thin = (
+        ForwardModel("carreau", options=opts)
+        .simulate({"G": 7290.0, "mu": 0.088, "mu_inf": 0.0, "lambda_c": 1e-5, "n": 0.3}, 263e-6, 263e-6 / 7.58, t)
+        .R_star[0]
+    )
+    stiff = (
+        ForwardModel("fung", options=opts)
+        .simulate({"G": 7290.0, "mu": 0.088, "alpha": 0.3}, 263e-6, 263e-6 / 7.58, t)
+        .R_star[0]
+    )
     rebound = slice(38, 60)
     assert thin[rebound].max() > nh[rebound].max() + 0.01
     assert np.argmin(stiff[:45]) < np.argmin(nh[:45]) or stiff[30] < nh[30] - 1e-3

@@ -9,9 +9,9 @@ import math
 
 import numpy as np
 import pytest
+from _data_synth import LIC, make_dataset, record, write_csv
 from click.testing import CliRunner
 
-from _data_synth import LIC, make_dataset, record, write_csv
 from imrbayes.cli import main
 from imrbayes.data import load_dataset, preprocess_dataset
 from imrbayes.data.loaders import MEAN_OF_VIEWS
@@ -50,7 +50,7 @@ def test_mean_of_views_is_one_bubble_each_and_their_mean(tmp_path):
     assert not any("not independent" in w for w in ds.warnings)
     for e, (t, R, truth) in zip(ds.experiments, truths):
         np.testing.assert_allclose(e.t_s, t, rtol=0, atol=1e-15)
-        np.testing.assert_allclose(e.R_m, R, rtol=1e-12)            # (1 - e) and (1 + e) average out
+        np.testing.assert_allclose(e.R_m, R, rtol=1e-12)  # (1 - e) and (1 + e) average out
         assert e.info["views"] == [f"{e.name}_cam0deg", f"{e.name}_cam90deg"]
         # the tail views differ by ~2 x 0.08 x Req: half of it is the spread
         assert e.info["view_req_spread_m"] == pytest.approx(0.08 * truth["req_m"], rel=0.1)
@@ -74,7 +74,7 @@ def test_req_uncertainty_carries_the_views_disagreement(tmp_path):
     r = preprocess_dataset(load_dataset(tmp_path / "round", camera=MEAN_OF_VIEWS)).experiments[0]
     o = preprocess_dataset(load_dataset(tmp_path / "oval", camera=MEAN_OF_VIEWS)).experiments[0]
     spread = load_dataset(tmp_path / "oval", camera=MEAN_OF_VIEWS).experiments[0].info["view_req_spread_m"]
-    assert o.req_m == pytest.approx(r.req_m, rel=1e-6)                 # the mean itself is round
+    assert o.req_m == pytest.approx(r.req_m, rel=1e-6)  # the mean itself is round
     assert o.req_sd_m == pytest.approx(math.hypot(r.req_sd_m, spread), rel=1e-4)
     assert o.req_sd_m > 5 * r.req_sd_m and "half-difference" in o.req_source
 
@@ -117,8 +117,11 @@ def test_inspect_cli_with_mean_views(tmp_path):
     """The CLI passes ``--camera mean`` through: two bubbles in dataset.json; a dataset without
     camera labels is one line of bad input naming it."""
     two_views(tmp_path / "ds", n_exp=2)
-    res = CliRunner().invoke(main, ["inspect", str(tmp_path / "ds"), "--camera", "mean",
-                                    "--out", str(tmp_path / "out")], catch_exceptions=False)
+    res = CliRunner().invoke(
+        main,
+        ["inspect", str(tmp_path / "ds"), "--camera", "mean", "--out", str(tmp_path / "out")],
+        catch_exceptions=False,
+    )
     assert res.exit_code == 0, res.output
     info = json.loads((tmp_path / "out" / "dataset.json").read_text())
     names = [e["name"] for e in info["experiments"]]
@@ -131,9 +134,13 @@ def test_inspect_cli_with_mean_views(tmp_path):
 
 def test_req_given_for_both_views_is_averaged(tmp_path):
     two_views(tmp_path / "ds", n_exp=1, ovality=0.1)
-    meta = {"material": "synthetic", "experiments": {
-        "bubble_01_cam0deg.csv": {"Req_m": 40e-6, "Req_sd_m": 1e-6},
-        "bubble_01_cam90deg.csv": {"Req_m": 44e-6, "Req_sd_m": 3e-6}}}
+    meta = {
+        "material": "synthetic",
+        "experiments": {
+            "bubble_01_cam0deg.csv": {"Req_m": 40e-6, "Req_sd_m": 1e-6},
+            "bubble_01_cam90deg.csv": {"Req_m": 44e-6, "Req_sd_m": 3e-6},
+        },
+    }
     (tmp_path / "ds" / "meta.json").write_text(json.dumps(meta))
     e = load_dataset(tmp_path / "ds", camera=MEAN_OF_VIEWS).experiments[0]
     assert e.req_m == pytest.approx(42e-6) and e.req_sd_m == pytest.approx(2e-6)

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
+from _data_synth import LIC, make_dataset, record, write_csv
 from click.testing import CliRunner
 
-from _data_synth import LIC, make_dataset, record, write_csv
 from imrbayes.cli import main
 
 
@@ -95,8 +95,9 @@ def test_inspect_nan_rows_dropped_with_warning(tmp_path):
 
 @pytest.mark.skipif(not LIC.is_dir(), reason="shared data not present")
 def test_inspect_mat_file(tmp_path):
-    res = run("inspect", LIC / "mat_originals" / "estrada2018_stiffPA_RofT_shifted.mat", "--out", tmp_path / "o",
-              "--json")
+    res = run(
+        "inspect", LIC / "mat_originals" / "estrada2018_stiffPA_RofT_shifted.mat", "--out", tmp_path / "o", "--json"
+    )
     assert res.exit_code == 0
     t = json.loads(res.stdout)
     assert t["format"] == "mat:estrada-shifted" and t["n_experiments"] == 20
@@ -128,25 +129,37 @@ BAD_CSV = {
     "missing column": ("t_s\n1e-6\n2e-6\n", "missing column(s) R_m"),
     "extra column": ("t_s,R_m,x\n" + "\n".join(r + ",1" for r in _good_rows()), "unexpected column(s) 'x'"),
     "wrong names": ("time,radius\n" + "\n".join(_good_rows()), "missing column(s) t_s, R_m"),
-    "collapse-time summary": ("Rmax_m,Lmax_Rmax_over_Req,t_collapse_s\n3.6e-4,6.1,3.1e-5\n",
-                              "collapse-time summaries (Rmax_m,Lmax_Rmax_over_Req,t_collapse_s), not R(t) curves"),
+    "collapse-time summary": (
+        "Rmax_m,Lmax_Rmax_over_Req,t_collapse_s\n3.6e-4,6.1,3.1e-5\n",
+        "collapse-time summaries (Rmax_m,Lmax_Rmax_over_Req,t_collapse_s), not R(t) curves",
+    ),
     "unit in header": ("t_us,R_um\n" + "\n".join(_good_rows()), "suggests values in µs"),
     "semicolons": ("t_s;R_m\n1;2\n", "not comma-separated"),
-    "non-numeric": ("t_s,R_m\n" + "\n".join(_good_rows()[:5] + ["1e-5,abc"] + _good_rows()[6:]),
-                    "line 7: R_m value 'abc' is not a number"),
+    "non-numeric": (
+        "t_s,R_m\n" + "\n".join(_good_rows()[:5] + ["1e-5,abc"] + _good_rows()[6:]),
+        "line 7: R_m value 'abc' is not a number",
+    ),
     "infinite": ("t_s,R_m\n" + "\n".join(_good_rows()[:5] + ["inf,1e-4"]), "is not a number"),
     "ragged row": ("t_s,R_m\n" + "\n".join(_good_rows()[:5] + ["1e-5"]), "line 7: 1 values, expected 2"),
-    "non-increasing time": ("t_s,R_m\n" + "\n".join(_good_rows()[:5] + [_good_rows()[3]] + _good_rows()[6:]),
-                            "time must increase strictly"),
-    "negative radius": ("t_s,R_m\n" + "\n".join(_good_rows()[:5] + [_good_rows()[5].split(",")[0] + ",-1e-5"]
-                                                + _good_rows()[6:]), "radius must be positive"),
-    "zero radius": ("t_s,R_m\n" + "\n".join(_good_rows()[:5] + [_good_rows()[5].split(",")[0] + ",0"]
-                                            + _good_rows()[6:]), "radius must be positive: R_m = 0 at line 7"),
+    "non-increasing time": (
+        "t_s,R_m\n" + "\n".join(_good_rows()[:5] + [_good_rows()[3]] + _good_rows()[6:]),
+        "time must increase strictly",
+    ),
+    "negative radius": (
+        "t_s,R_m\n" + "\n".join(_good_rows()[:5] + [_good_rows()[5].split(",")[0] + ",-1e-5"] + _good_rows()[6:]),
+        "radius must be positive",
+    ),
+    "zero radius": (
+        "t_s,R_m\n" + "\n".join(_good_rows()[:5] + [_good_rows()[5].split(",")[0] + ",0"] + _good_rows()[6:]),
+        "radius must be positive: R_m = 0 at line 7",
+    ),
     "radii in micrometres": ("t_s,R_m\n" + "\n".join(_good_rows(scale_r=1e6)), "look like µm or mm"),
     "times in microseconds": ("t_s,R_m\n" + "\n".join(_good_rows(scale_t=1e6)), "look like µs"),
     "times in milliseconds": ("t_s,R_m\n" + "\n".join(_good_rows(scale_t=1e3)), "are the times in ms?"),
-    "too short for first collapse": ("t_s,R_m\n" + "\n".join(_good_rows(n=14)), "too short to reach the first "
-                                                                                "collapse"),
+    "too short for first collapse": (
+        "t_s,R_m\n" + "\n".join(_good_rows(n=14)),
+        "too short to reach the first collapse",
+    ),
     "too few samples": ("t_s,R_m\n1e-6,1e-4\n2e-6,2e-4\n", "only 2 valid sample(s)"),
     "header only": ("t_s,R_m\n", "no data rows"),
     "empty file": ("", "is empty"),
@@ -268,8 +281,10 @@ def test_options_from_toml_config_and_command_line_wins(tmp_path):
     from imrbayes.cli import main
 
     cfg = tmp_path / "run.toml"
-    cfg.write_text('[simulate]\nmodel = "nhkv"\nparam = ["G=4e3", "mu=0.05"]\nn-exp = 2\nnoise = "none"\n'
-                   'forward = ["bubble=polytropic"]\nt-end = 1.0\n')
+    cfg.write_text(
+        '[simulate]\nmodel = "nhkv"\nparam = ["G=4e3", "mu=0.05"]\nn-exp = 2\nnoise = "none"\n'
+        'forward = ["bubble=polytropic"]\nt-end = 1.0\n'
+    )
     out = tmp_path / "d"
     res = CliRunner().invoke(main, ["simulate", "--config", str(cfg), "--n-exp", "3", "--out", str(out), "--quiet"])
     assert res.exit_code == 0, res.output
@@ -284,10 +299,13 @@ def test_options_from_toml_config_and_command_line_wins(tmp_path):
     assert res.exit_code == 2 and "config file not found" in res.output
 
 
-@pytest.mark.parametrize("meta,problem", [({"material": "gel", "phisics": {"rho": 1000.0}},
-                                           "unknown key 'phisics' (did you mean 'physics'?)"),
-                                          ({"material": "gel", "physics": {"rhoo": 1000.0}},
-                                           "unknown physics key 'rhoo' (did you mean 'rho'?)")])
+@pytest.mark.parametrize(
+    "meta,problem",
+    [
+        ({"material": "gel", "phisics": {"rho": 1000.0}}, "unknown key 'phisics' (did you mean 'physics'?)"),
+        ({"material": "gel", "physics": {"rhoo": 1000.0}}, "unknown physics key 'rhoo' (did you mean 'rho'?)"),
+    ],
+)
 @pytest.mark.parametrize("command", [["inspect"], ["fit", "--method", "pimr"], ["diagnose", "--quick"]])
 def test_every_command_refuses_an_unknown_meta_key_naming_the_file(tmp_path, meta, problem, command):
     make_dataset(tmp_path / "ds", n_exp=2, meta=meta)

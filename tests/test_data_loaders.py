@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
-
 from _data_synth import LIC, make_dataset, record, write_csv
+
 from imrbayes.data import load_dataset
 from imrbayes.data.csvio import read_table
 from imrbayes.data.loaders import load_mat
@@ -23,10 +23,12 @@ MAT_TO_CSV = {
     "franck_lab_A_E2_002.mat": ("franck_lab_A_E2_002_1.59Mfps", ""),
     "umich_PA10_PolyAcry_12_28_04_updated.mat": ("umich_PA10_bis0.06_1Mfps_dualcam", "PolyAcry_12_28_04_"),
 }
-LAYOUT = {"estrada2018_stiffPA_RofT_shifted.mat": "estrada-shifted",
-          "estrada2018_stiffPA_xy002_RofT.mat": "circlefit-pixels",
-          "franck_lab_A_E2_002.mat": "franck-RofT",
-          "umich_PA10_PolyAcry_12_28_04_updated.mat": "umich-dualcam"}
+LAYOUT = {
+    "estrada2018_stiffPA_RofT_shifted.mat": "estrada-shifted",
+    "estrada2018_stiffPA_xy002_RofT.mat": "circlefit-pixels",
+    "franck_lab_A_E2_002.mat": "franck-RofT",
+    "umich_PA10_PolyAcry_12_28_04_updated.mat": "umich-dualcam",
+}
 
 
 def _rel(a, b):
@@ -60,11 +62,16 @@ def test_mat_reproduces_converted_csvs(mat):
             half_ulp = 0.5e-10 * 10.0 ** np.floor(np.log10(np.abs(np.where(theirs == 0, 1, theirs))))
             assert np.all(np.abs(ours - theirs) <= half_ulp * (1 + 1e-9))
         entry = entries[Path(csv_path).name]
-        checks = {"n_samples": exp.t_s.size, "t_first_s": exp.t_s[0], "t_last_s": exp.t_s[-1],
-                  "Rmax_sample_m": exp.R_m.max(), "R_last10_mean_m": exp.R_m[-10:].mean(),
-                  "t_at_Rmax_s": exp.t_s[np.argmax(exp.R_m)],
-                  "source_time_of_t0_s": exp.info.get("source_time_of_t0_s"),
-                  "Rmax_stored_um": exp.info.get("Rmax_stored_um")}
+        checks = {
+            "n_samples": exp.t_s.size,
+            "t_first_s": exp.t_s[0],
+            "t_last_s": exp.t_s[-1],
+            "Rmax_sample_m": exp.R_m.max(),
+            "R_last10_mean_m": exp.R_m[-10:].mean(),
+            "t_at_Rmax_s": exp.t_s[np.argmax(exp.R_m)],
+            "source_time_of_t0_s": exp.info.get("source_time_of_t0_s"),
+            "Rmax_stored_um": exp.info.get("Rmax_stored_um"),
+        }
         compared = 0
         for key, value in checks.items():
             if key in entry and value is not None:
@@ -125,9 +132,14 @@ def test_mat_umich_layout_synthetic(tmp_path):
 
 # ----------------------------------------------------------------------------- directories, CSVs, meta
 def test_directory_loads_with_meta_passthrough(tmp_path):
-    meta = {"material": "gel", "temperature_C": 21.0, "physics": {"rho": 1000.0, "c8": 1500},
-            "forward": {"radial": "km", "bubble": "polytropic", "vapor": False},
-            "experiments": {"exp_002.csv": {"Req_m": 4.0e-5, "note": "kept"}}, "x_my_key": [1, 2]}
+    meta = {
+        "material": "gel",
+        "temperature_C": 21.0,
+        "physics": {"rho": 1000.0, "c8": 1500},
+        "forward": {"radial": "km", "bubble": "polytropic", "vapor": False},
+        "experiments": {"exp_002.csv": {"Req_m": 4.0e-5, "note": "kept"}},
+        "x_my_key": [1, 2],
+    }
     make_dataset(tmp_path / "ds", n_exp=3, meta=meta)
     ds = load_dataset(tmp_path / "ds")
     assert ds.format == "directory" and ds.names == ["exp_001", "exp_002", "exp_003"]
@@ -152,15 +164,18 @@ def test_meta_without_material_warns(tmp_path):
     assert ds.material == "unknown" and any("material" in w for w in ds.warnings)
 
 
-@pytest.mark.parametrize("meta,match", [
-    ("{not json", "not valid JSON: line 1"),
-    ("[1, 2]", "must hold a JSON object"),
-    ('{"material": "x", "physics": {"rho": -1}}', "physics.rho must be finite and positive"),
-    ('{"material": "x", "physics": {"rho": "heavy"}}', "physics.rho must be a number"),
-    ('{"material": "x", "forward": [1]}', "'forward' must be an object"),
-    ('{"material": "x", "experiments": {"exp_001.csv": {"Req_m": 34.0}}}', "looks like µm"),
-    ('{"material": 3}', "'material' must be a string"),
-])
+@pytest.mark.parametrize(
+    "meta,match",
+    [
+        ("{not json", "not valid JSON: line 1"),
+        ("[1, 2]", "must hold a JSON object"),
+        ('{"material": "x", "physics": {"rho": -1}}', "physics.rho must be finite and positive"),
+        ('{"material": "x", "physics": {"rho": "heavy"}}', "physics.rho must be a number"),
+        ('{"material": "x", "forward": [1]}', "'forward' must be an object"),
+        ('{"material": "x", "experiments": {"exp_001.csv": {"Req_m": 34.0}}}', "looks like µm"),
+        ('{"material": 3}', "'material' must be a string"),
+    ],
+)
 def test_bad_meta_refused(tmp_path, meta, match):
     make_dataset(tmp_path / "ds", n_exp=1)
     (tmp_path / "ds" / "meta.json").write_text(meta)
@@ -198,7 +213,7 @@ def test_long_csv(tmp_path):
     (tmp_path / "long.csv").write_text("\n".join(rows) + "\n")
     ds = load_dataset(tmp_path / "long.csv")
     assert ds.format == "long-csv" and ds.names == ["b", "a"]
-    for (name, t, R), e in zip(truths, ds.experiments):
+    for (_name, t, R), e in zip(truths, ds.experiments):
         assert np.array_equal(e.t_s, t) and np.array_equal(e.R_m, R)
     assert any("dropped 1 row" in w and "line 6" in w for w in ds.warnings)
 
@@ -232,8 +247,15 @@ def test_camera_filter_on_names(tmp_path):
 
 
 @needs_shared
-@pytest.mark.parametrize("folder", ["estrada2018_stiffPA_270kfps", "estrada2018_stiffPA_xy002_refit",
-                                    "franck_lab_A_E2_002_1.59Mfps", "umich_PA10_bis0.06_1Mfps_dualcam"])
+@pytest.mark.parametrize(
+    "folder",
+    [
+        "estrada2018_stiffPA_270kfps",
+        "estrada2018_stiffPA_xy002_refit",
+        "franck_lab_A_E2_002_1.59Mfps",
+        "umich_PA10_bis0.06_1Mfps_dualcam",
+    ],
+)
 def test_shared_datasets_load(folder):
     ds = load_dataset(LIC / folder)
     meta = json.loads((LIC / folder / "meta.json").read_text())
@@ -244,8 +266,15 @@ def test_shared_datasets_load(folder):
 
 
 @needs_shared
-@pytest.mark.parametrize("folder", ["estrada2018_stiffPA_270kfps", "estrada2018_stiffPA_xy002_refit",
-                                    "franck_lab_A_E2_002_1.59Mfps", "umich_PA10_bis0.06_1Mfps_dualcam"])
+@pytest.mark.parametrize(
+    "folder",
+    [
+        "estrada2018_stiffPA_270kfps",
+        "estrada2018_stiffPA_xy002_refit",
+        "franck_lab_A_E2_002_1.59Mfps",
+        "umich_PA10_bis0.06_1Mfps_dualcam",
+    ],
+)
 def test_no_measured_maximum_is_taken_as_exact(folder):
     """Every real record's Rmax and time of the maximum reach the fits with a positive uncertainty
     (a nuisance prior sd of 0 means 'known'): three stiff-PA bubbles fall back to the three-point
@@ -261,8 +290,8 @@ def test_no_measured_maximum_is_taken_as_exact(folder):
     assert np.all(sd[:, :2] > 0), [e.name for e, s in zip(pre.experiments, sd) if not np.all(s[:2] > 0)]
     methods = {e.rmax_method for e in pre.experiments}
     if folder == "estrada2018_stiffPA_270kfps":
-        assert "parabola" in methods          # the fallback is exercised on real data
+        assert "parabola" in methods  # the fallback is exercised on real data
         tc = np.array([e.tc_s for e in pre.experiments])
         fb = np.array([e.rmax_method == "parabola" for e in pre.experiments])
-        assert np.all((sd[fb, 1] > 0.005) & (sd[fb, 1] < 0.05)), sd[fb, 1]      # t*: a fraction of a frame to ~2
+        assert np.all((sd[fb, 1] > 0.005) & (sd[fb, 1] < 0.05)), sd[fb, 1]  # t*: a fraction of a frame to ~2
         assert np.all(np.isfinite(tc))

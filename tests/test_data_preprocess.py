@@ -4,10 +4,9 @@ import math
 
 import numpy as np
 import pytest
-
 from _data_synth import P8, RHO, curve, make_dataset, record
-from imrbayes.data import load_dataset, preprocess_dataset
-from imrbayes.data import preprocess as pp
+
+from imrbayes.data import load_dataset, preprocess as pp, preprocess_dataset
 from imrbayes.data.noise import P_FLOOR_ABS, P_FLOOR_REL, noise_variance, paper_sigma
 from imrbayes.errors import InputError
 
@@ -137,8 +136,9 @@ def test_time_scale_and_nondimensionalise():
     ts, Rs = pp.nondimensionalise([1e-6, 2e-6], [263e-6, 100e-6], 1e-6, rmax, tc)
     np.testing.assert_allclose(ts, [0.0, 1e-6 / tc], rtol=1e-15)
     np.testing.assert_allclose(Rs, [1.0, 100 / 263], rtol=1e-15)
-    np.testing.assert_allclose(pp.time_scale_s(np.array([1e-4, 2e-4]), RHO, P8), [1e-4 / 9.7586, 2e-4 / 9.7586],
-                               rtol=1e-4)
+    np.testing.assert_allclose(
+        pp.time_scale_s(np.array([1e-4, 2e-4]), RHO, P8), [1e-4 / 9.7586, 2e-4 / 9.7586], rtol=1e-4
+    )
 
 
 def test_resample_linear_exact_on_linear_data_and_anchor():
@@ -216,8 +216,8 @@ def test_noise_variance_pooled_is_the_running_mean_of_the_sample_variance():
     Y = curve(t)[None, :] + 0.02 * rng.standard_normal((5, 121))
     P, info = noise_variance(t, Y, method="pooled")
     raw = Y.var(axis=0, ddof=1)
-    padded = np.concatenate([np.full(5, raw[0]), raw, np.full(5, raw[-1])])   # edges: nearest value
-    pooled = np.array([padded[k:k + 11].mean() for k in range(121)])
+    padded = np.concatenate([np.full(5, raw[0]), raw, np.full(5, raw[-1])])  # edges: nearest value
+    pooled = np.array([padded[k : k + 11].mean() for k in range(121)])
     assert info["method"] == "pooled-sample-variance"
     np.testing.assert_allclose(P, np.maximum(pooled, info["floor"]), rtol=1e-12)
 
@@ -228,8 +228,10 @@ def test_pooled_noise_weights_are_nearly_unbiased_where_the_sample_variance_doub
     rng = np.random.default_rng(11)
     t = np.arange(401) * 0.025
     Y = 0.5 + 0.02 * rng.standard_normal((5, 401))
-    inv = {m: np.mean(1.0 / noise_variance(t, Y, floor_abs=0.0, floor_rel=0.0, method=m)[0]) * 0.02 ** 2
-           for m in ("sample", "pooled")}
+    inv = {
+        m: np.mean(1.0 / noise_variance(t, Y, floor_abs=0.0, floor_rel=0.0, method=m)[0]) * 0.02**2
+        for m in ("sample", "pooled")
+    }
     assert inv["sample"] > 1.6
     assert abs(inv["pooled"] - 1.0) < 0.1
 
@@ -283,7 +285,7 @@ def test_preprocess_dataset_uses_meta_req(tmp_path):
     pre = preprocess_dataset(load_dataset(tmp_path / "ds"))
     assert pre.req_m[0] == 5.0e-5 and pre.req_sd_m[0] == 1e-6
     assert pre.experiments[0].req_source == "meta.json"
-    assert "last 20 samples" in pre.experiments[1].req_source          # from the record's own tail
+    assert "last 20 samples" in pre.experiments[1].req_source  # from the record's own tail
 
 
 def test_preprocess_single_experiment_fallback(tmp_path):

@@ -39,7 +39,7 @@ def test_noise_estimate_matches_the_added_noise(record):
     truth = record[2]
     est = np.array([pp.estimate_noise_sd(R) for _, R in draws(record)])
     assert np.median(est) == pytest.approx(0.02 * truth["rmax_m"], rel=0.1)
-    assert pp.estimate_noise_sd(record[1]) < 0.01 * 0.02 * truth["rmax_m"]       # a clean record has ~none
+    assert pp.estimate_noise_sd(record[1]) < 0.01 * 0.02 * truth["rmax_m"]  # a clean record has ~none
 
 
 def test_local_fit_maximum_is_unbiased_with_honest_errors_where_the_sample_is_not(record):
@@ -55,12 +55,12 @@ def test_local_fit_maximum_is_unbiased_with_honest_errors_where_the_sample_is_no
         err_parabola.append(pp.locate_rmax(t, R, "parabola").rmax_m - truth["rmax_m"])
     err_fit, err_t = np.array(err_fit), np.array(err_t)
     rmax_sd = err_fit.std()
-    assert abs(err_fit.mean()) < 0.4 * rmax_sd                      # bias well inside one sd
-    assert np.mean(err_parabola) > 2 * rmax_sd                      # the three-frame vertex is biased high
-    assert 0.7 < np.mean(sd_fit) / rmax_sd < 1.5                    # the reported sd is about right
+    assert abs(err_fit.mean()) < 0.4 * rmax_sd  # bias well inside one sd
+    assert np.mean(err_parabola) > 2 * rmax_sd  # the three-frame vertex is biased high
+    assert 0.7 < np.mean(sd_fit) / rmax_sd < 1.5  # the reported sd is about right
     assert abs(err_t.mean()) < 0.3 * err_t.std() and 0.7 < np.mean(sd_t) / err_t.std() < 1.5
     z = err_fit / np.array(sd_fit)
-    assert np.mean(np.abs(z) < 1.96) > 0.88                          # 95 % intervals cover
+    assert np.mean(np.abs(z) < 1.96) > 0.88  # 95 % intervals cover
 
 
 def test_local_fit_on_a_clean_record_is_accurate(record):
@@ -82,23 +82,23 @@ def test_collapse_is_never_a_noise_dip(record):
     t_true = (clean.t_s - truth["t_max_s"]) / truth["tc_s"]
     assert 0.8 < t_true < 1.0
     t_c = np.array(t_c)
-    assert t_c.min() > 0.75                                          # never a dip on the way down
-    assert np.mean(np.abs(t_c - t_true) < 0.1) >= 0.95              # and almost always this collapse
+    assert t_c.min() > 0.75  # never a dip on the way down
+    assert np.mean(np.abs(t_c - t_true) < 0.1) >= 0.95  # and almost always this collapse
 
 
 def test_req_uncertainty_separates_noise_from_oscillation():
     rng = np.random.default_rng(3)
-    R = 40e-6 + 2e-6 * rng.standard_normal(400)                      # flat tail, noise 2 µm
+    R = 40e-6 + 2e-6 * rng.standard_normal(400)  # flat tail, noise 2 µm
     est = pp.estimate_req(R, 10, n_tail=20, noise_sd_m=2e-6)
     assert est.sd_m < 0.5 * est.se_m * math.sqrt(20) and est.warning is None
-    osc = 40e-6 * (1 + 0.2 * np.sin(np.arange(400) * 0.7))            # a tail still oscillating by 14 %
+    osc = 40e-6 * (1 + 0.2 * np.sin(np.arange(400) * 0.7))  # a tail still oscillating by 14 %
     est = pp.estimate_req(osc, 10, n_tail=20, noise_sd_m=0.0)
     low, mean = osc[-20:].min(), osc[-20:].mean()
     assert not est.settled and "not settled" in est.warning
     assert est.req_m == pytest.approx(math.sqrt(low * mean), rel=1e-12)
-    assert est.sd_m / est.req_m >= math.log(est.req_m / low) - 1e-12      # low within 1 sd in log
-    assert est.sd_m >= np.std(osc[-20:], ddof=1) * est.req_m / mean      # never narrower than the spread
-    assert abs(math.log(40e-6 / est.req_m)) < est.sd_m / est.req_m       # a symmetric one's centre: inside 1 sd
+    assert est.sd_m / est.req_m >= math.log(est.req_m / low) - 1e-12  # low within 1 sd in log
+    assert est.sd_m >= np.std(osc[-20:], ddof=1) * est.req_m / mean  # never narrower than the spread
+    assert abs(math.log(40e-6 / est.req_m)) < est.sd_m / est.req_m  # a symmetric one's centre: inside 1 sd
 
 
 def test_unsettled_tail_req_brackets_a_bubble_still_rebounding():
@@ -106,6 +106,7 @@ def test_unsettled_tail_req_brackets_a_bubble_still_rebounding():
     lingers near its maxima: the tail mean lies well above Req, and its lowest point below. The
     estimate must bracket the truth within one sd, where the mean alone misses by several."""
     from scipy.integrate import solve_ivp
+
     req, p8, rho, kappa = 40e-6, 101325.0, 1000.0, 1.4
 
     def rp(t, y):
@@ -113,7 +114,7 @@ def test_unsettled_tail_req_brackets_a_bubble_still_rebounding():
         pg = p8 * (req / R) ** (3 * kappa)
         return [V, ((pg - p8) / rho - 1.5 * V * V - 4e-3 * V / (rho * R)) / R]
 
-    t = np.arange(0, 60e-6, 0.5e-6)                                   # 2 Mfps
+    t = np.arange(0, 60e-6, 0.5e-6)  # 2 Mfps
     sol = solve_ivp(rp, (0, t[-1]), [2.2 * req, 0.0], t_eval=t, rtol=1e-10, atol=1e-14, method="LSODA")
     R = sol.y[0] + 0.3e-6 * np.random.default_rng(1).standard_normal(t.size)
     est = pp.estimate_req(R, 1, n_tail=20, noise_sd_m=0.3e-6)
@@ -157,7 +158,7 @@ def test_three_point_vertex_errors_match_monte_carlo():
     rng = np.random.default_rng(0)
     sig = 0.1e-6
     v = np.array([pp.parabola_vertex(t3, R3 + sig * rng.standard_normal(3)) for _ in range(20000)])
-    t_sd, r_sd = pp._three_point_vertex_sd(t3, R3, sig, t_c=2e-6)     # a sharper expected curvature: the observed D rules
+    t_sd, r_sd = pp._three_point_vertex_sd(t3, R3, sig, t_c=2e-6)  # a sharper expected curvature: the observed D rules
     assert t_sd == pytest.approx(v[:, 0].std(), rel=0.05) and r_sd == pytest.approx(v[:, 1].std(), rel=0.05)
 
 
@@ -191,5 +192,5 @@ def test_the_collapse_of_a_small_bubble_with_a_low_rebound_is_found():
             err.append((col.t_s - t_max) / tc - t_true)
     err = np.array(err)
     assert too_short == 0
-    assert err.min() > -0.15                                         # never a dip on the way down
+    assert err.min() > -0.15  # never a dip on the way down
     assert np.mean(np.abs(err) < 0.1) >= 0.95

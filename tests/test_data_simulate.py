@@ -5,14 +5,15 @@ import math
 
 import numpy as np
 import pytest
+from _data_synth import curve
+from _fake_forward import FakeModel
 from click.testing import CliRunner
 
 import imrbayes.forward as fwd
-from _data_synth import curve
-from _fake_forward import FakeModel
 from imrbayes.cli import main
 from imrbayes.data import load_dataset, preprocess_dataset
 from imrbayes.data.noise import paper_sigma
+
 
 def sim(*args):
     return CliRunner().invoke(main, ["simulate", *[str(a) for a in args]])
@@ -30,8 +31,25 @@ def read(out):
 
 def test_simulate_writes_dataset_and_truth(fake, tmp_path):
     out = tmp_path / "syn"
-    res = sim(*BASE, "--rmax", "263e-6", "--ratio", "7.58", "--n-exp", "3", "--noise", "none", "--seed", "1",
-              "--forward", "bubble=polytropic", "--forward", "vapor=false", "--out", out)
+    res = sim(
+        *BASE,
+        "--rmax",
+        "263e-6",
+        "--ratio",
+        "7.58",
+        "--n-exp",
+        "3",
+        "--noise",
+        "none",
+        "--seed",
+        "1",
+        "--forward",
+        "bubble=polytropic",
+        "--forward",
+        "vapor=false",
+        "--out",
+        out,
+    )
     assert res.exit_code == 0, res.output + res.stderr
     meta, truth, data = read(out)
     assert len(data) == 3 and meta["material"] == "synthetic (nhkv)"
@@ -98,30 +116,42 @@ def test_simulate_numeric_noise_and_frame_rate(fake, tmp_path):
     res = sim(*BASE, "--noise", "0.01", "--n-exp", "2", "--frame-s", "1e-6", "--t-end", "3", "--out", out)
     assert res.exit_code == 0, res.stderr
     _, truth, data = read(out)
-    assert truth["noise"] == {"kind": "gaussian", "sd": 0.01, "applied_to": truth["noise"]["applied_to"],
-                              "n_redrawn_nonpositive": 0}
+    assert truth["noise"] == {
+        "kind": "gaussian",
+        "sd": 0.01,
+        "applied_to": truth["noise"]["applied_to"],
+        "n_redrawn_nonpositive": 0,
+    }
     tc = 263e-6 / math.sqrt(101325 / 1064)
     k = np.round(data[0][:, 0] / 1e-6)
     np.testing.assert_allclose(data[0][:, 0], k * 1e-6, rtol=1e-12)
     assert k[-1] == math.floor(3 * tc / 1e-6)
-    assert truth["sampling"] == {"frame_s": 1e-6, "phase": "0", "pre_max_s": 0.0,
-                                 "before_maximum": "mirror of the collapse", "t_end_star": 3.0}
+    assert truth["sampling"] == {
+        "frame_s": 1e-6,
+        "phase": "0",
+        "pre_max_s": 0.0,
+        "before_maximum": "mirror of the collapse",
+        "t_end_star": 3.0,
+    }
 
 
-@pytest.mark.parametrize("args,where,problem", [
-    (["--model", "nope", "--param", "G=1"], "--model", "available: nhkv, qkv"),
-    (["--model", "nhkv", "--param", "G=1", "--param", "mu=0.1", "--param", "x=2"], "--param", "unknown parameter"),
-    (["--model", "nhkv", "--param", "G=1"], "--param", "missing mu"),
-    (["--model", "nhkv", "--param", "G"], "--param", "expected KEY=VALUE"),
-    (["--model", "nhkv", "--param", "G=abc", "--param", "mu=1"], "--param", "G must be a number"),
-    ([*BASE, "--rmax", "big"], "--rmax", "expected a number or MEAN:SD"),
-    ([*BASE, "--rmax", "263"], "--rmax", "give Rmax in metres"),
-    ([*BASE, "--ratio", "0.5"], "--ratio", "must exceed 1"),
-    ([*BASE, "--noise", "loud"], "--noise", "expected paper, none, a number"),
-    ([*BASE, "--n-exp", "0"], "--n-exp", "at least 1"),
-    ([*BASE, "--frame-s", "2"], "--frame-s", "frame interval in seconds"),
-    ([*BASE, "--forward", "bad=1"], "--forward", "unknown forward option"),
-])
+@pytest.mark.parametrize(
+    "args,where,problem",
+    [
+        (["--model", "nope", "--param", "G=1"], "--model", "available: nhkv, qkv"),
+        (["--model", "nhkv", "--param", "G=1", "--param", "mu=0.1", "--param", "x=2"], "--param", "unknown parameter"),
+        (["--model", "nhkv", "--param", "G=1"], "--param", "missing mu"),
+        (["--model", "nhkv", "--param", "G"], "--param", "expected KEY=VALUE"),
+        (["--model", "nhkv", "--param", "G=abc", "--param", "mu=1"], "--param", "G must be a number"),
+        ([*BASE, "--rmax", "big"], "--rmax", "expected a number or MEAN:SD"),
+        ([*BASE, "--rmax", "263"], "--rmax", "give Rmax in metres"),
+        ([*BASE, "--ratio", "0.5"], "--ratio", "must exceed 1"),
+        ([*BASE, "--noise", "loud"], "--noise", "expected paper, none, a number"),
+        ([*BASE, "--n-exp", "0"], "--n-exp", "at least 1"),
+        ([*BASE, "--frame-s", "2"], "--frame-s", "frame interval in seconds"),
+        ([*BASE, "--forward", "bad=1"], "--forward", "unknown forward option"),
+    ],
+)
 def test_simulate_bad_input(fake, tmp_path, args, where, problem):
     res = sim(*args, "--out", tmp_path / "o")
     assert res.exit_code == 2, (res.output, res.stderr)
@@ -135,7 +165,7 @@ def test_simulate_refuses_existing_dataset(fake, tmp_path):
     before = (tmp_path / "o" / "exp_001.csv").read_bytes()
     res = sim(*BASE, "--seed", "9", "--out", tmp_path / "o")
     assert res.exit_code == 2 and "already holds" in res.stderr and "--force" in res.stderr
-    res = sim(*BASE, "--seed", "9", "--out", tmp_path / "o", "--force")   # even forced: datasets never mix
+    res = sim(*BASE, "--seed", "9", "--out", tmp_path / "o", "--force")  # even forced: datasets never mix
     assert res.exit_code == 2 and "already holds a dataset" in res.stderr
     assert (tmp_path / "o" / "exp_001.csv").read_bytes() == before
 
@@ -151,10 +181,25 @@ def test_simulate_real_forward_model_end_to_end(tmp_path):
     skipped: the forward model is part of imrbayes, so its absence is a failure."""
     from imrbayes.forward.model import ForwardModel as real_model
 
-    assert fwd.ForwardModel is real_model and fwd.ForwardModel is not FakeModel     # not the fixture's fake
+    assert fwd.ForwardModel is real_model and fwd.ForwardModel is not FakeModel  # not the fixture's fake
     out = tmp_path / "syn"
-    res = sim(*BASE, "--rmax", "263e-6", "--ratio", "7.58", "--n-exp", "2", "--noise", "paper", "--seed", "0",
-              "--forward", "bubble=polytropic", "--out", out)
+    res = sim(
+        *BASE,
+        "--rmax",
+        "263e-6",
+        "--ratio",
+        "7.58",
+        "--n-exp",
+        "2",
+        "--noise",
+        "paper",
+        "--seed",
+        "0",
+        "--forward",
+        "bubble=polytropic",
+        "--out",
+        out,
+    )
     assert res.exit_code == 0, res.stderr
     meta, truth, data = read(out)
     assert meta["forward"]["bubble"] == "polytropic" and truth["forward"] == meta["forward"]

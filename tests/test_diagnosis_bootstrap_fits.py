@@ -47,8 +47,15 @@ def test_restarts_find_the_nuisance_basin_of_the_truth():
     # a held-out bubble's geometry (material held, no offset): from 0 with restarts as good as from
     # the truth's geometry
     held = lsq.fit_nuisances(base, rep, np.arange(5), full.z, minima=phases.minima, om=om0)
-    ref = lsq.fit_map(base, rep, minima=phases.minima, om=om0.without_random_effects(), starts=[full.z],
-                      nu0=np.where(np.arange(5) < 3, full.nu, 0.0), options=lsq.MapOptions(fix_material=True))
+    ref = lsq.fit_map(
+        base,
+        rep,
+        minima=phases.minima,
+        om=om0.without_random_effects(),
+        starts=[full.z],
+        nu0=np.where(np.arange(5) < 3, full.nu, 0.0),
+        options=lsq.MapOptions(fix_material=True),
+    )
     assert held.cost <= ref.cost * 1.005, (held.cost, ref.cost)
 
 
@@ -67,12 +74,24 @@ def test_candidate_fit_also_starts_from_the_preprocessing_nuisances():
     extra = [np.concatenate([base.z, zener.prior_mean[2:]])]
 
     def fit_zener(nu0=None, alt_nu0=None):
-        return lsq.fit_map(zener, obs, minima=phases.minima, om=om0, nu0=nu0,
-                           options=lsq.MapOptions(extra_starts=extra, alt_nu0=alt_nu0))
-    fits = {name: fit_zener(**kw)
-            for name, kw in (("baseline's", {"nu0": base.nu}), ("preprocessing's", {}),
-                             ("both", {"nu0": base.nu, "alt_nu0": np.zeros_like(base.nu)}))}
-    assert fits["baseline's"].cost > 2.0 * fits["preprocessing's"].cost      # the trap is there
+        return lsq.fit_map(
+            zener,
+            obs,
+            minima=phases.minima,
+            om=om0,
+            nu0=nu0,
+            options=lsq.MapOptions(extra_starts=extra, alt_nu0=alt_nu0),
+        )
+
+    fits = {
+        name: fit_zener(**kw)
+        for name, kw in (
+            ("baseline's", {"nu0": base.nu}),
+            ("preprocessing's", {}),
+            ("both", {"nu0": base.nu, "alt_nu0": np.zeros_like(base.nu)}),
+        )
+    }
+    assert fits["baseline's"].cost > 2.0 * fits["preprocessing's"].cost  # the trap is there
     assert fits["both"].cost <= fits["preprocessing's"].cost * 1.001
     lam = zener.to_si(fits["both"].z)[2]
     assert 0.5 < lam / truth["theta"]["lambda1"] < 2.0, lam

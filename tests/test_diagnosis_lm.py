@@ -27,7 +27,7 @@ def problem():
     obs = obs.take(range(2))
     zener = make_candidate("zener", POLY)
     m, s = zener.prior_mean, zener.prior_sd
-    target = np.array([m[0] + 0.3, m[1] - 0.2, m[2] - 8.0 * s[2]])   # lambda1 8 prior sd below 1 us
+    target = np.array([m[0] + 0.3, m[1] - 0.2, m[2] - 8.0 * s[2]])  # lambda1 8 prior sd below 1 us
     return obs, zener, target
 
 
@@ -38,11 +38,11 @@ def _linear_model(target, scale):
     def fake_predict(cand, Z, obs, idx, minima, K, nu=None, frames=None):
         Z = np.atleast_2d(np.asarray(Z, dtype=float))
         idx = np.atleast_1d(idx)
-        y = obs.R_star[idx, :K + 1]
+        y = obs.R_star[idx, : K + 1]
         b = np.zeros((3, K + 1))
         for i, part in enumerate(np.array_split(np.arange(1, K + 1), 3)):
             b[i, part] = 1.0
-        dz = (Z - target) / scale                                   # (M, 3)
+        dz = (Z - target) / scale  # (M, 3)
         return y[None] + 0.02 * np.einsum("mi,ik->mk", dz, b)[:, None, :]
 
     return fake_predict
@@ -56,7 +56,7 @@ def test_extension_held_at_its_box_and_the_rest_converges(problem, monkeypatch):
     om = lsq.ObsModel.of(obs)
     f = lsq.fit_map(zener, obs, minima=phases.minima, om=om, options=lsq.MapOptions(tol=1e-10))
     floor = m[2] - lsq.EXTENSION_BOX_SD * s[2]
-    assert f.z[2] == pytest.approx(floor, abs=1e-9)                 # held at the bound, not 8 sd out
+    assert f.z[2] == pytest.approx(floor, abs=1e-9)  # held at the bound, not 8 sd out
     assert f.converged and f.n_iter < 40
     # G and mu are independent of lambda1 here: they reach their own optimum (the data's pull on
     # each is ~1e3 times its prior's, so within 1e-2 of the target)
@@ -95,7 +95,7 @@ def _qkv_fit_on_relaxation_data(monkeypatch):
     lsq.fit_map(qkv, obs, minima=phases.minima, om=om, options=lsq.MapOptions(trace=trace))
     its = [e for e in trace if "it" in e]
     rejected = sum(b["it"] == a["it"] + 1 and b["z"] == a["z"] and b["cost"] == a["cost"] for a, b in zip(its, its[1:]))
-    assert rejected >= 1                                  # the situation under test occurs
+    assert rejected >= 1  # the situation under test occurs
     return batches, qkv.d + int((om.nu_sd > 0).any(axis=0).sum()), rejected, len(its)
 
 
@@ -114,9 +114,15 @@ def test_a_rejected_trial_step_is_not_tried_again(monkeypatch):
     # rejected. Every trial member (material and nuisances) must be new: none may repeat an
     # earlier one to 1e-9 (the damping of the repeat differs from the original in its last bits).
     batches, n_jac, _, n_its = _qkv_fit_on_relaxation_data(monkeypatch)
-    M = np.array([np.concatenate([Z[i], nu[i].ravel()]) for Z, nu in batches if 1 < Z.shape[0] < n_jac
-                  for i in range(Z.shape[0])])
-    assert len(M) >= n_its                                          # the trial batches were seen
+    M = np.array(
+        [
+            np.concatenate([Z[i], nu[i].ravel()])
+            for Z, nu in batches
+            if 1 < Z.shape[0] < n_jac
+            for i in range(Z.shape[0])
+        ]
+    )
+    assert len(M) >= n_its  # the trial batches were seen
     close = np.isclose(M[:, None, :], M[None, :, :], rtol=1e-9, atol=1e-12).all(axis=2)
     assert not np.triu(close, k=1).any()
 

@@ -34,7 +34,7 @@ def _run(mechanism, seed, design=None, **kw):
 def test_constant_nhkv_is_adequate(design, seed):
     """No alarm on constant-parameter data of three different designs, and the baseline's estimate
     near the truth (the geometry is estimated, not given)."""
-    r, truth = _run("none", seed, design, candidates=("qkv",))      # the verdict is the point: one candidate
+    r, truth = _run("none", seed, design, candidates=("qkv",))  # the verdict is the point: one candidate
     assert r["constant_parameter_check"]["verdict"] == "adequate", r["constant_parameter_check"]["evidence"]["p_value"]
     assert r["cause"] == "none"
     assert r["extended_model"] is None
@@ -50,8 +50,14 @@ def test_stop_when_adequate_keeps_the_verdict(tmp_path):
 
     full, _ = _run("none", 11, "1Mfps-2um-5", candidates=("qkv",))
     obs, _ = camera_obs("none", 11, OPTS, design="1Mfps-2um-5")
-    d = diagnose(obs, OPTS, settings=DiagnoseSettings.quick(loeo=False, mienks_drift=False, candidates=("qkv",),
-                                                            compare_when_adequate=False), seed=11)
+    d = diagnose(
+        obs,
+        OPTS,
+        settings=DiagnoseSettings.quick(
+            loeo=False, mienks_drift=False, candidates=("qkv",), compare_when_adequate=False
+        ),
+        seed=11,
+    )
     short = d.result
     for key in ("verdict", "p_value"):
         a, b = full["constant_parameter_check"], short["constant_parameter_check"]
@@ -71,8 +77,10 @@ def test_stop_when_adequate_keeps_the_verdict(tmp_path):
 # each hidden cause against the alternatives it is most often taken for (docs/diagnosis.md: damage and
 # zener tie with stiffening; zener with lambda1 -> 0 and Gilmore stand in for missing bubble physics);
 # every candidate against every class is the confusion matrix's job (validation/confusion.py)
-RIVALS = {"strain-stiffening": ("qkv", "zener", "damage"),
-          "bubble-thermal": ("bubble-thermal", "bubble-gilmore", "zener", "qkv")}
+RIVALS = {
+    "strain-stiffening": ("qkv", "zener", "damage"),
+    "bubble-thermal": ("bubble-thermal", "bubble-gilmore", "zener", "qkv"),
+}
 
 
 @pytest.mark.parametrize("mechanism,seed", [("strain-stiffening", 3), ("bubble-thermal", 4)])
@@ -80,22 +88,24 @@ def test_hidden_cause_is_found(mechanism, seed):
     """A material mechanism and a bubble-model cause (thermal bubble behind a polytropic fit)."""
     r, truth = _run(mechanism, seed, candidates=RIVALS[mechanism])
     assert r["constant_parameter_check"]["verdict"] == "inadequate"
-    assert r["cause"] == mechanism or (r["cause"] == "ambiguous" and any(
-        c["mechanism"] == mechanism for c in r["candidates"] if c["key"] in r["candidates_tied"])), \
-        [(c["key"], c["score"]) for c in r["candidates"]]
-    sig = r["signature"]                           # its units ran: the data's and every contender's signature
+    assert r["cause"] == mechanism or (
+        r["cause"] == "ambiguous"
+        and any(c["mechanism"] == mechanism for c in r["candidates"] if c["key"] in r["candidates_tied"])
+    ), [(c["key"], c["score"]) for c in r["candidates"]]
+    sig = r["signature"]  # its units ran: the data's and every contender's signature
     assert sig["observed"]["t_star"] and "nhkv" in sig["score"] and set(sig["predicted"]) == set(sig["score"])
     g = r["gain"]
     assert g["heldout_rmse_extended"] < g["heldout_rmse_baseline"]
     assert g["relative_reduction"] > 0
-    if mechanism == "bubble-thermal":          # the right bubble model gives back the material
+    if mechanism == "bubble-thermal":  # the right bubble model gives back the material
         top = next(c for c in r["candidates"] if c["key"] == "bubble-thermal")
         assert abs(np.log(top["estimate"]["G"]["median"] / truth["theta"]["G"])) < 0.3
         assert abs(np.log(top["estimate"]["mu"]["median"] / truth["theta"]["mu"])) < 0.3
 
 
-@pytest.mark.parametrize("mechanism,seed", [("viscoelastic-relaxation", 7), ("rate-dependent-viscosity", 9),
-                                            ("damage-softening", 5)])
+@pytest.mark.parametrize(
+    "mechanism,seed", [("viscoelastic-relaxation", 7), ("rate-dependent-viscosity", 9), ("damage-softening", 5)]
+)
 def test_hidden_mechanism_is_found_more(mechanism, seed):
     r, truth = _run(mechanism, seed)
     assert r["cause"] == mechanism, [(c["mechanism"], c["score"]) for c in r["candidates"]]

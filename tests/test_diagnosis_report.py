@@ -61,30 +61,61 @@ def with_optional_keys(result):
         c["ruled_out"] = ""
         c["score"] = 0.05
         c["consistent"] = True
-    cands.append({**copy.deepcopy(cands[0]), "key": "thermal", "model": "nhkv-thermal", "kind": "bubble",
-                  "mechanism": "bubble-thermal", "rank": len(cands) + 1,
-                  "ruled_out": "the thermal bubble barely changes the fit (Δχ²/n < 0.01)"})
-    r["gain"].update({"relative_reduction": 0.12, "paired_difference": {"mean_diff": 0.004, "se": 0.001},
-                      "elpd_diff": 12.5, "elpd_se": 4.0})
+    cands.append(
+        {
+            **copy.deepcopy(cands[0]),
+            "key": "thermal",
+            "model": "nhkv-thermal",
+            "kind": "bubble",
+            "mechanism": "bubble-thermal",
+            "rank": len(cands) + 1,
+            "ruled_out": "the thermal bubble barely changes the fit (Δχ²/n < 0.01)",
+        }
+    )
+    r["gain"].update(
+        {
+            "relative_reduction": 0.12,
+            "paired_difference": {"mean_diff": 0.004, "se": 0.001},
+            "elpd_diff": 12.5,
+            "elpd_se": 4.0,
+        }
+    )
     ak = keys + ["thermal"]
-    r["absorption"] = {"keys": ak, "matrix": [[1.0 + 0.4 * abs(i - j) for j in range(len(ak))]
-                                              for i in range(len(ak))],
-                       "note": "refits of one simulated data set per candidate"}
+    r["absorption"] = {
+        "keys": ak,
+        "matrix": [[1.0 + 0.4 * abs(i - j) for j in range(len(ak))] for i in range(len(ak))],
+        "note": "refits of one simulated data set per candidate",
+    }
     t = [0.4, 0.8, 1.2, 1.6, 2.0]
     r["signature"] = {
-        "observed": {"t_star": t, "G": [7e3, 6.5e3, 6e3, 5.6e3, 5.5e3], "G_sd": [300] * 5,
-                     "mu": [0.15, 0.12, 0.1, 0.09, 0.088], "mu_sd": [0.01] * 5},
-        "predicted": {k: {"t_star": t, "G_mean": [6.2e3 - 100 * j * i for i in range(5)],
-                          "G_lo": [5.9e3 - 100 * j * i for i in range(5)],
-                          "G_hi": [6.5e3 - 100 * j * i for i in range(5)],
-                          "mu_mean": [0.1 - 0.005 * j * i for i in range(5)],
-                          "mu_lo": [0.09 - 0.005 * j * i for i in range(5)],
-                          "mu_hi": [0.11 - 0.005 * j * i for i in range(5)]} for j, k in enumerate(keys)},
+        "observed": {
+            "t_star": t,
+            "G": [7e3, 6.5e3, 6e3, 5.6e3, 5.5e3],
+            "G_sd": [300] * 5,
+            "mu": [0.15, 0.12, 0.1, 0.09, 0.088],
+            "mu_sd": [0.01] * 5,
+        },
+        "predicted": {
+            k: {
+                "t_star": t,
+                "G_mean": [6.2e3 - 100 * j * i for i in range(5)],
+                "G_lo": [5.9e3 - 100 * j * i for i in range(5)],
+                "G_hi": [6.5e3 - 100 * j * i for i in range(5)],
+                "mu_mean": [0.1 - 0.005 * j * i for i in range(5)],
+                "mu_lo": [0.09 - 0.005 * j * i for i in range(5)],
+                "mu_hi": [0.11 - 0.005 * j * i for i in range(5)],
+            }
+            for j, k in enumerate(keys)
+        },
         "score": {k: 0.3 + 0.2 * j for j, k in enumerate(keys)},
-        "note": "fraction of the observed drift each candidate predicts"}
-    n = 3                                            # experiments of the fixture
-    r["likelihood"] = {"noise_sd": [0.011, 0.012, 0.010][:n], "alpha": [0.9, 1.0, 1.1][:n],
-                       "note": "per-experiment noise sd and correlation exponent"}
+        "note": "fraction of the observed drift each candidate predicts",
+    }
+    n = 3  # experiments of the fixture
+    r["likelihood"] = {
+        "noise_sd": [0.011, 0.012, 0.010][:n],
+        "alpha": [0.9, 1.0, 1.1][:n],
+        "note": "per-experiment noise sd and correlation exponent",
+    }
     r["baseline"]["nuisance"] = [{"rmax_rel": 0.01 * i, "t0_offset": -0.002 * i, "log_req": -1.9} for i in range(n)]
     return r
 
@@ -97,14 +128,14 @@ def test_report_verdict_first_and_optional_sections(real, tmp_path):
     assert {"residuals.png", "check.png", "candidates.png", "absorption.png", "signature.png"} <= names
     for p in figs:
         w, h = png_size(p)
-        assert w / h <= 2.2, (p.name, w, h)          # no strips
-        assert 700 <= w <= 1100, (p.name, w, h)      # legible at report width, not wider
+        assert w / h <= 2.2, (p.name, w, h)  # no strips
+        assert 700 <= w <= 1100, (p.name, w, h)  # legible at report width, not wider
     page = tmp_path / "report.html"
     write_report(d.result, figs, page)
     txt = text_of(page)
     # the verdict comes first, before any evidence section
     assert txt.index("Verdict") < txt.index("Baseline fit") < txt.index("Candidates")
-    verdict = txt[txt.index("Verdict"):txt.index("Baseline fit")]
+    verdict = txt[txt.index("Verdict") : txt.index("Baseline fit")]
     assert "not adequate" in verdict and "p = 0.012" in verdict
     worst = max(d.result["baseline"]["misfit_by_phase"], key=lambda p: p["chi2_norm"])
     assert f"worst misfit is in the {worst['phase']} phase" in verdict
@@ -125,7 +156,7 @@ def test_report_without_optional_keys(real, tmp_path):
     """The result as the diagnosis writes it today: no optional section, no absorption/signature figure."""
     figs = write_figures(real, tmp_path / "figures")
     assert [p.name for p in figs] == ["residuals.png", "check.png", "candidates.png"]
-    assert png_size(figs[1])[0] / png_size(figs[1])[1] <= 2.2       # the bootstrap check is a grid
+    assert png_size(figs[1])[0] / png_size(figs[1])[1] <= 2.2  # the bootstrap check is a grid
     page = write_report(real.result, figs, tmp_path / "report.html")
     txt = text_of(page)
     assert "Verdict" in txt and "Signature" not in txt and "absorb another" not in txt
@@ -133,30 +164,50 @@ def test_report_without_optional_keys(real, tmp_path):
 
 
 def _minimal(cause, **extra):
-    phases = [{"phase": "first-collapse", "t_star": [0.0, 0.9], "rmse": 0.015, "chi2_norm": 1.0},
-              {"phase": "third-collapse", "t_star": [1.4, 1.9], "rmse": 0.05, "chi2_norm": 4.59}]
-    r = {"baseline": {"model": "nhkv", "misfit_by_phase": phases},
-         "constant_parameter_check": {"verdict": "inadequate", "evidence": {
-             "p_value": 0.01, "n_bootstrap": 39, "alpha": 0.05,
-             "statistics": {"misfit": {"p_value": 0.01}, "drift": {"p_value": 0.2}}}},
-         "candidates": [{"key": "zener", "model": "zener", "rank": 1, "score": 0.31, "consistent": True}],
-         "cause": cause, "extended_model": "zener" if cause == "viscoelastic-relaxation" else None,
-         "gain": {"candidate": "zener", "heldout_scheme": "fit to t* <= 1.4, predict t* > 1.4",
-                  "heldout_rmse_baseline": 0.0691, "heldout_rmse_extended": 0.0479, "relative_reduction": 0.31,
-                  "paired_difference": {"mean_diff": 0.022, "se": 0.006},
-                  "by_scheme": {"forecast": {"scheme": "fit to t* <= 1.4, predict t* > 1.4"}},
-                  "elpd_diff": 326.0, "elpd_se": 110.0}}
+    phases = [
+        {"phase": "first-collapse", "t_star": [0.0, 0.9], "rmse": 0.015, "chi2_norm": 1.0},
+        {"phase": "third-collapse", "t_star": [1.4, 1.9], "rmse": 0.05, "chi2_norm": 4.59},
+    ]
+    r = {
+        "baseline": {"model": "nhkv", "misfit_by_phase": phases},
+        "constant_parameter_check": {
+            "verdict": "inadequate",
+            "evidence": {
+                "p_value": 0.01,
+                "n_bootstrap": 39,
+                "alpha": 0.05,
+                "statistics": {"misfit": {"p_value": 0.01}, "drift": {"p_value": 0.2}},
+            },
+        },
+        "candidates": [{"key": "zener", "model": "zener", "rank": 1, "score": 0.31, "consistent": True}],
+        "cause": cause,
+        "extended_model": "zener" if cause == "viscoelastic-relaxation" else None,
+        "gain": {
+            "candidate": "zener",
+            "heldout_scheme": "fit to t* <= 1.4, predict t* > 1.4",
+            "heldout_rmse_baseline": 0.0691,
+            "heldout_rmse_extended": 0.0479,
+            "relative_reduction": 0.31,
+            "paired_difference": {"mean_diff": 0.022, "se": 0.006},
+            "by_scheme": {"forecast": {"scheme": "fit to t* <= 1.4, predict t* > 1.4"}},
+            "elpd_diff": 326.0,
+            "elpd_se": 110.0,
+        },
+    }
     r.update(extra)
     return r
 
 
-@pytest.mark.parametrize("cause, words", [
-    ("viscoelastic-relaxation", "most likely cause is viscoelastic-relaxation"),
-    ("bubble-thermal", "the bubble, not the material"),
-    ("bubble-compressibility", "compressibility of the surrounding liquid"),
-    ("unexplained", "No candidate explains"),
-    ("ambiguous", "cannot decide between zener, qkv"),
-])
+@pytest.mark.parametrize(
+    "cause, words",
+    [
+        ("viscoelastic-relaxation", "most likely cause is viscoelastic-relaxation"),
+        ("bubble-thermal", "the bubble, not the material"),
+        ("bubble-compressibility", "compressibility of the surrounding liquid"),
+        ("unexplained", "No candidate explains"),
+        ("ambiguous", "cannot decide between zener, qkv"),
+    ],
+)
 def test_verdict_sentences_name_cause_phase_and_gain(cause, words):
     r = _minimal(cause, candidates_tied=["zener", "qkv"], tie_reason="equal held-out scores")
     s = verdict_sentences(r)
@@ -189,21 +240,38 @@ def test_verdict_of_a_check_decided_early_states_the_bound():
     and how far out the data lie, not a rank p-value it did not compute; the run's stages are listed."""
     r = _minimal("damage-softening")
     ev = r["constant_parameter_check"]["evidence"]
-    ev.update(p_value=3 / (1 + 1271.0 ** 2), p_value_kind="bound", n_bootstrap=10, p_value_rank=1 / 11,
-              sequential={"first_batch": 10, "n_planned": 19, "stopped_early": True, "decided": "inadequate",
-                          "z_first_batch": {"misfit": 1271.0, "phase_misfit": 2058.3}})
+    ev.update(
+        p_value=3 / (1 + 1271.0**2),
+        p_value_kind="bound",
+        n_bootstrap=10,
+        p_value_rank=1 / 11,
+        sequential={
+            "first_batch": 10,
+            "n_planned": 19,
+            "stopped_early": True,
+            "decided": "inadequate",
+            "z_first_batch": {"misfit": 1271.0, "phase_misfit": 2058.3},
+        },
+    )
     text = html.unescape(re.sub(r"<[^>]+>", "", " ".join(verdict_sentences(r))))
     assert "not adequate" in text and "phase_misfit lies 2.06e+03 replicate sd above the mean of the first 10" in text
     assert "p ≤ 1.9e-06 by Cantelli's inequality" in text and "remaining 9 replicates were not run" in text
-    assert "flags it most" not in text                  # per-statistic ranks of 10 replicates say nothing here
+    assert "flags it most" not in text  # per-statistic ranks of 10 replicates say nothing here
     from imrbayes.diagnosis.report import _stages
-    assert _stages({"stage_seconds": [{"stage": "constant-parameter check (19 bootstrap replicates)", "seconds": 180.4},
-                                      {"stage": "candidates qkv", "seconds": 12.0},
-                                      {"stage": "held-out predictions (forecast)", "seconds": 54.0},
-                                      {"stage": "held-out predictions (leave one experiment out: nhkv, damage)",
-                                       "seconds": 160.2}]}) == \
-        (" (constant-parameter check 180 s, candidates qkv 12 s, held-out predictions (forecast) 54 s, "
-         "held-out predictions (leave one experiment out) 160 s)")
+
+    assert _stages(
+        {
+            "stage_seconds": [
+                {"stage": "constant-parameter check (19 bootstrap replicates)", "seconds": 180.4},
+                {"stage": "candidates qkv", "seconds": 12.0},
+                {"stage": "held-out predictions (forecast)", "seconds": 54.0},
+                {"stage": "held-out predictions (leave one experiment out: nhkv, damage)", "seconds": 160.2},
+            ]
+        }
+    ) == (
+        " (constant-parameter check 180 s, candidates qkv 12 s, held-out predictions (forecast) 54 s, "
+        "held-out predictions (leave one experiment out) 160 s)"
+    )
 
 
 def test_nuisance_table_shows_si_values_in_readable_units():
@@ -211,10 +279,17 @@ def test_nuisance_table_shows_si_values_in_readable_units():
     the dimensionless internal copies are left out when the SI ones are there."""
     from imrbayes.diagnosis.report import _likelihood
 
-    nu = [{"name": "exp_001", "rmax_rel": -0.001, "log_req": -0.15, "t0_offset": 0.01,
-           "rmax_m": {"preprocessing": 2.805e-4, "fitted": 2.802e-4, "sd": 4.9e-7},
-           "req_m": {"preprocessing": 9.78e-5, "fitted": 8.37e-5, "sd": 6.2e-7},
-           "t0_offset_s": {"fitted": 3.04e-7, "sd": 8.0e-8}}]
+    nu = [
+        {
+            "name": "exp_001",
+            "rmax_rel": -0.001,
+            "log_req": -0.15,
+            "t0_offset": 0.01,
+            "rmax_m": {"preprocessing": 2.805e-4, "fitted": 2.802e-4, "sd": 4.9e-7},
+            "req_m": {"preprocessing": 9.78e-5, "fitted": 8.37e-5, "sd": 6.2e-7},
+            "t0_offset_s": {"fitted": 3.04e-7, "sd": 8.0e-8},
+        }
+    ]
     html = _likelihood({"baseline": {"nuisance": nu}})
     assert "Rmax [µm]" in html and "280.2 ± 0.49 [280.5]" in html
     assert "83.7 ± 0.62 [97.8]" in html and "0.304 ± 0.08" in html
@@ -225,17 +300,22 @@ def test_adequate_verdict_shows_a_significant_gain_on_the_other_scheme_as_a_lead
     """An adequate check decides the verdict, but a candidate that predicts left-out bubbles better
     at >= 2 SE on the scheme the gain sentence does not show is named -- as a lead (thermal
     relaxation seed 2001: forecast 1.6 SE shown, LOEO 15 % at 4.2 SE); below 2 SE nothing is added."""
+
     def adequate(loeo_diff):
         r = _minimal("none")
         r["constant_parameter_check"]["verdict"] = "adequate"
-        r["gain"]["by_scheme"]["loeo"] = {"scheme": "leave one experiment out", "relative_reduction": 0.153,
-                                          "paired_vs_baseline": {"mean_diff": loeo_diff, "se": 0.00025}}
+        r["gain"]["by_scheme"]["loeo"] = {
+            "scheme": "leave one experiment out",
+            "relative_reduction": 0.153,
+            "paired_vs_baseline": {"mean_diff": loeo_diff, "se": 0.00025},
+        }
         return html.unescape(re.sub(r"<[^>]+>", "", " ".join(verdict_sentences(r))))
+
     text = adequate(0.00105)
     assert "is adequate" in text and "No extension is needed (cause: none)" in text
     assert "On leave-one-experiment-out it predicts 15 % better (4.2 SE)" in text and "a lead, not a finding" in text
-    assert "leave-one-experiment-out it predicts" not in adequate(0.0004)      # 1.6 SE: not added
-    r = _minimal("viscoelastic-relaxation")                                     # inadequate: the cause speaks
+    assert "leave-one-experiment-out it predicts" not in adequate(0.0004)  # 1.6 SE: not added
+    r = _minimal("viscoelastic-relaxation")  # inadequate: the cause speaks
     r["gain"]["by_scheme"]["loeo"] = {"relative_reduction": 0.2, "paired_vs_baseline": {"mean_diff": 0.01, "se": 0.001}}
     assert "a lead" not in " ".join(verdict_sentences(r))
 
@@ -249,18 +329,21 @@ def test_req_conflict_is_stated_when_most_bubbles_contradict_their_tail():
     from imrbayes.diagnosis.report import _req_section
     from imrbayes.diagnosis.run import req_consistency
 
-    obs = SimpleNamespace(names=["e1", "e2", "e3"], req_m=np.array([50e-6, 40e-6, 30e-6]),
-                          nuisance_sd=np.array([[0, 0, 0.5e-6], [0, 0, 0.4e-6], [0, 0, 1e-6]]))
+    obs = SimpleNamespace(
+        names=["e1", "e2", "e3"],
+        req_m=np.array([50e-6, 40e-6, 30e-6]),
+        nuisance_sd=np.array([[0, 0, 0.5e-6], [0, 0, 0.4e-6], [0, 0, 1e-6]]),
+    )
 
     def fit(*req):
         return [{"name": n, "nuisance": {"req_m": {"mean": q, "sd": 0.2e-6}}} for n, q in zip(obs.names, req)]
 
-    one = req_consistency(obs, fit(52e-6, 40.4e-6, 30.5e-6))        # z = +4, +1, +0.5: one conflict
+    one = req_consistency(obs, fit(52e-6, 40.4e-6, 30.5e-6))  # z = +4, +1, +0.5: one conflict
     assert one["n_conflict"] == 1 and not one["flagged"] and one["median_abs_z"] == pytest.approx(1.0)
     r = _minimal("damage-softening")
     r["baseline"]["req_consistency"] = one
     assert "tails contradict" not in " ".join(verdict_sentences(r))
-    two = req_consistency(obs, fit(52e-6, 38e-6, 30.5e-6))          # z = +4, -5, +0.5: two of three
+    two = req_consistency(obs, fit(52e-6, 38e-6, 30.5e-6))  # z = +4, -5, +0.5: two of three
     assert two["n_conflict"] == 2 and two["flagged"] and two["median_abs_z"] == pytest.approx(4.0)
     r["baseline"]["req_consistency"] = two
     text = html.unescape(re.sub(r"<[^>]+>", "", " ".join(verdict_sentences(r))))
@@ -278,18 +361,30 @@ def test_alignment_conflict_is_stated_when_most_bubbles_need_another_maximum():
     from imrbayes.diagnosis.report import _alignment_section
     from imrbayes.diagnosis.run import alignment_consistency
 
-    def fit(*shifts):        # (relative Rmax shift, t0 shift in t*) per experiment; prior sd 1e-3 and 0.01 t*
-        return [{"name": f"e{i + 1}", "nuisance": {
-            "rmax_m": {"prior_mean": 3e-4, "prior_sd": 3e-7, "mean": 3e-4 * (1 + a)},
-            "t0_s": {"prior_mean": 1e-6, "prior_sd": 3e-7, "mean": 1e-6 + 3e-5 * d, "offset_star": d,
-                     "prior_sd_star": 0.01}}} for i, (a, d) in enumerate(shifts)]
+    def fit(*shifts):  # (relative Rmax shift, t0 shift in t*) per experiment; prior sd 1e-3 and 0.01 t*
+        return [
+            {
+                "name": f"e{i + 1}",
+                "nuisance": {
+                    "rmax_m": {"prior_mean": 3e-4, "prior_sd": 3e-7, "mean": 3e-4 * (1 + a)},
+                    "t0_s": {
+                        "prior_mean": 1e-6,
+                        "prior_sd": 3e-7,
+                        "mean": 1e-6 + 3e-5 * d,
+                        "offset_star": d,
+                        "prior_sd_star": 0.01,
+                    },
+                },
+            }
+            for i, (a, d) in enumerate(shifts)
+        ]
 
-    one = alignment_consistency(fit((-0.005, 0.0), (0.001, 0.01), (0.0, -0.02)))   # z_rmax -5, +1, 0; z_t0 0, +1, -2
+    one = alignment_consistency(fit((-0.005, 0.0), (0.001, 0.01), (0.0, -0.02)))  # z_rmax -5, +1, 0; z_t0 0, +1, -2
     assert one["n_conflict"] == 1 and not one["flagged"] and one["median_abs_z_rmax"] == pytest.approx(1.0)
     r = _minimal("damage-softening")
     r["baseline"]["alignment_consistency"] = one
     assert "another maximum" not in " ".join(verdict_sentences(r))
-    two = alignment_consistency(fit((-0.005, 0.0), (0.001, 0.05), (0.0, -0.02)))   # e2 now +5 on the time
+    two = alignment_consistency(fit((-0.005, 0.0), (0.001, 0.05), (0.0, -0.02)))  # e2 now +5 on the time
     assert two["n_conflict"] == 2 and two["flagged"] and two["median_abs_z_t0"] == pytest.approx(2.0)
     r["baseline"]["alignment_consistency"] = two
     text = html.unescape(re.sub(r"<[^>]+>", "", " ".join(verdict_sentences(r))))
@@ -304,8 +399,10 @@ def test_figures_name_a_candidate_by_its_key_and_show_a_different_model_beside_i
     (``nhkv-piecewise``) left the reader to guess which bar the verdict meant."""
     from imrbayes.diagnosis.figures import _labels
 
-    result = {"baseline": {"key": "nhkv", "model": "nhkv"},
-              "candidates": [{"key": "damage", "model": "nhkv-piecewise"}, {"key": "zener", "model": "zener"}]}
+    result = {
+        "baseline": {"key": "nhkv", "model": "nhkv"},
+        "candidates": [{"key": "damage", "model": "nhkv-piecewise"}, {"key": "zener", "model": "zener"}],
+    }
     names = _labels(result)
     assert names["damage"] == "damage (nhkv-piecewise)"
     assert names["zener"] == "zener"
@@ -314,20 +411,29 @@ def test_figures_name_a_candidate_by_its_key_and_show_a_different_model_beside_i
 def test_headline_says_the_misfit_and_the_explanation_apart():
     """The first sentence: how far the constant model misses the records, and separately whether a
     mechanism explains it and how much of the held-out error it recovers."""
-    named = _minimal("strain-stiffening", misfit={"residual_to_noise": 4.2}, naming={"best_gain": 0.57, "min_gain": 0.1})
+    named = _minimal(
+        "strain-stiffening", misfit={"residual_to_noise": 4.2}, naming={"best_gain": 0.57, "min_gain": 0.1}
+    )
     first = html.unescape(re.sub(r"<[^>]+>", "", verdict_sentences(named)[0]))
-    assert first == ("The constant model misses these records by 4.2 x their noise; strain stiffening explains it: "
-                     "held-out error down 57 %.")
-    small = _minimal("unexplained", misfit={"residual_to_noise": 1.3}, naming={"best_gain": 0.005, "min_gain": 0.1},
-                     cause_note="the best extension (qkv, strain-stiffening) recovers 0.5 % of the held-out error -- "
-                                "too little to name a cause")
+    assert first == (
+        "The constant model misses these records by 4.2 x their noise; strain stiffening explains it: "
+        "held-out error down 57 %."
+    )
+    small = _minimal(
+        "unexplained",
+        misfit={"residual_to_noise": 1.3},
+        naming={"best_gain": 0.005, "min_gain": 0.1},
+        cause_note="the best extension (qkv, strain-stiffening) recovers 0.5 % of the held-out error -- "
+        "too little to name a cause",
+    )
     small["candidates"][0]["score"] = 0.005
     s = [html.unescape(re.sub(r"<[^>]+>", "", x)) for x in verdict_sentences(small)]
     assert s[0] == "The constant model misses these records by 1.3 x their noise; no mechanism explains it."
     assert any("recovers 0.5 % of the held-out error -- too little to name a cause" in x for x in s)
-    assert why_not(small["candidates"][0], small) == ("best-ranked, but it recovers only 0.5 % of the held-out "
-                                                      "error (a cause needs 10 %)")
-    old = _minimal("viscoelastic-relaxation")           # a result without misfit: the explanation alone
+    assert why_not(small["candidates"][0], small) == (
+        "best-ranked, but it recovers only 0.5 % of the held-out error (a cause needs 10 %)"
+    )
+    old = _minimal("viscoelastic-relaxation")  # a result without misfit: the explanation alone
     assert html.unescape(verdict_sentences(old)[0]) == "Viscoelastic relaxation explains it: held-out error down 31 %."
 
 
@@ -340,7 +446,7 @@ def test_diagnosis_has_the_misfit_block(real):
     obs = real.obs
     res = obs.R_star[:, 1:] - real.curves["nhkv"][:, 1:]
     sd = np.asarray(r["likelihood"]["noise_sd"])
-    want = np.median(np.sqrt(np.mean(res ** 2, axis=1)) / sd)
+    want = np.median(np.sqrt(np.mean(res**2, axis=1)) / sd)
     assert r["misfit"]["residual_to_noise"] == pytest.approx(want, rel=1e-9)
     assert r["misfit"]["sentence"].startswith("the constant model misses these records by")
     assert r["naming"]["min_gain"] == 0.10

@@ -10,8 +10,7 @@ import imrbayes.diagnosis.check as check_mod
 import imrbayes.diagnosis.run as run_mod
 from imrbayes.diagnosis import DiagnoseSettings, diagnose
 from imrbayes.diagnosis.synthetic import synthetic_obs
-from imrbayes.execution import Execution
-from imrbayes.execution import RunStore
+from imrbayes.execution import Execution, RunStore
 from imrbayes.forward import ForwardOptions
 
 OPTS = ForwardOptions(bubble="polytropic")
@@ -45,15 +44,16 @@ def test_en4dvar_baseline_resumes_from_its_checkpoint(tmp_path, monkeypatch):
     """An interrupted diagnose reads the finished baseline fits (unit ``observed``) and En4D-Var
     units back from its run store, and ends where an uninterrupted run ends."""
     obs = _obs()
-    s = DiagnoseSettings.quick(baseline_method="en4dvar", en4dvar_n_ens=6, en4dvar_n_runs=1, mienks_drift=False,
-                               **SMALL)
+    s = DiagnoseSettings.quick(
+        baseline_method="en4dvar", en4dvar_n_ens=6, en4dvar_n_runs=1, mienks_drift=False, **SMALL
+    )
     config = {"test": "en4dvar-resume"}
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
     with monkeypatch.context() as m, RunStore.open(tmp_path, config) as store:
-        m.setattr(run_mod, "bootstrap_check", interrupted)   # stop right after the baseline stage
+        m.setattr(run_mod, "bootstrap_check", interrupted)  # stop right after the baseline stage
         with pytest.raises(KeyboardInterrupt):
             diagnose(obs, OPTS, settings=s, seed=0, execution=Execution(store=store, progress=False))
     with RunStore.open(tmp_path, config, resume=True) as store:
@@ -63,19 +63,23 @@ def test_en4dvar_baseline_resumes_from_its_checkpoint(tmp_path, monkeypatch):
     assert en4dvar, [desc for desc, _ in ex.reports]
     assert all(rep.n_computed == 0 and rep.n_resumed == obs.n_exp for rep in en4dvar)
     assert r["baseline"]["method"] == "en4dvar" and set(r["baseline"]["estimate"]) >= {"G", "mu"}
-    rc = r["baseline"]["req_consistency"]          # one row per experiment whose Req was estimated
+    rc = r["baseline"]["req_consistency"]  # one row per experiment whose Req was estimated
     assert rc["n_estimated"] == int(np.sum(obs.nuisance_sd[:, 2] > 0)) == len(rc["experiments"])
-    ac = r["baseline"]["alignment_consistency"]    # one row per experiment, Rmax and time of the maximum
+    ac = r["baseline"]["alignment_consistency"]  # one row per experiment, Rmax and time of the maximum
     assert [q["experiment"] for q in ac["experiments"]] == list(obs.names)
-    assert ac["n_estimated"] == int(np.sum(np.any(obs.nuisance_sd[:, :2] > 0, axis=1)))   # those with Rmax or t0 inferred
+    assert ac["n_estimated"] == int(
+        np.sum(np.any(obs.nuisance_sd[:, :2] > 0, axis=1))
+    )  # those with Rmax or t0 inferred
     fits = [rep for desc, rep in ex.reports if desc == "diagnose baseline fits"]
     assert len(fits) == 1 and fits[0].n_computed == 0 and fits[0].n_resumed == 1
-    whole = diagnose(obs, OPTS, settings=s, seed=0).result       # no store, nothing interrupted
-    same = lambda a, b: json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)   # NaN == NaN
+    whole = diagnose(obs, OPTS, settings=s, seed=0).result  # no store, nothing interrupted
+    same = lambda a, b: json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)  # NaN == NaN
     for k in ("estimate_map", "chi2_norm", "misfit_by_phase", "nuisance"):
         assert same(r["baseline"][k], whole["baseline"][k]), k
-    assert same(r["constant_parameter_check"]["evidence"]["statistics"],
-                whole["constant_parameter_check"]["evidence"]["statistics"])
+    assert same(
+        r["constant_parameter_check"]["evidence"]["statistics"],
+        whole["constant_parameter_check"]["evidence"]["statistics"],
+    )
 
 
 class _Spec:
@@ -103,29 +107,53 @@ def test_loeo_runs_for_the_baseline_and_the_candidates_in_contention():
     the baseline's or is behind it by less than a paired SE; not for an inconsistent one, one the
     forecast puts clearly behind (or behind without per-bubble rows to say by how much), or one whose forecast
     failed -- unless every model is asked for, or the baseline's own forecast is undefined."""
-    held = {"nhkv": {"forecast": {"rmse": 0.05}}, "better": {"forecast": {"rmse": 0.04}},
-            "worse": {"forecast": {"rmse": 0.06}}, "inconsistent": {"forecast": {"rmse": 0.03}},
-            "failed": {"forecast": {"rmse": float("nan")}}}
-    cands = {"nhkv": _Cand(True), "better": _Cand(True), "worse": _Cand(True), "inconsistent": _Cand(False),
-             "failed": _Cand(True), "no-forecast-unit": _Cand(True)}
+    held = {
+        "nhkv": {"forecast": {"rmse": 0.05}},
+        "better": {"forecast": {"rmse": 0.04}},
+        "worse": {"forecast": {"rmse": 0.06}},
+        "inconsistent": {"forecast": {"rmse": 0.03}},
+        "failed": {"forecast": {"rmse": float("nan")}},
+    }
+    cands = {
+        "nhkv": _Cand(True),
+        "better": _Cand(True),
+        "worse": _Cand(True),
+        "inconsistent": _Cand(False),
+        "failed": _Cand(True),
+        "no-forecast-unit": _Cand(True),
+    }
     fits = {k: _Fit() for k in cands}
     assert run_mod.loeo_keys(held, fits, cands, "nhkv") == ["nhkv", "better"]
-    assert run_mod.loeo_keys(held, fits, cands, "nhkv", loeo_all=True) == ["nhkv", "better", "worse",
-                                                                           "inconsistent", "failed"]
+    assert run_mod.loeo_keys(held, fits, cands, "nhkv", loeo_all=True) == [
+        "nhkv",
+        "better",
+        "worse",
+        "inconsistent",
+        "failed",
+    ]
     # behind on the mean but within the paired noise (per-bubble RMSE differences 0.34 SE behind, as
     # qkv on stiffening 1004): left to LOEO; clearly behind (4.5 SE, as Carreau there): not
     base_rows = [0.020, 0.030, 0.025, 0.022, 0.028]
     held["nhkv"]["forecast"]["per_experiment"] = base_rows
     held["level"] = {"forecast": {"rmse": 0.052, "per_experiment": [0.012, 0.041, 0.020, 0.031, 0.022]}}
-    held["behind"] = {"forecast": {"rmse": 0.06, "per_experiment": [r + 0.0012 + 1e-4 * i for i, r in enumerate(base_rows)]}}
+    held["behind"] = {
+        "forecast": {"rmse": 0.06, "per_experiment": [r + 0.0012 + 1e-4 * i for i, r in enumerate(base_rows)]}
+    }
     cands.update(level=_Cand(True), behind=_Cand(True))
     fits.update(level=_Fit(), behind=_Fit())
     d_level = np.subtract(base_rows, held["level"]["forecast"]["per_experiment"])
-    assert -1.0 < d_level.mean() / (d_level.std(ddof=1) / np.sqrt(5)) < 0     # the premise: behind, within 1 SE
+    assert -1.0 < d_level.mean() / (d_level.std(ddof=1) / np.sqrt(5)) < 0  # the premise: behind, within 1 SE
     assert run_mod.loeo_keys(held, fits, cands, "nhkv") == ["nhkv", "better", "level"]
-    held["nhkv"]["forecast"]["rmse"] = float("nan")    # a record too short to forecast: LOEO for all
-    assert run_mod.loeo_keys(held, fits, cands, "nhkv") == ["nhkv", "better", "worse", "inconsistent", "failed",
-                                                            "level", "behind"]
+    held["nhkv"]["forecast"]["rmse"] = float("nan")  # a record too short to forecast: LOEO for all
+    assert run_mod.loeo_keys(held, fits, cands, "nhkv") == [
+        "nhkv",
+        "better",
+        "worse",
+        "inconsistent",
+        "failed",
+        "level",
+        "behind",
+    ]
 
 
 @pytest.mark.slow
@@ -133,14 +161,17 @@ def test_diagnose_reports_loeo_where_it_ran():
     """A run with LOEO: the baseline has both schemes; every candidate has LOEO exactly when the
     rule gives it, a note when not, and its score averages only the schemes it has."""
     s = DiagnoseSettings.quick(**{**SMALL, "candidates": ("qkv", "zener"), "loeo": True})
-    r = diagnose(synthetic_obs("strain-stiffening", 3, OPTS, n_exp=3, noise_scale=0.5)[0], OPTS,
-                 settings=s, seed=0).result
+    r = diagnose(
+        synthetic_obs("strain-stiffening", 3, OPTS, n_exp=3, noise_scale=0.5)[0], OPTS, settings=s, seed=0
+    ).result
     base = r["baseline"]["heldout"]
     assert set(base) == {"forecast", "loeo"} and len(base["loeo"]["per_experiment"]) == 3
     for c in r["candidates"]:
         pd = c["heldout"]["forecast"]["paired_vs_baseline"]
-        in_contention = c["consistent"] and (c["heldout"]["forecast"]["rmse"] < base["forecast"]["rmse"]
-                                             or pd["mean_diff"] > -run_mod.LOEO_BEHIND_SE * pd["se"])
+        in_contention = c["consistent"] and (
+            c["heldout"]["forecast"]["rmse"] < base["forecast"]["rmse"]
+            or pd["mean_diff"] > -run_mod.LOEO_BEHIND_SE * pd["se"]
+        )
         assert ("loeo" in c["heldout"]) == in_contention, c["key"]
         assert set(c["relative_reduction"]) == set(c["heldout"])
         assert bool(c["loeo_note"]) == (not in_contention)
@@ -162,8 +193,11 @@ def test_bootstrap_stops_after_the_first_batch_only_when_decided(case, monkeypat
             return {"drift": 1e9, "misfit": 1e9, "phase_misfit": 1e9}
         if case == "holed" and unit.unit_id == "bootstrap=003":
             raise RuntimeError("replicate fit failed")
-        return {"drift": float(rng.exponential(1e-3)), "misfit": 1e-6 * (1 + 0.01 * rng.standard_normal()),
-                "phase_misfit": 1e-6 * (1 + 0.01 * rng.standard_normal())}
+        return {
+            "drift": float(rng.exponential(1e-3)),
+            "misfit": 1e-6 * (1 + 0.01 * rng.standard_normal()),
+            "phase_misfit": 1e-6 * (1 + 0.01 * rng.standard_normal()),
+        }
 
     monkeypatch.setattr(check_mod, "bootstrap_unit", fake_unit)
     s = DiagnoseSettings.quick(**{**SMALL, "n_bootstrap": 19})
@@ -173,14 +207,14 @@ def test_bootstrap_stops_after_the_first_batch_only_when_decided(case, monkeypat
     stages = [d["stage"] for d in r["stage_seconds"]]
     assert stages[0].startswith("baseline fits") and any(m.startswith("constant-parameter check") for m in stages)
     assert all(d["seconds"] >= 0 and d["cpu_seconds"] >= 0 for d in r["stage_seconds"])
-    assert not any("cannot find" in w for w in r["warnings"])     # 19 replicates can reject at 5 %
+    assert not any("cannot find" in w for w in r["warnings"])  # 19 replicates can reject at 5 %
     if case == "far":
         assert len(calls) == 5 and ev["n_bootstrap"] == 5 and ev["sequential"]["decided"] == "inadequate"
         assert ev["sequential"]["looks"] == [5, 10] and ev["sequential"]["first_batch"] == 5
         z = max(ev["sequential"]["z_first_batch"].values())
         assert z >= check_mod.Z_DECIDED_FIRST
         assert chk["verdict"] == "inadequate" and ev["p_value_kind"] == "bound"
-        assert ev["p_value"] == pytest.approx(3 / (1 + z ** 2)) and ev["p_value_rank"] == pytest.approx(1 / 6)
+        assert ev["p_value"] == pytest.approx(3 / (1 + z**2)) and ev["p_value_rank"] == pytest.approx(1 / 6)
         assert check_mod.p_value_text(ev).startswith("p ≤ ")
     elif case == "holed":
         assert len(calls) == 19 and ev["n_bootstrap"] == 19 and ev["sequential"]["decided"] is None
@@ -221,12 +255,20 @@ def _top(per_scheme, consistent=True, key="qkv", mechanism="strain-stiffening"):
     cand = {}
     for k, g in per_scheme.items():
         per = BASE_RMSE * (1 - np.asarray(g, dtype=float))
-        cand[k] = {"per_experiment": per.tolist(), "rmse": float(np.sqrt(np.mean(per ** 2)))}
+        cand[k] = {"per_experiment": per.tolist(), "rmse": float(np.sqrt(np.mean(per**2)))}
     score = float(np.mean([1 - cand[k]["rmse"] / base[k]["rmse"] for k in cand]))
-    held = {k: {**cand[k], "paired_vs_baseline": paired(base[k]["per_experiment"], cand[k]["per_experiment"])}
-            for k in cand}
-    return {"key": key, "model": key, "mechanism": mechanism, "score": score, "consistent": consistent,
-            "heldout": held, "combined_vs_baseline": run_mod.combined_paired(base, cand, list(per_scheme))}
+    held = {
+        k: {**cand[k], "paired_vs_baseline": paired(base[k]["per_experiment"], cand[k]["per_experiment"])} for k in cand
+    }
+    return {
+        "key": key,
+        "model": key,
+        "mechanism": mechanism,
+        "score": score,
+        "consistent": consistent,
+        "heldout": held,
+        "combined_vs_baseline": run_mod.combined_paired(base, cand, list(per_scheme)),
+    }
 
 
 MECH = {"qkv": "strain-stiffening", "damage": "damage-softening", "carreau": "rate-dependent-viscosity"}
@@ -247,26 +289,49 @@ def test_combined_gain_is_the_mean_over_schemes_per_experiment():
     assert _top({"forecast": gf})["combined_vs_baseline"]["z"] == pytest.approx(0.8)
 
 
-@pytest.mark.parametrize("top, tied, cause, words", [
-    # the PyIMR null: 0.5 % at 0.3 SE on the forecast and 2.4 SE on leave-one-out
-    (_top({"forecast": gains(0.005, 0.3), "loeo": gains(0.005, 2.4)}), [], "unexplained",
-     "of the held-out error -- too little to name a cause"),
-    # the IMRv2 null: 5 %, clear on both schemes -- real, but too small to be a mechanism's
-    (_top({"forecast": gains(0.05, 3.0), "loeo": gains(0.05, 3.0)}, key="carreau", mechanism="rate-dependent-viscosity"),
-     ["carreau", "damage"], "unexplained", "(carreau, rate-dependent-viscosity) recovers"),
-    (_top({"forecast": gains(0.57, 6.0), "loeo": gains(0.57, 8.0)}), [], "strain-stiffening", "held-out gain"),
-    (_top({"forecast": gains(0.11, 3.0), "loeo": gains(0.11, 4.0)}, key="damage", mechanism="damage-softening"), [],
-     "damage-softening", "held-out gain"),
-    (_top({"forecast": gains(0.15, 2.1)}), [], "strain-stiffening", "2.1 paired SE"),   # the forecast alone
-    # 13 %, named by the old any-scheme rule on leave-one-out alone: together 2 / (1/1.2 + 1/2.4) = 1.6 SE
-    (_top({"forecast": gains(0.2, 1.2), "loeo": gains(0.2, 2.4)}), [], "unexplained",
-     "within 2 paired SE of the baseline over the schemes taken together"),
-    # thermal relaxation: a weak forecast (few samples) does not hide a clear leave-one-out
-    (_top({"forecast": gains(0.15, 1.6), "loeo": gains(0.15, 4.2)}), [], "strain-stiffening", "forecast 1.6"),
-    (_top({"forecast": gains(0.3, 5.0)}), ["qkv", "damage"], "ambiguous", ""),
-    (_top({"forecast": gains(0.3, 5.0)}, consistent=False), [], "unexplained", "no consistent candidate"),
-    (_top({"forecast": gains(-0.01, 5.0)}), [], "unexplained", "no consistent candidate"),
-])
+@pytest.mark.parametrize(
+    "top, tied, cause, words",
+    [
+        # the PyIMR null: 0.5 % at 0.3 SE on the forecast and 2.4 SE on leave-one-out
+        (
+            _top({"forecast": gains(0.005, 0.3), "loeo": gains(0.005, 2.4)}),
+            [],
+            "unexplained",
+            "of the held-out error -- too little to name a cause",
+        ),
+        # the IMRv2 null: 5 %, clear on both schemes -- real, but too small to be a mechanism's
+        (
+            _top(
+                {"forecast": gains(0.05, 3.0), "loeo": gains(0.05, 3.0)},
+                key="carreau",
+                mechanism="rate-dependent-viscosity",
+            ),
+            ["carreau", "damage"],
+            "unexplained",
+            "(carreau, rate-dependent-viscosity) recovers",
+        ),
+        (_top({"forecast": gains(0.57, 6.0), "loeo": gains(0.57, 8.0)}), [], "strain-stiffening", "held-out gain"),
+        (
+            _top({"forecast": gains(0.11, 3.0), "loeo": gains(0.11, 4.0)}, key="damage", mechanism="damage-softening"),
+            [],
+            "damage-softening",
+            "held-out gain",
+        ),
+        (_top({"forecast": gains(0.15, 2.1)}), [], "strain-stiffening", "2.1 paired SE"),  # the forecast alone
+        # 13 %, named by the old any-scheme rule on leave-one-out alone: together 2 / (1/1.2 + 1/2.4) = 1.6 SE
+        (
+            _top({"forecast": gains(0.2, 1.2), "loeo": gains(0.2, 2.4)}),
+            [],
+            "unexplained",
+            "within 2 paired SE of the baseline over the schemes taken together",
+        ),
+        # thermal relaxation: a weak forecast (few samples) does not hide a clear leave-one-out
+        (_top({"forecast": gains(0.15, 1.6), "loeo": gains(0.15, 4.2)}), [], "strain-stiffening", "forecast 1.6"),
+        (_top({"forecast": gains(0.3, 5.0)}), ["qkv", "damage"], "ambiguous", ""),
+        (_top({"forecast": gains(0.3, 5.0)}, consistent=False), [], "unexplained", "no consistent candidate"),
+        (_top({"forecast": gains(-0.01, 5.0)}), [], "unexplained", "no consistent candidate"),
+    ],
+)
 def test_a_cause_is_named_only_when_its_gain_is_large_and_clear_over_the_schemes(top, tied, cause, words):
     got, ext, got_tied, note = run_mod.name_cause("inadequate", top, tied, MECH, name_se=2.0, min_gain=0.10)
     assert got == cause, note
@@ -274,7 +339,7 @@ def test_a_cause_is_named_only_when_its_gain_is_large_and_clear_over_the_schemes
     assert got_tied == (tied if cause == "ambiguous" else [] if cause == "unexplained" else tied)
     assert words in note
     if top["consistent"] and top["score"] > 0 and cause != "ambiguous":
-        assert f"{100 * top['score']:.2g} %" in note          # the gain the floor was compared with
+        assert f"{100 * top['score']:.2g} %" in note  # the gain the floor was compared with
     assert run_mod.name_cause("adequate", top, tied, MECH)[0] == "none"
 
 
@@ -302,7 +367,7 @@ def test_misfit_summary_is_the_median_residual_over_noise():
     rng = np.random.default_rng(1)
     fitted = np.zeros((3, 2001))
     sd = np.array([0.01, 0.02, 0.005])
-    scale = np.array([1.0, 3.0, 10.0])        # how far each record is missed, in its noise
+    scale = np.array([1.0, 3.0, 10.0])  # how far each record is missed, in its noise
     R = fitted + (scale * sd)[:, None] * rng.standard_normal(fitted.shape)
     m = run_mod.misfit_summary(SimpleNamespace(R_star=R), fitted, sd)
     assert m["residual_to_noise"] == pytest.approx(3.0, rel=0.05)
@@ -321,8 +386,9 @@ def test_the_en4dvar_baseline_places_req_at_the_least_squares_fit(monkeypatch):
 
     monkeypatch.setattr(en4dvar_mod, "req_tail_mode", lambda settings, fm: "model")
     obs = camera_obs("none", 3, OPTS, n_exp=2)[0]
-    s = DiagnoseSettings.quick(baseline_method="en4dvar", en4dvar_n_ens=6, en4dvar_n_runs=1, mienks_drift=False,
-                               **SMALL)
+    s = DiagnoseSettings.quick(
+        baseline_method="en4dvar", en4dvar_n_ens=6, en4dvar_n_runs=1, mienks_drift=False, **SMALL
+    )
     ex = Execution(progress=False)
     b = diagnose(obs, OPTS, settings=s, seed=0, execution=ex).result["baseline"]
     info = b["req_tail"]
@@ -331,8 +397,9 @@ def test_the_en4dvar_baseline_places_req_at_the_least_squares_fit(monkeypatch):
     assert "tail at the least-squares baseline" in b["estimate_note"] and "estimate_map" in b["estimate_note"]
     # one En4D-Var pass: its experiments' units once (the given start), no 'req=first' pass
     assert [desc for desc, _ in ex.reports].count("en4dvar experiments") == 1
-    theta = np.array([[b["estimate_map"][k]["median"] * np.exp(n[f"log_{k}_offset"]) for k in ("G", "mu")]
-                      for n in b["nuisance"]])
+    theta = np.array(
+        [[b["estimate_map"][k]["median"] * np.exp(n[f"log_{k}_offset"]) for k in ("G", "mu")] for n in b["nuisance"]]
+    )
     rmax = np.array([n["rmax_m"]["fitted"] for n in b["nuisance"]])
     assert np.allclose(info["start"]["theta_si"], theta, rtol=1e-12)
     assert np.allclose(info["start"]["rmax_m"], rmax, rtol=1e-12)

@@ -8,13 +8,19 @@ import numpy as np
 import pytest
 
 from imrbayes.data.noise import noise_variance, paper_sigma
-from imrbayes.diagnosis.signature import (SignatureSettings, observed_signature, predicted_signature,
-                                          signature_result, signature_score, signature_tail)
+from imrbayes.diagnosis.signature import (
+    SignatureSettings,
+    observed_signature,
+    predicted_signature,
+    signature_result,
+    signature_score,
+    signature_tail,
+)
 from imrbayes.ensemble import Observations, ParamSpace
 from imrbayes.errors import InputError
 from imrbayes.forward import ForwardModel, ForwardOptions
 
-TRUTH = np.array([6.0e3, 0.08])          # G [Pa], mu [Pa s]
+TRUTH = np.array([6.0e3, 0.08])  # G [Pa], mu [Pa s]
 N_EXP, N_STEPS, DT = 3, 60, 0.025
 SETTINGS = SignatureSettings(L=20, h=5, n_rep=3)
 
@@ -108,7 +114,7 @@ def test_signature_result_layout(observed, predicted):
         assert all(len(v) == len(res["observed"]["t_star"]) for v in res["predicted"][k].values())
         assert res["score"][k] == pytest.approx(signature_score(observed, predicted[k]))
     assert res["score"]["truth"] < res["score"]["G_x3"]
-    assert 1e3 < res["observed"]["G"][-1] < 1e5           # SI
+    assert 1e3 < res["observed"]["G"][-1] < 1e5  # SI
     assert "paper" in res["note"] and "L = 20" in res["note"]
     json.dumps(res, allow_nan=False)
 
@@ -119,8 +125,13 @@ def test_failed_replicates_and_skip(fm, design, observed):
     def simulate(rng):
         calls.append(1)
         raise RuntimeError("forward solve failed\nsecond line")
+
     pr = predicted_signature(simulate, fm, SETTINGS, n_rep=2, seed=0)
-    assert len(calls) == 2 and pr["n_ok"] == 0 and "simulate failed (RuntimeError: forward solve failed)" in pr["failures"][0]
+    assert (
+        len(calls) == 2
+        and pr["n_ok"] == 0
+        and "simulate failed (RuntimeError: forward solve failed)" in pr["failures"][0]
+    )
     assert math.isnan(signature_score(observed, pr))
     res = signature_result(observed, {"broken": pr})
     assert res["score"]["broken"] is None and res["predicted"]["broken"]["G_mean"] == []

@@ -4,8 +4,18 @@ measured data; the bubble classes; the data-generating forward options."""
 import numpy as np
 import pytest
 
-from imrbayes.diagnosis.synthetic import (DESIGNS, BUBBLE_GENERATORS, GENERATORS, Design, bubble_effect,
-                                          camera_mechanisms, camera_obs, clean_curves, data_options, fine_options)
+from imrbayes.diagnosis.synthetic import (
+    BUBBLE_GENERATORS,
+    DESIGNS,
+    GENERATORS,
+    Design,
+    bubble_effect,
+    camera_mechanisms,
+    camera_obs,
+    clean_curves,
+    data_options,
+    fine_options,
+)
 from imrbayes.forward import ForwardOptions
 
 POLY = ForwardOptions(bubble="polytropic")
@@ -19,7 +29,7 @@ def test_camera_obs_estimates_like_measured_data():
     # estimated from noisy frames: close to the truth, not equal to it
     assert np.all(np.abs(obs.rmax_m / rmax - 1) < 0.03)
     assert np.all(np.abs(obs.req_m / req - 1) < 0.08)
-    assert np.all(np.abs(obs.t0_s - tmax) < 1.5e-6)                # within 1.5 frames
+    assert np.all(np.abs(obs.t0_s - tmax) < 1.5e-6)  # within 1.5 frames
     assert np.max(np.abs(obs.rmax_m - rmax)) > 1e-9 and np.max(np.abs(obs.req_m - req)) > 1e-9
     # what a CSV read from disk carries
     assert obs.frame_t is not None and len(obs.frame_t) == n
@@ -68,7 +78,7 @@ def test_damage_breaks_at_the_true_collapses():
 
 def test_every_class_is_generated():
     classes = camera_mechanisms()
-    assert list(classes)[:len(GENERATORS)] == list(GENERATORS)
+    assert list(classes)[: len(GENERATORS)] == list(GENERATORS)
     assert set(BUBBLE_GENERATORS) <= set(classes)
 
 
@@ -76,7 +86,7 @@ def test_data_options_of_the_bubble_classes():
     thermal = ForwardOptions()
     assert data_options(POLY, "bubble-thermal").bubble == "thermal"
     assert data_options(POLY, "bubble-thermal").method == "radau5"
-    w = data_options(thermal, "bubble-thermal")     # the candidate's alternative: mass transfer switched
+    w = data_options(thermal, "bubble-thermal")  # the candidate's alternative: mass transfer switched
     assert (w.bubble, w.medium, w.mass_transfer) == ("thermal", "cold", not thermal.mass_transfer)
     assert data_options(thermal, "bubble-compressibility").radial == "gilmore"
     assert data_options(thermal, "bubble-compressibility").resolution == fine_options(thermal).resolution
@@ -94,8 +104,8 @@ def test_bubble_classes_change_the_curves():
     Rt, _ = clean_curves("bubble-thermal", 0, POLY, t, n_exp=2)
     Rc, _ = clean_curves("bubble-compressibility", 0, POLY, t, n_exp=2)
     um = rmax[:, None] * 1e6
-    assert np.sqrt(np.mean(((Rt - R0) * um) ** 2)) > 20.0       # measured ~100 µm (module comment)
-    assert np.sqrt(np.mean(((Rc - R0) * um) ** 2)) > 1.0         # measured ~4 µm
+    assert np.sqrt(np.mean(((Rt - R0) * um) ** 2)) > 20.0  # measured ~100 µm (module comment)
+    assert np.sqrt(np.mean(((Rc - R0) * um) ** 2)) > 1.0  # measured ~4 µm
     e = bubble_effect("bubble-compressibility", 0, POLY)
     assert e["rms_over_noise"] == pytest.approx(e["rms_um"] / 2.0) and e["rms_um"] > 1.0
 
@@ -109,7 +119,7 @@ def test_strength_design_draws_violent_bubbles_and_leaves_the_others_alone():
 
     from imrbayes.diagnosis.synthetic import STRENGTH_DESIGNS, design_of
 
-    assert not set(STRENGTH_DESIGNS) & set(DESIGNS)                 # never in the null cycle
+    assert not set(STRENGTH_DESIGNS) & set(DESIGNS)  # never in the null cycle
     with pytest.raises(KeyError, match="unknown design"):
         design_of("no-such-design")
     mus, ratios = [], []
@@ -120,8 +130,15 @@ def test_strength_design_draws_violent_bubbles_and_leaves_the_others_alone():
         assert truth["noise"] == {"kind": "gaussian_um", "sd_um": 1.0}
     assert min(mus) >= 0.02 and max(mus) <= 0.05
     assert min(ratios) >= 9.5 - 3 * 0.3 and max(ratios) <= 9.5 + 3 * 0.3
-    rows = json.loads((Path(__file__).resolve().parents[1] / "docs" / "figures" / "diagnosis"
-                       / "confusion_camera_thermal_classes.json").read_text())["rows"]
+    rows = json.loads(
+        (
+            Path(__file__).resolve().parents[1]
+            / "docs"
+            / "figures"
+            / "diagnosis"
+            / "confusion_camera_thermal_classes.json"
+        ).read_text()
+    )["rows"]
     (none0,) = [r for r in rows if r["class"] == "none" and r["seed"] == 0]
     _, truth = camera_obs("none", 0, POLY, n_exp=2)
     assert truth["theta"] == pytest.approx(none0["truth"]["theta"], rel=1e-12)

@@ -26,7 +26,7 @@ def test_phases_follow_the_collapses():
     R = predict(base, z[None], _obs(np.ones((3, T.size))), np.arange(3), None, 120)[0]
     ph = phases_of(_obs(R))
     for i in range(3):
-        k = int(np.argmin(R[i, :45]))   # first collapse near t* = 0.9
+        k = int(np.argmin(R[i, :45]))  # first collapse near t* = 0.9
         assert abs(ph.minima[i, 0] - k) <= 1
     assert ph.names[0] == "first-collapse" and len(ph.bounds) == len(ph.names) + 1
     assert ph.minima[0, 1] > ph.minima[0, 0]
@@ -45,8 +45,10 @@ def test_candidates_nest_nhkv():
         assert np.max(np.abs(R - R0)) < 2e-3, key
     # zener (lambda2 = 0) tends to NHKV as lambda1 -> 0 (slowly; stiff for small lambda1)
     c = make_candidate("zener", OPTS)
-    err = [np.max(np.abs(predict(c, np.concatenate([z, [np.log(l1)]])[None], obs, np.arange(3), None, 120)[0] - R0))
-           for l1 in (1e-6, 1e-7)]
+    err = [
+        np.max(np.abs(predict(c, np.concatenate([z, [np.log(l1)]])[None], obs, np.arange(3), None, 120)[0] - R0))
+        for l1 in (1e-6, 1e-7)
+    ]
     assert err[1] < err[0]
 
 
@@ -55,7 +57,7 @@ def test_map_fit_recovers_nhkv():
     z = np.log([7e3, 0.09])
     R = predict(base, z[None], _obs(np.ones((3, T.size))), np.arange(3), None, 120)[0]
     rng = np.random.default_rng(0)
-    obs = _obs(R + 0.005 * rng.standard_normal(R.shape), P=0.005 ** 2)
+    obs = _obs(R + 0.005 * rng.standard_normal(R.shape), P=0.005**2)
     f = fit_map(base, obs)
     assert np.all(np.abs(f.z - z) < 0.1), np.exp(f.z)
     assert 0.5 < f.chi2 / f.n_data < 1.5
@@ -75,15 +77,21 @@ def test_damage_batch_equals_one_call_per_experiment():
     window, padded) gives the same curves as one forward call per experiment with its own breaks."""
     c = make_candidate("damage", OPTS)
     rng = np.random.default_rng(3)
-    Z = np.column_stack([np.log(rng.uniform(3e3, 1.2e4, 4)), np.log(rng.uniform(0.03, 0.15, 4)),
-                         np.log(rng.uniform(0.4, 1.0, 4)), np.log(rng.uniform(0.5, 1.0, 4))])
+    Z = np.column_stack(
+        [
+            np.log(rng.uniform(3e3, 1.2e4, 4)),
+            np.log(rng.uniform(0.03, 0.15, 4)),
+            np.log(rng.uniform(0.4, 1.0, 4)),
+            np.log(rng.uniform(0.5, 1.0, 4)),
+        ]
+    )
     obs = _obs(np.ones((3, T.size)))
-    minima = np.array([[35, 55, 70], [36, 57, 130], [34, 118, 125]])   # 3, 2, 1 breaks before K = 100
+    minima = np.array([[35, 55, 70], [36, 57, 130], [34, 118, 125]])  # 3, 2, 1 breaks before K = 100
     K = 100
     R = predict(c, Z, obs, np.arange(3), minima, K)
     for e in range(3):
         br = [float(T[m]) for m in minima[e] if 0 < m < K]
-        o = c.fm.simulate(c.forward_params(Z, n_pieces=len(br) + 1), RMAX[e], REQ[e], T[:K + 1], breaks_star=br)
+        o = c.fm.simulate(c.forward_params(Z, n_pieces=len(br) + 1), RMAX[e], REQ[e], T[: K + 1], breaks_star=br)
         assert np.all(np.isfinite(R[:, e]))
         # the batch runs the parallel kernel, one member the serial one: compiled separately (fast-math
         # contraction may differ), so agreement is to round-off grown over ~150 steps, not bit for bit
@@ -97,7 +105,7 @@ def test_consistency_rule_rejects_extensions_that_point_the_wrong_way():
         return CANDIDATES[key].consistent(medians)[0]
 
     assert ok("carreau", n=0.6, lambda_c=1e-5)
-    assert not ok("carreau", n=3.7, lambda_c=1e-5)      # shear thickening
+    assert not ok("carreau", n=3.7, lambda_c=1e-5)  # shear thickening
     assert ok("qkv", alpha=0.3) and not ok("qkv", alpha=-0.1)
     assert ok("damage", a_G=0.8, a_mu=1.2)
     assert not ok("damage", a_G=1.1, a_mu=1.3)
@@ -115,14 +123,16 @@ def test_damage_is_inconsistent_when_a_modulus_surely_stiffens():
         est = {"a_G": {"median": aG, "hdi95": aG_iv}, "a_mu": {"median": amu, "hdi95": amu_iv}}
         return CANDIDATES["damage"].consistent({"a_G": aG, "a_mu": amu}, est)
 
-    for aG, aG_iv, amu, amu_iv in ((1.350, [1.317, 1.385], 0.706, [0.635, 0.786]),     # relaxation 2002
-                                   (1.788, [1.673, 1.910], 0.761, [0.684, 0.846]),     # relaxation 2003
-                                   (0.8, [0.7, 0.9], 1.2, [1.1, 1.3])):
+    for aG, aG_iv, amu, amu_iv in (
+        (1.350, [1.317, 1.385], 0.706, [0.635, 0.786]),  # relaxation 2002
+        (1.788, [1.673, 1.910], 0.761, [0.684, 0.846]),  # relaxation 2003
+        (0.8, [0.7, 0.9], 1.2, [1.1, 1.3]),
+    ):
         ok, note = check(aG, aG_iv, amu, amu_iv)
         assert not ok and "stiffens" in note
-    assert check(1.002, [0.978, 1.026], 0.971, [0.948, 0.994])[0]                    # violent control 100
-    assert check(0.285, [0.225, 0.361], 0.744, [0.725, 0.765])[0]                    # damage 4002
-    assert CANDIDATES["damage"].consistent({"a_G": 1.35, "a_mu": 0.7})[0]            # no interval: medians only
+    assert check(1.002, [0.978, 1.026], 0.971, [0.948, 0.994])[0]  # violent control 100
+    assert check(0.285, [0.225, 0.361], 0.744, [0.725, 0.765])[0]  # damage 4002
+    assert CANDIDATES["damage"].consistent({"a_G": 1.35, "a_mu": 0.7})[0]  # no interval: medians only
 
 
 def test_a_registered_candidate_needs_nothing_else(monkeypatch):
@@ -130,9 +140,15 @@ def test_a_registered_candidate_needs_nothing_else(monkeypatch):
     vocabulary without touching any other module."""
     from imrbayes.diagnosis.candidates import CANDIDATES, CandidateSpec, Extension
 
-    spec = CandidateSpec("zener-free", "viscoelastic-relaxation", "zener",
-                         extension=(Extension("lambda1", np.log(1e-6), 1.5, log=True),
-                                    Extension("lambda2", np.log(1e-7), 1.5, log=True)))
+    spec = CandidateSpec(
+        "zener-free",
+        "viscoelastic-relaxation",
+        "zener",
+        extension=(
+            Extension("lambda1", np.log(1e-6), 1.5, log=True),
+            Extension("lambda2", np.log(1e-7), 1.5, log=True),
+        ),
+    )
     monkeypatch.setitem(CANDIDATES, spec.key, spec)
     c = make_candidate("zener-free", OPTS, prior={"G": (5e3, 2e3)})
     assert c.names == ("G", "mu", "lambda1", "lambda2") and c.d == 4 and not c.piecewise
@@ -144,10 +160,11 @@ def test_a_registered_candidate_needs_nothing_else(monkeypatch):
 
 def test_sequential_bootstrap_stops_only_when_no_rejection_is_possible():
     from imrbayes.diagnosis.check import adequate_already, combined_p_value
+
     # B = 39, alpha = 0.05: two replicates above the data on every statistic give p >= 3/40 whatever follows
     assert adequate_already(2, 39, 0.05)
-    assert not adequate_already(1, 39, 0.05)             # p >= 2/40 = 0.05 could still reject
-    assert not adequate_already(3, 99, 0.05)             # p >= 4/100
+    assert not adequate_already(1, 39, 0.05)  # p >= 2/40 = 0.05 could still reject
+    assert not adequate_already(3, 99, 0.05)  # p >= 4/100
     assert adequate_already(5, 99, 0.05)
     assert not adequate_already(0, 19, 0.05)
     # the bound the rule relies on, on random pools with ties and missing replicates
@@ -176,7 +193,7 @@ def test_combined_p_value_is_a_level_alpha_test_and_keeps_power():
         p, p_each = combined_p_value(X[:, 0], X[:, 1:])
         assert 1.0 / (B + 1) <= p <= 1.0 and np.all(p_each >= 1.0 / (B + 1))
         rej += p <= 0.05
-    z = 3.29                                     # a 99.9 % Wilson interval of the rejection rate holds 0.05
+    z = 3.29  # a 99.9 % Wilson interval of the rejection rate holds 0.05
     ph = rej / n
     half = z * np.sqrt(ph * (1 - ph) / n + z * z / (4 * n * n))
     lo, hi = (ph + z * z / (2 * n) - half) / (1 + z * z / n), (ph + z * z / (2 * n) + half) / (1 + z * z / n)
@@ -198,27 +215,38 @@ def test_ties_when_the_held_out_schemes_disagree():
     rng = np.random.default_rng(0)
     E, n = 8, 21
     t = np.arange(n) * 0.05
-    obs = Observations(t, 1.0 + 0.01 * rng.standard_normal((E, n)), np.full(n, 1e-4), np.full(E, 3e-4),
-                       np.full(E, 4e-5), noise_sd=np.full(E, 0.01))
+    obs = Observations(
+        t,
+        1.0 + 0.01 * rng.standard_normal((E, n)),
+        np.full(n, 1e-4),
+        np.full(E, 3e-4),
+        np.full(E, 4e-5),
+        noise_sd=np.full(E, 0.01),
+    )
     om = ObsModel.of(obs, nuisances=False, random_effects=None)
     far = {k: SimpleNamespace(fitted=np.ones((E, n)) + off, z=np.zeros(2)) for k, off in (("a", 0.0), ("b", 0.05))}
     base = 0.05 + 0.001 * rng.standard_normal(E)
 
-    def held(dforecast, dloeo):      # per-experiment RMSEs: a at base, b shifted (> 0: b worse)
+    def held(dforecast, dloeo):  # per-experiment RMSEs: a at base, b shifted (> 0: b worse)
         jit = 0.0005 * rng.standard_normal(E)
-        return {"a": {"forecast": {"per_experiment": base.tolist()}, "loeo": {"per_experiment": base.tolist()}},
-                "b": {"forecast": {"per_experiment": (base + dforecast + jit).tolist()},
-                      "loeo": {"per_experiment": (base + dloeo - jit).tolist()}}}
+        return {
+            "a": {"forecast": {"per_experiment": base.tolist()}, "loeo": {"per_experiment": base.tolist()}},
+            "b": {
+                "forecast": {"per_experiment": (base + dforecast + jit).tolist()},
+                "loeo": {"per_experiment": (base + dloeo - jit).tolist()},
+            },
+        }
+
     cands = [{"key": "a", "ruled_out": ""}, {"key": "b", "ruled_out": ""}]
-    assert ties(cands, held(0.01, 0.01), {}, far, obs, om)[0] == ["a"]              # a better on both
-    assert ties(cands, held(0.01, 0.0), {}, far, obs, om)[0] == ["a"]               # one scheme, for a
-    tied, why = ties(cands, held(0.01, -0.01), {}, far, obs, om)                    # they disagree
+    assert ties(cands, held(0.01, 0.01), {}, far, obs, om)[0] == ["a"]  # a better on both
+    assert ties(cands, held(0.01, 0.0), {}, far, obs, om)[0] == ["a"]  # one scheme, for a
+    tied, why = ties(cands, held(0.01, -0.01), {}, far, obs, om)  # they disagree
     assert tied == ["a", "b"] and "disagree" in why
-    tied, why = ties(cands, held(0.0, -0.01), {}, far, obs, om)                     # only for the lower one
+    tied, why = ties(cands, held(0.0, -0.01), {}, far, obs, om)  # only for the lower one
     assert tied == ["a", "b"] and "ranked lower" in why
-    assert ties(cands, held(0.0, 0.0), {}, far, obs, om)[0] == ["a"]                # AIC far apart
+    assert ties(cands, held(0.0, 0.0), {}, far, obs, om)[0] == ["a"]  # AIC far apart
     near = {"a": far["a"], "b": SimpleNamespace(fitted=far["a"].fitted + 1e-4, z=np.zeros(2))}
-    assert ties(cands, held(0.0, 0.0), {}, near, obs, om)[0] == ["a", "b"]          # AIC within 4
+    assert ties(cands, held(0.0, 0.0), {}, near, obs, om)[0] == ["a", "b"]  # AIC within 4
 
 
 def test_phases_find_the_small_rebounds_of_a_viscous_bubble_above_the_noise():
@@ -235,13 +263,13 @@ def test_phases_find_the_small_rebounds_of_a_viscous_bubble_above_the_noise():
     sd = 0.007
     Y = R + sd * rng.standard_normal(R.shape)
     Y[:, 0] = 1.0
-    obs = Observations(T, Y, np.full(T.size, sd ** 2), RMAX, REQ, noise_sd=np.full(3, sd))
+    obs = Observations(T, Y, np.full(T.size, sd**2), RMAX, REQ, noise_sd=np.full(3, sd))
     assert np.allclose(prominences(obs), 4 * sd)
     ph = phases_of(obs)
     coarse = phases_of(obs, prominence=0.1)
     for i in range(3):
         true_min, prom = find_peaks(-R[i], prominence=0.01)
-        assert prom["prominences"][1] < 0.1                      # the second collapse is a small one
+        assert prom["prominences"][1] < 0.1  # the second collapse is a small one
         assert abs(ph.minima[i, 0] - true_min[0]) <= 2 and abs(ph.minima[i, 1] - true_min[1]) <= 3
     assert coarse.minima.shape[1] < ph.minima.shape[1] or np.any(coarse.minima[:, -1] != ph.minima[:, 1])
 
@@ -255,11 +283,12 @@ def test_newton_decrement_stop_leaves_nothing_to_gain(monkeypatch):
     the install before had passed) and moves (G, mu) by < 0.15 of their posterior sd -- the stop
     ends a crawl, not the search."""
     import imrbayes.diagnosis.lsq as lsq
+
     base = make_candidate("nhkv", OPTS)
     z = np.log([5e3, 0.07])
     R = predict(base, z[None], _obs(np.ones((3, T.size))), np.arange(3), None, 120)[0]
     rng = np.random.default_rng(3)
-    obs = _obs(R + 0.004 * rng.standard_normal(R.shape), P=0.004 ** 2)
+    obs = _obs(R + 0.004 * rng.standard_normal(R.shape), P=0.004**2)
     zener = make_candidate("zener", OPTS)
     path = []
     fast = fit_map(zener, obs, starts=[np.concatenate([z, [np.log(1e-6)]])], options=MapOptions(trace=path))
@@ -284,22 +313,25 @@ def test_inadequate_decided_early_only_far_beyond_every_replicate():
 
     rng = np.random.default_rng(5)
     n = 20000
-    for n_rep in (10, 5):     # the looks after 10 replicates (20 sd) and after 5 (decisive_z(5) = 40 sd)
+    for n_rep in (10, 5):  # the looks after 10 replicates (20 sd) and after 5 (decisive_z(5) = 40 sd)
         hits = {"chi2": 0, "lognormal": 0}
         for _ in range(n):
-            X = rng.chisquare(600, size=(2, n_rep + 1)) / 600                # data first, then the replicates
+            X = rng.chisquare(600, size=(2, n_rep + 1)) / 600  # data first, then the replicates
             L = np.exp(rng.standard_normal((2, n_rep + 1)))
             for name, Y in (("chi2", X), ("lognormal", L)):
                 obs = {"misfit": Y[0, 0], "phase_misfit": Y[1, 0], "drift": 0.0}
                 boot = {"misfit": Y[0, 1:], "phase_misfit": Y[1, 1:], "drift": np.zeros(n_rep)}
                 hits[name] += inadequate_already(obs, boot, STATS, 0.05)[0]
         assert hits["chi2"] == 0
-        assert hits["lognormal"] / n <= 2 / (1 + Z_DECIDED ** 2), (n_rep, hits)
-    boot = {"misfit": 0.6 + 0.05 * rng.standard_normal(10), "phase_misfit": 0.7 + 0.05 * rng.standard_normal(10),
-            "drift": rng.exponential(0.2, 10)}
+        assert hits["lognormal"] / n <= 2 / (1 + Z_DECIDED**2), (n_rep, hits)
+    boot = {
+        "misfit": 0.6 + 0.05 * rng.standard_normal(10),
+        "phase_misfit": 0.7 + 0.05 * rng.standard_normal(10),
+        "drift": rng.exponential(0.2, 10),
+    }
     z_want = (40.0 - boot["misfit"].mean()) / boot["misfit"].std(ddof=1)
     decided, bound, z = inadequate_already({"misfit": 40.0, "phase_misfit": 0.7, "drift": 0.1}, boot, STATS, 0.05)
-    assert decided and z["misfit"] == pytest.approx(z_want) and bound == pytest.approx(3 / (1 + z_want ** 2))
+    assert decided and z["misfit"] == pytest.approx(z_want) and bound == pytest.approx(3 / (1 + z_want**2))
     assert not inadequate_already({"misfit": 0.6, "phase_misfit": 0.7, "drift": 1e6}, boot, STATS, 0.05)[0]
     holed = {**boot, "misfit": np.r_[boot["misfit"][:9], np.nan]}
     assert not inadequate_already({"misfit": 40.0, "phase_misfit": 0.7, "drift": 0.1}, holed, STATS, 0.05)[0]
@@ -322,7 +354,7 @@ def test_grid_starts_try_a_given_start_once():
     base = make_candidate("nhkv", OPTS)
     z = np.log([5e3, 0.07])
     R = predict(base, z[None], _obs(np.ones((3, T.size))), np.arange(3), None, 120)[0]
-    obs = _obs(R + 0.004 * np.random.default_rng(0).standard_normal(R.shape), P=0.004 ** 2)
+    obs = _obs(R + 0.004 * np.random.default_rng(0).standard_normal(R.shape), P=0.004**2)
     om = ObsModel.of(obs, nuisances=False)
     qkv = make_candidate("qkv", OPTS)
     best = np.concatenate([z, qkv.prior_mean[2:]])
@@ -336,11 +368,12 @@ def test_grid_starts_try_a_given_start_once():
     assert len(st_ext) == 3 + EXT_KEEP and all(np.array_equal(a, b) for a, b in zip(st, st_ext))
     X = extension_starts(qkv, far)
     y = obs.R_star[:, 1:]
-    cost = 0.5 * np.sum((predict(qkv, X, obs, np.arange(3), None, 120)[..., 1:] - y[None]) ** 2 / 0.004 ** 2, axis=(1, 2))
+    cost = 0.5 * np.sum((predict(qkv, X, obs, np.arange(3), None, 120)[..., 1:] - y[None]) ** 2 / 0.004**2, axis=(1, 2))
     cost += 0.5 * np.sum(((X - qkv.prior_mean) / qkv.prior_sd) ** 2, axis=1)
     n = len(EXT_LOG_G)
-    line_min = sorted((cost[i * n:(i + 1) * n].min(), i * n + int(np.argmin(cost[i * n:(i + 1) * n])))
-                      for i in range(len(X) // n))
+    line_min = sorted(
+        (cost[i * n : (i + 1) * n].min(), i * n + int(np.argmin(cost[i * n : (i + 1) * n]))) for i in range(len(X) // n)
+    )
     for s, (_, i) in zip(st_ext[3:], line_min):
         assert np.allclose(s, X[i])
 
@@ -357,7 +390,7 @@ def test_extension_starts_point_the_mechanisms_way():
         assert X.shape == (lines * n, c.d), key
         assert np.allclose(X[:, 1], base[1])
         moved = X[:, 2:] != base[2:]
-        assert np.all(moved.sum(axis=1) == 1), key          # one extension parameter per line
+        assert np.all(moved.sum(axis=1) == 1), key  # one extension parameter per line
         assert all(c.spec.consistent(dict(zip(c.names, c.to_si(x))))[0] for x in X), key
         assert np.allclose(np.unique(np.round(X[:, 0] - base[0], 12)), np.round(EXT_LOG_G, 12))
     qkv = make_candidate("qkv", OPTS)
@@ -379,8 +412,9 @@ def test_candidate_fit_leaves_the_baseline_basin_on_camera_stiffening_data(seed)
     om = ObsModel.of(obs)
     base, qkv = make_candidate("nhkv", OPTS), make_candidate("qkv", OPTS)
     fb = fit_map(base, obs, minima=ph.minima, om=om, options=MapOptions(restarts=True))
-    f = fit_map(qkv, obs, minima=ph.minima, om=om, nu0=fb.nu,
-                options=MapOptions(extra_starts=[np.r_[fb.z, qkv.prior_mean[2:]]]))
+    f = fit_map(
+        qkv, obs, minima=ph.minima, om=om, nu0=fb.nu, options=MapOptions(extra_starts=[np.r_[fb.z, qkv.prior_mean[2:]]])
+    )
     zt = qkv.to_internal([truth["theta"][n] for n in qkv.names])
     ft = fit_map(qkv, obs, minima=ph.minima, om=om, nu0=fb.nu, starts=[zt])
     assert f.cost <= 1.01 * ft.cost, (f.cost, ft.cost)

@@ -1,5 +1,6 @@
 """The Gauss-Newton iterations of En4D-Var's cycles after the first (``n_iter_later``): those cycles
 start from the inflated posterior of the one before, so they need fewer iterations to converge."""
+
 import numpy as np
 import pytest
 
@@ -19,11 +20,13 @@ def test_fewer_later_iterations_leave_the_posterior_where_it_was(seed):
     untouched, and the later cycles run fewer member solves (measured: 0.000 / 0.005 sd)."""
     obs, _ = camera_obs("none", seed, OPTS)
     base = make_candidate(BASELINE.key, OPTS)
-    fits = {n: fit_en4dvar(base.fm, obs, base.space,
-                           En4DVarSettings(n_iter_later=n, loglik=False, n_draws=1), seed=0) for n in (5, 3)}
+    fits = {
+        n: fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(n_iter_later=n, loglik=False, n_draws=1), seed=0)
+        for n in (5, 3)
+    }
     its = {n: [[len(c) for c in cy["cost"]] for cy in f.details["cycles"]] for n, f in fits.items()}
-    assert its[3][0] == its[5][0]                                   # the first cycle is the same
-    assert all(3 <= k <= 5 for cy in its[3][1:] for k in cy)         # at least n_iter_later, to convergence
+    assert its[3][0] == its[5][0]  # the first cycle is the same
+    assert all(3 <= k <= 5 for cy in its[3][1:] for k in cy)  # at least n_iter_later, to convergence
     assert sum(map(sum, its[3][1:])) < sum(map(sum, its[5][1:]))
     assert fits[3].details["member_runs"] < fits[5].details["member_runs"]
     for name, e5 in fits[5].estimate.items():
@@ -43,6 +46,7 @@ def _fit_with_req_against(monkeypatch, how, base, obs):
     comparison, kept against the last cycle's prior for every bubble (``cycle``: what a bubble in
     conflict gets, forced by a conflict bound every Req exceeds)."""
     import imrbayes.ensemble.en4dvar as en4dvar_mod
+
     monkeypatch.setattr(en4dvar_mod, "REQ_CONFLICT_Z", -1.0 if how == "cycle" else 3.0)
     return fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(loglik=False, n_draws=1), seed=0)
 
@@ -55,12 +59,14 @@ def test_req_is_integrated_against_its_preprocessing_prior(monkeypatch):
     linear-Gaussian marginals in test_ensemble_gaussian.py); with Req known there is nothing to
     integrate and the numbers are identical."""
     import dataclasses
+
     obs, _ = camera_obs("none", 2, OPTS)
-    assert np.all(obs.nuisance_sd[:, 2] > 0)                         # Req estimated: inferred
+    assert np.all(obs.nuisance_sd[:, 2] > 0)  # Req estimated: inferred
     base = make_candidate(BASELINE.key, OPTS)
 
     def fit(o, how):
         return _fit_with_req_against(monkeypatch, how, base, o)
+
     cyc, req = fit(obs, "cycle"), fit(obs, "req")
     for a, b in zip(cyc.per_experiment, req.per_experiment):
         assert a["nuisance"] == b["nuisance"]
@@ -82,6 +88,7 @@ def test_a_req_in_conflict_is_not_extrapolated(monkeypatch):
     with the bound lifted (the old behaviour): that bubble's mu 0.067 -> 0.082 Pa s (5 of its sd),
     G 6.06 -> 7.48 kPa, the gel-level mu 0.061 -> 0.065 (truth 0.059)."""
     import dataclasses
+
     obs, _ = camera_obs("none", 2, OPTS)
     req = obs.req_m.copy()
     req[0] *= 1.15
@@ -90,6 +97,7 @@ def test_a_req_in_conflict_is_not_extrapolated(monkeypatch):
 
     def fit(how):
         return _fit_with_req_against(monkeypatch, how, base, bad)
+
     cyc, rq = fit("cycle"), fit("req")
     z0 = rq.details["cycles"][-1]["req_z"]
     assert abs(z0[0]) > 5 and all(abs(z) < 3 for z in z0[1:]), z0
@@ -109,7 +117,9 @@ def test_a_misgiven_maximum_is_read_as_an_alignment_conflict():
     and time of the maximum stay within 3 sd of their local fits (constant-NHKV camera records, the
     model's own physics: docs/diagnosis.md, "The alignment conflict")."""
     import dataclasses
+
     from imrbayes.ensemble.req_tail import alignment_shift_z
+
     obs, _ = camera_obs("none", 2, OPTS)
     rmax, R = obs.rmax_m.copy(), obs.R_star.copy()
     rmax[0] *= 1.03
@@ -120,8 +130,10 @@ def test_a_misgiven_maximum_is_read_as_an_alignment_conflict():
     z = alignment_shift_z(res.per_experiment)
     assert [q["experiment"] for q in z] == list(obs.names)
     first = z[0]
-    assert -0.035 < first["rmax_rel"] < -0.02, first               # 1/1.03 - 1 = -0.029
-    sd_rel = obs.nuisance_sd[0, 0]                                   # relative (Observations)
-    assert first["z_rmax"] < -5 and abs(first["z_rmax"] - first["rmax_rel"] / sd_rel) < 1e-6 * abs(first["z_rmax"]) + 1e-9
+    assert -0.035 < first["rmax_rel"] < -0.02, first  # 1/1.03 - 1 = -0.029
+    sd_rel = obs.nuisance_sd[0, 0]  # relative (Observations)
+    assert (
+        first["z_rmax"] < -5 and abs(first["z_rmax"] - first["rmax_rel"] / sd_rel) < 1e-6 * abs(first["z_rmax"]) + 1e-9
+    )
     for q in z[1:]:
         assert abs(q["z_rmax"]) < 3 and abs(q["z_t0"]) < 3, q

@@ -4,9 +4,9 @@ import json
 
 import numpy as np
 import pytest
+from _ens_synth import RATIO, RMAX, TRUTH, model
 from click.testing import CliRunner
 
-from _ens_synth import RATIO, RMAX, TRUTH, model
 from imrbayes.cli import main
 
 
@@ -21,7 +21,7 @@ def dataset(tmp_path_factory):
     meta = {"material": "synthetic nhkv", "forward": {"bubble": "polytropic"}, "experiments": {}}
     tc = rmax / np.sqrt(101325.0 / 1064.0)
     for i in range(3):
-        R = np.concatenate([out.R_star[i, 4:0:-1], out.R_star[i]]) * rmax[i]   # mirrored growth frames
+        R = np.concatenate([out.R_star[i, 4:0:-1], out.R_star[i]]) * rmax[i]  # mirrored growth frames
         name = f"exp_{i + 1:03d}.csv"
         with open(d / name, "w") as fh:
             fh.write("t_s,R_m\n")
@@ -38,12 +38,15 @@ def _fit(args, expect=0):
     return res
 
 
-@pytest.mark.parametrize("method,sets", [
-    ("imr", ["n_G=31", "n_mu=21", "G_max=15e3", "mu_max=0.2"]),
-    ("pimr", ["n_G=40", "n_mu=30"]),
-    ("en4dvar", ["n_ens=16", "n_runs=2", "n_iter=3", "n_draws=6"]),
-    ("mienks", ["n_ens=16", "n_iter=3", "L=40", "h=20", "n_draws=20"]),
-])
+@pytest.mark.parametrize(
+    "method,sets",
+    [
+        ("imr", ["n_G=31", "n_mu=21", "G_max=15e3", "mu_max=0.2"]),
+        ("pimr", ["n_G=40", "n_mu=30"]),
+        ("en4dvar", ["n_ens=16", "n_runs=2", "n_iter=3", "n_draws=6"]),
+        ("mienks", ["n_ens=16", "n_iter=3", "L=40", "h=20", "n_draws=20"]),
+    ],
+)
 def test_fit_every_method(dataset, tmp_path, method, sets):
     import arviz as az
 
@@ -52,7 +55,7 @@ def test_fit_every_method(dataset, tmp_path, method, sets):
     for s in sets:
         args += ["--set", s]
     res = _fit(args)
-    assert "%|" not in res.output                          # no progress bar off a terminal
+    assert "%|" not in res.output  # no progress bar off a terminal
     summary = json.loads((out / "summary.json").read_text())
     for key in ("method", "model", "parameters", "seed", "n_experiments", "runtime_s", "estimate", "fit"):
         assert key in summary
@@ -61,7 +64,7 @@ def test_fit_every_method(dataset, tmp_path, method, sets):
     for p in ("G", "mu"):
         e = summary["estimate"][p]
         assert set(e) >= {"mean", "sd", "hdi95"} and len(e["hdi95"]) == 2
-    assert summary["forward"]["options"]["bubble"] == "polytropic"      # meta.json's forward block
+    assert summary["forward"]["options"]["bubble"] == "polytropic"  # meta.json's forward block
     assert summary["fit"]["n_samples"] > 0
     if method in ("imr", "en4dvar"):
         assert summary["estimate"]["G"]["mean"] == pytest.approx(TRUTH["G"], rel=0.1)
@@ -73,6 +76,7 @@ def test_fit_every_method(dataset, tmp_path, method, sets):
         assert np.shape(w["cov"]) == (2, 2)
         # the prior's share of each window mean: in [0, 1], and the warning names exactly the flagged windows
         from imrbayes.ensemble.windows import PRIOR_WEIGHT_LIMIT
+
         for x in summary["windows"]:
             # a share of the prior mean's offset (the diagonal of a product of gains: a correlated pair can
             # make it slightly negative, never above 1)
@@ -86,7 +90,7 @@ def test_fit_every_method(dataset, tmp_path, method, sets):
     assert {"posterior", "observed_data"} <= set(dt.children)
     s = az.summary(dt, kind="stats", round_to="none")
     assert np.all(np.isfinite(s["mean"]))
-    if method == "mienks":       # each window's first t*, a coordinate of the posterior's windows
+    if method == "mienks":  # each window's first t*, a coordinate of the posterior's windows
         starts = dt["posterior"]["window_start"]
         assert starts.dims == ("window",) and list(starts.values) == [w["t_star"][0] for w in summary["windows"]]
     if method == "en4dvar":
@@ -94,14 +98,17 @@ def test_fit_every_method(dataset, tmp_path, method, sets):
         assert dict(dt["log_likelihood"].sizes) == {"chain": 1, "draw": 6, "experiment": 3, "time": 120}
     figs = {p.name for p in (out / "figures").iterdir()}
     assert "fit.png" in figs
-    assert {"imr": "landscape.png", "pimr": "landscape.png", "en4dvar": "experiments.png",
-            "mienks": "parameters.png"}[method] in figs
+    assert {"imr": "landscape.png", "pimr": "landscape.png", "en4dvar": "experiments.png", "mienks": "parameters.png"}[
+        method
+    ] in figs
 
 
 def test_config_file_and_command_line_precedence(dataset, tmp_path):
     cfg = tmp_path / "run.toml"
-    cfg.write_text('[fit]\nmethod = "imr"\nseed = 5\nquiet = true\n[fit.imr]\nn_G = 9\nn_mu = 7\n'
-                   '[fit.forward]\nbubble = "polytropic"\n')
+    cfg.write_text(
+        '[fit]\nmethod = "imr"\nseed = 5\nquiet = true\n[fit.imr]\nn_G = 9\nn_mu = 7\n'
+        '[fit.forward]\nbubble = "polytropic"\n'
+    )
     out = tmp_path / "o"
     res = _fit([dataset, "--config", cfg, "--out", out, "--seed", 7, "--set", "n_mu=8"])
     assert res.output == ""
@@ -110,22 +117,25 @@ def test_config_file_and_command_line_precedence(dataset, tmp_path):
     assert s["details"]["settings"]["n_G"] == 9 and s["details"]["settings"]["n_mu"] == 8
 
 
-@pytest.mark.parametrize("args,needle", [
-    (["--method", "imr", "--set", "n_ens=3"], "unknown setting"),
-    (["--method", "en4dvar", "--set", "n_ens=x"], "n_ens"),
-    (["--method", "en4dvar", "--set", "rtps=2"], "rtps"),
-    (["--method", "mienks", "--set", "L=500"], "window length"),
-    (["--method", "mienks", "--set", "h=40"], "exceeds the window length"),
-    (["--method", "en4dvar", "--set", "req_tail=bogus"], "req_tail"),
-    (["--method", "en4dvar", "--set", "n_iter=0"], "n_iter"),
-    (["--method", "en4dvar", "--set", "t_end=0.01"], "t_end"),
-    (["--method", "pimr", "--set", "kappa=3"], "kappa"),
-    (["--method", "imr", "--forward", "bubble=steam"], "bubble"),
-    (["--method", "imr", "--prior", "G=6e3"], "--prior"),
-    (["--method", "imr", "--model", "nosuchmodel"], "nosuchmodel"),
-    (["--method", "imr", "--set", "window=collapse:7"], "collapse"),
-    ([], "--method"),
-])
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["--method", "imr", "--set", "n_ens=3"], "unknown setting"),
+        (["--method", "en4dvar", "--set", "n_ens=x"], "n_ens"),
+        (["--method", "en4dvar", "--set", "rtps=2"], "rtps"),
+        (["--method", "mienks", "--set", "L=500"], "window length"),
+        (["--method", "mienks", "--set", "h=40"], "exceeds the window length"),
+        (["--method", "en4dvar", "--set", "req_tail=bogus"], "req_tail"),
+        (["--method", "en4dvar", "--set", "n_iter=0"], "n_iter"),
+        (["--method", "en4dvar", "--set", "t_end=0.01"], "t_end"),
+        (["--method", "pimr", "--set", "kappa=3"], "kappa"),
+        (["--method", "imr", "--forward", "bubble=steam"], "bubble"),
+        (["--method", "imr", "--prior", "G=6e3"], "--prior"),
+        (["--method", "imr", "--model", "nosuchmodel"], "nosuchmodel"),
+        (["--method", "imr", "--set", "window=collapse:7"], "collapse"),
+        ([], "--method"),
+    ],
+)
 def test_bad_input_exit_2(dataset, tmp_path, args, needle):
     res = CliRunner().invoke(main, ["fit", str(dataset), "--out", str(tmp_path / "x"), *args])
     assert res.exit_code == 2, res.output
@@ -140,8 +150,20 @@ def test_missing_data_exit_2(tmp_path):
 
 def test_validate_quick_cases(tmp_path):
     out = tmp_path / "val"
-    res = CliRunner().invoke(main, ["validate", "--suite", "quick", "--case", "fusion-linear-gaussian",
-                                    "--case", "imr-recovery", "--out", str(out)])
+    res = CliRunner().invoke(
+        main,
+        [
+            "validate",
+            "--suite",
+            "quick",
+            "--case",
+            "fusion-linear-gaussian",
+            "--case",
+            "imr-recovery",
+            "--out",
+            str(out),
+        ],
+    )
     assert res.exit_code == 0, res.output
     rep = json.loads((out / "validation.json").read_text())
     assert rep["passed"] and [c["name"] for c in rep["cases"]] == ["fusion-linear-gaussian", "imr-recovery"]
@@ -152,8 +174,17 @@ def test_validate_quick_cases(tmp_path):
 
 @pytest.mark.slow
 def test_validate_quick_suite(tmp_path):
-    cases = [a for c in ("fusion-linear-gaussian", "pimr-collapse-time", "imr-recovery", "en4dvar-verification",
-                         "mienks-verification") for a in ("--case", c)]
+    cases = [
+        a
+        for c in (
+            "fusion-linear-gaussian",
+            "pimr-collapse-time",
+            "imr-recovery",
+            "en4dvar-verification",
+            "mienks-verification",
+        )
+        for a in ("--case", c)
+    ]
     res = CliRunner().invoke(main, ["validate", "--suite", "quick", *cases, "--out", str(tmp_path / "val")])
     assert res.exit_code == 0, res.output
 

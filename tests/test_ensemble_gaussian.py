@@ -23,7 +23,7 @@ def test_fusion_equals_joint_posterior():
     m0 = np.array([1.0, -0.5])
     S0 = np.array([[2.0, 0.3], [0.3, 0.5]])
     means, covs, Hs, Rs, ys = [], [], [], [], []
-    for n in range(4):
+    for _n in range(4):
         H = rng.normal(size=(3, 2))
         R = np.diag(rng.uniform(0.1, 1.0, 3))
         y = rng.normal(size=3)
@@ -31,6 +31,7 @@ def test_fusion_equals_joint_posterior():
         means.append(m), covs.append(P), Hs.append(H), Rs.append(R), ys.append(y)
     # the joint posterior given every experiment (shared prior, independent noise)
     from scipy.linalg import block_diag
+
     mj, Pj = _posterior(m0, S0, np.vstack(Hs), block_diag(*Rs), np.concatenate(ys))
     f = fuse(np.array(means), np.array(covs), m0, S0)
     assert f.c == 1.0 and f.pd and not f.notes
@@ -134,7 +135,7 @@ def test_fuse_likelihoods_exact_with_other_priors():
         y = rng.normal(size=3)
         L, b = H.T @ Rinv @ H, H.T @ Rinv @ y
         A = rng.normal(size=(2, 2))
-        Q = A @ A.T + 0.3 * np.eye(2)                    # this experiment's own prior
+        Q = A @ A.T + 0.3 * np.eye(2)  # this experiment's own prior
         q = rng.normal(size=2)
         C = np.linalg.inv(np.linalg.inv(Q) + L)
         post_m.append(C @ (np.linalg.solve(Q, q) + b)), post_c.append(C), q_m.append(q), q_c.append(Q)
@@ -160,14 +161,14 @@ def test_integrate_out_trailing_and_the_reference_prior_give_the_marginal_likeli
     is the likelihood of y given z with a ~ Q(a | z), r ~ N(0, s^2) -- computed here in closed
     form; (2) swapping every nuisance equals the Schur complement of the joint likelihood against
     N(0, diag(s^2)) (``integrate_out_trailing``), and both differ from the ratio of the z marginals."""
-    from imrbayes.ensemble.fusion import integrate_out_trailing, marginal_under_reference
-    from imrbayes.ensemble.fusion import likelihood_terms
+    from imrbayes.ensemble.fusion import integrate_out_trailing, likelihood_terms, marginal_under_reference
+
     rng = np.random.default_rng(3)
     d, m = 5, 9
     H = rng.standard_normal((m, d))
     Rn = np.diag(rng.uniform(0.5, 2.0, m))
     y = rng.standard_normal(m)
-    s = np.array([0.4, 0.7, 1.5])                   # prior sds of a (2) and r (1)
+    s = np.array([0.4, 0.7, 1.5])  # prior sds of a (2) and r (1)
     Lam, eta = H.T @ np.linalg.solve(Rn, H), H.T @ np.linalg.solve(Rn, y)
     A = rng.standard_normal((d, d))
     Q = A @ A.T + np.eye(d)
@@ -191,7 +192,7 @@ def test_integrate_out_trailing_and_the_reference_prior_give_the_marginal_likeli
     assert np.allclose(L1, L_ref, atol=1e-9) and np.allclose(e1, e_ref, atol=1e-9)
     # (2) every nuisance swapped: the Schur complement against N(0, diag(s^2)), itself checked
     Hz, Hn = H[:, z], H[:, 2:]
-    Sig0 = Rn + Hn @ np.diag(s ** 2) @ Hn.T
+    Sig0 = Rn + Hn @ np.diag(s**2) @ Hn.T
     L0, e0 = Hz.T @ np.linalg.solve(Sig0, Hz), Hz.T @ np.linalg.solve(Sig0, y)
     Lj, ej, _, _ = likelihood_terms(p[None], P[None], q[None], Q[None], ridge=0.0)
     Lt, et = integrate_out_trailing(Lj[0], ej[0], s)
@@ -212,7 +213,7 @@ def test_likelihood_terms_do_not_depend_on_the_units_of_a_coordinate():
     from imrbayes.ensemble.fusion import likelihood_terms
 
     rng = np.random.default_rng(4)
-    q, Q = np.array([8.6, -1.6, 0.0]), np.diag([0.2, 0.16, 0.25])        # the third in us
+    q, Q = np.array([8.6, -1.6, 0.0]), np.diag([0.2, 0.16, 0.25])  # the third in us
     A = rng.standard_normal((3, 3))
     Lam0 = A @ A.T * 20.0 + np.eye(3)
     m0 = q + rng.standard_normal(3) * 0.3
@@ -220,7 +221,7 @@ def test_likelihood_terms_do_not_depend_on_the_units_of_a_coordinate():
     p = S @ (np.linalg.solve(Q, q) + Lam0 @ m0)
     _, _, centre_us, _ = likelihood_terms(p[None], S[None], q[None], Q[None])
     np.testing.assert_allclose(centre_us[0], m0, rtol=1e-6, atol=1e-8)
-    D = np.diag([1.0, 1.0, 1e-6])                                       # the same in s
+    D = np.diag([1.0, 1.0, 1e-6])  # the same in s
     _, _, centre_s, _ = likelihood_terms((D @ p)[None], (D @ S @ D)[None], (D @ q)[None], (D @ Q @ D)[None])
     np.testing.assert_allclose(centre_s[0], D @ m0, rtol=1e-6, atol=1e-14)
 
@@ -233,5 +234,5 @@ def test_a_zero_default_parameter_gets_its_own_prior_scale():
         i = sp.names.index("lambda2")
         assert not sp.positive[i] and sp.prior_mean[i] == 0.0
         assert math.sqrt(sp.prior_cov[i, i]) == pytest.approx(5e-7)
-    sp = ParamSpace.for_model(get_model("carreau"))                     # no scale given: 1 SI unit
-    assert math.sqrt(sp.prior_cov[sp.names.index("mu_inf")] [sp.names.index("mu_inf")]) == pytest.approx(1.0)
+    sp = ParamSpace.for_model(get_model("carreau"))  # no scale given: 1 SI unit
+    assert math.sqrt(sp.prior_cov[sp.names.index("mu_inf")][sp.names.index("mu_inf")]) == pytest.approx(1.0)

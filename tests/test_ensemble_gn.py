@@ -12,7 +12,7 @@ def _linear_problem(seed=0, d=2, m=30, G=3):
     M = rng.normal(size=(G, m, d))
     truth = np.array([0.5, -1.0, 0.3][:d])
     P = rng.uniform(0.05, 0.2, m)
-    c = np.full(m, 1.0 / m)                          # 1/N_t averaging as in methods.md
+    c = np.full(m, 1.0 / m)  # 1/N_t averaging as in methods.md
     y = np.einsum("gmd,d->gm", M, truth) + rng.normal(size=(G, m)) * np.sqrt(P)
     m0, S0 = np.zeros(d), np.diag(np.full(d, 0.8))
     return rng, M, P, c, y, m0, S0
@@ -30,7 +30,7 @@ def _exact(M, P, c, y, m0, S0):
 def test_linear_gaussian_exact(transform, project):
     rng, M, P, c, y, m0, S0 = _linear_problem()
     G, N = M.shape[0], 20
-    E0 = np.stack([draw(rng, m0, S0, N) for _ in range(G)])   # exact prior sample moments
+    E0 = np.stack([draw(rng, m0, S0, N) for _ in range(G)])  # exact prior sample moments
     calls = []
 
     def evaluate(groups, Z):
@@ -38,7 +38,7 @@ def test_linear_gaussian_exact(transform, project):
         return np.einsum("kmd,kd->km", M[groups], Z), np.zeros(len(groups), dtype=bool)
 
     res = gauss_newton(E0, evaluate, y, c / P, n_iter=3, transform=transform, project=project)
-    assert calls == [G * N] * 3                                # one batch per iteration
+    assert calls == [G * N] * 3  # one batch per iteration
     for g in range(G):
         mean, cov = _exact(M[g], P, c, y[g], m0, S0)
         np.testing.assert_allclose(res.mean[g], mean, rtol=1e-8, atol=1e-10)
@@ -51,7 +51,7 @@ def test_linear_gaussian_exact(transform, project):
 def test_failed_prior_members_are_redrawn():
     rng, M, P, c, y, m0, S0 = _linear_problem(seed=1, G=1)
     E0 = draw(rng, m0, S0, 24)[None]
-    E0[0, :3] = 50.0                                           # three members the "model" cannot run
+    E0[0, :3] = 50.0  # three members the "model" cannot run
 
     def evaluate(groups, Z):
         bad = np.abs(Z[:, 0]) > 10.0
@@ -114,9 +114,9 @@ def test_a_mildly_nonlinear_posterior_hardly_depends_on_the_ensemble_size():
     d, m = 5, 20
     M = rng.normal(size=(m, d))
     truth = rng.normal(size=d) * 0.5
-    P = np.full(m, 0.3 ** 2)
+    P = np.full(m, 0.3**2)
     y = np.exp(M @ truth) + rng.normal(size=m) * 0.3
-    m0, S0 = np.zeros(d), np.eye(d) * 0.5 ** 2
+    m0, S0 = np.zeros(d), np.eye(d) * 0.5**2
 
     def evaluate(groups, Z):
         return np.exp(Z @ M.T), np.zeros(len(groups), dtype=bool)
@@ -148,6 +148,7 @@ def _counted_linear(seed):
     def evaluate(groups, Z):
         calls.append(len(groups))
         return np.einsum("kmd,kd->km", M[groups], Z), np.zeros(len(groups), dtype=bool)
+
     return E0, evaluate, calls, (M, P, c, y, m0, S0)
 
 
@@ -162,7 +163,8 @@ def _exp_problem():
 
     def evaluate(groups, Z):
         return np.exp(np.einsum("kmd,kd->km", M[groups], Z)), np.zeros(len(groups), dtype=bool)
-    return E0, evaluate, y, np.full(m, 1 / 0.05 ** 2)
+
+    return E0, evaluate, y, np.full(m, 1 / 0.05**2)
 
 
 def _assert_exact(res, problem):
@@ -235,7 +237,7 @@ def test_a_step_into_failing_parameters_is_halved_not_the_end():
         return Y, bad
 
     res = gauss_newton(E0, evaluate, y, np.full(m, 1e4), n_iter=5, rng=rng, max_iter=15)
-    assert res.n_failed[0, 1] == N                         # the full first step failed
+    assert res.n_failed[0, 1] == N  # the full first step failed
     assert not res.stopped[0] and res.n_backtracked[0] >= 1
     assert abs(res.mean[0, 0] - 1.0) < 1e-3, res.mean
     old = gauss_newton(E0, evaluate, y, np.full(m, 1e4), n_iter=5, rng=rng, max_iter=15, backtrack=False)

@@ -6,8 +6,7 @@ finite difference."""
 import numpy as np
 import pytest
 
-from imrbayes.ensemble.fusion import fuse_likelihoods
-from imrbayes.ensemble.fusion import likelihood_terms, random_effects
+from imrbayes.ensemble.fusion import fuse_likelihoods, likelihood_terms, random_effects
 from imrbayes.ensemble.likelihood import effective_samples, observation_model, predict, whitening
 
 
@@ -16,7 +15,7 @@ def _toy(rng, tau, N=6, se=(0.05, 0.03)):
     theta = mu + np.asarray(tau) * rng.standard_normal((N, 2))
     se = np.asarray(se)
     m = theta + se * rng.standard_normal((N, 2))
-    Lam = np.stack([np.diag(1.0 / se ** 2)] * N)
+    Lam = np.stack([np.diag(1.0 / se**2)] * N)
     return mu, theta, Lam, np.einsum("nij,nj->ni", Lam, m)
 
 
@@ -51,7 +50,7 @@ def test_random_effects_without_scatter_is_the_product_rule():
     np.testing.assert_allclose(r.pooled_mean, exact, rtol=0, atol=1e-10)
     np.testing.assert_allclose(r.pooled_cov, np.linalg.inv(P), rtol=1e-10)
     one = random_effects(Lam[:1], eta[:1], m0, C0)
-    assert np.all(np.isnan(one.tau)) and one.notes        # one bubble: scatter unknown, said so
+    assert np.all(np.isnan(one.tau)) and one.notes  # one bubble: scatter unknown, said so
 
 
 def test_likelihood_terms_recover_the_likelihood_of_a_gaussian_update():
@@ -87,7 +86,7 @@ def test_effective_samples_of_ar1_series():
     x = np.empty(n)
     x[0] = rng.standard_normal()
     for k in range(1, n):
-        x[k] = rho * x[k - 1] + np.sqrt(1 - rho ** 2) * rng.standard_normal()
+        x[k] = rho * x[k - 1] + np.sqrt(1 - rho**2) * rng.standard_normal()
     n_eff, tau = effective_samples(x)
     assert tau == pytest.approx((1 + rho) / (1 - rho), rel=0.2)
     _, tau_white = effective_samples(rng.standard_normal(n))
@@ -98,6 +97,7 @@ def test_nuisance_prediction_is_the_true_geometry_seen_on_the_data_clock():
     """y_k = (1 + a) R*(|t_k - delta| / (1 + a)) for Rmax (1 + a), Req e^rho: checked against direct
     runs with that geometry (and, before the maximum, the mirror image)."""
     from imrbayes.forward import ForwardModel
+
     fm = ForwardModel("nhkv", options={"bubble": "polytropic"})
     theta, rmax, req = np.array([5e3, 0.06]), 3e-4, 3e-4 / 8
     t = np.linspace(0.025, 2.0, 30)
@@ -107,14 +107,14 @@ def test_nuisance_prediction_is_the_true_geometry_seen_on_the_data_clock():
     plain = fm.simulate(theta[None], [rmax], [req], t).R_star[0]
     np.testing.assert_allclose(R[0], plain, atol=1e-9)
     big = fm.simulate(theta[None], [rmax * 1.01], [req], t / 1.01).R_star[0] * 1.01
-    np.testing.assert_allclose(R[1], big, atol=1e-7)     # a batch ends at its latest output time: last-step rounding
+    np.testing.assert_allclose(R[1], big, atol=1e-7)  # a batch ends at its latest output time: last-step rounding
     shifted = np.abs(t - 0.04)
     order = np.argsort(shifted)
     direct = np.empty_like(t)
     direct[order] = fm.simulate(theta[None], [rmax], [req], shifted[order]).R_star[0]
     np.testing.assert_allclose(R[2], direct, atol=1e-9)
     mirror, _ = predict(fm, theta[None], rmax, req, np.array([0.03, 0.05]), nu[2:3])
-    assert mirror[0, 0] == pytest.approx(mirror[0, 1], abs=1e-6)     # either side of the maximum at 0.04
+    assert mirror[0, 0] == pytest.approx(mirror[0, 1], abs=1e-6)  # either side of the maximum at 0.04
     wide = fm.simulate(theta[None], [rmax], [req * np.exp(0.05)], t).R_star[0]
     np.testing.assert_allclose(R[3], wide, atol=1e-9)
 
@@ -122,12 +122,12 @@ def test_nuisance_prediction_is_the_true_geometry_seen_on_the_data_clock():
 def test_observation_model_raises_the_noise_to_the_residual_and_tempers():
     rng = np.random.default_rng(2)
     y = rng.standard_normal(400) * 0.02
-    white = observation_model(y, np.zeros(400), 0.02 ** 2)
+    white = observation_model(y, np.zeros(400), 0.02**2)
     assert white["alpha"] == pytest.approx(1.0, abs=0.25) and white["sd_used"] == pytest.approx(0.02, rel=0.1)
     smooth = np.convolve(rng.standard_normal(420), np.ones(8) / np.sqrt(8), mode="valid")[:400] * 0.05
-    red = observation_model(smooth, np.zeros(400), 0.02 ** 2)
-    assert red["sd_used"] > 0.04 and red["alpha"] < 0.4         # model error: louder and fewer independent samples
-    cold = observation_model(smooth, np.zeros(400), 0.02 ** 2, adapt=False)
+    red = observation_model(smooth, np.zeros(400), 0.02**2)
+    assert red["sd_used"] > 0.04 and red["alpha"] < 0.4  # model error: louder and fewer independent samples
+    cold = observation_model(smooth, np.zeros(400), 0.02**2, adapt=False)
     assert cold["alpha"] == 1.0 and cold["sd_used"] == pytest.approx(0.02)
 
 
@@ -135,6 +135,7 @@ def test_member_whose_req_reaches_rmax_fails_instead_of_raising():
     """A wide Req prior (an unsettled tail) can draw a member with Req >= Rmax: that member fails
     (the ensemble drops it), the others are untouched."""
     from imrbayes.forward import ForwardModel
+
     fm = ForwardModel("nhkv", options={"bubble": "polytropic"})
     theta, rmax, req = np.array([5e3, 0.06]), 3e-4, 3e-4 / 2
     t = np.linspace(0.025, 1.0, 10)

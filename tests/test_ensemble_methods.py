@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-
 from _ens_synth import TRUTH, observations, space
+
 from imrbayes.ensemble import En4DVarSettings, IMRSettings, MIEnKSSettings, fit_en4dvar, fit_imr, fit_mienks
 from imrbayes.ensemble.imr import collapse_indices, fit_indices
 from imrbayes.errors import InputError
@@ -18,7 +18,7 @@ def test_imr_optimum_within_one_grid_cell():
     dG, dm = 200.0, 0.004
     grid = res.details["grid_optimum"]
     assert abs(grid["G"] - TRUTH["G"]) <= dG and abs(grid["mu"] - TRUTH["mu"]) <= dm
-    opt = res.details["optimum"]                                  # sub-grid quadratic refinement
+    opt = res.details["optimum"]  # sub-grid quadratic refinement
     assert abs(opt["G"] - TRUTH["G"]) < 0.5 * dG and abs(opt["mu"] - TRUTH["mu"]) < 0.5 * dm
     for p in res.per_experiment:
         assert abs(p["grid_optimum"]["G"] - TRUTH["G"]) <= dG
@@ -45,8 +45,9 @@ def test_imr_says_when_the_grid_bounds_the_answer():
     assert res.estimate["G"]["sd"] == pytest.approx(500.0 / np.sqrt(12.0))
     assert res.estimate["mu"]["sd"] >= 0.01 / np.sqrt(12.0) * (1 - 1e-12)
     assert any("inside one grid cell" in w for w in res.warnings)
-    ok = fit_imr(fm, obs, space(fm), IMRSettings(G_min=5.13e3, G_max=9.93e3, n_G=9, mu_min=0.0612,
-                                                 mu_max=0.1212, n_mu=7))
+    ok = fit_imr(
+        fm, obs, space(fm), IMRSettings(G_min=5.13e3, G_max=9.93e3, n_G=9, mu_min=0.0612, mu_max=0.1212, n_mu=7)
+    )
     assert not any("edge" in w or "end (" in w for w in ok.warnings)
 
 
@@ -109,7 +110,7 @@ def test_mienks_short_record():
         assert w["mu"]["mean"] == pytest.approx(TRUTH["mu"], rel=0.05)
     assert res.estimate["G"]["mean"] == pytest.approx(TRUTH["G"], rel=0.15)
     assert res.estimate["mu"]["mean"] == pytest.approx(TRUTH["mu"], rel=0.05)
-    assert len(res.time_resolved) == 60                       # samples 0..59 lie in some window
+    assert len(res.time_resolved) == 60  # samples 0..59 lie in some window
     assert res.posterior["G"].shape == (1, 50, 5)
     assert res.rmse < 5e-3
     assert np.all(np.isfinite(res.fitted[:, :60]))
@@ -139,16 +140,22 @@ def test_mienks_rejects_analysis_when_handoff_fails():
         def propagate(self, state, params, t_end, t_eval=None):
             out = super().propagate(state, params, t_end, t_eval)
             # one experiment per batch (a unit per window and experiment): exp_002's hand-off of window 2
-            if (np.size(t_eval) == 6 and state.t_star == 0.25 and state.n == 16 and not Flaky.hit
-                    and np.all(state.rmax_m == obs.rmax_m[1])):
+            if (
+                np.size(t_eval) == 6
+                and state.t_star == 0.25
+                and state.n == 16
+                and not Flaky.hit
+                and np.all(state.rmax_m == obs.rmax_m[1])
+            ):
                 Flaky.hit = 1
                 out.status[:] = 3
                 out.R_star[:] = np.nan
             return out
 
     # one pass (adapt=False): the default likelihood's pilot would meet the failure first
-    res = fit_mienks(fm, obs, space(fm), MIEnKSSettings(n_ens=16, L=20, h=5, n_draws=5, adapt=False), seed=0,
-                     runner=Flaky(fm))
+    res = fit_mienks(
+        fm, obs, space(fm), MIEnKSSettings(n_ens=16, L=20, h=5, n_draws=5, adapt=False), seed=0, runner=Flaky(fm)
+    )
     assert Flaky.hit == 1
     assert [w["analysis_rejected"] for w in res.windows][2] == ["exp_002"]
     assert sum(len(w["analysis_rejected"]) for w in res.windows) == 1
@@ -165,8 +172,12 @@ def _laplace_sd(fm, obs, sp, truth, weight):
     for i in range(2):
         dz = np.zeros(2)
         dz[i] = 1e-4
-        R = [fm.simulate({"G": np.full(n, np.exp(z[0])), "mu": np.full(n, np.exp(z[1]))}, obs.rmax_m, obs.req_m,
-                         obs.t_star).R_star[:, 1:] for z in (z0 + dz, z0 - dz)]
+        R = [
+            fm.simulate(
+                {"G": np.full(n, np.exp(z[0])), "mu": np.full(n, np.exp(z[1]))}, obs.rmax_m, obs.req_m, obs.t_star
+            ).R_star[:, 1:]
+            for z in (z0 + dz, z0 - dz)
+        ]
         cols.append(((R[0] - R[1]) / 2e-4).ravel())
     J = np.stack(cols, axis=1)
     w = np.tile(weight, n)
@@ -181,13 +192,18 @@ def test_en4dvar_obs_weight_matches_laplace_posterior(obs_weight):
     fm, obs = observations()
     sp = space(fm)
     K = obs.t_star.size - 1
-    res = fit_en4dvar(fm, obs, sp, En4DVarSettings(n_draws=1, loglik=False, n_runs=1, obs_weight=obs_weight,
-                                                          likelihood="paper"), seed=0)
+    res = fit_en4dvar(
+        fm,
+        obs,
+        sp,
+        En4DVarSettings(n_draws=1, loglik=False, n_runs=1, obs_weight=obs_weight, likelihood="paper"),
+        seed=0,
+    )
     weight = 1.0 / ((K if obs_weight == "mean" else 1.0) * obs.P[1:])
     sd_ref = _laplace_sd(fm, obs, sp, TRUTH, weight)
     sd = np.sqrt(np.diag(res.cov_internal))
     np.testing.assert_allclose(sd, sd_ref, rtol=0.25)
-    if obs_weight == "sum":          # the averaged likelihood leaves the prior's pull (6 kPa) in the mean
+    if obs_weight == "sum":  # the averaged likelihood leaves the prior's pull (6 kPa) in the mean
         for name in ("G", "mu"):
             assert res.estimate[name]["mean"] == pytest.approx(TRUTH[name], rel=0.02)
 

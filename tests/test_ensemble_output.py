@@ -13,22 +13,35 @@ def _windowed_result(n_win=4, n_draw=5):
     rng = np.random.default_rng(0)
     t = np.arange(41) * 0.025
     starts = t[np.arange(n_win) * 10]
-    return FitResult(
-        method="mienks", model="nhkv", param_names=("G", "mu"), estimate={}, fitted=np.zeros((2, t.size)),
-        fit_mask=np.ones((2, t.size), bool),
-        posterior={"G": rng.normal(size=(1, n_draw, n_win)), "mu": rng.normal(size=(1, n_draw, n_win))},
-        posterior_dims={"G": ["window"], "mu": ["window"]},
-        coords={"window": np.arange(n_win), "bound": ["lower", "upper"],
+    return (
+        FitResult(
+            method="mienks",
+            model="nhkv",
+            param_names=("G", "mu"),
+            estimate={},
+            fitted=np.zeros((2, t.size)),
+            fit_mask=np.ones((2, t.size), bool),
+            posterior={"G": rng.normal(size=(1, n_draw, n_win)), "mu": rng.normal(size=(1, n_draw, n_win))},
+            posterior_dims={"G": ["window"], "mu": ["window"]},
+            coords={
+                "window": np.arange(n_win),
+                "bound": ["lower", "upper"],
                 "window_start": ("window", starts),
-                "window_span": (("window", "bound"), np.stack([starts, starts + 0.5], axis=1))}), t, starts
+                "window_span": (("window", "bound"), np.stack([starts, starts + 0.5], axis=1)),
+            },
+        ),
+        t,
+        starts,
+    )
 
 
 def test_tuple_coordinates_round_trip_through_posterior_nc(tmp_path):
     import xarray as xr
 
     res, t, starts = _windowed_result()
-    obs = Observations(t, np.ones((2, t.size)), np.full(t.size, 1e-4), np.full(2, 300e-6), np.full(2, 40e-6),
-                       names=["a", "b"])
+    obs = Observations(
+        t, np.ones((2, t.size)), np.full(t.size, 1e-4), np.full(2, 300e-6), np.full(2, 40e-6), names=["a", "b"]
+    )
     path = write_posterior(tmp_path / "posterior.nc", res, obs)
     post = xr.open_datatree(path)["posterior"]
     assert post["window_start"].dims == ("window",)
@@ -39,5 +52,5 @@ def test_tuple_coordinates_round_trip_through_posterior_nc(tmp_path):
     assert post["G"].dims == ("chain", "draw", "window")
     import arviz as az
 
-    s = az.summary(az.from_netcdf(path), kind="stats", round_to="none")     # ArviZ still reads it
+    s = az.summary(az.from_netcdf(path), kind="stats", round_to="none")  # ArviZ still reads it
     assert np.all(np.isfinite(s["mean"]))

@@ -5,12 +5,11 @@ import math
 
 import numpy as np
 import pytest
-
 from _ens_synth import model, space
+
 from imrbayes.ensemble import Observations, PIMRSettings, fit_pimr
-from imrbayes.forward import Runner
 from imrbayes.ensemble.pimr import T_RC, collapse_time, contents_factor
-from imrbayes.forward import ForwardModel
+from imrbayes.forward import ForwardModel, Runner
 
 DT = 0.002
 
@@ -34,18 +33,21 @@ def simulated_tc(fm, G, mu, rmax, req):
 def test_constants():
     assert T_RC == pytest.approx(0.9147, abs=5e-5)
     assert contents_factor(1.0) == pytest.approx(1.494, abs=5e-4)
-    assert contents_factor(1.4) == pytest.approx(2.184, abs=1e-3)   # 2.18349 (paper: 2.184)
+    assert contents_factor(1.4) == pytest.approx(2.184, abs=1e-3)  # 2.18349 (paper: 2.184)
 
 
-@pytest.mark.parametrize("term,fm_on,fm_off,p_on,p_off", [
-    # each physical effect switched on alone against a baseline without it (polytropic, RP, no vapour,
-    # surface tension ~0); the formula's change must have the simulated change's sign and size
-    ("elastic", None, None, (8e3, 0.0), (0.0, 0.0)),
-    ("viscous", None, None, (0.0, 0.1), (0.0, 0.0)),
-    ("surface tension", dict(surface=True), None, (0.0, 0.0), (0.0, 0.0)),
-    ("vapour", dict(vapor=True), None, (0.0, 0.0), (0.0, 0.0)),
-    ("compressibility", dict(radial="km"), None, (0.0, 0.0), (0.0, 0.0)),
-])
+@pytest.mark.parametrize(
+    "term,fm_on,fm_off,p_on,p_off",
+    [
+        # each physical effect switched on alone against a baseline without it (polytropic, RP, no vapour,
+        # surface tension ~0); the formula's change must have the simulated change's sign and size
+        ("elastic", None, None, (8e3, 0.0), (0.0, 0.0)),
+        ("viscous", None, None, (0.0, 0.1), (0.0, 0.0)),
+        ("surface tension", dict(surface=True), None, (0.0, 0.0), (0.0, 0.0)),
+        ("vapour", dict(vapor=True), None, (0.0, 0.0), (0.0, 0.0)),
+        ("compressibility", dict(radial="km"), None, (0.0, 0.0), (0.0, 0.0)),
+    ],
+)
 def test_term_signs_against_simulation(term, fm_on, fm_off, p_on, p_off):
     def make(over):
         over = dict(over or {})
@@ -83,7 +85,7 @@ def test_fit_pimr_reproduces_collapse_times():
     rmax = np.array([220e-6, 280e-6, 340e-6, 400e-6, 450e-6])
     req = rmax / np.array([6.8, 7.6, 8.4, 7.2, 8.0])
     truth = (7.29e3, 0.088)
-    tc = collapse_time(fm, *truth, rmax, req)               # measured = the formula's own prediction
+    tc = collapse_time(fm, *truth, rmax, req)  # measured = the formula's own prediction
     t = np.arange(121) * 0.025
     obs = Observations(t, np.ones((5, t.size)), np.full(t.size, 1e-4), rmax, req, tc)
     res = fit_pimr(fm, obs, space(fm), PIMRSettings(n_G=60, n_mu=40))
@@ -91,7 +93,7 @@ def test_fit_pimr_reproduces_collapse_times():
     fitted = collapse_time(fm, res.details["optimum"]["G"], res.details["optimum"]["mu"], rmax, req)
     np.testing.assert_allclose(fitted, tc, rtol=1e-4)
     assert res.extra_groups["landscape"]["log_J"].shape == (60, 40)
-    assert math.isnan(res.rmse)                              # no forward run without a runner
+    assert math.isnan(res.rmse)  # no forward run without a runner
     res2 = fit_pimr(fm, obs, space(fm), PIMRSettings(n_G=30, n_mu=20), runner=Runner(fm))
     assert np.all(np.isfinite(res2.fitted[:, 1:]))
 
@@ -122,13 +124,14 @@ def test_fit_pimr_on_one_bubble_reports_the_ridge_not_nan():
     t = np.arange(121) * 0.025
     obs = Observations(t, np.ones((1, t.size)), np.full(t.size, 1e-4), rmax, req, tc)
     # the paper's linear grid: the ridge is linear in mu between its nodes
-    res = fit_pimr(fm, obs, space(fm), PIMRSettings(n_G=60, n_mu=40, G_max=25e3, mu_min=0.0, mu_max=0.5,
-                                                    spacing="linear"))
+    res = fit_pimr(
+        fm, obs, space(fm), PIMRSettings(n_G=60, n_mu=40, G_max=25e3, mu_min=0.0, mu_max=0.5, spacing="linear")
+    )
     ridge = res.details["ridge"]
     assert len(ridge["G"]) >= 10
     pred = collapse_time(fm, np.array(ridge["G"]), np.array(ridge["mu"]), rmax[0], req[0])
-    np.testing.assert_allclose(pred, tc[0], rtol=2e-3)                 # on the ridge (linear in mu between nodes)
-    mu_at_truth = np.interp(7.29e3, ridge["G"], ridge["mu"])            # the truth is one of its points
+    np.testing.assert_allclose(pred, tc[0], rtol=2e-3)  # on the ridge (linear in mu between nodes)
+    mu_at_truth = np.interp(7.29e3, ridge["G"], ridge["mu"])  # the truth is one of its points
     assert mu_at_truth == pytest.approx(0.088, rel=0.05)
     for name in ("G", "mu"):
         lo, hi = res.estimate[name]["ridge"]
@@ -141,8 +144,12 @@ def test_fit_pimr_on_one_bubble_reports_the_ridge_not_nan():
 def test_estimate_text_units():
     from imrbayes.cli.options import estimate_text
 
-    assert estimate_text({"G": {"mean": 13500.0, "sd": 600.0}, "mu": {"mean": 0.101, "sd": 0.023}}) == \
-        "G = 13.5 kPa ± 0.6 kPa, mu = 0.101 Pa s ± 0.023 Pa s"
-    assert estimate_text({"G": {"mean": 7.3e3, "sd": 9e3, "hdi95": [66.5, 5.66e7]}}) == \
-        "G not bounded by the data (best fit 7.3 kPa)"
+    assert (
+        estimate_text({"G": {"mean": 13500.0, "sd": 600.0}, "mu": {"mean": 0.101, "sd": 0.023}})
+        == "G = 13.5 kPa ± 0.6 kPa, mu = 0.101 Pa s ± 0.023 Pa s"
+    )
+    assert (
+        estimate_text({"G": {"mean": 7.3e3, "sd": 9e3, "hdi95": [66.5, 5.66e7]}})
+        == "G not bounded by the data (best fit 7.3 kPa)"
+    )
     assert estimate_text({"alpha": {"mean": 2.0, "sd": float("nan")}}) == "alpha = 2 (no interval)"

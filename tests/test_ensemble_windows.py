@@ -2,8 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from imrbayes.ensemble.windows import coverage, mda_weights, n_windows, time_resolved, window_spans
 from imrbayes.errors import InputError
@@ -81,7 +80,7 @@ def test_chained_prior_weight_is_the_prior_means_exact_share_in_a_linear_gaussia
             C = np.linalg.inv(np.linalg.inv(P) + np.linalg.inv(R))
             m_new = C @ (np.linalg.solve(P, m) + np.linalg.solve(R, y))
             infl = chained_prior_weight(infl, C, P)
-            m, P = m_new, 1.5 * C            # the next window's prior: this posterior, inflated
+            m, P = m_new, 1.5 * C  # the next window's prior: this posterior, inflated
         return m, infl
 
     m_a, infl = run(np.zeros(2))

@@ -9,11 +9,21 @@ import sys
 
 import numpy as np
 import pytest
-
 from _exec_helpers import same
+
 from imrbayes.errors import InputError
-from imrbayes.execution import (DaskExecutor, InProcessExecutor, ProcessPoolExecutor, Unit, make_executor,
-                                normalize_units, run_units, safe_name, unit_id, unit_rng)
+from imrbayes.execution import (
+    DaskExecutor,
+    InProcessExecutor,
+    ProcessPoolExecutor,
+    Unit,
+    make_executor,
+    normalize_units,
+    run_units,
+    safe_name,
+    unit_id,
+    unit_rng,
+)
 from imrbayes.execution.toy import toy_bubble, toy_units
 
 SEED = 11
@@ -35,6 +45,7 @@ def reference():
 
 # ----------------------------------------------------------------------------------------- seeding
 
+
 def test_unit_rng_is_fixed_by_seed_and_id():
     # Golden values: changing them breaks the resumability of stored runs (bump SEEDING_SCHEME).
     assert unit_rng(0, "exp=000/window=000").integers(0, 2**32, size=3).tolist() == [1982966354, 1607394214, 2444372978]
@@ -53,8 +64,13 @@ def _first_draw(unit, rng):
 def test_a_units_stream_key_seeds_it_instead_of_its_id(workers):
     """Units whose ids differ but whose ``stream`` keys agree draw the same numbers (in any backend);
     without a stream key the id seeds the unit; dict units may set ``"stream"`` too."""
-    units = [Unit("noise=aaaa/exp=000", stream="exp=000"), Unit("noise=bbbb/exp=000", stream="exp=000"),
-             {"unit_id": "noise=cccc/exp=000", "stream": "exp=000"}, Unit("exp=000"), Unit("noise=aaaa/exp=001")]
+    units = [
+        Unit("noise=aaaa/exp=000", stream="exp=000"),
+        Unit("noise=bbbb/exp=000", stream="exp=000"),
+        {"unit_id": "noise=cccc/exp=000", "stream": "exp=000"},
+        Unit("exp=000"),
+        Unit("noise=aaaa/exp=001"),
+    ]
     ex = InProcessExecutor() if workers == 1 else ProcessPoolExecutor(workers)
     try:
         rep = run_units(units, _first_draw, seed=SEED, executor=ex, progress=False)
@@ -73,16 +89,32 @@ def test_unit_rng_ignores_python_hash_salt():
     outs = set()
     for salt in ("1", "2", "random"):
         env = {**os.environ, "PYTHONHASHSEED": salt}
-        outs.add(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                                check=True).stdout.strip())
+        outs.add(
+            subprocess.run(
+                [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+            ).stdout.strip()
+        )
     assert outs == {unit_rng(5, "exp=004/window=02").random().hex()}
 
 
 def test_unit_ids_and_safe_names():
     assert unit_id(exp=3, window=7) == "exp=003/window=007"
     assert unit_id(exp=3, model="nhkv") == "exp=003/model=nhkv"
-    ids = ["exp=003/window=07", "exp=003%2Fwindow=07", "a b", "a~b", "ü", ".", "..", "x" * 300, "x" * 301,
-           "model=NHKV", "model=nhkv", "%41", "A"]
+    ids = [
+        "exp=003/window=07",
+        "exp=003%2Fwindow=07",
+        "a b",
+        "a~b",
+        "ü",
+        ".",
+        "..",
+        "x" * 300,
+        "x" * 301,
+        "model=NHKV",
+        "model=nhkv",
+        "%41",
+        "A",
+    ]
     names = [safe_name(i) for i in ids]
     assert len({n.lower() for n in names}) == len(ids)  # distinct even on case-insensitive file systems
     assert safe_name("model=NHKV") == "model=%4E%48%4B%56"
@@ -97,6 +129,7 @@ def test_unit_ids_and_safe_names():
 
 
 # ------------------------------------------------------------------------------- bit-identical runs
+
 
 def test_in_process_results_are_in_input_order(reference):
     assert list(reference.results) == [u.unit_id for u in UNITS]
@@ -129,6 +162,7 @@ def test_seed_changes_results(reference):
 
 
 # ------------------------------------------------------------------------------------------ failures
+
 
 def _with_failures():
     units = toy_units(5, steps=200, fail={"exp=001/window=000", "exp=003/window=000"})
@@ -172,6 +206,7 @@ def test_pool_survives_an_early_stop_and_is_reused():
 
 # --------------------------------------------------------------------------------------- the factory
 
+
 def test_make_executor_choices():
     assert isinstance(make_executor(), InProcessExecutor)
     assert isinstance(make_executor(workers=1), InProcessExecutor)
@@ -198,7 +233,7 @@ def test_dask_executor_on_an_existing_client(dask_local, reference):
 
 
 def test_scheduler_address_connects_to_a_running_cluster(dask_local, reference):
-    address = dask_local.client.scheduler.address          # what `dask scheduler` would print
+    address = dask_local.client.scheduler.address  # what `dask scheduler` would print
     with make_executor(scheduler=address, workers=7) as ex:  # workers is ignored for a remote cluster
         assert isinstance(ex, DaskExecutor) and ex.describe()["address"] == address and ex.n_workers == 2
         report = run_units(UNITS, toy_bubble, seed=SEED, executor=ex, progress=False)
@@ -221,14 +256,16 @@ def test_dask_gather_exits_after_an_interruption_print_nothing_other_loop_errors
     loop = asyncio.new_event_loop()
     try:
         _quiet_gather_exits(SimpleNamespace(loop=SimpleNamespace(asyncio_loop=loop)))
-        def printed():       # other tests' clients may still log through distributed's loggers
+
+        def printed():  # other tests' clients may still log through distributed's loggers
             return [r for r in caplog.records if r.name == "asyncio" and r.levelno >= logging.ERROR]
 
         with caplog.at_level(logging.ERROR, logger="asyncio"):
             loop.call_exception_handler({"message": "Task exception was never retrieved", "exception": AllExit()})
             assert printed() == []
-            loop.call_exception_handler({"message": "Task exception was never retrieved",
-                                         "exception": ValueError("a real error")})
+            loop.call_exception_handler(
+                {"message": "Task exception was never retrieved", "exception": ValueError("a real error")}
+            )
         assert len(printed()) == 1 and "a real error" in printed()[0].getMessage() + str(printed()[0].exc_info)
     finally:
         loop.close()

@@ -47,29 +47,63 @@ def _run(*args, expect=0):
 @pytest.fixture(scope="module")
 def gel(tmp_path_factory):
     d = tmp_path_factory.mktemp("gel") / "data"
-    _run("simulate", "--model", "nhkv", "--param", "G=6e3", "--param", "mu=0.08", "--rmax", "300e-6:20e-6",
-         "--ratio", "7.5:0.3", "--n-exp", "3", "--noise", "paper", "--seed", "1", "--forward", "bubble=polytropic",
-         "--out", d, "--quiet")
+    _run(
+        "simulate",
+        "--model",
+        "nhkv",
+        "--param",
+        "G=6e3",
+        "--param",
+        "mu=0.08",
+        "--rmax",
+        "300e-6:20e-6",
+        "--ratio",
+        "7.5:0.3",
+        "--n-exp",
+        "3",
+        "--noise",
+        "paper",
+        "--seed",
+        "1",
+        "--forward",
+        "bubble=polytropic",
+        "--out",
+        d,
+        "--quiet",
+    )
     return d
 
 
 @pytest.mark.slow
 def test_diagnose_resume_on_two_processes_gives_the_same_diagnosis(gel, tmp_path):
     out = tmp_path / "run"
-    args = ["diagnose", gel, "--out", out, "--quick", "--n-bootstrap", "2", "--candidates", "qkv", "--no-loeo",
-            "--forward", "bubble=polytropic", "--quiet"]
+    args = [
+        "diagnose",
+        gel,
+        "--out",
+        out,
+        "--quick",
+        "--n-bootstrap",
+        "2",
+        "--candidates",
+        "qkv",
+        "--no-loeo",
+        "--forward",
+        "bubble=polytropic",
+        "--quiet",
+    ]
     _run(*args)
     ref = json.loads((out / "diagnosis.json").read_text())
     # the baseline fits, 2 bootstrap, 1 candidate, 2 held-out
     assert ref["execution"]["n_units"] == 6 and ref["failed_units"] == []
     assert json.loads((out / "run.json").read_text())["config"]["command"] == "diagnose"
-    (out / "units" / "candidate=qkv.npz").unlink()                  # as if killed before they finished
+    (out / "units" / "candidate=qkv.npz").unlink()  # as if killed before they finished
     (out / "units" / "bootstrap=001.npz").unlink()
     _run(*args, "--resume", "--workers", "2")
     again = json.loads((out / "diagnosis.json").read_text())
     assert (again["execution"]["n_computed"], again["execution"]["n_resumed"]) == (2, 4)
     _assert_same(_strip(again), _strip(ref))
-    res = _run(*args[:-1], "--resume", "--seed", "3", expect=2)     # another configuration: refused
+    res = _run(*args[:-1], "--resume", "--seed", "3", expect=2)  # another configuration: refused
     assert "cannot resume" in res.output and len(res.output.strip().splitlines()) == 1
 
 
@@ -110,7 +144,7 @@ def test_validate_crashing_case_is_a_failed_unit_that_retry_failed_reruns(tmp_pa
     row = json.loads((out / "validation.json").read_text())["cases"][0]
     assert (row["name"], row["passed"], row["error"]) == ("flaky", False, "RuntimeError: boom")
     assert not (out / "units" / "case=flaky.npz").exists()
-    res = _run("validate", "--case", "flaky", "--out", out, "--resume", expect=1)     # reported again, not rerun
+    res = _run("validate", "--case", "flaky", "--out", out, "--resume", expect=1)  # reported again, not rerun
     assert len(calls) == 1 and "RuntimeError: boom" in res.output
     res = _run("validate", "--case", "flaky", "--out", out, "--resume", "--retry-failed")
     assert len(calls) == 2 and "PASS  flaky" in res.output

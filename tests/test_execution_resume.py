@@ -14,8 +14,8 @@ import time
 from pathlib import Path
 
 import pytest
-
 from _exec_helpers import same
+
 from imrbayes.execution import RunStore, run_units
 from imrbayes.execution.toy import toy_bubble, toy_units
 
@@ -26,8 +26,22 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
 
 def _cmd(out, *extra):
-    return [sys.executable, "-m", "imrbayes.execution.toy", "--out", str(out), "--units", str(N_UNITS),
-            "--steps", str(STEPS), "--sleep", str(SLEEP), "--seed", str(SEED), *extra]
+    return [
+        sys.executable,
+        "-m",
+        "imrbayes.execution.toy",
+        "--out",
+        str(out),
+        "--units",
+        str(N_UNITS),
+        "--steps",
+        str(STEPS),
+        "--sleep",
+        str(SLEEP),
+        "--seed",
+        str(SEED),
+        *extra,
+    ]
 
 
 def _snapshot(units_dir: Path) -> dict:
@@ -56,17 +70,23 @@ def uninterrupted(tmp_path_factory):
 
 
 # One kill in the default tier; the other signals and backends in the slow tier.
-@pytest.mark.parametrize("sig,extra", [
-    pytest.param(signal.SIGTERM, ["--workers", "2"], id="sigterm-2proc", marks=pytest.mark.slow),
-    pytest.param(signal.SIGKILL, ["--workers", "2"], id="sigkill-2proc", marks=pytest.mark.slow),
-    pytest.param(signal.SIGTERM, [], id="sigterm-inproc", marks=pytest.mark.slow),
-    pytest.param(signal.SIGKILL, [], id="sigkill-inproc"),
-    pytest.param(signal.SIGTERM, ["--scheduler", "local", "--workers", "2"], id="sigterm-dask", marks=pytest.mark.slow),
-])
+@pytest.mark.parametrize(
+    "sig,extra",
+    [
+        pytest.param(signal.SIGTERM, ["--workers", "2"], id="sigterm-2proc", marks=pytest.mark.slow),
+        pytest.param(signal.SIGKILL, ["--workers", "2"], id="sigkill-2proc", marks=pytest.mark.slow),
+        pytest.param(signal.SIGTERM, [], id="sigterm-inproc", marks=pytest.mark.slow),
+        pytest.param(signal.SIGKILL, [], id="sigkill-inproc"),
+        pytest.param(
+            signal.SIGTERM, ["--scheduler", "local", "--workers", "2"], id="sigterm-dask", marks=pytest.mark.slow
+        ),
+    ],
+)
 def test_kill_and_resume_loses_nothing(tmp_path, uninterrupted, sig, extra):
     out = tmp_path / "run"
-    proc = subprocess.Popen(_cmd(out, *extra), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        _cmd(out, *extra), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
     try:
         deadline = time.monotonic() + 60
         while len(list((out / "units").glob("*.npz"))) < 3:
@@ -114,19 +134,23 @@ def test_changed_options_on_resume_exit_2(tmp_path):
     subprocess.run(_cmd(out, "--sleep", "0"), check=True, capture_output=True)
     res = subprocess.run([*_cmd(out, "--resume", "--sleep", "0"), "--steps", "301"], capture_output=True, text=True)
     assert res.returncode == 2
-    assert "cannot resume: the configuration differs from the stored run (steps: 300 (stored) vs 301 (now))" in res.stderr
+    assert (
+        "cannot resume: the configuration differs from the stored run (steps: 300 (stored) vs 301 (now))" in res.stderr
+    )
 
 
 def _stopped_in_compiled_code(unit, rng):
     """A unit that an interrupt stops inside a numba kernel: numba hands back a SystemError whose
     cause is the interrupt the signal handler raised."""
     from imrbayes.execution import RunInterrupted
+
     if unit["value"] == 2:
         try:
             raise RunInterrupted(signal.SIGTERM)
         except RunInterrupted as stop:
-            raise SystemError("CPUDispatcher(<function integrate_batch_parallel>) returned a result with an "
-                              "exception set") from stop
+            raise SystemError(
+                "CPUDispatcher(<function integrate_batch_parallel>) returned a result with an exception set"
+            ) from stop
     return {"x": float(unit["value"])}
 
 
@@ -136,6 +160,7 @@ def _plain(unit, rng):
 
 def test_an_interrupt_inside_compiled_code_is_not_recorded_as_the_units_failure(tmp_path):
     from imrbayes.execution import RunInterrupted
+
     units = [{"unit_id": f"u{i}", "value": i} for i in range(4)]
     out = tmp_path / "run"
     with RunStore.open(out, {"what": "interrupt"}) as store:
@@ -155,8 +180,12 @@ def test_a_failure_record_written_by_an_interrupt_is_rerun_on_resume(tmp_path):
     with RunStore.open(out, {"what": "old record"}) as store:
         run_units(units[:2], _plain, store=store, progress=False)
         # as older code wrote it: the interrupt wrapped by numba, recorded as the unit's failure
-        store.save_failure("u2", seed=0, error="SystemError: CPUDispatcher(...) returned a result with an exception set",
-                           traceback="Traceback ...\nimrbayes.execution.driver.RunInterrupted: interrupted by SIGTERM\n")
+        store.save_failure(
+            "u2",
+            seed=0,
+            error="SystemError: CPUDispatcher(...) returned a result with an exception set",
+            traceback="Traceback ...\nimrbayes.execution.driver.RunInterrupted: interrupted by SIGTERM\n",
+        )
         store.save_failure("u3", seed=0, error="ValueError: a real failure", traceback="Traceback ...\nValueError: x\n")
     units.append({"unit_id": "u3", "value": 3})
     with RunStore.open(out, {"what": "old record"}, resume=True) as store:

@@ -14,14 +14,21 @@ import time
 
 import numpy as np
 import pytest
+from _exec_helpers import same
 
 import imrbayes
-from _exec_helpers import same
 from imrbayes.errors import InputError
-from imrbayes.execution import (RunInterrupted, RunStore, Unit, config_fingerprint, run_units, safe_name,
-                                unit_id)
-from imrbayes.execution import driver as driver_mod
-from imrbayes.execution import store as store_mod
+from imrbayes.execution import (
+    RunInterrupted,
+    RunStore,
+    Unit,
+    config_fingerprint,
+    driver as driver_mod,
+    run_units,
+    safe_name,
+    store as store_mod,
+    unit_id,
+)
 from imrbayes.execution.store import decode_value, encode_value
 from imrbayes.execution.toy import toy_bubble, toy_units
 
@@ -35,6 +42,7 @@ def _run(out, units=UNITS, config=CONFIG, resume=False, fn=toy_bubble, **kw):
 
 
 # ------------------------------------------------------------------------------------------ run.json
+
 
 def test_run_json_records_config_version_fingerprint(tmp_path):
     report = _run(tmp_path / "run")
@@ -61,9 +69,10 @@ def test_fingerprint_is_canonical():
 
 # --------------------------------------------------------------------------------------------- resume
 
+
 def test_resume_skips_finished_units_and_matches_uninterrupted(tmp_path):
     full = _run(tmp_path / "full")
-    part = _run(tmp_path / "part", units=UNITS[:3])          # "interrupted" after three units
+    part = _run(tmp_path / "part", units=UNITS[:3])  # "interrupted" after three units
     mtimes = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "part" / "units").iterdir()}
     resumed = _run(tmp_path / "part", resume=True)
     assert part.n_computed == 3 and resumed.n_resumed == 3 and resumed.n_computed == len(UNITS) - 3
@@ -127,13 +136,14 @@ def test_a_run_is_locked_while_open(tmp_path):
 
 # -------------------------------------------------------------------------------------- atomic files
 
+
 def test_partial_temporary_file_is_ignored_and_removed(tmp_path):
     out = tmp_path / "run"
     full = _run(tmp_path / "full")
     _run(out, units=UNITS[:2])
     victim = UNITS[2].unit_id
     tmp = out / "units" / f".{safe_name(victim)}.npz.0123456789ab.tmp"
-    tmp.write_bytes(b"PK\x03\x04 half a zip file")       # a writer killed before os.replace
+    tmp.write_bytes(b"PK\x03\x04 half a zip file")  # a writer killed before os.replace
     (out / ".run.json.deadbeef0000.tmp").write_text("{")
     with RunStore.open(out, CONFIG, resume=True) as store:
         assert store.status(victim) is None
@@ -178,14 +188,22 @@ def test_damaged_unit_file_is_recomputed(tmp_path):
 
 # -------------------------------------------------------------------------------------- unit values
 
+
 def test_values_round_trip_exactly(tmp_path):
     value = {
-        "f64": np.array([[0.1, -0.0], [np.nan, np.inf]]), "f32": np.float32([1.5, 2.25]), "i8": np.int8([-3, 4]),
-        "bool": np.array([True, False]), "c": np.array([1 + 2j]), "s": np.array(["ab", "c"]), "zero_d": np.array(2.5),
-        "empty": np.empty((0, 3)), "f_order": np.asfortranarray(np.arange(6.0).reshape(2, 3)),
+        "f64": np.array([[0.1, -0.0], [np.nan, np.inf]]),
+        "f32": np.float32([1.5, 2.25]),
+        "i8": np.int8([-3, 4]),
+        "bool": np.array([True, False]),
+        "c": np.array([1 + 2j]),
+        "s": np.array(["ab", "c"]),
+        "zero_d": np.array(2.5),
+        "empty": np.empty((0, 3)),
+        "f_order": np.asfortranarray(np.arange(6.0).reshape(2, 3)),
         "np_scalars": [np.float64(0.1), np.int64(7), np.bool_(True), np.float32(3.5)],
         "py": [None, True, 3, 2**70, 0.1, -0.0, math.nan, math.inf, "ü/x"],
-        "tuple": (1, (2.0, "x"), np.arange(2)), "nested": {"__nd__": "not an array", "k": {"x": []}},
+        "tuple": (1, (2.0, "x"), np.arange(2)),
+        "nested": {"__nd__": "not an array", "k": {"x": []}},
         "nested_list": [[np.zeros(2)], {}],
     }
     tree, arrays = encode_value(value)
@@ -248,6 +266,7 @@ def test_unstorable_value_is_a_clear_error(tmp_path):
 
 # ------------------------------------------------------------------------------------------ progress
 
+
 class _Stream(io.StringIO):
     def __init__(self, tty):
         super().__init__()
@@ -278,6 +297,7 @@ def test_progress_callback():
 
 
 # ------------------------------------------------------------------------------------------- signals
+
 
 def _terminates_at_third(unit, rng):
     if unit.data in (2, 9):
@@ -327,13 +347,13 @@ def test_a_run_killed_with_sigkill_reads_as_interrupted_and_resume_says_so(tmp_p
     proc = subprocess.run([sys.executable, "-c", _KILLED_CHILD, str(out)], capture_output=True, text=True)
     assert proc.returncode == -signal.SIGKILL, proc.stderr
     raw = json.loads((out / "status.json").read_text())
-    assert raw["running"] and not raw["complete"]            # what the killed process left: never "complete"
+    assert raw["running"] and not raw["complete"]  # what the killed process left: never "complete"
     status = read_status(out)
     assert status["interrupted"] and not status["complete"] and not status["running"]
     with RunStore.open(out, {"seed": 0, "workload": "killed"}, resume=True) as store:
         assert store.previous_interrupted["interrupted"] and store.previous_interrupted["n_done"] == 1
     with RunStore.open(out, {"seed": 0, "workload": "killed"}, resume=True) as store:
-        assert store.previous_interrupted is None               # the resumed run closed normally
+        assert store.previous_interrupted is None  # the resumed run closed normally
 
 
 def test_status_is_complete_only_after_the_run_closes(tmp_path):

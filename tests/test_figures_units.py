@@ -39,24 +39,39 @@ def _texts(fig):
     return out
 
 
-PRIOR = {"names": ["G", "mu"], "log_space": {"G": True, "mu": True},
-         "prior_internal_mean": [8.601, -1.647], "prior_internal_cov": [[0.197, 0.0], [0.0, 0.163]]}
+PRIOR = {
+    "names": ["G", "mu"],
+    "log_space": {"G": True, "mu": True},
+    "prior_internal_mean": [8.601, -1.647],
+    "prior_internal_cov": [[0.197, 0.0], [0.0, 0.163]],
+}
 
 
 def _mienks_result(n=41, n_exp=2):
     t = 0.025 * np.arange(n)
     R = np.stack([0.15 + 0.85 * np.cos(0.5 * np.pi * np.minimum(t / 0.9, 1.0)) for _ in range(n_exp)])
-    est = lambda g, m, sg=1000.0, sm=0.02: {"G": {"mean": g, "sd": sg, "hdi95": [g - 2 * sg, g + 2 * sg]},  # noqa: E731
-                                           "mu": {"mean": m, "sd": sm, "hdi95": [m - 2 * sm, m + 2 * sm]}}
+    est = lambda g, m, sg=1000.0, sm=0.02: {
+        "G": {"mean": g, "sd": sg, "hdi95": [g - 2 * sg, g + 2 * sg]},  # noqa: E731
+        "mu": {"mean": m, "sd": sm, "hdi95": [m - 2 * sm, m + 2 * sm]},
+    }
     wins = []
     for j, (a, b) in enumerate([(0.0, 0.25), (0.125, 0.375), (0.25, 0.5), (0.375, 1.0)]):
-        little = j < 2                       # the first two windows: posterior as wide as the prior
+        little = j < 2  # the first two windows: posterior as wide as the prior
         cov = [[0.19, 0.0], [0.0, 0.16]] if little else [[0.01, 0.0], [0.0, 0.01]]
         wins.append({"index": j, "t_star": [a, b], "cov_internal": cov, **est(7000.0 + 100 * j, 0.1)})
     tr = [{"t_star": float(x), **est(7000.0, 0.1)} for x in t[:-1]]
-    return SimpleNamespace(method="mienks", param_names=("G", "mu"), windows=wins, time_resolved=tr,
-                           details={"parameter_space": PRIOR}, fitted=R, fit_mask=np.ones_like(R, bool),
-                           rmse=0.01, per_experiment=[], time_scale_s=[27e-6, 28e-6])
+    return SimpleNamespace(
+        method="mienks",
+        param_names=("G", "mu"),
+        windows=wins,
+        time_resolved=tr,
+        details={"parameter_space": PRIOR},
+        fitted=R,
+        fit_mask=np.ones_like(R, bool),
+        rmse=0.01,
+        per_experiment=[],
+        time_scale_s=[27e-6, 28e-6],
+    )
 
 
 def test_time_resolved_figure_has_prior_band_us_axis_strain_rate_and_barely_moved_windows(captured, tmp_path):
@@ -97,8 +112,13 @@ def test_time_resolved_figure_hatches_the_prior_dominated_windows_when_reported(
 
 def test_fit_figure_legend_off_the_data_and_screen_sized(captured, tmp_path):
     res = _mienks_result(n_exp=6)
-    obs = SimpleNamespace(n_exp=6, t_star=0.025 * np.arange(41), R_star=res.fitted + 0.01, names=[f"e{i}" for i in range(6)],
-                          t_collapse_star=np.full(6, 0.9))
+    obs = SimpleNamespace(
+        n_exp=6,
+        t_star=0.025 * np.arange(41),
+        R_star=res.fitted + 0.01,
+        names=[f"e{i}" for i in range(6)],
+        t_collapse_star=np.full(6, 0.9),
+    )
     efig.fit_figure(obs, res, tmp_path / "fit.png")
     fig = captured[0]
     w, h = fig.get_size_inches()
@@ -111,8 +131,13 @@ def test_pimr_fit_figure_says_collapse_time_only(captured, tmp_path):
     res = _mienks_result()
     res.method = "pimr"
     res.per_experiment = [{"t_collapse_fitted": 0.91}, {"t_collapse_fitted": 0.9}]
-    obs = SimpleNamespace(n_exp=2, t_star=0.025 * np.arange(41), R_star=res.fitted, names=["a", "b"],
-                          t_collapse_star=np.array([0.9, 0.905]))
+    obs = SimpleNamespace(
+        n_exp=2,
+        t_star=0.025 * np.arange(41),
+        R_star=res.fitted,
+        names=["a", "b"],
+        t_collapse_star=np.array([0.9, 0.905]),
+    )
     efig.fit_figure(obs, res, tmp_path / "fit.png")
     texts = " ".join(_texts(captured[0]))
     assert "collapse time only" in texts and "fitted collapse time" in texts and "measured collapse time" in texts
@@ -123,13 +148,26 @@ def test_mcmc_pair_figure_in_kpa_and_pa_s(captured, tmp_path):
 
     rng = np.random.default_rng(0)
     d = rng.multivariate_normal([9.0, -2.0], [[0.02, 0.01], [0.01, 0.05]], size=(2, 500))
-    node = xr.DataTree(children={"posterior": xr.DataTree(xr.Dataset(
-        {"log_G": (("chain", "draw"), d[..., 0]), "log_mu": (("chain", "draw"), d[..., 1])}))})
+    node = xr.DataTree(
+        children={
+            "posterior": xr.DataTree(
+                xr.Dataset({"log_G": (("chain", "draw"), d[..., 0]), "log_mu": (("chain", "draw"), d[..., 1])})
+            )
+        }
+    )
     C = [[0.02, 0.01], [0.01, 0.05]]
-    entry = {"index": 3, "t_star": [0.5, 0.75], "parameters": ["G", "mu"], "internal": ["log_G", "log_mu"],
-             "ensemble": {"mean_internal": {"log_G": 9.05, "log_mu": -2.0}, "cov_internal": C},
-             "mcmc": {"mean_internal": {"log_G": 9.0, "log_mu": -2.0}, "cov_internal": C},
-             "agree": True, "kl_sym": 0.01, "kl_sample": 0.02, "w2": 0.1}
+    entry = {
+        "index": 3,
+        "t_star": [0.5, 0.75],
+        "parameters": ["G", "mu"],
+        "internal": ["log_G", "log_mu"],
+        "ensemble": {"mean_internal": {"log_G": 9.05, "log_mu": -2.0}, "cov_internal": C},
+        "mcmc": {"mean_internal": {"log_G": 9.0, "log_mu": -2.0}, "cov_internal": C},
+        "agree": True,
+        "kl_sym": 0.01,
+        "kl_sample": 0.02,
+        "w2": 0.1,
+    }
     mfig.pair_figure(entry, node, tmp_path / "pair.png")
     fig = captured[0]
     texts = _texts(fig)
@@ -137,5 +175,5 @@ def test_mcmc_pair_figure_in_kpa_and_pa_s(captured, tmp_path):
     assert not any("log_" in t for t in texts)
     scatter = [ax for ax in fig.axes if ax.get_visible() and ax.get_xscale() == "log" and ax.get_yscale() == "log"]
     assert len(scatter) == 1
-    x = scatter[0].lines[0].get_xdata()                   # the draws, in kPa: exp(9) Pa = 8.1 kPa
+    x = scatter[0].lines[0].get_xdata()  # the draws, in kPa: exp(9) Pa = 8.1 kPa
     assert math.isclose(float(np.median(x)), math.exp(9.0) * 1e-3, rel_tol=0.05)

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _ens_synth import observations, space
 from click.testing import CliRunner
 
-from _ens_synth import observations, space
 from imrbayes.cli import main
 
 # Whole fits on every backend, killed and resumed: the default tier's execution tests are
@@ -35,8 +35,25 @@ VOLATILE = ("runtime_s", "total_runtime_s", "command", "execution")
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     d = tmp_path_factory.mktemp("scaling") / "data"
-    res = CliRunner().invoke(main, ["simulate", "--model", "nhkv", "--param", "G=7.29e3", "--param", "mu=0.088",
-                                    "--n-exp", "3", "--forward", "bubble=polytropic", "--out", str(d), "--quiet"])
+    res = CliRunner().invoke(
+        main,
+        [
+            "simulate",
+            "--model",
+            "nhkv",
+            "--param",
+            "G=7.29e3",
+            "--param",
+            "mu=0.088",
+            "--n-exp",
+            "3",
+            "--forward",
+            "bubble=polytropic",
+            "--out",
+            str(d),
+            "--quiet",
+        ],
+    )
     assert res.exit_code == 0, res.output
     return d
 
@@ -51,8 +68,18 @@ def mienks_ref(dataset, tmp_path_factory):
 
 
 def _args(dataset, method, out, *extra):
-    args = [str(dataset), "--method", method, "--out", str(out), "--seed", "4", "--forward", "bubble=polytropic",
-            "--quiet"]
+    args = [
+        str(dataset),
+        "--method",
+        method,
+        "--out",
+        str(out),
+        "--seed",
+        "4",
+        "--forward",
+        "bubble=polytropic",
+        "--quiet",
+    ]
     for s in TINY[method]:
         args += ["--set", s]
     return args + [str(x) for x in extra]
@@ -86,12 +113,16 @@ def _same(a, b):
         assert a["arrays"][k] == b["arrays"][k], k
 
 
-@pytest.mark.parametrize("method,extra", [
-    ("imr", ["--workers", "2"]),
-    ("en4dvar", ["--workers", "2"]),
-    ("mienks", ["--workers", "2"]),
-    ("mienks", ["--scheduler", "local", "--workers", "2"]),
-], ids=["imr-2proc", "en4dvar-2proc", "mienks-2proc", "mienks-dask"])
+@pytest.mark.parametrize(
+    "method,extra",
+    [
+        ("imr", ["--workers", "2"]),
+        ("en4dvar", ["--workers", "2"]),
+        ("mienks", ["--workers", "2"]),
+        ("mienks", ["--scheduler", "local", "--workers", "2"]),
+    ],
+    ids=["imr-2proc", "en4dvar-2proc", "mienks-2proc", "mienks-dask"],
+)
 def test_same_numbers_on_every_backend(dataset, tmp_path, method, extra, request):
     if method == "mienks":
         one = request.getfixturevalue("mienks_ref")
@@ -135,18 +166,26 @@ def test_resume_after_lost_units_and_refusals(dataset, tmp_path, mienks_ref):
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
-@pytest.mark.parametrize("sig,extra", [(signal.SIGTERM, []), (signal.SIGKILL, []),
-                                       (signal.SIGKILL, ["--workers", "2"])],
-                         ids=["sigterm", "sigkill", "sigkill-2proc"])
+@pytest.mark.parametrize(
+    "sig,extra",
+    [(signal.SIGTERM, []), (signal.SIGKILL, []), (signal.SIGKILL, ["--workers", "2"])],
+    ids=["sigterm", "sigkill", "sigkill-2proc"],
+)
 def test_fit_killed_and_resumed(dataset, tmp_path, sig, extra, mienks_ref):
     """A real ``imrbayes fit`` process killed part-way; the resume keeps every finished unit (same
     bytes, not recomputed) and ends with an uninterrupted run's numbers."""
     out = tmp_path / "run"
     env = {**os.environ, "IMRBAYES_UNIT_DELAY_S": "0.3"}
-    cmd = [sys.executable, "-c", "import sys; from imrbayes.cli import main; sys.exit(main())", "fit",
-           *_args(dataset, "mienks", out, *extra)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            start_new_session=True)
+    cmd = [
+        sys.executable,
+        "-c",
+        "import sys; from imrbayes.cli import main; sys.exit(main())",
+        "fit",
+        *_args(dataset, "mienks", out, *extra),
+    ]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, start_new_session=True
+    )
     try:
         deadline = time.monotonic() + 120
         while len(list((out / "units").glob("*.npz"))) < 4:
@@ -165,11 +204,11 @@ def test_fit_killed_and_resumed(dataset, tmp_path, sig, extra, mienks_ref):
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     n_done = len(before)
-    assert 4 <= n_done < 30, "killed too late to test anything"      # 15 units per pass, pilot and reported
+    assert 4 <= n_done < 30, "killed too late to test anything"  # 15 units per pass, pilot and reported
     assert not (out / "summary.json").exists()
     _fit(_args(dataset, "mienks", out, "--resume"))
     after = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in (out / "units").glob("*.npz")}
-    assert {k: after[k] for k in before} == before          # kept, not recomputed
+    assert {k: after[k] for k in before} == before  # kept, not recomputed
     ex = json.loads((out / "summary.json").read_text())["execution"]
     assert ex["n_resumed"] >= n_done and ex["n_resumed"] + ex["n_computed"] == 30
     _same(numbers(out), mienks_ref)
@@ -183,7 +222,7 @@ def test_bad_experiment_left_out_and_reported(dataset, tmp_path):
     d = tmp_path / "data"
     shutil.copytree(dataset, d)
     lines = (d / "exp_002.csv").read_text().splitlines()
-    (d / "exp_002.csv").write_text("\n".join(lines[:12]) + "\n")      # cut before the first collapse
+    (d / "exp_002.csv").write_text("\n".join(lines[:12]) + "\n")  # cut before the first collapse
     res = CliRunner().invoke(main, ["fit", *_args(d, "en4dvar", tmp_path / "out")])
     assert res.exit_code == 0, res.output
     s = json.loads((tmp_path / "out" / "summary.json").read_text())
@@ -210,20 +249,20 @@ class _Failing:
         return self.inner.propagate(state, params, t_end, t_eval)
 
     def simulate(self, params, rmax_m, req_m, t_star):
-        if np.all(np.asarray(rmax_m) == self.rmax) and self.t_from <= 0.0:      # a simulation starts at t* = 0
+        if np.all(np.asarray(rmax_m) == self.rmax) and self.t_from <= 0.0:  # a simulation starts at t* = 0
             raise FloatingPointError("injected failure")
         return self.inner.simulate(params, rmax_m, req_m, t_star)
 
 
 def test_failed_units_are_contained_counted_and_retried(tmp_path):
     from imrbayes.ensemble import En4DVarSettings, IMRSettings, MIEnKSSettings, fit_en4dvar, fit_imr, fit_mienks
-    from imrbayes.execution import Execution
-    from imrbayes.execution import RunStore
+    from imrbayes.execution import Execution, RunStore
 
     fm, obs = observations(n_exp=3, n_steps=60)
     sp = space(fm)
-    res = fit_imr(fm, obs, sp, IMRSettings(n_G=9, n_mu=7, G_max=15e3, mu_max=0.2, n_draws=10),
-                  runner=_Failing(fm, obs.rmax_m[1]))
+    res = fit_imr(
+        fm, obs, sp, IMRSettings(n_G=9, n_mu=7, G_max=15e3, mu_max=0.2, n_draws=10), runner=_Failing(fm, obs.rmax_m[1])
+    )
     assert [f["experiment"] for f in res.details["failed_units"]] == ["exp_002"]
     assert res.per_experiment[1]["failed"] and "injected failure" in res.warnings[0]
     assert np.isfinite(res.estimate["G"]["mean"])

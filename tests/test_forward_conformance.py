@@ -43,10 +43,26 @@ def test_groups_match_imrv2_json():
     case = reference.load_case(REF, "nhkv_km_medtherm_vap_mass_m0")
     ours = case.model.groups(case.rmax_m, case.req_m)
     theirs = case.json["nondimensional_groups_from_f_call_params"]
-    pairs = {"chi": "chi", "fom": "Fom", "foh": "Foh", "br": "Br", "iota": "iota", "alpha_g": "alpha_g",
-             "beta_g": "beta_g", "alpha_v": "alpha_v", "beta_v": "beta_v", "rv": "Rv_star", "rg": "Ra_star",
-             "lstar": "L_heat_star", "req": "Req_star", "pv": "Pv_star", "kv0": "kv0", "pb0": "Pb_star",
-             "cstar": "Cstar", "tait_b": "GAMa"}
+    pairs = {
+        "chi": "chi",
+        "fom": "Fom",
+        "foh": "Foh",
+        "br": "Br",
+        "iota": "iota",
+        "alpha_g": "alpha_g",
+        "beta_g": "beta_g",
+        "alpha_v": "alpha_v",
+        "beta_v": "beta_v",
+        "rv": "Rv_star",
+        "rg": "Ra_star",
+        "lstar": "L_heat_star",
+        "req": "Req_star",
+        "pv": "Pv_star",
+        "kv0": "kv0",
+        "pb0": "Pb_star",
+        "cstar": "Cstar",
+        "tait_b": "GAMa",
+    }
     for ours_key, their_key in pairs.items():
         assert np.isclose(float(ours[ours_key]), theirs[their_key], rtol=1e-12), ours_key
     assert np.isclose(1.0 / float(ours["inv_we"]), theirs["We"], rtol=1e-12)

@@ -27,13 +27,14 @@ T121 = np.arange(121) * 0.025
 CASES = {"lic": (7290.0, 0.088, 263e-6, 7.58), "stiff": (20e3, 0.11, 350e-6, 7.0), "soft": (1e3, 0.02, 300e-6, 8.5)}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _grid_limit(case, mass_transfer=True, nt=1024):
     """R* at the grid limit: wall-clustered stretch 3 at nt = 1024, rtol 1e-9 (within 1e-4 of nt = 2048
     on every study case; benchmarks/results/grid_refinement.json)."""
     G, mu, rmax, ratio = CASES[case]
-    fm = ForwardModel("nhkv", options=ForwardOptions(nt=nt, mt=nt, stretch=3.0, mass_transfer=mass_transfer,
-                                                     rtol=1e-9, atol=1e-11))
+    fm = ForwardModel(
+        "nhkv", options=ForwardOptions(nt=nt, mt=nt, stretch=3.0, mass_transfer=mass_transfer, rtol=1e-9, atol=1e-11)
+    )
     out = fm.simulate({"G": G, "mu": mu}, rmax, rmax / ratio, T121, max_steps=50_000_000)
     assert not out.failed[0]
     return out.R_star[0]
@@ -54,8 +55,9 @@ def test_default_grid_is_within_1_5e3_of_the_grid_limit(case, mass_transfer):
     gel 6.0e-4; the previous default (stretch 1.5, nt 64) was 5.3e-3 / 1.6e-3 / 7.2e-3."""
     err = reference.relative_l2(_default(case, mass_transfer), _grid_limit(case, mass_transfer))
     assert err < 1.5e-3, err
-    old = reference.relative_l2(_default(case, mass_transfer, stretch=1.5, nt=64, mt=64),
-                                _grid_limit(case, mass_transfer))
+    old = reference.relative_l2(
+        _default(case, mass_transfer, stretch=1.5, nt=64, mt=64), _grid_limit(case, mass_transfer)
+    )
     assert err < old
 
 
@@ -92,18 +94,24 @@ def test_refinement_before_first_collapse_is_second_order():
     base = ForwardModel("nhkv", options=ForwardOptions(rtol=1e-10, atol=1e-12))
     sols = {}
     for nt in (32, 64, 128):
-        sols[nt] = base.with_options(nt=nt, mt=nt).simulate({"G": 7290.0, "mu": 0.088}, 263e-6, 263e-6 / 7.58,
-                                                            t).R_star[0]
+        sols[nt] = (
+            base.with_options(nt=nt, mt=nt).simulate({"G": 7290.0, "mu": 0.088}, 263e-6, 263e-6 / 7.58, t).R_star[0]
+        )
     d1 = np.max(np.abs(sols[64] - sols[32]))
     d2 = np.max(np.abs(sols[128] - sols[64]))
     assert d2 < 5e-5
-    assert d1 / d2 > 3.0   # second order gives 4
+    assert d1 / d2 > 3.0  # second order gives 4
 
 
 def _lic(nt, stretch, **kw):
     fm = ForwardModel("nhkv", options=ForwardOptions(nt=nt, mt=nt, stretch=stretch, rtol=1e-8, atol=1e-10, **kw))
-    out = fm.propagate(fm.initial_state(263e-6, 263e-6 / 7.58), {"G": 7290.0, "mu": 0.088}, 3.0,
-                       np.arange(121) * 0.025, max_steps=20_000_000)
+    out = fm.propagate(
+        fm.initial_state(263e-6, 263e-6 / 7.58),
+        {"G": 7290.0, "mu": 0.088},
+        3.0,
+        np.arange(121) * 0.025,
+        max_steps=20_000_000,
+    )
     assert not out.failed[0]
     return out.R_star[0]
 
@@ -134,8 +142,9 @@ def test_mass_transfer_grid_limit_and_imrv2_uniform_grids_approach_it():
     errs = []
     for nt in (200, 400, 800):
         fm = ForwardModel("nhkv", options=ForwardOptions(scheme="imrv2-fd", nt=nt, mt=nt, rtol=1e-8, atol=1e-10))
-        R = fm.simulate({"G": 7290.0, "mu": 0.088}, 263e-6, 263e-6 / 7.58, np.arange(121) * 0.025,
-                        max_steps=20_000_000).R_star[0]
+        R = fm.simulate(
+            {"G": 7290.0, "mu": 0.088}, 263e-6, 263e-6 / 7.58, np.arange(121) * 0.025, max_steps=20_000_000
+        ).R_star[0]
         errs.append(reference.relative_l2(R, limit))
     assert errs[0] > errs[1] > errs[2]
     assert 5e-3 < errs[0] < 1e-2
@@ -156,8 +165,14 @@ print(json.dumps({"hits": sum(st.cache_hits.values()), "misses": sum(st.cache_mi
 
 
 def _two_processes(env):
-    return [json.loads(subprocess.run([sys.executable, "-c", _SNIPPET], env=env, capture_output=True, text=True,
-                                      check=True).stdout.strip().splitlines()[-1]) for _ in range(2)]
+    return [
+        json.loads(
+            subprocess.run([sys.executable, "-c", _SNIPPET], env=env, capture_output=True, text=True, check=True)
+            .stdout.strip()
+            .splitlines()[-1]
+        )
+        for _ in range(2)
+    ]
 
 
 @pytest.mark.slow
@@ -199,7 +214,7 @@ def test_kernel_source_is_written_once_and_never_replaced(tmp_path):
     after = path.stat()
     assert path.read_text() == "x = 1\n"
     assert (after.st_mtime_ns, after.st_ino) == (before.st_mtime_ns, before.st_ino)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["kernel.py"]      # no temporary left behind
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kernel.py"]  # no temporary left behind
 
 
 def test_not_compiled_names_the_kernels_a_cache_lacks(tmp_path, monkeypatch):

@@ -16,10 +16,25 @@ T = np.linspace(0.0, 3.0, 121)
 
 
 def test_generator_pyimr_without_pyimr_is_a_one_line_error(tmp_path, monkeypatch):
-    monkeypatch.setitem(sys.modules, "pyimr", None)          # import pyimr raises ImportError
-    res = CliRunner().invoke(main, ["simulate", "--model", "nhkv", "--param", "G=5e3", "--param", "mu=0.05",
-                                    "--generator", "pyimr", "--forward", "bubble=polytropic",
-                                    "--out", str(tmp_path / "d")])
+    monkeypatch.setitem(sys.modules, "pyimr", None)  # import pyimr raises ImportError
+    res = CliRunner().invoke(
+        main,
+        [
+            "simulate",
+            "--model",
+            "nhkv",
+            "--param",
+            "G=5e3",
+            "--param",
+            "mu=0.05",
+            "--generator",
+            "pyimr",
+            "--forward",
+            "bubble=polytropic",
+            "--out",
+            str(tmp_path / "d"),
+        ],
+    )
     assert res.exit_code == 2
     msg = res.output.strip()
     assert "\n" not in msg and "Traceback" not in msg
@@ -27,8 +42,9 @@ def test_generator_pyimr_without_pyimr_is_a_one_line_error(tmp_path, monkeypatch
     assert not (tmp_path / "d" / "truth.json").exists()
 
 
-@pytest.mark.parametrize("model,params", [("nhkv", {"G": 5200.0, "mu": 0.065}),
-                                          ("qkv", {"G": 5200.0, "mu": 0.065, "alpha": 0.3})])
+@pytest.mark.parametrize(
+    "model,params", [("nhkv", {"G": 5200.0, "mu": 0.065}), ("qkv", {"G": 5200.0, "mu": 0.065, "alpha": 0.3})]
+)
 def test_polytropic_bubble_agrees_with_pyimr_to_the_tolerances(model, params):
     """Same equations (IMRv2's stress models 1 and 2, Keller-Miksis, polytropic gas with vapour),
     two integrators: agreement at the level of the tolerances (measured 4.8e-7 relative L2)."""
@@ -77,9 +93,28 @@ def test_thermal_bubble_agrees_with_pyimr_within_the_grid_bound():
 def test_simulate_with_pyimr_records_the_generator(tmp_path):
     pytest.importorskip("pyimr")
     out = tmp_path / "d"
-    args = ["simulate", "--model", "nhkv", "--param", "G=5200", "--param", "mu=0.065", "--n-exp", "2",
-            "--noise", "none", "--frame-s", "1e-6", "--t-end", "2", "--forward", "bubble=polytropic",
-            "--seed", "3", "--out"]
+    args = [
+        "simulate",
+        "--model",
+        "nhkv",
+        "--param",
+        "G=5200",
+        "--param",
+        "mu=0.065",
+        "--n-exp",
+        "2",
+        "--noise",
+        "none",
+        "--frame-s",
+        "1e-6",
+        "--t-end",
+        "2",
+        "--forward",
+        "bubble=polytropic",
+        "--seed",
+        "3",
+        "--out",
+    ]
     assert CliRunner().invoke(main, [*args, str(out), "--generator", "pyimr", "--quiet"]).exit_code == 0
     assert CliRunner().invoke(main, [*args, str(tmp_path / "o"), "--quiet"]).exit_code == 0
     truth = json.loads((out / "truth.json").read_text())
@@ -87,7 +122,7 @@ def test_simulate_with_pyimr_records_the_generator(tmp_path):
     assert json.loads((tmp_path / "o" / "truth.json").read_text())["generator"]["code"] == "imrbayes"
     a = np.loadtxt(out / "exp_001.csv", delimiter=",", skiprows=1)
     b = np.loadtxt(tmp_path / "o" / "exp_001.csv", delimiter=",", skiprows=1)
-    assert a.shape == b.shape and np.allclose(a[:, 0], b[:, 0])       # same frames, other code
+    assert a.shape == b.shape and np.allclose(a[:, 0], b[:, 0])  # same frames, other code
     assert np.max(np.abs(a[:, 1] - b[:, 1])) / 263e-6 < 1e-4
 
 

@@ -24,9 +24,11 @@ def test_empty_inviscid_incompressible_cavity_collapses_at_rayleigh_time():
     """Rayleigh-Plesset, no gas to speak of (Req = Rmax/1000), no vapour, no viscosity, no
     elasticity, no surface tension: R reaches 5 % of Rmax at t* = 0.9147 within 0.1 %
     (the remaining time to R = 0 scales as R^(5/2): ~2e-4 here)."""
-    fm = ForwardModel("none", options=ForwardOptions(radial="rp", bubble="polytropic", vapor=False,
-                                                     rtol=1e-10, atol=1e-12),
-                      physics=Physics.from_overrides({"surface_tension": 0.0}))
+    fm = ForwardModel(
+        "none",
+        options=ForwardOptions(radial="rp", bubble="polytropic", vapor=False, rtol=1e-10, atol=1e-12),
+        physics=Physics.from_overrides({"surface_tension": 0.0}),
+    )
     t = np.linspace(0.85, 0.9146, 4000)
     t = np.concatenate([[0.0], t])
     out = fm.simulate({}, 1e-4, 1e-7, t)
@@ -37,18 +39,21 @@ def test_empty_inviscid_incompressible_cavity_collapses_at_rayleigh_time():
     assert abs(t_cross / RAYLEIGH_COLLAPSE_TIME - 1) < 1e-3
 
 
-@pytest.mark.parametrize("options", [
-    dict(bubble="polytropic", vapor=False),
-    dict(bubble="polytropic", vapor=True),
-    dict(bubble="thermal", vapor=True, mass_transfer=True),
-    dict(bubble="thermal", vapor=True, mass_transfer=False, medium="warm"),
-    dict(scheme="imrv2-fd", bubble="thermal", vapor=True, mass_transfer=True, medium="warm"),
-])
+@pytest.mark.parametrize(
+    "options",
+    [
+        dict(bubble="polytropic", vapor=False),
+        dict(bubble="polytropic", vapor=True),
+        dict(bubble="thermal", vapor=True, mass_transfer=True),
+        dict(bubble="thermal", vapor=True, mass_transfer=False, medium="warm"),
+        dict(scheme="imrv2-fd", bubble="thermal", vapor=True, mass_transfer=True, medium="warm"),
+    ],
+)
 def test_bubble_at_equilibrium_stays_at_rest(options):
     fm = ForwardModel("nhkv", options=ForwardOptions(**options))
     out = fm.simulate(NHKV, 50e-6, 50e-6, np.linspace(0, 3, 13))
     assert not out.failed[0]
-    assert np.max(np.abs(out.R_star[0] - 1.0)) < 1e-7   # far below the integrator tolerance (1e-6)
+    assert np.max(np.abs(out.R_star[0] - 1.0)) < 1e-7  # far below the integrator tolerance (1e-6)
 
 
 @pytest.mark.parametrize("G", [0.0, 5e3, 2e4])
@@ -59,8 +64,9 @@ def test_small_oscillations_ring_at_linear_natural_frequency(G):
     req = 40e-6
     eps = 1e-3
     rmax = req * (1 + eps)
-    fm = ForwardModel("nhkv", options=ForwardOptions(radial="rp", bubble="polytropic", vapor=False,
-                                                     rtol=1e-10, atol=1e-13))
+    fm = ForwardModel(
+        "nhkv", options=ForwardOptions(radial="rp", bubble="polytropic", vapor=False, rtol=1e-10, atol=1e-13)
+    )
     pg = ph.p8 + 2 * ph.surface_tension / req
     omega = math.sqrt((3 * ph.kappa * pg - 2 * ph.surface_tension / req + 4 * G) / (ph.rho * req**2))
     period_star = 2 * math.pi / omega / (rmax / ph.velocity_scale)
@@ -80,14 +86,15 @@ def test_batch_equals_members_and_failures_are_contained():
     mu = np.array([0.05, 0.088, 0.2])
     batch = fm.simulate({"G": G, "mu": mu}, LIC["rmax_m"], LIC["req_m"], t)
     serial = ForwardModel("nhkv", options=ForwardOptions(scheme="imrv2-fd"), parallel=False)
-    np.testing.assert_array_equal(serial.simulate({"G": G, "mu": mu}, LIC["rmax_m"], LIC["req_m"], t).R_star,
-                                  batch.R_star)
+    np.testing.assert_array_equal(
+        serial.simulate({"G": G, "mu": mu}, LIC["rmax_m"], LIC["req_m"], t).R_star, batch.R_star
+    )
     for i in range(3):
         single = fm.simulate({"G": G[i], "mu": mu[i]}, LIC["rmax_m"], LIC["req_m"], t)
         np.testing.assert_array_equal(batch.R_star[i], single.R_star[0])
     state = fm.initial_state(LIC["rmax_m"], LIC["req_m"], n=3)
-    state.y[1, 3] = np.nan           # a corrupted member
-    state.y[2, 0] = -0.1             # an unphysical one
+    state.y[1, 3] = np.nan  # a corrupted member
+    state.y[2, 0] = -0.1  # an unphysical one
     out = fm.propagate(state, {"G": G, "mu": mu}, t[-1], t)
     assert out.failed.tolist() == [False, True, True]
     np.testing.assert_array_equal(out.R_star[0], batch.R_star[0])
@@ -112,7 +119,7 @@ def test_state_handoff_continues_the_same_trajectory(options):
 def test_piecewise_parameters_equal_handoff_between_constant_segments():
     fm = ForwardModel("nhkv", options=ForwardOptions(scheme="imrv2-fd", rtol=1e-9, atol=1e-11))
     t = np.arange(121) * 0.025
-    table = np.array([[[9e3, 0.12], [5e3, 0.07], [4e3, 0.06]]])        # (1 member, 3 pieces, 2 params)
+    table = np.array([[[9e3, 0.12], [5e3, 0.07], [4e3, 0.06]]])  # (1 member, 3 pieces, 2 params)
     breaks = [0.9, 1.6]
     piecewise = fm.simulate(table, LIC["rmax_m"], LIC["req_m"], t, breaks_star=breaks)
     st = fm.initial_state(LIC["rmax_m"], LIC["req_m"])
@@ -139,10 +146,10 @@ def test_per_member_break_times_equal_one_call_per_member(bubble):
     batch = fm.simulate(table, LIC["rmax_m"], LIC["req_m"], t, breaks_star=breaks)
     assert not batch.failed.any()
     for m in range(3):
-        alone = fm.simulate(table[m:m + 1], LIC["rmax_m"], LIC["req_m"], t, breaks_star=breaks[m])
+        alone = fm.simulate(table[m : m + 1], LIC["rmax_m"], LIC["req_m"], t, breaks_star=breaks[m])
         np.testing.assert_array_equal(alone.R_star[0], batch.R_star[m])
     shared = fm.simulate(table, LIC["rmax_m"], LIC["req_m"], t, breaks_star=[0.9])
-    assert np.max(np.abs(shared.R_star[2] - batch.R_star[2])) > 1e-3     # the member's own breaks matter
+    assert np.max(np.abs(shared.R_star[2] - batch.R_star[2])) > 1e-3  # the member's own breaks matter
     with pytest.raises(InputError):
         fm.simulate(table, LIC["rmax_m"], LIC["req_m"], t, breaks_star=np.zeros((2, 1)))
     with pytest.raises(InputError):
@@ -177,10 +184,18 @@ def test_runge_kutta_tableaux_satisfy_order_conditions(name):
     if order >= 5:
         for A1 in mats:
             for A2 in mats:
-                conds += [(b @ c**3, 1 / 4), (b @ (c * (A1 @ c)), 1 / 8), (b @ (A1 @ c**2), 1 / 12),
-                          (b @ (A1 @ A2 @ c), 1 / 24), (b @ c**4, 1 / 5), (b @ (c**2 * (A1 @ c)), 1 / 10),
-                          (b @ ((A1 @ c) * (A2 @ c)), 1 / 20), (b @ (A1 @ A2 @ c**2), 1 / 60),
-                          (b @ (c * (A1 @ A2 @ c)), 1 / 30), (b @ (A1 @ (c * (A2 @ c))), 1 / 40)]
+                conds += [
+                    (b @ c**3, 1 / 4),
+                    (b @ (c * (A1 @ c)), 1 / 8),
+                    (b @ (A1 @ c**2), 1 / 12),
+                    (b @ (A1 @ A2 @ c), 1 / 24),
+                    (b @ c**4, 1 / 5),
+                    (b @ (c**2 * (A1 @ c)), 1 / 10),
+                    (b @ ((A1 @ c) * (A2 @ c)), 1 / 20),
+                    (b @ (A1 @ A2 @ c**2), 1 / 60),
+                    (b @ (c * (A1 @ A2 @ c)), 1 / 30),
+                    (b @ (A1 @ (c * (A2 @ c))), 1 / 40),
+                ]
     for value, expected in conds:
         assert abs(value - expected) < 1e-13
     assert abs(T["bhat"].sum() - 1) < 1e-13 and abs(T["bhat"] @ c - 0.5) < 1e-13
@@ -193,14 +208,15 @@ def test_state_is_valid_accepts_evolved_states_and_flags_unphysical_ones(options
     end = fm.propagate(start, NHKV, 1.0).end
     assert fm.state_is_valid(start).all() and fm.state_is_valid(end).all()
     y = end.y.copy()
-    y[0, 0] = -0.01                                     # negative radius
+    y[0, 0] = -0.01  # negative radius
     y[1, 1] = np.nan
     if fm.options.thermal:
-        y[2, 2] = -0.5                                  # negative bubble pressure
+        y[2, 2] = -0.5  # negative bubble pressure
         y[3, fm.layout()["kv"].start if fm.options.mass_transfer else fm.layout()["theta"].start] = (
-            1.5 if fm.options.mass_transfer else -1e6)  # vapour fraction > 1 / temperature < 0
+            1.5 if fm.options.mass_transfer else -1e6
+        )  # vapour fraction > 1 / temperature < 0
     assert fm.state_is_valid(y).tolist() == [False, False] + [not fm.options.thermal] * 2
-    why = fm.state_problems(y)                          # each state fails the check it was built to fail
+    why = fm.state_problems(y)  # each state fails the check it was built to fail
     assert why["radius"].tolist() == [True, False, False, False]
     assert why["non_finite"].tolist() == [False, True, False, False]
     if fm.options.thermal:

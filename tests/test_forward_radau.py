@@ -50,14 +50,15 @@ def test_default_tolerance_is_within_1e4_of_an_independent_tight_solve(model):
     assert np.max(np.abs(tight.R_star / ref.R_star - 1)) < 1e-7
     assert np.max(np.abs(ours.R_star / ref.R_star - 1)) < 1e-4
     # the point of Radau: far fewer steps than the IMEX scheme at the same tolerance
-    ark = ForwardModel(model, options=ForwardOptions(integrator="ark548", rtol=fm.options.rtol,
-                                                      atol=fm.options.atol, **grid)).simulate(params, RMAX,
-                                                                                              RMAX / RATIO, T)
+    ark = ForwardModel(
+        model, options=ForwardOptions(integrator="ark548", rtol=fm.options.rtol, atol=fm.options.atol, **grid)
+    ).simulate(params, RMAX, RMAX / RATIO, T)
     assert ours.n_steps.mean() < 0.4 * ark.n_steps.mean()
     # the default grid: default tolerance against tight Radau
     default = ForwardModel(model).simulate(params, RMAX, RMAX / RATIO, T)
     tight_default = ForwardModel(model, options=ForwardOptions(rtol=1e-10, atol=1e-12)).simulate(
-        params, RMAX, RMAX / RATIO, T)
+        params, RMAX, RMAX / RATIO, T
+    )
     assert not (default.failed.any() or tight_default.failed.any())
     assert np.max(np.abs(default.R_star / tight_default.R_star - 1)) < 1e-4
 
@@ -88,8 +89,32 @@ def test_structured_jacobian_equals_dense_finite_differences(mass_transfer):
     Jl, Jd, Ju = (np.zeros((m, bs, bs)) for _ in range(3))
     U = np.zeros((nc, n))
     vidx, vval, vcnt = np.zeros((nc, nc), dtype=np.int64), np.zeros((nc, nc)), np.zeros(nc, dtype=np.int64)
-    kk = k._radau_jacobian(0.9, y, f0, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx,
-                           vval, vcnt, np.zeros(n), np.zeros(n), coef, work)
+    kk = k._radau_jacobian(
+        0.9,
+        y,
+        f0,
+        g,
+        pr,
+        flags,
+        grid,
+        mgrid,
+        dense,
+        in_cols,
+        o1,
+        bs,
+        m,
+        Jl,
+        Jd,
+        Ju,
+        U,
+        vidx,
+        vval,
+        vcnt,
+        np.zeros(n),
+        np.zeros(n),
+        coef,
+        work,
+    )
     J = np.zeros((n, n))
     offs = [3, o1][:bs]
     for i in range(m):
@@ -119,4 +144,4 @@ def test_structured_jacobian_equals_dense_finite_differences(mass_transfer):
     # entries of each row scaled by the row's largest entry: FD noise ~1e-7 of it (measured 8e-7)
     scale = np.abs(fd).max(axis=1, keepdims=True)[~frozen]
     assert np.max(np.abs(J[live] - fd[live]) / scale) < 1e-5
-    assert kk == 4   # R, Rdot, p_b and one rank-one wall term (NHKV has no stress states)
+    assert kk == 4  # R, Rdot, p_b and one rank-one wall term (NHKV has no stress states)

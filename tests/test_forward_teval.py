@@ -20,11 +20,11 @@ def test_rows_match_single_member_runs(bubble):
     assert out.R_star.shape == (3, 40)
     for i in range(3):
         # the same end time: a run that ends at its own last output lands its last step there
-        st = fm.initial_state(rmax[i:i + 1], req[i:i + 1])
-        alone = fm.propagate(st, theta[i:i + 1], float(rows.max()), rows[i]).R_star[0]
+        st = fm.initial_state(rmax[i : i + 1], req[i : i + 1])
+        alone = fm.propagate(st, theta[i : i + 1], float(rows.max()), rows[i]).R_star[0]
         np.testing.assert_allclose(out.R_star[i], alone, rtol=0, atol=1e-12)
     shared = fm.simulate(theta, rmax, req, base).R_star
-    assert np.max(np.abs(shared - out.R_star)) > 1e-3      # the rows really were used
+    assert np.max(np.abs(shared - out.R_star)) > 1e-3  # the rows really were used
 
 
 def test_bad_shape_is_refused():
@@ -55,7 +55,7 @@ def test_one_compiled_signature_per_entry_point():
     assert len(fm.kernel.integrate_batch.signatures) == 0, fm.kernel.integrate_batch.signatures
 
 
-_ONE_PROCESS = '''
+_ONE_PROCESS = """
 import hashlib, sys
 import numpy as np
 from imrbayes.forward.model import ForwardModel
@@ -66,7 +66,7 @@ for mode in sys.argv[1]:
     R = fm.simulate(theta, np.full(3, 300e-6), np.full(3, 40e-6), np.linspace(0.05, 2.0, 40)).R_star
     out.append(hashlib.sha1(R.tobytes()).hexdigest())
 print(" ".join(out))
-'''
+"""
 
 
 def test_serial_and_threaded_batches_agree_bitwise_in_any_process():
@@ -81,8 +81,7 @@ def test_serial_and_threaded_batches_agree_bitwise_in_any_process():
 
     hashes = {}
     for order in ("p", "s", "sp"):
-        done = subprocess.run([sys.executable, "-c", _ONE_PROCESS, order], capture_output=True, text=True,
-                              timeout=600)
+        done = subprocess.run([sys.executable, "-c", _ONE_PROCESS, order], capture_output=True, text=True, timeout=600)
         assert done.returncode == 0, done.stderr[-2000:]
         hashes[order] = done.stdout.split()
     assert hashes["p"] == hashes["s"] == hashes["sp"][:1] == hashes["sp"][1:], hashes

@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 import pytest
-
 from _ens_synth import model, observations
+
 from imrbayes.ensemble import Observations, ParamSpace
 from imrbayes.ensemble.adequacy import FIT_CHECK_THRESHOLD, annotate_estimate, fit_check
 from imrbayes.ensemble.imr import grid_axis
@@ -32,7 +32,7 @@ def test_wide_prior_has_the_stated_median_and_log_sd():
     np.testing.assert_allclose(sp.prior_mean, [math.log(3e3), math.log(0.03)], rtol=1e-12)
     np.testing.assert_allclose(np.sqrt(np.diag(sp.prior_cov)), [2.9, 2.9], rtol=1e-12)
     lo, hi = sp.describe()["central_95_si"]["G"]
-    assert lo < 20.0 and hi > 5e5                      # 10 Pa .. 0.9 MPa: liquids to stiff gels
+    assert lo < 20.0 and hi > 5e5  # 10 Pa .. 0.9 MPa: liquids to stiff gels
     paper = ParamSpace.for_model(fm.constitutive, base="paper")
     assert paper.prior_si["G"] == PAPER_PRIOR["G"] and paper.prior_name == "paper"
     assert ParamSpace.for_model(fm.constitutive, {"G": (1e4, 1e3)}, base="wide").prior_name == "custom"
@@ -54,7 +54,7 @@ def test_start_is_separate_from_the_prior():
     np.testing.assert_array_equal(st.prior_mean, sp.prior_mean)
     np.testing.assert_array_equal(st.prior_cov, sp.prior_cov)
     np.testing.assert_allclose(st.start_mean, [math.log(2e5), math.log(0.5)])
-    assert st.data_share(np.diag([2.9 ** 2, 0.29 ** 2])) == pytest.approx({"G": 0.0, "mu": 0.99})
+    assert st.data_share(np.diag([2.9**2, 0.29**2])) == pytest.approx({"G": 0.0, "mu": 0.99})
 
 
 @pytest.mark.parametrize("truth", [{"G": 3e3, "mu": 0.05}, {"G": 1e5, "mu": 0.02}])
@@ -77,7 +77,7 @@ def test_search_calls_a_liquid_a_liquid():
     z = res.zero_modulus
     assert z["consistent_with_zero"] and z["lr"] <= z["threshold"]
     assert z["best_liquid"]["mu"] == pytest.approx(0.05, rel=0.05)
-    assert 10.0 < z["upper95_pa"] < 1e3                 # the data bound G from above, far below a gel's
+    assert 10.0 < z["upper95_pa"] < 1e3  # the data bound G from above, far below a gel's
     assert abs(math.log10(res.best["mu"] / 0.05)) <= 0.5 + 1e-9
 
 
@@ -89,7 +89,7 @@ def test_fit_check_reads_the_residual_against_the_noise():
     fm, obs = noisy({"G": 3e3, "mu": 0.05}, sd=2e-3)
     _, clean = observations(n_exp=3, truth={"G": 3e3, "mu": 0.05})
     ok = fit_check(_result(obs, clean.R_star), obs)
-    assert ok["described"] and 0.7 < ok["residual_to_noise"] < 1.3      # the truth misses by the noise
+    assert ok["described"] and 0.7 < ok["residual_to_noise"] < 1.3  # the truth misses by the noise
     _, wrong = observations(n_exp=3, truth={"G": 3e4, "mu": 0.05})
     bad = fit_check(_result(obs, wrong.R_star), obs)
     assert not bad["described"] and bad["residual_to_noise"] > FIT_CHECK_THRESHOLD
@@ -101,7 +101,7 @@ def test_annotate_says_consistent_with_zero_and_bounds():
     sp = ParamSpace.for_model(fm.constitutive, base="wide")
     est = {"G": {"mean": 50.0, "sd": 40.0, "hdi95": [0.3, 120.0]}, "mu": {"mean": 0.05, "sd": 0.002}}
     search = {"zero_modulus": {"consistent_with_zero": True}}
-    out = annotate_estimate(est, sp, np.diag([2.5 ** 2, 0.04 ** 2]), search)
+    out = annotate_estimate(est, sp, np.diag([2.5**2, 0.04**2]), search)
     assert out["G"]["consistent_with_zero"] and out["G"]["upper95"] == 120.0
     assert out["G"]["bounded"] == {"lower": False, "upper": True}
     assert out["mu"]["bounded"] == {"lower": True, "upper": True}

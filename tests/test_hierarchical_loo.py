@@ -14,7 +14,7 @@ def _bubbles(rng, n, mu, tau, se):
     d = mu.size
     theta = mu + tau * rng.standard_normal((n, d))
     m = theta + se * rng.standard_normal((n, d))
-    Lam = np.repeat(np.diag(1.0 / se ** 2)[None], n, axis=0)
+    Lam = np.repeat(np.diag(1.0 / se**2)[None], n, axis=0)
     eta = np.einsum("nij,nj->ni", Lam, m)
     return Lam, eta
 
@@ -30,7 +30,7 @@ def test_coverage_on_a_known_gel():
         r = leave_one_out(Lam, eta, prior_mean, prior_cov, names=["G", "mu"])
         k += np.array([r["n_inside"]["G"], r["n_inside"]["mu"]])
         n += r["n"]
-    for ki in k:      # 80 bubbles per parameter: the nominal 95 % inside the Wilson interval
+    for ki in k:  # 80 bubbles per parameter: the nominal 95 % inside the Wilson interval
         ci = binomtest(int(ki), n).proportion_ci(method="wilson")
         assert ci.low <= 0.95 <= ci.high + 0.03, (k, n)
 
@@ -39,7 +39,7 @@ def test_a_bubble_of_another_gel_is_outside():
     rng = np.random.default_rng(3)
     mu, tau, se = np.array([9.0, -2.3]), np.array([0.1, 0.1]), np.array([0.05, 0.05])
     Lam, eta = _bubbles(rng, 12, mu, tau, se)
-    eta[5] = Lam[5] @ (mu + np.array([1.5, 0.0]))      # G e^1.5 = 4.5x the gel's, 15 tau away
+    eta[5] = Lam[5] @ (mu + np.array([1.5, 0.0]))  # G e^1.5 = 4.5x the gel's, 15 tau away
     r = leave_one_out(Lam, eta, np.array([9.0, -2.0]), np.diag([1.0, 1.0]), names=["G", "mu"])
     assert not r["inside"][5][0] and r["z"][5][0] > 5
     assert r["inside"][5][1]

@@ -13,10 +13,26 @@ from imrbayes.plotting import figure, label, save, scale
 
 
 def test_jsonable_plain_types():
-    obj = {"a": np.float64(1.5), 2: (np.int64(3), np.bool_(True)), "nan": math.nan, "inf": np.float32("inf"),
-           "arr": np.array([[1.0, np.nan], [2.0, 3.0]]), "ints": np.arange(2), "s": "x", "none": None}
-    assert jsonable(obj) == {"a": 1.5, "2": [3, True], "nan": None, "inf": None, "arr": [[1.0, None], [2.0, 3.0]],
-                             "ints": [0, 1], "s": "x", "none": None}
+    obj = {
+        "a": np.float64(1.5),
+        2: (np.int64(3), np.bool_(True)),
+        "nan": math.nan,
+        "inf": np.float32("inf"),
+        "arr": np.array([[1.0, np.nan], [2.0, 3.0]]),
+        "ints": np.arange(2),
+        "s": "x",
+        "none": None,
+    }
+    assert jsonable(obj) == {
+        "a": 1.5,
+        "2": [3, True],
+        "nan": None,
+        "inf": None,
+        "arr": [[1.0, None], [2.0, 3.0]],
+        "ints": [0, 1],
+        "s": "x",
+        "none": None,
+    }
     out = jsonable(obj)
     assert type(out["a"]) is float and type(out["2"][0]) is int and type(out["2"][1]) is bool
 
@@ -32,7 +48,7 @@ def test_write_json_is_strict_and_atomic(tmp_path, monkeypatch):
 
     with pytest.raises(OSError, match="disk full"):
         atomic_write(p, boom)
-    assert json.loads(p.read_text()) == {"v": None, "t": [1, 2]}      # the old file, whole
+    assert json.loads(p.read_text()) == {"v": None, "t": [1, 2]}  # the old file, whole
     assert sorted(q.name for q in tmp_path.iterdir()) == ["x.json"]  # no temporary left
 
 

@@ -23,13 +23,13 @@ class LinearWindow(WindowTarget):
     def __init__(self, seed=0, nuisance_sd=(0.3, 0.2, 0.25)):
         rng = np.random.default_rng(seed)
         t = np.linspace(0.1, 1.0, M)
-        self.basis = np.stack([np.sin(3 * t), t ** 2, np.cos(2 * t), t, np.exp(-t)])      # (5, M)
+        self.basis = np.stack([np.sin(3 * t), t**2, np.cos(2 * t), t, np.exp(-t)])  # (5, M)
         self.scale = 1.0 + 0.3 * rng.random(N_EXP)
         prior = ParamSpace(("a", "b"), [False, False], np.array([0.5, -0.2]), np.diag([0.5, 0.4]) ** 2)
         sd = np.tile(nuisance_sd, (N_EXP, 1)).astype(float)
-        sd[1, 1] = 0.0                                   # one experiment with a nuisance fixed (not sampled)
+        sd[1, 1] = 0.0  # one experiment with a nuisance fixed (not sampled)
         self.truth = np.array([0.8, -0.1])
-        P = np.full(M, 0.05 ** 2)
+        P = np.full(M, 0.05**2)
         nu_true = rng.normal(0.0, 1.0, (N_EXP, 3)) * sd
         y = self._R(self.truth[None], nu_true[None])[0] + rng.normal(0.0, 0.05, (N_EXP, M))
         start = BatchState(np.zeros((N_EXP, 3)), 0.0, np.full(N_EXP, 1e-4), np.full(N_EXP, 1e-5))
@@ -37,8 +37,13 @@ class LinearWindow(WindowTarget):
 
     def _R(self, theta, nu):
         f, g, h, g2, k = self.basis
-        R = (theta[:, None, 0, None] * f + theta[:, None, 1, None] * g
-             + nu[:, :, 0, None] * (f + h) + nu[:, :, 1, None] * g2 + nu[:, :, 2, None] * k)
+        R = (
+            theta[:, None, 0, None] * f
+            + theta[:, None, 1, None] * g
+            + nu[:, :, 0, None] * (f + h)
+            + nu[:, :, 1, None] * g2
+            + nu[:, :, 2, None] * k
+        )
         return R * self.scale[None, :, None]
 
     def predict(self, Z):
@@ -63,7 +68,7 @@ class LinearWindow(WindowTarget):
         prec0 = np.zeros((d, d))
         prec0[:2, :2] = np.linalg.inv(self.prior.prior_cov)
         sd = self.nuisance_sd[self.nuisance_used]
-        prec0[2:, 2:] = np.diag(1.0 / sd ** 2)
+        prec0[2:, 2:] = np.diag(1.0 / sd**2)
         m0 = np.concatenate([self.prior.prior_mean, np.zeros(d - 2)])
         prec = A.T @ A / self.P[0, 0] + prec0
         cov = np.linalg.inv(prec)
@@ -90,11 +95,11 @@ def test_accepted_blocks_carry_their_exact_log_density():
     tg.log_prob(Q)
     n0 = tg.n_evals
     Z, lp, acc = tg.accept_blocks(X, Q, np.random.RandomState(3))
-    assert tg.n_evals - n0 == 40               # X from the memo would be free; X was never evaluated here
-    assert acc.any() and not acc.all()         # a mixture of accepted and rejected blocks
+    assert tg.n_evals - n0 == 40  # X from the memo would be free; X was never evaluated here
+    assert acc.any() and not acc.all()  # a mixture of accepted and rejected blocks
     np.testing.assert_allclose(lp, tg.log_prob(Z), rtol=1e-12, atol=1e-9)
     n1 = tg.n_evals
-    tg.block_terms(Z)                          # the mixed sets are remembered: no new solve
+    tg.block_terms(Z)  # the mixed sets are remembered: no new solve
     assert tg.n_evals == n1
     with pytest.raises(ValueError, match="same parameters"):
         Q2 = Q.copy()
@@ -102,13 +107,15 @@ def test_accepted_blocks_carry_their_exact_log_density():
         tg.accept_blocks(X, Q2, np.random.RandomState(0))
 
 
-@pytest.mark.parametrize("moves", [pytest.param("ridge:0.5,blocks:0.5", marks=pytest.mark.slow), "ridge:0.3,blocks:0.4,de:0.3"])
+@pytest.mark.parametrize(
+    "moves", [pytest.param("ridge:0.5,blocks:0.5", marks=pytest.mark.slow), "ridge:0.3,blocks:0.4,de:0.3"]
+)
 def test_block_and_ridge_moves_sample_the_exact_posterior(moves):
     tg = LinearWindow()
     mean, cov = tg.exact()
     sd = np.sqrt(np.diag(cov))
     corr = cov[0, 2:] / (sd[0] * sd[2:])
-    assert np.max(np.abs(corr)) > 0.5          # the nuisances really are tied to the parameters
+    assert np.max(np.abs(corr)) > 0.5  # the nuisances really are tied to the parameters
     s = MCMCSettings(n_walkers=2 * tg.ndim, n_steps=2500, n_chains=2, stop="fixed", moves=moves, init_scale=1.0)
     run = run_mcmc(tg, mean, cov, s, seed=4)
     x = run.chain[:, 500:].reshape(-1, tg.ndim)
@@ -156,7 +163,7 @@ def test_auto_moves_follow_the_window():
 def test_auto_moves_fall_back_to_blocks_when_the_placed_fit_is_not_gaussian(monkeypatch):
     import imrbayes.mcmc.sampler as sampler
 
-    monkeypatch.setattr(sampler, "LAPLACE_MAX_RESIDUAL", -1.0)       # any fit counts as not Gaussian
+    monkeypatch.setattr(sampler, "LAPLACE_MAX_RESIDUAL", -1.0)  # any fit counts as not Gaussian
     tg = LinearWindow(nuisance_sd=(0.3, 0.0, 0.0))
     run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed"), seed=0)
     assert run.settings["place"] == "laplace" and run.settings["moves"] == "ridge:0.5,blocks:0.5"

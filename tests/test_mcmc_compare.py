@@ -9,18 +9,28 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from imrbayes.mcmc.compare import (THRESHOLDS, compare_window, compare_windows, energy_distance,
-                                   energy_shift_reference, gaussian_kl, gaussian_w2, knn_entropy, mardia,
-                                   negentropy, sample_w1)
+from imrbayes.mcmc.compare import (
+    THRESHOLDS,
+    compare_window,
+    compare_windows,
+    energy_distance,
+    energy_shift_reference,
+    gaussian_kl,
+    gaussian_w2,
+    knn_entropy,
+    mardia,
+    negentropy,
+    sample_w1,
+)
 
 
 def test_gaussian_kl_closed_form():
     # 1-D: KL = log(s1/s0) + (s0^2 + (m0 - m1)^2) / (2 s1^2) - 1/2; checked by quadrature too
     m0, s0, m1, s1 = 0.3, 0.7, -0.2, 1.3
-    exact = math.log(s1 / s0) + (s0 ** 2 + (m0 - m1) ** 2) / (2 * s1 ** 2) - 0.5
+    exact = math.log(s1 / s0) + (s0**2 + (m0 - m1) ** 2) / (2 * s1**2) - 0.5
     p, q = stats.norm(m0, s0), stats.norm(m1, s1)
     quad, _ = integrate.quad(lambda x: p.pdf(x) * (p.logpdf(x) - q.logpdf(x)), -15, 15)
-    assert gaussian_kl([m0], [[s0 ** 2]], [m1], [[s1 ** 2]]) == pytest.approx(exact, rel=1e-12)
+    assert gaussian_kl([m0], [[s0**2]], [m1], [[s1**2]]) == pytest.approx(exact, rel=1e-12)
     assert quad == pytest.approx(exact, rel=1e-8)
     # d-dim: invariant under an affine map; zero for equal Gaussians; asymmetric
     rng = np.random.default_rng(0)
@@ -50,7 +60,8 @@ def test_gaussian_w2_closed_form():
     # diag(a, b) vs diag(b, a): (sqrt a - sqrt b)^2 * 2
     a, b = 4.0, 1.0
     assert gaussian_w2([0, 0], np.diag([a, b]), [0, 0], np.diag([b, a])) == pytest.approx(
-        math.sqrt(2 * (math.sqrt(a) - math.sqrt(b)) ** 2))
+        math.sqrt(2 * (math.sqrt(a) - math.sqrt(b)) ** 2)
+    )
 
 
 def test_sample_statistics_against_known_values():
@@ -70,6 +81,7 @@ def test_sample_statistics_against_known_values():
     assert energy_distance(X[:1500], Z + [1.0, 0.0]) == pytest.approx(ref, rel=0.15)
     # sample W1 by assignment equals scipy's linear-programming wasserstein_distance_nd
     from scipy.stats import wasserstein_distance_nd
+
     assert sample_w1(X[:40], Z[:40] + 0.5) == pytest.approx(wasserstein_distance_nd(X[:40], Z[:40] + 0.5), rel=1e-6)
 
 
@@ -80,14 +92,14 @@ def _linear_gaussian(seed=0):
     m0, S0, s = np.array([1.0, -1.0]), np.diag([1.0, 0.25]), 0.5
     theta = np.array([1.4, -0.7])
     y = A @ theta + s * rng.standard_normal(30)
-    P = np.linalg.inv(np.linalg.inv(S0) + A.T @ A / s ** 2)
-    m = P @ (np.linalg.inv(S0) @ m0 + A.T @ y / s ** 2)
+    P = np.linalg.inv(np.linalg.inv(S0) + A.T @ A / s**2)
+    m = P @ (np.linalg.inv(S0) @ m0 + A.T @ y / s**2)
     return m, P, rng
 
 
 def test_linear_gaussian_toy_agrees_and_shift_disagrees():
     m, S, rng = _linear_gaussian()
-    draws = rng.multivariate_normal(m, S, size=(4, 1000))                    # exact posterior, 4 "chains"
+    draws = rng.multivariate_normal(m, S, size=(4, 1000))  # exact posterior, 4 "chains"
     e = compare_window(m, S, draws, ["a", "b"], [False, False], index=3, t_star=[0.1, 0.95])
     assert e["agree"] is True, e["notes"]
     assert e["kl_gauss"] < 0.01 and e["kl_gauss_reverse"] < 0.01 and e["w2"] < 0.1 and e["kl_sample"] < 0.05
@@ -104,10 +116,10 @@ def test_linear_gaussian_toy_agrees_and_shift_disagrees():
     shifted = compare_window(m + r, S, draws, ["a", "b"], [False, False])
     assert shifted["agree"] is False
     assert shifted["w2"] == pytest.approx(shift, rel=0.05)
-    assert shifted["kl_sym"] == pytest.approx(0.5 * shift ** 2, rel=0.1)
+    assert shifted["kl_sym"] == pytest.approx(0.5 * shift**2, rel=0.1)
     assert "W2" in shifted["notes"] and "Gaussian KL" in shifted["notes"]
     # an ensemble 1.6 times too wide: the covariance part alone fails
-    wide = compare_window(m, 1.6 ** 2 * S, draws, ["a", "b"], [False, False])
+    wide = compare_window(m, 1.6**2 * S, draws, ["a", "b"], [False, False])
     assert wide["agree"] is False and not wide["criteria"]["kl_sym"]
 
 
@@ -116,15 +128,15 @@ def test_banana_posterior_is_flagged_although_moments_agree():
     moment metric is zero, the sample-based check still fails -- the check can fail."""
     rng = np.random.default_rng(4)
     x1 = rng.standard_normal(4000)
-    x2 = 0.6 * (x1 ** 2 - 1) + 0.5 * rng.standard_normal(4000)               # negentropy 0.5 log(1 + 8 b^2)
+    x2 = 0.6 * (x1**2 - 1) + 0.5 * rng.standard_normal(4000)  # negentropy 0.5 log(1 + 8 b^2)
     X = np.c_[x1, x2]
     e = compare_window(X.mean(axis=0), np.cov(X.T), X.reshape(4, 1000, 2), ["a", "b"], [False, False])
-    assert e["kl_sym"] < 1e-9 and e["w2"] < 1e-6                              # the Gaussian part sees nothing
+    assert e["kl_sym"] < 1e-9 and e["w2"] < 1e-6  # the Gaussian part sees nothing
     assert e["criteria"] == {"kl_sym": True, "w2": True, "kl_sample": False}
     assert e["agree"] is False
     assert e["negentropy"]["estimate"] == pytest.approx(0.5 * math.log(1 + 8 * 0.36), abs=0.1)
     assert e["mardia"]["skew_p"] < 1e-6 and "non-Gaussian" in e["notes"]
-    assert e["sample_check"]["p_value"] < 0.05                               # the energy test rejects too
+    assert e["sample_check"]["p_value"] < 0.05  # the energy test rejects too
     # the same check passes on a Gaussian sample with those moments
     G = rng.multivariate_normal(X.mean(axis=0), np.cov(X.T), size=(4, 1000))
     assert compare_window(X.mean(axis=0), np.cov(X.T), G, ["a", "b"], [False, False])["agree"] is True
@@ -133,17 +145,31 @@ def test_banana_posterior_is_flagged_although_moments_agree():
 def test_unconverged_chains_are_undecided_and_json(tmp_path):
     m, S, rng = _linear_gaussian(1)
     draws = rng.multivariate_normal(m, S, size=(4, 500))
-    draws[0] += 3 * np.sqrt(np.diag(S))                                      # one chain elsewhere
+    draws[0] += 3 * np.sqrt(np.diag(S))  # one chain elsewhere
     bad = compare_window(m, S, draws, ["G", "mu"], [True, True], index=1, t_star=[0.0, 0.85])
     assert bad["agree"] is None and not bad["mcmc"]["converged"]
     assert max(bad["mcmc"]["rhat"].values()) > THRESHOLDS["rhat"] and "R-hat" in bad["notes"]
     # log-parameters: SI means are log-normal moments; internal names log_G, log_mu
     assert bad["internal"] == ["log_G", "log_mu"]
     assert bad["ensemble"]["mean"]["G"] == pytest.approx(math.exp(m[0] + S[0, 0] / 2))
-    good = compare_window(m, S, rng.multivariate_normal(m, S, size=(4, 500)), ["G", "mu"], [True, True], index=0,
-                          t_star=[0.0, 0.85], diagnostics={"all_tau_ok": True, "tau_rule": 50})
-    short = compare_window(m, S, rng.multivariate_normal(m, S, size=(4, 500)), ["G", "mu"], [True, True],
-                           diagnostics={"all_tau_ok": False, "tau_rule": 50, "n_steps_over_tau": 12.0})
+    good = compare_window(
+        m,
+        S,
+        rng.multivariate_normal(m, S, size=(4, 500)),
+        ["G", "mu"],
+        [True, True],
+        index=0,
+        t_star=[0.0, 0.85],
+        diagnostics={"all_tau_ok": True, "tau_rule": 50},
+    )
+    short = compare_window(
+        m,
+        S,
+        rng.multivariate_normal(m, S, size=(4, 500)),
+        ["G", "mu"],
+        [True, True],
+        diagnostics={"all_tau_ok": False, "tau_rule": 50, "n_steps_over_tau": 12.0},
+    )
     assert good["agree"] is True and short["agree"] is None and "tau" in short["notes"]
     out = compare_windows([good, bad])
     text = json.dumps(out, allow_nan=False)

@@ -3,15 +3,22 @@ log-density moves the start Gaussian and the independence proposal before the fi
 
 import numpy as np
 import pytest
-
 from _mcmc_synth import GaussianTarget, Interrupted
+
 from imrbayes.errors import InputError
 from imrbayes.mcmc.laplace import quadratic_placement
 from imrbayes.mcmc.sampler import MCMCSettings, independent_walkers, run_mcmc
 
 # a correlated 5-D Gaussian (d > the 4 walkers used below, so the >= 2 d rule must not apply)
-_A = np.array([[1.0, 0.6, 0.0, 0.2, 0.0], [0.0, 1.0, -0.4, 0.0, 0.1], [0.0, 0.0, 1.0, 0.5, 0.0],
-               [0.0, 0.0, 0.0, 1.0, -0.3], [0.0, 0.0, 0.0, 0.0, 1.0]])
+_A = np.array(
+    [
+        [1.0, 0.6, 0.0, 0.2, 0.0],
+        [0.0, 1.0, -0.4, 0.0, 0.1],
+        [0.0, 0.0, 1.0, 0.5, 0.0],
+        [0.0, 0.0, 0.0, 1.0, -0.3],
+        [0.0, 0.0, 0.0, 0.0, 1.0],
+    ]
+)
 COV = 0.01 * _A @ _A.T
 MEAN = np.array([0.5, -1.0, 2.0, 0.0, 0.3])
 SD = np.sqrt(np.diag(COV))
@@ -31,8 +38,10 @@ def test_a_quadratic_log_density_is_placed_exactly():
     np.testing.assert_allclose(c, COV, rtol=1e-7, atol=1e-12)
     first, second = info["rounds"]
     assert first["moved_sd"] > 6.0 and second["moved_sd"] < 3.0
-    assert all(r["fitted"] and r["residual_sd_nats"] < 1e-9 and r["non_concave_directions"] == 0 for r in (first, second))
-    assert info["n_evals"] == 2 * int(np.ceil(3 * 21))      # 3 points per coefficient, (d + 1)(d + 2)/2 = 21
+    assert all(
+        r["fitted"] and r["residual_sd_nats"] < 1e-9 and r["non_concave_directions"] == 0 for r in (first, second)
+    )
+    assert info["n_evals"] == 2 * int(np.ceil(3 * 21))  # 3 points per coefficient, (d + 1)(d + 2)/2 = 21
 
 
 def test_a_flat_direction_keeps_the_previous_extent():
@@ -61,8 +70,17 @@ def test_points_outside_the_support_are_left_out():
 
 
 def _laplace(**kw):
-    return MCMCSettings(**{"moves": "indep", "place": "laplace", "indep_dof": 20.0, "indep_scale": 1.1,
-                           "indep_adapt": 0, "n_walkers": 4, **kw})
+    return MCMCSettings(
+        **{
+            "moves": "indep",
+            "place": "laplace",
+            "indep_dof": 20.0,
+            "indep_scale": 1.1,
+            "indep_adapt": 0,
+            "n_walkers": 4,
+            **kw,
+        }
+    )
 
 
 def test_independence_sampler_on_the_placed_gaussian_converges_fast_and_samples_the_target():

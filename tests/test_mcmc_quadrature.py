@@ -4,20 +4,21 @@ error on a real (non-Gaussian) window of the verification case."""
 
 import numpy as np
 import pytest
+from _mcmc_synth import GaussianTarget
 from scipy import stats
 
-from _mcmc_synth import GaussianTarget
 from imrbayes.errors import InputError
 from imrbayes.mcmc.quadrature import compare_to_mcmc, grid_posterior
 from imrbayes.mcmc.sampler import MCMCSettings, run_mcmc
 
 MEAN = np.array([1.0, -2.0])
 COV = np.array([[0.04, 0.018], [0.018, 0.09]])
-HDR95_GAUSS = np.pi * stats.chi2.ppf(0.95, 2)          # area of the 95 % HDR of N(0, I_2)
+HDR95_GAUSS = np.pi * stats.chi2.ppf(0.95, 2)  # area of the 95 % HDR of N(0, I_2)
 
 
-@pytest.mark.parametrize("center,cov", [(MEAN, COV), (MEAN + 3.0, 100 * COV), (MEAN, COV / 400),
-                                        (MEAN + 0.5, np.eye(2))])
+@pytest.mark.parametrize(
+    "center,cov", [(MEAN, COV), (MEAN + 3.0, 100 * COV), (MEAN, COV / 400), (MEAN + 0.5, np.eye(2))]
+)
 def test_gaussian_exact_wherever_the_grid_starts(center, cov):
     """Mean, covariance, marginal 95 % intervals and the 95 % HDR area of a correlated Gaussian,
     from a start Gaussian that is right, far off and 10x too wide, 20x too narrow, or unrelated."""
@@ -45,6 +46,7 @@ class Banana:
 
     def __init__(self, b=0.8, s=0.5):
         from imrbayes.ensemble import ParamSpace
+
         self.b, self.s = b, s
         self.ndim = 2
         self.prior = ParamSpace(("x1", "x2"), [False, False], np.zeros(2), 100 * np.eye(2))
@@ -57,7 +59,7 @@ class Banana:
 
 def test_banana_exact_moments_and_region():
     tg = Banana()
-    exact = np.diag([1.0, 2 * tg.b ** 2 + tg.s ** 2])
+    exact = np.diag([1.0, 2 * tg.b**2 + tg.s**2])
     # default edge tolerance (1e-5 of the mass on the grid's outer ring): the arms reach ~10 sd of x2,
     # so the variance misses ~1e-3 of itself; a tighter tolerance widens the grid and gets it
     g = grid_posterior(tg, np.zeros(2), np.eye(2))
@@ -74,15 +76,17 @@ def test_banana_exact_moments_and_region():
 def test_only_two_parameters():
     class T3(GaussianTarget):
         pass
+
     with pytest.raises(InputError, match="2 parameters"):
         grid_posterior(T3(np.zeros(3), np.eye(3)))
+
 
 @pytest.mark.parametrize("scale,passes", [(1.0, 1), (0.25, 2)])
 def test_grid_placed_without_the_coarse_search(scale, passes):
     """``locate=False`` (as ``fit --mcmc`` places the grid on converged draws' moments): one 41 x 41
     pass when the frame is right; a frame 4x too narrow is widened until the edge holds, with the
     same exact answer."""
-    g = grid_posterior(GaussianTarget(MEAN, COV), MEAN + 0.01, scale ** 2 * COV, locate=False, k=7.5, n=41)
+    g = grid_posterior(GaussianTarget(MEAN, COV), MEAN + 0.01, scale**2 * COV, locate=False, k=7.5, n=41)
     np.testing.assert_allclose(g.mean, MEAN, atol=1e-6)
     np.testing.assert_allclose(g.cov, COV, rtol=1e-5)
     assert [r["stage"] for r in g.rounds] == ["fine"] * passes and g.edge_mass < 1e-5
@@ -107,6 +111,7 @@ def test_emcee_and_quadrature_agree_on_a_real_window():
     (means and sds within 4 MCSE). With emcee 3.1.6's own snooker move the sds came out ~5-8 % small
     (4-7 MCSE): this test is what found it."""
     from _mcmc_synth import model
+
     from imrbayes.ensemble import Observations, ParamSpace
     from imrbayes.mcmc.target import fitting_window_target
     from imrbayes.validation.suite import verification_data
@@ -116,7 +121,7 @@ def test_emcee_and_quadrature_agree_on_a_real_window():
     space = ParamSpace.for_model(fm.constitutive)
     n, a, b = 3, 0.8, 0.95
     one = Observations(obs.t_star, obs.R_star[:n], obs.P, obs.rmax_m[:n], obs.req_m[:n], names=obs.names[:n])
-    t = obs.t_star[1:int(round(b / 0.025)) + 1]
+    t = obs.t_star[1 : int(round(b / 0.025)) + 1]
     tg = fitting_window_target(fm, one, space, t_end=b, weight=((t >= a - 1e-9) & (t <= b + 1e-9)).astype(float))
     g = grid_posterior(tg, space.prior_mean, space.prior_cov)
     assert g.to_dict(contour=False)["corr_internal"] > 0.95 and g.edge_mass < 1e-5

@@ -6,9 +6,8 @@ import json
 import arviz as az
 import numpy as np
 import pytest
+from _mcmc_synth import TRUTH, GaussianTarget, Interrupted, model as model_poly, observations, paper_prior
 
-from _mcmc_synth import TRUTH, GaussianTarget, Interrupted, observations, paper_prior
-from _mcmc_synth import model as model_poly
 from imrbayes.errors import InputError
 from imrbayes.mcmc.sampler import MCMCSettings, run_mcmc
 from imrbayes.mcmc.target import fitting_window_target
@@ -19,9 +18,17 @@ COV = np.array([[0.04, 0.018], [0.018, 0.09]])
 
 def _toy(n_steps=400, **kw):
     """The earlier settings (fixed length, stretch move, start at the given spread)."""
-    return MCMCSettings(**{"n_walkers": 16, "n_steps": n_steps, "n_chains": 4, "stop": "fixed", "moves": "stretch",
-                           "init_scale": 1.0,
-                           **kw})
+    return MCMCSettings(
+        **{
+            "n_walkers": 16,
+            "n_steps": n_steps,
+            "n_chains": 4,
+            "stop": "fixed",
+            "moves": "stretch",
+            "init_scale": 1.0,
+            **kw,
+        }
+    )
 
 
 def test_gaussian_toy_posterior_and_datatree():
@@ -52,6 +59,7 @@ def test_gaussian_toy_posterior_and_datatree():
     json.loads(dt.attrs["diagnostics_json"])
     # end to end: the exact Gaussian agrees with this MCMC run
     from imrbayes.mcmc.compare import compare_window
+
     e = compare_window(MEAN, COV, dt, ["x0", "x1"], [False, False], diagnostics=d)
     assert e["agree"] is True, e["notes"]
 
@@ -70,29 +78,46 @@ def test_seeded_and_lockstep_identical_to_sequential():
 @pytest.mark.parametrize("lockstep", [True, False])
 def test_hdf5_resume_after_interruption_appends_and_continues(tmp_path, lockstep):
     path = tmp_path / "mcmc.h5"
-    ref = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _toy(80, lockstep=lockstep), seed=1,
-                   backend=tmp_path / "ref.h5", name="window_00")
+    ref = run_mcmc(
+        GaussianTarget(MEAN, COV),
+        MEAN,
+        COV,
+        _toy(80, lockstep=lockstep),
+        seed=1,
+        backend=tmp_path / "ref.h5",
+        name="window_00",
+    )
     # interrupted after ~ 30 steps (log-prob calls: 2 per step per ensemble, or per round in lockstep)
     with pytest.raises(Interrupted):
-        run_mcmc(GaussianTarget(MEAN, COV, fail_after=60), MEAN, COV, _toy(80, lockstep=lockstep), seed=1,
-                 backend=path, name="window_00")
+        run_mcmc(
+            GaussianTarget(MEAN, COV, fail_after=60),
+            MEAN,
+            COV,
+            _toy(80, lockstep=lockstep),
+            seed=1,
+            backend=path,
+            name="window_00",
+        )
     import emcee
-    saved = [emcee.backends.HDFBackend(str(path), name=f"window_00/chain_{c}", read_only=True).iteration
-             for c in range(4)]
-    assert 0 < max(saved) < 80 and (min(saved) > 0 or not lockstep)     # one by one: later chains not started
-    res = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _toy(80, lockstep=lockstep), seed=1, backend=path,
-                   name="window_00")
+
+    saved = [
+        emcee.backends.HDFBackend(str(path), name=f"window_00/chain_{c}", read_only=True).iteration for c in range(4)
+    ]
+    assert 0 < max(saved) < 80 and (min(saved) > 0 or not lockstep)  # one by one: later chains not started
+    res = run_mcmc(
+        GaussianTarget(MEAN, COV), MEAN, COV, _toy(80, lockstep=lockstep), seed=1, backend=path, name="window_00"
+    )
     assert res.steps_run == [80 - n for n in saved]
-    np.testing.assert_array_equal(res.chain, ref.chain)                 # as if never interrupted
+    np.testing.assert_array_equal(res.chain, ref.chain)  # as if never interrupted
     # run_mcmc(None, n) semantics: a longer total appends to the same groups
-    more = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _toy(100, lockstep=lockstep), seed=1, backend=path,
-                    name="window_00")
+    more = run_mcmc(
+        GaussianTarget(MEAN, COV), MEAN, COV, _toy(100, lockstep=lockstep), seed=1, backend=path, name="window_00"
+    )
     assert more.steps_run == [20] * 4 and more.chain.shape[1] == 100
     np.testing.assert_array_equal(more.chain[:, :80], ref.chain)
     assert more.backend == {"path": str(path), "name": "window_00"}
-    with pytest.raises(InputError):                                      # other walkers: refuse, don't clobber
-        run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _toy(100, n_walkers=8), backend=path,
-                 name="window_00")
+    with pytest.raises(InputError):  # other walkers: refuse, don't clobber
+        run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _toy(100, n_walkers=8), backend=path, name="window_00")
 
 
 def test_settings_are_checked():
@@ -108,17 +133,20 @@ def test_polytropic_window_recovers_truth():
     fm, obs = observations(n_exp=2, n_steps=40, noise=0.01, seed=11)
     tg = fitting_window_target(fm, obs, paper_prior(), weight="plain")
     z0 = np.log([6.5e3, 0.1])
-    run = run_mcmc(tg, z0, np.diag([0.1, 0.1]) ** 2, MCMCSettings(n_walkers=8, n_steps=300, max_draws=240, stop="fixed"),
-                   seed=0)
+    run = run_mcmc(
+        tg, z0, np.diag([0.1, 0.1]) ** 2, MCMCSettings(n_walkers=8, n_steps=300, max_draws=240, stop="fixed"), seed=0
+    )
     e0 = tg.n_evals
     dt = run.to_datatree(tg)
-    assert tg.n_evals == e0                    # every kept draw was evaluated by emcee: no forward solve
+    assert tg.n_evals == e0  # every kept draw was evaluated by emcee: no forward solve
     # the remembered predictions give what a fresh target computes from scratch
     fresh = fitting_window_target(fm, obs, paper_prior(), weight="plain")
-    draws = np.concatenate([dt["posterior"]["log_G"].values[..., None], dt["posterior"]["log_mu"].values[..., None]],
-                           axis=-1).reshape(-1, 2)
-    np.testing.assert_allclose(dt["log_likelihood"]["R"].values.reshape(draws.shape[0], 2, 40),
-                               fresh.pointwise(draws), rtol=1e-12, atol=0)
+    draws = np.concatenate(
+        [dt["posterior"]["log_G"].values[..., None], dt["posterior"]["log_mu"].values[..., None]], axis=-1
+    ).reshape(-1, 2)
+    np.testing.assert_allclose(
+        dt["log_likelihood"]["R"].values.reshape(draws.shape[0], 2, 40), fresh.pointwise(draws), rtol=1e-12, atol=0
+    )
     assert fresh.n_evals == draws.shape[0]
     # a memo too small for one batch still gives the same numbers (forward solves instead)
     fresh.forget()
@@ -156,11 +184,17 @@ def test_en4dvar_fused_gaussian_matches_mcmc_on_verification_case():
     space = ParamSpace.for_model(fm.constitutive)
     res = fit_en4dvar(fm, obs, space, En4DVarSettings(t_end=1.0, n_draws=1, loglik=False), seed=0)
     tg = fitting_window_target(fm, obs, paper_prior(), t_end=1.0, weight="en4dvar")
-    run = run_mcmc(tg, res.mean_internal, res.cov_internal, MCMCSettings(n_walkers=16, n_steps=2000, stop="fixed",
-                                                                         moves="stretch", init_scale=1.0), seed=0)
+    run = run_mcmc(
+        tg,
+        res.mean_internal,
+        res.cov_internal,
+        MCMCSettings(n_walkers=16, n_steps=2000, stop="fixed", moves="stretch", init_scale=1.0),
+        seed=0,
+    )
     dt = run.to_datatree(tg, loglik=False)
-    e = compare_window(res.mean_internal, res.cov_internal, dt, space.names, space.positive,
-                       diagnostics=run.diagnostics())
+    e = compare_window(
+        res.mean_internal, res.cov_internal, dt, space.names, space.positive, diagnostics=run.diagnostics()
+    )
     assert e["kl_sym"] < 0.1 and e["w2"] < 0.5, e["notes"]
     assert e["mcmc"]["converged"], e["notes"]
     s = az.summary(dt, var_names=["G", "mu"], ci_prob=0.95, round_to="none")
@@ -189,9 +223,10 @@ def test_a_failed_ensemble_is_contained_and_reported():
     assert "solver exploded" in run.failed_chains[1]
     assert run.diagnostics()["failed_chains"] == {"1": run.failed_chains[1]}
     ref = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _toy(80, lockstep=False), seed=1)
-    np.testing.assert_array_equal(run.chain, ref.chain[[0, 2, 3]])      # the others are untouched
+    np.testing.assert_array_equal(run.chain, ref.chain[[0, 2, 3]])  # the others are untouched
     assert run.to_datatree()["posterior"].sizes["chain"] == 3
-    from imrbayes.mcmc.compare import compare_window       # compare.json names the failure in its notes
+    from imrbayes.mcmc.compare import compare_window  # compare.json names the failure in its notes
+
     e = compare_window(MEAN, COV, run.to_datatree(), list(run.names), run.positive, diagnostics=run.diagnostics())
     assert e["mcmc"]["sampler"]["failed_chains"] == {"1": run.failed_chains[1]}
     assert "1 emcee ensemble(s) failed and were left out (ensemble 1: " in e["notes"]
@@ -201,6 +236,7 @@ def test_a_failed_ensemble_is_contained_and_reported():
 
 
 # ---------------------------------------------------------------- stop on convergence
+
 
 def _conv(**kw):
     return MCMCSettings(**{"n_walkers": 8, "n_steps": 3000, **kw})
@@ -224,11 +260,14 @@ def test_stops_on_convergence_and_the_answer_is_right():
     s = mcmc_summary(dt, ["x0", "x1"])
     assert max(s["r_hat"].values()) == pytest.approx(d["checks"][-1]["rhat_max"], rel=1e-12)
     assert min(s["ess_tail"].values()) == pytest.approx(d["checks"][-1]["ess_tail_min"], rel=1e-12)
-    assert max(s["r_hat"].values()) <= 1.01 and min(s["ess_bulk"].values()) >= 400 and min(s["ess_tail"].values()) >= 400
+    assert (
+        max(s["r_hat"].values()) <= 1.01 and min(s["ess_bulk"].values()) >= 400 and min(s["ess_tail"].values()) >= 400
+    )
     # not premature: the tau of a 4x longer run of the same ensembles says the chain is >= ~50 tau
-    long = run_mcmc(GaussianTarget(MEAN, COV), MEAN + 0.3, 4 * COV, _conv(stop="fixed", n_steps=4 * run.n_steps),
-                    seed=2)
-    np.testing.assert_array_equal(long.chain[:, :run.n_steps], run.chain)        # same chains, just longer
+    long = run_mcmc(
+        GaussianTarget(MEAN, COV), MEAN + 0.3, 4 * COV, _conv(stop="fixed", n_steps=4 * run.n_steps), seed=2
+    )
+    np.testing.assert_array_equal(long.chain[:, : run.n_steps], run.chain)  # same chains, just longer
     assert run.n_steps >= 0.8 * 50 * long.tau_max, (run.n_steps, long.tau_max)
     # right answer within Monte-Carlo error (independent truth: the exact Gaussian)
     x = np.stack([dt["posterior"][v].values for v in ("x0", "x1")], axis=-1).reshape(-1, 2)
@@ -250,8 +289,14 @@ def test_hard_cap_is_reported_and_makes_the_comparison_undecided():
     assert e["agree"] is None and "hard cap of 40 steps" in e["notes"]
     # the same draws with a cap-hit flag but otherwise converged diagnostics are still undecided
     ok = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _conv(), seed=1)
-    e = compare_window(MEAN, COV, ok.to_datatree(), ["x0", "x1"], [False, False],
-                       diagnostics={**ok.diagnostics(), "cap_hit": True, "cap": ok.n_steps})
+    e = compare_window(
+        MEAN,
+        COV,
+        ok.to_datatree(),
+        ["x0", "x1"],
+        [False, False],
+        diagnostics={**ok.diagnostics(), "cap_hit": True, "cap": ok.n_steps},
+    )
     assert e["agree"] is None
 
 
@@ -264,17 +309,25 @@ def test_stop_rule_lockstep_equals_sequential_and_resume_stops_at_the_same_step(
     np.testing.assert_array_equal(ref.chain, seq.chain)
     assert ref.stop["reason"] == "converged" and len(ref.stop["checks"]) >= 2
     path = tmp_path / "cut.h5"
-    with pytest.raises(Interrupted):           # one batched call per round: cut at 3/4 of the rounds
-        run_mcmc(GaussianTarget(MEAN, COV, fail_after=3 * counted.n_calls // 4), MEAN, COV, _conv(),
-                 seed=7, backend=path, name="w")
+    with pytest.raises(Interrupted):  # one batched call per round: cut at 3/4 of the rounds
+        run_mcmc(
+            GaussianTarget(MEAN, COV, fail_after=3 * counted.n_calls // 4),
+            MEAN,
+            COV,
+            _conv(),
+            seed=7,
+            backend=path,
+            name="w",
+        )
     cut = emcee.backends.HDFBackend(str(path), name="w/chain_0", read_only=True).iteration
-    assert ref.stop["checks"][0]["n"] < cut < ref.n_steps          # after the first check, before the end
+    assert ref.stop["checks"][0]["n"] < cut < ref.n_steps  # after the first check, before the end
     lines = []
     res = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, _conv(), seed=7, backend=path, name="w", log=lines.append)
     np.testing.assert_array_equal(res.chain, ref.chain)
     # the progress counts this call's evaluations, and says so: not the whole chain's
     assert [ln for ln in lines if "evaluations" in ln] and all(
-        "evaluations since the resume" in ln for ln in lines if "evaluations" in ln)
+        "evaluations since the resume" in ln for ln in lines if "evaluations" in ln
+    )
     assert [c["n"] for c in res.stop["checks"]] == [c["n"] for c in ref.stop["checks"]]
     assert 0 < sum(res.steps_run) < sum(ref.steps_run)
     # a finished run read back: the replayed schedule stops at the same step, nothing is sampled
@@ -307,10 +360,16 @@ def test_moves_are_parsed_and_checked():
 
 
 # The default tier samples with DE (part of the default mixture); the other moves in the slow tier.
-@pytest.mark.parametrize("moves", [pytest.param("stretch", marks=pytest.mark.slow), "de",
-                                   pytest.param("snooker", marks=pytest.mark.slow),
-                                   pytest.param("de:0.8,snooker:0.2", marks=pytest.mark.slow),
-                                   pytest.param("walk", marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "moves",
+    [
+        pytest.param("stretch", marks=pytest.mark.slow),
+        "de",
+        pytest.param("snooker", marks=pytest.mark.slow),
+        pytest.param("de:0.8,snooker:0.2", marks=pytest.mark.slow),
+        pytest.param("walk", marks=pytest.mark.slow),
+    ],
+)
 def test_every_move_samples_the_target(moves):
     """Each selectable move leaves the target invariant: on a correlated 2-D Gaussian, 4 x 8 walkers
     x 3000 steps give the exact sds within 4 % (about 5 Monte-Carlo sd) and the mean within 0.1 sd.
@@ -338,6 +397,7 @@ def test_emcee_3_1_6_snooker_move_is_biased_and_ours_is_not():
     p0 = MEAN + rng.standard_normal((8, 2)) @ np.linalg.cholesky(COV).T
     sd = np.sqrt(np.diag(COV))
     from imrbayes.mcmc.sampler import snooker_move
+
     for move, ok in ((emcee.moves.DESnookerMove(), False), (snooker_move(), True)):
         s = emcee.EnsembleSampler(8, 2, tg.log_prob, vectorize=True, moves=move)
         s.run_mcmc(emcee.State(p0, random_state=np.random.RandomState(1).get_state()), 6000)
@@ -352,8 +412,9 @@ def test_independence_move_samples_the_target_from_a_wrong_proposal(moves):
     exact Gaussian back (without it the draws would lean towards the proposal): sds within 4 %,
     mean within 0.1 sd, correlation within 0.03."""
     sd = np.sqrt(np.diag(COV))
-    run = run_mcmc(GaussianTarget(MEAN, COV), MEAN + 1.5 * sd, 0.5 * COV,
-                   _conv(n_steps=3000, stop="fixed", moves=moves), seed=1)
+    run = run_mcmc(
+        GaussianTarget(MEAN, COV), MEAN + 1.5 * sd, 0.5 * COV, _conv(n_steps=3000, stop="fixed", moves=moves), seed=1
+    )
     x = run.chain[:, 500:].reshape(-1, 2)
     np.testing.assert_allclose(x.std(axis=0) / sd, 1.0, atol=0.04)
     np.testing.assert_allclose((x.mean(axis=0) - MEAN) / sd, 0.0, atol=0.1)
@@ -393,7 +454,7 @@ def test_adapted_independence_proposal_samples_the_target_and_resumes_identicall
     np.testing.assert_allclose((x.mean(axis=0) - MEAN) / sd, 0.0, atol=0.1)
     ref = run_mcmc(GaussianTarget(MEAN, COV), m0, c0, _conv(**kw), seed=4, backend=tmp_path / "ref.h5", name="w")
     path = tmp_path / "cut.h5"
-    with pytest.raises(Interrupted):           # one batched call per round: cut before the adaptation
+    with pytest.raises(Interrupted):  # one batched call per round: cut before the adaptation
         run_mcmc(GaussianTarget(MEAN, COV, fail_after=40), m0, c0, _conv(**kw), seed=4, backend=path, name="w")
     import emcee
 
@@ -418,7 +479,7 @@ def test_log_reports_every_check_and_the_cap():
     """Without a terminal the run reports each convergence check (criteria against thresholds) and
     says when it stops at the cap unconverged."""
     lines = []
-    s = MCMCSettings(n_walkers=8, n_steps=120, min_steps=40, ess_min=1e6)      # ESS can never be met: the cap
+    s = MCMCSettings(n_walkers=8, n_steps=120, min_steps=40, ess_min=1e6)  # ESS can never be met: the cap
     run = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, s, seed=1, name="window_00", log=lines.append)
     assert run.stop["reason"] == "cap"
     checks = [ln for ln in lines if "steps" in ln and "R-hat" in ln]
@@ -428,8 +489,17 @@ def test_log_reports_every_check_and_the_cap():
     assert "evaluations" in checks[0] and "(>= 1e+06)" in checks[0]
     assert lines[-1].startswith("window_00: stopped at the cap of 120 steps, not converged")
     from imrbayes.mcmc.sampler import check_line
-    early = {"n": 100, "tau_max": float("inf"), "n_over_tau": 0.0, "rhat_max": float("inf"), "ess_bulk_min": 0.0,
-             "ess_tail_min": 0.0, "criteria": {"rhat": False, "tau_rule": False}, "ok": False}
+
+    early = {
+        "n": 100,
+        "tau_max": float("inf"),
+        "n_over_tau": 0.0,
+        "rhat_max": float("inf"),
+        "ess_bulk_min": 0.0,
+        "ess_tail_min": 0.0,
+        "criteria": {"rhat": False, "tau_rule": False},
+        "ok": False,
+    }
     assert check_line(early, s) == "100 steps: too short to estimate tau yet -- not yet: rhat, tau_rule"
     ok = []
     run = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, MCMCSettings(n_walkers=8, n_steps=3000), seed=1, log=ok.append)

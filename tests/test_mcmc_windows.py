@@ -8,16 +8,22 @@ import arviz as az
 import numpy as np
 import pytest
 import xarray as xr
-
 from _mcmc_synth import observations
+
 from imrbayes.ensemble import MIEnKSSettings, Observations, ParamSpace, fit_mienks
 from imrbayes.ensemble.mienks import rtps_cov
 from imrbayes.ensemble.output import summary_dict
 from imrbayes.ensemble.windows import mda_weights
 from imrbayes.mcmc import MCMCSettings
 from imrbayes.mcmc.fit import fit_window_specs
-from imrbayes.mcmc.windows import (compare_from_tree, sample_windows, window_seed, window_specs, write_compare,
-                                   write_mcmc)
+from imrbayes.mcmc.windows import (
+    compare_from_tree,
+    sample_windows,
+    window_seed,
+    window_specs,
+    write_compare,
+    write_mcmc,
+)
 
 
 @pytest.fixture(scope="module")
@@ -27,8 +33,9 @@ def fitted():
     space = ParamSpace.for_model(fm.constitutive)
     # the paper's density (weights beta_jk / L, P_k): these tests are about its recorded priors,
     # weights and start states; the default likelihood's windows carry ``whiten`` instead
-    res = fit_mienks(fm, obs, space, MIEnKSSettings(n_ens=12, n_iter=3, L=15, h=5, n_draws=5, likelihood="paper"),
-                     seed=0)
+    res = fit_mienks(
+        fm, obs, space, MIEnKSSettings(n_ens=12, n_iter=3, L=15, h=5, n_draws=5, likelihood="paper"), seed=0
+    )
     return fm, obs, space, res
 
 
@@ -53,8 +60,8 @@ def test_window_specs(fitted):
     sp0 = specs[0]
     np.testing.assert_array_equal(sp0.target.start.y, fm.initial_state(obs.rmax_m, obs.req_m).y)
     np.testing.assert_allclose(sp0.prior_mean, space.prior_mean)
-    assert sp0.target.weight[0, 0] == pytest.approx(1.0 / 15)            # sample 0: only window 0 holds it
-    assert sp0.target.weight[0, 5] == pytest.approx(0.5 / 15)            # sample 5: windows 0 and 1
+    assert sp0.target.weight[0, 0] == pytest.approx(1.0 / 15)  # sample 0: only window 0 holds it
+    assert sp0.target.weight[0, 5] == pytest.approx(0.5 / 15)  # sample 5: windows 0 and 1
     # chained priors: window j+1's prior mean is window j's fused mean; sds relaxed towards the prior
     for j in range(1, 6):
         np.testing.assert_allclose(specs[j].prior_mean, res.windows[j - 1]["mean_internal"])
@@ -62,13 +69,16 @@ def test_window_specs(fitted):
         assert np.all(np.sqrt(np.diag(specs[j].prior_cov)) >= post_sd - 1e-15)
     # the recorded priors and weights are exactly what the MCMC layer used to re-derive from summary.json
     beta = mda_weights(obs.t_star.size - 1, s["L"], s["h"])
-    for (m, C), sp, w in zip(rederived_priors(res.windows, space.prior_mean, space.prior_cov, s["rtps"], "chain"),
-                             specs, res.window_posteriors):
+    for (m, C), sp, w in zip(
+        rederived_priors(res.windows, space.prior_mean, space.prior_cov, s["rtps"], "chain"),
+        specs,
+        res.window_posteriors,
+    ):
         np.testing.assert_array_equal(sp.prior_mean, m)
         np.testing.assert_array_equal(sp.prior_cov, C)
         np.testing.assert_array_equal(sp.target.prior.prior_cov, C)
         a, b = w.samples
-        np.testing.assert_array_equal(w.weight, beta[w.index, a:b + 1] / s["L"])
+        np.testing.assert_array_equal(w.weight, beta[w.index, a : b + 1] / s["L"])
         assert sp.state_source == "handed-off ensemble mean"
     # window 1 starts from the handed-off mean state, close to experiment n's window-0 mean propagated over [0, t_5]
     z = np.array([p["mean_internal"] for p in res.windows[0]["per_experiment"]])
@@ -81,21 +91,27 @@ def test_window_specs(fitted):
 def test_recorded_priors_with_prior_fusion_and_mda_weights(fitted):
     """fusion="prior": the parameter prior in every window; obs_weight="mda": weights beta_jk."""
     fm, obs, space, _ = fitted
-    res = fit_mienks(fm, obs, space, MIEnKSSettings(n_ens=12, n_iter=3, L=15, h=5, n_draws=5, fusion="prior",
-                                                    obs_weight="mda", likelihood="paper"), seed=0)
+    res = fit_mienks(
+        fm,
+        obs,
+        space,
+        MIEnKSSettings(n_ens=12, n_iter=3, L=15, h=5, n_draws=5, fusion="prior", obs_weight="mda", likelihood="paper"),
+        seed=0,
+    )
     specs = fit_window_specs(fm, obs, space, res, windows=[0, 2])
     priors = rederived_priors(res.windows, space.prior_mean, space.prior_cov, 0.7, "prior")
     for sp in specs:
         np.testing.assert_array_equal(sp.prior_mean, space.prior_mean)
         np.testing.assert_array_equal(sp.prior_cov, priors[sp.index][1])
-    assert specs[0].target.weight[0, 5] == pytest.approx(0.5)              # obs_weight="mda": beta only
+    assert specs[0].target.weight[0, 5] == pytest.approx(0.5)  # obs_weight="mda": beta only
 
 
 def test_sample_windows_write_and_compare_from_files(fitted, tmp_path):
     fm, obs, space, res = fitted
     specs = window_specs(fm, obs, space, res.window_posteriors, indices=[0, 3])
-    out = sample_windows(specs, MCMCSettings(n_walkers=6, n_steps=60), seed=1, backend=tmp_path / "mcmc.h5",
-                         progress=False)
+    out = sample_windows(
+        specs, MCMCSettings(n_walkers=6, n_steps=60), seed=1, backend=tmp_path / "mcmc.h5", progress=False
+    )
     assert [r.spec.index for r in out] == [0, 3]
     path = write_mcmc(tmp_path / "mcmc.nc", out)
     tree = xr.open_datatree(path)
@@ -104,7 +120,7 @@ def test_sample_windows_write_and_compare_from_files(fitted, tmp_path):
     assert tree["posterior"]["window"].values.tolist() == [0, 3]
     ll = tree["window_03/log_likelihood"]["R"]
     assert ll.dims == ("chain", "draw", "experiment", "time") and ll.shape[2] == 2
-    assert tree["window_03/observed_data"]["time"].values[0] > specs[1].t_star[0]     # R*(t0) not used
+    assert tree["window_03/observed_data"]["time"].values[0] > specs[1].t_star[0]  # R*(t0) not used
     s = az.summary(tree, var_names=["G"], round_to="none")
     assert list(s.index) == ["G[0]", "G[3]"]
     # compare.json from the run directory's files gives the entries computed in memory
@@ -119,15 +135,21 @@ def test_sample_windows_write_and_compare_from_files(fitted, tmp_path):
     assert data["overall"]["n_windows"] == 2
     # figures: forest over windows, KL/W2 against t*, pair plots with both posteriors
     from imrbayes.mcmc.figures import comparison_figures
+
     figs = comparison_figures(data, tmp_path / "figures", tree, obs.t_star, obs.R_star, pairs="all")
-    assert [p.rsplit("/", 1)[1] for p in figs] == ["mcmc_forest.png", "mcmc_divergence.png",
-                                                   "mcmc_pair_window_00.png", "mcmc_pair_window_03.png"]
+    assert [p.rsplit("/", 1)[1] for p in figs] == [
+        "mcmc_forest.png",
+        "mcmc_divergence.png",
+        "mcmc_pair_window_00.png",
+        "mcmc_pair_window_03.png",
+    ]
     for p in figs:
         with open(p, "rb") as fh:
             assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
     # rerunning with the same HDF5 file resumes: nothing left to run, the same chains
-    again = sample_windows(specs, MCMCSettings(n_walkers=6, n_steps=60), seed=1, backend=tmp_path / "mcmc.h5",
-                           progress=False)
+    again = sample_windows(
+        specs, MCMCSettings(n_walkers=6, n_steps=60), seed=1, backend=tmp_path / "mcmc.h5", progress=False
+    )
     assert all(r.run.steps_run == [0] * r.run.n_chains for r in again)
     np.testing.assert_array_equal(again[1].run.chain, out[1].run.chain)
 
@@ -179,6 +201,6 @@ def test_cost_warning_names_windows_with_many_coordinates():
     # one nuisance per experiment (Rmax alone): the start is placed and independent walkers may sample it
     (w,) = cost_warnings([spec(4, 20, 18, [np.array([2 + e]) for e in range(18)])], s)
     assert "placed on the target" in w and "independent walkers" in w and "agree = null" not in w
-    assert "2,079 evaluations" in w                     # 3 rounds x 3 points x (d + 1)(d + 2)/2 = 231 coefficients
+    assert "2,079 evaluations" in w  # 3 rounds x 3 points x (d + 1)(d + 2)/2 = 231 coefficients
     (w,) = cost_warnings([spec(3, 20, 6, blocks)], MCMCSettings(moves="indep:0.7,de:0.3"))
     assert "150-360 steps" in w

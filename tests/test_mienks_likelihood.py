@@ -6,8 +6,8 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 from _ens_synth import TRUTH, observations, space
+
 import imrbayes.ensemble.mienks as mk
 from imrbayes.ensemble import MIEnKSSettings, Observations, fit_mienks
 from imrbayes.ensemble.output import summary_dict
@@ -26,15 +26,27 @@ def noisy(fm, n_exp=2, n_steps=40, sd=0.01, offsets=None, t0_sd=0.0, seed=0):
     for n in range(n_exp):
         tt = np.abs(t - off[n])
         order = np.argsort(tt)
-        out = fm.simulate({"G": np.array([TRUTH["G"]]), "mu": np.array([TRUTH["mu"]])}, o.rmax_m[n:n + 1],
-                          o.req_m[n:n + 1], tt[order])
+        out = fm.simulate(
+            {"G": np.array([TRUTH["G"]]), "mu": np.array([TRUTH["mu"]])},
+            o.rmax_m[n : n + 1],
+            o.req_m[n : n + 1],
+            tt[order],
+        )
         Y[n, order] = out.R_star[0]
     rng = np.random.default_rng(seed)
     Y = Y + sd * rng.standard_normal(Y.shape)
-    Y[:, 0] = 1.0                                   # normalised by the sample taken as the maximum
-    return Observations(t, Y, np.full(t.size, sd * sd), o.rmax_m, o.req_m, noise_sd=np.full(n_exp, sd),
-                        nuisance_sd=np.tile([0.0, t0_sd, 0.0], (n_exp, 1)), t0_s=np.zeros(n_exp),
-                        tc_s=np.full(n_exp, 30e-6))
+    Y[:, 0] = 1.0  # normalised by the sample taken as the maximum
+    return Observations(
+        t,
+        Y,
+        np.full(t.size, sd * sd),
+        o.rmax_m,
+        o.req_m,
+        noise_sd=np.full(n_exp, sd),
+        nuisance_sd=np.tile([0.0, t0_sd, 0.0], (n_exp, 1)),
+        t0_s=np.zeros(n_exp),
+        tc_s=np.full(n_exp, 30e-6),
+    )
 
 
 def spy_unit_ids(monkeypatch):
@@ -44,6 +56,7 @@ def spy_unit_ids(monkeypatch):
     def spy(u, rng):
         ids.append(u.unit_id)
         return unit(u, rng)
+
     monkeypatch.setattr(mk, "mienks_unit", spy)
     return ids, unit
 
@@ -58,6 +71,7 @@ def flag_second_as_lost(monkeypatch):
         lik_info[1]["resid_rms"] = 1.0
         lik_info[1]["pilot_outlier"] = True
         return [f"experiment {names[1]!r}: flagged"]
+
     monkeypatch.setattr(mk, "pilot_outliers", flag_second)
     return first
 
@@ -90,12 +104,13 @@ def test_default_weights_count_each_sample_once(monkeypatch):
     def spy(u, rng):
         seen.append((u.unit_id, int(u.data["a"]), int(u.data["b"]), np.array(u.data["weight"], dtype=float)))
         return unit(u, rng)
+
     monkeypatch.setattr(mk, "mienks_unit", spy)
     s = MIEnKSSettings(n_ens=8, n_iter=1, L=15, h=5, n_draws=2)
     res = fit_mienks(fm, obs, space(fm), s, seed=0)
     lik = res.details["likelihood"]
     last = res.windows[-1]["samples"][1]
-    assert last < 40                                 # a tail no window reaches: weight 0 there
+    assert last < 40  # a tail no window reaches: weight 0 there
     n_units = {"pilot": 0, "final": 0}
     for g in range(2):
         per_pass = {"pilot": 1.0 / obs.noise_sd[g] ** 2, "final": lik["alpha"][g] / lik["sd_used"][g] ** 2}
@@ -103,11 +118,11 @@ def test_default_weights_count_each_sample_once(monkeypatch):
             total = np.zeros(41)
             for uid, a, b, w in seen:
                 if uid.endswith(f"exp={g:03d}") and uid.startswith("pass=pilot") == (name == "pilot"):
-                    total[a:b + 1] += w / c
+                    total[a : b + 1] += w / c
                     n_units[name] += 1
             assert total[0] == 0.0
-            np.testing.assert_allclose(total[1:last + 1], 1.0, rtol=0, atol=1e-12)
-            assert np.all(total[last + 1:] == 0.0)
+            np.testing.assert_allclose(total[1 : last + 1], 1.0, rtol=0, atol=1e-12)
+            assert np.all(total[last + 1 :] == 0.0)
     assert n_units["pilot"] == n_units["final"] == 2 * len(res.windows)
     # the MCMC densities: W_n = diag(sqrt(beta_jk alpha_n / sigma_n^2)), the same weights
     for g in range(2):
@@ -116,8 +131,8 @@ def test_default_weights_count_each_sample_once(monkeypatch):
             a, b = p.samples
             W = p.whiten[g]
             assert np.all(W == np.diag(np.diag(W)))
-            total[a:b + 1] += np.diag(W) ** 2 * lik["sd_used"][g] ** 2 / lik["alpha"][g]
-        np.testing.assert_allclose(total[1:last + 1], 1.0, rtol=0, atol=1e-12)
+            total[a : b + 1] += np.diag(W) ** 2 * lik["sd_used"][g] ** 2 / lik["alpha"][g]
+        np.testing.assert_allclose(total[1 : last + 1], 1.0, rtol=0, atol=1e-12)
         assert total[0] == 0.0
     beta = mda_weights(40, 15, 5)
     assert np.all(res.window_posteriors[1].weight == beta[1, 5:20])
@@ -133,12 +148,14 @@ def test_a_cheaper_pilot_runs_with_its_own_members(monkeypatch):
     unit = mk.mienks_unit
 
     def spy(u, rng):
-        seen.append((u.unit_id, int(u.data["a"]), int(u.data["b"]), np.array(u.data["weight"], dtype=float),
-                     u.data["settings"]))
+        seen.append(
+            (u.unit_id, int(u.data["a"]), int(u.data["b"]), np.array(u.data["weight"], dtype=float), u.data["settings"])
+        )
         out = unit(u, rng)
         if u.data["E"] is not None:
             assert np.asarray(u.data["E"]).shape[0] == u.data["settings"].n_ens
         return out
+
     monkeypatch.setattr(mk, "mienks_unit", spy)
     s = MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=2, pilot_n_ens=4)
     res = fit_mienks(fm, obs, space(fm), s, seed=0)
@@ -151,18 +168,18 @@ def test_a_cheaper_pilot_runs_with_its_own_members(monkeypatch):
         total = np.zeros(41)
         for uid, a, b, w, _ in pilot:
             if uid.endswith(f"exp={g:03d}"):
-                total[a:b + 1] += w * obs.noise_sd[g] ** 2
+                total[a : b + 1] += w * obs.noise_sd[g] ** 2
         last = max(b for _, _, b, _, _ in pilot)
         assert total[0] == 0.0
-        np.testing.assert_allclose(total[1:last + 1], 1.0, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(total[1 : last + 1], 1.0, rtol=0, atol=1e-12)
     runs = mk.MIEnKS.n_forward_runs(s, 2, 40)
     assert runs == (mk.n_windows(40, 15, 5) * 3 * 8 + mk.n_windows(40, 15, 5) * 3 * 4) * 2
     d = MIEnKSSettings().pilot()
-    assert (d.n_ens, d.n_iter, d.h) == (24, 5, 5)              # the default pilot: half the members
+    assert (d.n_ens, d.n_iter, d.h) == (24, 5, 5)  # the default pilot: half the members
     d = MIEnKSSettings(pilot_n_ens=None).pilot()
-    assert (d.n_ens, d.n_iter, d.h) == (48, 5, 5)              # unset: the reported pass's settings
+    assert (d.n_ens, d.n_iter, d.h) == (48, 5, 5)  # unset: the reported pass's settings
     d = MIEnKSSettings(n_ens=16, n_iter=2, pilot_n_ens=24).pilot()
-    assert (d.n_ens, d.n_iter) == (16, 2)                       # never dearer than the reported pass
+    assert (d.n_ens, d.n_iter) == (16, 2)  # never dearer than the reported pass
     for bad in ({"pilot_n_ens": 2}, {"pilot_n_ens": 3.5}):
         with pytest.raises(InputError, match=next(iter(bad))):
             MIEnKSSettings(L=15, **bad).check(40)
@@ -172,20 +189,27 @@ def test_a_bubble_the_pilot_lost_is_named():
     """The stiff-PA seed-1 pattern (one bubble's pilot residual 3.3x its neighbours'): a warning naming
     it with its relative weight, its entry flagged; nothing flagged when the residuals are alike or
     there are too few bubbles to compare."""
+
     def info(rms, sd, alpha):
         return [{"resid_rms": r, "sd_used": s_, "alpha": a} for r, s_, a in zip(rms, sd, alpha)]
-    li = info([0.0186, 0.0222, 0.0719, 0.0219, 0.0243], [0.0186, 0.0222, 0.0719, 0.0219, 0.0243],
-              [0.23, 0.214, 0.342, 0.343, 0.283])
+
+    li = info(
+        [0.0186, 0.0222, 0.0719, 0.0219, 0.0243],
+        [0.0186, 0.0222, 0.0719, 0.0219, 0.0243],
+        [0.23, 0.214, 0.342, 0.343, 0.283],
+    )
     w = mk.pilot_outliers(li, ["exp01", "exp02", "exp03", "exp04", "exp05"])
     assert len(w) == 1 and "'exp03'" in w[0] and "3.3x" in w[0]
     assert li[2].get("pilot_outlier") and not any(x.get("pilot_outlier") for i, x in enumerate(li) if i != 2)
-    ratio = (0.342 / 0.0719 ** 2) / np.median([a / s_ ** 2 for a, s_ in [(0.23, 0.0186), (0.214, 0.0222),
-                                                                         (0.343, 0.0219), (0.283, 0.0243)]])
+    ratio = (0.342 / 0.0719**2) / np.median(
+        [a / s_**2 for a, s_ in [(0.23, 0.0186), (0.214, 0.0222), (0.343, 0.0219), (0.283, 0.0243)]]
+    )
     assert f"{ratio:.2g}x as much" in w[0]
     assert mk.pilot_outliers(info([0.02, 0.025, 0.03], [0.02] * 3, [0.3] * 3), ["a", "b", "c"]) == []
     assert mk.pilot_outliers(info([0.02, 0.2], [0.02, 0.2], [0.3, 0.3]), ["a", "b"]) == []
     assert mk.pilot_outliers(info([0.02, None, 0.02, 0.2], [0.02] * 4, [0.3] * 4), list("abcd"))[0].startswith(
-        "experiment 'd'")
+        "experiment 'd'"
+    )
 
 
 @pytest.mark.slow
@@ -213,10 +237,11 @@ def test_a_flagged_bubbles_pilot_is_run_again_and_the_closer_fit_kept(monkeypatc
     res_off = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, pilot_retry=False), seed=0)
     assert not any("/retry=" in u for u in seen) and "pilot_retry" not in res_off.per_experiment[1]["likelihood"]
 
-    def fail_retry(u, rng):                         # a retry that fails keeps the first pilot, the fit goes on
+    def fail_retry(u, rng):  # a retry that fails keeps the first pilot, the fit goes on
         if "/retry=" in u.unit_id:
             raise RuntimeError("lost")
         return unit(u, rng)
+
     monkeypatch.setattr(mk, "mienks_unit", fail_retry)
     res_fail = fit_mienks(fm, obs, space(fm), s, seed=0)
     r = res_fail.per_experiment[1]["likelihood"]["pilot_retry"]
@@ -238,6 +263,7 @@ def test_a_cheaper_pilots_retry_runs_at_the_reported_pass_size(monkeypatch):
         st = u.data["settings"]
         seen.append((u.unit_id, st.n_ens, st.n_iter, st.h))
         return unit(u, rng)
+
     monkeypatch.setattr(mk, "mienks_unit", spy)
     s = MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=2, pilot_n_ens=4)
     res = fit_mienks(fm, obs, space(fm), s, seed=0)
@@ -263,16 +289,16 @@ def test_stopping_settled_windows_early_saves_runs_not_the_answer():
     r = s.resolved()
     assert (r.min_iter, r.step_tol) == (2, 0.1)
     paper = dataclasses.replace(s, likelihood="paper").resolved()
-    assert (paper.min_iter, paper.step_tol) == (None, None)       # the paper's: n_iter in every window
+    assert (paper.min_iter, paper.step_tol) == (None, None)  # the paper's: n_iter in every window
     early = fit_mienks(fm, obs, space(fm), s, seed=1)
-    full = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, min_iter=5), seed=1)     # = n_iter: never early
+    full = fit_mienks(fm, obs, space(fm), dataclasses.replace(s, min_iter=5), seed=1)  # = n_iter: never early
     assert early.details["member_runs"] < full.details["member_runs"]
     for name in ("G", "mu"):
         sd = full.estimate[name]["sd"]
         assert abs(early.estimate[name]["mean"] - full.estimate[name]["mean"]) < 0.1 * sd
         assert early.estimate[name]["sd"] == pytest.approx(sd, rel=0.1)
     assert all(len(w["cost"]) == 5 for w in early.windows)
-    assert any(c is None for w in early.windows for c in w["cost"])       # some window stopped early
+    assert any(c is None for w in early.windows for c in w["cost"])  # some window stopped early
     with pytest.raises(InputError, match="min_iter"):
         MIEnKSSettings(min_iter=0).check(120)
     for bad in (0.0, -1.0, float("nan"), True):
@@ -284,11 +310,17 @@ def test_paper_mode_reproduces_the_previous_method():
     """likelihood="paper" gives the numbers the method gave before the default likelihood (computed
     with that code on this case, seed 3)."""
     fm, obs = observations(n_exp=2, n_steps=40)
-    res = fit_mienks(fm, obs, space(fm), MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=3, likelihood="paper"),
-                     seed=3)
-    before = [[8.74127260474637, -1.6755263724554335], [8.950224203298038, -1.7245049230910645],
-              [9.06513615054304, -1.7571668371355478], [9.10898297356336, -1.8334354593462217],
-              [8.940547680999313, -2.203814975956202], [8.771968812274984, -2.4375178822741157]]
+    res = fit_mienks(
+        fm, obs, space(fm), MIEnKSSettings(n_ens=8, n_iter=2, L=15, h=5, n_draws=3, likelihood="paper"), seed=3
+    )
+    before = [
+        [8.74127260474637, -1.6755263724554335],
+        [8.950224203298038, -1.7245049230910645],
+        [9.06513615054304, -1.7571668371355478],
+        [9.10898297356336, -1.8334354593462217],
+        [8.940547680999313, -2.203814975956202],
+        [8.771968812274984, -2.4375178822741157],
+    ]
     np.testing.assert_allclose([w["mean_internal"] for w in res.windows], before, rtol=1e-7)
     assert res.estimate["G"]["mean"] == pytest.approx(6997.379238033777, rel=1e-7)
     assert res.estimate["G"]["sd"] == pytest.approx(1112.4320916717165, rel=1e-7)
@@ -373,7 +405,8 @@ def test_shared_clock_state_is_the_bubble_of_its_own_geometry():
     its own maximum state with R* times s and run in units of Rmax (the data's clock, its own Req),
     is the same bubble as the one run in its own units (R in metres at the same physical times)."""
     from imrbayes.forward import BatchState, ForwardModel
-    fm = ForwardModel("nhkv", options={"bubble": "polytropic", "rtol": 1e-10, "atol": 1e-12})   # an identity: tight
+
+    fm = ForwardModel("nhkv", options={"bubble": "polytropic", "rtol": 1e-10, "atol": 1e-12})  # an identity: tight
     rmax, req = 263e-6, 263e-6 / 7.58
     th = {"G": TRUTH["G"], "mu": TRUTH["mu"]}
     t = np.linspace(0.0, 3.0, 121)
@@ -397,8 +430,17 @@ def _misplaced_geometry(req_sd_frac):
     Y = Y * s_true + 0.004 * np.random.default_rng(7).standard_normal(Y.shape)
     Y[:, 0] = 1.0
     sd = np.column_stack([np.full(2, 0.03), np.zeros(2), np.asarray(req_sd_frac, dtype=float) * o.req_m])
-    obs = Observations(t, Y, np.full(t.size, 0.004 ** 2), o.rmax_m, o.req_m, noise_sd=np.full(2, 0.004),
-                       nuisance_sd=sd, t0_s=np.zeros(2), tc_s=np.full(2, 30e-6))
+    obs = Observations(
+        t,
+        Y,
+        np.full(t.size, 0.004**2),
+        o.rmax_m,
+        o.req_m,
+        noise_sd=np.full(2, 0.004),
+        nuisance_sd=sd,
+        t0_s=np.zeros(2),
+        tc_s=np.full(2, 30e-6),
+    )
     return fm, obs, rmax_t, req_t, o
 
 
@@ -421,8 +463,17 @@ def test_default_infers_rmax_and_req():
             assert "analysed" in x["treatment"], x
             assert abs(x["mean"] - true) < 3 * x["sd"], (n, key, x, true)
             assert abs(x["mean"] - true) < 0.5 * abs(x["prior_mean"] - true), (n, key, x, true)
-    fixed = Observations(t, Y, np.full(t.size, 0.004 ** 2), o.rmax_m, o.req_m, noise_sd=np.full(2, 0.004),
-                         nuisance_sd=np.zeros((2, 3)), t0_s=np.zeros(2), tc_s=np.full(2, 30e-6))
+    fixed = Observations(
+        t,
+        Y,
+        np.full(t.size, 0.004**2),
+        o.rmax_m,
+        o.req_m,
+        noise_sd=np.full(2, 0.004),
+        nuisance_sd=np.zeros((2, 3)),
+        t0_s=np.zeros(2),
+        tc_s=np.full(2, 30e-6),
+    )
     res_fixed = fit_mienks(fm, fixed, space(fm), st, seed=2)
     err = abs(res.estimate["mu"]["mean"] / TRUTH["mu"] - 1)
     assert err < 0.1
@@ -443,7 +494,7 @@ def test_req_prior_from_a_whole_record_en4dvar_fit():
     assert MIEnKSSettings().resolved().req_prior == mk.DEFAULT_REQ_PRIOR == "en4dvar"
     assert MIEnKSSettings(likelihood="paper").resolved().req_prior == "preprocessing"
     MIEnKSSettings(likelihood="paper").check(120)
-    fm, obs, _, req_t, o = _misplaced_geometry([0.15, 0.0])             # experiment 2: Req given
+    fm, obs, _, req_t, o = _misplaced_geometry([0.15, 0.0])  # experiment 2: Req given
     st = MIEnKSSettings(n_ens=24, n_iter=3, L=20, h=10, n_draws=3, adapt=False, req_prior="en4dvar")
     res = fit_mienks(fm, obs, space(fm), st, seed=2)
     info = res.details["req_prior"]
@@ -470,14 +521,14 @@ def test_integrating_out_req_is_the_marginal_of_the_joint_posterior():
     A = rng.standard_normal((3, 3))
     Lam = A @ A.T + 0.1 * np.eye(3)
     eta = rng.standard_normal(3)
-    P0 = np.diag([2.0, 0.5])                     # z's prior precision, mean m0
+    P0 = np.diag([2.0, 0.5])  # z's prior precision, mean m0
     m0 = np.array([0.3, -0.2])
     sd = 0.07
     Lz, ez = mk.integrate_out_last(Lam, eta, sd)
     Cz = np.linalg.inv(P0 + Lz)
     mz = Cz @ (P0 @ m0 + ez)
     Pj = np.zeros((3, 3))
-    Pj[:2, :2], Pj[2, 2] = P0, 1 / sd ** 2
+    Pj[:2, :2], Pj[2, 2] = P0, 1 / sd**2
     Cj = np.linalg.inv(Pj + Lam)
     mj = Cj @ (Pj @ np.append(m0, 0.0) + eta)
     np.testing.assert_allclose(Cz, Cj[:2, :2], rtol=1e-12)
@@ -499,8 +550,9 @@ def test_record_with_shared_req_is_reported():
     for nm in ("G", "mu"):
         assert alt[nm]["sd"] > 0 and alt[nm]["hdi95"][0] < alt[nm]["mean"] < alt[nm]["hdi95"][1]
         # the same data and prior: the two record-level estimates are near each other
-        assert abs(np.log(alt[nm]["mean"] / rec[nm]["mean"])) < 3 * max(alt[nm]["sd"] / alt[nm]["mean"],
-                                                                         rec[nm]["sd"] / rec[nm]["mean"])
+        assert abs(np.log(alt[nm]["mean"] / rec[nm]["mean"])) < 3 * max(
+            alt[nm]["sd"] / alt[nm]["mean"], rec[nm]["sd"] / rec[nm]["mean"]
+        )
 
 
 @pytest.mark.slow
@@ -523,7 +575,7 @@ def test_reported_pass_is_continuous_in_the_pilots_last_bits(monkeypatch):
         res = fit_mienks(fm, o, space(fm), s, seed=0)
         est.append((res.mean_internal, res.cov_internal, sorted(i for i in ids if not i.startswith("pass=pilot"))))
     (m1, c1, ids1), (m2, c2, ids2) = est
-    assert ids1 != ids2                     # the digest did change: the test exercises the streams
+    assert ids1 != ids2  # the digest did change: the test exercises the streams
     # what is left is the random-effects optimiser's tolerance (~3e-5 in log G here); a redraw of the
     # ensembles moved log G by 2e-2 and the covariance by 18 %
     assert np.max(np.abs(m1 - m2)) < 1e-3, (m1, m2)
@@ -549,12 +601,13 @@ def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the
     np.testing.assert_array_equal(mk.widen_factors(2, ("G", "mu")), [2.0, 2.0])
     with pytest.raises(InputError, match="unknown parameter"):
         mk.widen_factors("lambda1:3", ("G", "mu"))
-    from imrbayes.cli.options import coerce_setting          # --set prior_widen=... from the command line
+    from imrbayes.cli.options import coerce_setting  # --set prior_widen=... from the command line
+
     assert coerce_setting(MIEnKSSettings, "prior_widen", "3", "--set") == 3.0
     assert coerce_setting(MIEnKSSettings, "prior_widen", "mu:3", "--set") == "mu:3"
     assert coerce_setting(MIEnKSSettings, "prior_widen", "none", "--set") is None
     with pytest.raises(InputError, match="step_tol"):
-        coerce_setting(MIEnKSSettings, "step_tol", "mu:3", "--set")      # a float-only field still refuses text
+        coerce_setting(MIEnKSSettings, "step_tol", "mu:3", "--set")  # a float-only field still refuses text
     with pytest.raises(InputError, match="prior_widen"):
         MIEnKSSettings(likelihood="paper", prior_widen=2.0).check(120)
     fm = observations()[0]
@@ -565,9 +618,10 @@ def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the
 
     def spy(u, rng):
         out = unit(u, rng)
-        if u.data["E"] is None:                     # window 0
+        if u.data["E"] is None:  # window 0
             seen.setdefault(u.data["settings"].prior_widen, []).append(out["qc"])
         return out
+
     monkeypatch.setattr(mk, "mienks_unit", spy)
     base = MIEnKSSettings(n_ens=12, n_iter=2, L=20, h=10, n_draws=3, adapt=False)
     res = {w: fit_mienks(fm, obs, sp, dataclasses.replace(base, prior_widen=w), seed=1) for w in (1.0, 3.0, "mu:3")}
@@ -575,7 +629,7 @@ def test_window0_members_start_from_the_widened_prior_and_the_gel_chain_from_the
         for qc in seen[w]:
             np.testing.assert_allclose(qc, sp.prior_cov * np.outer(f, f), rtol=1e-8, atol=1e-12)
         p0 = res[w].window_posteriors[0]
-        np.testing.assert_allclose(p0.prior_mean, sp.prior_mean)      # the gel chain starts at the prior
+        np.testing.assert_allclose(p0.prior_mean, sp.prior_mean)  # the gel chain starts at the prior
         np.testing.assert_allclose(p0.prior_cov, sp.prior_cov)
     # the wider start moves where window 0's gel estimate lands, not what prior it states
     assert res[1.0].windows[0]["mean_internal"] != res[3.0].windows[0]["mean_internal"]
@@ -588,14 +642,17 @@ def test_req_prior_keeps_the_record_req_where_the_whole_record_fit_contradicts_i
     above and below experiment 1's z shows both branches."""
     from imrbayes.execution import Execution
     from imrbayes.forward import Runner
+
     fm, obs, _, req_t, o = _misplaced_geometry([0.15, 0.0])
     # experiment 2 estimated as well, with a prior that the records contradict by 12 %
-    obs = dataclasses.replace(obs, nuisance_sd=np.column_stack([obs.nuisance_sd[:, :2], [0.15 * o.req_m[0], 0.03 * o.req_m[1]]]))
+    obs = dataclasses.replace(
+        obs, nuisance_sd=np.column_stack([obs.nuisance_sd[:, :2], [0.15 * o.req_m[0], 0.03 * o.req_m[1]]])
+    )
     args = (fm, obs, space(fm), 2, Runner(fm), Execution(progress=False))
     _, free = mk.req_prior_from_en4dvar(*args, conflict_z=np.inf)
     assert free["conflicts"] == [] and free["experiments"] == list(obs.names)
     z = (np.array(free["req_m"]) - obs.req_m) / obs.nuisance_sd[:, 2]
-    assert abs(z[1]) > abs(z[0])                      # the 3 % prior is the one the data move furthest
+    assert abs(z[1]) > abs(z[0])  # the 3 % prior is the one the data move furthest
     bound = 0.5 * (abs(z[0]) + abs(z[1]))
     new, info = mk.req_prior_from_en4dvar(*args, conflict_z=bound, stop_z=None)
     assert [c["experiment"] for c in info["conflicts"]] == [obs.names[1]]
@@ -615,12 +672,16 @@ def test_req_prior_fit_stops_an_experiment_whose_conflict_is_decided():
     from imrbayes.ensemble.req_tail import req_shift_z
     from imrbayes.execution import Execution
     from imrbayes.forward import Runner
+
     fm, obs, _, _, o = _misplaced_geometry([0.15, 0.0])
-    obs = dataclasses.replace(obs, nuisance_sd=np.column_stack([obs.nuisance_sd[:, :2], [0.15 * o.req_m[0], 0.03 * o.req_m[1]]]))
+    obs = dataclasses.replace(
+        obs, nuisance_sd=np.column_stack([obs.nuisance_sd[:, :2], [0.15 * o.req_m[0], 0.03 * o.req_m[1]]])
+    )
     s = En4DVarSettings(n_draws=1, loglik=False)
-    free = en4dvar_pass(fm, obs, space(fm), s.resolved(), 2, Runner(fm), None, Execution(progress=False),
-                        tag={"req_prior": "en4dvar"})              # the units' streams req_prior_from_en4dvar uses
-    z_cyc = [c["req_z"] for c in free.details["cycles"]]          # [cycle][experiment]
+    free = en4dvar_pass(
+        fm, obs, space(fm), s.resolved(), 2, Runner(fm), None, Execution(progress=False), tag={"req_prior": "en4dvar"}
+    )  # the units' streams req_prior_from_en4dvar uses
+    z_cyc = [c["req_z"] for c in free.details["cycles"]]  # [cycle][experiment]
     z_end = [q["z"] for q in req_shift_z(obs, free.per_experiment)]
     np.testing.assert_allclose(z_cyc[-1], z_end, rtol=1e-9)
     assert abs(z_cyc[0][1]) > 3.0 and abs(z_cyc[0][0]) < abs(z_cyc[0][1])
@@ -632,6 +693,6 @@ def test_req_prior_fit_stops_an_experiment_whose_conflict_is_decided():
     assert info["stopped_early"] == [{"experiment": obs.names[1], "after_cycle": 1}]
     assert [c["experiment"] for c in info["conflicts"]] == [obs.names[1]]
     assert info["conflicts"][0]["z"] == pytest.approx(z_cyc[0][1], rel=1e-9)
-    assert new.req_m[1] == obs.req_m[1]                              # the record's prior kept
+    assert new.req_m[1] == obs.req_m[1]  # the record's prior kept
     assert new.req_m[0] == ref["req_m"][0] and new.nuisance_sd[0, 2] == ref["req_sd_m"][0]
     assert info["en4dvar_member_runs"] < ref["en4dvar_member_runs"]

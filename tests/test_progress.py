@@ -27,7 +27,7 @@ def _read_all(fd) -> str:
 
 @pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs a pseudo-terminal")
 def test_bar_draws_on_a_terminal_that_reports_no_size():
-    master, slave = os.openpty()        # a fresh pty: 0 x 0 window, as under script(1) or docker exec -t
+    master, slave = os.openpty()  # a fresh pty: 0 x 0 window, as under script(1) or docker exec -t
     try:
         with os.fdopen(os.dup(slave), "w", encoding="utf-8") as fh:
             assert fh.isatty()
@@ -68,9 +68,29 @@ def _identity(unit, rng):
 @pytest.fixture(scope="module")
 def tiny_ds(tmp_path_factory):
     ds = tmp_path_factory.mktemp("progress") / "ds"
-    r = CliRunner().invoke(main, ["simulate", "--model", "nhkv", "--param", "G=7.29e3", "--param", "mu=0.088",
-                                  "--n-exp", "2", "--forward", "bubble=polytropic", "--t-end", "1.0", "--seed", "0",
-                                  "--out", str(ds), "--quiet"])
+    r = CliRunner().invoke(
+        main,
+        [
+            "simulate",
+            "--model",
+            "nhkv",
+            "--param",
+            "G=7.29e3",
+            "--param",
+            "mu=0.088",
+            "--n-exp",
+            "2",
+            "--forward",
+            "bubble=polytropic",
+            "--t-end",
+            "1.0",
+            "--seed",
+            "0",
+            "--out",
+            str(ds),
+            "--quiet",
+        ],
+    )
     assert r.exit_code == 0, r.output
     return ds
 
@@ -79,18 +99,38 @@ def tiny_ds(tmp_path_factory):
 def test_fit_bar_counts_windows_times_experiments_from_the_start(tiny_ds, tmp_path, monkeypatch):
     import imrbayes.cli.options as opts
 
-    monkeypatch.setattr(opts, "_isatty", lambda stream: True)      # CliRunner's stderr is no terminal
-    r = CliRunner().invoke(main, ["fit", str(tiny_ds), "--method", "mienks", "--forward", "bubble=polytropic",
-                                  "--set", "n_ens=8", "--set", "n_iter=2", "--set", "L=10", "--set", "h=5",
-                                  "--n-steps", "40", "--out", str(tmp_path / "fit")])
+    monkeypatch.setattr(opts, "_isatty", lambda stream: True)  # CliRunner's stderr is no terminal
+    r = CliRunner().invoke(
+        main,
+        [
+            "fit",
+            str(tiny_ds),
+            "--method",
+            "mienks",
+            "--forward",
+            "bubble=polytropic",
+            "--set",
+            "n_ens=8",
+            "--set",
+            "n_iter=2",
+            "--set",
+            "L=10",
+            "--set",
+            "h=5",
+            "--n-steps",
+            "40",
+            "--out",
+            str(tmp_path / "fit"),
+        ],
+    )
     assert r.exit_code == 0, r.output
     err = r.stderr
     # 40 steps, L=10, h=5: 7 windows; 2 experiments; the default likelihood's pilot pass, then the reported one
     assert "28 units (2 passes x 7 windows x 2 experiments)" in err
     totals = {int(m) for m in re.findall(r"\d+/(\d+) units", err)}
-    assert totals == {28}, err                     # one total from the first draw to the last
+    assert totals == {28}, err  # one total from the first draw to the last
     assert "0/28 units" in err and "28/28 units" in err
-    assert re.search(r"\[\d\d:\d\d<\d\d:\d\d\]", err), err     # elapsed < remaining (the ETA)
+    assert re.search(r"\[\d\d:\d\d<\d\d:\d\d\]", err), err  # elapsed < remaining (the ETA)
     assert "mienks window 7/7" in err
 
 
@@ -110,6 +150,8 @@ def test_stage_log_writes_one_line_per_stage_with_the_elapsed_time():
         now[0] += 65.0
         ex.run([Unit(f"w={j}/e={i}", i) for i in range(2)], _identity, 0, desc=f"mienks window {j + 1}/2")
     log.close()
-    assert buf.getvalue().splitlines() == ["imrbayes: mienks [1:05] mienks window 1/2 (0/4 units done)",
-                                           "imrbayes: mienks [2:10] mienks window 2/2 (2/4 units done)",
-                                           "imrbayes: mienks [2:10] finished (4/4 units done)"]
+    assert buf.getvalue().splitlines() == [
+        "imrbayes: mienks [1:05] mienks window 1/2 (0/4 units done)",
+        "imrbayes: mienks [2:10] mienks window 2/2 (2/4 units done)",
+        "imrbayes: mienks [2:10] finished (4/4 units done)",
+    ]

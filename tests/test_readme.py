@@ -66,8 +66,9 @@ def _run(argv: list[str], runs: Path) -> subprocess.CompletedProcess:
     return proc
 
 
-needs_shared = pytest.mark.skipif(not (SHARED / "data" / "lic").is_dir(),
-                                  reason="shared data (../shared/data/lic) not present")
+needs_shared = pytest.mark.skipif(
+    not (SHARED / "data" / "lic").is_dir(), reason="shared data (../shared/data/lic) not present"
+)
 
 
 def test_readme_is_short_and_gives_the_ci_test_command():
@@ -97,7 +98,7 @@ def test_command_line_parses(line):
     argv = shlex.split(line)[1:]
     cmd = main.get_command(None, argv[0])
     assert cmd is not None, f"README names an unknown command: {line}"
-    ctx = cmd.make_context(argv[0], argv[1:], parent=None)   # raises click.UsageError on a bad option
+    ctx = cmd.make_context(argv[0], argv[1:], parent=None)  # raises click.UsageError on a bad option
     assert ctx.params
 
 

@@ -15,8 +15,11 @@ from imrbayes.forward import ForwardOptions, Runner
 
 def _truth(truth):
     ex = truth["experiments"]
-    return (np.array([e["req_m"] for e in ex]), np.array([e["rmax_m"] for e in ex]),
-            np.array([truth["theta"][k] for k in ("G", "mu")]))
+    return (
+        np.array([e["req_m"] for e in ex]),
+        np.array([e["rmax_m"] for e in ex]),
+        np.array([truth["theta"][k] for k in ("G", "mu")]),
+    )
 
 
 def test_model_tail_undoes_the_tail_means_bias_on_thermal_records():
@@ -93,26 +96,43 @@ def test_a_given_start_replaces_the_first_pass():
     st = dict(n_ens=12, n_runs=1, n_iter=2, max_iter=2, screen=0, loglik=False, n_draws=1)
     per_bubble = np.stack([theta, theta * [1.1, 0.9]])
     start = ReqTailStart(theta_si=per_bubble, rmax_m=rmax, source="test fit")
-    given = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0,
-                        req_tail_start=start)
+    given = fit_en4dvar(
+        base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0, req_tail_start=start
+    )
     two = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0)
     info = given.details["req_tail"]
     _, want = model_tail_req(Runner(base.fm), obs, per_bubble, rmax)
     assert np.allclose(info["factor"], want, rtol=0, atol=1e-12) and not np.allclose(want, 1.0)
     assert info["start"]["source"] == "test fit" and "test fit" in info["note"]
     assert "first_pass_estimate" not in info and "req_tail_first_pass" not in given.details.get(
-        "alternative_estimates", {})
+        "alternative_estimates", {}
+    )
     # one pass's member runs instead of two passes'
     assert given.details["member_runs"] < two.details["member_runs"]
     with pytest.raises(ValueError, match="do not match"):
-        fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0,
-                    req_tail_start=ReqTailStart(theta_si=theta, rmax_m=rmax[:1], source="bad"))
+        fit_en4dvar(
+            base.fm,
+            obs,
+            base.space,
+            En4DVarSettings(**st, req_tail="inline"),
+            seed=0,
+            req_tail_start=ReqTailStart(theta_si=theta, rmax_m=rmax[:1], source="bad"),
+        )
     # given exactly where the first pass ended, the fit is the two-pass fit: the same factors, the
     # same unit seeds (one tag for both paths), the same estimate
     t2 = two.details["req_tail"]
-    same = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(**st, req_tail="inline"), seed=0,
-                       req_tail_start=ReqTailStart(theta_si=[t2["first_pass_estimate"][k] for k in ("G", "mu")],
-                                                   rmax_m=np.array(t2["first_pass_rmax_m"]), source="first pass"))
+    same = fit_en4dvar(
+        base.fm,
+        obs,
+        base.space,
+        En4DVarSettings(**st, req_tail="inline"),
+        seed=0,
+        req_tail_start=ReqTailStart(
+            theta_si=[t2["first_pass_estimate"][k] for k in ("G", "mu")],
+            rmax_m=np.array(t2["first_pass_rmax_m"]),
+            source="first pass",
+        ),
+    )
     assert same.details["req_tail"]["factor"] == t2["factor"]
     assert all(same.estimate[k]["mean"] == two.estimate[k]["mean"] for k in ("G", "mu"))
     # req_tail=inline (the thermal default) with a start, or with one cycle (nothing to move Req
@@ -205,12 +225,17 @@ def test_req_shift_z_measures_the_fit_against_the_tail_in_tail_sd():
     from imrbayes.ensemble.mienks import REQ_PRIOR_CONFLICT_Z
     from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, req_shift_z
 
-    obs = SimpleNamespace(names=["a", "b", "c"], req_m=np.array([50e-6, 40e-6, 30e-6]),
-                          nuisance_sd=np.array([[0, 0, 0.5e-6], [0, 0, 0.0], [0, 0, 2e-6]]))
-    fit = [{"name": "a", "nuisance": {"req_m": {"mean": 52e-6, "sd": 0.3e-6}}},
-           {"name": "b", "nuisance": {"req_m": {"mean": 41e-6, "sd": 0.3e-6}}},     # given: skipped
-           {"name": "c", "nuisance": {"req_m": {"mean": 29e-6, "sd": 0.4e-6}}},
-           {"name": "x", "nuisance": {"req_m": {"mean": 1e-6, "sd": 0.4e-6}}}]      # not in obs
+    obs = SimpleNamespace(
+        names=["a", "b", "c"],
+        req_m=np.array([50e-6, 40e-6, 30e-6]),
+        nuisance_sd=np.array([[0, 0, 0.5e-6], [0, 0, 0.0], [0, 0, 2e-6]]),
+    )
+    fit = [
+        {"name": "a", "nuisance": {"req_m": {"mean": 52e-6, "sd": 0.3e-6}}},
+        {"name": "b", "nuisance": {"req_m": {"mean": 41e-6, "sd": 0.3e-6}}},  # given: skipped
+        {"name": "c", "nuisance": {"req_m": {"mean": 29e-6, "sd": 0.4e-6}}},
+        {"name": "x", "nuisance": {"req_m": {"mean": 1e-6, "sd": 0.4e-6}}},
+    ]  # not in obs
     rows = req_shift_z(obs, fit)
     assert [q["experiment"] for q in rows] == ["a", "c"]
     assert rows[0]["z"] == pytest.approx(4.0) and rows[1]["z"] == pytest.approx(-0.5)

@@ -19,13 +19,49 @@ def study(tmp_path_factory):
     root = tmp_path_factory.mktemp("study")
     run = CliRunner().invoke
     for name, g in TRUE_G.items():
-        res = run(main, ["simulate", "--model", "nhkv", "--param", f"G={g}", "--param", f"mu={TRUE_MU}", "--n-exp", "2",
-                         "--forward", "bubble=polytropic", "--t-end", "1.5", "--noise", "0.01", "--seed", "1",
-                         "--out", str(root / name), "--quiet"])
+        res = run(
+            main,
+            [
+                "simulate",
+                "--model",
+                "nhkv",
+                "--param",
+                f"G={g}",
+                "--param",
+                f"mu={TRUE_MU}",
+                "--n-exp",
+                "2",
+                "--forward",
+                "bubble=polytropic",
+                "--t-end",
+                "1.5",
+                "--noise",
+                "0.01",
+                "--seed",
+                "1",
+                "--out",
+                str(root / name),
+                "--quiet",
+            ],
+        )
         assert res.exit_code == 0, res.output
-    args = ["study", str(root / "soft"), str(root / "stiff"), "--label", "concentration=1%,3%", "--label",
-            "material=agarose", "--method", "en4dvar", "--forward", "bubble=polytropic", "--n-steps", "60",
-            "--out", str(root / "out")]
+    args = [
+        "study",
+        str(root / "soft"),
+        str(root / "stiff"),
+        "--label",
+        "concentration=1%,3%",
+        "--label",
+        "material=agarose",
+        "--method",
+        "en4dvar",
+        "--forward",
+        "bubble=polytropic",
+        "--n-steps",
+        "60",
+        "--out",
+        str(root / "out"),
+    ]
     res = run(main, args)
     assert res.exit_code == 0, res.output
     return root, args, res.output
@@ -34,13 +70,20 @@ def study(tmp_path_factory):
 def test_files_and_table(study):
     root, _, output = study
     out = root / "out"
-    for f in ("study.csv", "study.json", "study.nc", "study.html", "figures/parameters_concentration.png",
-              "runs/soft/en4dvar/summary.json", "runs/stiff/en4dvar/posterior.nc"):
+    for f in (
+        "study.csv",
+        "study.json",
+        "study.nc",
+        "study.html",
+        "figures/parameters_concentration.png",
+        "runs/soft/en4dvar/summary.json",
+        "runs/stiff/en4dvar/posterior.nc",
+    ):
         assert (out / f).is_file(), f
     table = imrbayes.load_study(out)
     assert list(table.index) == ["soft", "stiff"] and list(table["n_bubbles"]) == [2, 2]
     summaries = {n: json.loads((out / "runs" / n / "en4dvar" / "summary.json").read_text()) for n in TRUE_G}
-    for name, s in summaries.items():    # the table carries each run's own gel-level estimate
+    for name, s in summaries.items():  # the table carries each run's own gel-level estimate
         assert table.loc[name, "G_mean"] == pytest.approx(s["estimate"]["G"]["mean"])
         assert [table.loc[name, "mu_lo"], table.loc[name, "mu_hi"]] == pytest.approx(s["estimate"]["mu"]["hdi95"])
         assert table.loc[name, "G_lo"] < TRUE_G[name] < table.loc[name, "G_hi"]
@@ -66,6 +109,6 @@ def test_rerun_reuses_and_a_changed_option_is_refused(study):
     assert res.exit_code == 0 and "soft/en4dvar: reused" in res.output
     changed = [*args, "--seed", "2"]
     res = CliRunner().invoke(main, changed)
-    assert res.exit_code == 0, res.output       # a failed dataset is reported; the study still writes its files
+    assert res.exit_code == 0, res.output  # a failed dataset is reported; the study still writes its files
     assert "soft/en4dvar: failed" in res.output and "another configuration" in res.output
     assert "Runs failed for soft (en4dvar); stiff (en4dvar)" in res.output

@@ -44,24 +44,28 @@ def test_label_on_one_dataset_only(tmp_path):
 def test_two_datasets_with_one_name(tmp_path):
     _dataset(tmp_path, "a"), _dataset(tmp_path, "b")
     f = tmp_path / "s.toml"
-    f.write_text('[[dataset]]\nname = "x"\ndata = "a"\nlabels = {c = 1}\n'
-                 '[[dataset]]\nname = "x"\ndata = "b"\nlabels = {c = 2}\n')
+    f.write_text(
+        '[[dataset]]\nname = "x"\ndata = "a"\nlabels = {c = 1}\n[[dataset]]\nname = "x"\ndata = "b"\nlabels = {c = 2}\n'
+    )
     _one_line_error(*_run([f, "--out", tmp_path / "o"]), "two datasets are named 'x'")
 
 
-@pytest.mark.parametrize("text, needle", [
-    ("", "no [[dataset]]"),
-    ('[[dataset]]\ndata = "a"\ncolour = 1\n', "unknown key(s) ['colour']"),
-    ('methods = ["nope"]\n[[dataset]]\ndata = "a"\n', "unknown method(s) ['nope']"),
-    ('seed = -1\n[[dataset]]\ndata = "a"\n', "seed must be a non-negative integer"),
-    ("[[dataset]\n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("", "no [[dataset]]"),
+        ('[[dataset]]\ndata = "a"\ncolour = 1\n', "unknown key(s) ['colour']"),
+        ('methods = ["nope"]\n[[dataset]]\ndata = "a"\n', "unknown method(s) ['nope']"),
+        ('seed = -1\n[[dataset]]\ndata = "a"\n', "seed must be a non-negative integer"),
+        ("[[dataset]\n", "not valid TOML"),
+    ],
+)
 def test_other_bad_files(tmp_path, text, needle):
     _dataset(tmp_path, "a")
     f = tmp_path / "s.toml"
     f.write_text(text)
     _one_line_error(*_run([f, "--out", tmp_path / "o"]), needle)
-    assert not (tmp_path / "o").exists()      # refused before anything is written
+    assert not (tmp_path / "o").exists()  # refused before anything is written
 
 
 def test_short_form_label_count(tmp_path):

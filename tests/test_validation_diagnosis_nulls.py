@@ -20,10 +20,13 @@ def test_best_gain_of_a_diagnosis():
     r = {"naming": {"best_candidate": "qkv", "best_gain": 0.005, "combined_z": 0.5}}
     assert dn.best_of(r) == ("qkv", 0.005, 0.5)
     assert dn.best_of({"naming": {"best_candidate": None, "best_gain": None}})[1] == 0.0
-    older = {"candidates": [{"key": "zener", "rank": 2, "score": 0.2, "consistent": True},
-                            {"key": "qkv", "rank": 1, "score": 0.1, "consistent": True,
-                             "combined_vs_baseline": {"z": 1.5}},
-                            {"key": "damage", "rank": 3, "score": 0.5, "consistent": False}]}
+    older = {
+        "candidates": [
+            {"key": "zener", "rank": 2, "score": 0.2, "consistent": True},
+            {"key": "qkv", "rank": 1, "score": 0.1, "consistent": True, "combined_vs_baseline": {"z": 1.5}},
+            {"key": "damage", "rank": 3, "score": 0.5, "consistent": False},
+        ]
+    }
     assert dn.best_of(older) == ("qkv", 0.1, 1.5)
     key, gain, z = dn.best_of({"candidates": []})
     assert key is None and gain == 0.0 and math.isnan(z)
@@ -31,12 +34,14 @@ def test_best_gain_of_a_diagnosis():
 
 def test_summary_counts_named_causes_and_the_gain_percentile():
     gains = np.linspace(0.0, 0.19, 20)
-    rows = [{"status": "ok", "named": i == 3, "verdict": "inadequate" if i < 5 else "adequate", "best_gain": g}
-            for i, g in enumerate(gains)] + [{"status": "error", "error": "x"}]
+    rows = [
+        {"status": "ok", "named": i == 3, "verdict": "inadequate" if i < 5 else "adequate", "best_gain": g}
+        for i, g in enumerate(gains)
+    ] + [{"status": "error", "error": "x"}]
     s = dn.summary(rows)
     assert s["nulls"] == 20 and s["causes_named"] == 1 and s["inadequate"] == 5
     assert s["false_alarm_rate"] == pytest.approx(0.05)
     lo, hi = s["false_alarm_wilson95"]
-    assert lo < 0.05 < hi and hi == pytest.approx(0.236, abs=0.002)        # Wilson, 1 of 20
-    assert s["best_gain_q95"] == pytest.approx(0.1805)                       # linear interpolation, 19 * 0.95
+    assert lo < 0.05 < hi and hi == pytest.approx(0.236, abs=0.002)  # Wilson, 1 of 20
+    assert s["best_gain_q95"] == pytest.approx(0.1805)  # linear interpolation, 19 * 0.95
     assert s["best_gain_max"] == pytest.approx(0.19)

@@ -17,8 +17,9 @@ CLAIMS = ("calibration", "confusion", "realdata", "mcmc", "peers", "range")
 
 def _run(*args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.run([sys.executable, "-m", "validation", *args], cwd=ROOT, env=env, capture_output=True,
-                          text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "validation", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600
+    )
 
 
 def test_registry_lists_every_claim_with_a_module():
@@ -52,10 +53,10 @@ def test_calibration_one_seed_end_to_end(tmp_path):
     truth = json.loads((out / "work" / case["case"] / "data" / "truth.json").read_text())
     table = json.loads((out / "coverage.json").read_text())
     assert (out / "coverage.md").read_text().startswith("# Coverage") and (out / "coverage.png").stat().st_size > 0
-    z2 = 1.959964 ** 2
+    z2 = 1.959964**2
     for row in table["rows"]:
         name = row["parameter"]
-        true = truth["parameters"][name]       # what simulate drew the data with
+        true = truth["parameters"][name]  # what simulate drew the data with
         assert row["truth"] == pytest.approx(true)
         lo, hi = case["estimate"][name]["hdi95"]
         hit = int(lo <= true <= hi)

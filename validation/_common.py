@@ -22,12 +22,19 @@ SHARED = ROOT.parent / "shared"
 
 def parser(name: str, doc: str) -> argparse.ArgumentParser:
     """The options every claim takes (``--quick``, ``--resume``, ``--out``); claims add their own."""
-    ap = argparse.ArgumentParser(prog=f"python -m validation {name}", description=doc.strip().splitlines()[0],
-                                 epilog=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog=f"python -m validation {name}",
+        description=doc.strip().splitlines()[0],
+        epilog=doc,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("--quick", action="store_true", help="a few cases (minutes): shows the claim runs, not a result")
-    ap.add_argument("--resume", action="store_true",
-                    help="keep the cases already finished under --out (failed ones are rerun)")
-    ap.add_argument("--out", type=Path, default=RESULTS / name, help=f"results folder [default: validation/results/{name}]")
+    ap.add_argument(
+        "--resume", action="store_true", help="keep the cases already finished under --out (failed ones are rerun)"
+    )
+    ap.add_argument(
+        "--out", type=Path, default=RESULTS / name, help=f"results folder [default: validation/results/{name}]"
+    )
     return ap
 
 
@@ -54,8 +61,12 @@ def wilson(k: int, n: int) -> list[float]:
     return [float(ci.low), float(ci.high)]
 
 
-def run_cases(out: Path, cases: Sequence[tuple[str, Callable[[Path], dict]]], resume: bool,
-              describe: Callable[[dict], str] = lambda row: "") -> list[dict]:
+def run_cases(
+    out: Path,
+    cases: Sequence[tuple[str, Callable[[Path], dict]]],
+    resume: bool,
+    describe: Callable[[dict], str] = lambda row: "",
+) -> list[dict]:
     """Run ``cases`` (``(case_id, run)`` pairs; ``run(work_dir)`` returns the case's row) one by one.
 
     Each finished row is written at once to ``out/cases/<case_id>.json``; with ``resume`` a row
@@ -91,8 +102,11 @@ def run_cases(out: Path, cases: Sequence[tuple[str, Callable[[Path], dict]]], re
         write_json(path, jsonable(row))
         rows.append(row)
         what = describe(row) if row["status"] == "ok" else f"FAILED ({row['error']})"
-        print(f"[{i}/{len(cases)}] {case_id}: {what} ({row['runtime_s']:.0f} s; {time.perf_counter() - t_start:.0f} s "
-              f"elapsed)", flush=True)
+        print(
+            f"[{i}/{len(cases)}] {case_id}: {what} ({row['runtime_s']:.0f} s; {time.perf_counter() - t_start:.0f} s "
+            f"elapsed)",
+            flush=True,
+        )
     return rows
 
 
@@ -107,12 +121,19 @@ def _cell(value) -> str:
 def write_table(out: Path, stem: str, title: str, columns: dict[str, str], rows: list[dict], meta: dict) -> Path:
     """Write ``out/<stem>.md`` (a markdown table of ``columns``: key -> heading) and ``out/<stem>.json``
     (``meta``, every row in full); print the markdown. Returns the markdown's path."""
+
     def pair(v) -> bool:
         return isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v)
 
     shown = {k: v if pair(v) or not isinstance(v, (dict, list)) else f"{len(v)} (in the JSON)" for k, v in meta.items()}
-    lines = [f"# {title}", "", *(f"- {k}: {_cell(v)}" for k, v in shown.items()), "",
-             "| " + " | ".join(columns.values()) + " |", "|" + "---|" * len(columns)]
+    lines = [
+        f"# {title}",
+        "",
+        *(f"- {k}: {_cell(v)}" for k, v in shown.items()),
+        "",
+        "| " + " | ".join(columns.values()) + " |",
+        "|" + "---|" * len(columns),
+    ]
     lines += ["| " + " | ".join(_cell(r.get(k)) for k in columns) + " |" for r in rows]
     text = "\n".join(lines) + "\n"
     out.mkdir(parents=True, exist_ok=True)
@@ -137,17 +158,24 @@ def coverage_rows(rows: list[dict], group: Sequence[str], truth_key: str = "trut
         rr = [r for r in ok if tuple(r[g] for g in group) == key]
         for name in rr[0][truth_key]:
             true = rr[0][truth_key][name]
-            if true == 0:           # a zero truth is scored on "consistent with 0", not on an interval
+            if true == 0:  # a zero truth is scored on "consistent with 0", not on an interval
                 continue
             # a seed whose fit says the parameter is not identifiable is scored on saying so
             scored = [r for r in rr if not said_unidentifiable(r["estimate"][name])]
             hits = sum(r["estimate"][name]["hdi95"][0] <= true <= r["estimate"][name]["hdi95"][1] for r in scored)
             rel = [r["estimate"][name]["mean"] / true - 1 for r in scored]
-            table.append({**dict(zip(group, key)), "parameter": name, "truth": true, "n_seeds": len(rr),
-                          "said_unidentifiable": len(rr) - len(scored),
-                          "coverage": hits / len(scored) if scored else math.nan,
-                          "wilson95": wilson(hits, len(scored)),
-                          "mean_rel_error": sum(rel) / len(rel) if rel else math.nan})
+            table.append(
+                {
+                    **dict(zip(group, key)),
+                    "parameter": name,
+                    "truth": true,
+                    "n_seeds": len(rr),
+                    "said_unidentifiable": len(rr) - len(scored),
+                    "coverage": hits / len(scored) if scored else math.nan,
+                    "wilson95": wilson(hits, len(scored)),
+                    "mean_rel_error": sum(rel) / len(rel) if rel else math.nan,
+                }
+            )
     return table
 
 
@@ -162,9 +190,12 @@ def estimate_of(run_dir: Path, names: Sequence[str] = ("G", "mu")) -> dict:
     est = summary["estimate"]
     check = summary.get("fit_check") or {}
     keys = ("mean", "sd", "hdi95", "consistent_with_zero", "upper95", "bounded")
-    return {"estimate": {n: {k: est[n].get(k) for k in keys if k in est[n]} for n in names if n in est},
-            "rmse": (summary.get("fit") or {}).get("rmse"),
-            "described": check.get("described"), "residual_to_noise": check.get("residual_to_noise")}
+    return {
+        "estimate": {n: {k: est[n].get(k) for k in keys if k in est[n]} for n in names if n in est},
+        "rmse": (summary.get("fit") or {}).get("rmse"),
+        "described": check.get("described"),
+        "residual_to_noise": check.get("residual_to_noise"),
+    }
 
 
 def said_unidentifiable(estimate: dict) -> bool:
@@ -183,9 +214,16 @@ def fit_check_rows(rows: list[dict], group: Sequence[str]) -> list[dict]:
     for key in dict.fromkeys(tuple(r[g] for g in group) for r in ok):
         rr = [r for r in ok if tuple(r[g] for g in group) == key]
         k = sum(bool(r["described"]) for r in rr)
-        out.append({**dict(zip(group, key)), "n_seeds": len(rr), "described": k, "false_alarms": len(rr) - k,
-                    "wilson95_false_alarm": wilson(len(rr) - k, len(rr)),
-                    "max_ratio": max(float(r["residual_to_noise"]) for r in rr)})
+        out.append(
+            {
+                **dict(zip(group, key)),
+                "n_seeds": len(rr),
+                "described": k,
+                "false_alarms": len(rr) - k,
+                "wilson95_false_alarm": wilson(len(rr) - k, len(rr)),
+                "max_ratio": max(float(r["residual_to_noise"]) for r in rr),
+            }
+        )
     return out
 
 
@@ -198,8 +236,9 @@ def coverage_figure(path: Path, table: list[dict], label: Callable[[dict], str])
     import matplotlib.pyplot as plt
 
     names = list(dict.fromkeys(r["parameter"] for r in table))
-    fig, axes = plt.subplots(1, max(1, len(names)), figsize=(4.5 * max(1, len(names)), 0.35 * len(table) + 1.8),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        1, max(1, len(names)), figsize=(4.5 * max(1, len(names)), 0.35 * len(table) + 1.8), squeeze=False
+    )
     for ax, name in zip(axes[0], names):
         rr = [r for r in table if r["parameter"] == name]
         y = range(len(rr))

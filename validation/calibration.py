@@ -20,19 +20,52 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from validation._common import (coverage_figure, coverage_rows, estimate_of, failures, fit_check_rows, imrbayes, parser,
-                                run_cases, write_table)
+from validation._common import (
+    coverage_figure,
+    coverage_rows,
+    estimate_of,
+    failures,
+    fit_check_rows,
+    imrbayes,
+    parser,
+    run_cases,
+    write_table,
+)
 
 NAME = "calibration"
 FAMILIES = {
     "verification": {"truth": {"G": 7.29e3, "mu": 0.088}, "simulate": []},
-    "camera": {"truth": {"G": 5.2e3, "mu": 0.065},
-               "simulate": ["--rmax", "320e-6:45e-6", "--ratio", "7.9:0.45", "--n-exp", "6", "--noise", "0.02",
-                            "--frame-s", "1e-6", "--phase", "random", "--pre-max-s", "5e-6", "--no-req-in-meta",
-                            "--t-end", "3.6", "--forward", "rtol=1e-9", "--forward", "atol=1e-11"]},
+    "camera": {
+        "truth": {"G": 5.2e3, "mu": 0.065},
+        "simulate": [
+            "--rmax",
+            "320e-6:45e-6",
+            "--ratio",
+            "7.9:0.45",
+            "--n-exp",
+            "6",
+            "--noise",
+            "0.02",
+            "--frame-s",
+            "1e-6",
+            "--phase",
+            "random",
+            "--pre-max-s",
+            "5e-6",
+            "--no-req-in-meta",
+            "--t-end",
+            "3.6",
+            "--forward",
+            "rtol=1e-9",
+            "--forward",
+            "atol=1e-11",
+        ],
+    },
 }
-FAMILIES["scatter"] = {"truth": FAMILIES["camera"]["truth"],
-                       "simulate": FAMILIES["camera"]["simulate"] + ["--scatter", "G=0.15", "--scatter", "mu=0.15"]}
+FAMILIES["scatter"] = {
+    "truth": FAMILIES["camera"]["truth"],
+    "simulate": FAMILIES["camera"]["simulate"] + ["--scatter", "G=0.15", "--scatter", "mu=0.15"],
+}
 FIRST_SEED = 100
 
 
@@ -42,18 +75,50 @@ def fit_case(family: str, method: str, seed: int, bubble: str) -> callable:
 
     def run(work: Path) -> dict:
         params = [a for n, v in spec["truth"].items() for a in ("--param", f"{n}={v}")]
-        imrbayes("simulate", "--model", "nhkv", *params, *spec["simulate"], "--forward", f"bubble={bubble}",
-                 "--seed", seed, "--out", work / "data", "--quiet")
-        imrbayes("fit", work / "data", "--method", method, "--forward", f"bubble={bubble}", "--seed", seed,
-                 "--out", work / "fit", "--quiet")
-        return {"family": family, "method": method, "seed": seed, "bubble": bubble, "truth": spec["truth"],
-                **estimate_of(work / "fit", spec["truth"])}
+        imrbayes(
+            "simulate",
+            "--model",
+            "nhkv",
+            *params,
+            *spec["simulate"],
+            "--forward",
+            f"bubble={bubble}",
+            "--seed",
+            seed,
+            "--out",
+            work / "data",
+            "--quiet",
+        )
+        imrbayes(
+            "fit",
+            work / "data",
+            "--method",
+            method,
+            "--forward",
+            f"bubble={bubble}",
+            "--seed",
+            seed,
+            "--out",
+            work / "fit",
+            "--quiet",
+        )
+        return {
+            "family": family,
+            "method": method,
+            "seed": seed,
+            "bubble": bubble,
+            "truth": spec["truth"],
+            **estimate_of(work / "fit", spec["truth"]),
+        }
+
     return run
 
 
 def describe(row: dict) -> str:
-    return "; ".join(f"{n} {e['mean']:.4g} [{e['hdi95'][0]:.4g}, {e['hdi95'][1]:.4g}] (truth {row['truth'][n]:.4g})"
-                     for n, e in row["estimate"].items())
+    return "; ".join(
+        f"{n} {e['mean']:.4g} [{e['hdi95'][0]:.4g}, {e['hdi95'][1]:.4g}] (truth {row['truth'][n]:.4g})"
+        for n, e in row["estimate"].items()
+    )
 
 
 def main(argv=None) -> None:
@@ -61,8 +126,12 @@ def main(argv=None) -> None:
     ap.add_argument("--families", default=",".join(FAMILIES), help="comma-separated families [default: all]")
     ap.add_argument("--methods", default="en4dvar", help="comma-separated fit methods [default: en4dvar]")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per family [default: 40; --quick: 2]")
-    ap.add_argument("--bubble", choices=["polytropic", "thermal"], default=None,
-                    help="bubble model of data and fit [default: thermal; --quick: polytropic]")
+    ap.add_argument(
+        "--bubble",
+        choices=["polytropic", "thermal"],
+        default=None,
+        help="bubble model of data and fit [default: thermal; --quick: polytropic]",
+    )
     a = ap.parse_args(argv)
     families = [f for f in a.families.split(",") if f]
     unknown = sorted(set(families) - set(FAMILIES))
@@ -71,20 +140,48 @@ def main(argv=None) -> None:
     n_seeds = a.seeds or (2 if a.quick else 40)
     bubble = a.bubble or ("polytropic" if a.quick else "thermal")
     methods = [m for m in a.methods.split(",") if m]
-    cases = [(f"{fam}_{m}_{bubble}_seed{s}", fit_case(fam, m, s, bubble))
-             for fam in families for m in methods for s in range(FIRST_SEED, FIRST_SEED + n_seeds)]
+    cases = [
+        (f"{fam}_{m}_{bubble}_seed{s}", fit_case(fam, m, s, bubble))
+        for fam in families
+        for m in methods
+        for s in range(FIRST_SEED, FIRST_SEED + n_seeds)
+    ]
     rows = run_cases(a.out, cases, a.resume, describe)
     table = coverage_rows(rows, ("family", "method"))
     meta = {"bubble": bubble, "seeds_per_family": n_seeds, "quick": a.quick, "failed_cases": failures(rows)}
-    write_table(a.out, "coverage", "Coverage of the gel-level 95 % intervals on synthetic data",
-                {"family": "family", "method": "method", "parameter": "parameter", "n_seeds": "seeds",
-                 "said_unidentifiable": "said not identifiable", "coverage": "coverage", "wilson95": "Wilson 95 %",
-                 "mean_rel_error": "mean relative error"},
-                table, meta)
-    write_table(a.out, "fit_check", "The fit check on data from the fitted model: false alarms",
-                {"family": "family", "method": "method", "n_seeds": "seeds", "described": "described",
-                 "false_alarms": "false alarms", "wilson95_false_alarm": "Wilson 95 %", "max_ratio": "largest ratio"},
-                fit_check_rows(rows, ("family", "method")), meta)
+    write_table(
+        a.out,
+        "coverage",
+        "Coverage of the gel-level 95 % intervals on synthetic data",
+        {
+            "family": "family",
+            "method": "method",
+            "parameter": "parameter",
+            "n_seeds": "seeds",
+            "said_unidentifiable": "said not identifiable",
+            "coverage": "coverage",
+            "wilson95": "Wilson 95 %",
+            "mean_rel_error": "mean relative error",
+        },
+        table,
+        meta,
+    )
+    write_table(
+        a.out,
+        "fit_check",
+        "The fit check on data from the fitted model: false alarms",
+        {
+            "family": "family",
+            "method": "method",
+            "n_seeds": "seeds",
+            "described": "described",
+            "false_alarms": "false alarms",
+            "wilson95_false_alarm": "Wilson 95 %",
+            "max_ratio": "largest ratio",
+        },
+        fit_check_rows(rows, ("family", "method")),
+        meta,
+    )
     if table:
         coverage_figure(a.out / "coverage.png", table, lambda r: f"{r['family']}, {r['method']}")
 

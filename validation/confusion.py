@@ -62,9 +62,17 @@ def diagnose_case(cls: str, seed: int, design: str, forward: dict, quick: bool) 
         settings = DiagnoseSettings.quick() if quick else DiagnoseSettings()
         r = diagnose(obs, opts, settings=settings, seed=seed).result
         check = r.get("constant_parameter_check") or {}
-        return {"class": cls, "seed": seed, "design": design, "cause": r.get("cause"),
-                "candidates_tied": tied_mechanisms(r.get("candidates_tied")), "verdict": check.get("verdict"),
-                "p_value": (check.get("evidence") or {}).get("p_value"), "truth": truth}
+        return {
+            "class": cls,
+            "seed": seed,
+            "design": design,
+            "cause": r.get("cause"),
+            "candidates_tied": tied_mechanisms(r.get("candidates_tied")),
+            "verdict": check.get("verdict"),
+            "p_value": (check.get("evidence") or {}).get("p_value"),
+            "truth": truth,
+        }
+
     return run
 
 
@@ -79,10 +87,20 @@ def class_rows(rows: list[dict]) -> list[dict]:
         found = {}
         for r in rr:
             found[r["cause"]] = found.get(r["cause"], 0) + 1
-        table.append({"class": cls, "expected": want, "n": len(rr), "found": found,
-                      "found_text": ", ".join(f"{c} {k}" for c, k in found.items()), "hits": hits,
-                      "hit_rate": hits / len(rr), "wilson95": wilson(hits, len(rr)), "ambiguous_with_right": half,
-                      "score": hits + 0.5 * half})
+        table.append(
+            {
+                "class": cls,
+                "expected": want,
+                "n": len(rr),
+                "found": found,
+                "found_text": ", ".join(f"{c} {k}" for c, k in found.items()),
+                "hits": hits,
+                "hit_rate": hits / len(rr),
+                "wilson95": wilson(hits, len(rr)),
+                "ambiguous_with_right": half,
+                "score": hits + 0.5 * half,
+            }
+        )
     return table
 
 
@@ -91,13 +109,21 @@ def main(argv=None) -> None:
 
     ap = parser(NAME, __doc__)
     classes_all = list(camera_mechanisms())
-    ap.add_argument("--classes", default=None, help=f"comma-separated classes [default: all: {', '.join(classes_all)}; "
-                                                    "--quick: none]")
+    ap.add_argument(
+        "--classes",
+        default=None,
+        help=f"comma-separated classes [default: all: {', '.join(classes_all)}; --quick: none]",
+    )
     ap.add_argument("--seeds", type=int, default=None, help="runs per class [default: 5; --quick: 1]")
     ap.add_argument("--nulls", type=int, default=None, help="constant-NHKV null data sets [default: 20; --quick: 2]")
     ap.add_argument("--design", default=next(iter(DESIGNS)), choices=list(DESIGNS), help="design of the class runs")
-    ap.add_argument("--forward", action="append", default=None, metavar="KEY=VALUE",
-                    help="fitted forward option, repeatable [default: the thermal default; --quick: bubble=polytropic]")
+    ap.add_argument(
+        "--forward",
+        action="append",
+        default=None,
+        metavar="KEY=VALUE",
+        help="fitted forward option, repeatable [default: the thermal default; --quick: bubble=polytropic]",
+    )
     a = ap.parse_args(argv)
     classes = (a.classes or ("none" if a.quick else ",".join(classes_all))).split(",")
     unknown = sorted(set(classes) - set(classes_all))
@@ -110,22 +136,51 @@ def main(argv=None) -> None:
     n_seeds = a.seeds if a.seeds is not None else (1 if a.quick else 5)
     n_nulls = a.nulls if a.nulls is not None else (2 if a.quick else 20)
     designs = list(DESIGNS)
-    cases = [(f"{c}_seed{1000 * classes_all.index(c) + s}", diagnose_case(c, 1000 * classes_all.index(c) + s, a.design,
-                                                                         forward, a.quick))
-             for c in classes for s in range(n_seeds)]
-    cases += [(f"null{i:03d}_{designs[i % len(designs)]}",
-               diagnose_case("none", NULL_SEED + i, designs[i % len(designs)], forward, a.quick)) for i in range(n_nulls)]
+    cases = [
+        (
+            f"{c}_seed{1000 * classes_all.index(c) + s}",
+            diagnose_case(c, 1000 * classes_all.index(c) + s, a.design, forward, a.quick),
+        )
+        for c in classes
+        for s in range(n_seeds)
+    ]
+    cases += [
+        (
+            f"null{i:03d}_{designs[i % len(designs)]}",
+            diagnose_case("none", NULL_SEED + i, designs[i % len(designs)], forward, a.quick),
+        )
+        for i in range(n_nulls)
+    ]
     rows = run_cases(a.out, cases, a.resume, lambda r: f"cause {r['cause']}, verdict {r['verdict']}, p {r['p_value']}")
     ok = [r for r in rows if r["status"] == "ok"]
     nulls = [r for r in ok if r["case"].startswith("null")]
     alarms = sum(r["verdict"] == "inadequate" for r in nulls)
-    meta = {"forward": forward_args, "quick": a.quick, "design": a.design, "nulls": len(nulls), "false_alarms": alarms,
-            "false_alarm_rate": alarms / len(nulls) if nulls else None,
-            "false_alarm_wilson95": wilson(alarms, len(nulls)), "failed_cases": failures(rows)}
-    write_table(a.out, "confusion_matrix", "Diagnosis on camera-style synthetic data: causes found per hidden class",
-                {"class": "hidden class", "expected": "right cause", "n": "runs", "found_text": "causes found",
-                 "hit_rate": "hit rate", "wilson95": "Wilson 95 %", "ambiguous_with_right": "ambiguous, right among tied"},
-                class_rows([r for r in ok if not r["case"].startswith("null")]), meta)
+    meta = {
+        "forward": forward_args,
+        "quick": a.quick,
+        "design": a.design,
+        "nulls": len(nulls),
+        "false_alarms": alarms,
+        "false_alarm_rate": alarms / len(nulls) if nulls else None,
+        "false_alarm_wilson95": wilson(alarms, len(nulls)),
+        "failed_cases": failures(rows),
+    }
+    write_table(
+        a.out,
+        "confusion_matrix",
+        "Diagnosis on camera-style synthetic data: causes found per hidden class",
+        {
+            "class": "hidden class",
+            "expected": "right cause",
+            "n": "runs",
+            "found_text": "causes found",
+            "hit_rate": "hit rate",
+            "wilson95": "Wilson 95 %",
+            "ambiguous_with_right": "ambiguous, right among tied",
+        },
+        class_rows([r for r in ok if not r["case"].startswith("null")]),
+        meta,
+    )
 
 
 if __name__ == "__main__":

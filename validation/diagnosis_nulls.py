@@ -56,11 +56,40 @@ def make_null(work: Path, seed: int, noise: str, fps: str, bubble: str, n_exp: i
     """A constant-NHKV dataset made with IMRv2's numerics under ``work/data``; its meta.json keeps
     only the physical forward options. Returns the dataset folder."""
     data = work / "data"
-    imrbayes("simulate", "--model", "nhkv", "--param", f"G={TRUTH['G']}", "--param", f"mu={TRUTH['mu']}",
-             "--rmax", "263e-6:20e-6", "--ratio", "7.58:0.5", "--n-exp", n_exp, "--noise", noise,
-             "--frame-s", repr(FRAME_S[fps]), "--phase", "random", "--t-end", "3.2", "--seed", seed,
-             "--forward", "scheme=imrv2-fd", "--forward", "nt=25", "--forward", f"bubble={bubble}",
-             "--out", data, "--quiet")
+    imrbayes(
+        "simulate",
+        "--model",
+        "nhkv",
+        "--param",
+        f"G={TRUTH['G']}",
+        "--param",
+        f"mu={TRUTH['mu']}",
+        "--rmax",
+        "263e-6:20e-6",
+        "--ratio",
+        "7.58:0.5",
+        "--n-exp",
+        n_exp,
+        "--noise",
+        noise,
+        "--frame-s",
+        repr(FRAME_S[fps]),
+        "--phase",
+        "random",
+        "--t-end",
+        "3.2",
+        "--seed",
+        seed,
+        "--forward",
+        "scheme=imrv2-fd",
+        "--forward",
+        "nt=25",
+        "--forward",
+        f"bubble={bubble}",
+        "--out",
+        data,
+        "--quiet",
+    )
     meta_path = data / "meta.json"
     meta = json.loads(meta_path.read_text())
     meta["forward"] = {k: v for k, v in meta["forward"].items() if k not in GENERATOR_NUMERICS}
@@ -92,12 +121,23 @@ def null_case(seed: int, noise: str, fps: str, bubble: str, n_exp: int, quick: b
         r = json.loads((out / "diagnosis.json").read_text())
         check = r.get("constant_parameter_check") or {}
         key, gain, z = best_of(r)
-        return {"seed": seed, "noise": noise, "fps": fps, "bubble": bubble, "n_exp": n_exp,
-                "verdict": check.get("verdict"), "p_value": (check.get("evidence") or {}).get("p_value"),
-                "cause": r.get("cause"), "cause_note": r.get("cause_note"), "best_candidate": key,
-                "best_gain": gain, "combined_z": z,
-                "residual_to_noise": (r.get("misfit") or {}).get("residual_to_noise"),
-                "named": r.get("cause") not in ("none", "unexplained")}
+        return {
+            "seed": seed,
+            "noise": noise,
+            "fps": fps,
+            "bubble": bubble,
+            "n_exp": n_exp,
+            "verdict": check.get("verdict"),
+            "p_value": (check.get("evidence") or {}).get("p_value"),
+            "cause": r.get("cause"),
+            "cause_note": r.get("cause_note"),
+            "best_candidate": key,
+            "best_gain": gain,
+            "combined_z": z,
+            "residual_to_noise": (r.get("misfit") or {}).get("residual_to_noise"),
+            "named": r.get("cause") not in ("none", "unexplained"),
+        }
+
     return run
 
 
@@ -108,11 +148,16 @@ def summary(rows: list[dict]) -> dict:
     named = sum(bool(r["named"]) for r in ok)
     inadequate = sum(r["verdict"] == "inadequate" for r in ok)
     gains = np.array([r["best_gain"] for r in ok], dtype=float)
-    return {"nulls": len(ok), "causes_named": named, "false_alarm_rate": named / len(ok) if ok else None,
-            "false_alarm_wilson95": wilson(named, len(ok)), "inadequate": inadequate,
-            "inadequate_wilson95": wilson(inadequate, len(ok)),
-            "best_gain_q95": float(np.percentile(gains, 95)) if gains.size else None,
-            "best_gain_max": float(gains.max()) if gains.size else None}
+    return {
+        "nulls": len(ok),
+        "causes_named": named,
+        "false_alarm_rate": named / len(ok) if ok else None,
+        "false_alarm_wilson95": wilson(named, len(ok)),
+        "inadequate": inadequate,
+        "inadequate_wilson95": wilson(inadequate, len(ok)),
+        "best_gain_q95": float(np.percentile(gains, 95)) if gains.size else None,
+        "best_gain_max": float(gains.max()) if gains.size else None,
+    }
 
 
 def main(argv=None) -> None:
@@ -128,17 +173,40 @@ def main(argv=None) -> None:
     cases = []
     for i in range(n_nulls):
         noise, fps, bubble = cells[i % len(cells)]
-        cases.append((f"null{i:03d}_{bubble}_{fps}_{noise}",
-                      null_case(NULL_SEED + i, noise, fps, bubble, n_exp, a.quick)))
-    rows = run_cases(a.out, cases, a.resume,
-                     lambda r: f"verdict {r['verdict']}, cause {r['cause']}, best gain {r['best_gain']:.3g}")
-    meta = {"quick": a.quick, "generator": "imrbayes simulate, scheme=imrv2-fd nt=25", "n_exp": n_exp,
-            "min_gain_in_use": MIN_GAIN, **summary(rows), "failed_cases": failures(rows)}
-    write_table(a.out, "diagnosis_nulls", "Diagnosis on constant-NHKV nulls made with other numerics and noise shapes",
-                {"case": "null", "bubble": "bubble", "fps": "frames", "noise": "noise", "verdict": "verdict",
-                 "p_value": "p", "cause": "cause", "best_candidate": "best candidate", "best_gain": "its gain",
-                 "combined_z": "combined z [SE]", "residual_to_noise": "misfit / noise"},
-                [r for r in rows if r["status"] == "ok"], meta)
+        cases.append(
+            (f"null{i:03d}_{bubble}_{fps}_{noise}", null_case(NULL_SEED + i, noise, fps, bubble, n_exp, a.quick))
+        )
+    rows = run_cases(
+        a.out, cases, a.resume, lambda r: f"verdict {r['verdict']}, cause {r['cause']}, best gain {r['best_gain']:.3g}"
+    )
+    meta = {
+        "quick": a.quick,
+        "generator": "imrbayes simulate, scheme=imrv2-fd nt=25",
+        "n_exp": n_exp,
+        "min_gain_in_use": MIN_GAIN,
+        **summary(rows),
+        "failed_cases": failures(rows),
+    }
+    write_table(
+        a.out,
+        "diagnosis_nulls",
+        "Diagnosis on constant-NHKV nulls made with other numerics and noise shapes",
+        {
+            "case": "null",
+            "bubble": "bubble",
+            "fps": "frames",
+            "noise": "noise",
+            "verdict": "verdict",
+            "p_value": "p",
+            "cause": "cause",
+            "best_candidate": "best candidate",
+            "best_gain": "its gain",
+            "combined_z": "combined z [SE]",
+            "residual_to_noise": "misfit / noise",
+        },
+        [r for r in rows if r["status"] == "ok"],
+        meta,
+    )
 
 
 if __name__ == "__main__":

@@ -54,6 +54,7 @@ def fit_case(folder: Path, method: str, forward: list[str]) -> callable:
     def run(work: Path) -> dict:
         imrbayes("fit", folder, "--method", method, *forward, "--out", work / "fit", "--quiet")
         return {"dataset": folder.name, "method": method, **estimate_of(work / "fit")}
+
     return run
 
 
@@ -61,8 +62,13 @@ def diagnose_case(folder: Path, forward: list[str], quick: bool) -> callable:
     def run(work: Path) -> dict:
         imrbayes("diagnose", folder, *forward, *(["--quick"] if quick else []), "--out", work / "diagnosis", "--quiet")
         d = json.loads((work / "diagnosis" / "diagnosis.json").read_text())
-        return {"dataset": folder.name, "method": "diagnose", "cause": d.get("cause"),
-                "verdict": (d.get("constant_parameter_check") or {}).get("verdict")}
+        return {
+            "dataset": folder.name,
+            "method": "diagnose",
+            "cause": d.get("cause"),
+            "verdict": (d.get("constant_parameter_check") or {}).get("verdict"),
+        }
+
     return run
 
 
@@ -85,11 +91,20 @@ def table_row(row: dict) -> dict:
 
 #: what must hold whatever the numbers: (name, data sets in increasing concentration, what rises,
 #: whether the 95 % intervals must also be separated)
-ORDERINGS = (("agarose G rises with concentration (intervals separated)", ("ut_agarose0p5pct", "ut_agarose5p0pct"),
-              "G", True),
-             ("PEG-8000 solutions: mu rises with the fraction", ("ut_PEG8K_020pct_1Mfps_from_nondim",
-              "ut_PEG8K_060pct_1Mfps_from_nondim", "ut_PEG8K_100pct_1Mfps_from_nondim"), "mu", False))
-LIQUIDS = ("ut_PEG8K_020pct_1Mfps_from_nondim", "ut_PEG8K_060pct_1Mfps_from_nondim", "ut_PEG8K_100pct_1Mfps_from_nondim")
+ORDERINGS = (
+    ("agarose G rises with concentration (intervals separated)", ("ut_agarose0p5pct", "ut_agarose5p0pct"), "G", True),
+    (
+        "PEG-8000 solutions: mu rises with the fraction",
+        ("ut_PEG8K_020pct_1Mfps_from_nondim", "ut_PEG8K_060pct_1Mfps_from_nondim", "ut_PEG8K_100pct_1Mfps_from_nondim"),
+        "mu",
+        False,
+    ),
+)
+LIQUIDS = (
+    "ut_PEG8K_020pct_1Mfps_from_nondim",
+    "ut_PEG8K_060pct_1Mfps_from_nondim",
+    "ut_PEG8K_100pct_1Mfps_from_nondim",
+)
 
 
 def physics_checks(rows: list[dict]) -> list[dict]:
@@ -105,14 +120,25 @@ def physics_checks(rows: list[dict]) -> list[dict]:
             holds = all(b["mean"] > a["mean"] for a, b in zip(est, est[1:]))
             if separated:
                 holds = holds and all(b["hdi95"][0] > a["hdi95"][1] for a, b in zip(est, est[1:]))
-            out.append({"check": name, "method": method, "holds": holds,
-                        "evidence": "; ".join(f"{e['mean']:.3g} [{e['hdi95'][0]:.3g}, {e['hdi95'][1]:.3g}]" for e in est)})
+            out.append(
+                {
+                    "check": name,
+                    "method": method,
+                    "holds": holds,
+                    "evidence": "; ".join(f"{e['mean']:.3g} [{e['hdi95'][0]:.3g}, {e['hdi95'][1]:.3g}]" for e in est),
+                }
+            )
         for d in LIQUIDS:
             if d in by and "G" in by[d]:
                 g = by[d]["G"]
-                out.append({"check": f"{d}: G consistent with 0", "method": method,
-                            "holds": bool(g.get("consistent_with_zero")),
-                            "evidence": f"G {g['mean']:.3g} [{g['hdi95'][0]:.3g}, {g['hdi95'][1]:.3g}] Pa"})
+                out.append(
+                    {
+                        "check": f"{d}: G consistent with 0",
+                        "method": method,
+                        "holds": bool(g.get("consistent_with_zero")),
+                        "evidence": f"G {g['mean']:.3g} [{g['hdi95'][0]:.3g}, {g['hdi95'][1]:.3g}] Pa",
+                    }
+                )
     return out
 
 
@@ -120,11 +146,18 @@ def main(argv=None) -> None:
     ap = parser(NAME, __doc__)
     ap.add_argument("--data", type=Path, default=SHARED / "data" / "lic", help="folder of data set folders")
     ap.add_argument("--datasets", default=None, help="comma-separated folder names [default: all; --quick: the first]")
-    ap.add_argument("--methods", default=None, help=f"comma-separated [default: {','.join(METHODS)}; --quick: pimr,en4dvar]")
+    ap.add_argument(
+        "--methods", default=None, help=f"comma-separated [default: {','.join(METHODS)}; --quick: pimr,en4dvar]"
+    )
     ap.add_argument("--no-diagnose", action="store_true", help="fits only")
     ap.add_argument("--experiments", default=None, help="experiments of every data set, e.g. 1-5 [default: all]")
-    ap.add_argument("--forward", action="append", default=None, metavar="KEY=VALUE",
-                    help="forward option for every run [default: the thermal default; --quick: bubble=polytropic]")
+    ap.add_argument(
+        "--forward",
+        action="append",
+        default=None,
+        metavar="KEY=VALUE",
+        help="forward option for every run [default: the thermal default; --quick: bubble=polytropic]",
+    )
     a = ap.parse_args(argv)
     if not a.data.is_dir():
         ap.error(f"--data {a.data}: no such folder")
@@ -138,8 +171,11 @@ def main(argv=None) -> None:
     elif a.quick:
         found = found[:1]
     methods = (a.methods or ("pimr,en4dvar" if a.quick else ",".join(METHODS))).split(",")
-    fwd = [x for kv in (a.forward if a.forward is not None else (["bubble=polytropic"] if a.quick else []))
-           for x in ("--forward", kv)]
+    fwd = [
+        x
+        for kv in (a.forward if a.forward is not None else (["bubble=polytropic"] if a.quick else []))
+        for x in ("--forward", kv)
+    ]
     cases = []
     for folder in found:
         opts = fwd + data_options(folder, a.experiments)
@@ -148,15 +184,35 @@ def main(argv=None) -> None:
             cases.append((f"{folder.name}_diagnose", diagnose_case(folder, opts, a.quick)))
     rows = run_cases(a.out, cases, a.resume, lambda r: str(table_row(r)))
     ok = [r for r in rows if r["status"] == "ok"]
-    write_table(a.out, "physics", "What physics demands of the measured data sets",
-                {"check": "check", "method": "method", "holds": "holds", "evidence": "evidence"},
-                physics_checks(ok), {"data": str(a.data), "forward": fwd[1::2], "experiments": a.experiments})
-    write_table(a.out, "fits", "Measured data sets: every method's estimate and the diagnosis",
-                {"dataset": "data set", "method": "method", "G": "G [Pa] mean [95 %]", "mu": "mu [Pa s] mean [95 %]",
-                 "rmse": "rmse [R*]", "fit": "fit check"},
-                [table_row(r) for r in rows if r["status"] == "ok"],
-                {"data": str(a.data), "forward": fwd[1::2], "quick": a.quick, "skipped": skipped,
-                 "failed_cases": failures(rows)})
+    write_table(
+        a.out,
+        "physics",
+        "What physics demands of the measured data sets",
+        {"check": "check", "method": "method", "holds": "holds", "evidence": "evidence"},
+        physics_checks(ok),
+        {"data": str(a.data), "forward": fwd[1::2], "experiments": a.experiments},
+    )
+    write_table(
+        a.out,
+        "fits",
+        "Measured data sets: every method's estimate and the diagnosis",
+        {
+            "dataset": "data set",
+            "method": "method",
+            "G": "G [Pa] mean [95 %]",
+            "mu": "mu [Pa s] mean [95 %]",
+            "rmse": "rmse [R*]",
+            "fit": "fit check",
+        },
+        [table_row(r) for r in rows if r["status"] == "ok"],
+        {
+            "data": str(a.data),
+            "forward": fwd[1::2],
+            "quick": a.quick,
+            "skipped": skipped,
+            "failed_cases": failures(rows),
+        },
+    )
 
 
 if __name__ == "__main__":

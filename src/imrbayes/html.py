@@ -104,8 +104,10 @@ def embed_png(path, caption: str | None = None, title: str | None = None) -> str
 
 def page(title: str, body: str) -> str:
     """A complete HTML document with the shared inline style sheet."""
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(title)}</title>"
-            f"<style>{CSS}</style></head><body>\n{body}\n</body></html>\n")
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(title)}</title>"
+        f"<style>{CSS}</style></head><body>\n{body}\n</body></html>\n"
+    )
 
 
 def write_page(path, title: str, body: str) -> Path:

@@ -19,16 +19,26 @@ import os
 import re
 import subprocess
 import uuid
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from imrbayes.errors import InputError
 
-__all__ = ["jsonable", "read_json", "atomic_write", "atomic_write_bytes", "atomic_write_text", "write_json", "new_run_dir",
-           "prepare_out", "code_version"]
+__all__ = [
+    "jsonable",
+    "read_json",
+    "atomic_write",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "write_json",
+    "new_run_dir",
+    "prepare_out",
+    "code_version",
+]
 
 
 # ------------------------------------------------------------------------------------------ JSON
@@ -126,8 +136,9 @@ def new_run_dir(kind: str, name: str, base: Path = Path("imrbayes-runs")) -> Pat
     return path
 
 
-def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = None, *,
-                force: bool = False, resume: bool = False) -> Path:
+def prepare_out(
+    out: Path | None, kind: str, name: str, protect: Path | None = None, *, force: bool = False, resume: bool = False
+) -> Path:
     """The command's ``--out`` folder, created: ``out``, or :func:`new_run_dir` when it is None.
 
     InputError (option ``--out``) when ``out`` is a file, is the data folder ``protect`` (or the
@@ -143,18 +154,25 @@ def prepare_out(out: Path | None, kind: str, name: str, protect: Path | None = N
     if protect is not None:
         p = protect if protect.is_dir() else protect.parent
         if out.resolve() == p.resolve():
-            raise InputError("--out", f"{out} is the data folder; choose another folder (input files are "
-                                      f"never written to)")
+            raise InputError(
+                "--out", f"{out} is the data folder; choose another folder (input files are never written to)"
+            )
     if out.is_dir() and not resume and (out / "run.json").exists():
         # --force does not reach here: the folder's checkpoints belong to that run and would be read as this one's
-        raise InputError(out, "already holds a run (run.json); pass --resume to continue it, or choose a new --out"
-                              + (" (--force does not replace a run: delete the folder first)" if force else ""))
+        raise InputError(
+            out,
+            "already holds a run (run.json); pass --resume to continue it, or choose a new --out"
+            + (" (--force does not replace a run: delete the folder first)" if force else ""),
+        )
     if out.is_dir() and not (force or resume):
         entries = sorted(p.name for p in out.iterdir())
         if entries:
             shown = ", ".join(entries[:3]) + (", ..." if len(entries) > 3 else "")
-            raise InputError("--out", f"{out} already holds {len(entries)} file(s) ({shown}); choose a new folder, "
-                                      f"or pass --force to write into it (files of the same name are replaced)")
+            raise InputError(
+                "--out",
+                f"{out} already holds {len(entries)} file(s) ({shown}); choose a new folder, "
+                f"or pass --force to write into it (files of the same name are replaced)",
+            )
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -191,10 +209,12 @@ def code_version() -> str:
 
     src = Path(imrbayes.__file__).resolve().parents[1]
     try:
-        head = subprocess.run(["git", "-C", str(src), "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(src), "status", "--porcelain", "--", "."], capture_output=True,
-                               text=True, check=True).stdout.strip()
+        head = subprocess.run(
+            ["git", "-C", str(src), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(src), "status", "--porcelain", "--", "."], capture_output=True, text=True, check=True
+        ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
     return head + ("+dirty" if dirty else "")

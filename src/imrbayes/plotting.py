@@ -21,8 +21,12 @@ DPI = 110
 """Resolution [dots per inch] of the saved PNGs (``imrbayes inspect``'s radius figure uses 120)."""
 
 # name -> (factor from SI to the display unit, axis label with the unit)
-_DISPLAY = {"G": (1e-3, "G [kPa]"), "mu": (1.0, r"$\mu$ [Pa s]"),
-            "t_star": (1.0, r"$t^*$"), "R_star": (1.0, r"$R^* = R/R_{max}$")}
+_DISPLAY = {
+    "G": (1e-3, "G [kPa]"),
+    "mu": (1.0, r"$\mu$ [Pa s]"),
+    "t_star": (1.0, r"$t^*$"),
+    "R_star": (1.0, r"$R^* = R/R_{max}$"),
+}
 
 
 def figure(width: float, height: float, layout: str | None = "constrained"):

@@ -60,7 +60,7 @@ def _open_tree(path: Path):
                 return dt.load()
     except Exception as exc:  # netCDF/HDF5 errors come in many types
         msg = " ".join(str(exc).split())
-        if "did not find a match" in msg:            # xarray: no backend recognises the bytes
+        if "did not find a match" in msg:  # xarray: no backend recognises the bytes
             raise InputError(path, "cannot be read as netCDF (not a netCDF4/HDF5 file)")
         msg = msg if len(msg) <= 160 else msg[:159] + "…"
         raise InputError(path, f"cannot be read as netCDF ({type(exc).__name__}: {msg})")
@@ -92,23 +92,36 @@ def read_run_dir(run_dir) -> dict:
     if post is not None and "posterior" not in post.children:
         raise InputError(run_dir / "posterior.nc", "has no 'posterior' group (not written by 'imrbayes fit')")
     mcmc = _open_tree(run_dir / "mcmc.nc")
-    if mcmc is not None and not any(k.startswith("window_") for k in mcmc.children) \
-            and "posterior" not in mcmc.children:
-        raise InputError(run_dir / "mcmc.nc", "holds neither window_XX groups nor a 'posterior' group "
-                                              "(not written by 'imrbayes fit --mcmc')")
+    if (
+        mcmc is not None
+        and not any(k.startswith("window_") for k in mcmc.children)
+        and "posterior" not in mcmc.children
+    ):
+        raise InputError(
+            run_dir / "mcmc.nc",
+            "holds neither window_XX groups nor a 'posterior' group (not written by 'imrbayes fit --mcmc')",
+        )
     cp = run_dir / "compare.json"
     compare = read_json(cp, required=False)
     if compare is not None:
         wins = compare.get("windows")
         if not isinstance(wins, list) or not all(isinstance(w, dict) and "index" in w for w in wins):
-            raise InputError(cp, "has no 'windows' list of entries with an 'index' "
-                                 "(not written by 'imrbayes compare' or 'fit --mcmc')")
+            raise InputError(
+                cp,
+                "has no 'windows' list of entries with an 'index' (not written by 'imrbayes compare' or 'fit --mcmc')",
+            )
         if not isinstance(compare.get("overall", {}), dict):
             raise InputError(cp, "'overall' must be an object")
     fdir = run_dir / "figures"
     figures = sorted(fdir.glob("*.png")) if fdir.is_dir() else []
-    return {"run_dir": run_dir, "summary": summary, "posterior": post, "mcmc": mcmc, "compare": compare,
-            "figures": figures}
+    return {
+        "run_dir": run_dir,
+        "summary": summary,
+        "posterior": post,
+        "mcmc": mcmc,
+        "compare": compare,
+        "figures": figures,
+    }
 
 
 # --------------------------------------------------------------------------------------- helpers
@@ -116,6 +129,7 @@ def _units(summary) -> dict:
     out = {"G": "Pa", "mu": "Pa s"}
     try:
         from imrbayes.forward.constitutive.base import get_model
+
         out.update({p.name: p.unit for p in get_model(summary.get("model", "")).parameters})
     except Exception:  # unknown model name in an old run: the default units
         pass
@@ -163,8 +177,11 @@ def _plain(v) -> str:
     if isinstance(v, dict):
         if not v:
             return "<i>none</i>"
-        return ("<ul class='plain'>" + "".join(f"<li><code>{esc(k)}</code> = {_plain(x)}</li>" for k, x in v.items())
-                + "</ul>")
+        return (
+            "<ul class='plain'>"
+            + "".join(f"<li><code>{esc(k)}</code> = {_plain(x)}</li>" for k, x in v.items())
+            + "</ul>"
+        )
     if isinstance(v, (list, tuple)):
         if not v:
             return "<i>none</i>"
@@ -269,15 +286,19 @@ def estimate_phrase(name: str, e: dict, units: dict, summary=None) -> str:
     mean, sd = _fnum(e.get("mean")), _fnum(e.get("sd"))
     if e.get("consistent_with_zero"):
         up = _fnum(e.get("upper95"))
-        return f"{name} consistent with 0" + (f" (95 % upper bound {_txt(up, name, units)})" if math.isfinite(up) else "")
+        return f"{name} consistent with 0" + (
+            f" (95 % upper bound {_txt(up, name, units)})" if math.isfinite(up) else ""
+        )
     if not math.isfinite(mean):
         return f"{name}: no estimate"
     hdi = e.get("hdi95") or [None, None]
     lo, hi = (_fnum(hdi[0]), _fnum(hdi[1])) if len(hdi) == 2 else (math.nan, math.nan)
     if e.get("ridge") and not math.isfinite(sd):
         r = e["ridge"]
-        return (f"{name} on a ridge {_txt(r[0], name, units, unit=False)}-{_txt(r[1], name, units)} "
-                f"(best fit {_txt(mean, name, units)})")
+        return (
+            f"{name} on a ridge {_txt(r[0], name, units, unit=False)}-{_txt(r[1], name, units)} "
+            f"(best fit {_txt(mean, name, units)})"
+        )
     if not (math.isfinite(sd) or math.isfinite(lo)):
         return f"{name} = {_txt(mean, name, units, '.4g')} (no interval)"
     lower, upper = bounds(e, name, summary)
@@ -319,8 +340,10 @@ def fit_check_sentence(summary) -> str | None:
     ratio = _fnum(fc.get("residual_to_noise"))
     times = f"{ratio:.2g}x" if math.isfinite(ratio) else "several times"
     if fc.get("described") is False:
-        return (f"{model} does not describe these records: the residual is {times} their noise; these numbers are "
-                f"the best {model} fit, not the material's properties -- `imrbayes diagnose` looks for the cause.")
+        return (
+            f"{model} does not describe these records: the residual is {times} their noise; these numbers are "
+            f"the best {model} fit, not the material's properties -- `imrbayes diagnose` looks for the cause."
+        )
     msg = str(fc.get("message") or "").strip()
     return msg or f"{model} describes these records: the residual is {times} their noise."
 
@@ -368,8 +391,9 @@ def grouped_warnings(warnings, names=()) -> list:
         groups.setdefault(key, []).append(w)
     out = []
     for items in groups.values():
-        out.append(items[0] if len(items) == 1 else f"{items[0]} (and {len(items) - 1} more like it: "
-                                                     f"{len(items)} in all)")
+        out.append(
+            items[0] if len(items) == 1 else f"{items[0]} (and {len(items) - 1} more like it: {len(items)} in all)"
+        )
     return out
 
 
@@ -393,7 +417,7 @@ def truth(summary) -> dict:
 def _prior_log_sd(s) -> dict:
     """Prior sd per parameter in the internal coordinates (log for log-normal parameters)."""
     prior = s.get("prior") or (s.get("details") or {}).get("parameter_space") or {}
-    names = prior.get("names") or list((prior.get("prior_si") or {}))
+    names = prior.get("names") or list(prior.get("prior_si") or {})
     cov = prior.get("prior_internal_cov")
     out = {}
     try:
@@ -493,9 +517,15 @@ def _entry_diag(e) -> dict:
     rh = [_fnum(v) for v in (m.get("rhat") or {}).values()]
     es = [_fnum(v) for v in (m.get("ess_bulk") or {}).values()]
     sampler = m.get("sampler") or {}
-    return {"rhat": max(rh) if rh else math.nan, "ess": min(es) if es else math.nan,
-            "n_over_tau": _fnum(sampler.get("n_steps_over_tau")), "tau_ok": sampler.get("all_tau_ok"),
-            "n_chains": m.get("n_chains"), "n_steps": sampler.get("n_steps"), "n_draws": m.get("n_draws")}
+    return {
+        "rhat": max(rh) if rh else math.nan,
+        "ess": min(es) if es else math.nan,
+        "n_over_tau": _fnum(sampler.get("n_steps_over_tau")),
+        "tau_ok": sampler.get("all_tau_ok"),
+        "n_chains": m.get("n_chains"),
+        "n_steps": sampler.get("n_steps"),
+        "n_draws": m.get("n_draws"),
+    }
 
 
 def _shape_words(e) -> str | None:
@@ -513,8 +543,10 @@ def _shape_words(e) -> str | None:
         parts.append("non-Gaussian (curved)")
     if not parts:
         return None
-    return (f"the MCMC posterior is {' and '.join(parts)} (negentropy {num(non_gauss, '.2g')} nats, "
-            f"Mardia skewness p = {num(mar.get('skew_p'), '.2g')}, kurtosis z = {num(mar.get('kurt_z'), '.2f')})")
+    return (
+        f"the MCMC posterior is {' and '.join(parts)} (negentropy {num(non_gauss, '.2g')} nats, "
+        f"Mardia skewness p = {num(mar.get('skew_p'), '.2g')}, kurtosis z = {num(mar.get('kurt_z'), '.2f')})"
+    )
 
 
 def _moment_words(e) -> list:
@@ -524,15 +556,19 @@ def _moment_words(e) -> list:
     if shift:
         k = max(shift, key=lambda n: abs(shift[n]))
         if abs(shift[k]) >= 0.25:
-            out.append(f"the ensemble mean of {k} lies {num(abs(shift[k]), '.2g')} MCMC posterior sd "
-                       f"{'above' if shift[k] > 0 else 'below'} the MCMC mean")
+            out.append(
+                f"the ensemble mean of {k} lies {num(abs(shift[k]), '.2g')} MCMC posterior sd "
+                f"{'above' if shift[k] > 0 else 'below'} the MCMC mean"
+            )
     ratio = {k: _fnum(v) for k, v in (e.get("sd_ratio") or {}).items()}
     ratio = {k: v for k, v in ratio.items() if math.isfinite(v) and v > 0}
     if ratio:
         k = max(ratio, key=lambda n: abs(math.log(ratio[n])))
         if abs(math.log(ratio[k])) >= math.log(1.25):
-            out.append(f"the ensemble sd of {k} is {num(ratio[k], '.2g')}× the MCMC sd "
-                       f"({'too narrow' if ratio[k] < 1 else 'too wide'})")
+            out.append(
+                f"the ensemble sd of {k} is {num(ratio[k], '.2g')}× the MCMC sd "
+                f"({'too narrow' if ratio[k] < 1 else 'too wide'})"
+            )
     return out
 
 
@@ -546,8 +582,10 @@ def _criteria_words(e, th) -> list:
     if crit.get("w2") is False or (not crit and w2 > th["w2"]):
         out.append(f"W2 {num(w2, '.2g')} posterior sd > {num(th['w2'], 'g')}")
     if crit.get("kl_sample") is False or (not crit and kls > th["kl_sample"]):
-        out.append(f"sample KL {num(kls, '.2g')} nats > {num(th['kl_sample'], 'g')} "
-                   f"(Gaussian part {num(e.get('kl_gauss'), '.2g')}, non-Gaussian part {num(neg, '.2g')})")
+        out.append(
+            f"sample KL {num(kls, '.2g')} nats > {num(th['kl_sample'], 'g')} "
+            f"(Gaussian part {num(e.get('kl_gauss'), '.2g')}, non-Gaussian part {num(neg, '.2g')})"
+        )
     return out
 
 
@@ -590,8 +628,10 @@ def flagged_windows(compare: dict, summary: dict | None = None) -> list:
             # lead with what dominates KL(MCMC || ensemble): location/scale (Gaussian part) or shape
             neg = _fnum((e.get("negentropy") or {}).get("estimate"), 0.0)
             what = shape + moments if neg > _fnum(e.get("kl_gauss"), 0.0) else moments + shape
-            text = (f"{head}: disagrees — {'; '.join(what + why) if (what or why) else e.get('notes', '')}; "
-                    "the Gaussian ensemble approximation is not adequate here.")
+            text = (
+                f"{head}: disagrees — {'; '.join(what + why) if (what or why) else e.get('notes', '')}; "
+                "the Gaussian ensemble approximation is not adequate here."
+            )
         else:
             d = _entry_diag(e)
             why = []
@@ -602,29 +642,43 @@ def flagged_windows(compare: dict, summary: dict | None = None) -> list:
             if math.isfinite(d["ess"]) and d["ess"] < th["ess_bulk"]:
                 why.append(f"min bulk ESS {num(d['ess'], '.0f')} < {num(th['ess_bulk'], 'g')}")
             if d["tau_ok"] is False:
-                why.append(f"chains only {num(d['n_over_tau'], '.3g')} autocorrelation times long "
-                           f"(< {num(th['tau_rule'], 'g')} τ)")
+                why.append(
+                    f"chains only {num(d['n_over_tau'], '.3g')} autocorrelation times long "
+                    f"(< {num(th['tau_rule'], 'g')} τ)"
+                )
             if not why:
                 why.append(e.get("notes") or "the MCMC run does not meet the convergence criteria")
             prov = _criteria_words(e, th)
-            prov_txt = (f" Provisional metrics (not to be trusted yet): {'; '.join(prov)}." if prov else
-                        " The provisional metrics are within the agreement thresholds.")
+            prov_txt = (
+                f" Provisional metrics (not to be trusted yet): {'; '.join(prov)}."
+                if prov
+                else " The provisional metrics are within the agreement thresholds."
+            )
             steps = f" than {d['n_steps']} steps" if d["n_steps"] else ""
-            text = (f"{head}: undecided — the MCMC reference is not trustworthy: {'; '.join(why)}. "
-                    f"Sample longer{steps} (e.g. --mcmc-set {_longer(d, th)}) and rerun.{prov_txt}")
+            text = (
+                f"{head}: undecided — the MCMC reference is not trustworthy: {'; '.join(why)}. "
+                f"Sample longer{steps} (e.g. --mcmc-set {_longer(d, th)}) and rerun.{prov_txt}"
+            )
         lines.append(text)
     overall = compare.get("overall") or {}
     for f in overall.get("failed_windows") or []:
         if isinstance(f, dict):
-            lines.append(f"Window {f.get('window')} (t* {_span(f.get('t_star'))}): the MCMC failed "
-                         f"({f.get('error', 'unknown error')}); no comparison.")
+            lines.append(
+                f"Window {f.get('window')} (t* {_span(f.get('t_star'))}): the MCMC failed "
+                f"({f.get('error', 'unknown error')}); no comparison."
+            )
     sampled = {w.get("index") for w in compare.get("windows") or []}
     failed = {f.get("window") for f in overall.get("failed_windows") or [] if isinstance(f, dict)}
-    rest = [w.get("index") for w in summary.get("windows") or []
-            if isinstance(w, dict) and w.get("index") not in sampled | failed]
+    rest = [
+        w.get("index")
+        for w in summary.get("windows") or []
+        if isinstance(w, dict) and w.get("index") not in sampled | failed
+    ]
     if rest and sampled:
-        lines.append(f"Not sampled by MCMC (no comparison): window{'s' if len(rest) > 1 else ''} "
-                     f"{', '.join(str(i) for i in rest)}.")
+        lines.append(
+            f"Not sampled by MCMC (no comparison): window{'s' if len(rest) > 1 else ''} "
+            f"{', '.join(str(i) for i in rest)}."
+        )
     return lines
 
 
@@ -632,8 +686,11 @@ def flagged_windows(compare: dict, summary: dict | None = None) -> list:
 def _warnings_list(s) -> list:
     """Every warning of the run (run, preprocessing, per experiment), de-duplicated, in order."""
     warn = []
-    for w in list(s.get("warnings") or []) + list(s.get("warnings_preprocessing") or []) + \
-            list((s.get("preprocessing") or {}).get("warnings") or []):
+    for w in (
+        list(s.get("warnings") or [])
+        + list(s.get("warnings_preprocessing") or [])
+        + list((s.get("preprocessing") or {}).get("warnings") or [])
+    ):
         if w not in warn:
             warn.append(w)
     for e in (s.get("preprocessing") or {}).get("experiments") or []:
@@ -670,8 +727,11 @@ def _mcmc_eta(s) -> str:
     n_win = len(s.get("windows") or [])
     per = f" in each of {n_win} windows" if n_win > 1 else ""
     bubble = str((((s.get("forward") or {}).get("options")) or {}).get("bubble", "thermal"))
-    speed = ("minutes per window with this fit's polytropic bubble" if bubble == "polytropic"
-             else "hours per window with this fit's thermal bubble")
+    speed = (
+        "minutes per window with this fit's polytropic bubble"
+        if bubble == "polytropic"
+        else "hours per window with this fit's thermal bubble"
+    )
     return f" ({head}{per}: {speed}; --mcmc-windows and --mcmc-set n_steps=... make it shorter)"
 
 
@@ -687,8 +747,11 @@ def _mcmc_words(run) -> str:
         dis = [w for w in wins if w.get("agree") is False]
         und = [w for w in wins if w.get("agree") is None]
         ok = [w for w in wins if w.get("agree") is True]
-        where = (lambda ws: "window" + ("s " if len(ws) > 1 else " ") + ", ".join(str(w.get("index")) for w in ws)) \
-            if n > 1 else (lambda ws: "the fitting window")
+        where = (
+            (lambda ws: "window" + ("s " if len(ws) > 1 else " ") + ", ".join(str(w.get("index")) for w in ws))
+            if n > 1
+            else (lambda ws: "the fitting window")
+        )
         parts = []
         if ok:
             parts.append(f"emcee agrees with the ensemble Gaussian in {len(ok)} of {n} sampled window(s)")
@@ -697,24 +760,33 @@ def _mcmc_words(run) -> str:
             nums = []
             for w in dis[:3]:
                 m, sd = (w.get("mcmc") or {}).get("mean") or {}, (w.get("mcmc") or {}).get("sd") or {}
-                txt = ", ".join(f"{esc(p)} = {_q(m.get(p), p, units)} ± {_q(sd.get(p), p, units, '.2g', unit=False)}"
-                                for p in s.get("parameters", []) if p in m)
+                txt = ", ".join(
+                    f"{esc(p)} = {_q(m.get(p), p, units)} ± {_q(sd.get(p), p, units, '.2g', unit=False)}"
+                    for p in s.get("parameters", [])
+                    if p in m
+                )
                 if txt:
                     nums.append((f"window {esc(w.get('index'))}: " if n > 1 else "") + txt)
-            parts.append(f"<span class='caveat'>disagrees in {where(dis)}: believe the MCMC posterior there, not the "
-                         f"Gaussian" + (f" (emcee: {'; '.join(nums)})" if nums else "") + "; see Flagged windows</span>")
+            parts.append(
+                f"<span class='caveat'>disagrees in {where(dis)}: believe the MCMC posterior there, not the "
+                f"Gaussian" + (f" (emcee: {'; '.join(nums)})" if nums else "") + "; see Flagged windows</span>"
+            )
         if und:
-            parts.append(f"<span class='caveat'>undecided in {where(und)}: the emcee chains did not converge, so the "
-                         "check says nothing yet (sample longer: see Flagged windows)</span>")
+            parts.append(
+                f"<span class='caveat'>undecided in {where(und)}: the emcee chains did not converge, so the "
+                "check says nothing yet (sample longer: see Flagged windows)</span>"
+            )
         if ov.get("failed_windows"):
             parts.append(f"<span class='caveat'>the MCMC failed in {len(ov['failed_windows'])} window(s)</span>")
         return "MCMC check: " + ("; ".join(parts) if parts else "no window compared") + "."
     if meth is not None and not meth.gaussian_posterior:
-        return (f"MCMC check: not applicable ({esc(meth.label)} gives no Gaussian posterior for emcee to check).")
+        return f"MCMC check: not applicable ({esc(meth.label)} gives no Gaussian posterior for emcee to check)."
     if run["mcmc"] is not None:
         return "MCMC check: mcmc.nc is here but compare.json is not: run <code>imrbayes compare RUN_DIR</code>."
-    return (f"MCMC check: not run. To check the Gaussian posterior against emcee: <code>imrbayes fit DATA --method "
-            f"{esc(name)} --mcmc</code>{esc(_mcmc_eta(s))}.")
+    return (
+        f"MCMC check: not run. To check the Gaussian posterior against emcee: <code>imrbayes fit DATA --method "
+        f"{esc(name)} --mcmc</code>{esc(_mcmc_eta(s))}."
+    )
 
 
 def _section_conclusion(run) -> str:
@@ -739,8 +811,10 @@ def _section_conclusion(run) -> str:
     check = fit_check_sentence(s)
     if check and (s.get("fit_check") or {}).get("described") is False:
         # the model does not describe the records: that is the conclusion, the numbers only its detail
-        head = (f"<p class='caveat'><b>{esc(check)}</b></p><p>Best {esc(model_label(s))} fit {what}: "
-                f"{'; '.join(phrases)}.</p>")
+        head = (
+            f"<p class='caveat'><b>{esc(check)}</b></p><p>Best {esc(model_label(s))} fit {what}: "
+            f"{'; '.join(phrases)}.</p>"
+        )
     else:
         head = f"<p><b>Gel-level estimate</b> {what}: <b>{'</b>; <b>'.join(phrases)}</b>.</p>"
         if check:
@@ -749,8 +823,9 @@ def _section_conclusion(run) -> str:
     # bubble-to-bubble spread and a new bubble
     be, pred = s.get("between_experiments"), s.get("predictive")
     if n_exp == 1:
-        items.append("One experiment: bubble-to-bubble scatter unknown (one bubble cannot show how much the "
-                     "next one differs).")
+        items.append(
+            "One experiment: bubble-to-bubble scatter unknown (one bubble cannot show how much the next one differs)."
+        )
     elif isinstance(be, dict) and be:
         bits = []
         for p in params:
@@ -763,15 +838,20 @@ def _section_conclusion(run) -> str:
             elif len(hd) == 2 and hd[0] is not None and not all(bounds({"hdi95": hd}, p, s)):
                 bits.append(f"{esc(p)} sd not bounded by the data")
             else:
-                bits.append(f"{esc(p)} sd {_q(b.get('sd'), p, units)}"
-                            + (f" (95 % {_qrange(hd[0], hd[1], p, units)})" if len(hd) == 2 and hd[0] is not None else ""))
+                bits.append(
+                    f"{esc(p)} sd {_q(b.get('sd'), p, units)}"
+                    + (f" (95 % {_qrange(hd[0], hd[1], p, units)})" if len(hd) == 2 and hd[0] is not None else "")
+                )
         items.append("Between bubbles (scatter of the gel from bubble to bubble): " + "; ".join(bits) + ".")
     else:
         rng = []
         for p, (lo, hi) in _per_experiment_range(s).items():
             rng.append(f"{esc(p)} {_qrange(lo, hi, p, units)}")
-        items.append("Between bubbles: not estimated by this run" +
-                     (f"; the per-experiment estimates span {', '.join(rng)}" if rng else "") + ".")
+        items.append(
+            "Between bubbles: not estimated by this run"
+            + (f"; the per-experiment estimates span {', '.join(rng)}" if rng else "")
+            + "."
+        )
     if isinstance(pred, dict) and pred:
         bits = []
         for p in params:
@@ -792,16 +872,20 @@ def _section_conclusion(run) -> str:
     ratios = constraint_ratios(s)
     ridge = [p for p in params if p not in ratios and (est.get(p) or {}).get("ridge")]
     if ridge:
-        items.append(f"<span class='caveat'>{esc(' and '.join(ridge))}: the data fix only a combination of the "
-                     "parameters (a ridge), not each one on its own.</span>")
+        items.append(
+            f"<span class='caveat'>{esc(' and '.join(ridge))}: the data fix only a combination of the "
+            "parameters (a ridge), not each one on its own.</span>"
+        )
     for p in params:
         r = ratios.get(p)
         if r is None:
             continue
         pct = f"{100 * r:.0f} % of the prior's width"
         if r >= SAYS_LITTLE:
-            items.append(f"<span class='caveat'>{esc(p)}: posterior as wide as the prior — the data say little "
-                         f"({pct}); the estimate is mostly the prior.</span>")
+            items.append(
+                f"<span class='caveat'>{esc(p)}: posterior as wide as the prior — the data say little "
+                f"({pct}); the estimate is mostly the prior.</span>"
+            )
         elif r >= 0.5:
             items.append(f"{esc(p)}: only partly constrained by the data (posterior {pct}).")
         else:
@@ -811,57 +895,84 @@ def _section_conclusion(run) -> str:
     barely = [w for w, r in zip(wins, wr) if r and max(r.values()) >= SAYS_LITTLE]
     if barely:
         spans = ", ".join(f"{esc(w.get('index'))} (t* {_span(w.get('t_star'))})" for w in barely)
-        items.append(f"<span class='caveat'>Window{'s' if len(barely) > 1 else ''} {spans}: the data barely moved "
-                     f"the prior (posterior ≥ {100 * SAYS_LITTLE:.0f} % of its width).</span>")
+        items.append(
+            f"<span class='caveat'>Window{'s' if len(barely) > 1 else ''} {spans}: the data barely moved "
+            f"the prior (posterior ≥ {100 * SAYS_LITTLE:.0f} % of its width).</span>"
+        )
     dominated = [w for w in wins if isinstance(w, dict) and w.get("prior_dominated")]
     if dominated:
         spans = ", ".join(f"{esc(w.get('index'))} (t* {_span(w.get('t_star'))})" for w in dominated)
-        items.append(f"<span class='caveat'>Prior-dominated window{'s' if len(dominated) > 1 else ''} {spans}: the "
-                     f"parameter prior's mean keeps more than {PRIOR_WEIGHT_LIMIT:.0%} of the weight in these window means (directly or "
-                     "through the chain of window priors; a linearised lower bound), so a trend that starts in them "
-                     "is not evidence of time-dependent material (hatched in the parameters figure).</span>")
+        items.append(
+            f"<span class='caveat'>Prior-dominated window{'s' if len(dominated) > 1 else ''} {spans}: the "
+            f"parameter prior's mean keeps more than {PRIOR_WEIGHT_LIMIT:.0%} of the weight in these window means (directly or "
+            "through the chain of window priors; a linearised lower bound), so a trend that starts in them "
+            "is not evidence of time-dependent material (hatched in the parameters figure).</span>"
+        )
     per = s.get("per_experiment") or []
     if any(isinstance(x, dict) and x.get("nuisance") for x in per):
-        items.append("Rmax, Req and the time origin were estimated per experiment with the material (nuisance "
-                     "parameters): see Experiments.")
-        req_inferred = any(_fnum(((x.get("nuisance") or {}).get("req_m") or {}).get("prior_sd")) > 0
-                           for x in per if isinstance(x, dict))
+        items.append(
+            "Rmax, Req and the time origin were estimated per experiment with the material (nuisance "
+            "parameters): see Experiments."
+        )
+        req_inferred = any(
+            _fnum(((x.get("nuisance") or {}).get("req_m") or {}).get("prior_sd")) > 0
+            for x in per
+            if isinstance(x, dict)
+        )
         req_from_fit = ((s.get("details") or {}).get("req_prior") or {}).get("method") == "en4dvar"
         rt = (s.get("details") or {}).get("req_tail") or {}
         moved = [f for f in (_fnum(x) for x in rt.get("factor") or []) if math.isfinite(f) and f != 1.0]
         if rt.get("method") in ("model", "inline") and moved:
             inline = rt.get("method") == "inline"
-            items.append(f"Req's prior was centred by the model's own tail (req_tail={rt.get('method')}"
-                         f"{', the default for the thermal bubble' if rt.get('setting') == 'auto' else ''}): "
-                         + (f"the record's tail mean lies {100 * (min(moved) - 1):.1f}–{100 * (max(moved) - 1):.1f} % above Req"
-                            if min(moved) > 1 else f"the record's tail mean differs from Req by {100 * (min(moved) - 1):+.1f} "
-                                                   f"to {100 * (max(moved) - 1):+.1f} %")
-                         + f" in {len(moved)} of {len(rt.get('factor'))} experiments, "
-                         + ("each experiment's first-cycle posterior placed the material and its later cycles fitted "
-                            "with Req moved" if inline else
-                            (f"the {(rt.get('start') or {}).get('source')} placed the material" if rt.get("start")
-                             else "a quick first fit placed the material") + ", and the estimate is the fit after it")
-                         + ".")
+            items.append(
+                f"Req's prior was centred by the model's own tail (req_tail={rt.get('method')}"
+                f"{', the default for the thermal bubble' if rt.get('setting') == 'auto' else ''}): "
+                + (
+                    f"the record's tail mean lies {100 * (min(moved) - 1):.1f}–{100 * (max(moved) - 1):.1f} % above Req"
+                    if min(moved) > 1
+                    else f"the record's tail mean differs from Req by {100 * (min(moved) - 1):+.1f} "
+                    f"to {100 * (max(moved) - 1):+.1f} %"
+                )
+                + f" in {len(moved)} of {len(rt.get('factor'))} experiments, "
+                + (
+                    "each experiment's first-cycle posterior placed the material and its later cycles fitted "
+                    "with Req moved"
+                    if inline
+                    else (
+                        f"the {(rt.get('start') or {}).get('source')} placed the material"
+                        if rt.get("start")
+                        else "a quick first fit placed the material"
+                    )
+                    + ", and the estimate is the fit after it"
+                )
+                + "."
+            )
         rp = (s.get("details") or {}).get("req_prior") or {}
         conflicts = rp.get("conflicts") or []
         bound = _fnum(rp.get("conflict_z", 3.0))
         if len(wins) > 1 and req_from_fit:
-            items.append("Each estimated Req's prior came from a whole-record En4D-Var fit of the same data "
-                         "(req_prior=en4dvar, the default), so the early windows start from the Req the record's tail decides.")
+            items.append(
+                "Each estimated Req's prior came from a whole-record En4D-Var fit of the same data "
+                "(req_prior=en4dvar, the default), so the early windows start from the Req the record's tail decides."
+            )
             if conflicts:
-                items.append(f"<span class='caveat'>In {len(conflicts)} experiment{'s' if len(conflicts) > 1 else ''} "
-                             f"({esc(', '.join(str(c.get('experiment')) for c in conflicts))}) that fit put Req more "
-                             f"than {bound:g} prior sd from the record's own tail (a model that needs another bubble "
-                             "size to fit the collapses); those experiments kept the record's Req prior.</span>")
+                items.append(
+                    f"<span class='caveat'>In {len(conflicts)} experiment{'s' if len(conflicts) > 1 else ''} "
+                    f"({esc(', '.join(str(c.get('experiment')) for c in conflicts))}) that fit put Req more "
+                    f"than {bound:g} prior sd from the record's own tail (a model that needs another bubble "
+                    "size to fit the collapses); those experiments kept the record's Req prior.</span>"
+                )
         elif len(wins) > 1 and req_inferred:
             # measured on camera-style synthetic records of a constant gel (docs/results.md, "Where the
             # decline of the decided windows comes from", 20 seeds): with Req inferred the mu windows fell
             # and the aggregate was G +17 %, mu +12 %; with the true Req given, flat and G +4 %, mu +1 %
-            items.append("<span class='caveat'>Req was estimated from each record's tail and inferred window by "
-                         "window (its prior sd > 0): on camera-style synthetic records of a constant gel that alone made the windows' mu "
-                         "fall through the record and the aggregate G and mu 10-20 % high (with the true Req given: "
-                         "flat, both within 5 %). A decline of mu(t) of that size is not evidence of time-dependent "
-                         "material; where Req was measured, give it in meta.json (Req_m, Req_sd_m).</span>")
+            items.append(
+                "<span class='caveat'>Req was estimated from each record's tail and inferred window by "
+                "window (its prior sd > 0): on camera-style synthetic records of a constant gel that alone made the windows' mu "
+                "fall through the record and the aggregate G and mu 10-20 % high (with the true Req given: "
+                "flat, both within 5 %). A decline of mu(t) of that size is not evidence of time-dependent "
+                "material; where Req was measured, give it in meta.json (Req_m, Req_sd_m).</span>"
+            )
     # caveats
     warn = grouped_warnings(_warnings_list(s), params)
     fail = s.get("failures") or {}
@@ -874,22 +985,34 @@ def _section_conclusion(run) -> str:
     for p, (lo, hi) in _per_experiment_range(s, width=1.96).items():
         m = _fnum((est.get(p) or {}).get("mean"))
         if math.isfinite(m) and not (lo <= m <= hi):
-            cav.append(f"the gel-level {esc(p)} ({_q(m, p, units)}) lies outside every experiment's own 95 % interval "
-                       f"(together {_qrange(lo, hi, p, units)}): no single bubble supports it, so the combination "
-                       "of the experiments is not to be trusted (they disagree with each other or with the model)")
+            cav.append(
+                f"the gel-level {esc(p)} ({_q(m, p, units)}) lies outside every experiment's own 95 % interval "
+                f"(together {_qrange(lo, hi, p, units)}): no single bubble supports it, so the combination "
+                "of the experiments is not to be trusted (they disagree with each other or with the model)"
+            )
     fit = s.get("fit") or {}
     if meth is not None and meth.name == "pimr":
         cav.append("pIMR fits the collapse time only, not the shape of R(t)")
     if cav:
-        items.append("<span class='caveat'>Caveats:</span><ul class='caveats'>"
-                     + "".join(f"<li>{c[:1].upper() + c[1:]}</li>" for c in cav) + "</ul>")
+        items.append(
+            "<span class='caveat'>Caveats:</span><ul class='caveats'>"
+            + "".join(f"<li>{c[:1].upper() + c[1:]}</li>" for c in cav)
+            + "</ul>"
+        )
     else:
         items.append("Caveats: none recorded.")
     if fit.get("rmse") is not None:
-        items.append(f"Fit: RMSE {num(fit.get('rmse'), '.3g')} R* [-] (R* = R/Rmax){_rmse_um(s, fit.get('rmse'))} over "
-                     f"{esc(fit.get('n_samples', '–'))} samples.")
-    return ("<h2 id='conclusion'>Conclusion</h2><div class='conclusion'>" + head + "<ul>"
-            + "".join(f"<li>{i}</li>" for i in items) + "</ul></div>")
+        items.append(
+            f"Fit: RMSE {num(fit.get('rmse'), '.3g')} R* [-] (R* = R/Rmax){_rmse_um(s, fit.get('rmse'))} over "
+            f"{esc(fit.get('n_samples', '–'))} samples."
+        )
+    return (
+        "<h2 id='conclusion'>Conclusion</h2><div class='conclusion'>"
+        + head
+        + "<ul>"
+        + "".join(f"<li>{i}</li>" for i in items)
+        + "</ul></div>"
+    )
 
 
 def _no_paths(text: str) -> str:
@@ -898,9 +1021,15 @@ def _no_paths(text: str) -> str:
     import re
 
     roots = ("per_experiment", "details", "likelihood", "windows", "estimate", "settings", "preprocessing", "fit")
-    return re.sub(r"`?\b[\w]+(?:\[\])?(?:\.[\w]+(?:\[\])?)+`?",
-                  lambda m: m.group(0).strip("`").rsplit(".", 1)[-1].replace("_", " ")
-                  if "[]" in m.group(0) or m.group(0).strip("`").startswith(roots) else m.group(0), str(text))
+    return re.sub(
+        r"`?\b[\w]+(?:\[\])?(?:\.[\w]+(?:\[\])?)+`?",
+        lambda m: (
+            m.group(0).strip("`").rsplit(".", 1)[-1].replace("_", " ")
+            if "[]" in m.group(0) or m.group(0).strip("`").startswith(roots)
+            else m.group(0)
+        ),
+        str(text),
+    )
 
 
 def _rmse_um(s, rmse) -> str:
@@ -938,7 +1067,7 @@ def _section_experiments(s) -> str:
     nkeys = []
     for x in per:
         for k, v in (x.get("nuisance") or {}).items():
-            if isinstance(v, dict) and k not in nkeys:       # quantities; "treatment" is a note
+            if isinstance(v, dict) and k not in nkeys:  # quantities; "treatment" is a note
                 nkeys.append(k)
     if not per or not (has_est or nkeys):
         return ""
@@ -971,8 +1100,11 @@ def _section_experiments(s) -> str:
         if eff:
             r.append(_ncell(eff[i] if i < len(eff) else None, ".3g"))
         rows.append(r)
-    note = ("Each experiment's own posterior (display units: G in kPa, mu in Pa s)"
-            + ("; Rmax, Req [µm] and the time origin t0 [µs] estimated with the material" if nkeys else "") + ".")
+    note = (
+        "Each experiment's own posterior (display units: G in kPa, mu in Pa s)"
+        + ("; Rmax, Req [µm] and the time origin t0 [µs] estimated with the material" if nkeys else "")
+        + "."
+    )
     return f"<h2 id='experiments'>Experiments</h2><p class='note'>{note}</p>" + table(heads, rows)
 
 
@@ -983,8 +1115,13 @@ def _section_contents(run) -> str:
     meth = _method(s)
     applies = meth is None or meth.gaussian_posterior
     rows = [("summary.json", "<span class='ok'>present</span>", "run summary (dataset, settings, estimate)")]
-    rows.append(("posterior.nc", "<span class='ok'>present</span>" if run["posterior"] is not None else
-                 "<span class='absent'>absent</span>", "ArviZ posterior of the fit"))
+    rows.append(
+        (
+            "posterior.nc",
+            "<span class='ok'>present</span>" if run["posterior"] is not None else "<span class='absent'>absent</span>",
+            "ArviZ posterior of the fit",
+        )
+    )
     if applies or run["mcmc"] is not None or run["compare"] is not None:
         if run["mcmc"] is not None:
             st = "<span class='ok'>present</span>"
@@ -1000,8 +1137,13 @@ def _section_contents(run) -> str:
         else:
             st = "not written"
         rows.append(("compare.json", st, "ensemble Gaussian vs MCMC, per window"))
-    rows.append(("figures/*.png", f"{len(run['figures'])} file(s)" if run["figures"] else
-                 "<span class='absent'>absent</span>", "figures (embedded above)"))
+    rows.append(
+        (
+            "figures/*.png",
+            f"{len(run['figures'])} file(s)" if run["figures"] else "<span class='absent'>absent</span>",
+            "figures (embedded above)",
+        )
+    )
     out = table(["file", "status", "content"], [(f"<code>{esc(a)}</code>", b, esc(c)) for a, b, c in rows])
     return f"<h2 id='contents'>Run directory</h2><p><code>{esc(rd)}</code></p>{out}"
 
@@ -1026,23 +1168,56 @@ def _section_dataset(s) -> str:
         if not isinstance(e, dict):
             continue
         rmax, req = _fnum(e.get("rmax_m")), _fnum(e.get("req_m"))
-        rows.append((esc(e.get("name", "?")), f"<code>{esc(e.get('source', ''))}</code>",
-                     _ncell(rmax * 1e6, ".4g"), _ncell(req * 1e6, ".4g"), esc(e.get("req_source", "")),
-                     _ncell(e.get("rmax_over_req"), ".4g"), _ncell(e.get("t_collapse_star"), ".4g"),
-                     _ncell(e.get("n_samples"), ".0f"), _ncell(e.get("n_steps_available"), ".0f"),
-                     esc("; ".join(e.get("warnings") or [])) or "–"))
+        rows.append(
+            (
+                esc(e.get("name", "?")),
+                f"<code>{esc(e.get('source', ''))}</code>",
+                _ncell(rmax * 1e6, ".4g"),
+                _ncell(req * 1e6, ".4g"),
+                esc(e.get("req_source", "")),
+                _ncell(e.get("rmax_over_req"), ".4g"),
+                _ncell(e.get("t_collapse_star"), ".4g"),
+                _ncell(e.get("n_samples"), ".0f"),
+                _ncell(e.get("n_steps_available"), ".0f"),
+                esc("; ".join(e.get("warnings") or [])) or "–",
+            )
+        )
     out = "<h2 id='dataset'>Dataset</h2><p>" + "; ".join(head) + "</p>"
     if rows:
-        out += table(["experiment", "file", "Rmax [µm]", "Req [µm]", "Req from", "Rmax/Req [-]",
-                      "first collapse t* [-]", "samples", "grid steps available", "warnings"], rows)
+        out += table(
+            [
+                "experiment",
+                "file",
+                "Rmax [µm]",
+                "Req [µm]",
+                "Req from",
+                "Rmax/Req [-]",
+                "first collapse t* [-]",
+                "samples",
+                "grid steps available",
+                "warnings",
+            ],
+            rows,
+        )
         summ = pre.get("summary") or {}
         srows = []
-        for key, lab in (("rmax_um", "Rmax [µm]"), ("req_um", "Req [µm]"), ("rmax_over_req", "Rmax/Req [-]"),
-                         ("t_collapse_star", "first collapse t* [-]")):
+        for key, lab in (
+            ("rmax_um", "Rmax [µm]"),
+            ("req_um", "Req [µm]"),
+            ("rmax_over_req", "Rmax/Req [-]"),
+            ("t_collapse_star", "first collapse t* [-]"),
+        ):
             v = summ.get(key)
             if isinstance(v, dict):
-                srows.append((lab, _ncell(v.get("mean"), ".4g"), _ncell(v.get("sd"), ".3g"),
-                              _ncell(v.get("min"), ".4g"), _ncell(v.get("max"), ".4g")))
+                srows.append(
+                    (
+                        lab,
+                        _ncell(v.get("mean"), ".4g"),
+                        _ncell(v.get("sd"), ".3g"),
+                        _ncell(v.get("min"), ".4g"),
+                        _ncell(v.get("max"), ".4g"),
+                    )
+                )
         if srows:
             out += table(["across experiments", "mean", "sd", "min", "max"], srows)
     else:
@@ -1063,21 +1238,30 @@ def _section_config(s) -> str:
     units = _units(s)
     method = s.get("method", "?")
     label = _method(s).label if _method(s) is not None else ""
-    rows = [("method", f"{esc(method)} — {esc(label)}"),
-            ("constitutive model", esc(s.get("model", fwd.get("constitutive", "?")))),
-            ("parameters", esc(", ".join(f"{p} [{units.get(p, '?')}]" for p in s.get("parameters", [])))),
-            ("seed", esc(s.get("seed", cmd.get("seed", "–")))),
-            ("imrbayes version", esc(cmd.get("imrbayes_version", "–"))),
-            ("command", _command_cell(s, cmd)),
-            ("runtime", f"method {num(s.get('runtime_s'), '.3g')} s; whole command "
-                        f"{num(s.get('total_runtime_s'), '.3g')} s")]
+    rows = [
+        ("method", f"{esc(method)} — {esc(label)}"),
+        ("constitutive model", esc(s.get("model", fwd.get("constitutive", "?")))),
+        ("parameters", esc(", ".join(f"{p} [{units.get(p, '?')}]" for p in s.get("parameters", [])))),
+        ("seed", esc(s.get("seed", cmd.get("seed", "–")))),
+        ("imrbayes version", esc(cmd.get("imrbayes_version", "–"))),
+        ("command", _command_cell(s, cmd)),
+        (
+            "runtime",
+            f"method {num(s.get('runtime_s'), '.3g')} s; whole command {num(s.get('total_runtime_s'), '.3g')} s",
+        ),
+    ]
     ex = s.get("execution") or {}
     if ex:
         exe = ex.get("executor") or {}
-        g = lambda d, k: esc(d.get(k, "–"))   # noqa: E731
-        rows.append(("execution", f"{g(ex, 'n_units')} unit(s): {g(ex, 'n_computed')} computed, "
-                                  f"{g(ex, 'n_resumed')} from checkpoints, {g(ex, 'n_failed')} failed; "
-                                  f"backend {g(exe, 'backend')}, workers {g(exe, 'workers')}"))
+        g = lambda d, k: esc(d.get(k, "–"))  # noqa: E731
+        rows.append(
+            (
+                "execution",
+                f"{g(ex, 'n_units')} unit(s): {g(ex, 'n_computed')} computed, "
+                f"{g(ex, 'n_resumed')} from checkpoints, {g(ex, 'n_failed')} failed; "
+                f"backend {g(exe, 'backend')}, workers {g(exe, 'workers')}",
+            )
+        )
     if fwd:
         rows.append(("forward model", f"{esc(fwd.get('constitutive', ''))}; {_kv_list(fwd.get('options') or {})}"))
         rows.append(("physical constants", _kv_list(fwd.get("physics") or {})))
@@ -1088,8 +1272,17 @@ def _section_config(s) -> str:
     psi = prior.get("prior_si") or {}
     if psi:
         ls = prior.get("log_space") or {}
-        prow = [(esc(k), esc(units.get(k, "?")), _ncell(v.get("mean")), _ncell(v.get("sd")),
-                 "log-normal" if ls.get(k, True) else "Gaussian") for k, v in psi.items() if isinstance(v, dict)]
+        prow = [
+            (
+                esc(k),
+                esc(units.get(k, "?")),
+                _ncell(v.get("mean")),
+                _ncell(v.get("sd")),
+                "log-normal" if ls.get(k, True) else "Gaussian",
+            )
+            for k, v in psi.items()
+            if isinstance(v, dict)
+        ]
         out += "<h3>Prior</h3>" + table(["parameter", "unit", "mean", "sd", "distribution"], prow)
         if prior.get("prior_rule"):
             out += f"<p class='note'>{esc(prior['prior_rule'])}</p>"
@@ -1103,12 +1296,21 @@ def _command_cell(s, cmd) -> str:
     if cmd.get("line"):
         where = f" <span class='note'>(run in <code>{esc(cmd['cwd'])}</code>)</span>" if cmd.get("cwd") else ""
         return f"<code>{esc(cmd['line'])}</code>{where}"
-    rebuilt = ("imrbayes fit " + str(s.get("data", "DATA")) + " " +
-               " ".join(f"--{k.replace('_', '-')} {v}" for k, v in cmd.items()
-                        if k not in ("name", "imrbayes_version", "resume") and v is not None)
-               + (" --resume" if cmd.get("resume") else ""))
-    return (f"<code>{esc(rebuilt)}</code> <span class='note'>(rebuilt: this run did not record its command line, "
-            "so options such as --forward and --set may be missing)</span>")
+    rebuilt = (
+        "imrbayes fit "
+        + str(s.get("data", "DATA"))
+        + " "
+        + " ".join(
+            f"--{k.replace('_', '-')} {v}"
+            for k, v in cmd.items()
+            if k not in ("name", "imrbayes_version", "resume") and v is not None
+        )
+        + (" --resume" if cmd.get("resume") else "")
+    )
+    return (
+        f"<code>{esc(rebuilt)}</code> <span class='note'>(rebuilt: this run did not record its command line, "
+        "so options such as --forward and --set may be missing)</span>"
+    )
 
 
 def _section_warnings(s, compare) -> str:
@@ -1124,19 +1326,27 @@ def _section_warnings(s, compare) -> str:
         t = _plain_inline(u) if isinstance(u, dict) else esc(u)
         if not any(t in i for i in items):
             items.append(f"failed execution unit: {t}")
-    for key, lab in (("failed_member_runs", "failed forward runs of ensemble members / grid points"),
-                     ("redrawn_members", "ensemble members redrawn")):
+    for key, lab in (
+        ("failed_member_runs", "failed forward runs of ensemble members / grid points"),
+        ("redrawn_members", "ensemble members redrawn"),
+    ):
         v = fail.get(key)
         if v:
             items.append(f"{lab}: {_plain(v)}")
     for f in ((compare or {}).get("overall") or {}).get("failed_windows") or []:
-        items.append(f"MCMC failed in window {esc(f.get('window') if isinstance(f, dict) else f)}: "
-                     f"{esc(f.get('error', '') if isinstance(f, dict) else '')}")
+        items.append(
+            f"MCMC failed in window {esc(f.get('window') if isinstance(f, dict) else f)}: "
+            f"{esc(f.get('error', '') if isinstance(f, dict) else '')}"
+        )
     out = "<h2 id='warnings'>Warnings and failures</h2>"
-    out += ("<ul>" + "".join(f"<li>{esc(_no_paths(w))}</li>" for w in warn) + "</ul>") if warn else \
-        "<p>No warnings.</p>"
-    out += ("<p><b>Failed or skipped units:</b></p><ul>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
-            if items else "<p>No failed or skipped units.</p>")
+    out += (
+        ("<ul>" + "".join(f"<li>{esc(_no_paths(w))}</li>" for w in warn) + "</ul>") if warn else "<p>No warnings.</p>"
+    )
+    out += (
+        "<p><b>Failed or skipped units:</b></p><ul>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
+        if items
+        else "<p>No failed or skipped units.</p>"
+    )
     return out
 
 
@@ -1148,26 +1358,40 @@ def _section_estimate(s) -> str:
         e = s["estimate"].get(p) or {}
         hdi = e.get("hdi95") or [None, None]
         lower, upper = bounds(e, p, s) if len(hdi) == 2 and None not in hdi else (True, True)
-        rows.append((esc(p), esc(units.get(p, "?")), _ncell(e.get("mean")), _ncell(e.get("sd"), ".3g"),
-                     _ncell(e.get("median")), _ncell(hdi[0]) if lower else ("not bounded by the data", ""),
-                     _ncell(hdi[1]) if upper else ("not bounded by the data", ""))
-                    + ((_ncell(true.get(p)),) if true else ()))
-    out = ("<h2 id='estimate'>Estimate (SI units)</h2><p class='note'>The numbers of summary.json, the one "
-           "source of every estimate in this report (the conclusion shows them in kPa and Pa s).</p>")
+        rows.append(
+            (
+                esc(p),
+                esc(units.get(p, "?")),
+                _ncell(e.get("mean")),
+                _ncell(e.get("sd"), ".3g"),
+                _ncell(e.get("median")),
+                _ncell(hdi[0]) if lower else ("not bounded by the data", ""),
+                _ncell(hdi[1]) if upper else ("not bounded by the data", ""),
+            )
+            + ((_ncell(true.get(p)),) if true else ())
+        )
+    out = (
+        "<h2 id='estimate'>Estimate (SI units)</h2><p class='note'>The numbers of summary.json, the one "
+        "source of every estimate in this report (the conclusion shows them in kPa and Pa s).</p>"
+    )
     note = _method(s).estimate_note if _method(s) is not None else ""
     if note:
         out += f"<p>{esc(note)}</p>"
-    out += table(["parameter", "unit", "mean", "sd", "median", "95 % HDI lower", "95 % HDI upper"]
-                 + (["truth (truth.json)"] if true else []), rows)
+    out += table(
+        ["parameter", "unit", "mean", "sd", "median", "95 % HDI lower", "95 % HDI upper"]
+        + (["truth (truth.json)"] if true else []),
+        rows,
+    )
     if any((s["estimate"].get(p) or {}).get("sd") is None for p in s.get("parameters", [])):
         det = s.get("details") or {}
         why = det.get("uncertainty") or det.get("note")
-        out += ("<p class='note'>– : not available from this method"
-                + (f" ({_plain(why)})" if why else "") + ".</p>")
+        out += "<p class='note'>– : not available from this method" + (f" ({_plain(why)})" if why else "") + ".</p>"
     fit = s.get("fit") or {}
     if fit:
-        out += (f"<p>Fit: RMSE {num(fit.get('rmse'), '.4g')} in R* over {esc(fit.get('n_samples', '–'))} "
-                f"samples <span class='note'>({esc(fit.get('rmse_definition', ''))})</span></p>")
+        out += (
+            f"<p>Fit: RMSE {num(fit.get('rmse'), '.4g')} in R* over {esc(fit.get('n_samples', '–'))} "
+            f"samples <span class='note'>({esc(fit.get('rmse_definition', ''))})</span></p>"
+        )
     return out
 
 
@@ -1203,14 +1427,25 @@ def _section_windows(s) -> str:
         r.append(esc(", ".join(map(str, fe))) if fe else "–")
         rows.append(r)
     n_tr = len(s.get("time_resolved") or [])
-    return (f"<h2 id='windows'>Windows ({len(wins)})</h2><p>Per-window posterior (mean, sd; SI units). "
-            f"The time-resolved estimate has {n_tr} points (see the parameters figure). Posterior / prior width: "
-            f"the window posterior's sd over the prior's (log coordinates); ≥ {100 * SAYS_LITTLE:.0f} %: the data "
-            "barely moved the prior in that window.</p>" + table(heads, rows))
+    return (
+        f"<h2 id='windows'>Windows ({len(wins)})</h2><p>Per-window posterior (mean, sd; SI units). "
+        f"The time-resolved estimate has {n_tr} points (see the parameters figure). Posterior / prior width: "
+        f"the window posterior's sd over the prior's (log coordinates); ≥ {100 * SAYS_LITTLE:.0f} %: the data "
+        "barely moved the prior in that window.</p>" + table(heads, rows)
+    )
 
 
-_AZ_COLS = [("mean", ".5g"), ("sd", ".3g"), ("hdi95_lb", ".5g"), ("hdi95_ub", ".5g"), ("ess_bulk", ".0f"),
-            ("ess_tail", ".0f"), ("r_hat", ".4f"), ("mcse_mean", ".3g"), ("mcse_sd", ".3g")]
+_AZ_COLS = [
+    ("mean", ".5g"),
+    ("sd", ".3g"),
+    ("hdi95_lb", ".5g"),
+    ("hdi95_ub", ".5g"),
+    ("ess_bulk", ".0f"),
+    ("ess_tail", ".0f"),
+    ("r_hat", ".4f"),
+    ("mcse_mean", ".3g"),
+    ("mcse_sd", ".3g"),
+]
 
 
 def _az_summary(tree, var_names=None):
@@ -1258,16 +1493,20 @@ def _section_posterior(run) -> str:
     post = tree["posterior"]
     n_chain = post.sizes.get("chain", 1)
     n_draw = post.sizes.get("draw", 0)
-    out += (f"<p><code>az.summary(tree, round_to=\"none\", ci_kind=\"hdi\", ci_prob={_CI_PROB})</code>; "
-            f"{n_chain} chain(s) × {n_draw} draws: the effective sample sizes, R-hat and Monte Carlo errors of the "
-            "draws. Their mean, sd and interval are not repeated here: the estimate is the one of the Estimate and "
-            "Windows tables (summary.json), so that the report gives one number for one quantity. Numbers are "
-            "shown rounded; hover a cell for its raw value.")
+    out += (
+        f'<p><code>az.summary(tree, round_to="none", ci_kind="hdi", ci_prob={_CI_PROB})</code>; '
+        f"{n_chain} chain(s) × {n_draw} draws: the effective sample sizes, R-hat and Monte Carlo errors of the "
+        "draws. Their mean, sd and interval are not repeated here: the estimate is the one of the Estimate and "
+        "Windows tables (summary.json), so that the report gives one number for one quantity. Numbers are "
+        "shown rounded; hover a cell for its raw value."
+    )
     if "window" in post.dims:
         out += " Rows <code>G[j]</code> etc. are window j."
     if n_chain < 2:
-        out += (" These are independent draws from the method's posterior approximation (one chain), not a "
-                "Markov chain: r_hat is undefined (–) and ESS and MCSE treat the draws as one sequence.")
+        out += (
+            " These are independent draws from the method's posterior approximation (one chain), not a "
+            "Markov chain: r_hat is undefined (–) and ESS and MCSE treat the draws as one sequence."
+        )
     return out + "</p>" + _az_table(df, only=("ess_bulk", "ess_tail", "r_hat", "mcse_mean", "mcse_sd"))
 
 
@@ -1275,7 +1514,7 @@ def _section_mcmc(run) -> str:
     out = "<h2 id='mcmc'>MCMC reference posteriors (mcmc.nc)</h2>"
     tree = run["mcmc"]
     if tree is None:
-        return ""           # the conclusion and the MCMC check say why (not run, or not applicable)
+        return ""  # the conclusion and the MCMC check say why (not run, or not applicable)
     th = _thresholds(run["compare"] or {})
     try:
         settings = json.loads(tree.attrs.get("mcmc_settings_json", "null")) or {}
@@ -1283,14 +1522,16 @@ def _section_mcmc(run) -> str:
         settings = {}
     if settings:
         out += f"<p>emcee settings: {_kv_list(settings)}.</p>"
-    out += (f"<p>Per window, <code>az.summary(round_to=\"none\", ci_kind=\"hdi\", ci_prob={_CI_PROB})</code>; "
-            f"one chain = one independent emcee ensemble. Shaded: r_hat &gt; {num(th['rhat'], 'g')} or "
-            f"ess_bulk &lt; {num(th['ess_bulk'], 'g')} (red), within the thresholds (green).</p>")
+    out += (
+        f'<p>Per window, <code>az.summary(round_to="none", ci_kind="hdi", ci_prob={_CI_PROB})</code>; '
+        f"one chain = one independent emcee ensemble. Shaded: r_hat &gt; {num(th['rhat'], 'g')} or "
+        f"ess_bulk &lt; {num(th['ess_bulk'], 'g')} (red), within the thresholds (green).</p>"
+    )
     keys = sorted(k for k in tree.children if k.startswith("window_"))
     span = {}
     for e in (run["compare"] or {}).get("windows") or []:
         span[e.get("index")] = e.get("t_star")
-    if not keys:   # a single-window tree (posterior at the top)
+    if not keys:  # a single-window tree (posterior at the top)
         keys = [None]
     for k in keys:
         node = tree if k is None else tree[k]
@@ -1318,12 +1559,15 @@ def _section_mcmc(run) -> str:
         if diag:
             acc = diag.get("acceptance") or []
             acc = [a for a in (acc if isinstance(acc, list) else [acc]) if isinstance(a, (int, float))]
-            g = lambda k: esc(diag.get(k, "–"))   # noqa: E731
+            g = lambda k: esc(diag.get(k, "–"))  # noqa: E731
             rule = num(diag.get("tau_rule", th["tau_rule"]), "g")
-            out += (f"<p class='note'>{g('n_chains')} ensembles × {g('n_walkers')} walkers × {g('n_steps')} steps; "
-                    f"burn {g('burn')}, thin {g('thin')}; max τ {num(diag.get('tau_max'), '.3g')} steps, n_steps/τ "
-                    f"{num(diag.get('n_steps_over_tau'), '.3g')} (rule ≥ {rule})"
-                    + (f"; mean acceptance {num(sum(acc) / len(acc), '.2f')}" if acc else "") + "</p>")
+            out += (
+                f"<p class='note'>{g('n_chains')} ensembles × {g('n_walkers')} walkers × {g('n_steps')} steps; "
+                f"burn {g('burn')}, thin {g('thin')}; max τ {num(diag.get('tau_max'), '.3g')} steps, n_steps/τ "
+                f"{num(diag.get('n_steps_over_tau'), '.3g')} (rule ≥ {rule})"
+                + (f"; mean acceptance {num(sum(acc) / len(acc), '.2f')}" if acc else "")
+                + "</p>"
+            )
         df, err = _az_summary(node)
         if df is None:
             out += f"<p class='absent'>ArviZ summary failed: {esc(err)}</p>"
@@ -1331,8 +1575,11 @@ def _section_mcmc(run) -> str:
         internal = [i for i in df.index if str(i).startswith("log_")]
         out += _az_table(df.drop(index=internal), th)
         if internal:
-            out += ("<details><summary>the same in the sampler's internal coordinates (log G, log mu)</summary>"
-                    + _az_table(df.loc[internal], th) + "</details>")
+            out += (
+                "<details><summary>the same in the sampler's internal coordinates (log G, log mu)</summary>"
+                + _az_table(df.loc[internal], th)
+                + "</details>"
+            )
     return out
 
 
@@ -1342,13 +1589,15 @@ def _section_compare(run) -> str:
     if compare is None:
         meth = _method(run["summary"])
         if meth is not None and not meth.gaussian_posterior and run["mcmc"] is None:
-            return ""       # does not apply (pIMR, IMR): the conclusion says so in one line
+            return ""  # does not apply (pIMR, IMR): the conclusion says so in one line
         return out + f"<p>{_mcmc_words(run)}</p>"
     th = _thresholds(compare)
     ov = compare.get("overall") or {}
     n_win = ov.get("n_windows", len(compare.get("windows") or []))
-    out += (f"<p>{esc(n_win)} window(s): {esc(ov.get('n_agree', '–'))} agree, {esc(ov.get('n_disagree', '–'))} "
-            f"disagree, {esc(ov.get('n_undecided', '–'))} undecided.</p>")
+    out += (
+        f"<p>{esc(n_win)} window(s): {esc(ov.get('n_agree', '–'))} agree, {esc(ov.get('n_disagree', '–'))} "
+        f"disagree, {esc(ov.get('n_undecided', '–'))} undecided.</p>"
+    )
     if ov.get("agree_rule"):
         out += f"<p class='note'>Rule: {esc(ov['agree_rule'])}. {esc(ov.get('coordinates', ''))}</p>"
     rows = []
@@ -1357,26 +1606,50 @@ def _section_compare(run) -> str:
         d = _entry_diag(e)
         a = e.get("agree")
         lab, cls = ("yes", "ok") if a is True else (("no", "bad") if a is False else ("undecided", "undecided"))
-        bad = lambda v, t: "bad" if _fnum(v) > t else None   # noqa: E731
+        bad = lambda v, t: "bad" if _fnum(v) > t else None  # noqa: E731
         phase = esc(window_phase(e.get("t_star"), tc) or "–")
-        rows.append((esc(e.get("index")), _span(e.get("t_star"), ".4g"), phase,
-                     _ncell(e.get("kl_gauss"), ".3g"), _ncell(e.get("kl_gauss_reverse"), ".3g"),
-                     _ncell(e.get("kl_sym"), ".3g", bad(e.get("kl_sym"), th["kl_sym"])),
-                     _ncell(e.get("w2"), ".3g", bad(e.get("w2"), th["w2"])),
-                     _ncell(e.get("kl_sample"), ".3g", bad(e.get("kl_sample"), th["kl_sample"])),
-                     _ncell(d["rhat"], ".4f", bad(d["rhat"], th["rhat"])),
-                     _ncell(d["ess"], ".0f", "bad" if _fnum(d["ess"], math.inf) < th["ess_bulk"] else None),
-                     _ncell(d["n_over_tau"], ".3g", "bad" if d["tau_ok"] is False else None),
-                     (lab, f"class='{cls}'"), esc(e.get("state_source", "–"))))
-    out += table(["window", "t* span [-]", "phase", "KL(MCMC‖ens) [nats]", "KL(ens‖MCMC) [nats]",
-                  f"KL sym [nats] (≤ {num(th['kl_sym'], 'g')})", f"W2 [sd] (≤ {num(th['w2'], 'g')})",
-                  f"sample KL [nats] (≤ {num(th['kl_sample'], 'g')})", f"max R-hat (≤ {num(th['rhat'], 'g')})",
-                  f"min ESS bulk (≥ {num(th['ess_bulk'], 'g')})", f"n_steps/τ (≥ {num(th['tau_rule'], 'g')})",
-                  "agree", "start state"], rows)
+        rows.append(
+            (
+                esc(e.get("index")),
+                _span(e.get("t_star"), ".4g"),
+                phase,
+                _ncell(e.get("kl_gauss"), ".3g"),
+                _ncell(e.get("kl_gauss_reverse"), ".3g"),
+                _ncell(e.get("kl_sym"), ".3g", bad(e.get("kl_sym"), th["kl_sym"])),
+                _ncell(e.get("w2"), ".3g", bad(e.get("w2"), th["w2"])),
+                _ncell(e.get("kl_sample"), ".3g", bad(e.get("kl_sample"), th["kl_sample"])),
+                _ncell(d["rhat"], ".4f", bad(d["rhat"], th["rhat"])),
+                _ncell(d["ess"], ".0f", "bad" if _fnum(d["ess"], math.inf) < th["ess_bulk"] else None),
+                _ncell(d["n_over_tau"], ".3g", "bad" if d["tau_ok"] is False else None),
+                (lab, f"class='{cls}'"),
+                esc(e.get("state_source", "–")),
+            )
+        )
+    out += table(
+        [
+            "window",
+            "t* span [-]",
+            "phase",
+            "KL(MCMC‖ens) [nats]",
+            "KL(ens‖MCMC) [nats]",
+            f"KL sym [nats] (≤ {num(th['kl_sym'], 'g')})",
+            f"W2 [sd] (≤ {num(th['w2'], 'g')})",
+            f"sample KL [nats] (≤ {num(th['kl_sample'], 'g')})",
+            f"max R-hat (≤ {num(th['rhat'], 'g')})",
+            f"min ESS bulk (≥ {num(th['ess_bulk'], 'g')})",
+            f"n_steps/τ (≥ {num(th['tau_rule'], 'g')})",
+            "agree",
+            "start state",
+        ],
+        rows,
+    )
     notes = [(e.get("index"), e.get("notes")) for e in compare.get("windows") or [] if e.get("notes")]
     if notes:
-        out += ("<details><summary>notes per window (compare.json)</summary><ul>"
-                + "".join(f"<li>window {esc(i)}: {esc(n)}</li>" for i, n in notes) + "</ul></details>")
+        out += (
+            "<details><summary>notes per window (compare.json)</summary><ul>"
+            + "".join(f"<li>window {esc(i)}: {esc(n)}</li>" for i, n in notes)
+            + "</ul></details>"
+        )
     return out
 
 
@@ -1392,20 +1665,36 @@ def _section_flagged(run) -> str:
 
 #: figure file -> (title, caption); the figures are shown in this order, the rest after them
 _CAPTIONS = {
-    "fit.png": ("Fit to the data", "Measured R/Rmax (dots) and the fitted curve per experiment, against t* and "
-                "time [µs]; samples the method did not fit are shaded."),
-    "parameters.png": ("Time-resolved parameters", "G and mu per window (posterior mean, 95 % band) with the "
-                       "prior's 95 % band, against t*, time [µs] and the wall strain rate -2Ṙ/R [1/s]; windows "
-                       "the data barely moved are hatched."),
-    "experiments.png": ("Per-experiment estimates", "Per-experiment posterior mean ± 2 sd and the gel-level "
-                        "(fused) estimate."),
-    "landscape.png": ("Cost landscape", "Cost over (G, mu) (grid of the IMR/pIMR method) with the optimum and "
-                      "the 95 % region."),
+    "fit.png": (
+        "Fit to the data",
+        "Measured R/Rmax (dots) and the fitted curve per experiment, against t* and "
+        "time [µs]; samples the method did not fit are shaded.",
+    ),
+    "parameters.png": (
+        "Time-resolved parameters",
+        "G and mu per window (posterior mean, 95 % band) with the "
+        "prior's 95 % band, against t*, time [µs] and the wall strain rate -2Ṙ/R [1/s]; windows "
+        "the data barely moved are hatched.",
+    ),
+    "experiments.png": (
+        "Per-experiment estimates",
+        "Per-experiment posterior mean ± 2 sd and the gel-level (fused) estimate.",
+    ),
+    "landscape.png": (
+        "Cost landscape",
+        "Cost over (G, mu) (grid of the IMR/pIMR method) with the optimum and the 95 % region.",
+    ),
     "radius.png": ("Radius records", "Preprocessed radius records R*(t*)."),
-    "mcmc_forest.png": ("MCMC check per window", "Per window: ensemble Gaussian (blue) and MCMC (red) median and "
-                        "95 % interval against the window's t* span; ▼ marks a disagreeing window."),
-    "mcmc_divergence.png": ("MCMC agreement against time", "KL (Gaussian, symmetrised, and sample-based) and W2 "
-                            "per window against t*, with the agreement thresholds, under the measured R*(t*)."),
+    "mcmc_forest.png": (
+        "MCMC check per window",
+        "Per window: ensemble Gaussian (blue) and MCMC (red) median and "
+        "95 % interval against the window's t* span; ▼ marks a disagreeing window.",
+    ),
+    "mcmc_divergence.png": (
+        "MCMC agreement against time",
+        "KL (Gaussian, symmetrised, and sample-based) and W2 "
+        "per window against t*, with the agreement thresholds, under the measured R*(t*).",
+    ),
 }
 
 
@@ -1414,14 +1703,18 @@ def _caption(p: Path, summary=None) -> tuple:
     if p.name in _CAPTIONS:
         title, cap = _CAPTIONS[p.name]
         if p.name == "fit.png" and (summary or {}).get("method") == "pimr":
-            cap = ("Measured R/Rmax (dots) and the curve at the pIMR estimate: pIMR fits the first-collapse time "
-                   "only, so only the collapse time of the curve is fitted, not its shape.")
+            cap = (
+                "Measured R/Rmax (dots) and the curve at the pIMR estimate: pIMR fits the first-collapse time "
+                "only, so only the collapse time of the curve is fitted, not its shape."
+            )
         return title, cap
     if p.name.startswith("mcmc_pair_window_"):
         w = esc(p.stem.rsplit("_", 1)[-1].lstrip("0") or "0")
-        return (f"MCMC posterior, window {w}",
-                f"Window {w}: MCMC draws of G [kPa] and mu [Pa s] (log axes) with the 1- and 2-sd ellipses of the "
-                "ensemble Gaussian and of the MCMC draws' Gaussian, and both marginals.")
+        return (
+            f"MCMC posterior, window {w}",
+            f"Window {w}: MCMC draws of G [kPa] and mu [Pa s] (log axes) with the 1- and 2-sd ellipses of the "
+            "ensemble Gaussian and of the MCMC draws' Gaussian, and both marginals.",
+        )
     return p.stem.replace("_", " "), esc(p.stem.replace("_", " "))
 
 
@@ -1440,8 +1733,9 @@ def _section_figures(run) -> str:
             bad.append(p.name)
             continue
         title, cap = _caption(p, run["summary"])
-        parts.append(embed_png(p, caption=f"{cap} <span class='note'>(<code>figures/{esc(p.name)}</code>)</span>",
-                               title=title))
+        parts.append(
+            embed_png(p, caption=f"{cap} <span class='note'>(<code>figures/{esc(p.name)}</code>)</span>", title=title)
+        )
     if bad:
         out += f"<p class='absent'>Not embedded (not a readable PNG file): {esc(', '.join(bad))}</p>"
     return out + "".join(parts)
@@ -1457,19 +1751,28 @@ def write_run_report(run_dir, path=None) -> Path:
     s = run["summary"]
     path = Path(path) if path is not None else run["run_dir"] / "report.html"
     title = f"imrbayes report: {s.get('method', '?')} fit ({s.get('model', '?')}) of {s.get('data', '?')}"
-    sections = [("conclusion", "Conclusion", _section_conclusion(run)), ("estimate", "Estimate", _section_estimate(s)),
-                ("experiments", "Experiments", _section_experiments(s)), ("windows", "Windows", _section_windows(s)),
-                ("figures", "Figures", _section_figures(run)), ("compare", "MCMC check", _section_compare(run)),
-                ("flagged", "Flagged windows", _section_flagged(run)), ("mcmc", "MCMC tables", _section_mcmc(run)),
-                ("dataset", "Dataset", _section_dataset(s)),
-                ("warnings", "Warnings and failures", _section_warnings(s, run["compare"])),
-                ("config", "Run configuration", _section_config(s)),
-                ("posterior", "Sampling diagnostics", _section_posterior(run)),
-                ("contents", "Run directory", _section_contents(run))]
+    sections = [
+        ("conclusion", "Conclusion", _section_conclusion(run)),
+        ("estimate", "Estimate", _section_estimate(s)),
+        ("experiments", "Experiments", _section_experiments(s)),
+        ("windows", "Windows", _section_windows(s)),
+        ("figures", "Figures", _section_figures(run)),
+        ("compare", "MCMC check", _section_compare(run)),
+        ("flagged", "Flagged windows", _section_flagged(run)),
+        ("mcmc", "MCMC tables", _section_mcmc(run)),
+        ("dataset", "Dataset", _section_dataset(s)),
+        ("warnings", "Warnings and failures", _section_warnings(s, run["compare"])),
+        ("config", "Run configuration", _section_config(s)),
+        ("posterior", "Sampling diagnostics", _section_posterior(run)),
+        ("contents", "Run directory", _section_contents(run)),
+    ]
     nav = " · ".join(f"<a href='#{a}'>{esc(b)}</a>" for a, b, html_ in sections if html_)
-    now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    body = "\n".join([f"<h1>{esc(title)}</h1><p class='note'>{nav}</p>"] + [h for _, _, h in sections if h] + [
-        f"<p class='note'>Written {now} by imrbayes {esc(__version__)} (<code>imrbayes report</code>).</p>"])
+    now = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    body = "\n".join(
+        [f"<h1>{esc(title)}</h1><p class='note'>{nav}</p>"]
+        + [h for _, _, h in sections if h]
+        + [f"<p class='note'>Written {now} by imrbayes {esc(__version__)} (<code>imrbayes report</code>).</p>"]
+    )
     try:
         write_page(path, title, body)
     except OSError as exc:

@@ -55,8 +55,16 @@ def estimate_table(summary: dict) -> pd.DataFrame:
     for p in summary.get("parameters", []):
         e = (summary.get("estimate") or {}).get(p) or {}
         lo, hi = _hdi(e)
-        rows.append({"parameter": p, "unit": units.get(p, ""), "mean": _num(e.get("mean")), "sd": _num(e.get("sd")),
-                     "hdi95_low": lo, "hdi95_high": hi})
+        rows.append(
+            {
+                "parameter": p,
+                "unit": units.get(p, ""),
+                "mean": _num(e.get("mean")),
+                "sd": _num(e.get("sd")),
+                "hdi95_low": lo,
+                "hdi95_high": hi,
+            }
+        )
     return pd.DataFrame(rows, columns=["parameter", "unit", "mean", "sd", "hdi95_low", "hdi95_high"])
 
 
@@ -75,8 +83,14 @@ def time_resolved_table(summary: dict) -> pd.DataFrame | None:
             e = x.get(p) or {}
             u = units.get(p, "")
             lo, hi = _hdi(e)
-            row.update({f"{p}_mean [{u}]": _num(e.get("mean")), f"{p}_sd [{u}]": _num(e.get("sd")),
-                        f"{p}_hdi95_low [{u}]": lo, f"{p}_hdi95_high [{u}]": hi})
+            row.update(
+                {
+                    f"{p}_mean [{u}]": _num(e.get("mean")),
+                    f"{p}_sd [{u}]": _num(e.get("sd")),
+                    f"{p}_hdi95_low [{u}]": lo,
+                    f"{p}_hdi95_high [{u}]": hi,
+                }
+            )
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -155,10 +169,18 @@ def load_run(path) -> Run:
     parts = read_run_dir(path)
     s = parts["summary"]
     table = estimate_table(s)
-    estimates = {r["parameter"]: {k: r[k] for k in ("mean", "sd", "hdi95_low", "hdi95_high", "unit")}
-                 for r in table.to_dict("records")}
-    return Run(path=parts["run_dir"], summary=s, estimates=estimates, posterior=parts["posterior"],
-               time_resolved=time_resolved_table(s), per_experiment=per_experiment_table(s))
+    estimates = {
+        r["parameter"]: {k: r[k] for k in ("mean", "sd", "hdi95_low", "hdi95_high", "unit")}
+        for r in table.to_dict("records")
+    }
+    return Run(
+        path=parts["run_dir"],
+        summary=s,
+        estimates=estimates,
+        posterior=parts["posterior"],
+        time_resolved=time_resolved_table(s),
+        per_experiment=per_experiment_table(s),
+    )
 
 
 def write_tables(out, summary: dict) -> list:

@@ -15,7 +15,6 @@ import click
 from imrbayes import __version__
 from imrbayes.errors import InputError
 
-
 #: ``ctx.meta`` key: KEY=VALUE items that --config tables give each option, merged by :class:`_Command`
 _CONFIG_ITEMS = "imrbayes.config_items"
 
@@ -43,8 +42,12 @@ def _format_lists(formatter, which) -> None:
         from imrbayes.ensemble import METHODS
 
         with formatter.section("Inference methods (--method)"):
-            formatter.write_dl([(m.name, m.label + ("; --mcmc checks its Gaussian posterior"
-                                                    if m.gaussian_posterior else "")) for m in METHODS.values()])
+            formatter.write_dl(
+                [
+                    (m.name, m.label + ("; --mcmc checks its Gaussian posterior" if m.gaussian_posterior else ""))
+                    for m in METHODS.values()
+                ]
+            )
 
 
 class _Command(click.Command):
@@ -75,13 +78,15 @@ class _Group(click.Group):
         super().format_epilog(ctx, formatter)
         _format_lists(formatter, ("models", "methods"))
         with formatter.section("Runtimes"):
-            formatter.write_text("inspect, simulate, report, compare: seconds. fit: seconds (pimr) to minutes "
-                                 "(imr, en4dvar, mienks); fit --mcmc: seconds per window with "
-                                 "--forward bubble=polytropic, 0.5-3 min per window with the thermal bubble "
-                                 "(~25 min for a 5-experiment mienks run on 2 cores); en4dvar's one window also samples "
-                                 "every bubble's nuisances: up to hours with the thermal bubble. diagnose: ~20 min for 5 experiments with the "
-                                 "thermal bubble (a few with --forward bubble=polytropic --quick). validate --suite "
-                                 "quick: minutes.")
+            formatter.write_text(
+                "inspect, simulate, report, compare: seconds. fit: seconds (pimr) to minutes "
+                "(imr, en4dvar, mienks); fit --mcmc: seconds per window with "
+                "--forward bubble=polytropic, 0.5-3 min per window with the thermal bubble "
+                "(~25 min for a 5-experiment mienks run on 2 cores); en4dvar's one window also samples "
+                "every bubble's nuisances: up to hours with the thermal bubble. diagnose: ~20 min for 5 experiments with the "
+                "thermal bubble (a few with --forward bubble=polytropic --quick). validate --suite "
+                "quick: minutes."
+            )
 
     def invoke(self, ctx):
         try:
@@ -99,7 +104,7 @@ class _Group(click.Group):
             click.echo(f"imrbayes: error: {exc}", err=True)
             ctx.exit(2)
         except KeyboardInterrupt as exc:
-            signum = getattr(exc, "signum", None)   # execution.RunInterrupted: SIGTERM/SIGINT during units
+            signum = getattr(exc, "signum", None)  # execution.RunInterrupted: SIGTERM/SIGINT during units
             if signum is not None:
                 click.echo(f"imrbayes: {exc}; finished units are saved, continue with --resume", err=True)
                 ctx.exit(128 + int(signum))
@@ -156,7 +161,7 @@ def read_config(path, command: str, options, tables=(), shared=None) -> dict:
         if name not in options:
             raise InputError(path, f"unknown option {key!r} for 'imrbayes {command}'; known: {sorted(options)}")
         cfg[name] = val
-    for name in (tables if shared is None else shared):  # a top-level [forward] completes [command]
+    for name in tables if shared is None else shared:  # a top-level [forward] completes [command]
         if name not in cfg and isinstance(data.get(name), dict):
             cfg[name] = data[name]
     return cfg
@@ -210,9 +215,14 @@ def _config_callback(ctx, param, value):
 
 def config_option(f):
     """Decorator adding ``--config FILE.toml`` (processed before every other option)."""
-    return click.option("--config", type=click.Path(dir_okay=False), callback=_config_callback, is_eager=True,
-                        expose_value=False, help="TOML file of option values and [COMMAND.forward]-style "
-                                                 "tables; the command line wins.")(f)
+    return click.option(
+        "--config",
+        type=click.Path(dir_okay=False),
+        callback=_config_callback,
+        is_eager=True,
+        expose_value=False,
+        help="TOML file of option values and [COMMAND.forward]-style tables; the command line wins.",
+    )(f)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

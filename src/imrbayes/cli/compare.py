@@ -32,10 +32,19 @@ def _open_tree(path: Path, what: str):
 
 @main.command("compare")
 @click.argument("run_dir", type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Folder for compare.json and figures/ [default: RUN_DIR].")
-@click.option("--pairs", default="worst", show_default=True, metavar="worst|all|J,K,...",
-              help="Windows to draw pair plots for (both posteriors overlaid).")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Folder for compare.json and figures/ [default: RUN_DIR].",
+)
+@click.option(
+    "--pairs",
+    default="worst",
+    show_default=True,
+    metavar="worst|all|J,K,...",
+    help="Windows to draw pair plots for (both posteriors overlaid).",
+)
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 def compare_cmd(run_dir, out, pairs, quiet):
     """Compare the ensemble-Gaussian posteriors of RUN_DIR (a 'fit --mcmc' run) with its MCMC ones.
@@ -77,14 +86,18 @@ def compare_cmd(run_dir, out, pairs, quiet):
             R = ptree["observed_data"]["R_obs"]
             t_star = np.asarray(R["t_obs"].values, float)
             R_star = np.nanmean(np.asarray(R.values, float), axis=0)
-    failed = json.loads((run_dir / "compare.json").read_text()).get("overall", {}).get("failed_windows") \
-        if (run_dir / "compare.json").is_file() else None
+    failed = (
+        json.loads((run_dir / "compare.json").read_text()).get("overall", {}).get("failed_windows")
+        if (run_dir / "compare.json").is_file()
+        else None
+    )
     if failed:
         compare["overall"]["failed_windows"] = failed
     figures = comparison_figures(compare, out / "figures", tree, t_star, R_star, pairs=pairs)
     write_json(out / "compare.json", compare)
     if not quiet:
         from imrbayes.cli.options import compare_line
+
         click.echo(compare_line(compare))
         for e in compare["windows"]:
             if e["agree"] is not True:

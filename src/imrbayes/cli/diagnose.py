@@ -14,8 +14,18 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import config_option, main
-from imrbayes.cli.options import (check_options, force_option, data_fingerprint, echo_execution, execution_options, key_values,
-                                  open_execution, prepare_out, select_experiments, EXPERIMENTS_HELP)
+from imrbayes.cli.options import (
+    EXPERIMENTS_HELP,
+    check_options,
+    data_fingerprint,
+    echo_execution,
+    execution_options,
+    force_option,
+    key_values,
+    open_execution,
+    prepare_out,
+    select_experiments,
+)
 from imrbayes.diagnosis.candidates import CANDIDATES, DEFAULT_CANDIDATES
 from imrbayes.errors import InputError
 
@@ -23,45 +33,103 @@ from imrbayes.errors import InputError
 @main.command("diagnose")
 @config_option
 @click.argument("data", type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Output folder (default: a new folder under ./imrbayes-runs/).")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Output folder (default: a new folder under ./imrbayes-runs/).",
+)
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the bootstrap and every draw.")
-@click.option("--quick", is_flag=True, default=False,
-              help="Exploration: MAP baseline (no En4D-Var), fewer Laplace draws.")
-@click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
-              help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
-                   "scheme=imrv2-fd, ...); repeatable. Default: the forward model's own, grid-converged "
-                   "(scheme=converged).")
-@click.option("--n-bootstrap", type=int, default=None,
-              help="Bootstrap replicates of the constant-parameter check [-] [default: 19, the smallest "
-                   "that can reject at 5 %; more sharpen the p-value at ~20 s each (thermal, 5 bubbles)].")
-@click.option("--candidates", default=None, metavar="KEY[,KEY...]",
-              help="Comma-separated candidate models: "
-                   + "; ".join(f"{k} ({c.mechanism})" for k, c in CANDIDATES.items())
-                   + f" [default: {','.join(DEFAULT_CANDIDATES)}].")
-@click.option("--no-loeo", is_flag=True, default=False,
-              help="Skip leave-one-experiment-out (N_exp extra fits per model; by default run for the baseline and "
-                   "the candidates the forecast leaves in contention). A cause is named only for a held-out gain "
-                   ">= 10 % at >= 2 paired SE over the baseline on the schemes taken together, so without it the "
-                   "forecast alone must show that.")
-@click.option("--loeo-all", is_flag=True, default=False,
-              help="Leave-one-experiment-out for every candidate, not only those the forecast leaves in contention.")
-@click.option("--mienks-drift", is_flag=True, default=False,
-              help="Add the MIEnKS-MDA G(t), mu(t) drift to the check's statistics (doubles the bootstrap's cost; "
-                   "not part of the measured power and false-alarm rate).")
-@click.option("--stop-when-adequate", is_flag=True, default=False,
-              help="End after the constant-parameter check when it finds the model adequate (the cause is 'none' "
-                   "either way), without comparing the candidates: ~60 % of such a run's time.")
+@click.option(
+    "--quick", is_flag=True, default=False, help="Exploration: MAP baseline (no En4D-Var), fewer Laplace draws."
+)
+@click.option(
+    "--forward",
+    "forward",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
+    "scheme=imrv2-fd, ...); repeatable. Default: the forward model's own, grid-converged "
+    "(scheme=converged).",
+)
+@click.option(
+    "--n-bootstrap",
+    type=int,
+    default=None,
+    help="Bootstrap replicates of the constant-parameter check [-] [default: 19, the smallest "
+    "that can reject at 5 %; more sharpen the p-value at ~20 s each (thermal, 5 bubbles)].",
+)
+@click.option(
+    "--candidates",
+    default=None,
+    metavar="KEY[,KEY...]",
+    help="Comma-separated candidate models: "
+    + "; ".join(f"{k} ({c.mechanism})" for k, c in CANDIDATES.items())
+    + f" [default: {','.join(DEFAULT_CANDIDATES)}].",
+)
+@click.option(
+    "--no-loeo",
+    is_flag=True,
+    default=False,
+    help="Skip leave-one-experiment-out (N_exp extra fits per model; by default run for the baseline and "
+    "the candidates the forecast leaves in contention). A cause is named only for a held-out gain "
+    ">= 10 % at >= 2 paired SE over the baseline on the schemes taken together, so without it the "
+    "forecast alone must show that.",
+)
+@click.option(
+    "--loeo-all",
+    is_flag=True,
+    default=False,
+    help="Leave-one-experiment-out for every candidate, not only those the forecast leaves in contention.",
+)
+@click.option(
+    "--mienks-drift",
+    is_flag=True,
+    default=False,
+    help="Add the MIEnKS-MDA G(t), mu(t) drift to the check's statistics (doubles the bootstrap's cost; "
+    "not part of the measured power and false-alarm rate).",
+)
+@click.option(
+    "--stop-when-adequate",
+    is_flag=True,
+    default=False,
+    help="End after the constant-parameter check when it finds the model adequate (the cause is 'none' "
+    "either way), without comparing the candidates: ~60 % of such a run's time.",
+)
 @click.option("--experiments", default=None, help=EXPERIMENTS_HELP)
-@click.option("--camera", default=None, help='Keep one camera view of multi-camera data (e.g. cam0deg), or "mean" to average the views of each bubble frame by frame.')
+@click.option(
+    "--camera",
+    default=None,
+    help='Keep one camera view of multi-camera data (e.g. cam0deg), or "mean" to average the views of each bubble frame by frame.',
+)
 @click.option("--dt-star", type=float, default=0.025, show_default=True, help="Grid step in t* [-].")
 @click.option("--n-steps", type=int, default=120, show_default=True, help="Grid steps [-].")
 @click.option("--quiet", is_flag=True, default=False, help="Print nothing but errors.")
 @execution_options(with_workers=True)
 @force_option
-def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_loeo, loeo_all, mienks_drift,
-                 stop_when_adequate, experiments, camera, dt_star,
-                 n_steps, quiet, workers, scheduler, resume, retry_failed, force):
+def diagnose_cmd(
+    data,
+    out,
+    seed,
+    quick,
+    forward,
+    n_bootstrap,
+    candidates,
+    no_loeo,
+    loeo_all,
+    mienks_drift,
+    stop_when_adequate,
+    experiments,
+    camera,
+    dt_star,
+    n_steps,
+    quiet,
+    workers,
+    scheduler,
+    resume,
+    retry_failed,
+    force,
+):
     """Diagnose DATA: baseline NHKV fit and misfit by phase (t* = dimensionless time), a bootstrap-
     calibrated constant-parameter check, candidate mechanisms (see --candidates) ranked by held-out
     prediction, and the gain of the extended model (RMSE in R* = R/Rmax, ELPD in nats). SI units for
@@ -80,9 +148,9 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     from imrbayes.diagnosis.figures import write_figures
     from imrbayes.diagnosis.report import write_report
     from imrbayes.ensemble import Observations
-    from imrbayes.io import write_json
     from imrbayes.forward import ForwardOptions
     from imrbayes.forward.constants import Physics
+    from imrbayes.io import write_json
 
     check_options(workers, scheduler, resume, retry_failed)
     if seed < 0:
@@ -120,40 +188,67 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
     fopts = {**(ds.forward or {}), **key_values(forward, "--forward")}
     options = ForwardOptions.from_dict(fopts, source="forward options")
     physics = Physics.from_overrides(ds.physics or None)
-    out = prepare_out(Path(out) if out is not None else None, "diagnose", ds.name, protect=Path(data),
-                      force=bool(force), resume=bool(resume))
+    out = prepare_out(
+        Path(out) if out is not None else None,
+        "diagnose",
+        ds.name,
+        protect=Path(data),
+        force=bool(force),
+        resume=bool(resume),
+    )
     if options.bubble == "thermal" and not quiet:
-        click.echo(f"imrbayes: note: thermal bubble, scheme={options.scheme}; a diagnosis needs "
-                   "O(1e5) solves (tens of minutes for 5 experiments on 2 cores). For exploration use --quick, --forward "
-                   "bubble=polytropic, --experiments and --no-loeo.", err=True)
+        click.echo(
+            f"imrbayes: note: thermal bubble, scheme={options.scheme}; a diagnosis needs "
+            "O(1e5) solves (tens of minutes for 5 experiments on 2 cores). For exploration use --quick, --forward "
+            "bubble=polytropic, --experiments and --no-loeo.",
+            err=True,
+        )
     show = (not quiet) and sys.stderr.isatty()
     bar = None
     if show:
         from imrbayes.execution.progress import progress_bar
-        bar = progress_bar(total=1 + s.n_bootstrap + 2 * len(s.candidates) + 1, unit="steps", desc="diagnose",
-                           file=sys.stderr)
+
+        bar = progress_bar(
+            total=1 + s.n_bootstrap + 2 * len(s.candidates) + 1, unit="steps", desc="diagnose", file=sys.stderr
+        )
     from dataclasses import asdict
 
-    run_config = {"command": "diagnose", "seed": seed, "settings": {**asdict(s), "candidates": list(s.candidates)},
-                  "forward": options.to_dict(), "physics": physics.to_dict(),
-                  "preprocessing": {"dt_star": dt_star, "n_steps": n_steps, "camera": camera,
-                                    "experiments": experiments},
-                  "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, names=obs.names)}
+    run_config = {
+        "command": "diagnose",
+        "seed": seed,
+        "settings": {**asdict(s), "candidates": list(s.candidates)},
+        "forward": options.to_dict(),
+        "physics": physics.to_dict(),
+        "preprocessing": {"dt_star": dt_star, "n_steps": n_steps, "camera": camera, "experiments": experiments},
+        "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, names=obs.names),
+    }
     try:
-        with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
-                            retry_failed=retry_failed, quiet=True) as execution:
+        with open_execution(
+            out, run_config, workers=workers, scheduler=scheduler, resume=resume, retry_failed=retry_failed, quiet=True
+        ) as execution:
             t_stage = time.perf_counter()
-            if s.n_bootstrap < min_replicates(s.alpha) and not quiet:     # again among the run's warnings
-                click.echo(f"imrbayes: note: --n-bootstrap {s.n_bootstrap}: fewer than {min_replicates(s.alpha)} "
-                           f"replicates cannot reject at alpha = {s.alpha:g} (smallest p-value 1/(B+1)); the check "
-                           "will say adequate whatever the data", err=True)
+            if s.n_bootstrap < min_replicates(s.alpha) and not quiet:  # again among the run's warnings
+                click.echo(
+                    f"imrbayes: note: --n-bootstrap {s.n_bootstrap}: fewer than {min_replicates(s.alpha)} "
+                    f"replicates cannot reject at alpha = {s.alpha:g} (smallest p-value 1/(B+1)); the check "
+                    "will say adequate whatever the data",
+                    err=True,
+                )
 
-            def stage(msg):             # off a terminal (logs, batch jobs): one line per stage, with the time
+            def stage(msg):  # off a terminal (logs, batch jobs): one line per stage, with the time
                 click.echo(f"imrbayes: diagnose [{time.perf_counter() - t_stage:6.0f} s] {msg}", err=True)
 
             log = bar.set_postfix_str if bar is not None else (None if quiet else stage)
-            d = diagnose(obs, options, physics, s, seed=seed, progress=(bar.update if bar is not None else None),
-                         log=log, execution=execution)
+            d = diagnose(
+                obs,
+                options,
+                physics,
+                s,
+                seed=seed,
+                progress=(bar.update if bar is not None else None),
+                log=log,
+                execution=execution,
+            )
             exec_summary = execution.summary()
     finally:
         if bar is not None:
@@ -176,34 +271,47 @@ def diagnose_cmd(data, out, seed, quick, forward, n_bootstrap, candidates, no_lo
 
         chk = res["constant_parameter_check"]
         g = res.get("gain") or {}
-        click.echo(f"constant-parameter check: {chk['verdict']} ({p_value_text(chk['evidence'])}); "
-                   f"cause: {res['cause']}; extended model: {res['extended_model']}")
+        click.echo(
+            f"constant-parameter check: {chk['verdict']} ({p_value_text(chk['evidence'])}); "
+            f"cause: {res['cause']}; extended model: {res['extended_model']}"
+        )
         if res.get("cause_note"):
             click.echo(f"cause: {res['cause_note']}")
         if g:
-            click.echo(f"held-out RMSE ({g.get('candidate')}, {g.get('heldout_scheme')}): baseline "
-                       f"{g['heldout_rmse_baseline']:.4g} -> {g['heldout_rmse_extended']:.4g}; ELPD diff "
-                       f"{g['elpd_diff']:.1f} ± {g['elpd_se']:.1f}")
+            click.echo(
+                f"held-out RMSE ({g.get('candidate')}, {g.get('heldout_scheme')}): baseline "
+                f"{g['heldout_rmse_baseline']:.4g} -> {g['heldout_rmse_extended']:.4g}; ELPD diff "
+                f"{g['elpd_diff']:.1f} ± {g['elpd_se']:.1f}"
+            )
         from imrbayes.diagnosis.sensitivity import flagged, options_text
 
         for a in flagged(res.get("bubble_model_sensitivity")):
             moved = ", ".join(f"{n} {a['shift'][n]:+.0%}" for n in a["material_moves"])
-            click.echo(f"bubble-model sensitivity: with {options_text(a)} (not separated by the held-out data, "
-                       f"{a['separation_se']:.1f} SE) the material estimate moves: {moved}")
+            click.echo(
+                f"bubble-model sensitivity: with {options_text(a)} (not separated by the held-out data, "
+                f"{a['separation_se']:.1f} SE) the material estimate moves: {moved}"
+            )
         rc = (res.get("baseline") or {}).get("req_consistency") or {}
         if rc.get("flagged"):
-            click.echo(f"Req conflict: in {rc['n_conflict']} of {rc['n_estimated']} experiments the baseline's Req lies "
-                       f"more than {rc['bound']:g} tail sd from the record's own (median |z| {rc['median_abs_z']:.3g}): "
-                       "the model fits the collapses with another bubble than the one filmed")
+            click.echo(
+                f"Req conflict: in {rc['n_conflict']} of {rc['n_estimated']} experiments the baseline's Req lies "
+                f"more than {rc['bound']:g} tail sd from the record's own (median |z| {rc['median_abs_z']:.3g}): "
+                "the model fits the collapses with another bubble than the one filmed"
+            )
         ac = (res.get("baseline") or {}).get("alignment_consistency") or {}
         if ac.get("flagged"):
-            click.echo(f"alignment conflict: in {ac['n_conflict']} of {ac['n_estimated']} experiments the baseline's Rmax or "
-                       f"time of the maximum lies more than {ac['bound']:g} sd from the local fit of the maximum (median |z| "
-                       f"{ac['median_abs_z_rmax']:.3g} / {ac['median_abs_z_t0']:.3g}): model error absorbed by the alignment")
+            click.echo(
+                f"alignment conflict: in {ac['n_conflict']} of {ac['n_estimated']} experiments the baseline's Rmax or "
+                f"time of the maximum lies more than {ac['bound']:g} sd from the local fit of the maximum (median |z| "
+                f"{ac['median_abs_z_rmax']:.3g} / {ac['median_abs_z_t0']:.3g}): model error absorbed by the alignment"
+            )
         click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")
     echo_execution(exec_summary, quiet)
-    for w in res.get("warnings", []):            # what the diagnosis left out (also in diagnosis.json)
+    for w in res.get("warnings", []):  # what the diagnosis left out (also in diagnosis.json)
         click.echo(f"imrbayes: warning: {w}", err=True)
     if pre.skipped:
-        click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
-                   + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)
+        click.echo(
+            f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
+            + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped),
+            err=True,
+        )

@@ -26,10 +26,24 @@ import click
 
 from imrbayes import __version__
 from imrbayes.cli import main, read_config
-from imrbayes.cli.options import (check_options, command_line, compare_line, data_fingerprint, echo_execution, estimate_text,
-                                  execution_options, force_option, key_values, method_settings, open_execution,
-                                  prepare_out, prior_base_name, prior_overrides, select_experiments,
-                                  EXPERIMENTS_HELP)
+from imrbayes.cli.options import (
+    EXPERIMENTS_HELP,
+    check_options,
+    command_line,
+    compare_line,
+    data_fingerprint,
+    echo_execution,
+    estimate_text,
+    execution_options,
+    force_option,
+    key_values,
+    method_settings,
+    open_execution,
+    prepare_out,
+    prior_base_name,
+    prior_overrides,
+    select_experiments,
+)
 from imrbayes.ensemble import METHODS
 from imrbayes.ensemble.search import global_search
 from imrbayes.errors import InputError
@@ -59,8 +73,29 @@ def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
 
 
 #: keys of the [fit] table (the options) and its sub-tables ([fit.forward], [fit.imr], ...)
-CONFIG_OPTIONS = ("method", "model", "out", "seed", "prior_name", "workers", "scheduler", "quiet", "camera", "experiments", "dt_star", "n_steps",
-                  "noise", "likelihood", "forward", "prior", "set", "mcmc", "mcmc_set", "mcmc_windows", *METHOD_NAMES)
+CONFIG_OPTIONS = (
+    "method",
+    "model",
+    "out",
+    "seed",
+    "prior_name",
+    "workers",
+    "scheduler",
+    "quiet",
+    "camera",
+    "experiments",
+    "dt_star",
+    "n_steps",
+    "noise",
+    "likelihood",
+    "forward",
+    "prior",
+    "set",
+    "mcmc",
+    "mcmc_set",
+    "mcmc_windows",
+    *METHOD_NAMES,
+)
 CONFIG_TABLES = ("forward", "prior", "mcmc", *METHOD_NAMES)
 
 
@@ -68,9 +103,10 @@ def _load_config(path) -> dict:
     """``--config``: the ``[fit]`` table (or the top level) as :func:`imrbayes.cli.read_config`
     reads it, with fit's own readings: ``[fit.mcmc]`` turns MCMC on with its settings, and
     ``forward`` may be a list of ``"KEY=VALUE"``."""
-    cfg = read_config(path, "fit", options=CONFIG_OPTIONS, tables=CONFIG_TABLES,
-                      shared=("forward", "prior", *METHOD_NAMES))   # a top-level [mcmc] does not turn MCMC on
-    if isinstance(cfg.get("mcmc"), dict):        # [fit.mcmc] table: MCMC on, with these settings
+    cfg = read_config(
+        path, "fit", options=CONFIG_OPTIONS, tables=CONFIG_TABLES, shared=("forward", "prior", *METHOD_NAMES)
+    )  # a top-level [mcmc] does not turn MCMC on
+    if isinstance(cfg.get("mcmc"), dict):  # [fit.mcmc] table: MCMC on, with these settings
         cfg["mcmc_table"], cfg["mcmc"] = cfg.pop("mcmc"), True
     if "mcmc" in cfg and not isinstance(cfg["mcmc"], bool):
         raise InputError(path, "mcmc must be true/false or a table of MCMC settings")
@@ -85,63 +121,139 @@ def _load_config(path) -> dict:
 
 @main.command("fit", help_lists=("models", "methods"))
 @click.argument("data", type=click.Path(path_type=Path))
-@click.option("--method", type=click.Choice(METHOD_NAMES), default=None,
-              help="Inference method (list below; or 'method' in --config).  [required]")
+@click.option(
+    "--method",
+    type=click.Choice(METHOD_NAMES),
+    default=None,
+    help="Inference method (list below; or 'method' in --config).  [required]",
+)
 @click.option("--model", default=None, help="Constitutive model (list below).  [default: nhkv]")
-@click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Output folder (default: a new folder under ./imrbayes-runs/).")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Output folder (default: a new folder under ./imrbayes-runs/).",
+)
 @click.option("--seed", type=int, default=None, help="Seed of every random draw [default: 0].")
-@click.option("--config", "config", type=click.Path(path_type=Path), default=None,
-              help="TOML file: a [fit] table (or the top level) with any of these options, and "
-                   "[fit.forward], [fit.prior], [fit.<method>] tables; the command line wins.")
-@click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
-              help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
-                   "scheme=imrv2-fd, nt=25, radial=km, ...); repeatable.")
+@click.option(
+    "--config",
+    "config",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="TOML file: a [fit] table (or the top level) with any of these options, and "
+    "[fit.forward], [fit.prior], [fit.<method>] tables; the command line wins.",
+)
+@click.option(
+    "--forward",
+    "forward",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Forward-model option overriding meta.json's forward block (bubble=polytropic, "
+    "scheme=imrv2-fd, nt=25, radial=km, ...); repeatable.",
+)
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE", help=None)
-@click.option("--prior", "priors", multiple=True, metavar="NAME=MEAN:SD",
-              help="A named prior (wide: weakly informative over G 10 Pa-0.9 MPa and mu 1e-4-9 Pa s; paper: "
-                   "G 6 kPa sd 2.8, mu 0.209 Pa s sd 0.088), or NAME=MEAN:SD in SI units (G [Pa], mu [Pa s]) over "
-                   "it; repeatable  [default: wide; paper with --likelihood paper].")
-@click.option("--workers", type=int, default=None,
-              help="Worker processes for the units (imr, en4dvar: experiments; mienks: the experiments of each "
-                   "window) [default: 1: in this process].")
+@click.option(
+    "--prior",
+    "priors",
+    multiple=True,
+    metavar="NAME=MEAN:SD",
+    help="A named prior (wide: weakly informative over G 10 Pa-0.9 MPa and mu 1e-4-9 Pa s; paper: "
+    "G 6 kPa sd 2.8, mu 0.209 Pa s sd 0.088), or NAME=MEAN:SD in SI units (G [Pa], mu [Pa s]) over "
+    "it; repeatable  [default: wide; paper with --likelihood paper].",
+)
+@click.option(
+    "--workers",
+    type=int,
+    default=None,
+    help="Worker processes for the units (imr, en4dvar: experiments; mienks: the experiments of each "
+    "window) [default: 1: in this process].",
+)
 @execution_options(with_workers=False)
-@click.option("--camera", default=None, help='Keep one camera view of multi-camera data (e.g. cam0deg), or "mean" to average the views of each bubble frame by frame.')
+@click.option(
+    "--camera",
+    default=None,
+    help='Keep one camera view of multi-camera data (e.g. cam0deg), or "mean" to average the views of each bubble frame by frame.',
+)
 @click.option("--experiments", default=None, help=EXPERIMENTS_HELP)
 @click.option("--dt-star", type=float, default=None, help="Grid step in t* [-] [default: 0.025].")
 @click.option("--n-steps", type=int, default=None, help="Grid steps [-] [default: 120].")
-@click.option("--noise", type=click.Choice(["auto", "sample", "pooled", "paper"]), default=None,
-              help="Observation noise P_k of --likelihood paper: sample: the across-experiment sample variance; "
-                   "pooled: the same pooled over 11 neighbouring steps (better weights with few experiments); "
-                   "paper: the paper's verification noise model; auto: sample with >= 2 experiments, else paper. "
-                   "The default likelihood uses each record's own noise.  [default: auto]")
-@click.option("--likelihood", type=click.Choice(["default", "paper"]), default=None,
-              help="default: each sample once, each record's own noise, Rmax/Req/time of the maximum as "
-                   "nuisances, residual correlation tempered, a between-bubble layer; paper: the paper's averaged "
-                   "cost, across-experiment P_k and prior-corrected fusion (en4dvar, mienks).  [default: default]")
-@click.option("--mcmc", is_flag=True, default=None,
-              help="Also sample every window's posterior with emcee and compare it with the ensemble's Gaussian "
-                   "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures. Slow: "
-                   "sampling stops on convergence, typically after 2,000-5,000 likelihood evaluations per window "
-                   "(many more with nuisances): seconds per window with --forward bubble=polytropic, 0.5-3 min "
-                   "with the thermal bubble -- about 25 min on 2 cores for the 18 windows of a 5-experiment "
-                   "MIEnKS-MDA run, its fit included (fewer windows with --mcmc-windows).")
-@click.option("--mcmc-set", "mcmc_settings", multiple=True, metavar="KEY=VALUE",
-              help="emcee setting: n_walkers, n_chains (independent ensembles), n_steps (hard cap), moves, "
-                   "indep_scale, indep_dof, indep_adapt, place (auto, start, laplace), min_steps, "
-                   "rhat_max, ess_min, tau_rule, burn, thin, "
-                   "max_draws, init_scale, lockstep, loglik, quadrature (true: also the exact grid posterior of "
-                   "2-parameter windows, ~40 % more time) [default: 2 ensembles x 8 walkers (2 per coordinate "
-                   "with nuisances), moves auto (indep:0.7,de:0.3; with nuisances the start placed on the target "
-                   "first, then 8 independent walkers (one nuisance per experiment) or ridge:0.5,blocks:0.5), "
-                   "stopped when R-hat <= 1.01, bulk and tail ESS >= 400 and >= 50 tau, cap 5000 steps]; "
-                   "repeatable.")
-@click.option("--mcmc-windows", default=None, metavar="all|J,K,...",
-              help="Windows to sample with --mcmc (indices from 0) [default: all].")
+@click.option(
+    "--noise",
+    type=click.Choice(["auto", "sample", "pooled", "paper"]),
+    default=None,
+    help="Observation noise P_k of --likelihood paper: sample: the across-experiment sample variance; "
+    "pooled: the same pooled over 11 neighbouring steps (better weights with few experiments); "
+    "paper: the paper's verification noise model; auto: sample with >= 2 experiments, else paper. "
+    "The default likelihood uses each record's own noise.  [default: auto]",
+)
+@click.option(
+    "--likelihood",
+    type=click.Choice(["default", "paper"]),
+    default=None,
+    help="default: each sample once, each record's own noise, Rmax/Req/time of the maximum as "
+    "nuisances, residual correlation tempered, a between-bubble layer; paper: the paper's averaged "
+    "cost, across-experiment P_k and prior-corrected fusion (en4dvar, mienks).  [default: default]",
+)
+@click.option(
+    "--mcmc",
+    is_flag=True,
+    default=None,
+    help="Also sample every window's posterior with emcee and compare it with the ensemble's Gaussian "
+    "(mienks: each window; en4dvar: the fitting window): mcmc.nc, compare.json, figures. Slow: "
+    "sampling stops on convergence, typically after 2,000-5,000 likelihood evaluations per window "
+    "(many more with nuisances): seconds per window with --forward bubble=polytropic, 0.5-3 min "
+    "with the thermal bubble -- about 25 min on 2 cores for the 18 windows of a 5-experiment "
+    "MIEnKS-MDA run, its fit included (fewer windows with --mcmc-windows).",
+)
+@click.option(
+    "--mcmc-set",
+    "mcmc_settings",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="emcee setting: n_walkers, n_chains (independent ensembles), n_steps (hard cap), moves, "
+    "indep_scale, indep_dof, indep_adapt, place (auto, start, laplace), min_steps, "
+    "rhat_max, ess_min, tau_rule, burn, thin, "
+    "max_draws, init_scale, lockstep, loglik, quadrature (true: also the exact grid posterior of "
+    "2-parameter windows, ~40 % more time) [default: 2 ensembles x 8 walkers (2 per coordinate "
+    "with nuisances), moves auto (indep:0.7,de:0.3; with nuisances the start placed on the target "
+    "first, then 8 independent walkers (one nuisance per experiment) or ridge:0.5,blocks:0.5), "
+    "stopped when R-hat <= 1.01, bulk and tail ESS >= 400 and >= 50 tau, cap 5000 steps]; "
+    "repeatable.",
+)
+@click.option(
+    "--mcmc-windows",
+    default=None,
+    metavar="all|J,K,...",
+    help="Windows to sample with --mcmc (indices from 0) [default: all].",
+)
 @click.option("--quiet", is_flag=True, default=None, help="Print nothing but errors.")
 @force_option
-def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, workers, camera, experiments, dt_star, n_steps,
-            noise, likelihood, mcmc, mcmc_settings, mcmc_windows, quiet, scheduler, resume, retry_failed, force):
+def fit_cmd(
+    data,
+    method,
+    model,
+    out,
+    seed,
+    config,
+    forward,
+    settings,
+    priors,
+    workers,
+    camera,
+    experiments,
+    dt_star,
+    n_steps,
+    noise,
+    likelihood,
+    mcmc,
+    mcmc_settings,
+    mcmc_windows,
+    quiet,
+    scheduler,
+    resume,
+    retry_failed,
+    force,
+):
     """Fit a constitutive model to DATA (dataset folder, .csv or .mat) with one inference method.
 
     Writes summary.json (estimate: SI units, G [Pa], mu [Pa s]; times as t*), posterior.nc (ArviZ)
@@ -192,14 +304,18 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     from imrbayes.ensemble import Observations, ParamSpace
     from imrbayes.forward import ForwardModel, ForwardOptions, Runner
 
-    s = method_settings(meth.settings_class, cfg.get(method, {}), {**key_values(cfg.get("set", []), "--config set"),
-                                                       **key_values(settings, "--set")})
+    s = method_settings(
+        meth.settings_class,
+        cfg.get(method, {}),
+        {**key_values(cfg.get("set", []), "--config set"), **key_values(settings, "--set")},
+    )
     likelihood = pick("likelihood", likelihood, None)
     if likelihood is not None:
         if not any(f.name == "likelihood" for f in dataclasses.fields(s)):
             if likelihood != "default":
-                raise InputError("--likelihood", f"applies to methods with a likelihood choice; {method} has one "
-                                                 "observation model")
+                raise InputError(
+                    "--likelihood", f"applies to methods with a likelihood choice; {method} has one observation model"
+                )
         else:
             s = dataclasses.replace(s, likelihood=likelihood)
     prior_base, priors = prior_base_name(priors, cfg.get("prior_name"), likelihood)
@@ -207,34 +323,67 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
     mcmc_s = None
     if mcmc:
         from imrbayes.mcmc import MCMCSettings
-        mcmc_s = method_settings(MCMCSettings, mcmc_cfg, {**key_values(cfg.get("mcmc_set", []), "--config mcmc_set"),
-                                                    **key_values(mcmc_settings, "--mcmc-set")}, "--mcmc-set")
+
+        mcmc_s = method_settings(
+            MCMCSettings,
+            mcmc_cfg,
+            {**key_values(cfg.get("mcmc_set", []), "--config mcmc_set"), **key_values(mcmc_settings, "--mcmc-set")},
+            "--mcmc-set",
+        )
     ds = select_experiments(load_dataset(data, camera=camera), experiments)
     pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, noise=noise, skip_failed=True)
     fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **key_values(forward, "--forward")}
-    fm = ForwardModel(model, options=ForwardOptions.from_dict(fopts, source="forward options"),
-                      physics_overrides=ds.physics or None)
+    fm = ForwardModel(
+        model, options=ForwardOptions.from_dict(fopts, source="forward options"), physics_overrides=ds.physics or None
+    )
     obs = Observations.from_preprocessed(pre)
     space = ParamSpace.for_model(fm.constitutive, prior, base=prior_base)
-    meth.check_settings(s, obs)                # before any output: a refused --set leaves no folder behind
+    meth.check_settings(s, obs)  # before any output: a refused --set leaves no folder behind
     if mcmc_s is not None:
-        mcmc_s.check(space.n)                  # before the fit: a bad walker count must not cost a fit
-    out = prepare_out(Path(out) if out is not None else None, f"fit-{method}", ds.name, protect=Path(data),
-                      force=bool(force), resume=bool(resume))
+        mcmc_s.check(space.n)  # before the fit: a bad walker count must not cost a fit
+    out = prepare_out(
+        Path(out) if out is not None else None,
+        f"fit-{method}",
+        ds.name,
+        protect=Path(data),
+        force=bool(force),
+        resume=bool(resume),
+    )
     # everything that determines the numbers (and nothing that does not: workers, scheduler, --out, --quiet)
-    run_config = {"command": "fit", "method": method, "model": model, "seed": seed,
-                  "settings": dataclasses.asdict(s), "prior": space.describe(), "forward": fm.describe(),
-                  "preprocessing": {"dt_star": dt_star, "n_steps": n_steps, "noise": noise, "camera": camera,
-                                    **({"experiments": experiments} if experiments else {})},
-                  "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, obs.t_collapse_star,
-                                           names=obs.names),
-                  "skipped_experiments": [x["name"] for x in pre.skipped]}
+    run_config = {
+        "command": "fit",
+        "method": method,
+        "model": model,
+        "seed": seed,
+        "settings": dataclasses.asdict(s),
+        "prior": space.describe(),
+        "forward": fm.describe(),
+        "preprocessing": {
+            "dt_star": dt_star,
+            "n_steps": n_steps,
+            "noise": noise,
+            "camera": camera,
+            **({"experiments": experiments} if experiments else {}),
+        },
+        "data": data_fingerprint(
+            obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, obs.t_collapse_star, names=obs.names
+        ),
+        "skipped_experiments": [x["name"] for x in pre.skipped],
+    }
     if mcmc:
         run_config["mcmc"] = {"settings": dataclasses.asdict(mcmc_s), "windows": mcmc_windows}
     runner = Runner(fm)
     compare = None
-    with open_execution(out, run_config, workers=workers, scheduler=scheduler, resume=resume,
-                        retry_failed=retry_failed, quiet=quiet, desc=method) as execution:
+    with open_execution(
+        out,
+        run_config,
+        workers=workers,
+        scheduler=scheduler,
+        resume=resume,
+        retry_failed=retry_failed,
+        quiet=quiet,
+        desc=method,
+    ) as execution:
         n_units, what = planned_units(meth, s, obs.n_exp, obs.n_samples - 1, fm)
         if what and execution.bar is not None:
             execution.bar.write(f"imrbayes: {method}: {n_units} units ({what})", file=sys.stderr)
@@ -248,39 +397,93 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
         adequacy = _adequacy(res, obs, space, model, search)
         if mcmc:
             # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
-            _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
-                       data, execution.summary(), t_start, quiet=True, argv=argv, adequacy=adequacy)
+            _write_fit(
+                out,
+                res,
+                obs,
+                pre,
+                fm,
+                space,
+                seed,
+                method,
+                model,
+                workers,
+                scheduler,
+                resume,
+                config,
+                data,
+                execution.summary(),
+                t_start,
+                quiet=True,
+                argv=argv,
+                adequacy=adequacy,
+            )
             if not quiet:
                 click.echo(f"{method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
             from imrbayes.mcmc.fit import run_fit_mcmc
+
             n_win = len(getattr(res, "window_posteriors", None) or []) or 1
             n_win = n_win if mcmc_windows is None else len([w for w in mcmc_windows if w < n_win]) or 1
             plan(execution.bar, n_win, "emcee windows")
-            compare = run_fit_mcmc(fm, obs, space, res, out, mcmc_s, seed, execution=execution, runner=runner,
-                                   windows=mcmc_windows,
-                                   warn=None if quiet else (lambda w: click.echo(f"imrbayes: warning: {w}", err=True)))
+            compare = run_fit_mcmc(
+                fm,
+                obs,
+                space,
+                res,
+                out,
+                mcmc_s,
+                seed,
+                execution=execution,
+                runner=runner,
+                windows=mcmc_windows,
+                warn=None if quiet else (lambda w: click.echo(f"imrbayes: warning: {w}", err=True)),
+            )
         exec_summary = execution.summary()
-    written = _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config,
-                         data, exec_summary, t_start, quiet=quiet, compare=compare, argv=argv, adequacy=adequacy)
+    written = _write_fit(
+        out,
+        res,
+        obs,
+        pre,
+        fm,
+        space,
+        seed,
+        method,
+        model,
+        workers,
+        scheduler,
+        resume,
+        config,
+        data,
+        exec_summary,
+        t_start,
+        quiet=quiet,
+        compare=compare,
+        argv=argv,
+        adequacy=adequacy,
+    )
     if not quiet:
         from imrbayes.io import read_json
         from imrbayes.report import fit_check_sentence, grouped_warnings
 
-        summary = read_json(out / "summary.json", required=True)    # what the lead's checks added to it
+        summary = read_json(out / "summary.json", required=True)  # what the lead's checks added to it
         for w in grouped_warnings(list(pre.warnings) + list(res.warnings), res.param_names):
-            click.echo(f"imrbayes: warning: {w}", err=True)        # warnings first: they qualify the result
+            click.echo(f"imrbayes: warning: {w}", err=True)  # warnings first: they qualify the result
         check = fit_check_sentence(summary)
         if check and (summary.get("fit_check") or {}).get("described") is False:
             click.echo(check)
-        click.echo(f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(summary["estimate"], summary)}; "
-                   f"rmse {res.rmse:.3g} R* [-] ({res.rmse * _mean_rmax_um(obs):.3g} µm); {res.runtime_s:.1f} s")
+        click.echo(
+            f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(summary['estimate'], summary)}; "
+            f"rmse {res.rmse:.3g} R* [-] ({res.rmse * _mean_rmax_um(obs):.3g} µm); {res.runtime_s:.1f} s"
+        )
         if check and (summary.get("fit_check") or {}).get("described") is not False:
             click.echo(check)
         click.echo(constants_line(fm.physics, ds.physics or {}))
         extra = ", mcmc.nc, compare.json" if compare is not None else ""
         tables = ", time_resolved.csv" if (out / "time_resolved.csv").exists() else ""
-        click.echo(f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}, estimate.csv{tables}{extra} and "
-                   f"{len(written)} figure(s)")
+        click.echo(
+            f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}, estimate.csv{tables}{extra} and "
+            f"{len(written)} figure(s)"
+        )
         if compare is not None:
             click.echo(compare_line(compare))
     if compare is not None:
@@ -288,12 +491,17 @@ def fit_cmd(data, method, model, out, seed, config, forward, settings, priors, w
             click.echo(f"imrbayes: warning: MCMC of window {f['window']} failed: {f['error']}", err=True)
         for e in compare["windows"]:
             for c, err in ((e.get("mcmc") or {}).get("sampler") or {}).get("failed_chains", {}).items():
-                click.echo(f"imrbayes: warning: MCMC window {e['index']}: emcee ensemble {c} failed and was left "
-                           f"out: {err}", err=True)
+                click.echo(
+                    f"imrbayes: warning: MCMC window {e['index']}: emcee ensemble {c} failed and was left out: {err}",
+                    err=True,
+                )
     echo_execution(exec_summary, quiet)
     if pre.skipped:
-        click.echo(f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
-                   + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped), err=True)
+        click.echo(
+            f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
+            + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped),
+            err=True,
+        )
 
 
 next(p for p in fit_cmd.params if p.name == "settings").help = set_help()
@@ -320,7 +528,6 @@ def _window_list(value):
     return sorted(set(out))
 
 
-
 def _stage_line(text: str) -> None:
     click.echo(f"imrbayes: {text}", err=True)
 
@@ -330,24 +537,47 @@ def _adequacy(res, obs, space, model, search) -> dict:
     G consistent with 0), the data's share of the posterior, the global search."""
     from imrbayes.ensemble.adequacy import annotate_estimate, fit_check
 
-    out = {"fit_check": fit_check(res, obs, model),
-           "estimate": annotate_estimate(res.estimate, space, res.cov_internal, search),
-           "search": search.describe() if search is not None else None,
-           "search_s": round(search.seconds, 2) if search is not None else None,
-           "data_share": space.data_share(res.cov_internal) if res.cov_internal is not None else None}
+    out = {
+        "fit_check": fit_check(res, obs, model),
+        "estimate": annotate_estimate(res.estimate, space, res.cov_internal, search),
+        "search": search.describe() if search is not None else None,
+        "search_s": round(search.seconds, 2) if search is not None else None,
+        "data_share": space.data_share(res.cov_internal) if res.cov_internal is not None else None,
+    }
     return out
 
 
-def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, scheduler, resume, config, data,
-               exec_summary, t_start, quiet, compare=None, argv=None, adequacy=None) -> list:
+def _write_fit(
+    out,
+    res,
+    obs,
+    pre,
+    fm,
+    space,
+    seed,
+    method,
+    model,
+    workers,
+    scheduler,
+    resume,
+    config,
+    data,
+    exec_summary,
+    t_start,
+    quiet,
+    compare=None,
+    argv=None,
+    adequacy=None,
+) -> list:
     """summary.json, posterior.nc, estimate.csv (and time_resolved.csv where the method resolves
     time) and the method's figures; returns the figure paths."""
     import os
     import shlex
 
-    from imrbayes.results import write_tables
     from imrbayes.ensemble import figures as figs
     from imrbayes.ensemble.output import posterior_tree, summary_dict, write_summary
+    from imrbayes.results import write_tables
+
     exec_summary["skipped_experiments"] = list(pre.skipped)
     if adequacy is not None and adequacy.get("search_s") is not None:
         exec_summary["global_search_s"] = adequacy["search_s"]
@@ -359,19 +589,40 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     if adequacy is not None:
         prior["data_share"] = adequacy["data_share"]
         checks = {"fit_check": adequacy["fit_check"], **({"search": adequacy["search"]} if adequacy["search"] else {})}
-    summary = summary_dict(res, obs, seed=seed, extra={
-        **checks, "forward": fm.describe(), "prior": prior, "preprocessing": pre.to_dict(arrays=False),
-        "data": str(data), "warnings_preprocessing": list(pre.warnings),
-        "command": {"name": "fit", "method": method, "model": model, "seed": seed, "workers": workers,
-                    "scheduler": scheduler, "resume": bool(resume),
-                    "config": str(config) if config else None, "imrbayes_version": __version__,
-                    **({"argv": list(argv), "line": shlex.join(argv), "cwd": os.getcwd()} if argv else {})},
-        "execution": exec_summary,
-        "failures": {"skipped_experiments": list(pre.skipped),
-                     "failed_units": res.details.get("failed_units", []),
-                     "failed_member_runs": res.details.get("failed_member_runs", res.details.get("failed_grid_runs")),
-                     "redrawn_members": res.details.get("redrawn_members")},
-        "total_runtime_s": time.perf_counter() - t_start, **mcmc_part})
+    summary = summary_dict(
+        res,
+        obs,
+        seed=seed,
+        extra={
+            **checks,
+            "forward": fm.describe(),
+            "prior": prior,
+            "preprocessing": pre.to_dict(arrays=False),
+            "data": str(data),
+            "warnings_preprocessing": list(pre.warnings),
+            "command": {
+                "name": "fit",
+                "method": method,
+                "model": model,
+                "seed": seed,
+                "workers": workers,
+                "scheduler": scheduler,
+                "resume": bool(resume),
+                "config": str(config) if config else None,
+                "imrbayes_version": __version__,
+                **({"argv": list(argv), "line": shlex.join(argv), "cwd": os.getcwd()} if argv else {}),
+            },
+            "execution": exec_summary,
+            "failures": {
+                "skipped_experiments": list(pre.skipped),
+                "failed_units": res.details.get("failed_units", []),
+                "failed_member_runs": res.details.get("failed_member_runs", res.details.get("failed_grid_runs")),
+                "redrawn_members": res.details.get("redrawn_members"),
+            },
+            "total_runtime_s": time.perf_counter() - t_start,
+            **mcmc_part,
+        },
+    )
     if adequacy is not None:
         summary["estimate"] = adequacy["estimate"]
     write_summary(out / "summary.json", summary)
@@ -379,8 +630,9 @@ def _write_fit(out, res, obs, pre, fm, space, seed, method, model, workers, sche
     write_tables(out, summary)
     fdir = out / "figures"
     # the figures' µs and strain-rate axes: each experiment's time scale t_c [s] (t = t* t_c)
-    tcs = {e.get("name"): e.get("tc_s") for e in pre.to_dict(arrays=False).get("experiments", [])
-           if isinstance(e, dict)}
+    tcs = {
+        e.get("name"): e.get("tc_s") for e in pre.to_dict(arrays=False).get("experiments", []) if isinstance(e, dict)
+    }
     if all(tcs.get(n) for n in obs.names):
         res.time_scale_s = [float(tcs[n]) for n in obs.names]
     written = [figs.fit_figure(obs, res, fdir / "fit.png")] + list(METHODS[method].figures(obs, res, fdir))
@@ -393,9 +645,15 @@ def constants_line(physics, given: dict) -> str:
     """One line naming the constants an estimate of G rests on and where each came from: on the
     stiff-PA data, rho 998.2 instead of 1064 kg/m^3 alone lowers G by 30 % (docs/results.md 2a'')."""
     parts = []
-    for key, label, unit in (("rho", "rho", "kg/m^3"), ("p8", "p8", "Pa"), ("surface_tension", "S", "N/m"),
-                             ("kappa", "kappa", "")):
+    for key, label, unit in (
+        ("rho", "rho", "kg/m^3"),
+        ("p8", "p8", "Pa"),
+        ("surface_tension", "S", "N/m"),
+        ("kappa", "kappa", ""),
+    ):
         src = "meta.json" if key in given else "default"
         parts.append(f"{label} {getattr(physics, key):g}{' ' + unit if unit else ''} ({src})")
-    return ("constants: " + ", ".join(parts) + "; defaults are IMRv2's, meta.json \"physics\" sets them "
-            "(G depends on rho: docs/guide.md)")
+    return (
+        "constants: " + ", ".join(parts) + '; defaults are IMRv2\'s, meta.json "physics" sets them '
+        "(G depends on rho: docs/guide.md)"
+    )

@@ -21,8 +21,22 @@ import numpy as np
 from imrbayes.errors import InputError
 from imrbayes.io import new_run_dir, prepare_out  # the run folders' home; the commands take them from here
 
-__all__ = ["execution_options", "estimate_text", "force_option", "open_execution", "data_fingerprint", "echo_execution", "check_options", "new_run_dir",
-           "prepare_out", "key_values", "coerce_setting", "method_settings", "prior_overrides", "compare_line"]
+__all__ = [
+    "execution_options",
+    "estimate_text",
+    "force_option",
+    "open_execution",
+    "data_fingerprint",
+    "echo_execution",
+    "check_options",
+    "new_run_dir",
+    "prepare_out",
+    "key_values",
+    "coerce_setting",
+    "method_settings",
+    "prior_overrides",
+    "compare_line",
+]
 
 
 def estimate_text(estimate: dict, summary: dict | None = None) -> str:
@@ -37,28 +51,48 @@ def estimate_text(estimate: dict, summary: dict | None = None) -> str:
 
 def force_option(f):
     """Decorator adding ``--force``: write into an existing, non-empty ``--out`` folder."""
-    return click.option("--force", is_flag=True, default=None,
-                        help="Write into --out even if it already holds files (files of the same name are "
-                             "replaced; a folder holding a run is still refused). Without it a non-empty --out is "
-                             "refused.")(f)
+    return click.option(
+        "--force",
+        is_flag=True,
+        default=None,
+        help="Write into --out even if it already holds files (files of the same name are "
+        "replaced; a folder holding a run is still refused). Without it a non-empty --out is "
+        "refused.",
+    )(f)
 
 
 def execution_options(with_workers: bool = True):
     """Decorator adding ``--scheduler``, ``--resume``, ``--retry-failed`` (and ``--workers``)."""
 
     def deco(f):
-        f = click.option("--retry-failed", "retry_failed", is_flag=True, default=None,
-                         help="With --resume: rerun the units that failed last time (default: report them again).")(f)
-        f = click.option("--resume", is_flag=True, default=None,
-                         help="Continue the run in --out: finished units are read back, not rerun. Refused if "
-                              "the configuration (data, model, settings, seed) or the imrbayes version differs.")(f)
-        f = click.option("--scheduler", default=None, metavar="local|tcp://HOST:PORT",
-                         help="Run the units on a Dask cluster: 'local' starts a LocalCluster with --workers "
-                              "processes; an address uses an existing cluster's workers.")(f)
+        f = click.option(
+            "--retry-failed",
+            "retry_failed",
+            is_flag=True,
+            default=None,
+            help="With --resume: rerun the units that failed last time (default: report them again).",
+        )(f)
+        f = click.option(
+            "--resume",
+            is_flag=True,
+            default=None,
+            help="Continue the run in --out: finished units are read back, not rerun. Refused if "
+            "the configuration (data, model, settings, seed) or the imrbayes version differs.",
+        )(f)
+        f = click.option(
+            "--scheduler",
+            default=None,
+            metavar="local|tcp://HOST:PORT",
+            help="Run the units on a Dask cluster: 'local' starts a LocalCluster with --workers "
+            "processes; an address uses an existing cluster's workers.",
+        )(f)
         if with_workers:
-            f = click.option("--workers", type=int, default=None,
-                             help="Worker processes for the units (experiments, windows, cases) [default: 1: "
-                                  "in this process].")(f)
+            f = click.option(
+                "--workers",
+                type=int,
+                default=None,
+                help="Worker processes for the units (experiments, windows, cases) [default: 1: in this process].",
+            )(f)
         return f
 
     return deco
@@ -84,36 +118,47 @@ def check_options(workers, scheduler, resume, retry_failed) -> tuple:
     if scheduler is not None:
         s = str(scheduler).strip()
         if s != "local" and "://" not in s:
-            raise InputError("--scheduler", f"must be 'local' or a scheduler address such as tcp://host:8786, "
-                                            f"got {scheduler!r}")
+            raise InputError(
+                "--scheduler", f"must be 'local' or a scheduler address such as tcp://host:8786, got {scheduler!r}"
+            )
     return workers, scheduler, bool(resume), bool(retry_failed)
 
 
 @contextlib.contextmanager
-def open_execution(out, config: dict, *, workers=None, scheduler=None, resume=False, retry_failed=False,
-                   quiet: bool = False, desc: str = "run"):
+def open_execution(
+    out,
+    config: dict,
+    *,
+    workers=None,
+    scheduler=None,
+    resume=False,
+    retry_failed=False,
+    quiet: bool = False,
+    desc: str = "run",
+):
     """RunStore under ``out`` for ``config`` + the executor ``--workers/--scheduler`` ask for, as an
     :class:`imrbayes.execution.Execution` with, unless ``quiet``, one progress bar (``desc``) over
     every batch on a terminal, one line per batch otherwise; the command plans its total
     (:func:`imrbayes.execution.progress.plan`). Bad options and refused resumes raise InputError."""
-    from imrbayes.execution import Execution
-    from imrbayes.execution import RunStore, make_executor
+    from imrbayes.execution import Execution, RunStore, make_executor
     from imrbayes.io import jsonable
 
     workers, scheduler, resume, retry_failed = check_options(workers, scheduler, resume, retry_failed)
     # the executor first: an unreachable --scheduler must not leave a new run directory behind
-    with make_executor(workers, scheduler) as ex, \
-            RunStore.open(out, jsonable(config), resume=resume) as store:
+    with make_executor(workers, scheduler) as ex, RunStore.open(out, jsonable(config), resume=resume) as store:
         bar = None
         if store.previous_interrupted is not None and not quiet:
             st = store.previous_interrupted
-            click.echo(f"imrbayes: the earlier run in {out} was interrupted (its last batch: {st.get('n_done', '?')} "
-                       f"of {st.get('n_units', '?')} units done); continuing from its checkpoints", err=True)
+            click.echo(
+                f"imrbayes: the earlier run in {out} was interrupted (its last batch: {st.get('n_done', '?')} "
+                f"of {st.get('n_units', '?')} units done); continuing from its checkpoints",
+                err=True,
+            )
         if not quiet and _isatty(sys.stderr):
             from imrbayes.execution.progress import progress_bar
 
             bar = progress_bar(total=None, desc=desc, unit="units", file=sys.stderr)
-        elif not quiet:             # a log file or pipe: one line per stage, never silence until the end
+        elif not quiet:  # a log file or pipe: one line per stage, never silence until the end
             from imrbayes.execution.progress import StageLog
 
             bar = StageLog(desc=desc, file=sys.stderr)
@@ -134,8 +179,10 @@ def _isatty(stream) -> bool:
 def echo_execution(summary: dict, quiet: bool, what: str = "units") -> None:
     """One line with the unit counts; every failed unit on stderr (never silently dropped)."""
     if summary.get("n_units") and not quiet:
-        click.echo(f"{summary['n_units']} {what}: {summary['n_computed']} computed, {summary['n_resumed']} from "
-                   f"checkpoints, {summary['n_failed']} failed")
+        click.echo(
+            f"{summary['n_units']} {what}: {summary['n_computed']} computed, {summary['n_resumed']} from "
+            f"checkpoints, {summary['n_failed']} failed"
+        )
     for f in summary.get("failed", []):
         click.echo(f"imrbayes: warning: unit {f['unit']} failed: {f['error']}", err=True)
 
@@ -164,9 +211,11 @@ def key_values(items, option: str, numeric: bool = False) -> dict:
     return out
 
 
-EXPERIMENTS_HELP = ("Use only these experiments: 1-based positions in the dataset's order (after --camera), "
-                    "comma-separated, ranges allowed (e.g. 1,2,5-8). Selected before preprocessing: the noise "
-                    "estimate and everything else see only these records.")
+EXPERIMENTS_HELP = (
+    "Use only these experiments: 1-based positions in the dataset's order (after --camera), "
+    "comma-separated, ranges allowed (e.g. 1,2,5-8). Selected before preprocessing: the noise "
+    "estimate and everything else see only these records."
+)
 
 
 def select_experiments(ds, spec):
@@ -192,8 +241,9 @@ def select_experiments(ds, spec):
     if not pos:
         raise InputError("--experiments", f"no experiment selected by {spec!r}")
     if min(pos) < 1 or max(pos) > n:
-        raise InputError("--experiments", f"positions must lie in 1..{n} ({ds.path} has {n} experiment(s)), "
-                                          f"got {spec!r}")
+        raise InputError(
+            "--experiments", f"positions must lie in 1..{n} ({ds.path} has {n} experiment(s)), got {spec!r}"
+        )
     keep = [e.name for i, e in enumerate(ds.experiments, 1) if i in pos]
     out = ds.select(names=keep)
     out.notes.append(f"kept experiments {spec} of {n}: {', '.join(keep)}")
@@ -234,7 +284,7 @@ def coerce_setting(cls, name, value, source):
             try:
                 f = float(v)
             except ValueError:
-                if "str" in typ:                # a field that also takes text (e.g. prior_widen=mu:3)
+                if "str" in typ:  # a field that also takes text (e.g. prior_widen=mu:3)
                     return v
                 raise
             if not math.isfinite(f):
@@ -289,10 +339,15 @@ def prior_overrides(table: dict, cli: dict) -> dict:
 
 def compare_line(compare: dict) -> str:
     o = compare["overall"]
-    worst = f"; worst window {o['worst_window']} (sample KL {o['max_kl_sample']:.3g} nats)" \
-        if o.get("worst_window") is not None and o.get("max_kl_sample") is not None else ""
-    return (f"ensemble vs MCMC: {o['n_agree']} window(s) agree, {o['n_disagree']} disagree, {o['n_undecided']} "
-            f"undecided (chains not converged){worst}; see compare.json")
+    worst = (
+        f"; worst window {o['worst_window']} (sample KL {o['max_kl_sample']:.3g} nats)"
+        if o.get("worst_window") is not None and o.get("max_kl_sample") is not None
+        else ""
+    )
+    return (
+        f"ensemble vs MCMC: {o['n_agree']} window(s) agree, {o['n_disagree']} disagree, {o['n_undecided']} "
+        f"undecided (chains not converged){worst}; see compare.json"
+    )
 
 
 def command_line(ctx: click.Context) -> list:

@@ -13,8 +13,12 @@ from imrbayes.cli import main
 
 @main.command("report")
 @click.argument("run_dir", type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), default=None,
-              help="HTML file to write [default: RUN_DIR/report.html].")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path, dir_okay=False),
+    default=None,
+    help="HTML file to write [default: RUN_DIR/report.html].",
+)
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 def report_cmd(run_dir, out, quiet):
     """Write one self-contained HTML report of RUN_DIR (a folder written by 'imrbayes fit').

@@ -14,55 +14,135 @@ from imrbayes.cli.options import force_option, key_values, prepare_out
 from imrbayes.errors import InputError
 
 
-@main.command("simulate", short_help="Write a synthetic dataset from the forward model (with truth.json).",
-              help_lists=("models",))
+@main.command(
+    "simulate", short_help="Write a synthetic dataset from the forward model (with truth.json).", help_lists=("models",)
+)
 @click.option("--model", required=True, help="Constitutive model (list below), e.g. nhkv.")
-@click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
-              help="Material parameter in SI units (G [Pa], mu [Pa s], ...); repeat for each parameter.")
-@click.option("--rmax", default="263e-6", show_default=True,
-              help="Maximum radius [m], or MEAN:SD [m] to draw each experiment's value.")
-@click.option("--ratio", default="7.58", show_default=True,
-              help="Rmax/Req [-], or MEAN:SD [-] to draw each experiment's value.")
+@click.option(
+    "--param",
+    "params",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="Material parameter in SI units (G [Pa], mu [Pa s], ...); repeat for each parameter.",
+)
+@click.option(
+    "--rmax",
+    default="263e-6",
+    show_default=True,
+    help="Maximum radius [m], or MEAN:SD [m] to draw each experiment's value.",
+)
+@click.option(
+    "--ratio", default="7.58", show_default=True, help="Rmax/Req [-], or MEAN:SD [-] to draw each experiment's value."
+)
 @click.option("--n-exp", type=int, default=5, show_default=True, help="Number of experiments [-].")
-@click.option("--noise", default="paper", show_default=True,
-              help="paper (sd |R*-1|/20 + (1-exp(-t*/10))/30 in R*), none, a number (sd in R* [-]), a number "
-                   "with um (sd in µm, e.g. 3um), a number with R (sd that fraction of R*, e.g. 0.02R: grows with "
-                   "the radius), a number with C (e.g. 0.01C: sd 0.01 (1 + 4 exp(-((R* - R*_c)/0.05)^2)), R*_c the "
-                   "nearest collapse's radius: 5x larger at collapses), or a sum of these joined by + (e.g. "
-                   "2um+0.01: variances add).")
+@click.option(
+    "--noise",
+    default="paper",
+    show_default=True,
+    help="paper (sd |R*-1|/20 + (1-exp(-t*/10))/30 in R*), none, a number (sd in R* [-]), a number "
+    "with um (sd in µm, e.g. 3um), a number with R (sd that fraction of R*, e.g. 0.02R: grows with "
+    "the radius), a number with C (e.g. 0.01C: sd 0.01 (1 + 4 exp(-((R* - R*_c)/0.05)^2)), R*_c the "
+    "nearest collapse's radius: 5x larger at collapses), or a sum of these joined by + (e.g. "
+    "2um+0.01: variances add).",
+)
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw.")
-@click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
-              help="Forward-model option (radial=km, bubble=polytropic, vapor=false, ...); repeatable.")
-@click.option("--physics", "physics", multiple=True, metavar="KEY=VALUE",
-              help="Physical-constant override in SI units (rho [kg/m^3], p8 [Pa], ...); repeatable.")
+@click.option(
+    "--forward",
+    "forward",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Forward-model option (radial=km, bubble=polytropic, vapor=false, ...); repeatable.",
+)
+@click.option(
+    "--physics",
+    "physics",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Physical-constant override in SI units (rho [kg/m^3], p8 [Pa], ...); repeatable.",
+)
 @click.option("--t-end", type=float, default=3.0, show_default=True, help="End of each record in t* [-].")
-@click.option("--dt-star", type=float, default=0.025, show_default=True,
-              help="Sample interval in t* [-] (ignored with --frame-s).")
-@click.option("--frame-s", type=float, default=None,
-              help="Sample at a camera frame interval [s] instead of the dt* grid.")
-@click.option("--phase", type=click.Choice(["0", "random"]), default="0", show_default=True,
-              help="With --frame-s: the first frame's sub-frame offset from the maximum (random: uniform in one "
-                   "frame, per experiment, from the seed).")
-@click.option("--pre-max-s", type=float, default=0.0, show_default=True,
-              help="With --frame-s: the record starts this many seconds [s] before the maximum (the growth is "
-                   "taken as the mirror of the collapse).")
-@click.option("--scatter", "scatter", multiple=True, metavar="NAME=SD",
-              help="Per-bubble material scatter: each experiment's NAME is drawn log-normally around --param's "
-                   "value with relative sd SD [-] (e.g. G=0.15); repeatable. truth.json records every draw.")
-@click.option("--req-in-meta/--no-req-in-meta", default=True, show_default=True,
-              help="Write each experiment's true Rmax and Req into meta.json (off: Req must be estimated from "
-                   "the record's tail, as for most real data).")
-@click.option("--generator", type=click.Choice(["imrbayes", "pyimr"]), default="imrbayes", show_default=True,
-              help="The code that makes the curves: imrbayes's forward model, or PyIMR (another code, the optional "
-                   "'peers' extra) with the same physics, constants and options -- data no part of imrbayes made.")
+@click.option(
+    "--dt-star",
+    type=float,
+    default=0.025,
+    show_default=True,
+    help="Sample interval in t* [-] (ignored with --frame-s).",
+)
+@click.option(
+    "--frame-s", type=float, default=None, help="Sample at a camera frame interval [s] instead of the dt* grid."
+)
+@click.option(
+    "--phase",
+    type=click.Choice(["0", "random"]),
+    default="0",
+    show_default=True,
+    help="With --frame-s: the first frame's sub-frame offset from the maximum (random: uniform in one "
+    "frame, per experiment, from the seed).",
+)
+@click.option(
+    "--pre-max-s",
+    type=float,
+    default=0.0,
+    show_default=True,
+    help="With --frame-s: the record starts this many seconds [s] before the maximum (the growth is "
+    "taken as the mirror of the collapse).",
+)
+@click.option(
+    "--scatter",
+    "scatter",
+    multiple=True,
+    metavar="NAME=SD",
+    help="Per-bubble material scatter: each experiment's NAME is drawn log-normally around --param's "
+    "value with relative sd SD [-] (e.g. G=0.15); repeatable. truth.json records every draw.",
+)
+@click.option(
+    "--req-in-meta/--no-req-in-meta",
+    default=True,
+    show_default=True,
+    help="Write each experiment's true Rmax and Req into meta.json (off: Req must be estimated from "
+    "the record's tail, as for most real data).",
+)
+@click.option(
+    "--generator",
+    type=click.Choice(["imrbayes", "pyimr"]),
+    default="imrbayes",
+    show_default=True,
+    help="The code that makes the curves: imrbayes's forward model, or PyIMR (another code, the optional "
+    "'peers' extra) with the same physics, constants and options -- data no part of imrbayes made.",
+)
 @click.option("--material", default=None, help="Text for meta.json 'material' (default: synthetic <model>).")
-@click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Dataset folder to create (default: a new folder under ./imrbayes-runs/).")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Dataset folder to create (default: a new folder under ./imrbayes-runs/).",
+)
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @config_option
 @force_option
-def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physics, t_end, dt_star, frame_s,
-                 phase, pre_max_s, scatter, req_in_meta, generator, material, out, quiet, force):
+def simulate_cmd(
+    model,
+    params,
+    rmax,
+    ratio,
+    n_exp,
+    noise,
+    seed,
+    forward,
+    physics,
+    t_end,
+    dt_star,
+    frame_s,
+    phase,
+    pre_max_s,
+    scatter,
+    req_in_meta,
+    generator,
+    material,
+    out,
+    quiet,
+    force,
+):
     """Write a synthetic dataset (one CSV per experiment, t_s,R_m in SI; meta.json) from the forward model, with
     truth.json."""
     from imrbayes import forward as fwd
@@ -92,7 +172,9 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
     phys = key_values(physics, "--physics", numeric=True)
     models = list(fwd.available_models())
     try:
-        fm = fwd.ForwardModel(model, options=fwd.ForwardOptions.from_dict(fopts, source="--forward"), physics_overrides=phys or None)
+        fm = fwd.ForwardModel(
+            model, options=fwd.ForwardOptions.from_dict(fopts, source="--forward"), physics_overrides=phys or None
+        )
     except InputError as exc:
         if model not in models and exc.source in (None, "--model", "model"):
             raise InputError("--model", f"unknown model {model!r}; available: {', '.join(models)}")
@@ -105,14 +187,20 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
     unknown = [k for k in pvals if k not in names]
     missing = [k for k in names if k not in pvals]
     if unknown or missing:
-        parts = ([f"unknown parameter(s) {', '.join(unknown)}"] if unknown else []) + \
-                ([f"missing {', '.join(missing)}"] if missing else [])
-        raise InputError("--param", f"{'; '.join(parts)}; model {model!r} takes {', '.join(names)} "
-                                    f"(SI units, e.g. --param {names[0] if names else 'G'}=...)")
+        parts = ([f"unknown parameter(s) {', '.join(unknown)}"] if unknown else []) + (
+            [f"missing {', '.join(missing)}"] if missing else []
+        )
+        raise InputError(
+            "--param",
+            f"{'; '.join(parts)}; model {model!r} takes {', '.join(names)} "
+            f"(SI units, e.g. --param {names[0] if names else 'G'}=...)",
+        )
     scatter_sd = key_values(scatter, "--scatter", numeric=True)
     bad = [k for k in scatter_sd if k not in names]
     if bad:
-        raise InputError("--scatter", f"unknown parameter(s) {', '.join(bad)}; model {model!r} takes {', '.join(names)}")
+        raise InputError(
+            "--scatter", f"unknown parameter(s) {', '.join(bad)}; model {model!r} takes {', '.join(names)}"
+        )
     if any(not 0 <= v <= 2 for v in scatter_sd.values()):
         raise InputError("--scatter", f"a relative sd must be in [0, 2], got {scatter_sd}")
     ph = fm.physics.to_dict()
@@ -134,10 +222,14 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
     maker = fm
     if generator == "pyimr":
         from imrbayes.forward.peers import PyIMRModel
+
         maker = PyIMRModel(fm)
         if not quiet:
-            click.echo(f"generating with PyIMR {maker.describe()['version']} (spectral, Nt {maker.nt}); "
-                       f"the first solve compiles (~15 s)", err=True)
+            click.echo(
+                f"generating with PyIMR {maker.describe()['version']} (spectral, Nt {maker.nt}); "
+                f"the first solve compiles (~15 s)",
+                err=True,
+            )
     clean = syn.simulate_dataset(maker, exp_params, rmax_m, req_m, grids)
     records, redrawn, t_max_s, sd_at_max = [], 0, [], []
     for g, Rs, rm, tc in zip(grids, clean, rmax_m, tc_s):
@@ -145,41 +237,87 @@ def simulate_cmd(model, params, rmax, ratio, n_exp, noise, seed, forward, physic
             raise RuntimeError("forward model returned a radius history of the wrong shape or with NaN")
         Rn, k = syn.noisy(g, Rs, noise_d, rng, rmax_m=rm)
         redrawn += k
-        records.append(((g - g[0]) * tc, Rn * rm))      # camera time: 0 at the first frame
+        records.append(((g - g[0]) * tc, Rn * rm))  # camera time: 0 at the first frame
         t_max_s.append(-g[0] * tc)
         sd_at_max.append(float(syn.noise_sd(np.zeros(1), np.ones(1), noise_d, rm)[0]))
     out = prepare_out(out, "simulate", model, force=bool(force))
     if any(out.glob("*.csv")) or (out / "meta.json").exists():
         raise InputError("--out", f"{out} already holds a dataset; choose a new or empty folder")
-    noise_d = {**noise_d, "applied_to": "R* = R/Rmax, independent Gaussian per sample",
-               "n_redrawn_nonpositive": redrawn}
+    noise_d = {
+        **noise_d,
+        "applied_to": "R* = R/Rmax, independent Gaussian per sample",
+        "n_redrawn_nonpositive": redrawn,
+    }
     files = [f"exp_{i:03d}.csv" for i in range(1, n_exp + 1)]
     options = fm.options.to_dict()
-    meta = {"material": material or f"synthetic ({model})",
-            "description": f"imrbayes simulate: {model} {pvals}, noise {noise_d['kind']}, seed {seed}"
-                           + ("" if generator == "imrbayes" else f", curves by {generator}"),
-            "synthetic": True, "truth": "truth.json", "physics": ph, "forward": options,
-            "experiments": ({f: {"Req_m": float(q), "Rmax_m": float(r)} for f, q, r in zip(files, req_m, rmax_m)}
-                            if req_in_meta else {})}
-    truth = {"model": model, "parameters": pvals, "param_names": list(names), "seed": seed,
-             "n_experiments": n_exp, "noise": noise_d, "forward": options, "physics": ph,
-             "rmax_spec_m": rmax_spec.to_dict(), "ratio_spec": ratio_spec.to_dict(),
-             "sampling": ({"dt_star": dt_star} if frame_s is None else
-                          {"frame_s": frame_s, "phase": phase, "pre_max_s": pre_max_s,
-                           "before_maximum": "mirror of the collapse"}) | {"t_end_star": t_end},
-             "req_in_meta": req_in_meta, "scatter": scatter_sd,
-             "generator": ({"code": "imrbayes", "forward": options} if generator == "imrbayes" else maker.describe()),
-             "experiments": [{"file": f, "rmax_m": float(r), "req_m": float(q), "rmax_over_req": float(a),
-                              "tc_s": float(tc), "n_samples": int(g.size), "t_max_s": float(tm),
-                              "phase_s": float(ph), "noise_sd_at_max_r_star": float(sm),
-                              "parameters": p}
-                             for f, r, q, a, tc, g, tm, ph, sm, p in
-                             zip(files, rmax_m, req_m, ratios, tc_s, grids, t_max_s, phases, sd_at_max,
-                                 exp_params if scatter_sd else [pvals] * n_exp)],
-             "random_draws": "numpy.random.default_rng(seed): Rmax (n_exp, if MEAN:SD), ratio (n_exp, if "
-                             "MEAN:SD), then the noise of each experiment in turn; phases and scatter from "
-                             "SeedSequence(seed, spawn_key=(1,)) and (2,)",
-             "imrbayes_version": __version__}
+    meta = {
+        "material": material or f"synthetic ({model})",
+        "description": f"imrbayes simulate: {model} {pvals}, noise {noise_d['kind']}, seed {seed}"
+        + ("" if generator == "imrbayes" else f", curves by {generator}"),
+        "synthetic": True,
+        "truth": "truth.json",
+        "physics": ph,
+        "forward": options,
+        "experiments": (
+            {f: {"Req_m": float(q), "Rmax_m": float(r)} for f, q, r in zip(files, req_m, rmax_m)} if req_in_meta else {}
+        ),
+    }
+    truth = {
+        "model": model,
+        "parameters": pvals,
+        "param_names": list(names),
+        "seed": seed,
+        "n_experiments": n_exp,
+        "noise": noise_d,
+        "forward": options,
+        "physics": ph,
+        "rmax_spec_m": rmax_spec.to_dict(),
+        "ratio_spec": ratio_spec.to_dict(),
+        "sampling": (
+            {"dt_star": dt_star}
+            if frame_s is None
+            else {
+                "frame_s": frame_s,
+                "phase": phase,
+                "pre_max_s": pre_max_s,
+                "before_maximum": "mirror of the collapse",
+            }
+        )
+        | {"t_end_star": t_end},
+        "req_in_meta": req_in_meta,
+        "scatter": scatter_sd,
+        "generator": ({"code": "imrbayes", "forward": options} if generator == "imrbayes" else maker.describe()),
+        "experiments": [
+            {
+                "file": f,
+                "rmax_m": float(r),
+                "req_m": float(q),
+                "rmax_over_req": float(a),
+                "tc_s": float(tc),
+                "n_samples": int(g.size),
+                "t_max_s": float(tm),
+                "phase_s": float(ph),
+                "noise_sd_at_max_r_star": float(sm),
+                "parameters": p,
+            }
+            for f, r, q, a, tc, g, tm, ph, sm, p in zip(
+                files,
+                rmax_m,
+                req_m,
+                ratios,
+                tc_s,
+                grids,
+                t_max_s,
+                phases,
+                sd_at_max,
+                exp_params if scatter_sd else [pvals] * n_exp,
+            )
+        ],
+        "random_draws": "numpy.random.default_rng(seed): Rmax (n_exp, if MEAN:SD), ratio (n_exp, if "
+        "MEAN:SD), then the noise of each experiment in turn; phases and scatter from "
+        "SeedSequence(seed, spawn_key=(1,)) and (2,)",
+        "imrbayes_version": __version__,
+    }
     syn.write_dataset(out, records, meta, truth)
     if not quiet:
         click.echo(f"wrote {n_exp} experiment(s), meta.json and truth.json to {out}")

@@ -19,38 +19,100 @@ from imrbayes.errors import InputError
 
 @main.command("study", short_help="Fit several datasets under conditions and compare them.")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path), required=True,
-              help="Study folder (rerun into the same folder: unchanged runs are reused).")
-@click.option("--label", "labels", multiple=True, metavar="KEY=V1,V2,...",
-              help="Condition label, one value per DATA in order (e.g. concentration=0.5%,5%); repeatable. "
-                   "Short form only.")
-@click.option("--name", "names", default=None, metavar="N1,N2,...",
-              help="Condition names, one per DATA (default: each dataset's folder name). Short form only.")
-@click.option("--method", "methods", default=None, metavar="M1,M2",
-              help="Fit methods run on each dataset [default: en4dvar,mienks: the constant estimate and G(t), mu(t)].")
-@click.option("--collapses", default=None, metavar="K1,K2",
-              help="Also fit IMR to the k-th collapse of each dataset, one run per k (e.g. 1,2).")
-@click.option("--diagnose", type=click.Choice(["full", "quick"]), default=None,
-              help="Also run 'imrbayes diagnose' (quick: --quick) on each dataset.")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="Study folder (rerun into the same folder: unchanged runs are reused).",
+)
+@click.option(
+    "--label",
+    "labels",
+    multiple=True,
+    metavar="KEY=V1,V2,...",
+    help="Condition label, one value per DATA in order (e.g. concentration=0.5%,5%); repeatable. Short form only.",
+)
+@click.option(
+    "--name",
+    "names",
+    default=None,
+    metavar="N1,N2,...",
+    help="Condition names, one per DATA (default: each dataset's folder name). Short form only.",
+)
+@click.option(
+    "--method",
+    "methods",
+    default=None,
+    metavar="M1,M2",
+    help="Fit methods run on each dataset [default: en4dvar,mienks: the constant estimate and G(t), mu(t)].",
+)
+@click.option(
+    "--collapses",
+    default=None,
+    metavar="K1,K2",
+    help="Also fit IMR to the k-th collapse of each dataset, one run per k (e.g. 1,2).",
+)
+@click.option(
+    "--diagnose",
+    type=click.Choice(["full", "quick"]),
+    default=None,
+    help="Also run 'imrbayes diagnose' (quick: --quick) on each dataset.",
+)
 @click.option("--model", default=None, help="Constitutive model [default: nhkv].")
 @click.option("--seed", type=int, default=None, help="Seed of every run [default: 0].")
 @click.option("--experiments", default=None, help="As fit --experiments, for every dataset.")
 @click.option("--dt-star", type=float, default=None, help="As fit --dt-star, for every dataset [default: 0.025].")
 @click.option("--n-steps", type=int, default=None, help="As fit --n-steps, for every dataset [default: 120].")
-@click.option("--forward", "forward", multiple=True, metavar="KEY=VALUE",
-              help="Forward-model option for every run (bubble=polytropic, ...); repeatable.")
-@click.option("--set", "settings", multiple=True, metavar="METHOD.KEY=VALUE",
-              help="A method's setting for every dataset (e.g. en4dvar.n_ens=12); repeatable.")
-@click.option("--workers", type=int, default=None,
-              help="Worker processes: runs of different datasets in parallel [default: 1: in this process].")
-@click.option("--scheduler", default=None, metavar="local|tcp://HOST:PORT",
-              help="Run the datasets' runs on a Dask cluster.")
-@click.option("--force", is_flag=True, default=False,
-              help="Replace run folders whose configuration changed (default: such a dataset is reported as failed).")
+@click.option(
+    "--forward",
+    "forward",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Forward-model option for every run (bubble=polytropic, ...); repeatable.",
+)
+@click.option(
+    "--set",
+    "settings",
+    multiple=True,
+    metavar="METHOD.KEY=VALUE",
+    help="A method's setting for every dataset (e.g. en4dvar.n_ens=12); repeatable.",
+)
+@click.option(
+    "--workers",
+    type=int,
+    default=None,
+    help="Worker processes: runs of different datasets in parallel [default: 1: in this process].",
+)
+@click.option(
+    "--scheduler", default=None, metavar="local|tcp://HOST:PORT", help="Run the datasets' runs on a Dask cluster."
+)
+@click.option(
+    "--force",
+    is_flag=True,
+    default=False,
+    help="Replace run folders whose configuration changed (default: such a dataset is reported as failed).",
+)
 @click.option("--quiet", is_flag=True, default=False, help="Print nothing but errors.")
-def study_cmd(inputs, out, labels, names, methods, collapses, diagnose, model, seed, experiments, dt_star, n_steps,
-              forward, settings,
-              workers, scheduler, force, quiet):
+def study_cmd(
+    inputs,
+    out,
+    labels,
+    names,
+    methods,
+    collapses,
+    diagnose,
+    model,
+    seed,
+    experiments,
+    dt_star,
+    n_steps,
+    forward,
+    settings,
+    workers,
+    scheduler,
+    force,
+    quiet,
+):
     """Compare materials and conditions: fit each dataset (an ordinary run folder under
     OUT/runs), then put the conditions side by side -- G and mu with 95 % intervals, ratios between
     conditions and trends along numeric labels computed from the posteriors -- in study.csv,
@@ -67,15 +129,23 @@ def study_cmd(inputs, out, labels, names, methods, collapses, diagnose, model, s
 
     t0 = time.perf_counter()
     check_options(workers, scheduler, False, False)
-    options = {"methods": _names(methods, "--method"), "collapses": _ints(collapses, "--collapses"),
-               "diagnose": diagnose, "model": model, "seed": seed, "experiments": experiments}
+    options = {
+        "methods": _names(methods, "--method"),
+        "collapses": _ints(collapses, "--collapses"),
+        "diagnose": diagnose,
+        "model": model,
+        "seed": seed,
+        "experiments": experiments,
+    }
     fwd = key_values(forward, "--forward")
     grid = {k: v for k, v in (("dt_star", dt_star), ("n_steps", n_steps)) if v is not None}
     sets = _method_settings(settings)
     if len(inputs) == 1 and inputs[0].suffix.lower() == ".toml":
         if labels or names:
-            raise InputError("--label" if labels else "--name", "belongs to the short form; a study file gives "
-                                                                "each dataset's labels and name")
+            raise InputError(
+                "--label" if labels else "--name",
+                "belongs to the short form; a study file gives each dataset's labels and name",
+            )
         spec = read_study_file(inputs[0])
         for k, v in options.items():
             if v is not None:
@@ -101,9 +171,11 @@ def study_cmd(inputs, out, labels, names, methods, collapses, diagnose, model, s
     if not quiet:
         for line in study["conclusion"]:
             click.echo(line)
-        click.echo(f"wrote {out / 'study.csv'}, study.json, study.nc, study.html ({len(spec.conditions)} "
-                   f"condition(s), {len(study['runs'])} run(s), {len(failed)} failed; "
-                   f"{time.perf_counter() - t0:.0f} s)")
+        click.echo(
+            f"wrote {out / 'study.csv'}, study.json, study.nc, study.html ({len(spec.conditions)} "
+            f"condition(s), {len(study['runs'])} run(s), {len(failed)} failed; "
+            f"{time.perf_counter() - t0:.0f} s)"
+        )
     for k in failed:
         click.echo(f"imrbayes: warning: {k} failed: {study['runs'][k]['error']}", err=True)
 
@@ -145,7 +217,8 @@ def _check_out(out: Path, data_paths) -> None:
     for d in data_paths:
         p = d if d.is_dir() else d.parent
         if out.resolve() == p.resolve():
-            raise InputError("--out", f"{out} is a dataset's folder; choose another folder (input files are never "
-                                      "written to)")
+            raise InputError(
+                "--out", f"{out} is a dataset's folder; choose another folder (input files are never written to)"
+            )
     if out.is_dir() and any(out.iterdir()) and not ((out / "runs").is_dir() or (out / "study.json").is_file()):
         raise InputError("--out", f"{out} holds files but no study; choose a new or empty folder")

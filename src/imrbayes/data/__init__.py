@@ -11,5 +11,13 @@ from imrbayes.data.noise import noise_variance, paper_sigma
 from imrbayes.data.pipeline import ExperimentSummary, Preprocessed, preprocess_dataset
 from imrbayes.data.records import Dataset, Experiment
 
-__all__ = ["load_dataset", "preprocess_dataset", "Dataset", "Experiment", "Preprocessed",
-           "ExperimentSummary", "noise_variance", "paper_sigma"]
+__all__ = [
+    "load_dataset",
+    "preprocess_dataset",
+    "Dataset",
+    "Experiment",
+    "Preprocessed",
+    "ExperimentSummary",
+    "noise_variance",
+    "paper_sigma",
+]

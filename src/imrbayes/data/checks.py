@@ -11,8 +11,7 @@ import numpy as np
 
 from imrbayes.errors import InputError
 
-__all__ = ["check_record", "MAX_RADIUS_M", "MIN_RADIUS_M", "MAX_SPAN_S", "MAX_FRAME_INTERVAL_S",
-           "MIN_SAMPLES"]
+__all__ = ["check_record", "MAX_RADIUS_M", "MIN_RADIUS_M", "MAX_SPAN_S", "MAX_FRAME_INTERVAL_S", "MIN_SAMPLES"]
 
 #: A bubble radius above 1 cm is not an IMR record: the values are almost surely µm or mm.
 MAX_RADIUS_M = 0.01
@@ -50,8 +49,11 @@ def check_record(t_s, R_m, source, lines=None, label: str = "") -> None:
         raise InputError(source, f"{label}time and radius have different lengths")
     n = t.size
     if n < MIN_SAMPLES:
-        raise InputError(source, f"{label}only {n} valid sample(s); a record needs at least {MIN_SAMPLES} "
-                                 f"(maximum, first collapse and rebound)")
+        raise InputError(
+            source,
+            f"{label}only {n} valid sample(s); a record needs at least {MIN_SAMPLES} "
+            f"(maximum, first collapse and rebound)",
+        )
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(R))):
         raise InputError(source, f"{label}contains non-finite values")
     nonpos = np.flatnonzero(R <= 0.0)
@@ -64,21 +66,34 @@ def check_record(t_s, R_m, source, lines=None, label: str = "") -> None:
     if bad.size:
         i = bad[0] + 1
         more = f" ({bad.size} such steps)" if bad.size > 1 else ""
-        raise InputError(source, f"{label}time must increase strictly: t_s = {t[i]:.6g} at {_where(lines, i)} "
-                                 f"follows t_s = {t[i - 1]:.6g}{more}")
+        raise InputError(
+            source,
+            f"{label}time must increase strictly: t_s = {t[i]:.6g} at {_where(lines, i)} "
+            f"follows t_s = {t[i - 1]:.6g}{more}",
+        )
     rmax = float(R.max())
     if rmax > MAX_RADIUS_M:
-        raise InputError(source, f"{label}radii up to {rmax:g} are too large for metres (over "
-                                 f"{MAX_RADIUS_M:g} m); they look like µm or mm; R_m must be in metres")
+        raise InputError(
+            source,
+            f"{label}radii up to {rmax:g} are too large for metres (over "
+            f"{MAX_RADIUS_M:g} m); they look like µm or mm; R_m must be in metres",
+        )
     if rmax < MIN_RADIUS_M:
-        raise InputError(source, f"{label}the largest radius is {rmax:g} m, below {MIN_RADIUS_M:g} m; "
-                                 f"R_m must be in metres")
+        raise InputError(
+            source, f"{label}the largest radius is {rmax:g} m, below {MIN_RADIUS_M:g} m; R_m must be in metres"
+        )
     span = float(t[-1] - t[0])
     if span > MAX_SPAN_S:
-        raise InputError(source, f"{label}times span {span:g}, over {MAX_SPAN_S:g} s; they look like µs or "
-                                 f"frame numbers; t_s must be in seconds")
+        raise InputError(
+            source,
+            f"{label}times span {span:g}, over {MAX_SPAN_S:g} s; they look like µs or "
+            f"frame numbers; t_s must be in seconds",
+        )
     dt_med = float(np.median(dt))
     if dt_med > MAX_FRAME_INTERVAL_S:
-        raise InputError(source, f"{label}median sampling interval {dt_med:g} s is too coarse for a bubble "
-                                 f"record (over {MAX_FRAME_INTERVAL_S:g} s); are the times in ms? t_s must "
-                                 f"be in seconds")
+        raise InputError(
+            source,
+            f"{label}median sampling interval {dt_med:g} s is too coarse for a bubble "
+            f"record (over {MAX_FRAME_INTERVAL_S:g} s); are the times in ms? t_s must "
+            f"be in seconds",
+        )

@@ -17,15 +17,24 @@ import numpy as np
 
 from imrbayes.errors import InputError
 
-__all__ = ["read_table", "Table", "format_lines", "write_experiment_csv", "EXPERIMENT_COLUMNS",
-           "LONG_COLUMNS"]
+__all__ = ["read_table", "Table", "format_lines", "write_experiment_csv", "EXPERIMENT_COLUMNS", "LONG_COLUMNS"]
 
 EXPERIMENT_COLUMNS = ("t_s", "R_m")
 LONG_COLUMNS = ("experiment", "t_s", "R_m")
 _NUMBER = re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$")
 _MISSING = {"", "nan", "na", "n/a", "null", "none"}
-_UNIT_HINTS = {"us": "µs", "µs": "µs", "ms": "ms", "um": "µm", "µm": "µm", "mm": "mm", "px": "pixels",
-               "pixels": "pixels", "frame": "frames", "frames": "frames"}
+_UNIT_HINTS = {
+    "us": "µs",
+    "µs": "µs",
+    "ms": "ms",
+    "um": "µm",
+    "µm": "µm",
+    "mm": "mm",
+    "px": "pixels",
+    "pixels": "pixels",
+    "frame": "frames",
+    "frames": "frames",
+}
 
 
 @dataclass
@@ -76,14 +85,18 @@ _SUMMARY_COLUMNS = {"rmax_m", "t_collapse_s"}
 def _header_problem(found: tuple, expected_sets: tuple) -> str:
     found_l = [f.lower() for f in found]
     if _SUMMARY_COLUMNS <= set(found_l):
-        return (f"holds per-bubble collapse-time summaries ({','.join(found)}), not R(t) curves: fit, "
-                f"diagnose and inspect need t_s,R_m records; pIMR on such a file: python "
-                f"validation/pimr_summaries.py (docs/datasets.md)")
+        return (
+            f"holds per-bubble collapse-time summaries ({','.join(found)}), not R(t) curves: fit, "
+            f"diagnose and inspect need t_s,R_m records; pIMR on such a file: python "
+            f"validation/pimr_summaries.py (docs/datasets.md)"
+        )
     for name in found:
         parts = name.lower().replace("[", "_").replace("]", "").replace("(", "_").replace(")", "").split("_")
         if len(parts) > 1 and parts[0] in ("t", "time", "r", "radius") and parts[-1] in _UNIT_HINTS:
-            return (f"column {name!r} suggests values in {_UNIT_HINTS[parts[-1]]}; columns must be "
-                    f"t_s,R_m in SI units (seconds, metres)")
+            return (
+                f"column {name!r} suggests values in {_UNIT_HINTS[parts[-1]]}; columns must be "
+                f"t_s,R_m in SI units (seconds, metres)"
+            )
     want = expected_sets[0]
     missing = [c for c in want if c not in found]
     extra = [c for c in found if c not in want]
@@ -95,8 +108,10 @@ def _header_problem(found: tuple, expected_sets: tuple) -> str:
             msg.append(f"missing column(s) {', '.join(missing)}")
         if extra:
             msg.append(f"unexpected column(s) {', '.join(repr(e) for e in extra)}")
-        return "; ".join(msg) + f" (found {','.join(found) or 'nothing'}; expected {','.join(want)} " \
-                                f"or {','.join(expected_sets[1])})"
+        return (
+            "; ".join(msg) + f" (found {','.join(found) or 'nothing'}; expected {','.join(want)} "
+            f"or {','.join(expected_sets[1])})"
+        )
     want = expected_sets[1]
     missing = [c for c in want if c not in found]
     extra = [c for c in found if c not in want]
@@ -141,8 +156,7 @@ def read_table(path) -> Table:
     lines = np.empty(len(rows), dtype=np.int64)
     for r, (lineno, fields) in enumerate(rows):
         if len(fields) != ncol:
-            raise InputError(path, f"line {lineno}: {len(fields)} values, expected {ncol} "
-                                   f"({','.join(header)})")
+            raise InputError(path, f"line {lineno}: {len(fields)} values, expected {ncol} ({','.join(header)})")
         lines[r] = lineno
         for name in numeric:
             text_value = fields[idx[name]]

@@ -37,16 +37,19 @@ def radius_figure(pre: Preprocessed, path, title: str | None = None) -> Path:
         ax2.plot(pre.t_star, pre.R_star[i], lw=0.6, color=colors[i], alpha=0.8)
     mean = pre.R_star.mean(axis=0)
     sd = np.sqrt(pre.P)
-    ax2.fill_between(pre.t_star, mean - sd, mean + sd, color="tab:orange", alpha=0.45,
-                     label=r"mean $\pm\sqrt{P_k}$", zorder=3)
+    ax2.fill_between(
+        pre.t_star, mean - sd, mean + sd, color="tab:orange", alpha=0.45, label=r"mean $\pm\sqrt{P_k}$", zorder=3
+    )
     ax2.plot(pre.t_star, mean, color="k", lw=1.4, label="mean", zorder=4)
     ax1.set_xlabel("time from maximum t [µs]")
     ax1.set_ylabel("radius R [µm]")
     ax1.set_title("measured (▼ first collapse)")
     ax2.set_xlabel(r"$t^* = t\,\sqrt{p_\infty/\rho}\,/\,R_{max}$")
     ax2.set_ylabel(label("R_star"))
-    ax2.set_title(f"resampled, dt* = {pre.choices['dt_star']:g}, {pre.n_steps} steps "
-                  f"(P_k: {pre.choices['noise']['method']})", fontsize=9)
+    ax2.set_title(
+        f"resampled, dt* = {pre.choices['dt_star']:g}, {pre.n_steps} steps (P_k: {pre.choices['noise']['method']})",
+        fontsize=9,
+    )
     ax2.legend(loc="upper right", fontsize=8)
     if n <= 10:
         ax1.legend(loc="upper right", fontsize=7)

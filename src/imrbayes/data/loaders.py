@@ -25,7 +25,15 @@ from imrbayes.data.meta import Meta, read_meta
 from imrbayes.data.records import Dataset, Experiment
 from imrbayes.errors import InputError
 
-__all__ = ["MEAN_OF_VIEWS", "mean_of_views", "load_dataset", "load_experiment_csv", "load_long_csv", "load_mat", "load_directory"]
+__all__ = [
+    "MEAN_OF_VIEWS",
+    "mean_of_views",
+    "load_dataset",
+    "load_experiment_csv",
+    "load_long_csv",
+    "load_mat",
+    "load_directory",
+]
 
 
 def _apply_meta(exp: Experiment, meta: Meta) -> Experiment:
@@ -42,8 +50,7 @@ def _apply_meta(exp: Experiment, meta: Meta) -> Experiment:
 def _dropped_warning(dropped, path, label="") -> list:
     if not dropped:
         return []
-    return [f"{path}: {label}dropped {len(dropped)} row(s) with a missing or NaN value "
-            f"(line {format_lines(dropped)})"]
+    return [f"{path}: {label}dropped {len(dropped)} row(s) with a missing or NaN value (line {format_lines(dropped)})"]
 
 
 def _single(path: Path, table, name: str | None = None) -> Experiment:
@@ -114,9 +121,19 @@ def _dataset(name, path, fmt, exps, meta: Meta, notes) -> Dataset:
         notes.append(f"metadata from {meta.path}")
     else:
         notes.append("no meta.json: material unknown, default physics and forward options")
-    return Dataset(name=name, path=str(path), format=fmt, experiments=exps, material=meta.material,
-                   meta=meta.raw, physics=meta.physics, forward=meta.forward, meta_path=meta.path,
-                   warnings=warnings, notes=notes)
+    return Dataset(
+        name=name,
+        path=str(path),
+        format=fmt,
+        experiments=exps,
+        material=meta.material,
+        meta=meta.raw,
+        physics=meta.physics,
+        forward=meta.forward,
+        meta_path=meta.path,
+        warnings=warnings,
+        notes=notes,
+    )
 
 
 def load_directory(path) -> Dataset:
@@ -136,9 +153,12 @@ def load_directory(path) -> Dataset:
     if not meta_path.is_file():
         # a folder of camera exports: usable as it is, but the user should know what was assumed
         ds = _dataset(path.name, path, "directory", exps, Meta(), [f"{len(exps)} experiment CSV file(s)"])
-        ds.warnings.insert(0, f"{path}: no meta.json, so the material is 'unknown' and the default physical "
-                              "constants (water-like gel at 20 °C, 1 atm) and forward options are used; add a "
-                              'meta.json ({"material": "...", "physics": {...}}) to record them')
+        ds.warnings.insert(
+            0,
+            f"{path}: no meta.json, so the material is 'unknown' and the default physical "
+            "constants (water-like gel at 20 °C, 1 atm) and forward options are used; add a "
+            'meta.json ({"material": "...", "physics": {...}}) to record them',
+        )
         return ds
     meta = read_meta(meta_path)
     return _dataset(path.name, path, "directory", exps, meta, [f"{len(exps)} experiment CSV file(s)"])
@@ -173,16 +193,18 @@ def load_dataset(path, camera: str | None = None) -> Dataset:
             note = f".mat layout {layout!r} found: {LAYOUTS[layout]}; converted to SI"
             ds = _dataset(path.stem, path, f"mat:{layout}", exps, Meta(), [note])
         else:
-            raise InputError(path, f"unrecognised file type {suffix or '(no extension)'!r}; expected a dataset "
-                                   "directory, a .csv or a .mat file")
+            raise InputError(
+                path,
+                f"unrecognised file type {suffix or '(no extension)'!r}; expected a dataset "
+                "directory, a .csv or a .mat file",
+            )
     if camera == MEAN_OF_VIEWS:
         ds = mean_of_views(ds, path)
     elif camera is not None:
         cams = sorted({e.camera for e in ds.experiments if e.camera})
         ds = ds.select(camera=camera)
         if not ds.experiments:
-            raise InputError(path, f"no experiment from camera {camera!r}; cameras found: "
-                                   f"{', '.join(cams) or 'none'}")
+            raise InputError(path, f"no experiment from camera {camera!r}; cameras found: {', '.join(cams) or 'none'}")
         ds.notes.append(f"kept camera view {camera!r} only ({len(ds.experiments)} experiments)")
     _note_camera_pairs(ds)
     return ds
@@ -191,10 +213,12 @@ def load_dataset(path, camera: str | None = None) -> Dataset:
 def _note_camera_pairs(ds: Dataset) -> None:
     cams = {e.camera for e in ds.experiments if e.camera}
     if len(cams) > 1:
-        ds.warnings.append(f"experiments are views of the same bubbles from {len(cams)} cameras "
-                           f"({', '.join(sorted(cams))}); they are not independent experiments "
-                           f"(use --camera {MEAN_OF_VIEWS} to average the views of each bubble, or --camera NAME "
-                           f"to keep one view)")
+        ds.warnings.append(
+            f"experiments are views of the same bubbles from {len(cams)} cameras "
+            f"({', '.join(sorted(cams))}); they are not independent experiments "
+            f"(use --camera {MEAN_OF_VIEWS} to average the views of each bubble, or --camera NAME "
+            f"to keep one view)"
+        )
 
 
 #: ``--camera`` value that averages the views of each bubble frame by frame
@@ -223,45 +247,76 @@ def mean_of_views(ds: Dataset, path) -> Dataset:
     exps, spreads = [], []
     for head, views in groups.items():
         if len(views) < 2:
-            raise InputError(path, f"--camera {MEAN_OF_VIEWS}: bubble {head!r} has one view only "
-                                   f"({views[0].camera}); nothing to average")
+            raise InputError(
+                path,
+                f"--camera {MEAN_OF_VIEWS}: bubble {head!r} has one view only ({views[0].camera}); nothing to average",
+            )
         dt = min(float(np.median(np.diff(v.t_s))) for v in views)
         keys = [np.round(v.t_s / (1e-3 * dt)).astype(np.int64) for v in views]
         common = keys[0]
         for k in keys[1:]:
             common = np.intersect1d(common, k)
         if common.size < 10:
-            raise InputError(path, f"--camera {MEAN_OF_VIEWS}: the views of bubble {head!r} share "
-                                   f"{common.size} frame times; they are not on one time axis")
+            raise InputError(
+                path,
+                f"--camera {MEAN_OF_VIEWS}: the views of bubble {head!r} share "
+                f"{common.size} frame times; they are not on one time axis",
+            )
         R = np.stack([v.R_m[np.searchsorted(k, common)] for v, k in zip(views, keys)])
         t = views[0].t_s[np.searchsorted(keys[0], common)]
         n_tail = min(20, common.size // 4)
         tail_diff = float(np.ptp(R[:, -n_tail:].mean(axis=1)))
         tail_mean = float(R[:, -n_tail:].mean())
-        info = {"camera": MEAN_OF_VIEWS, "views": [v.name for v in views],
-                "view_difference_rms_m": float(np.sqrt(np.mean(np.ptp(R, axis=0) ** 2))),
-                "view_req_spread_m": 0.5 * tail_diff, "view_tail_frames": n_tail}
+        info = {
+            "camera": MEAN_OF_VIEWS,
+            "views": [v.name for v in views],
+            "view_difference_rms_m": float(np.sqrt(np.mean(np.ptp(R, axis=0) ** 2))),
+            "view_req_spread_m": 0.5 * tail_diff,
+            "view_tail_frames": n_tail,
+        }
         warns = [w for v in views for w in v.warnings]
         dropped = sum(v.t_s.size - common.size for v in views)
         if dropped:
             warns.append(f"bubble {head!r}: {dropped} frame(s) missing from some view dropped before averaging")
         given = all(v.req_m is not None for v in views)
         req_sd = [v.req_sd_m for v in views if v.req_sd_m is not None]
-        exps.append(Experiment(head, t, R.mean(axis=0), ", ".join(v.source for v in views),
-                               req_m=float(np.mean([v.req_m for v in views])) if given else None,
-                               req_sd_m=float(np.mean(req_sd)) if given and len(req_sd) == len(views) else None,
-                               req_source=views[0].req_source if given else None,
-                               info=info, warnings=warns))
+        exps.append(
+            Experiment(
+                head,
+                t,
+                R.mean(axis=0),
+                ", ".join(v.source for v in views),
+                req_m=float(np.mean([v.req_m for v in views])) if given else None,
+                req_sd_m=float(np.mean(req_sd)) if given and len(req_sd) == len(views) else None,
+                req_source=views[0].req_source if given else None,
+                info=info,
+                warnings=warns,
+            )
+        )
         spreads.append((head, tail_diff, tail_mean))
-    out = Dataset(ds.name, ds.path, ds.format, exps, ds.material, ds.meta, ds.physics, ds.forward,
-                  ds.meta_path, [w for w in ds.warnings if "not independent" not in w], list(ds.notes))
-    out.notes.append(f"averaged the camera views of each bubble frame by frame ({len(exps)} bubbles from "
-                     f"{len(ds.experiments)} views)")
+    out = Dataset(
+        ds.name,
+        ds.path,
+        ds.format,
+        exps,
+        ds.material,
+        ds.meta,
+        ds.physics,
+        ds.forward,
+        ds.meta_path,
+        [w for w in ds.warnings if "not independent" not in w],
+        list(ds.notes),
+    )
+    out.notes.append(
+        f"averaged the camera views of each bubble frame by frame ({len(exps)} bubbles from "
+        f"{len(ds.experiments)} views)"
+    )
     far = [(h, d, m) for h, d, m in spreads if d > VIEW_SPREAD_WARN * m]
     if far:
         out.warnings.append(
             f"the camera views disagree late in the record by more than {VIEW_SPREAD_WARN:.0%} of the tail radius: "
             + "; ".join(f"{h} {d * 1e6:.1f} µm ({d / m:.0%} of the tail radius)" for h, d, m in far)
             + " -- the bubble is not round or the cameras' scales differ; half the difference is added to "
-              "Req's uncertainty")
+            "Req's uncertainty"
+        )
     return out

@@ -32,18 +32,21 @@ LAYOUTS = {
     "franck-RofT": "t [s], R [µm], optional Req [µm] and tloc1..6 [1-based collapse indices]",
     "umich-dualcam": "one (n, 3) array: t [s], R camera 0° [µm], R camera 90° [µm]",
 }
-_KEYS = {"estrada-shifted": ("shift_normRnew", "Rmax", "t"), "circlefit-pixels": ("Rnew", "deltax", "deltat"),
-         "franck-RofT": ("t", "R"), "umich-dualcam": ("a single n x 3 array",)}
+_KEYS = {
+    "estrada-shifted": ("shift_normRnew", "Rmax", "t"),
+    "circlefit-pixels": ("Rnew", "deltax", "deltat"),
+    "franck-RofT": ("t", "R"),
+    "umich-dualcam": ("a single n x 3 array",),
+}
 # Plausible magnitudes for the documented units; outside them the file is refused.
-_UM_RANGE = (0.1, 1e4)          # a radius in µm
-_PX_SIZE_RANGE = (1e-9, 1e-3)   # metres per pixel
-_FRAME_RANGE = (1e-10, 1e-2)    # seconds per frame
+_UM_RANGE = (0.1, 1e4)  # a radius in µm
+_PX_SIZE_RANGE = (1e-9, 1e-3)  # metres per pixel
+_FRAME_RANGE = (1e-10, 1e-2)  # seconds per frame
 
 
 def _describe(name, value) -> str:
     if isinstance(value, np.ndarray):
-        kind = {"float64": "double", "float32": "single", "object": "cell"}.get(value.dtype.name,
-                                                                                 value.dtype.name)
+        kind = {"float64": "double", "float32": "single", "object": "cell"}.get(value.dtype.name, value.dtype.name)
         if value.dtype.names:
             kind = "struct"
         elif value.dtype.kind == "U":
@@ -58,8 +61,7 @@ def _variables(path: Path) -> dict:
     try:
         data = scipy.io.loadmat(str(path), squeeze_me=False)
     except NotImplementedError:
-        raise InputError(path, "is a MATLAB v7.3 (HDF5) file, which is not supported; re-save it with "
-                               "save(..., '-v7')")
+        raise InputError(path, "is a MATLAB v7.3 (HDF5) file, which is not supported; re-save it with save(..., '-v7')")
     except FileNotFoundError:
         raise InputError(path, "no such file")
     except Exception as exc:  # scipy raises many types on foreign bytes
@@ -97,8 +99,11 @@ def _check_um(path, name, values):
         raise InputError(path, f"variable {name} holds no radius (all NaN or 0)")
     top = float(np.max(np.abs(finite)))
     if not (_UM_RANGE[0] <= top <= _UM_RANGE[1]):
-        raise InputError(path, f"variable {name} should be in µm for this layout but its largest value is "
-                               f"{top:g}; refusing to guess the unit")
+        raise InputError(
+            path,
+            f"variable {name} should be in µm for this layout but its largest value is "
+            f"{top:g}; refusing to guess the unit",
+        )
 
 
 def _valid(R) -> np.ndarray:
@@ -110,23 +115,38 @@ def _estrada(path, v):
     rmax_um = _vector(path, v, "Rmax")
     t = _vector(path, v, "t")
     if S.ndim != 2 or S.shape[0] != rmax_um.size or S.shape[1] != t.size:
-        raise InputError(path, f"estrada-shifted layout: shapes do not agree: shift_normRnew {S.shape}, "
-                               f"Rmax {rmax_um.size}, t {t.size}")
+        raise InputError(
+            path,
+            f"estrada-shifted layout: shapes do not agree: shift_normRnew {S.shape}, Rmax {rmax_um.size}, t {t.size}",
+        )
     _check_um(path, "Rmax", rmax_um)
     top = np.nanmax(np.where(np.isfinite(S), S, -np.inf), axis=1)
     if not np.all((top > 0.5) & (top < 1.5)):
-        raise InputError(path, "variable shift_normRnew should hold R/Rmax (row maxima near 1), found row "
-                               f"maxima from {np.min(top):g} to {np.max(top):g}")
+        raise InputError(
+            path,
+            "variable shift_normRnew should hold R/Rmax (row maxima near 1), found row "
+            f"maxima from {np.min(top):g} to {np.max(top):g}",
+        )
     exps = []
     for i in range(S.shape[0]):
         keep = _valid(S[i])
         R_m = S[i] * rmax_um[i] * 1e-6
         j = int(np.argmax(np.where(keep, S[i], -np.inf)))
         t_s = t - t[j]
-        exps.append(Experiment(f"exp{i + 1:02d}", t_s[keep], R_m[keep], str(path),
-                               info={"layout": "estrada-shifted", "row": i + 1,
-                                     "Rmax_stored_um": float(rmax_um[i]),
-                                     "source_time_of_t0_s": float(t[j])}))
+        exps.append(
+            Experiment(
+                f"exp{i + 1:02d}",
+                t_s[keep],
+                R_m[keep],
+                str(path),
+                info={
+                    "layout": "estrada-shifted",
+                    "row": i + 1,
+                    "Rmax_stored_um": float(rmax_um[i]),
+                    "source_time_of_t0_s": float(t[j]),
+                },
+            )
+        )
     return exps
 
 
@@ -145,9 +165,15 @@ def _circlefit(path, v):
     frames = np.arange(px.size)
     t_s = (frames - j) * dt
     R_m = px * dx
-    return [Experiment(path.stem, t_s[keep], R_m[keep], str(path),
-                       info={"layout": "circlefit-pixels", "pixel_size_m": dx, "frame_interval_s": dt,
-                             "Rmax_px": float(px[j])})]
+    return [
+        Experiment(
+            path.stem,
+            t_s[keep],
+            R_m[keep],
+            str(path),
+            info={"layout": "circlefit-pixels", "pixel_size_m": dx, "frame_interval_s": dt, "Rmax_px": float(px[j])},
+        )
+    ]
 
 
 def _franck(path, v):
@@ -170,8 +196,17 @@ def _franck(path, v):
         idx = [int(_scalar(path, v, k)) for k in tlocs]
         if all(1 <= i <= t.size for i in idx):
             info["collapse_times_from_file_s"] = [float(t[i - 1] - t0) for i in idx]
-    return [Experiment(path.stem, (t - t0)[keep], (R * 1e-6)[keep], str(path), req_m=req_m,
-                       req_source="file" if req_m is not None else None, info=info)]
+    return [
+        Experiment(
+            path.stem,
+            (t - t0)[keep],
+            (R * 1e-6)[keep],
+            str(path),
+            req_m=req_m,
+            req_source="file" if req_m is not None else None,
+            info=info,
+        )
+    ]
 
 
 def _umich(path, v, name):
@@ -186,10 +221,21 @@ def _umich(path, v, name):
         R = A[:, col]
         _check_um(path, f"{name}[:, {col}]", R)
         keep = _valid(R) & np.isfinite(t)
-        exps.append(Experiment(f"{name}_{cam}", t_s[keep], (R * 1e-6)[keep], str(path),
-                               info={"layout": "umich-dualcam", "camera": cam, "column": col + 1,
-                                     "source_time_of_t0_s": float(t[j]),
-                                     "time_origin": "argmax of camera 0° radius (both views share it)"}))
+        exps.append(
+            Experiment(
+                f"{name}_{cam}",
+                t_s[keep],
+                (R * 1e-6)[keep],
+                str(path),
+                info={
+                    "layout": "umich-dualcam",
+                    "camera": cam,
+                    "column": col + 1,
+                    "source_time_of_t0_s": float(t[j]),
+                    "time_origin": "argmax of camera 0° radius (both views share it)",
+                },
+            )
+        )
     return exps
 
 
@@ -204,8 +250,16 @@ def read_mat(path) -> tuple:
         return "circlefit-pixels", _circlefit(path, v)
     if {"t", "R"} <= names:
         return "franck-RofT", _franck(path, v)
-    arrays = [k for k, a in v.items() if isinstance(a, np.ndarray) and a.dtype.kind in "biuf"
-              and not a.dtype.names and a.ndim == 2 and a.shape[1] == 3 and a.shape[0] >= 5]
+    arrays = [
+        k
+        for k, a in v.items()
+        if isinstance(a, np.ndarray)
+        and a.dtype.kind in "biuf"
+        and not a.dtype.names
+        and a.ndim == 2
+        and a.shape[1] == 3
+        and a.shape[0] >= 5
+    ]
     if len(v) == 1 and len(arrays) == 1:
         return "umich-dualcam", _umich(path, v, arrays[0])
     found = ", ".join(_describe(k, a) for k, a in sorted(v.items())) or "no variables"

@@ -28,16 +28,56 @@ from imrbayes.errors import InputError
 __all__ = ["Meta", "read_meta", "parse_meta", "KNOWN_KEYS"]
 
 #: top-level keys of meta.json: read by imrbayes, or descriptive ones kept in ``Meta.raw``
-KNOWN_KEYS = frozenset({
-    "material", "physics", "forward", "experiments",                       # read by the data layer
-    "description", "synthetic", "truth", "temperature", "temperature_C", "concentration", "dataset", "source",
-    "real_or_synthetic", "n_experiments", "n_files", "caveats", "conversion", "checks", "notes", "physics_note",
-    "camera", "cameras", "frame_interval_s", "frame_rate_fps", "frame_rate_note", "frames", "frames_per_record",
-    "pixel_size_m", "pixel_size_note", "time_origin", "source_variables", "source_scalars", "reference_estimates",
-    "Req_in_file", "Req_note", "Req_stored_m", "Rmax_stats_um", "Rmax_stored_sample_m", "UNIT_BUG_WARNING",
-    "authors_selection", "collapse_times_from_tloc_s", "columns", "derived_files_not_converted",
-    "missing_full_curves", "not_converted", "use",
-})
+KNOWN_KEYS = frozenset(
+    {
+        "material",
+        "physics",
+        "forward",
+        "experiments",  # read by the data layer
+        "description",
+        "synthetic",
+        "truth",
+        "temperature",
+        "temperature_C",
+        "concentration",
+        "dataset",
+        "source",
+        "real_or_synthetic",
+        "n_experiments",
+        "n_files",
+        "caveats",
+        "conversion",
+        "checks",
+        "notes",
+        "physics_note",
+        "camera",
+        "cameras",
+        "frame_interval_s",
+        "frame_rate_fps",
+        "frame_rate_note",
+        "frames",
+        "frames_per_record",
+        "pixel_size_m",
+        "pixel_size_note",
+        "time_origin",
+        "source_variables",
+        "source_scalars",
+        "reference_estimates",
+        "Req_in_file",
+        "Req_note",
+        "Req_stored_m",
+        "Rmax_stats_um",
+        "Rmax_stored_sample_m",
+        "UNIT_BUG_WARNING",
+        "authors_selection",
+        "collapse_times_from_tloc_s",
+        "columns",
+        "derived_files_not_converted",
+        "missing_full_curves",
+        "not_converted",
+        "use",
+    }
+)
 
 
 @dataclass
@@ -131,11 +171,15 @@ def parse_meta(raw, path=None) -> Meta:
             raise InputError(src, f"experiments.{key} must be an object, got {entry!r}")
         for name in ("Req_m", "Req_sd_m"):
             if name in entry and entry[name] is not None:
-                value = _positive(entry[name], f"experiments.{key}.{name}", src) if name == "Req_m" else \
-                    _nonneg(entry[name], f"experiments.{key}.{name}", src)
+                value = (
+                    _positive(entry[name], f"experiments.{key}.{name}", src)
+                    if name == "Req_m"
+                    else _nonneg(entry[name], f"experiments.{key}.{name}", src)
+                )
                 if name == "Req_m" and not (MIN_RADIUS_M <= value <= MAX_RADIUS_M):
-                    raise InputError(src, f"experiments.{key}.Req_m = {value:g} is not a radius in metres "
-                                          f"(looks like µm?)")
+                    raise InputError(
+                        src, f"experiments.{key}.Req_m = {value:g} is not a radius in metres (looks like µm?)"
+                    )
         meta.experiments[_stem(str(key))] = entry
     return meta
 
@@ -151,9 +195,12 @@ def _check_keys(raw: dict, src) -> None:
     """Refuse an unknown top-level key or ``physics`` key with one line naming the file."""
     for key in raw:
         if key not in KNOWN_KEYS and not str(key).startswith("x_"):
-            raise InputError(src, f"unknown key {key!r}{_suggest(str(key), KNOWN_KEYS)}; imrbayes reads material, "
-                                  "physics, forward and experiments (every known key: docs/cli.md, meta.json); "
-                                  "prefix your own keys with x_")
+            raise InputError(
+                src,
+                f"unknown key {key!r}{_suggest(str(key), KNOWN_KEYS)}; imrbayes reads material, "
+                "physics, forward and experiments (every known key: docs/cli.md, meta.json); "
+                "prefix your own keys with x_",
+            )
     physics = raw.get("physics")
     if isinstance(physics, dict):
         from imrbayes.forward.constants import Physics
@@ -161,14 +208,21 @@ def _check_keys(raw: dict, src) -> None:
         known = {f.name for f in dataclasses.fields(Physics)} | set(Physics._ALIASES)
         for key in physics:
             if key not in known:
-                raise InputError(src, f"unknown physics key {key!r}{_suggest(str(key), known)}; known: "
-                                      f"{', '.join(sorted(known, key=str.lower))}")
+                raise InputError(
+                    src,
+                    f"unknown physics key {key!r}{_suggest(str(key), known)}; known: "
+                    f"{', '.join(sorted(known, key=str.lower))}",
+                )
 
 
 def _nonneg(value, where, path) -> float:
     try:
-        ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(float(value)) \
+        ok = (
+            not isinstance(value, bool)
+            and isinstance(value, (int, float))
+            and math.isfinite(float(value))
             and value >= 0
+        )
     except OverflowError:
         ok = False
     if not ok:

@@ -45,8 +45,9 @@ def paper_sigma(t_star, R_star):
     return np.abs(R - 1.0) / 20.0 + (1.0 - np.exp(-t / 10.0)) / 30.0
 
 
-def noise_variance(t_star, R_star, floor_abs: float = P_FLOOR_ABS, floor_rel: float = P_FLOOR_REL,
-                   method: str = "auto") -> tuple:
+def noise_variance(
+    t_star, R_star, floor_abs: float = P_FLOOR_ABS, floor_rel: float = P_FLOOR_REL, method: str = "auto"
+) -> tuple:
     """Per-step noise variance P_k of resampled radii.
 
     Parameters
@@ -88,9 +89,15 @@ def noise_variance(t_star, R_star, floor_abs: float = P_FLOOR_ABS, floor_rel: fl
         method = "paper-noise-model"
     floor = max(float(floor_abs), float(floor_rel) * float(np.median(raw)))
     P = np.maximum(raw, floor)
-    info = {"method": method, "floor": floor, "floor_abs": float(floor_abs), "floor_rel": float(floor_rel),
-            "n_floored": int(np.count_nonzero(raw < floor)), "n_experiments": int(Y.shape[0]),
-            "rule": "P_k = max(var_k, max(floor_abs, floor_rel * median_k var_k)); var_k = sample "
-                    "variance (ddof=1) across experiments (pooled: its running mean over "
-                    f"{POOL_SAMPLES} steps), or the paper's verification noise model squared for a single experiment"}
+    info = {
+        "method": method,
+        "floor": floor,
+        "floor_abs": float(floor_abs),
+        "floor_rel": float(floor_rel),
+        "n_floored": int(np.count_nonzero(raw < floor)),
+        "n_experiments": int(Y.shape[0]),
+        "rule": "P_k = max(var_k, max(floor_abs, floor_rel * median_k var_k)); var_k = sample "
+        "variance (ddof=1) across experiments (pooled: its running mean over "
+        f"{POOL_SAMPLES} steps), or the paper's verification noise model squared for a single experiment",
+    }
     return P, info

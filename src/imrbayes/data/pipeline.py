@@ -128,9 +128,17 @@ class Preprocessed:
         """JSON-able record (what ``dataset.json`` holds)."""
         ds = self.dataset
         out = {
-            "dataset": {"name": ds.name, "path": ds.path, "format": ds.format, "material": ds.material,
-                        "meta_path": ds.meta_path, "physics": ds.physics, "forward": ds.forward,
-                        "notes": ds.notes, "meta": ds.meta},
+            "dataset": {
+                "name": ds.name,
+                "path": ds.path,
+                "format": ds.format,
+                "material": ds.material,
+                "meta_path": ds.meta_path,
+                "physics": ds.physics,
+                "forward": ds.forward,
+                "notes": ds.notes,
+                "meta": ds.meta,
+            },
             "n_experiments": len(self.experiments),
             "choices": self.choices,
             "experiments": [e.to_dict() for e in self.experiments],
@@ -139,30 +147,51 @@ class Preprocessed:
             "skipped": self.skipped,
         }
         if arrays:
-            out["grid"] = {"t_star": jsonable(self.t_star), "P": jsonable(self.P),
-                           "R_star": {e.name: jsonable(self.R_star[i]) for i, e in enumerate(self.experiments)}}
+            out["grid"] = {
+                "t_star": jsonable(self.t_star),
+                "P": jsonable(self.P),
+                "R_star": {e.name: jsonable(self.R_star[i]) for i, e in enumerate(self.experiments)},
+            }
         return out
 
 
 def summarise(experiments) -> dict:
     """Mean and sd (ddof=1; NaN for one experiment) of Rmax [µm], Req [µm], Rmax/Req, t_c*."""
-    cols = {"rmax_um": [e.rmax_m * 1e6 for e in experiments], "req_um": [e.req_m * 1e6 for e in experiments],
-            "rmax_over_req": [e.ratio for e in experiments],
-            "t_collapse_star": [e.t_collapse_star for e in experiments]}
+    cols = {
+        "rmax_um": [e.rmax_m * 1e6 for e in experiments],
+        "req_um": [e.req_m * 1e6 for e in experiments],
+        "rmax_over_req": [e.ratio for e in experiments],
+        "t_collapse_star": [e.t_collapse_star for e in experiments],
+    }
     out = {}
     for k, v in cols.items():
         a = np.asarray(v, dtype=float)
-        out[k] = {"mean": jsonable(float(a.mean())), "sd": jsonable(float(a.std(ddof=1)) if a.size > 1 else math.nan),
-                  "min": jsonable(float(a.min())), "max": jsonable(float(a.max()))}
+        out[k] = {
+            "mean": jsonable(float(a.mean())),
+            "sd": jsonable(float(a.std(ddof=1)) if a.size > 1 else math.nan),
+            "min": jsonable(float(a.min())),
+            "max": jsonable(float(a.max())),
+        }
     return out
 
 
-def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 120, *,
-                       rmax_method: str = "local-fit", collapse_method: str = "parabola",
-                       interp: str = "linear", n_tail: int = 20, rebound_frac: float = 0.05,
-                       noise: str = "auto", rho: float | None = None, p8: float | None = None,
-                       p_floor_abs: float = P_FLOOR_ABS, p_floor_rel: float = P_FLOOR_REL,
-                       skip_failed: bool = False) -> Preprocessed:
+def preprocess_dataset(
+    dataset: Dataset,
+    dt_star: float = 0.025,
+    n_steps: int = 120,
+    *,
+    rmax_method: str = "local-fit",
+    collapse_method: str = "parabola",
+    interp: str = "linear",
+    n_tail: int = 20,
+    rebound_frac: float = 0.05,
+    noise: str = "auto",
+    rho: float | None = None,
+    p8: float | None = None,
+    p_floor_abs: float = P_FLOOR_ABS,
+    p_floor_rel: float = P_FLOOR_REL,
+    skip_failed: bool = False,
+) -> Preprocessed:
     """Align, nondimensionalise and resample every experiment; estimate P_k.
 
     Parameters
@@ -214,11 +243,22 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
     skipped = []
     for exp in dataset.experiments:
         try:
-            s, (ts, Rs) = _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star,
-                               synthetic=dataset.meta.get("synthetic") is True)
+            s, (ts, Rs) = _one(
+                exp,
+                rho,
+                p8,
+                rmax_method,
+                collapse_method,
+                n_tail,
+                rebound_frac,
+                dt_star,
+                synthetic=dataset.meta.get("synthetic") is True,
+            )
             if skip_failed and s.n_steps_available < 1:
-                raise InputError(exp.source, f"experiment {exp.name!r} ends at t* = {s.t_last_star:.3g}, "
-                                             f"before one grid step dt* = {dt_star}")
+                raise InputError(
+                    exp.source,
+                    f"experiment {exp.name!r} ends at t* = {s.t_last_star:.3g}, before one grid step dt* = {dt_star}",
+                )
         except Exception as exc:
             if not skip_failed:
                 raise
@@ -230,18 +270,23 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
         records.append((ts, Rs))
         warnings.extend(f"{exp.name}: {w}" for w in s.warnings)
     if not summaries:
-        raise InputError(dataset.path, f"preprocessing failed for every experiment ({len(skipped)}; first: "
-                                       f"{skipped[0]['error']})")
+        raise InputError(
+            dataset.path, f"preprocessing failed for every experiment ({len(skipped)}; first: {skipped[0]['error']})"
+        )
     n_avail = [s.n_steps_available for s in summaries]
     n_use = min(int(n_steps), min(n_avail))
     if n_use < 1:
         worst = summaries[int(np.argmin(n_avail))]
-        raise InputError(worst.source, f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.3g}, "
-                                       f"before one grid step dt* = {dt_star}")
+        raise InputError(
+            worst.source,
+            f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.3g}, before one grid step dt* = {dt_star}",
+        )
     if n_use < int(n_steps):
         worst = summaries[int(np.argmin(n_avail))]
-        warnings.append(f"grid truncated to {n_use} steps (t* <= {n_use * dt_star:.4g}) instead of {n_steps}: "
-                        f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.4g}")
+        warnings.append(
+            f"grid truncated to {n_use} steps (t* <= {n_use * dt_star:.4g}) instead of {n_steps}: "
+            f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.4g}"
+        )
     R_star = np.empty((len(records), n_use + 1))
     frames = []
     for i, (ts, Rs) in enumerate(records):
@@ -252,40 +297,57 @@ def preprocess_dataset(dataset: Dataset, dt_star: float = 0.025, n_steps: int = 
             # interpolate its prediction the same way instead of comparing point values with chords
             tf = np.concatenate(([0.0], np.asarray(ts, float)[np.asarray(ts) > 0.0]))
             last = int(np.searchsorted(tf, n_use * dt_star, side="left"))
-            frames.append(tf[:min(tf.size, last + 1)])
+            frames.append(tf[: min(tf.size, last + 1)])
     t_star = np.arange(n_use + 1) * dt_star
     if noise in ("sample", "pooled") and len(records) < 2:
         raise InputError(dataset.path, f"noise={noise!r} needs at least two experiments")
     P, pinfo = noise_variance(t_star, R_star, p_floor_abs, p_floor_rel, method=noise)
     if pinfo["method"] == "paper-noise-model" and noise == "auto":
-        warnings.append("one experiment: the noise variance P_k comes from the paper's verification noise model (sd |R*-1|/20 + "
-                        "(1-exp(-t*/10))/30), not from data; only --likelihood paper and IMR's weighting=P use it (the "
-                        "default likelihood takes each record's own noise sd)")
+        warnings.append(
+            "one experiment: the noise variance P_k comes from the paper's verification noise model (sd |R*-1|/20 + "
+            "(1-exp(-t*/10))/30), not from data; only --likelihood paper and IMR's weighting=P use it (the "
+            "default likelihood takes each record's own noise sd)"
+        )
     elif len(records) == 2 and noise != "paper":
         warnings.append("P_k from only two experiments is a very rough estimate")
     choices = {
-        "rho_kg_m3": rho, "p8_Pa": p8, "time_scale": "t_c = Rmax / sqrt(p8/rho) per experiment",
-        "dt_star": float(dt_star), "n_steps_requested": int(n_steps), "n_steps": n_use,
-        "rmax_method": rmax_method, "collapse_method": collapse_method, "rebound_frac": rebound_frac,
+        "rho_kg_m3": rho,
+        "p8_Pa": p8,
+        "time_scale": "t_c = Rmax / sqrt(p8/rho) per experiment",
+        "dt_star": float(dt_star),
+        "n_steps_requested": int(n_steps),
+        "n_steps": n_use,
+        "rmax_method": rmax_method,
+        "collapse_method": collapse_method,
+        "rebound_frac": rebound_frac,
         "record_noise": "sd from the median absolute fourth difference of each record (noise_sd_m)",
         "collapse_search": "rebound > max(rebound_frac Rmax, min(4 noise sd, 0.08 Rmax)) -- 2 noise sd from a "
-                           "minimum below 0.5 Rmax --, no earlier than t* = 0.6 after the maximum; with the noise "
-                           "bar, two frames in a row",
+        "minimum below 0.5 Rmax --, no earlier than t* = 0.6 after the maximum; with the noise "
+        "bar, two frames in a row",
         "req": f"meta.json/file value when given, else mean of the last {n_tail} samples after the first "
-               f"collapse (uncertainty: the tail's spread beyond the noise, plus noise/sqrt(n)); a tail whose spread "
-               f"beyond the noise exceeds 10 % of its mean has not settled: Req at the log-midpoint of its lowest "
-               f"point (raised by the expected least of n noise draws) and its mean, each one sd away",
-        "n_tail": int(n_tail), "interpolation": interp,
+        f"collapse (uncertainty: the tail's spread beyond the noise, plus noise/sqrt(n)); a tail whose spread "
+        f"beyond the noise exceeds 10 % of its mean has not settled: Req at the log-midpoint of its lowest "
+        f"point (raised by the expected least of n noise draws) and its mean, each one sd away",
+        "n_tail": int(n_tail),
+        "interpolation": interp,
         "resample_anchor": "the point (t*=0, R*=1) at the refined maximum plus the samples at t* > 0",
         "noise": pinfo,
     }
-    return Preprocessed(frame_t_star=frames, t_star=t_star, R_star=R_star, P=P,
-                        rmax_m=np.array([s.rmax_m for s in summaries]),
-                        req_m=np.array([s.req_m for s in summaries]),
-                        req_sd_m=np.array([s.req_sd_m for s in summaries]),
-                        t_collapse_star=np.array([s.t_collapse_star for s in summaries]),
-                        experiments=summaries, choices=choices, warnings=warnings, dataset=dataset,
-                        skipped=skipped)
+    return Preprocessed(
+        frame_t_star=frames,
+        t_star=t_star,
+        R_star=R_star,
+        P=P,
+        rmax_m=np.array([s.rmax_m for s in summaries]),
+        req_m=np.array([s.req_m for s in summaries]),
+        req_sd_m=np.array([s.req_sd_m for s in summaries]),
+        t_collapse_star=np.array([s.t_collapse_star for s in summaries]),
+        experiments=summaries,
+        choices=choices,
+        warnings=warnings,
+        dataset=dataset,
+        skipped=skipped,
+    )
 
 
 def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star, synthetic=False):
@@ -295,28 +357,48 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
     u_c = math.sqrt(p8 / rho)
     mx = pp.locate_rmax(t, R, rmax_method, u_c=u_c, noise_sd_m=noise_sd)
     if mx.index == R.size - 1:
-        raise InputError(exp.source, f"experiment {exp.name!r}: the largest radius is the last sample; "
-                                     f"the record ends before the first collapse")
+        raise InputError(
+            exp.source,
+            f"experiment {exp.name!r}: the largest radius is the last sample; "
+            f"the record ends before the first collapse",
+        )
     if mx.index == 0 and not synthetic:
-        warnings.append("the largest radius is the first sample: the growth phase is missing, so the "
-                        "maximum may lie before the record starts")
+        warnings.append(
+            "the largest radius is the first sample: the growth phase is missing, so the "
+            "maximum may lie before the record starts"
+        )
     try:
-        col = pp.first_collapse(t, R, mx.index, collapse_method, rebound_frac, noise_sd_m=noise_sd,
-                                t_min_s=0.6 * mx.rmax_m / u_c, t_max_s=mx.t_s)
+        col = pp.first_collapse(
+            t,
+            R,
+            mx.index,
+            collapse_method,
+            rebound_frac,
+            noise_sd_m=noise_sd,
+            t_min_s=0.6 * mx.rmax_m / u_c,
+            t_max_s=mx.t_s,
+        )
     except pp.RecordTooShort as exc:
         raise InputError(exp.source, f"experiment {exp.name!r}: {exc}")
     tc = pp.time_scale_s(mx.rmax_m, rho, p8)
     req_tail = []
     if exp.req_m is not None:
-        req, req_sd, req_se, req_src = exp.req_m, (math.nan if exp.req_sd_m is None else exp.req_sd_m), \
-            math.nan, exp.req_source or "given"
+        req, req_sd, req_se, req_src = (
+            exp.req_m,
+            (math.nan if exp.req_sd_m is None else exp.req_sd_m),
+            math.nan,
+            exp.req_source or "given",
+        )
     else:
         est = pp.estimate_req(R, col.index, n_tail, noise_sd_m=noise_sd)
         req, req_sd, req_se = est.req_m, est.sd_m, est.se_m
         # `req_tail=model` rescales a tail *mean* by the model's own; an unsettled tail's Req is not one
-        req_tail = ((np.asarray(t[est.start_index:], dtype=float) - mx.t_s) / tc).tolist() if est.settled else []
-        req_src = (f"mean of last {est.n} samples" if est.settled else
-                   f"last {est.n} samples not settled: between their lowest point and their mean")
+        req_tail = ((np.asarray(t[est.start_index :], dtype=float) - mx.t_s) / tc).tolist() if est.settled else []
+        req_src = (
+            f"mean of last {est.n} samples"
+            if est.settled
+            else f"last {est.n} samples not settled: between their lowest point and their mean"
+        )
         if est.warning:
             warnings.append(est.warning)
         spread = float(exp.info.get("view_req_spread_m") or 0.0)
@@ -326,23 +408,42 @@ def _one(exp, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_st
             req_sd = math.hypot(req_sd, spread)
             req_src += f"; views' half-difference {spread * 1e6:.2g} µm added to its sd"
     if not req < mx.rmax_m:
-        raise InputError(exp.source, f"experiment {exp.name!r}: Req = {req:g} m is not below Rmax = "
-                                     f"{mx.rmax_m:g} m")
+        raise InputError(exp.source, f"experiment {exp.name!r}: Req = {req:g} m is not below Rmax = {mx.rmax_m:g} m")
     ratio = mx.rmax_m / req
     if not 2.0 <= ratio <= 20.0:
         warnings.append(f"Rmax/Req = {ratio:.3g} is outside the usual IMR range 2-20")
     tcol = (col.t_s - mx.t_s) / tc
     if not 0.5 <= tcol <= 1.5:
-        warnings.append(f"first-collapse time t* = {tcol:.3g} is far from the Rayleigh collapse time 0.915; "
-                        f"check the time units and the record")
+        warnings.append(
+            f"first-collapse time t* = {tcol:.3g} is far from the Rayleigh collapse time 0.915; "
+            f"check the time units and the record"
+        )
     ts, Rs = pp.nondimensionalise(t, R, mx.t_s, mx.rmax_m, tc)
     t_last = float(ts[-1])
     n_avail = int(math.floor(t_last / dt_star + 1e-9))
     summary = ExperimentSummary(
-        name=exp.name, source=exp.source, n_samples=exp.n_samples, rmax_m=mx.rmax_m,
-        rmax_sample_m=mx.rmax_sample_m, rmax_method=mx.method, t0_s=mx.t_s, tc_s=tc, req_m=req,
-        req_sd_m=req_sd, req_se_m=req_se, req_source=req_src, t_collapse_s=col.t_s - mx.t_s,
-        t_collapse_star=(col.t_s - mx.t_s) / tc, r_collapse_star=col.r_m / mx.rmax_m,
-        collapse_method=col.method, t_last_star=t_last, n_steps_available=n_avail,
-        warnings=warnings, noise_sd_m=noise_sd, t0_sd_s=mx.t_sd_s, rmax_sd_m=mx.rmax_sd_m, req_tail_t_star=req_tail)
+        name=exp.name,
+        source=exp.source,
+        n_samples=exp.n_samples,
+        rmax_m=mx.rmax_m,
+        rmax_sample_m=mx.rmax_sample_m,
+        rmax_method=mx.method,
+        t0_s=mx.t_s,
+        tc_s=tc,
+        req_m=req,
+        req_sd_m=req_sd,
+        req_se_m=req_se,
+        req_source=req_src,
+        t_collapse_s=col.t_s - mx.t_s,
+        t_collapse_star=(col.t_s - mx.t_s) / tc,
+        r_collapse_star=col.r_m / mx.rmax_m,
+        collapse_method=col.method,
+        t_last_star=t_last,
+        n_steps_available=n_avail,
+        warnings=warnings,
+        noise_sd_m=noise_sd,
+        t0_sd_s=mx.t_sd_s,
+        rmax_sd_m=mx.rmax_sd_m,
+        req_tail_t_star=req_tail,
+    )
     return summary, (ts, Rs)

@@ -58,8 +58,20 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-__all__ = ["parabola_vertex", "estimate_noise_sd", "locate_rmax", "first_collapse", "estimate_req", "time_scale_s",
-           "nondimensionalise", "resample", "RmaxResult", "CollapseResult", "ReqResult", "RecordTooShort"]
+__all__ = [
+    "parabola_vertex",
+    "estimate_noise_sd",
+    "locate_rmax",
+    "first_collapse",
+    "estimate_req",
+    "time_scale_s",
+    "nondimensionalise",
+    "resample",
+    "RmaxResult",
+    "CollapseResult",
+    "ReqResult",
+    "RecordTooShort",
+]
 
 
 class RecordTooShort(ValueError):
@@ -123,8 +135,9 @@ class RmaxResult:
     n_fit: int = 1
 
 
-def locate_rmax(t_s, R_m, method: str = "parabola", u_c: float | None = None, half_width: float = 0.35,
-                noise_sd_m: float = 0.0) -> RmaxResult:
+def locate_rmax(
+    t_s, R_m, method: str = "parabola", u_c: float | None = None, half_width: float = 0.35, noise_sd_m: float = 0.0
+) -> RmaxResult:
     """Find the radius maximum, refined below the frame interval.
 
     ``method="local-fit"`` (the pipeline's default; it needs ``u_c``) fits a parabola to every sample
@@ -156,7 +169,7 @@ def locate_rmax(t_s, R_m, method: str = "parabola", u_c: float | None = None, ha
             return fit
     if i == 0 or i == R.size - 1:
         return RmaxResult(i, float(t[i]), float(R[i]), float(R[i]), "sample (at record end)")
-    v = parabola_vertex(t[i - 1:i + 2], R[i - 1:i + 2])
+    v = parabola_vertex(t[i - 1 : i + 2], R[i - 1 : i + 2])
     flat_top = v is None or not (t[i - 1] < v[0] < t[i + 1]) or v[1] < R[i]
     t_sd = r_sd = float("nan")
     if method == "local-fit" and noise_sd_m > 0:
@@ -167,7 +180,7 @@ def locate_rmax(t_s, R_m, method: str = "parabola", u_c: float | None = None, ha
         if flat_top:
             t_sd, r_sd = max(flat, float(t[i + 1] - t[i - 1]) / math.sqrt(24.0)), float(noise_sd_m)
         else:
-            t_sd, r_sd = _three_point_vertex_sd(t[i - 1:i + 2], R[i - 1:i + 2], noise_sd_m, R[i] / u_c)
+            t_sd, r_sd = _three_point_vertex_sd(t[i - 1 : i + 2], R[i - 1 : i + 2], noise_sd_m, R[i] / u_c)
             t_sd, r_sd = min(t_sd, flat), min(r_sd, 2.0 * noise_sd_m)
     if flat_top:
         return RmaxResult(i, float(t[i]), float(R[i]), float(R[i]), "sample (flat top)", t_sd, r_sd)
@@ -195,10 +208,11 @@ def _three_point_vertex_sd(t3, R3, noise_sd_m: float, t_c: float) -> tuple:
     for D in (rm - 2.0 * r0 + rp, d_expected):
         if not D < 0.0:
             return float("inf"), float(noise_sd_m)
-        gx = np.array([h / (2 * D) * (1 - N / D), h * N / D ** 2, -h / (2 * D) * (1 + N / D)])
+        gx = np.array([h / (2 * D) * (1 - N / D), h * N / D**2, -h / (2 * D) * (1 + N / D)])
         # R_v = r0 - N^2 / (8 D)
-        gr = np.array([-N / (4 * D) + N * N / (8 * D * D), 1.0 - 2.0 * N * N / (8 * D * D),
-                       N / (4 * D) + N * N / (8 * D * D)])
+        gr = np.array(
+            [-N / (4 * D) + N * N / (8 * D * D), 1.0 - 2.0 * N * N / (8 * D * D), N / (4 * D) + N * N / (8 * D * D)]
+        )
         out.append((float(noise_sd_m * np.linalg.norm(gx)), float(noise_sd_m * np.linalg.norm(gr))))
     return max(o[0] for o in out), max(o[1] for o in out)
 
@@ -222,9 +236,9 @@ def _local_fit_vertex(t, R, i: int, half_width_s: float, noise_sd_m: float, t_c:
     else:
         centre = float(t[i])
     k_mean, k_sd = CURVATURE_PRIOR
-    c2_prior = -0.5 * k_mean * R[i] * (half_width_s / t_c) ** 2          # [m] per tau^2
+    c2_prior = -0.5 * k_mean * R[i] * (half_width_s / t_c) ** 2  # [m] per tau^2
     lam = (noise_sd_m / (k_sd / k_mean * abs(c2_prior))) ** 2 if noise_sd_m > 0 else 0.0
-    for attempt in range(2):
+    for _attempt in range(2):
         sel = np.flatnonzero(np.abs(t - centre) <= half_width_s)
         if sel.size < 3:
             return None
@@ -246,10 +260,10 @@ def _local_fit_vertex(t, R, i: int, half_width_s: float, noise_sd_m: float, t_c:
     resid = R[sel] - X @ coef
     if dof <= 0:
         return RmaxResult(i, centre, rmax, float(R[i]), "local-fit", float("nan"), float("nan"), int(sel.size))
-    s2 = max(float(resid @ resid / dof), noise_sd_m ** 2)
+    s2 = max(float(resid @ resid / dof), noise_sd_m**2)
     cov = s2 * np.linalg.pinv(A.T @ A)
-    g_r = np.array([1.0, x, x * x])                           # d p(x)/d coef at the vertex (p'(x) = 0)
-    g_x = np.array([0.0, -1.0, -2.0 * x]) / (2.0 * coef[2])   # d x/d coef from p'(x) = c1 + 2 c2 x = 0
+    g_r = np.array([1.0, x, x * x])  # d p(x)/d coef at the vertex (p'(x) = 0)
+    g_x = np.array([0.0, -1.0, -2.0 * x]) / (2.0 * coef[2])  # d x/d coef from p'(x) = c1 + 2 c2 x = 0
     rmax_sd = math.sqrt(max(float(g_r @ cov @ g_r), 0.0))
     t_sd = math.sqrt(max(float(g_x @ cov @ g_x), 0.0)) * half_width_s
     return RmaxResult(i, centre, rmax, float(R[i]), "local-fit", t_sd, rmax_sd, int(sel.size))
@@ -267,9 +281,17 @@ class CollapseResult:
     method: str
 
 
-def first_collapse(t_s, R_m, i_max: int, method: str = "parabola", rebound_frac: float = 0.05,
-                   noise_sd_m: float = 0.0, t_min_s: float = 0.0, t_max_s: float | None = None,
-                   deep_frac: float = 0.5) -> CollapseResult:
+def first_collapse(
+    t_s,
+    R_m,
+    i_max: int,
+    method: str = "parabola",
+    rebound_frac: float = 0.05,
+    noise_sd_m: float = 0.0,
+    t_min_s: float = 0.0,
+    t_max_s: float | None = None,
+    deep_frac: float = 0.5,
+) -> CollapseResult:
     """The first radius minimum after the maximum at index ``i_max`` (at time ``t_max_s``, default
     the sample's).
 
@@ -293,6 +315,7 @@ def first_collapse(t_s, R_m, i_max: int, method: str = "parabola", rebound_frac:
         raise ValueError(f"method must be 'parabola' or 'sample', got {method!r}")
     t = np.asarray(t_s, dtype=float)
     R = np.asarray(R_m, dtype=float)
+
     def bar(k_sd: float) -> tuple:
         noise_rise = min(k_sd * float(noise_sd_m), 0.08 * R[i_max])
         # noise sets the bar: one lucky frame is not enough
@@ -312,12 +335,14 @@ def first_collapse(t_s, R_m, i_max: int, method: str = "parabola", rebound_frac:
             break
     if rebound is None:
         where = "at its minimum" if im == R.size - 1 else "before the radius rebounds"
-        raise RecordTooShort(f"record too short to reach the first collapse: it ends {where} "
-                             f"(last sample t = {(t[-1] - t[i_max]) * 1e6:.4g} µs after the maximum, "
-                             f"R = {R[-1] / R[i_max]:.3g} Rmax)")
+        raise RecordTooShort(
+            f"record too short to reach the first collapse: it ends {where} "
+            f"(last sample t = {(t[-1] - t[i_max]) * 1e6:.4g} µs after the maximum, "
+            f"R = {R[-1] / R[i_max]:.3g} Rmax)"
+        )
     if method == "sample":
         return CollapseResult(im, float(t[im]), float(R[im]), rebound, "sample")
-    v = parabola_vertex(t[im - 1:im + 2], R[im - 1:im + 2])
+    v = parabola_vertex(t[im - 1 : im + 2], R[im - 1 : im + 2])
     if v is None or not (t[im - 1] < v[0] < t[im + 1]) or v[1] > R[im] or v[1] <= 0.0:
         return CollapseResult(im, float(t[im]), float(R[im]), rebound, "sample (parabola not usable)")
     return CollapseResult(im, float(v[0]), float(v[1]), rebound, "parabola")
@@ -382,20 +407,23 @@ def estimate_req(R_m, i_collapse: int, n_tail: int = 20, noise_sd_m: float | Non
     if noise_sd_m is not None and n > 1:
         sd = math.sqrt(max(spread * spread - noise * noise, 0.0) + noise * noise / n)
     if n < n_tail:
-        warning = (f"only {n} sample(s) after the first collapse; Req from them includes the rebound "
-                   f"and is unreliable")
+        warning = f"only {n} sample(s) after the first collapse; Req from them includes the rebound and is unreliable"
     elif math.sqrt(max(spread * spread - noise * noise, 0.0)) > UNSETTLED * mean:
         # the least of n noisy samples lies ~1.87 noise sd (n = 20; Blom's approximation) below its curve
         low = float(tail.min()) - noise * float(norm.ppf(0.625 / (n + 0.25)))
         if 0.0 < low < mean:
             req = math.sqrt(low * mean)
-            sd_req = req * max(0.5 * math.log(mean / low), sd / mean)   # never narrower than the spread's
-            warning = (f"late-time radius still varies by {100 * spread / mean:.0f}% (sd/mean) over the last {n} "
-                       f"samples: the tail has not settled; Req {req * 1e6:.4g} µm between its lowest point "
-                       f"({low * 1e6:.4g} µm) and its mean ({mean * 1e6:.4g} µm), sd {sd_req * 1e6:.3g} µm")
+            sd_req = req * max(0.5 * math.log(mean / low), sd / mean)  # never narrower than the spread's
+            warning = (
+                f"late-time radius still varies by {100 * spread / mean:.0f}% (sd/mean) over the last {n} "
+                f"samples: the tail has not settled; Req {req * 1e6:.4g} µm between its lowest point "
+                f"({low * 1e6:.4g} µm) and its mean ({mean * 1e6:.4g} µm), sd {sd_req * 1e6:.3g} µm"
+            )
             return ReqResult(req, sd_req, se, n, start, warning, settled=False)
-        warning = (f"late-time radius still varies by {100 * spread / mean:.0f}% (sd/mean) over the last {n} "
-                   f"samples; Req is uncertain")
+        warning = (
+            f"late-time radius still varies by {100 * spread / mean:.0f}% (sd/mean) over the last {n} "
+            f"samples; Req is uncertain"
+        )
     return ReqResult(mean, sd, se, n, start, warning)
 
 
@@ -410,8 +438,9 @@ def nondimensionalise(t_s, R_m, t0_s: float, rmax_m: float, tc_s: float) -> tupl
     return ((np.asarray(t_s, dtype=float) - t0_s) / tc_s, np.asarray(R_m, dtype=float) / rmax_m)
 
 
-def resample(t_star, R_star, dt_star: float = 0.025, n_steps: int = 120, method: str = "linear",
-             anchor: bool = True) -> tuple:
+def resample(
+    t_star, R_star, dt_star: float = 0.025, n_steps: int = 120, method: str = "linear", anchor: bool = True
+) -> tuple:
     """Interpolate one record onto ``t*_k = k dt*``, k = 0..n (n <= ``n_steps``).
 
     Parameters

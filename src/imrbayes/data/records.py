@@ -132,7 +132,7 @@ class Dataset:
         """Far-field pressure used to nondimensionalise [Pa]."""
         return self.physical_constant("p8", "P8", default=DEFAULT_P8)
 
-    def select(self, camera: str | None = None, names=None) -> "Dataset":
+    def select(self, camera: str | None = None, names=None) -> Dataset:
         """A copy keeping experiments of one camera view and/or the given names."""
         keep = list(self.experiments)
         if camera is not None:
@@ -140,5 +140,16 @@ class Dataset:
         if names is not None:
             wanted = set(names)
             keep = [e for e in keep if e.name in wanted]
-        return Dataset(self.name, self.path, self.format, keep, self.material, self.meta, self.physics,
-                       self.forward, self.meta_path, list(self.warnings), list(self.notes))
+        return Dataset(
+            self.name,
+            self.path,
+            self.format,
+            keep,
+            self.material,
+            self.meta,
+            self.physics,
+            self.forward,
+            self.meta_path,
+            list(self.warnings),
+            list(self.notes),
+        )

@@ -35,9 +35,25 @@ from imrbayes.data.noise import paper_sigma
 from imrbayes.errors import InputError
 from imrbayes.io import write_json
 
-__all__ = ["Spec", "parse_spec", "parse_noise", "noise_sd", "collapse_weight", "draw_values", "noisy",
-           "simulate_dataset", "write_dataset", "camera_times", "draw_phases", "draw_scatter", "PHASE_STREAM",
-           "SCATTER_STREAM", "COLLAPSE_PEAK", "COLLAPSE_WIDTH", "COLLAPSE_PROMINENCE"]
+__all__ = [
+    "Spec",
+    "parse_spec",
+    "parse_noise",
+    "noise_sd",
+    "collapse_weight",
+    "draw_values",
+    "noisy",
+    "simulate_dataset",
+    "write_dataset",
+    "camera_times",
+    "draw_phases",
+    "draw_scatter",
+    "PHASE_STREAM",
+    "SCATTER_STREAM",
+    "COLLAPSE_PEAK",
+    "COLLAPSE_WIDTH",
+    "COLLAPSE_PROMINENCE",
+]
 
 #: spawn keys of the camera-phase and material-scatter streams (module docstring)
 PHASE_STREAM, SCATTER_STREAM = (1,), (2,)
@@ -72,8 +88,10 @@ def parse_spec(text: str, option: str) -> Spec:
     return Spec(mean, sd)
 
 
-_NOISE_SYNTAX = ("paper, none, a number (sd in R*), a number with um (sd in µm), a number with R (sd = that "
-                 "fraction of R*), a number with C (larger near collapses) or a sum of these joined by '+'")
+_NOISE_SYNTAX = (
+    "paper, none, a number (sd in R*), a number with um (sd in µm), a number with R (sd = that "
+    "fraction of R*), a number with C (larger near collapses) or a sum of these joined by '+'"
+)
 
 
 def _noise_term(term: str, text: str) -> dict:
@@ -84,7 +102,7 @@ def _noise_term(term: str, text: str) -> dict:
         return {"kind": "none"}
     suffix = next((u for u in ("um", "r", "c") if t.endswith(u)), "")
     try:
-        sd = float(t[:len(t) - len(suffix)])
+        sd = float(t[: len(t) - len(suffix)])
     except ValueError:
         raise InputError("--noise", f"expected {_NOISE_SYNTAX}, got {text!r}")
     if not math.isfinite(sd) or sd < 0:
@@ -94,10 +112,15 @@ def _noise_term(term: str, text: str) -> dict:
     if suffix == "r":
         return {"kind": "proportional", "fraction": sd, "sigma": f"{sd:g} R*"}
     if suffix == "c":
-        return {"kind": "collapse", "sd": sd, "peak": COLLAPSE_PEAK, "width_r_star": COLLAPSE_WIDTH,
-                "prominence_r_star": COLLAPSE_PROMINENCE,
-                "sigma": f"{sd:g} (1 + {COLLAPSE_PEAK:g} exp(-((R* - R*_c)/{COLLAPSE_WIDTH:g})^2)), R*_c the radius "
-                         f"at the nearest collapse (local minimum of prominence >= {COLLAPSE_PROMINENCE:g})"}
+        return {
+            "kind": "collapse",
+            "sd": sd,
+            "peak": COLLAPSE_PEAK,
+            "width_r_star": COLLAPSE_WIDTH,
+            "prominence_r_star": COLLAPSE_PROMINENCE,
+            "sigma": f"{sd:g} (1 + {COLLAPSE_PEAK:g} exp(-((R* - R*_c)/{COLLAPSE_WIDTH:g})^2)), R*_c the radius "
+            f"at the nearest collapse (local minimum of prominence >= {COLLAPSE_PROMINENCE:g})",
+        }
     return {"kind": "gaussian_um", "sd_um": sd} if suffix == "um" else {"kind": "gaussian", "sd": sd}
 
 
@@ -113,8 +136,9 @@ def parse_noise(text: str) -> dict:
     return terms[0] if len(terms) == 1 else {"kind": "sum", "terms": terms}
 
 
-def collapse_weight(t_star, R_star, peak: float = COLLAPSE_PEAK, width: float = COLLAPSE_WIDTH,
-                    prominence: float = COLLAPSE_PROMINENCE) -> np.ndarray:
+def collapse_weight(
+    t_star, R_star, peak: float = COLLAPSE_PEAK, width: float = COLLAPSE_WIDTH, prominence: float = COLLAPSE_PROMINENCE
+) -> np.ndarray:
     """The factor 1 + peak exp(-((R* - R*_c)/width)^2) of the collapse-weighted noise, per sample.
 
     Parameters
@@ -161,8 +185,10 @@ def noise_sd(t_star, R_star, noise: dict, rmax_m: float) -> np.ndarray:
         elif term["kind"] == "proportional":
             sds.append(float(term["fraction"]) * np.abs(R))
         elif term["kind"] == "collapse":
-            sds.append(float(term["sd"]) * collapse_weight(t_star, R, term["peak"], term["width_r_star"],
-                                                           term["prominence_r_star"]))
+            sds.append(
+                float(term["sd"])
+                * collapse_weight(t_star, R, term["peak"], term["width_r_star"], term["prominence_r_star"])
+            )
     if not sds:
         return np.zeros(R.shape)
     return sds[0] if len(sds) == 1 else np.sqrt(np.sum(np.square(sds), axis=0))
@@ -213,8 +239,9 @@ def simulate_dataset(fm, params, rmax_m, req_m, t_star_list) -> list:
     return out
 
 
-def camera_times(tc_s: float, frame_s: float, t_end_star: float, pre_max_s: float = 0.0,
-                 phase_s: float = 0.0) -> np.ndarray:
+def camera_times(
+    tc_s: float, frame_s: float, t_end_star: float, pre_max_s: float = 0.0, phase_s: float = 0.0
+) -> np.ndarray:
     """Frame times in t* from the maximum for a camera of interval ``frame_s`` [s]: the frames fall
     at ``phase_s + k frame_s`` [s] (0 <= phase_s < frame_s), from the last one at or before
     ``-pre_max_s`` [s] to ``t_end_star`` (t* units, ``tc_s`` = Rmax sqrt(rho/p8) [s] per unit)."""
@@ -237,8 +264,13 @@ def draw_scatter(seed: int, params: dict, scatter: dict, n: int) -> list:
     ``params``; the others as given."""
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=SCATTER_STREAM))
     z = rng.standard_normal((n, len(params)))
-    return [{name: (float(v) * math.exp(float(scatter[name]) * z[i, j]) if name in scatter else float(v))
-             for j, (name, v) in enumerate(params.items())} for i in range(n)]
+    return [
+        {
+            name: (float(v) * math.exp(float(scatter[name]) * z[i, j]) if name in scatter else float(v))
+            for j, (name, v) in enumerate(params.items())
+        }
+        for i in range(n)
+    ]
 
 
 def write_dataset(out: Path, records: list, meta: dict, truth: dict) -> list:

@@ -12,8 +12,17 @@ a hidden mechanism), :mod:`figures`, :mod:`report`. Decisions and evidence: docs
 
 from imrbayes.diagnosis.candidates import BASELINE, CANDIDATES, DEFAULT_CANDIDATES, MECHANISMS, CandidateSpec
 
-__all__ = ["diagnose", "DiagnoseSettings", "Diagnosis", "make_candidate", "CandidateSpec", "BASELINE", "CANDIDATES",
-           "DEFAULT_CANDIDATES", "MECHANISMS"]
+__all__ = [
+    "diagnose",
+    "DiagnoseSettings",
+    "Diagnosis",
+    "make_candidate",
+    "CandidateSpec",
+    "BASELINE",
+    "CANDIDATES",
+    "DEFAULT_CANDIDATES",
+    "MECHANISMS",
+]
 
 # The registry is imported eagerly (the command line lists the candidates at start-up); the fits
 # pull in scipy and arviz (~4 s), so they load on first use.

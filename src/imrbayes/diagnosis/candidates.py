@@ -15,13 +15,21 @@ This module is light (numpy only): the command line imports it to list the candi
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["Extension", "Range", "CandidateSpec", "BASELINE", "CANDIDATES", "DEFAULT_CANDIDATES", "MECHANISMS",
-           "spec_of"]
+__all__ = [
+    "Extension",
+    "Range",
+    "CandidateSpec",
+    "BASELINE",
+    "CANDIDATES",
+    "DEFAULT_CANDIDATES",
+    "MECHANISMS",
+    "spec_of",
+]
 
 
 @dataclass(frozen=True)
@@ -101,6 +109,7 @@ class CandidateSpec:
         if self.forward_options is None:
             return options
         from dataclasses import replace
+
         change = self.forward_options(options)
         return None if change is None else replace(options, **change)
 
@@ -127,39 +136,62 @@ class CandidateSpec:
 def _retention(values, n_pieces):
     """Damage: piece j (after j collapses) has G a_G^j and mu a_mu^j -> nhkv's (G, mu) per piece."""
     j = np.arange(n_pieces)[None, :]
-    return {"G": values["G"][:, None] * values["a_G"][:, None] ** j,
-            "mu": values["mu"][:, None] * values["a_mu"][:, None] ** j}
+    return {
+        "G": values["G"][:, None] * values["a_G"][:, None] ** j,
+        "mu": values["mu"][:, None] * values["a_mu"][:, None] ** j,
+    }
 
 
 #: The constant-parameter model every candidate nests; synthetic data of mechanism ``none``.
 BASELINE = CandidateSpec("nhkv", "none", "nhkv", synthetic={})
 
 QKV = CandidateSpec(
-    "qkv", "strain-stiffening", "qkv", extension=(Extension("alpha", 0.0, 0.5),),
-    points_right_way=lambda m: m["alpha"] > 0.0, wrong_way="fitted alpha <= 0: strain softening, not stiffening",
-    synthetic={"alpha": Range(0.2, 0.5)})
+    "qkv",
+    "strain-stiffening",
+    "qkv",
+    extension=(Extension("alpha", 0.0, 0.5),),
+    points_right_way=lambda m: m["alpha"] > 0.0,
+    wrong_way="fitted alpha <= 0: strain softening, not stiffening",
+    synthetic={"alpha": Range(0.2, 0.5)},
+)
 
 # Fung: the same mechanism as qkv with another stiffening law; qkv is the default and generates the data.
 FUNG = CandidateSpec(
-    "fung", "strain-stiffening", "fung", extension=(Extension("alpha", 0.0, 0.3),),
-    points_right_way=lambda m: m["alpha"] > 0.0, wrong_way="fitted alpha <= 0: strain softening, not stiffening",
-    default=False)
+    "fung",
+    "strain-stiffening",
+    "fung",
+    extension=(Extension("alpha", 0.0, 0.3),),
+    points_right_way=lambda m: m["alpha"] > 0.0,
+    wrong_way="fitted alpha <= 0: strain softening, not stiffening",
+    default=False,
+)
 
 # lambda2 = 0: elastic and viscous stress relax together over lambda1; lambda1 -> 0 is NHKV (with
 # the default zener_j=consistent; IMRv2's J counts the viscous term twice there). No
 # direction rule: any lambda1 > 0 is relaxation.
 ZENER = CandidateSpec(
-    "zener", "viscoelastic-relaxation", "zener", extension=(Extension("lambda1", float(np.log(1e-6)), 1.5, log=True),),
-    fixed={"lambda2": 0.0}, synthetic={"lambda1": Range(2e-6, 8e-6, log=True)})
+    "zener",
+    "viscoelastic-relaxation",
+    "zener",
+    extension=(Extension("lambda1", float(np.log(1e-6)), 1.5, log=True),),
+    fixed={"lambda2": 0.0},
+    synthetic={"lambda1": Range(2e-6, 8e-6, log=True)},
+)
 
 # mu_inf = 0; n = 1 or lambda_c -> 0 is NHKV. Shear thinning is n < 1.
 CARREAU = CandidateSpec(
-    "carreau", "rate-dependent-viscosity", "carreau",
-    extension=(Extension("lambda_c", float(np.log(1e-6)), 2.0, log=True),
-               Extension("n", float(np.log(0.7)), 0.6, log=True)),
-    fixed={"mu_inf": 0.0}, points_right_way=lambda m: m["n"] < 1.0,
+    "carreau",
+    "rate-dependent-viscosity",
+    "carreau",
+    extension=(
+        Extension("lambda_c", float(np.log(1e-6)), 2.0, log=True),
+        Extension("n", float(np.log(0.7)), 0.6, log=True),
+    ),
+    fixed={"mu_inf": 0.0},
+    points_right_way=lambda m: m["n"] < 1.0,
     wrong_way="fitted Carreau n >= 1: shear thickening, not the shear thinning of the mechanism",
-    synthetic={"lambda_c": Range(5e-6, 3e-5, log=True), "n": Range(0.25, 0.5)})
+    synthetic={"lambda_c": Range(5e-6, 3e-5, log=True), "n": Range(0.25, 0.5)},
+)
 
 # NHKV whose G and mu lose a fraction at every measured collapse (retention factors, median 1 = NHKV).
 # Damage softens; it never stiffens. Either factor may stay at 1 (the viscous or the elastic network
@@ -168,15 +200,19 @@ CARREAU = CandidateSpec(
 # relaxation data, seeds 2002 and 2003, it fitted a_G 1.35 and 1.79 with a_mu 0.7-0.76 and was named
 # the cause), not describing damage.
 DAMAGE = CandidateSpec(
-    "damage", "damage-softening", "nhkv", label="nhkv-piecewise",
-    extension=(Extension("a_G", 0.0, 0.7, log=True), Extension("a_mu", 0.0, 0.7, log=True)), pieces=_retention,
+    "damage",
+    "damage-softening",
+    "nhkv",
+    label="nhkv-piecewise",
+    extension=(Extension("a_G", 0.0, 0.7, log=True), Extension("a_mu", 0.0, 0.7, log=True)),
+    pieces=_retention,
     points_right_way=lambda m: m["a_G"] < 1.0 or m["a_mu"] < 1.0,
     wrong_way="fitted a_G, a_mu >= 1: stiffening across collapses, not damage",
     interval_right_way=lambda lo, hi: lo["a_G"] <= 1.0 and lo["a_mu"] <= 1.0,
     interval_wrong_way="a retention factor's 95 % interval lies above 1: that modulus stiffens from collapse to "
-                       "collapse, which damage cannot do",
-    synthetic={"a_G": Range(0.25, 0.5), "a_mu": Range(0.6, 1.0)})
-
+    "collapse, which damage cannot do",
+    synthetic={"a_G": Range(0.25, 0.5), "a_mu": Range(0.6, 1.0)},
+)
 
 
 def _thermal_alternative(o):
@@ -185,7 +221,7 @@ def _thermal_alternative(o):
     mass transfer switched (on <-> off). The warm medium (the gel's temperature field) would be the
     natural alternative to a cold one, but our solver does not finish it on the default grid (too
     many steps at every tried grid; docs/diagnosis.md), so it is not offered."""
-    if o.bubble == "polytropic":    # the polytropic options drop mass transfer; the thermal bubble keeps it
+    if o.bubble == "polytropic":  # the polytropic options drop mass transfer; the thermal bubble keeps it
         return {"bubble": "thermal", "integrator": None, "mass_transfer": bool(o.vapor)}
     if o.vapor:
         return {"mass_transfer": not o.mass_transfer}
@@ -200,11 +236,16 @@ def _compressible_alternative(o):
 
 # Bubble-model alternatives: the baseline NHKV material (no extension) on other bubble physics.
 BUBBLE_THERMAL = CandidateSpec(
-    "bubble-thermal", "bubble-thermal", "nhkv", kind="bubble", forward_options=_thermal_alternative,
-    synthetic={})
+    "bubble-thermal", "bubble-thermal", "nhkv", kind="bubble", forward_options=_thermal_alternative, synthetic={}
+)
 BUBBLE_COMPRESSIBILITY = CandidateSpec(
-    "bubble-gilmore", "bubble-compressibility", "nhkv", kind="bubble", forward_options=_compressible_alternative,
-    synthetic={})
+    "bubble-gilmore",
+    "bubble-compressibility",
+    "nhkv",
+    kind="bubble",
+    forward_options=_compressible_alternative,
+    synthetic={},
+)
 
 #: key -> candidate: the registry every other module reads.
 CANDIDATES = {c.key: c for c in (QKV, FUNG, ZENER, CARREAU, DAMAGE, BUBBLE_THERMAL, BUBBLE_COMPRESSIBILITY)}

@@ -51,8 +51,17 @@ from imrbayes.data.noise import noise_variance
 from imrbayes.diagnosis.lsq import ObsModel, fit_map, fit_tempered, frame_values
 from imrbayes.ensemble import Observations
 
-__all__ = ["statistics", "bootstrap_check", "window_drift", "mienks_drift", "combined_p_value", "adequate_already",
-           "inadequate_already", "p_value_text", "min_replicates"]
+__all__ = [
+    "statistics",
+    "bootstrap_check",
+    "window_drift",
+    "mienks_drift",
+    "combined_p_value",
+    "adequate_already",
+    "inadequate_already",
+    "p_value_text",
+    "min_replicates",
+]
 
 STATS = ("drift", "misfit", "phase_misfit")
 #: replicate counts after which the sequential check looks at its verdict before running the rest
@@ -101,9 +110,15 @@ def mienks_drift(base, obs, settings, seed: int = 0) -> tuple:
         slope[i] = np.sum(w * (tc - tb) * (m[:, i] - np.sum(w * m[:, i]) / w.sum())) / sxx
         se[i] = 1.0 / np.sqrt(sxx)
     T = float(np.sum((slope / se) ** 2))
-    return T, {"slope_log_G": float(slope[0]), "slope_log_mu": float(slope[1]), "se_log_G": float(se[0]),
-               "se_log_mu": float(se[1]), "t_star_windows": tc.tolist(),
-               "G_windows": np.exp(m[:, 0]).tolist(), "mu_windows": np.exp(m[:, 1]).tolist()}
+    return T, {
+        "slope_log_G": float(slope[0]),
+        "slope_log_mu": float(slope[1]),
+        "se_log_G": float(se[0]),
+        "se_log_mu": float(se[1]),
+        "t_star_windows": tc.tolist(),
+        "G_windows": np.exp(m[:, 0]).tolist(),
+        "mu_windows": np.exp(m[:, 1]).tolist(),
+    }
 
 
 def window_drift(cand, obs, phases, full, om=None) -> tuple:
@@ -128,8 +143,7 @@ def window_drift(cand, obs, phases, full, om=None) -> tuple:
     return drift, fits
 
 
-def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0, nuisances: bool = True,
-               nu0=None) -> dict:
+def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0, nuisances: bool = True, nu0=None) -> dict:
     """Window fits and the statistics of ``obs`` under the baseline candidate ``base`` (with
     ``mienks``, an :class:`~imrbayes.ensemble.mienks.MIEnKSSettings`, also ``mienks_drift``, or,
     when it cannot be computed, ``mienks_error``: the one-line error). The whole-record fit is made
@@ -145,12 +159,18 @@ def statistics(base, obs, phases, starts=None, mienks=None, seed: int = 0, nuisa
     for m in phases.masks():
         mm = m[1:]
         per_phase.append(float(np.nanmean(r2[:, mm])) if mm.any() else float("nan"))
-    out = {"fits": fits, "om": om, "drift": drift, "misfit": float(np.nanmean(r2)),
-           "phase_misfit": float(np.nanmax(per_phase)), "phase_chi2": per_phase}
+    out = {
+        "fits": fits,
+        "om": om,
+        "drift": drift,
+        "misfit": float(np.nanmean(r2)),
+        "phase_misfit": float(np.nanmax(per_phase)),
+        "phase_chi2": per_phase,
+    }
     if mienks is not None:
         try:
             T, det = mienks_drift(base, obs, mienks, seed=seed)
-        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:   # e.g. the smoother lost its members
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:  # e.g. the smoother lost its members
             msg = str(exc).splitlines()
             out["mienks_error"] = f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__
         else:
@@ -172,6 +192,7 @@ def replicate(obs, Rf, sd, rng):
     while the data's estimate runs over the whole record with its quiet tail -- and made the data's
     chi-square look too large: false alarms on a 270 kfps design.)"""
     from imrbayes.ensemble.likelihood import frame_operator
+
     E, n = obs.n_exp, obs.n_samples
     t = np.asarray(obs.t_star, dtype=float)
     Y = np.empty((E, n))
@@ -189,8 +210,20 @@ def replicate(obs, Rf, sd, rng):
     Y = np.maximum(Y, 1e-3)
     Y[:, 0] = obs.R_star[:, 0]
     P, _ = noise_variance(t, Y) if E >= 2 else (obs.P, None)
-    return Observations(t, Y, P, obs.rmax_m, obs.req_m, obs.t_collapse_star, list(obs.names), noise_sd=noise_sd,
-                        nuisance_sd=obs.nuisance_sd, t0_s=obs.t0_s, tc_s=obs.tc_s, frame_t=obs.frame_t)
+    return Observations(
+        t,
+        Y,
+        P,
+        obs.rmax_m,
+        obs.req_m,
+        obs.t_collapse_star,
+        list(obs.names),
+        noise_sd=noise_sd,
+        nuisance_sd=obs.nuisance_sd,
+        t0_s=obs.t0_s,
+        tc_s=obs.tc_s,
+        frame_t=obs.frame_t,
+    )
 
 
 def bootstrap_unit(unit, rng) -> dict:
@@ -205,8 +238,16 @@ def bootstrap_unit(unit, rng) -> dict:
     base = make_candidate(BASELINE.key, d["options"], d["physics"], d["prior"])
     ob = replicate(obs, d["R0"], d["sd"], rng)
     # a replicate's fits start from its truth (z0, nu0): in the basin it was made in
-    st = statistics(base, ob, d["phases"], starts=[d["z0"]], mienks=d["mienks"], seed=int(d["seed"]),
-                    nuisances=d.get("nuisances", True), nu0=d.get("nu0"))
+    st = statistics(
+        base,
+        ob,
+        d["phases"],
+        starts=[d["z0"]],
+        mienks=d["mienks"],
+        seed=int(d["seed"]),
+        nuisances=d.get("nuisances", True),
+        nu0=d.get("nu0"),
+    )
     return {k: float(st.get(k, float("nan"))) for k in d["stats"]}
 
 
@@ -218,7 +259,7 @@ def combined_p_value(observed, boot) -> tuple:
     X = np.where(np.isfinite(X), X, np.inf)
     n = X.shape[1]
     # p of every pool member on every statistic: the share of the pool at or above it (itself included)
-    P = (X[:, None, :] >= X[:, :, None]).sum(axis=2) / n            # (S, n)
+    P = (X[:, None, :] >= X[:, :, None]).sum(axis=2) / n  # (S, n)
     C = -np.log(P).sum(axis=0)
     # members with the same ranks in another order tie mathematically; a tolerance keeps the sums'
     # rounding from breaking such ties in the data's favour (measured: 6 % rejections instead of 5)
@@ -277,8 +318,19 @@ def p_value_text(ev: dict) -> str:
     return f"p = {p:.3f}"
 
 
-def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 0, alpha: float = 0.05,
-                    progress=None, mienks=None, execution=None, build: dict | None = None) -> dict:
+def bootstrap_check(
+    base,
+    obs,
+    phases,
+    observed: dict,
+    B: int = 19,
+    seed: int = 0,
+    alpha: float = 0.05,
+    progress=None,
+    mienks=None,
+    execution=None,
+    build: dict | None = None,
+) -> dict:
     """Verdict ``adequate``/``inadequate`` with the evidence (see module doc); ``mienks``: the
     MIEnKS settings the observed ``mienks_drift`` was computed with (None: not used).
 
@@ -290,18 +342,26 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     at after each of :data:`LOOKS` replicates (module doc)."""
     import dataclasses
 
-    from imrbayes.execution import Execution
-    from imrbayes.execution import Unit
+    from imrbayes.execution import Execution, Unit
 
     stats = STATS + (("mienks_drift",) if mienks is not None and "mienks_drift" in observed else ())
     full = observed["fits"]["all"]
     z0 = full.z
-    R0 = frame_values(base, z0, obs, phases.minima, full.nu)    # at every experiment's fitted geometry, alignment
+    R0 = frame_values(base, z0, obs, phases.minima, full.nu)  # at every experiment's fitted geometry, alignment
     sd = observed["om"].noise_sd
     build = build or {"options": base.fm.options, "physics": base.fm.physics, "prior": dict(base.space.prior_si)}
-    common = {**build, "obs": obs, "phases": phases, "R0": R0, "sd": sd, "z0": z0, "nu0": full.nu, "stats": list(stats),
-              "nuisances": bool(np.any(observed["om"].nu_sd > 0)),
-              "mienks": mienks if "mienks_drift" in stats else None}
+    common = {
+        **build,
+        "obs": obs,
+        "phases": phases,
+        "R0": R0,
+        "sd": sd,
+        "z0": z0,
+        "nu0": full.nu,
+        "stats": list(stats),
+        "nuisances": bool(np.any(observed["om"].nu_sd > 0)),
+        "mienks": mienks if "mienks_drift" in stats else None,
+    }
     units = [Unit(f"bootstrap={b:03d}", {**common, "seed": seed + 1000 + b}) for b in range(B)]
     ex = execution or Execution(progress=False)
     if progress is not None and ex.bar is None:
@@ -322,7 +382,7 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
         n_dom = sum(1 for r in results.values() if all(not (r.get(k, np.inf) < observed[k]) for k in stats))
         if n == B and looks:
             break
-        first = units[:n]      # z_first_batch: at the last look (all B when there is none)
+        first = units[:n]  # z_first_batch: at the last look (all B when there is none)
         first_boot = {k: [results.get(u.unit_id, {}).get(k, float("nan")) for u in first] for k in stats}
         bad, p_bound, z_first = inadequate_already(observed, first_boot, stats, alpha)
         if n < B:
@@ -333,38 +393,54 @@ def bootstrap_check(base, obs, phases, observed: dict, B: int = 19, seed: int = 
     boot = {k: [results.get(f"bootstrap={b:03d}", {}).get(k, float("nan")) for b in range(B)] for k in stats}
     p_comb, p_each = combined_p_value([observed[k] for k in stats], [boot[k] for k in stats])
     p = dict(zip(stats, map(float, p_each)))
-    ev = {"n_bootstrap": B, "alpha": alpha, "p_value": p_bound if decided == "inadequate" else p_comb,
-          "p_value_kind": "bound" if decided == "inadequate" else "rank",
-          "p_value_rank": p_comb,
-          "replicate_fits": "full",
-          "sequential": {"first_batch": len(first),
-                         "looks": looks, "n_planned": len(units), "stopped_early": decided is not None,
-                         "decided": decided, "n_dominating": int(n_dom),
-                         "z_first_batch": {k: float(v) for k, v in z_first.items()} if decided != "adequate" else {},
-                         "rule": f"stop after the first {' or '.join(map(str, looks)) or len(units)} replicates when "
-                                 "(1 + the number of them at or "
-                                 "above the data on every statistic) / (B + 1) > alpha (the verdict cannot become "
-                                 "inadequate), or when the data lie above all of them and >= "
-                                 f"{' / '.join(f'{decisive_z(n):g}' for n in looks) or Z_DECIDED} of their sd above "
-                                 f"their mean on {' or '.join(DECIDE_STATS)} "
-                                 "(inadequate: p_value is then the bound S / (1 + z^2), Cantelli's inequality with "
-                                 "Bonferroni over the S statistics; p_value_rank the rank test of the replicates run)"},
-          "rule": f"inadequate when the combined p-value of ({', '.join(stats)}) is <= alpha: Fisher's "
-                  "nonparametric combination, the data ranked in the pool of data and replicates",
-          "statistics": {}}
+    ev = {
+        "n_bootstrap": B,
+        "alpha": alpha,
+        "p_value": p_bound if decided == "inadequate" else p_comb,
+        "p_value_kind": "bound" if decided == "inadequate" else "rank",
+        "p_value_rank": p_comb,
+        "replicate_fits": "full",
+        "sequential": {
+            "first_batch": len(first),
+            "looks": looks,
+            "n_planned": len(units),
+            "stopped_early": decided is not None,
+            "decided": decided,
+            "n_dominating": int(n_dom),
+            "z_first_batch": {k: float(v) for k, v in z_first.items()} if decided != "adequate" else {},
+            "rule": f"stop after the first {' or '.join(map(str, looks)) or len(units)} replicates when "
+            "(1 + the number of them at or "
+            "above the data on every statistic) / (B + 1) > alpha (the verdict cannot become "
+            "inadequate), or when the data lie above all of them and >= "
+            f"{' / '.join(f'{decisive_z(n):g}' for n in looks) or Z_DECIDED} of their sd above "
+            f"their mean on {' or '.join(DECIDE_STATS)} "
+            "(inadequate: p_value is then the bound S / (1 + z^2), Cantelli's inequality with "
+            "Bonferroni over the S statistics; p_value_rank the rank test of the replicates run)",
+        },
+        "rule": f"inadequate when the combined p-value of ({', '.join(stats)}) is <= alpha: Fisher's "
+        "nonparametric combination, the data ranked in the pool of data and replicates",
+        "statistics": {},
+    }
     for k in stats:
         q = np.quantile(boot[k], [0.05, 0.5, 0.95]).tolist()
-        ev["statistics"][k] = {"observed": float(observed[k]), "bootstrap_q05_q50_q95": q, "p_value": p[k],
-                               "bootstrap": [float(v) for v in boot[k]]}
+        ev["statistics"][k] = {
+            "observed": float(observed[k]),
+            "bootstrap_q05_q50_q95": q,
+            "p_value": p[k],
+            "bootstrap": [float(v) for v in boot[k]],
+        }
     ev["window_estimates"] = {}
     for name, f in observed["fits"].items():
         th = base.to_si(f.z)
         sd_ = np.sqrt(np.diag(f.cov))
         ev["window_estimates"][name] = {
             "t_star_end": float(obs.t_star[f.K]),
-            **{n: {"median": float(th[i]), "sd_log": float(sd_[i])} for i, n in enumerate(base.names)}}
+            **{n: {"median": float(th[i]), "sd_log": float(sd_[i])} for i, n in enumerate(base.names)},
+        }
     ev["phase_chi2"] = observed["phase_chi2"]
     if "mienks" in observed:
-        ev["mienks_windows"] = {**observed["mienks"], "settings": {"n_ens": mienks.n_ens, "n_iter": mienks.n_iter,
-                                                                   "L": mienks.L, "h": mienks.h}}
+        ev["mienks_windows"] = {
+            **observed["mienks"],
+            "settings": {"n_ens": mienks.n_ens, "n_iter": mienks.n_iter, "L": mienks.L, "h": mienks.h},
+        }
     return {"verdict": "inadequate" if ev["p_value"] <= alpha else "adequate", "evidence": ev}

@@ -16,8 +16,16 @@ import numpy as np
 
 from imrbayes.plotting import figure, save
 
-__all__ = ["write_figures", "residuals_figure", "check_figure", "candidates_figure", "absorption_figure",
-           "signature_figure", "WIDTH", "STAT_LABELS"]
+__all__ = [
+    "write_figures",
+    "residuals_figure",
+    "check_figure",
+    "candidates_figure",
+    "absorption_figure",
+    "signature_figure",
+    "WIDTH",
+    "STAT_LABELS",
+]
 
 WIDTH = 9.0
 """Width [in] of every diagnosis figure (990 px at 110 dpi; two columns of ~450 px panels)."""
@@ -70,8 +78,9 @@ def residuals_figure(d, path):
     for i in range(obs.n_exp):
         ax[0].plot(t, obs.R_star[i], ".", ms=2.5, color=f"C{i % 10}")
         ax[0].plot(t, d.curves[bkey][i], "-", lw=1, color=f"C{i % 10}", label=f"exp {i + 1}")
-        ax[1].plot(t[1:], (obs.R_star[i, 1:] - d.curves[bkey][i, 1:]) / np.sqrt(obs.P[1:]), "-", lw=0.7,
-                   color=f"C{i % 10}")
+        ax[1].plot(
+            t[1:], (obs.R_star[i, 1:] - d.curves[bkey][i, 1:]) / np.sqrt(obs.P[1:]), "-", lw=0.7, color=f"C{i % 10}"
+        )
     for b in ph.bounds[1:-1]:
         for a in ax:
             a.axvline(t[b], color="0.5", ls=":")
@@ -85,9 +94,16 @@ def residuals_figure(d, path):
     ax[1].axhline(0, color="k", lw=0.5)
     top = ax[1].get_ylim()[1]
     for info, a, b in zip(r["baseline"]["misfit_by_phase"], ph.bounds[:-1], ph.bounds[1:]):
-        ax[1].text(0.5 * (t[a] + t[b - 1]), top * 0.95, f"{info['phase']}\nRMSE {info['rmse']:.3f}\n"
-                   rf"$\chi^2/n$ {info['chi2_norm']:.2f}", ha="center", va="top", fontsize=8,
-                   bbox={"fc": "white", "ec": "none", "alpha": 0.7})
+        ax[1].text(
+            0.5 * (t[a] + t[b - 1]),
+            top * 0.95,
+            f"{info['phase']}\nRMSE {info['rmse']:.3f}\n"
+            rf"$\chi^2/n$ {info['chi2_norm']:.2f}",
+            ha="center",
+            va="top",
+            fontsize=8,
+            bbox={"fc": "white", "ec": "none", "alpha": 0.7},
+        )
     save(fig, path)
 
 
@@ -106,8 +122,7 @@ def check_figure(d, path):
         o = v.get("observed")
         # data tens to thousands of times the replicates' values (real records): on a linear axis the
         # replicates' bars are thinner than a pixel, so the axis becomes logarithmic
-        far = (o is not None and b.size and np.all(b > 0) and np.isfinite(o)
-               and float(o) > 10.0 * float(b.max()))
+        far = o is not None and b.size and np.all(b > 0) and np.isfinite(o) and float(o) > 10.0 * float(b.max())
         if far:
             a.set_xscale("log")
             nb = np.geomspace(b.min() / 1.2, b.max() * 1.2, nb + 1)
@@ -118,11 +133,17 @@ def check_figure(d, path):
         a.set_xlabel(xl + (" (log axis)" if far else ""))
         a.set_ylabel("replicates [count]")
         z = ((ev.get("sequential") or {}).get("z_first_batch") or {}).get(k)
-        a.set_title(f"{k}: observed vs bootstrap, p = {float(v.get('p_value', np.nan)):.3f}"
-                    + (f"\n{z:.3g} sd of the first replicates beyond their mean" if z is not None and np.isfinite(z) and z > 3 else ""),
-                    fontsize=10)
+        a.set_title(
+            f"{k}: observed vs bootstrap, p = {float(v.get('p_value', np.nan)):.3f}"
+            + (
+                f"\n{z:.3g} sd of the first replicates beyond their mean"
+                if z is not None and np.isfinite(z) and z > 3
+                else ""
+            ),
+            fontsize=10,
+        )
         a.legend(fontsize=7, loc="best")
-    rest = list(ax[len(st):])
+    rest = list(ax[len(st) :])
     if "mienks" in extra:
         a = rest.pop(0)
         tw = mw["t_star_windows"]
@@ -142,8 +163,15 @@ def check_figure(d, path):
             f, lab = _PARAM_AXIS[p]
             vals = np.array([we[n][p]["median"] for n in names], float) * f
             sds = np.array([we[n][p]["sd_log"] for n in names], float)
-            axes[j].errorbar(x + 0.12 * (2 * j - 1), vals, yerr=[vals * (1 - np.exp(-sds)), vals * (np.exp(sds) - 1)],
-                             fmt="os"[j], color=f"C{j}", ms=4, capsize=2)
+            axes[j].errorbar(
+                x + 0.12 * (2 * j - 1),
+                vals,
+                yerr=[vals * (1 - np.exp(-sds)), vals * (np.exp(sds) - 1)],
+                fmt="os"[j],
+                color=f"C{j}",
+                ms=4,
+                capsize=2,
+            )
             axes[j].set_ylabel(lab, color=f"C{j}")
         a.set_xticks(x)
         a.set_xticklabels([f"{n}\n(t* ≤ {we[n].get('t_star_end', float('nan')):.2f})" for n in names], fontsize=8)
@@ -151,8 +179,11 @@ def check_figure(d, path):
         a.set_title(f"{d.result['baseline'].get('model', 'baseline')} fit per window (±1 sd)", fontsize=10)
     from imrbayes.diagnosis.check import p_value_text
 
-    pv = (f"combined bootstrap p = {ev['p_value']:.3f}, B = {ev.get('n_bootstrap', '?')}"
-          if ev.get("p_value_kind") != "bound" else p_value_text(ev))
+    pv = (
+        f"combined bootstrap p = {ev['p_value']:.3f}, B = {ev.get('n_bootstrap', '?')}"
+        if ev.get("p_value_kind") != "bound"
+        else p_value_text(ev)
+    )
     fig.suptitle(f"constant-parameter check: {chk['verdict']} ({pv})", fontsize=11)
     save(fig, path)
 
@@ -181,17 +212,29 @@ def candidates_figure(d, path):
         ax[1].barh(y + h * s_i, vals, height=h, color=f"C{s_i}", label=sch)
         for yi, v in zip(y + h * s_i, vals):
             if np.isfinite(v):
-                ax[1].annotate(f"{v:+.1f} %", (v, yi), xytext=(3 if v >= 0 else -3, 0), textcoords="offset points",
-                               ha="left" if v >= 0 else "right", va="center", fontsize=8)
+                ax[1].annotate(
+                    f"{v:+.1f} %",
+                    (v, yi),
+                    xytext=(3 if v >= 0 else -3, 0),
+                    textcoords="offset points",
+                    ha="left" if v >= 0 else "right",
+                    va="center",
+                    fontsize=8,
+                )
     allv = np.array([c["relative_reduction"].get(sch, np.nan) for c in cands for sch in schemes], float) * 100
     allv = allv[np.isfinite(allv)]
-    if allv.size:                       # room for the value labels at both bar ends
+    if allv.size:  # room for the value labels at both bar ends
         lo, hi = min(0.0, allv.min()), max(0.0, allv.max())
         span = (hi - lo) or 1.0
         ax[1].set_xlim(lo - 0.3 * span * (lo < 0), hi + 0.3 * span * (hi > 0) + 0.05 * span)
     ax[1].set_yticks(y + h * (len(schemes) - 1) / 2)
-    ax[1].set_yticklabels([names.get(c.get("key", c["model"]), c["model"]) + ("\n(ruled out)" if c.get("ruled_out") else "")
-                           for c in cands], fontsize=8)
+    ax[1].set_yticklabels(
+        [
+            names.get(c.get("key", c["model"]), c["model"]) + ("\n(ruled out)" if c.get("ruled_out") else "")
+            for c in cands
+        ],
+        fontsize=8,
+    )
     ax[1].invert_yaxis()
     ax[1].axvline(0, color="k", lw=0.6)
     ax[1].set_xlabel("held-out RMSE reduction vs baseline [%]")
@@ -221,8 +264,15 @@ def absorption_figure(result, path):
         for j in range(n):
             v = m[i, j]
             light = np.isfinite(v) and (v - lo) > 0.6 * (hi - lo)
-            a.text(j, i, "–" if not np.isfinite(v) else f"{v:.2f}", ha="center", va="center", fontsize=10,
-                   color="k" if light else "w")
+            a.text(
+                j,
+                i,
+                "–" if not np.isfinite(v) else f"{v:.2f}",
+                ha="center",
+                va="center",
+                fontsize=10,
+                color="k" if light else "w",
+            )
     names = _labels(result)
     a.set_xticks(range(n))
     a.set_xticklabels([names.get(k, k) for k in keys], rotation=30, ha="right")
@@ -247,20 +297,40 @@ def signature_figure(result, path):
         for j, (k, pr) in enumerate(pred.items()):
             tt = np.asarray(pr["t_star"], float)
             c = f"C{(j + 1) % 10}"
-            a.fill_between(tt, np.asarray(pr[f"{p}_lo"], float) * f, np.asarray(pr[f"{p}_hi"], float) * f,
-                           color=c, alpha=0.2, lw=0)
-            a.plot(tt, np.asarray(pr[f"{p}_mean"], float) * f, "-", color=c, lw=1.5,
-                   label=f"{names.get(k, k)}: predicted" if p == "G" else None)
+            a.fill_between(
+                tt, np.asarray(pr[f"{p}_lo"], float) * f, np.asarray(pr[f"{p}_hi"], float) * f, color=c, alpha=0.2, lw=0
+            )
+            a.plot(
+                tt,
+                np.asarray(pr[f"{p}_mean"], float) * f,
+                "-",
+                color=c,
+                lw=1.5,
+                label=f"{names.get(k, k)}: predicted" if p == "G" else None,
+            )
         if ob.get(p) is not None:
             yv = np.asarray(ob[p], float) * f
             err = np.asarray(ob.get(f"{p}_sd"), float) * f if ob.get(f"{p}_sd") is not None else None
-            a.errorbar(ob["t_star"], yv, yerr=err, fmt="o", color="k", ms=4, capsize=2,
-                       label="data: MIEnKS windows" if p == "G" else None)
+            a.errorbar(
+                ob["t_star"],
+                yv,
+                yerr=err,
+                fmt="o",
+                color="k",
+                ms=4,
+                capsize=2,
+                label="data: MIEnKS windows" if p == "G" else None,
+            )
         a.set_xlabel(r"window centre $t^*$ [-]")
         a.set_ylabel(lab)
         a.set_title(f"{'shear modulus G' if p == 'G' else 'viscosity mu'}(t*): data vs candidates", fontsize=10)
-    fig.legend(loc="outside lower center", ncol=min(3, len(pred) + 1), fontsize=8,
-               title="lines, bands: each fit's replicates through the smoother (geometric mean, 80 % prediction band)", title_fontsize=8)
+    fig.legend(
+        loc="outside lower center",
+        ncol=min(3, len(pred) + 1),
+        fontsize=8,
+        title="lines, bands: each fit's replicates through the smoother (geometric mean, 80 % prediction band)",
+        title_fontsize=8,
+    )
     save(fig, path)
 
 
@@ -280,7 +350,7 @@ def write_figures(d, fdir) -> list:
     fdir = Path(fdir)
     out = []
     own = [("residuals.png", residuals_figure), ("check.png", check_figure)]
-    if d.result.get("candidates"):          # none compared when the check ended the diagnosis
+    if d.result.get("candidates"):  # none compared when the check ended the diagnosis
         own.append(("candidates.png", candidates_figure))
     jobs = [(name, lambda p, fn=fn: fn(d, p)) for name, fn in own]
     jobs += [(name, lambda p, fn=fn: fn(d.result, p)) for name, fn in _result_figures(d.result)]

@@ -32,6 +32,7 @@ def _rmse_rows(pred, y):
 
 def forecast(cand, obs, phases, full_fit, om=None) -> dict:
     from imrbayes.diagnosis.lsq import ObsModel
+
     om = ObsModel.of(obs) if om is None else om
     K2 = phases.collapse_index(2)
     n = obs.n_samples
@@ -39,9 +40,13 @@ def forecast(cand, obs, phases, full_fit, om=None) -> dict:
         return {"per_experiment": [], "rmse": float("nan"), "note": "record too short after the 2nd collapse"}
     f = fit_map(cand, obs, K=K2, minima=phases.minima, om=om, starts=[full_fit.z], nu0=full_fit.nu)
     pred = predict(cand, f.z[None], obs, np.arange(obs.n_exp), phases.minima, n - 1, f.nu, om.frames)[0]
-    per = _rmse_rows(pred[:, K2 + 1:], obs.R_star[:, K2 + 1:])
-    return {"scheme": f"fit to t* <= {obs.t_star[K2]:.3f} (2nd collapse), predict t* > {obs.t_star[K2]:.3f}",
-            "per_experiment": per.tolist(), "rmse": float(np.sqrt(np.mean(per ** 2))), "z": f.z.tolist()}
+    per = _rmse_rows(pred[:, K2 + 1 :], obs.R_star[:, K2 + 1 :])
+    return {
+        "scheme": f"fit to t* <= {obs.t_star[K2]:.3f} (2nd collapse), predict t* > {obs.t_star[K2]:.3f}",
+        "per_experiment": per.tolist(),
+        "rmse": float(np.sqrt(np.mean(per**2))),
+        "z": f.z.tolist(),
+    }
 
 
 def loeo(cand, obs, phases, full_fit, om=None) -> dict:
@@ -54,8 +59,11 @@ def loeo(cand, obs, phases, full_fit, om=None) -> dict:
         g = fit_nuisances(cand, obs, [e], f.z, minima=phases.minima, om=om, nu0=full_fit.nu)
         per.append(float(_rmse_rows(g.fitted[0, 1:], obs.R_star[e, 1:])))
     per = np.array(per)
-    return {"scheme": "leave one experiment out (fit N_exp - 1 experiments, predict the left-out one)",
-            "per_experiment": per.tolist(), "rmse": float(np.sqrt(np.mean(per ** 2)))}
+    return {
+        "scheme": "leave one experiment out (fit N_exp - 1 experiments, predict the left-out one)",
+        "per_experiment": per.tolist(),
+        "rmse": float(np.sqrt(np.mean(per**2))),
+    }
 
 
 def paired(base_rows, ext_rows) -> dict:
@@ -77,23 +85,33 @@ def loglik_draws(cand, obs, phases, full_fit, n_draws: int = 100, seed: int = 0,
     except np.linalg.LinAlgError:
         L = np.diag(np.sqrt(np.abs(np.diag(full_fit.cov))))
     Z = full_fit.z[None] + rng.standard_normal((n_draws, cand.d)) @ L.T
-    R = predict(cand, Z, obs, np.arange(obs.n_exp), phases.minima, obs.n_samples - 1, full_fit.nu,
-                None if om is None else om.frames)[..., 1:]
+    R = predict(
+        cand,
+        Z,
+        obs,
+        np.arange(obs.n_exp),
+        phases.minima,
+        obs.n_samples - 1,
+        full_fit.nu,
+        None if om is None else om.frames,
+    )[..., 1:]
     if om is None:
         P, a = np.broadcast_to(obs.P[1:], (obs.n_exp, obs.n_samples - 1)), np.ones(obs.n_exp)
     else:
-        P = np.broadcast_to((om.sd_used ** 2)[:, None], (obs.n_exp, obs.n_samples - 1))
+        P = np.broadcast_to((om.sd_used**2)[:, None], (obs.n_exp, obs.n_samples - 1))
         a = om.alpha
     ok = np.all(np.isfinite(R), axis=(1, 2))
-    if ok.sum() >= 10:       # failed draws are dropped (their likelihood is not defined)
+    if ok.sum() >= 10:  # failed draws are dropped (their likelihood is not defined)
         R = R[ok]
     R = np.where(np.isfinite(R), R, 10.0)
     return -0.5 * a[None, :, None] * (np.log(2 * np.pi * P)[None] + (obs.R_star[None, :, 1:] - R) ** 2 / P[None])
 
 
 def _loo(az, ll):
-    t = az.from_dict({"posterior": {"theta": np.zeros((1, ll.shape[0]))}, "log_likelihood": {"R": ll[None]}},
-                     dims={"R": [f"d{i}" for i in range(ll.ndim - 1)]})
+    t = az.from_dict(
+        {"posterior": {"theta": np.zeros((1, ll.shape[0]))}, "log_likelihood": {"R": ll[None]}},
+        dims={"R": [f"d{i}" for i in range(ll.ndim - 1)]},
+    )
     return t, az.loo(t)
 
 
@@ -117,24 +135,36 @@ def elpd_compare(lls: dict, baseline: str = BASELINE.key) -> dict:
                 for k, ll in lls.items():
                     x = ll.sum(axis=-1) if level == "experiment" else ll
                     trees[k], lo = _loo(az, x)
-                    res[k] = {"elpd": float(lo.elpd), "se": float(lo.se), "level": level,
-                              "n_points": int(np.prod(x.shape[1:])),
-                              "pareto_k_max": float(np.nanmax(np.asarray(lo.pareto_k)))}
+                    res[k] = {
+                        "elpd": float(lo.elpd),
+                        "se": float(lo.se),
+                        "level": level,
+                        "n_points": int(np.prod(x.shape[1:])),
+                        "pareto_k_max": float(np.nanmax(np.asarray(lo.pareto_k))),
+                    }
             except ValueError:
                 continue
             out = res
             break
         if not out:
-            return {k: {"elpd": float("nan"), "se": float("nan"), "elpd_diff": float("nan"), "elpd_se": float("nan"),
-                        "level": "failed"} for k in lls}
+            return {
+                k: {
+                    "elpd": float("nan"),
+                    "se": float("nan"),
+                    "elpd_diff": float("nan"),
+                    "elpd_se": float("nan"),
+                    "level": "failed",
+                }
+                for k in lls
+            }
         for k in trees:
             if k == baseline:
                 out[k]["elpd_diff"], out[k]["elpd_se"] = 0.0, 0.0
                 continue
-            out[k]["elpd_diff"] = float(out[k]["elpd"] - out[baseline]["elpd"])   # extended - baseline
+            out[k]["elpd_diff"] = float(out[k]["elpd"] - out[baseline]["elpd"])  # extended - baseline
             try:
                 cmp = az.compare({baseline: trees[baseline], k: trees[k]})
                 out[k]["elpd_se"] = float(cmp["dse"].max())
-            except ValueError:    # e.g. a difference of 0 with SE 0: az.compare's rounding fails on the NaN
+            except ValueError:  # e.g. a difference of 0 with SE 0: az.compare's rounding fails on the NaN
                 out[k]["elpd_se"] = float("nan")
     return out

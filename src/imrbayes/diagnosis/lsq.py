@@ -28,12 +28,21 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["ObsModel", "predict", "frame_values", "fit_map", "MapOptions", "fit_tempered", "fit_nuisances", "MapFit",
-           "nuisance_restarts"]
+__all__ = [
+    "ObsModel",
+    "predict",
+    "frame_values",
+    "fit_map",
+    "MapOptions",
+    "fit_tempered",
+    "fit_nuisances",
+    "MapFit",
+    "nuisance_restarts",
+]
 
 FAIL_RESIDUAL = 1.0  # R* error assigned to a failed solve (per sample)
 MAX_STEPS = 20_000  # a member needing more integrator steps counts as failed (stiff corners of the prior)
-NU_STEP = 0.05      # nuisance finite-difference step [prior sd]
+NU_STEP = 0.05  # nuisance finite-difference step [prior sd]
 #: longest trial step of the material coordinates [prior sd]: a coordinate the data barely see (a
 #: relaxation time near the NHKV limit) has Marquardt damping ~ its prior precision only, and steps of
 #: 2-7 prior sd there sent the trial solves to far-off, slow parameter sets (docs/diagnosis.md, Runtime)
@@ -91,11 +100,12 @@ class ObsModel:
         return np.sqrt(self.alpha) / self.sd_used
 
     @classmethod
-    def of(cls, obs, nuisances: bool = True, random_effects=RE_SD) -> "ObsModel":
+    def of(cls, obs, nuisances: bool = True, random_effects=RE_SD) -> ObsModel:
         """Record noise, no tempering yet; nuisances with their preprocessing prior (or fixed);
         ``random_effects`` the prior sd of each bubble's (log G, log mu) offset (None: none; with one
         experiment there is no scatter to speak of, so none)."""
         from imrbayes.ensemble.likelihood import nuisance_prior_sd, record_noise_sd
+
         E = obs.n_exp
         sd = np.array([record_noise_sd(obs, n) for n in range(E)])
         nu_sd = np.array([nuisance_prior_sd(obs, n) for n in range(E)]) if nuisances else np.zeros((E, 3))
@@ -103,47 +113,64 @@ class ObsModel:
         nu_sd = np.hstack([np.where(np.isfinite(nu_sd) & (nu_sd > 0), nu_sd, 0.0), re])
         return cls(sd, sd.copy(), np.ones(E), nu_sd, None if obs.frame_t is None else list(obs.frame_t))
 
-    def tempered(self, obs, fitted) -> "ObsModel":
+    def tempered(self, obs, fitted) -> ObsModel:
         """The likelihood at the baseline fit ``fitted`` (E, n): each experiment's variance raised
         to its residual's mean square, tempered by its residuals' n_eff / K."""
         from imrbayes.ensemble.likelihood import observation_model
-        out = [observation_model(obs.R_star[n, 1:], fitted[n, 1:], float(self.noise_sd[n]) ** 2)
-               for n in range(obs.n_exp)]
-        return replace(self, sd_used=np.array([np.sqrt(o["var"]) for o in out]),
-                       alpha=np.array([o["alpha"] for o in out]),
-                       n_eff=np.array([o["effective_samples"] for o in out]),
-                       tau=np.array([o["autocorrelation_time"] for o in out]))
 
-    def without_random_effects(self) -> "ObsModel":
+        out = [
+            observation_model(obs.R_star[n, 1:], fitted[n, 1:], float(self.noise_sd[n]) ** 2) for n in range(obs.n_exp)
+        ]
+        return replace(
+            self,
+            sd_used=np.array([np.sqrt(o["var"]) for o in out]),
+            alpha=np.array([o["alpha"] for o in out]),
+            n_eff=np.array([o["effective_samples"] for o in out]),
+            tau=np.array([o["autocorrelation_time"] for o in out]),
+        )
+
+    def without_random_effects(self) -> ObsModel:
         """The same with every bubble's material offset held at 0 (a new bubble's material is the
         gel's prediction)."""
         nu_sd = self.nu_sd.copy()
         nu_sd[:, 3:] = 0.0
         return replace(self, nu_sd=nu_sd)
 
-    def take(self, idx) -> "ObsModel":
+    def take(self, idx) -> ObsModel:
         idx = np.atleast_1d(np.asarray(idx, dtype=int))
-        pick = (lambda a: None if a is None else np.asarray(a)[idx])
-        return ObsModel(self.noise_sd[idx], self.sd_used[idx], self.alpha[idx], self.nu_sd[idx],
-                        None if self.frames is None else [self.frames[i] for i in idx], pick(self.n_eff),
-                        pick(self.tau))
+        pick = lambda a: None if a is None else np.asarray(a)[idx]
+        return ObsModel(
+            self.noise_sd[idx],
+            self.sd_used[idx],
+            self.alpha[idx],
+            self.nu_sd[idx],
+            None if self.frames is None else [self.frames[i] for i in idx],
+            pick(self.n_eff),
+            pick(self.tau),
+        )
 
     def describe(self) -> dict:
-        return {"noise_sd": self.noise_sd.tolist(), "sd_used": self.sd_used.tolist(), "alpha": self.alpha.tolist(),
-                "effective_samples": None if self.n_eff is None else self.n_eff.tolist(),
-                "nuisance_prior_sd": self.nu_sd.tolist(), "frames": self.frames is not None,
-                "random_effects_sd": self.nu_sd[0, 3:].tolist() if self.nu_sd.shape[0] else [],
-                "note": "per experiment: the record's noise sd in R* (fourth differences / preprocessing), the sd "
-                        "used (raised to the baseline fit's residual RMS), the tempering alpha = n_eff/K (residual "
-                        "autocorrelation), the prior sd of (Rmax rel. error, t0 offset [t*], log Req error, the "
-                        "bubble's log G and log mu offsets from the gel's); the observation model of `fit "
-                        "--likelihood default`, with a fixed-sd random effect per bubble"}
+        return {
+            "noise_sd": self.noise_sd.tolist(),
+            "sd_used": self.sd_used.tolist(),
+            "alpha": self.alpha.tolist(),
+            "effective_samples": None if self.n_eff is None else self.n_eff.tolist(),
+            "nuisance_prior_sd": self.nu_sd.tolist(),
+            "frames": self.frames is not None,
+            "random_effects_sd": self.nu_sd[0, 3:].tolist() if self.nu_sd.shape[0] else [],
+            "note": "per experiment: the record's noise sd in R* (fourth differences / preprocessing), the sd "
+            "used (raised to the baseline fit's residual RMS), the tempering alpha = n_eff/K (residual "
+            "autocorrelation), the prior sd of (Rmax rel. error, t0 offset [t*], log Req error, the "
+            "bubble's log G and log mu offsets from the gel's); the observation model of `fit "
+            "--likelihood default`, with a fixed-sd random effect per bubble",
+        }
 
 
 def _times(obs, idx, K, frames):
     """Per experiment the times to simulate (grid or frames) and the interpolation back to the grid."""
     from imrbayes.ensemble.likelihood import frame_operator
-    t = np.asarray(obs.t_star[:K + 1], dtype=float)
+
+    t = np.asarray(obs.t_star[: K + 1], dtype=float)
     rows, ops = [], []
     for e in idx:
         if frames is None:
@@ -168,9 +195,17 @@ def frame_values(cand, z, obs, minima, nu=None) -> list:
     """Per experiment of ``obs``, R* at the camera frames its grid is interpolated from (or at the
     grid's samples for point-value data), for one parameter set z (d,) and nuisances nu (E, q)."""
     E = obs.n_exp
-    _, R, rows = _predict(cand, np.asarray(z, dtype=float)[None], obs, np.arange(E), minima, obs.n_samples - 1,
-                          None if nu is None else np.asarray(nu, dtype=float)[None], obs.frame_t)
-    return [R[e, :rows[e].size].copy() for e in range(E)]
+    _, R, rows = _predict(
+        cand,
+        np.asarray(z, dtype=float)[None],
+        obs,
+        np.arange(E),
+        minima,
+        obs.n_samples - 1,
+        None if nu is None else np.asarray(nu, dtype=float)[None],
+        obs.frame_t,
+    )
+    return [R[e, : rows[e].size].copy() for e in range(E)]
 
 
 def _predict(cand, z, obs, idx, minima, K, nu, frames):
@@ -181,8 +216,8 @@ def _predict(cand, z, obs, idx, minima, K, nu, frames):
         nu = np.zeros((M, E, 3))
     nu = np.asarray(nu, dtype=float)
     nu = np.broadcast_to(nu, (M, E, nu.shape[-1]))
-    zz = np.repeat(z, E, axis=0)                                          # member i*E + e
-    if nu.shape[-1] > 3:     # the bubble's own (log G, log mu)
+    zz = np.repeat(z, E, axis=0)  # member i*E + e
+    if nu.shape[-1] > 3:  # the bubble's own (log G, log mu)
         zz[:, :2] += nu[..., 3:5].reshape(M * E, 2)
     rows, ops = _times(obs, idx, K, frames)
     m = max(r.size for r in rows)
@@ -193,18 +228,18 @@ def _predict(cand, z, obs, idx, minima, K, nu, frames):
     T = np.empty((M * E, m))
     for i in range(M):
         for j, r in enumerate(rows):
-            T[i * E + j, :r.size] = r
-            T[i * E + j, r.size:] = r[-1]
+            T[i * E + j, : r.size] = r
+            T[i * E + j, r.size :] = r[-1]
     S = np.abs(T - delta[:, None]) / scale[:, None]
     order = np.argsort(S, axis=1, kind="stable")
     S = np.take_along_axis(S, order, axis=1)
     rmax = np.tile(obs.rmax_m[idx], M) * scale
     req = np.tile(obs.req_m[idx], M) * np.exp(rho)
-    bad |= ~(req < rmax)             # a step that puts Req above Rmax: a failed member, not an error
+    bad |= ~(req < rmax)  # a step that puts Req above Rmax: a failed member, not an error
     req = np.where(bad, 0.5 * rmax, req)
     kw = {}
     if not cand.piecewise:
-        P = cand.forward_params(zz)                                       # (M*E, 1, np)
+        P = cand.forward_params(zz)  # (M*E, 1, np)
     else:
         # each experiment breaks at its own measured collapses (on the data's clock, mapped to the
         # member's); experiments with fewer collapses in the window get breaks after its end
@@ -227,25 +262,25 @@ def _predict(cand, z, obs, idx, minima, K, nu, frames):
     for i in range(M):
         for j, op in enumerate(ops):
             r = R[i * E + j]
-            out[i, j] = r[:K + 1] if op is None else (1.0 - op[1]) * r[op[0]] + op[1] * r[op[0] + 1]
+            out[i, j] = r[: K + 1] if op is None else (1.0 - op[1]) * r[op[0]] + op[1] * r[op[0] + 1]
     return out, R, rows
 
 
 @dataclass
 class MapFit:
     key: str
-    z: np.ndarray        # (d,) material MAP, internal coordinates
-    cov: np.ndarray      # (d, d) Laplace covariance, marginal over the nuisances
+    z: np.ndarray  # (d,) material MAP, internal coordinates
+    cov: np.ndarray  # (d, d) Laplace covariance, marginal over the nuisances
     cost: float
-    chi2: float          # data part of 2 * cost (weighted)
+    chi2: float  # data part of 2 * cost (weighted)
     n_data: int
-    fitted: np.ndarray   # (E, K+1) prediction at the MAP (with the nuisances)
+    fitted: np.ndarray  # (E, K+1) prediction at the MAP (with the nuisances)
     K: int
     idx: np.ndarray
     n_iter: int
     converged: bool
-    nu: np.ndarray | None = None      # (E, q) nuisance MAP (ObsModel: Rmax, t0, Req, log G and log mu offsets)
-    nu_sd: np.ndarray | None = None   # (E, q) their Laplace sd
+    nu: np.ndarray | None = None  # (E, q) nuisance MAP (ObsModel: Rmax, t0, Req, log G and log mu offsets)
+    nu_sd: np.ndarray | None = None  # (E, q) their Laplace sd
 
 
 def _residuals(R, y, w):
@@ -289,8 +324,21 @@ def extension_starts(cand, base) -> np.ndarray:
     return np.array(out).reshape(-1, cand.d)
 
 
-def grid_starts(cand, obs, idx, K, minima, om, nu0, extra_starts=(), n_best: int = 2, n_grid: int = 8,
-                n_random: int = 48, seed: int = 0, ext_keep: int = EXT_KEEP) -> list:
+def grid_starts(
+    cand,
+    obs,
+    idx,
+    K,
+    minima,
+    om,
+    nu0,
+    extra_starts=(),
+    n_best: int = 2,
+    n_grid: int = 8,
+    n_random: int = 48,
+    seed: int = 0,
+    ext_keep: int = EXT_KEEP,
+) -> list:
     """Starting points: the best ``n_best`` of a log grid over (G, mu) (other parameters at their
     prior mean), random prior draws (sd 1.5x) and ``extra_starts``, by the MAP cost at ``nu0``;
     with a candidate's extension, also the best ``ext_keep`` of :func:`extension_starts` around the
@@ -310,7 +358,7 @@ def grid_starts(cand, obs, idx, K, minima, om, nu0, extra_starts=(), n_best: int
     n_z = Z.shape[0]
     if len(extra_starts) and ext_keep and cand.d > 2:
         Z = np.vstack([Z, extension_starts(cand, extra_starts[0])])
-    y = obs.R_star[idx, 1:K + 1]
+    y = obs.R_star[idx, 1 : K + 1]
     r = _residuals(predict(cand, Z, obs, idx, minima, K, nu0, om.frames), y, om.weight)
     cost = 0.5 * np.sum(r * r, axis=1) + 0.5 * np.sum(((Z - cand.prior_mean) / cand.prior_sd) ** 2, axis=1)
     # extension lines (one per parameter and level): each line's best G, then the ext_keep best lines
@@ -323,9 +371,9 @@ def grid_starts(cand, obs, idx, K, minima, om, nu0, extra_starts=(), n_best: int
     for i in order[1:]:
         if len(out) >= n_best:
             break
-        if np.max(np.abs(Z[i, :2] - out[0][:2])) > 0.3:   # a different basin in (G, mu)
+        if np.max(np.abs(Z[i, :2] - out[0][:2])) > 0.3:  # a different basin in (G, mu)
             out.append(Z[i])
-    for s in [*extra_starts, *ext]:   # always try the given starts (e.g. the baseline optimum) -- once:
+    for s in [*extra_starts, *ext]:  # always try the given starts (e.g. the baseline optimum) -- once:
         s = np.asarray(s, dtype=float)  # when one is also the screen's best, a second copy repeats its fit
         if not any(np.array_equal(s, o) for o in out):
             out.append(s)
@@ -358,12 +406,20 @@ def nuisance_restarts(cand, obs, idx, K, minima, om: ObsModel, z, nu, levels=(-2
     rows = np.tile(idx, S)
     sub = obs.take(rows)
     mins = None if minima is None else [minima[e] for e in rows]
-    f = fit_map(cand, sub, K=K, minima=mins, om=om.take(rows), starts=[np.asarray(z, dtype=float)],
-                nu0=np.vstack(starts), options=MapOptions(fix_material=True, max_iter=max_iter))
+    f = fit_map(
+        cand,
+        sub,
+        K=K,
+        minima=mins,
+        om=om.take(rows),
+        starts=[np.asarray(z, dtype=float)],
+        nu0=np.vstack(starts),
+        options=MapOptions(fix_material=True, max_iter=max_iter),
+    )
     w = om.weight[rows]
-    y = obs.R_star[rows, 1:K + 1]
+    y = obs.R_star[rows, 1 : K + 1]
     u = np.where(om.nu_sd[rows] > 0, f.nu / np.where(om.nu_sd[rows] > 0, om.nu_sd[rows], 1.0), 0.0)
-    obj = 0.5 * (np.nansum((w[:, None] * (y - f.fitted[:, 1:])) ** 2, axis=1) + np.sum(u ** 2, axis=1))
+    obj = 0.5 * (np.nansum((w[:, None] * (y - f.fitted[:, 1:])) ** 2, axis=1) + np.sum(u**2, axis=1))
     obj = np.where(np.all(np.isfinite(f.fitted[:, 1:]), axis=1), obj, np.inf).reshape(S, E)
     best = np.argmin(obj, axis=0)
     # start 0 is the given nuisances refitted: "improved" is measured against it, not against a
@@ -404,7 +460,7 @@ def _nuisance_units(nu0, idx, active, s_nu) -> tuple:
     nu = np.zeros((E, q))
     if nu0 is not None:
         n0 = np.asarray(nu0, dtype=float)[idx]
-        nu[:, :min(q, n0.shape[1])] = n0[:, :q]
+        nu[:, : min(q, n0.shape[1])] = n0[:, :q]
     return nu, np.where(active, nu / np.where(active, s_nu, 1.0), 0.0)
 
 
@@ -420,11 +476,11 @@ class _LMProblem:
         self.tol, self.trace = o.tol, o.trace
         self.E = E = idx.size
         self.w = om.weight[idx]
-        self.s_nu = om.nu_sd[idx]                              # (E, q)
+        self.s_nu = om.nu_sd[idx]  # (E, q)
         self.q = q = self.s_nu.shape[1]
         self.active = active = self.s_nu > 0
         self.jn = [j for j in range(q) if active[:, j].any()]  # nuisance coordinates with a column
-        self.y = obs.R_star[idx, 1:K + 1]
+        self.y = obs.R_star[idx, 1 : K + 1]
         self.m0, self.s0 = m0, s0 = cand.prior_mean, cand.prior_sd
         self.d = d = 0 if o.fix_material else cand.d
         self.z_fixed = z_fixed
@@ -437,7 +493,7 @@ class _LMProblem:
         self.col = -np.ones((E, q), dtype=int)
         self.col[active] = d + np.arange(int(active.sum()))
         self.n_y = E * K
-        self.step_scale = np.concatenate([s0[:d], np.full(n_x - d, np.inf)])   # material steps in prior sd
+        self.step_scale = np.concatenate([s0[:d], np.full(n_x - d, np.inf)])  # material steps in prior sd
 
     def res(self, Z, U):
         """Z (M, d_all) material, U (M, E, q) nuisances in prior-sd units -> (M, n_res) residuals, R."""
@@ -450,13 +506,13 @@ class _LMProblem:
 
     def pack(self, z, u):
         """x of material z and nuisances u (prior sd)."""
-        return np.concatenate([z[:self.d], u[self.active]])
+        return np.concatenate([z[: self.d], u[self.active]])
 
     def unpack(self, x):
         """(material z, nuisances u (E, q) in prior sd) of x."""
-        z = x[:self.d] if self.d else self.z_fixed
+        z = x[: self.d] if self.d else self.z_fixed
         u = np.zeros((self.E, self.q))
-        u[self.active] = x[self.d:]
+        u[self.active] = x[self.d :]
         return z, u
 
     def jacobian(self, z, u, r):
@@ -480,7 +536,7 @@ class _LMProblem:
             for e in range(E):
                 if self.active[e, j]:
                     c = self.col[e, j]
-                    J[e * K:(e + 1) * K, c] = diff[e * K:(e + 1) * K]
+                    J[e * K : (e + 1) * K, c] = diff[e * K : (e + 1) * K]
                     J[self.n_y + c, c] = 1.0
         return J
 
@@ -515,8 +571,16 @@ class _LMProblem:
             except np.linalg.LinAlgError:
                 decrement = np.inf
             if trace is not None:
-                trace.append({"it": it, "cost": float(cost), "decrement": float(decrement), "lam": float(lam),
-                              "z": np.asarray(z, dtype=float).tolist(), "t": time.perf_counter()})
+                trace.append(
+                    {
+                        "it": it,
+                        "cost": float(cost),
+                        "decrement": float(decrement),
+                        "lam": float(lam),
+                        "z": np.asarray(z, dtype=float).tolist(),
+                        "t": time.perf_counter(),
+                    }
+                )
             if decrement < NEWTON_DECREMENT:
                 conv, J_x = True, J
                 break
@@ -556,7 +620,7 @@ class _LMProblem:
         r0, R0 = self.res(z[None], u[None])
         return self.lm(self.pack(z, u), r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2, n_iter)
 
-    def map_fit(self, state) -> "MapFit":
+    def map_fit(self, state) -> MapFit:
         """The :class:`MapFit` of a final state, with the Laplace covariance (J^T J)^-1 at it."""
         x, r, cost, Rz, _, conv, it, J, J_at = state
         d, s0 = self.d, self.s0
@@ -570,9 +634,22 @@ class _LMProblem:
         cov = C[:d, :d] if d else np.zeros((self.cand.d, self.cand.d))
         nu_sd = np.zeros((self.E, self.q))
         nu_sd[self.active] = np.sqrt(np.clip(np.diag(C)[d:], 0, None)) * self.s_nu[self.active]
-        chi2 = float(np.sum(r[:self.n_y] ** 2))
-        return MapFit(self.cand.key, np.asarray(z, dtype=float).copy(), cov, cost, chi2, int(self.y.size), Rz, self.K,
-                      self.idx, it, conv, u * self.s_nu, nu_sd)
+        chi2 = float(np.sum(r[: self.n_y] ** 2))
+        return MapFit(
+            self.cand.key,
+            np.asarray(z, dtype=float).copy(),
+            cov,
+            cost,
+            chi2,
+            int(self.y.size),
+            Rz,
+            self.K,
+            self.idx,
+            it,
+            conv,
+            u * self.s_nu,
+            nu_sd,
+        )
 
 
 def _start_pairs(p: _LMProblem, om, starts, nu0, o: MapOptions) -> tuple:
@@ -586,7 +663,7 @@ def _start_pairs(p: _LMProblem, om, starts, nu0, o: MapOptions) -> tuple:
     pairs = [(z0, u_start) for z0 in starts]
     if o.alt_nu0 is not None and not o.fix_material:
         nu_alt, u_alt = _nuisance_units(o.alt_nu0, p.idx, p.active, p.s_nu)
-        if not np.array_equal(u_alt, u_start):   # the same nuisances would repeat every start's fit
+        if not np.array_equal(u_alt, u_start):  # the same nuisances would repeat every start's fit
             # screened again at these nuisances: the first set's material starts raced from them
             # miss better basins (docs/diagnosis.md, Runtime)
             alt = grid_starts(p.cand, p.obs, p.idx, p.K, p.minima, om, nu_alt, o.extra_starts)
@@ -600,13 +677,21 @@ def _race(p: _LMProblem, pairs: list, n_main: int, max_iter: int) -> list:
     trace, d = p.trace, p.d
     states = []
     for i_s, (z0, u0) in enumerate(pairs if d else pairs[:1]):
-        if trace is not None and len(pairs) > 1:      # a marker per raced start
+        if trace is not None and len(pairs) > 1:  # a marker per raced start
             trace.append({"start": i_s, "set": int(i_s >= n_main), "t": time.perf_counter()})
         x0 = np.clip(p.pack(z0, u0), p.lo, p.hi)
         z0 = p.unpack(x0)[0] if d else z0
         r0, R0 = p.res(z0[None], u0[None])
-        states.append(p.lm(x0, r0[0], 0.5 * float(r0[0] @ r0[0]), R0[0], 1e-2,
-                           max_iter if len(pairs) == 1 or not d else min(6, max_iter)))
+        states.append(
+            p.lm(
+                x0,
+                r0[0],
+                0.5 * float(r0[0] @ r0[0]),
+                R0[0],
+                1e-2,
+                max_iter if len(pairs) == 1 or not d else min(6, max_iter),
+            )
+        )
 
     def converge(st):
         if trace is not None and len(states) > 1:
@@ -628,7 +713,7 @@ def _race(p: _LMProblem, pairs: list, n_main: int, max_iter: int) -> list:
             continue
         leader, *rest = sorted(st, key=lambda q: q[2])
         finalists.append(leader)
-        lead_ext = leader[0][2:d]                     # the extension's coordinates (x starts with z)
+        lead_ext = leader[0][2:d]  # the extension's coordinates (x starts with z)
         close = [q_ for q_ in rest if lead_ext.size and q_[2] <= leader[2] * (1.0 + RUNNER_UP_BEHIND)]
         finalists += [q_ for q_ in close if np.max(np.abs(q_[0][2:d] - lead_ext)) > RUNNER_UP_APART][:1]
     return min((converge(st) for st in finalists), key=lambda q: q[2])
@@ -657,8 +742,17 @@ def _restart_nuisances(p: _LMProblem, best: list, om, max_iter: int) -> list:
     return best
 
 
-def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None, starts=None, nu0=None,
-            options: MapOptions | None = None) -> MapFit:
+def fit_map(
+    cand,
+    obs,
+    idx=None,
+    K=None,
+    minima=None,
+    om: ObsModel | None = None,
+    starts=None,
+    nu0=None,
+    options: MapOptions | None = None,
+) -> MapFit:
     """MAP + Laplace fit of ``cand`` to experiments ``idx`` over samples 1..K (module doc).
 
     Parameters
@@ -688,8 +782,9 @@ def fit_map(cand, obs, idx=None, K=None, minima=None, om: ObsModel | None = None
     return p.map_fit(best)
 
 
-def fit_tempered(cand, obs, minima, om0: ObsModel, first_tol: float = 1e-6, starts=None, nu0=None,
-                 extra_starts=(), alt_nu0=None) -> tuple:
+def fit_tempered(
+    cand, obs, minima, om0: ObsModel, first_tol: float = 1e-6, starts=None, nu0=None, extra_starts=(), alt_nu0=None
+) -> tuple:
     """``fit``'s two-step fit of one model: on the records' noise (``om0``), then on the likelihood
     tempered at that fit, from its optimum. Returns (MapFit, the tempered ObsModel); ``starts``,
     ``nu0``, ``extra_starts`` and ``alt_nu0`` go to the first :func:`fit_map`, which, without ``nu0``, also searches the
@@ -697,8 +792,15 @@ def fit_tempered(cand, obs, minima, om0: ObsModel, first_tol: float = 1e-6, star
     :data:`CANDIDATE_FIRST_TOL`)."""
     # nuisance restarts when the fit has no informed nuisance start (the baseline); the candidates
     # start from the baseline's nuisances, found with them
-    first = fit_map(cand, obs, minima=minima, om=om0, starts=starts, nu0=nu0,
-                    options=MapOptions(extra_starts=extra_starts, alt_nu0=alt_nu0, restarts=nu0 is None, tol=first_tol))
+    first = fit_map(
+        cand,
+        obs,
+        minima=minima,
+        om=om0,
+        starts=starts,
+        nu0=nu0,
+        options=MapOptions(extra_starts=extra_starts, alt_nu0=alt_nu0, restarts=nu0 is None, tol=first_tol),
+    )
     om = om0.tempered(obs, first.fitted)
     return fit_map(cand, obs, minima=minima, om=om, starts=[first.z], nu0=first.nu), om
 
@@ -716,7 +818,7 @@ def fit_nuisances(cand, obs, idx, z, minima=None, om: ObsModel | None = None, K=
     start = np.zeros((obs.n_exp, q))
     if nu0 is not None:
         n0 = np.asarray(nu0, dtype=float)
-        start[:, :min(q, n0.shape[1])] = n0[:, :q]
+        start[:, : min(q, n0.shape[1])] = n0[:, :q]
     start[:, 3:] = 0.0
     start = np.where(om.nu_sd > 0, start, 0.0)
     z = np.asarray(z, dtype=float)
@@ -724,8 +826,10 @@ def fit_nuisances(cand, obs, idx, z, minima=None, om: ObsModel | None = None, K=
         # the restarts only pick each bubble's basin (the fit below converges from it): three iterations
         # per start pick the same basins as ten on stiff PA's leave-one-out folds (5 of 5; left-out
         # RMSE identical in 4, 4e-4 relative in 1) for 35 % fewer solves (2472 -> 1614)
-        best, _ = nuisance_restarts(cand, obs, idx, K, minima, om, z, start[idx], levels=(-2.0, -1.0, 1.0, 2.0),
-                                    max_iter=3)
+        best, _ = nuisance_restarts(
+            cand, obs, idx, K, minima, om, z, start[idx], levels=(-2.0, -1.0, 1.0, 2.0), max_iter=3
+        )
         start[idx] = best
-    return fit_map(cand, obs, idx=idx, K=K, minima=minima, om=om, starts=[z], nu0=start,
-                   options=MapOptions(fix_material=True))
+    return fit_map(
+        cand, obs, idx=idx, K=K, minima=minima, om=om, starts=[z], nu0=start, options=MapOptions(fix_material=True)
+    )

@@ -26,11 +26,13 @@ def candidate_space(spec: CandidateSpec, prior: dict | None = None) -> ParamSpac
     ``prior_si`` entry)."""
     base = ParamSpace.for_model(get_model(BASELINE.forward_model), prior)
     ext = spec.extension
-    return ParamSpace(base.names + tuple(e.name for e in ext),
-                      np.concatenate([base.positive, np.array([e.log for e in ext], dtype=bool)]),
-                      np.concatenate([base.prior_mean, [float(e.mean) for e in ext]]),
-                      np.diag(np.concatenate([np.diag(base.prior_cov), [float(e.sd) ** 2 for e in ext]])),
-                      dict(base.prior_si))
+    return ParamSpace(
+        base.names + tuple(e.name for e in ext),
+        np.concatenate([base.positive, np.array([e.log for e in ext], dtype=bool)]),
+        np.concatenate([base.prior_mean, [float(e.mean) for e in ext]]),
+        np.diag(np.concatenate([np.diag(base.prior_cov), [float(e.sd) ** 2 for e in ext]])),
+        dict(base.prior_si),
+    )
 
 
 @dataclass
@@ -112,12 +114,19 @@ class Candidate:
             lo, hi = z[i] - 1.96 * sd[i], z[i] + 1.96 * sd[i]
             if self.log[i]:
                 mean = float(np.exp(z[i] + 0.5 * sd[i] ** 2))
-                out[n] = {"mean": mean, "median": float(np.exp(z[i])),
-                          "sd": float(mean * np.sqrt(np.expm1(sd[i] ** 2))),
-                          "hdi95": [float(np.exp(lo)), float(np.exp(hi))]}
+                out[n] = {
+                    "mean": mean,
+                    "median": float(np.exp(z[i])),
+                    "sd": float(mean * np.sqrt(np.expm1(sd[i] ** 2))),
+                    "hdi95": [float(np.exp(lo)), float(np.exp(hi))],
+                }
             else:
-                out[n] = {"mean": float(z[i]), "median": float(z[i]), "sd": float(sd[i]),
-                          "hdi95": [float(lo), float(hi)]}
+                out[n] = {
+                    "mean": float(z[i]),
+                    "median": float(z[i]),
+                    "sd": float(sd[i]),
+                    "hdi95": [float(lo), float(hi)],
+                }
         return out
 
 
@@ -130,8 +139,9 @@ def make_candidate(key: str, options, physics=None, prior: dict | None = None) -
     opts = spec.options_for(options)
     if opts is None:
         raise ValueError(f"candidate {key} does not apply to the baseline's forward options")
-    return Candidate(spec, candidate_space(spec, prior), ForwardModel(spec.forward_model, options=opts,
-                                                                      physics=physics))
+    return Candidate(
+        spec, candidate_space(spec, prior), ForwardModel(spec.forward_model, options=opts, physics=physics)
+    )
 
 
 def applicable(key: str, options) -> bool:

@@ -66,13 +66,15 @@ class Phases:
         out = []
         for a, b in zip(self.bounds[:-1], self.bounds[1:]):
             m = np.zeros(n, dtype=bool)
-            m[a + 1:b + 1] = True
+            m[a + 1 : b + 1] = True
             out.append(m)
         return out
 
     def to_list(self) -> list:
-        return [{"phase": nm, "t_star": [float(self.t_star[a]), float(self.t_star[b])]}
-                for nm, a, b in zip(self.names, self.bounds[:-1], self.bounds[1:])]
+        return [
+            {"phase": nm, "t_star": [float(self.t_star[a]), float(self.t_star[b])]}
+            for nm, a, b in zip(self.names, self.bounds[:-1], self.bounds[1:])
+        ]
 
 
 #: prominence of a collapse [R*]: NOISE_PROMINENCE record noise sds, at least MIN_PROMINENCE;
@@ -82,9 +84,8 @@ NOISE_PROMINENCE, MIN_PROMINENCE, FALLBACK_PROMINENCE = 4.0, 0.02, 0.1
 
 def prominences(obs) -> np.ndarray:
     """Per experiment, the prominence a minimum needs (module doc) [R*]."""
-    sd = np.asarray(obs.noise_sd, dtype=float)         # NaN where unknown (Observations fills it)
-    return np.where(np.isfinite(sd) & (sd > 0), np.maximum(MIN_PROMINENCE, NOISE_PROMINENCE * sd),
-                    FALLBACK_PROMINENCE)
+    sd = np.asarray(obs.noise_sd, dtype=float)  # NaN where unknown (Observations fills it)
+    return np.where(np.isfinite(sd) & (sd > 0), np.maximum(MIN_PROMINENCE, NOISE_PROMINENCE * sd), FALLBACK_PROMINENCE)
 
 
 def phases_of(obs, max_collapses: int = 3, prominence: float | None = None) -> Phases:
@@ -113,6 +114,9 @@ def phases_of(obs, max_collapses: int = 3, prominence: float | None = None) -> P
             bounds.append(m)
     if bounds[-1] < n - 1:
         bounds.append(n - 1)
-    names = list(PHASE_NAMES[:len(bounds) - 2]) + ["late"] if len(bounds) - 1 > len(med) else \
-        list(PHASE_NAMES[:len(bounds) - 1])
-    return Phases(M, bounds, names[:len(bounds) - 1], np.asarray(obs.t_star))
+    names = (
+        list(PHASE_NAMES[: len(bounds) - 2]) + ["late"]
+        if len(bounds) - 1 > len(med)
+        else list(PHASE_NAMES[: len(bounds) - 1])
+    )
+    return Phases(M, bounds, names[: len(bounds) - 1], np.asarray(obs.t_star))

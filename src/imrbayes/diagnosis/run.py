@@ -92,7 +92,7 @@ class Diagnosis:
     result: dict
     obs: object
     phases: object
-    curves: dict = field(default_factory=dict)      # key -> (n_exp, n) fitted R*
+    curves: dict = field(default_factory=dict)  # key -> (n_exp, n) fitted R*
     stats: dict = field(default_factory=dict)
 
 
@@ -100,10 +100,15 @@ def _phase_misfit(obs, phases, fitted, om):
     """RMSE and chi2/n (each record's own noise variance) of every phase."""
     out = []
     for info, m in zip(phases.to_list(), phases.masks()):
-        r = (obs.R_star[:, m] - fitted[:, m])
-        out.append({**info, "rmse": float(np.sqrt(np.nanmean(r ** 2))),
-                    "chi2_norm": float(np.nanmean(r ** 2 / om.noise_sd[:, None] ** 2)),
-                    "n_samples": int(m.sum() * obs.n_exp)})
+        r = obs.R_star[:, m] - fitted[:, m]
+        out.append(
+            {
+                **info,
+                "rmse": float(np.sqrt(np.nanmean(r**2))),
+                "chi2_norm": float(np.nanmean(r**2 / om.noise_sd[:, None] ** 2)),
+                "n_samples": int(m.sum() * obs.n_exp),
+            }
+        )
     return out
 
 
@@ -115,13 +120,27 @@ def _nuisance_si(obs, fit) -> list:
         sa, sd, sr = (float(v) for v in fit.nu_sd[e][:3])
         re = [float(v) for v in fit.nu[e][3:5]] if fit.nu.shape[1] > 3 else [0.0, 0.0]
         tc = float(obs.tc_s[e]) if np.isfinite(obs.tc_s[e]) else float("nan")
-        out.append({"name": obs.names[e], "rmax_rel": a, "t0_offset": dl, "log_req": rho,
-                    "rmax_m": {"preprocessing": float(obs.rmax_m[e]), "fitted": float(obs.rmax_m[e] * (1 + a)),
-                               "sd": float(obs.rmax_m[e] * sa)},
-                    "req_m": {"preprocessing": float(obs.req_m[e]), "fitted": float(obs.req_m[e] * np.exp(rho)),
-                              "sd": float(obs.req_m[e] * np.exp(rho) * sr)},
-                    "t0_offset_s": {"fitted": dl * tc, "sd": sd * tc},
-                    "log_G_offset": re[0], "log_mu_offset": re[1]})
+        out.append(
+            {
+                "name": obs.names[e],
+                "rmax_rel": a,
+                "t0_offset": dl,
+                "log_req": rho,
+                "rmax_m": {
+                    "preprocessing": float(obs.rmax_m[e]),
+                    "fitted": float(obs.rmax_m[e] * (1 + a)),
+                    "sd": float(obs.rmax_m[e] * sa),
+                },
+                "req_m": {
+                    "preprocessing": float(obs.req_m[e]),
+                    "fitted": float(obs.req_m[e] * np.exp(rho)),
+                    "sd": float(obs.req_m[e] * np.exp(rho) * sr),
+                },
+                "t0_offset_s": {"fitted": dl * tc, "sd": sd * tc},
+                "log_G_offset": re[0],
+                "log_mu_offset": re[1],
+            }
+        )
     return out
 
 
@@ -142,11 +161,18 @@ def req_consistency(obs, per_experiment, bound: float | None = None) -> dict:
     rows = req_shift_z(obs, per_experiment)
     z = np.array([r["z"] for r in rows], dtype=float)
     n_over = int(np.sum(np.abs(z) > b))
-    return {"experiments": rows, "bound": b, "n_estimated": len(rows), "n_conflict": n_over,
-            "median_abs_z": float(np.median(np.abs(z))) if z.size else float("nan"),
-            "flagged": bool(z.size and n_over > z.size / 2),
-            "rule": (f"z = (baseline En4D-Var Req - the record's tail Req) / the tail's sd; a conflict beyond {b:g}; "
-                     "flagged when more than half the experiments conflict")}
+    return {
+        "experiments": rows,
+        "bound": b,
+        "n_estimated": len(rows),
+        "n_conflict": n_over,
+        "median_abs_z": float(np.median(np.abs(z))) if z.size else float("nan"),
+        "flagged": bool(z.size and n_over > z.size / 2),
+        "rule": (
+            f"z = (baseline En4D-Var Req - the record's tail Req) / the tail's sd; a conflict beyond {b:g}; "
+            "flagged when more than half the experiments conflict"
+        ),
+    }
 
 
 def alignment_consistency(per_experiment, bound: float | None = None) -> dict:
@@ -166,15 +192,23 @@ def alignment_consistency(per_experiment, bound: float | None = None) -> dict:
 
     def col(k):
         return np.array([r[k] for r in rows if r[k] is not None], dtype=float)
+
     zr, zt = col("z_rmax"), col("z_t0")
     over = [r for r in rows if any(r[k] is not None and abs(r[k]) > b for k in ("z_rmax", "z_t0"))]
     n = sum(1 for r in rows if r["z_rmax"] is not None or r["z_t0"] is not None)
-    return {"experiments": rows, "bound": b, "n_estimated": n, "n_conflict": len(over),
-            "median_abs_z_rmax": float(np.median(np.abs(zr))) if zr.size else float("nan"),
-            "median_abs_z_t0": float(np.median(np.abs(zt))) if zt.size else float("nan"),
-            "flagged": bool(n and len(over) > n / 2),
-            "rule": (f"z = (baseline En4D-Var Rmax or time of the maximum - the preprocessing's local fit) / its sd; "
-                     f"a conflict beyond {b:g} on either; flagged when more than half the experiments conflict")}
+    return {
+        "experiments": rows,
+        "bound": b,
+        "n_estimated": n,
+        "n_conflict": len(over),
+        "median_abs_z_rmax": float(np.median(np.abs(zr))) if zr.size else float("nan"),
+        "median_abs_z_t0": float(np.median(np.abs(zt))) if zt.size else float("nan"),
+        "flagged": bool(n and len(over) > n / 2),
+        "rule": (
+            f"z = (baseline En4D-Var Rmax or time of the maximum - the preprocessing's local fit) / its sd; "
+            f"a conflict beyond {b:g} on either; flagged when more than half the experiments conflict"
+        ),
+    }
 
 
 def observed_unit(unit, rng) -> dict:
@@ -216,10 +250,22 @@ def candidate_unit(unit, rng) -> dict:
     # from the baseline's nuisances and from the preprocessing's: the baseline's have adapted to the
     # wrong model (on relaxation 2002 its Req 1.37-1.50x the truth; zener from there ends at cost 358,
     # from the preprocessing's at 269)
-    f, om = fit_tempered(c, obs, minima, om0, extra_starts=[extra], nu0=d["nu_base"],
-                         alt_nu0=np.zeros_like(d["nu_base"]), first_tol=CANDIDATE_FIRST_TOL)
-    return {"fit": _asdict(f), "sd_used": om.sd_used.tolist(), "alpha": om.alpha.tolist(),
-            "effective_samples": om.n_eff.tolist()}
+    f, om = fit_tempered(
+        c,
+        obs,
+        minima,
+        om0,
+        extra_starts=[extra],
+        nu0=d["nu_base"],
+        alt_nu0=np.zeros_like(d["nu_base"]),
+        first_tol=CANDIDATE_FIRST_TOL,
+    )
+    return {
+        "fit": _asdict(f),
+        "sd_used": om.sd_used.tolist(),
+        "alpha": om.alpha.tolist(),
+        "effective_samples": om.n_eff.tolist(),
+    }
 
 
 def heldout_unit(unit, rng) -> dict:
@@ -260,8 +306,11 @@ def loeo_keys(held: dict, fits: dict, cands: dict, base_key: str, loeo_all: bool
         ok, _ = c.spec.consistent({n: e["median"] for n, e in est.items()}, est)
         rk = held[k]["forecast"]["rmse"]
         pd = paired(held[base_key]["forecast"].get("per_experiment", []), held[k]["forecast"].get("per_experiment", []))
-        in_contention = ok and np.isfinite(rk) and (rk < rb or (np.isfinite(pd["se"]) and pd["se"] > 0
-                                                                and pd["mean_diff"] > -LOEO_BEHIND_SE * pd["se"]))
+        in_contention = (
+            ok
+            and np.isfinite(rk)
+            and (rk < rb or (np.isfinite(pd["se"]) and pd["se"] > 0 and pd["mean_diff"] > -LOEO_BEHIND_SE * pd["se"]))
+        )
         if loeo_all or not np.isfinite(rb) or in_contention:
             out.append(k)
     return out
@@ -300,8 +349,7 @@ def _signature(s, fits, keys, obs, phases, om, seed, say, warnings, ex, build) -
         warnings.append(why)
         return {}
     say(f"MIEnKS signature of the data and of {', '.join(keys)}")
-    common = {**build, "obs": obs, "phases": phases, "n_rep": s.signature_n_rep, "seed": seed,
-              "noise_sd": om.noise_sd}
+    common = {**build, "obs": obs, "phases": phases, "n_rep": s.signature_n_rep, "seed": seed, "noise_sd": om.noise_sd}
     units = [Unit("signature=observed", {**common, "key": None})]
     units += [Unit(f"signature={k}", {**common, "key": k, "fit": asdict(fits[k])}) for k in keys]
     rep = ex.run(units, signature_unit, seed, desc="diagnose signature")
@@ -332,15 +380,26 @@ def absorption_matrix(cands: dict, fits: dict, obs, phases, om) -> dict:
         for j, b in enumerate(keys):
             if i == j:
                 continue
-            f = fit_map(cands[b], oa, minima=phases.minima, om=om, starts=[fits[b].z], nu0=fits[b].nu,
-                        options=MapOptions(max_iter=20))
-            r = (ya[:, 1:] - f.fitted[:, 1:])
-            M[i, j] = float(np.sqrt(np.nanmean(r ** 2 / om.noise_sd[:, None] ** 2)))
-            C[i, j] = float(np.nansum((om.weight ** 2)[:, None] * r ** 2))
-    return {"keys": keys, "matrix": M.tolist(), "chi2": C.tolist(),
-            "note": "row A: data = candidate A's fitted curves (no noise); column B: refit with candidate B; "
-                    "value: residual RMS / record noise sd (< 1: B absorbs A's effect to within the noise); chi2: "
-                    "the tempered chi-square of that refit"}
+            f = fit_map(
+                cands[b],
+                oa,
+                minima=phases.minima,
+                om=om,
+                starts=[fits[b].z],
+                nu0=fits[b].nu,
+                options=MapOptions(max_iter=20),
+            )
+            r = ya[:, 1:] - f.fitted[:, 1:]
+            M[i, j] = float(np.sqrt(np.nanmean(r**2 / om.noise_sd[:, None] ** 2)))
+            C[i, j] = float(np.nansum((om.weight**2)[:, None] * r**2))
+    return {
+        "keys": keys,
+        "matrix": M.tolist(),
+        "chi2": C.tolist(),
+        "note": "row A: data = candidate A's fitted curves (no noise); column B: refit with candidate B; "
+        "value: residual RMS / record noise sd (< 1: B absorbs A's effect to within the noise); chi2: "
+        "the tempered chi-square of that refit",
+    }
 
 
 def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, tie_se: float = 2.0) -> tuple:
@@ -362,11 +421,12 @@ def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, ti
     if not ok:
         return [], ""
     top = ok[0]["key"]
-    w2 = (om.weight ** 2)[:, None]
+    w2 = (om.weight**2)[:, None]
     # AIC: the chi-square plus twice the number of fitted material parameters (a more flexible
     # candidate's better in-sample fit is no evidence by itself)
-    chi2 = {k: float(np.nansum(w2 * (obs.R_star[:, 1:] - fits[k].fitted[:, 1:]) ** 2)) + 2.0 * len(fits[k].z)
-            for k in fits}
+    chi2 = {
+        k: float(np.nansum(w2 * (obs.R_star[:, 1:] - fits[k].fitted[:, 1:]) ** 2)) + 2.0 * len(fits[k].z) for k in fits
+    }
     out, why = [top], []
     A = {k: i for i, k in enumerate(absorption.get("keys", []))}
     for d in ok[1:]:
@@ -382,21 +442,32 @@ def ties(candidates: list, held: dict, absorption: dict, fits: dict, obs, om, ti
                         for_k.append(f"{sch} {pd['mean_diff'] / pd['se']:+.1f} SE")
         if for_k:
             out.append(k)
-            why.append(f"{k}: the held-out schemes disagree ({', '.join(for_top + for_k)}; > 0 favours {top})"
-                       if for_top else
-                       f"{k}: better than {top} on {', '.join(for_k)} (> 0 would favour {top}), ranked lower "
-                       "on the mean over schemes")
+            why.append(
+                f"{k}: the held-out schemes disagree ({', '.join(for_top + for_k)}; > 0 favours {top})"
+                if for_top
+                else f"{k}: better than {top} on {', '.join(for_k)} (> 0 would favour {top}), ranked lower "
+                "on the mean over schemes"
+            )
             continue
         if for_top:
             continue
         close = abs(chi2[k] - chi2[top]) < TIE_CHI2
-        mutual = (k in A and top in A and absorption["chi2"][A[top]][A[k]] < TIE_CHI2
-                  and absorption["chi2"][A[k]][A[top]] < TIE_CHI2)
+        mutual = (
+            k in A
+            and top in A
+            and absorption["chi2"][A[top]][A[k]] < TIE_CHI2
+            and absorption["chi2"][A[k]][A[top]] < TIE_CHI2
+        )
         if close or mutual:
             out.append(k)
-            why.append(f"{k}: held-out difference to {top} within {tie_se:g} SE; "
-                       + (f"in-sample AIC within {TIE_CHI2:g} ({chi2[k] - chi2[top]:+.1f})" if close else
-                          f"each refits the other's curves to a chi-square < {TIE_CHI2:g}"))
+            why.append(
+                f"{k}: held-out difference to {top} within {tie_se:g} SE; "
+                + (
+                    f"in-sample AIC within {TIE_CHI2:g} ({chi2[k] - chi2[top]:+.1f})"
+                    if close
+                    else f"each refits the other's curves to a chi-square < {TIE_CHI2:g}"
+                )
+            )
     return out, "; ".join(why)
 
 
@@ -475,18 +546,21 @@ def misfit_summary(obs, fitted, noise_sd) -> dict:
         as the fit check of ``fit`` reports it) and ``sentence`` saying it in words.
     """
     r = np.asarray(obs.R_star, dtype=float)[:, 1:] - np.asarray(fitted, dtype=float)[:, 1:]
-    rms = np.sqrt(np.nanmean(r ** 2, axis=1))
+    rms = np.sqrt(np.nanmean(r**2, axis=1))
     ratio = float(np.median(rms / np.asarray(noise_sd, dtype=float)))
-    return {"residual_to_noise": ratio,
-            "sentence": f"the constant model misses these records by {ratio:.2g} x their noise"}
+    return {
+        "residual_to_noise": ratio,
+        "sentence": f"the constant model misses these records by {ratio:.2g} x their noise",
+    }
 
 
 def _mechanism_words(top: dict) -> str:
     return f"{top['key']}, {top['mechanism']}"
 
 
-def name_cause(verdict: str, top: dict | None, tied: list, mech: dict, name_se: float = 2.0,
-               min_gain: float = MIN_GAIN) -> tuple:
+def name_cause(
+    verdict: str, top: dict | None, tied: list, mech: dict, name_se: float = 2.0, min_gain: float = MIN_GAIN
+) -> tuple:
     """(cause, extended model, tied keys, note) from the check's verdict and the top-ranked candidate.
 
     ``none`` when adequate. Otherwise the top candidate's mechanism (``ambiguous`` when the tie rule
@@ -517,19 +591,29 @@ def name_cause(verdict: str, top: dict | None, tied: list, mech: dict, name_se: 
     zc = comb.get("z", max(z.values()) if z else float("nan"))
     gain = float(top["score"])
     if gain < min_gain:
-        return ("unexplained", None, [],
-                f"the best extension ({_mechanism_words(top)}) recovers {100 * gain:.2g} % of the held-out error "
-                f"-- too little to name a cause (a cause needs {100 * min_gain:.2g} %)")
+        return (
+            "unexplained",
+            None,
+            [],
+            f"the best extension ({_mechanism_words(top)}) recovers {100 * gain:.2g} % of the held-out error "
+            f"-- too little to name a cause (a cause needs {100 * min_gain:.2g} %)",
+        )
     if zc is not None and np.isfinite(zc) and zc < name_se:
-        return ("unexplained", None, [],
-                f"the best extension ({_mechanism_words(top)}) recovers {100 * gain:.2g} % of the held-out error, but "
-                f"within {name_se:g} paired SE of the baseline over the schemes taken together ({zc:.1f} SE; "
-                f"{zs} SE per scheme): not separated from it")
+        return (
+            "unexplained",
+            None,
+            [],
+            f"the best extension ({_mechanism_words(top)}) recovers {100 * gain:.2g} % of the held-out error, but "
+            f"within {name_se:g} paired SE of the baseline over the schemes taken together ({zc:.1f} SE; "
+            f"{zs} SE per scheme): not separated from it",
+        )
     cause = "ambiguous" if len({mech[k] for k in tied}) > 1 else top["mechanism"]
-    note = (f"held-out gain {100 * gain:.2g} %, {zc:.1f} paired SE over the schemes taken together ({zs} SE per scheme)"
-            if z and zc is not None and np.isfinite(zc) else
-            "no paired SE (one experiment): named on the held-out score alone, its separation from the "
-            "baseline not measured")
+    note = (
+        f"held-out gain {100 * gain:.2g} %, {zc:.1f} paired SE over the schemes taken together ({zs} SE per scheme)"
+        if z and zc is not None and np.isfinite(zc)
+        else "no paired SE (one experiment): named on the held-out score alone, its separation from the "
+        "baseline not measured"
+    )
     return cause, top["model"], tied, note
 
 
@@ -547,7 +631,7 @@ class _DiagnoseRun:
     ex: object
     phases: object
     base: object
-    build: dict                  # what a unit rebuilds its models from
+    build: dict  # what a unit rebuilds its models from
     log: object
     tick: object
     t0: float = field(default_factory=time.perf_counter)
@@ -564,8 +648,10 @@ class _DiagnoseRun:
     def stage_seconds(self) -> list:
         """Wall and CPU seconds of every stage said so far, up to now."""
         ends = [(t, c) for _, t, c in self.marks[1:]] + [(time.perf_counter(), time.process_time())]
-        return [{"stage": m, "seconds": float(e[0] - t), "cpu_seconds": float(e[1] - c)}
-                for (m, t, c), e in zip(self.marks, ends)]
+        return [
+            {"stage": m, "seconds": float(e[0] - t), "cpu_seconds": float(e[1] - c)}
+            for (m, t, c), e in zip(self.marks, ends)
+        ]
 
 
 def _precompile(run: _DiagnoseRun) -> None:
@@ -577,8 +663,9 @@ def _precompile(run: _DiagnoseRun) -> None:
     if cold:
         # all at once, a child process per CPU: compiled on first use instead, each candidate's kernel
         # took a minute or more of one core while the other waited
-        run.say(f"compiling the forward-model kernels of {', '.join(m.rsplit('.', 1)[-1] for m in cold)} "
-                "(first use only)")
+        run.say(
+            f"compiling the forward-model kernels of {', '.join(m.rsplit('.', 1)[-1] for m in cold)} (first use only)"
+        )
         precompile(cold)
 
 
@@ -586,12 +673,16 @@ def _setup_warnings(run: _DiagnoseRun) -> None:
     """Warn of settings and records the check cannot decide well on (too few replicates, one collapse)."""
     s, phases = run.s, run.phases
     if s.n_bootstrap < min_replicates(s.alpha):
-        run.warnings.append(f"n_bootstrap = {s.n_bootstrap}: the check's smallest possible p-value is "
-                            f"1/{s.n_bootstrap + 1} > alpha = {s.alpha:g}, so it cannot find the constant-parameter "
-                            f"model inadequate; use at least {min_replicates(s.alpha)} replicates")
+        run.warnings.append(
+            f"n_bootstrap = {s.n_bootstrap}: the check's smallest possible p-value is "
+            f"1/{s.n_bootstrap + 1} > alpha = {s.alpha:g}, so it cannot find the constant-parameter "
+            f"model inadequate; use at least {min_replicates(s.alpha)} replicates"
+        )
     if phases.minima.shape[1] < 2 or phases.collapse_index(2) <= phases.collapse_index(1):
-        run.warnings.append("only one collapse found in the records (minima of prominence >= 4 noise sd): the "
-                            "'2nd collapse' window and the forecast scheme end just after the first collapse")
+        run.warnings.append(
+            "only one collapse found in the records (minima of prominence >= 4 noise sd): the "
+            "'2nd collapse' window and the forecast scheme end just after the first collapse"
+        )
 
 
 def _mienks_statistic(run: _DiagnoseRun):
@@ -605,7 +696,7 @@ def _mienks_statistic(run: _DiagnoseRun):
     mk = MIEnKSSettings(n_ens=run.s.mienks_n_ens, n_iter=run.s.mienks_n_iter, n_draws=1, likelihood="paper")
     try:
         mk.check(run.obs.n_samples - 1)
-    except InputError as exc:   # settings this record cannot hold (e.g. a window longer than it)
+    except InputError as exc:  # settings this record cannot hold (e.g. a window longer than it)
         run.warnings.append(f"mienks_drift left out of the check: {exc}")
         return None
     return mk
@@ -617,8 +708,12 @@ def _baseline_stage(run: _DiagnoseRun, mk) -> tuple:
     from imrbayes.execution import Unit
 
     obs, phases = run.obs, run.phases
-    rep = run.ex.run([Unit("observed", {**run.build, "obs": obs, "phases": phases, "mienks": mk, "seed": run.seed})],
-                     observed_unit, run.seed, desc="diagnose baseline fits")
+    rep = run.ex.run(
+        [Unit("observed", {**run.build, "obs": obs, "phases": phases, "mienks": mk, "seed": run.seed})],
+        observed_unit,
+        run.seed,
+        desc="diagnose baseline fits",
+    )
     if "observed" not in rep.results:
         raise RuntimeError(f"the baseline's fits to the data failed ({rep.failures['observed'].error})")
     observed = _observed_back(rep.results["observed"])
@@ -626,13 +721,17 @@ def _baseline_stage(run: _DiagnoseRun, mk) -> tuple:
         run.warnings.append(f"mienks_drift left out of the check: {observed['mienks_error']}")
     full, om = observed["fits"]["all"], observed["om"]
     run.tick(1)
-    baseline = {"model": BASELINE.model, "method": "map", "estimate": run.base.estimate(full.z, full.cov),
-                "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2))),
-                "chi2_norm": observed["misfit"],
-                "misfit_by_phase": _phase_misfit(obs, phases, full.fitted, om),
-                "nuisance": _nuisance_si(obs, full),
-                "estimate_note": "MAP of all experiments jointly (each with its own Rmax, Req and time of the maximum "
-                                 "fitted) with a Laplace posterior on the tempered likelihood"}
+    baseline = {
+        "model": BASELINE.model,
+        "method": "map",
+        "estimate": run.base.estimate(full.z, full.cov),
+        "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - full.fitted[:, 1:]) ** 2))),
+        "chi2_norm": observed["misfit"],
+        "misfit_by_phase": _phase_misfit(obs, phases, full.fitted, om),
+        "nuisance": _nuisance_si(obs, full),
+        "estimate_note": "MAP of all experiments jointly (each with its own Rmax, Req and time of the maximum "
+        "fitted) with a Laplace posterior on the tempered likelihood",
+    }
     return observed, baseline
 
 
@@ -649,24 +748,42 @@ def _en4dvar_baseline(run: _DiagnoseRun, full, baseline: dict) -> None:
     zz = np.repeat(full.z[None], obs.n_exp, axis=0)
     if full.nu.shape[1] > 3:
         zz[:, :2] += full.nu[:, 3:5]
-    start = ReqTailStart(theta_si=base.to_si(zz), rmax_m=obs.rmax_m * (1.0 + full.nu[:, 0]),
-                         source="least-squares baseline (material with each bubble's offsets, fitted Rmax)")
+    start = ReqTailStart(
+        theta_si=base.to_si(zz),
+        rmax_m=obs.rmax_m * (1.0 + full.nu[:, 0]),
+        source="least-squares baseline (material with each bubble's offsets, fitted Rmax)",
+    )
     # its units (exp=..., post/exp=...) go through ``ex`` like every other: checkpointed, resumed
-    en = fit_en4dvar(base.fm, obs, base.space, En4DVarSettings(n_ens=s.en4dvar_n_ens, n_runs=s.en4dvar_n_runs,
-                                                               loglik=False, n_draws=1), seed=run.seed, execution=run.ex,
-                     req_tail_start=start)
+    en = fit_en4dvar(
+        base.fm,
+        obs,
+        base.space,
+        En4DVarSettings(n_ens=s.en4dvar_n_ens, n_runs=s.en4dvar_n_runs, loglik=False, n_draws=1),
+        seed=run.seed,
+        execution=run.ex,
+        req_tail_start=start,
+    )
     rt = en.details.get("req_tail") or {}
     moved = [f for f in rt.get("factor", []) if f != 1.0]
-    req_note = (f"; each Req's prior centred by the model's tail at the least-squares baseline (the records' tail "
-                f"means {100 * (min(moved) - 1):+.1f} to {100 * (max(moved) - 1):+.1f} % from Req)"
-                if rt.get("method") == "model" and moved else "")
+    req_note = (
+        f"; each Req's prior centred by the model's tail at the least-squares baseline (the records' tail "
+        f"means {100 * (min(moved) - 1):+.1f} to {100 * (max(moved) - 1):+.1f} % from Req)"
+        if rt.get("method") == "model" and moved
+        else ""
+    )
     baseline["req_consistency"] = req_consistency(obs, en.per_experiment)
     baseline["alignment_consistency"] = alignment_consistency(en.per_experiment)
-    baseline.update({"method": "en4dvar", "estimate": en.estimate, "rmse_en4dvar": en.rmse,
-                     "estimate_map": baseline["estimate"], "req_tail": rt or None,
-                     "estimate_note": "En4D-Var of all experiments as `fit --method en4dvar` runs it, fused across bubbles"
-                                      f"{req_note}; the candidates are compared with the MAP (estimate_map: "
-                                      + baseline["estimate_note"] + ")"})
+    baseline.update(
+        {
+            "method": "en4dvar",
+            "estimate": en.estimate,
+            "rmse_en4dvar": en.rmse,
+            "estimate_map": baseline["estimate"],
+            "req_tail": rt or None,
+            "estimate_note": "En4D-Var of all experiments as `fit --method en4dvar` runs it, fused across bubbles"
+            f"{req_note}; the candidates are compared with the MAP (estimate_map: " + baseline["estimate_note"] + ")",
+        }
+    )
     run.warnings.extend(f"baseline En4D-Var: {w}" for w in en.warnings)
 
 
@@ -699,15 +816,23 @@ def _fit_candidates(run: _DiagnoseRun, full, om, common: dict) -> tuple:
         if k not in keys:
             run.warnings.append(f"candidate {k} left out: it has no alternative to the baseline's forward options")
     run.say(f"candidates {', '.join(keys)}")
-    rep = run.ex.run([Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z, "nu_base": full.nu})
-                      for key in keys], candidate_unit, run.seed, desc="diagnose candidates")
+    rep = run.ex.run(
+        [Unit(f"candidate={key}", {**common, "key": key, "z_base": full.z, "nu_base": full.nu}) for key in keys],
+        candidate_unit,
+        run.seed,
+        desc="diagnose candidates",
+    )
     models.failed_units = [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
     for key in keys:
         if f"candidate={key}" in rep.results:
             res_k = rep.results[f"candidate={key}"]
             models.fits[key] = MapFit(**res_k["fit"])
-            models.oms[key] = replace(om, sd_used=np.asarray(res_k["sd_used"]), alpha=np.asarray(res_k["alpha"]),
-                                      n_eff=np.asarray(res_k["effective_samples"]))
+            models.oms[key] = replace(
+                om,
+                sd_used=np.asarray(res_k["sd_used"]),
+                alpha=np.asarray(res_k["alpha"]),
+                n_eff=np.asarray(res_k["effective_samples"]),
+            )
             models.cands[key] = make_candidate(key, run.options, run.physics, run.prior)
         run.tick(1)
     return models, keys
@@ -722,9 +847,18 @@ def _heldout_stage(run: _DiagnoseRun, models: _Models, common: dict) -> None:
 
     base_key, cands, fits, oms = BASELINE.key, models.cands, models.fits, models.oms
     run.say("held-out predictions (forecast)")
-    rep = run.ex.run([Unit(f"heldout={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
-                                              "schemes": ["forecast"]})
-                      for key in cands], heldout_unit, run.seed, desc="diagnose held-out fits")
+    rep = run.ex.run(
+        [
+            Unit(
+                f"heldout={key}",
+                {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key], "schemes": ["forecast"]},
+            )
+            for key in cands
+        ],
+        heldout_unit,
+        run.seed,
+        desc="diagnose held-out fits",
+    )
     models.failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
     if f"heldout={base_key}" not in rep.results:
         raise RuntimeError(f"the baseline's held-out fits failed ({rep.failures[f'heldout={base_key}'].error})")
@@ -732,14 +866,23 @@ def _heldout_stage(run: _DiagnoseRun, models: _Models, common: dict) -> None:
     loeo_run = loeo_keys(held, fits, cands, base_key, run.s.loeo_all) if run.s.loeo else []
     if loeo_run:
         run.say(f"held-out predictions (leave one experiment out: {', '.join(loeo_run)})")
-        rep = run.ex.run([Unit(f"loeo={key}", {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key],
-                                               "schemes": ["loeo"]})
-                          for key in loeo_run], heldout_unit, run.seed, desc="diagnose leave-one-out fits")
+        rep = run.ex.run(
+            [
+                Unit(
+                    f"loeo={key}",
+                    {**common, "key": key, "fit": _asdict(fits[key]), "om": oms[key], "schemes": ["loeo"]},
+                )
+                for key in loeo_run
+            ],
+            heldout_unit,
+            run.seed,
+            desc="diagnose leave-one-out fits",
+        )
         models.failed_units += [{"unit": f.unit_id, "error": f.error} for f in rep.failures.values()]
         for key in loeo_run:
             if f"loeo={key}" in rep.results:
                 held[key].update(rep.results[f"loeo={key}"])
-        if "loeo" not in held[base_key]:   # without the baseline's LOEO no candidate's can be compared
+        if "loeo" not in held[base_key]:  # without the baseline's LOEO no candidate's can be compared
             for key in held:
                 held[key].pop("loeo", None)
     for key in list(cands):
@@ -757,25 +900,39 @@ def _candidate_row(key: str, c, f, held: dict, schemes: list, elpd: dict, obs, p
     rel = {k: 1.0 - held[key][k]["rmse"] / held[base_key][k]["rmse"] for k in schemes if k in held[key]}
     score = float(np.mean(list(rel.values()))) if rel else float("nan")
     row = {
-        "model": c.spec.model, "key": key, "mechanism": c.mechanism, "kind": c.spec.kind,
-        "forward_model": c.forward_name, "estimate": c.estimate(f.z, f.cov),
+        "model": c.spec.model,
+        "key": key,
+        "mechanism": c.mechanism,
+        "kind": c.spec.kind,
+        "forward_model": c.forward_name,
+        "estimate": c.estimate(f.z, f.cov),
         "rmse": float(np.sqrt(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2))),
         "chi2_norm": float(np.nanmean((obs.R_star[:, 1:] - f.fitted[:, 1:]) ** 2 / om.noise_sd[:, None] ** 2)),
         "misfit_by_phase": _phase_misfit(obs, phases, f.fitted, om),
         "heldout_rmse": held[key][schemes[0]]["rmse"] if schemes else float("nan"),
         "heldout_scheme": schemes[0] if schemes else None,
-        "loeo_note": "" if "loeo" in held[key] or "loeo" not in schemes else
-                     "leave-one-experiment-out not run: the forecast leaves it out of contention "
-                     "(inconsistent, or its forecast behind the baseline's by more than a paired SE)",
-        "heldout": {k: {**held[key][k], "paired_vs_baseline": paired(held[base_key][k]["per_experiment"],
-                                                                      held[key][k]["per_experiment"])}
-                    for k in held[key]},
-        "relative_reduction": rel, "score": score,
+        "loeo_note": ""
+        if "loeo" in held[key] or "loeo" not in schemes
+        else "leave-one-experiment-out not run: the forecast leaves it out of contention "
+        "(inconsistent, or its forecast behind the baseline's by more than a paired SE)",
+        "heldout": {
+            k: {
+                **held[key][k],
+                "paired_vs_baseline": paired(held[base_key][k]["per_experiment"], held[key][k]["per_experiment"]),
+            }
+            for k in held[key]
+        },
+        "relative_reduction": rel,
+        "score": score,
         "combined_vs_baseline": combined_paired(held[base_key], held[key], schemes),
-        "elpd_diff": elpd[key]["elpd_diff"], "elpd_se": elpd[key]["elpd_se"],
-        "elpd": elpd[key], "converged": bool(f.converged)}
+        "elpd_diff": elpd[key]["elpd_diff"],
+        "elpd_se": elpd[key]["elpd_se"],
+        "elpd": elpd[key],
+        "converged": bool(f.converged),
+    }
     row["consistent"], row["consistency_note"] = c.spec.consistent(
-        {n: e["median"] for n, e in row["estimate"].items()}, row["estimate"])
+        {n: e["median"] for n, e in row["estimate"].items()}, row["estimate"]
+    )
     return row
 
 
@@ -784,19 +941,27 @@ def _rank_candidates(run: _DiagnoseRun, models: _Models, keys: list, om) -> tupl
     are ruled out; returns (ranked rows, ELPD comparison by key, the held-out schemes used)."""
     obs, phases, base_key, held = run.obs, run.phases, BASELINE.key, models.held
     kept = [k for k in keys if k in models.cands]
-    lls = {k: loglik_draws(c, obs, phases, models.fits[k], run.s.n_draws, run.seed + 7, om=om)
-           for k, c in models.cands.items()}
+    lls = {
+        k: loglik_draws(c, obs, phases, models.fits[k], run.s.n_draws, run.seed + 7, om=om)
+        for k, c in models.cands.items()
+    }
     elpd = elpd_compare(lls, base_key)
     schemes = [k for k in ("forecast", "loeo") if k in held[base_key] and np.isfinite(held[base_key][k]["rmse"])]
-    candidates = [_candidate_row(key, models.cands[key], models.fits[key], held, schemes, elpd, obs, phases, om)
-                  for key in kept]
-    candidates.sort(key=lambda d: (not d["consistent"], -(d["score"] if np.isfinite(d["score"]) else -np.inf),
-                                   -d["elpd_diff"]))
+    candidates = [
+        _candidate_row(key, models.cands[key], models.fits[key], held, schemes, elpd, obs, phases, om) for key in kept
+    ]
+    candidates.sort(
+        key=lambda d: (not d["consistent"], -(d["score"] if np.isfinite(d["score"]) else -np.inf), -d["elpd_diff"])
+    )
     for i, d in enumerate(candidates):
         d["rank"] = i + 1
-        d["ruled_out"] = ("" if d["consistent"] and d["score"] > 0 else
-                          d["consistency_note"] if not d["consistent"] else
-                          "no held-out gain over the baseline (score <= 0)")
+        d["ruled_out"] = (
+            ""
+            if d["consistent"] and d["score"] > 0
+            else d["consistency_note"]
+            if not d["consistent"]
+            else "no held-out gain over the baseline (score <= 0)"
+        )
     return candidates, elpd, schemes
 
 
@@ -812,8 +977,10 @@ def _settle_by_signature(candidates: list, tied: list, tie_reason: str, signatur
     if len(sc) == len(tied):
         best = min(sc, key=sc.get)
         if all(sc[best] * 2.0 <= v for k, v in sc.items() if k != best):
-            tie_reason += f"; settled by the MIEnKS signature ({best} score {sc[best]:.2f}, next " \
-                          f"{min(v for k, v in sc.items() if k != best):.2f})"
+            tie_reason += (
+                f"; settled by the MIEnKS signature ({best} score {sc[best]:.2f}, next "
+                f"{min(v for k, v in sc.items() if k != best):.2f})"
+            )
             signature["settled_tie"] = {"tied": list(tied), "chosen": best}
             top = next(d for d in candidates if d["key"] == best)
             tied = [best]
@@ -829,12 +996,28 @@ def _contenders_stage(run: _DiagnoseRun, models: _Models, candidates: list, verd
         om_top = models.oms[contenders[0]]
         if len(contenders) >= 2:
             run.say(f"absorption between {', '.join(contenders)}")
-            absorption = absorption_matrix({k: models.cands[k] for k in contenders},
-                                           {k: models.fits[k] for k in contenders}, run.obs, run.phases, om_top)
+            absorption = absorption_matrix(
+                {k: models.cands[k] for k in contenders},
+                {k: models.fits[k] for k in contenders},
+                run.obs,
+                run.phases,
+                om_top,
+            )
         tied, tie_reason = ties(candidates, models.held, absorption, models.fits, run.obs, om_top, run.s.tie_se)
         if run.s.signature:
-            signature = _signature(run.s, models.fits, [BASELINE.key, *dict.fromkeys(contenders + tied)], run.obs,
-                                   run.phases, om, run.seed, run.say, run.warnings, run.ex, run.build)
+            signature = _signature(
+                run.s,
+                models.fits,
+                [BASELINE.key, *dict.fromkeys(contenders + tied)],
+                run.obs,
+                run.phases,
+                om,
+                run.seed,
+                run.say,
+                run.warnings,
+                run.ex,
+                run.build,
+            )
     top = candidates[0] if candidates else None
     top, tied, tie_reason = _settle_by_signature(candidates, tied, tie_reason, signature, top)
     return {"top": top, "tied": tied, "tie_reason": tie_reason, "absorption": absorption, "signature": signature}
@@ -847,52 +1030,85 @@ def _symptoms_removed(run: _DiagnoseRun, models: _Models, top: dict, observed: d
     cand = models.cands[top["key"]]
     dr, wf = window_drift(cand, run.obs, run.phases, models.fits[top["key"]], models.oms[top["key"]])
     top["removes_baseline_symptoms"] = {
-        "drift_baseline": observed["drift"], "drift_extended": dr,
+        "drift_baseline": observed["drift"],
+        "drift_extended": dr,
         "drift_note": "largest squared Mahalanobis distance of (log G, log mu) between fits to the 1st, 2nd "
-                      "collapse and the whole record (same statistic as the check, not recalibrated)",
+        "collapse and the whole record (same statistic as the check, not recalibrated)",
         "window_estimates_extended": {k: dict(zip(top["estimate"], cand.to_si(f.z).tolist())) for k, f in wf.items()},
         "phase_chi2_baseline": [p["chi2_norm"] for p in baseline["misfit_by_phase"]],
-        "phase_chi2_extended": [p["chi2_norm"] for p in top["misfit_by_phase"]]}
+        "phase_chi2_extended": [p["chi2_norm"] for p in top["misfit_by_phase"]],
+    }
 
 
 def _gain(top: dict, held: dict, schemes: list, elpd: dict) -> dict:
     """diagnosis.json's ``gain``: the top candidate's held-out RMSE and ELPD against the baseline's."""
     base_key = BASELINE.key
     sch = top["heldout_scheme"]
-    return {"candidate": top["model"], "heldout_scheme": held[base_key][sch]["scheme"] if sch else None,
-            "heldout_rmse_baseline": held[base_key][sch]["rmse"] if sch else float("nan"),
-            "heldout_rmse_extended": top["heldout_rmse"],
-            "relative_reduction": top["relative_reduction"].get(sch, float("nan")) if sch else float("nan"),
-            "paired_difference": top["heldout"][sch]["paired_vs_baseline"] if sch else None,
-            "by_scheme": {k: {"scheme": held[base_key][k]["scheme"], "baseline": held[base_key][k]["rmse"],
-                              "extended": held[top["key"]][k]["rmse"],
-                              "relative_reduction": top["relative_reduction"][k],
-                              "paired_vs_baseline": top["heldout"][k]["paired_vs_baseline"]}
-                          for k in schemes if k in top["heldout"]},
-            "elpd_diff": top["elpd_diff"], "elpd_se": top["elpd_se"],
-            "elpd_scheme": ("PSIS-LOO (az.loo) of the Laplace posterior of the whole-record fit, leaving out one "
-                            + ("experiment (log-likelihood summed over time)"
-                               if elpd[base_key].get("level") == "experiment"
-                               else "sample (PSIS failed at the experiment level)")
-                            + "; elpd_diff = extended - baseline, elpd_se from az.compare")}
+    return {
+        "candidate": top["model"],
+        "heldout_scheme": held[base_key][sch]["scheme"] if sch else None,
+        "heldout_rmse_baseline": held[base_key][sch]["rmse"] if sch else float("nan"),
+        "heldout_rmse_extended": top["heldout_rmse"],
+        "relative_reduction": top["relative_reduction"].get(sch, float("nan")) if sch else float("nan"),
+        "paired_difference": top["heldout"][sch]["paired_vs_baseline"] if sch else None,
+        "by_scheme": {
+            k: {
+                "scheme": held[base_key][k]["scheme"],
+                "baseline": held[base_key][k]["rmse"],
+                "extended": held[top["key"]][k]["rmse"],
+                "relative_reduction": top["relative_reduction"][k],
+                "paired_vs_baseline": top["heldout"][k]["paired_vs_baseline"],
+            }
+            for k in schemes
+            if k in top["heldout"]
+        },
+        "elpd_diff": top["elpd_diff"],
+        "elpd_se": top["elpd_se"],
+        "elpd_scheme": (
+            "PSIS-LOO (az.loo) of the Laplace posterior of the whole-record fit, leaving out one "
+            + (
+                "experiment (log-likelihood summed over time)"
+                if elpd[base_key].get("level") == "experiment"
+                else "sample (PSIS failed at the experiment level)"
+            )
+            + "; elpd_diff = extended - baseline, elpd_se from az.compare"
+        ),
+    }
 
 
-def _finish(run: _DiagnoseRun, baseline: dict, check: dict, observed: dict, om, parts: dict,
-            curves: dict) -> Diagnosis:
+def _finish(run: _DiagnoseRun, baseline: dict, check: dict, observed: dict, om, parts: dict, curves: dict) -> Diagnosis:
     """The :class:`Diagnosis`: ``parts`` (the comparison's results) with the baseline, the check,
     the phases, settings, warnings and stage times; ``curves`` key -> (n_exp, n) fitted R*."""
     s = run.s
     misfit = misfit_summary(run.obs, observed["fits"]["all"].fitted, om.noise_sd)
-    result = {"baseline": baseline, "constant_parameter_check": check, "misfit": misfit, **parts,
-              "phases": run.phases.to_list(), "minima_t_star": run.phases.minima_t().tolist(),
-              "settings": {**asdict(s), "candidates": list(s.candidates)}, "seed": run.seed,
-              "likelihood": om.describe(), "warnings": run.warnings, "runtime_s": time.perf_counter() - run.t0}
+    result = {
+        "baseline": baseline,
+        "constant_parameter_check": check,
+        "misfit": misfit,
+        **parts,
+        "phases": run.phases.to_list(),
+        "minima_t_star": run.phases.minima_t().tolist(),
+        "settings": {**asdict(s), "candidates": list(s.candidates)},
+        "seed": run.seed,
+        "likelihood": om.describe(),
+        "warnings": run.warnings,
+        "runtime_s": time.perf_counter() - run.t0,
+    }
     result["stage_seconds"] = run.stage_seconds()
     return Diagnosis(result, run.obs, run.phases, curves, observed)
 
 
-def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = None, seed: int = 0,
-             prior: dict | None = None, progress=None, log=None, execution=None) -> Diagnosis:
+def diagnose(
+    obs,
+    options,
+    physics=None,
+    settings: DiagnoseSettings | None = None,
+    seed: int = 0,
+    prior: dict | None = None,
+    progress=None,
+    log=None,
+    execution=None,
+) -> Diagnosis:
     """Run the whole diagnosis on ``obs`` (Observations) with forward ``options`` (ForwardOptions).
 
     The candidate fits (units ``candidate=<key>``) and the held-out fits of every model (units
@@ -907,10 +1123,21 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
 
     s = settings or DiagnoseSettings()
     t0 = time.perf_counter()
-    run = _DiagnoseRun(obs, options, physics, prior, s, seed, execution or Execution(progress=False),
-                       phases_of(obs, s.max_collapses), make_candidate(BASELINE.key, options, physics, prior),
-                       {"options": options, "physics": physics, "prior": prior},
-                       log or (lambda msg: None), progress or (lambda n=1: None), t0=t0)
+    run = _DiagnoseRun(
+        obs,
+        options,
+        physics,
+        prior,
+        s,
+        seed,
+        execution or Execution(progress=False),
+        phases_of(obs, s.max_collapses),
+        make_candidate(BASELINE.key, options, physics, prior),
+        {"options": options, "physics": physics, "prior": prior},
+        log or (lambda msg: None),
+        progress or (lambda n=1: None),
+        t0=t0,
+    )
     _precompile(run)
     run.say("baseline fits (whole record, to the 1st and 2nd collapse)")
     _setup_warnings(run)
@@ -921,15 +1148,42 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         run.say("baseline En4D-Var")
         _en4dvar_baseline(run, full, baseline)
     run.say(f"constant-parameter check ({s.n_bootstrap} bootstrap replicates)")
-    check = bootstrap_check(run.base, obs, run.phases, observed, B=s.n_bootstrap, seed=seed + 1, alpha=s.alpha,
-                            progress=run.tick, mienks=mk, execution=run.ex, build=run.build)
+    check = bootstrap_check(
+        run.base,
+        obs,
+        run.phases,
+        observed,
+        B=s.n_bootstrap,
+        seed=seed + 1,
+        alpha=s.alpha,
+        progress=run.tick,
+        mienks=mk,
+        execution=run.ex,
+        build=run.build,
+    )
     base_key = BASELINE.key
     if check["verdict"] == "adequate" and not s.compare_when_adequate:
-        return _finish(run, baseline, check, observed, om, {
-            "candidates": [], "cause": "none", "extended_model": None, "gain": {}, "candidates_tied": [],
-            "tie_reason": "", "absorption": {}, "signature": {}, "failed_units": [],
-            "comparison_note": "the constant-parameter model is adequate; the candidates were not compared "
-                               "(compare_when_adequate off)"}, {base_key: full.fitted})
+        return _finish(
+            run,
+            baseline,
+            check,
+            observed,
+            om,
+            {
+                "candidates": [],
+                "cause": "none",
+                "extended_model": None,
+                "gain": {},
+                "candidates_tied": [],
+                "tie_reason": "",
+                "absorption": {},
+                "signature": {},
+                "failed_units": [],
+                "comparison_note": "the constant-parameter model is adequate; the candidates were not compared "
+                "(compare_when_adequate off)",
+            },
+            {base_key: full.fitted},
+        )
     om0 = replace(om, sd_used=om.noise_sd.copy(), alpha=np.ones(obs.n_exp), n_eff=None, tau=None)
     common = {**run.build, "obs": obs, "phases": run.phases, "om0": om0}
     models, keys = _fit_candidates(run, full, om, common)
@@ -941,24 +1195,46 @@ def diagnose(obs, options, physics=None, settings: DiagnoseSettings | None = Non
         _symptoms_removed(run, models, top, observed, baseline)
     mech = {d["key"]: d["mechanism"] for d in candidates}
     cause, ext, tied, cause_note = name_cause(check["verdict"], top, cont["tied"], mech, s.tie_se)
-    naming = {"min_gain": MIN_GAIN, "bar_se": s.tie_se,
-              "best_candidate": top["key"] if top is not None and top["consistent"] else None,
-              "best_gain": float(top["score"]) if top is not None and top["consistent"] else None,
-              "combined_z": (top.get("combined_vs_baseline") or {}).get("z") if top is not None else None,
-              "rule": (f"a mechanism is named when its candidate is consistent, recovers at least {100 * MIN_GAIN:g} % "
-                       f"of the held-out error (mean relative RMSE reduction over the schemes) and its gain over the "
-                       f"schemes taken together is >= {s.tie_se:g} paired SE")}
+    naming = {
+        "min_gain": MIN_GAIN,
+        "bar_se": s.tie_se,
+        "best_candidate": top["key"] if top is not None and top["consistent"] else None,
+        "best_gain": float(top["score"]) if top is not None and top["consistent"] else None,
+        "combined_z": (top.get("combined_vs_baseline") or {}).get("z") if top is not None else None,
+        "rule": (
+            f"a mechanism is named when its candidate is consistent, recovers at least {100 * MIN_GAIN:g} % "
+            f"of the held-out error (mean relative RMSE reduction over the schemes) and its gain over the "
+            f"schemes taken together is >= {s.tie_se:g} paired SE"
+        ),
+    }
     gain = _gain(top, models.held, schemes, elpd) if top is not None else {}
     baseline["heldout"] = models.held[base_key]
     baseline["elpd"] = elpd[base_key]
     sensitivity = bubble_model_sensitivity(
-        candidates, baseline.get("estimate_map", baseline["estimate"]), s.tie_se,
-        overrides={d["key"]: spec_of(d["key"]).forward_options(options) for d in candidates if d["kind"] == "bubble"})
-    return _finish(run, baseline, check, observed, om, {
-        "candidates": candidates, "cause": cause, "cause_note": cause_note, "extended_model": ext, "gain": gain,
-        "naming": naming,
-        "bubble_model_sensitivity": sensitivity,
-        "candidates_tied": tied if cause == "ambiguous" else [],
-        "tie_reason": cont["tie_reason"] if cause == "ambiguous" else "",
-        "absorption": cont["absorption"], "signature": cont["signature"], "failed_units": models.failed_units},
-        {k: models.fits[k].fitted for k in models.cands})
+        candidates,
+        baseline.get("estimate_map", baseline["estimate"]),
+        s.tie_se,
+        overrides={d["key"]: spec_of(d["key"]).forward_options(options) for d in candidates if d["kind"] == "bubble"},
+    )
+    return _finish(
+        run,
+        baseline,
+        check,
+        observed,
+        om,
+        {
+            "candidates": candidates,
+            "cause": cause,
+            "cause_note": cause_note,
+            "extended_model": ext,
+            "gain": gain,
+            "naming": naming,
+            "bubble_model_sensitivity": sensitivity,
+            "candidates_tied": tied if cause == "ambiguous" else [],
+            "tie_reason": cont["tie_reason"] if cause == "ambiguous" else "",
+            "absorption": cont["absorption"],
+            "signature": cont["signature"],
+            "failed_units": models.failed_units,
+        },
+        {k: models.fits[k].fitted for k in models.cands},
+    )

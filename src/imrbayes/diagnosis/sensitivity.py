@@ -37,8 +37,9 @@ def _separation(candidate: dict) -> float | None:
     return max(z) if z else None
 
 
-def bubble_model_sensitivity(candidates: list, baseline_estimate: dict, tie_se: float = 2.0,
-                             overrides: dict | None = None) -> dict:
+def bubble_model_sensitivity(
+    candidates: list, baseline_estimate: dict, tie_se: float = 2.0, overrides: dict | None = None
+) -> dict:
     """Each bubble candidate's material estimate against the baseline's.
 
     candidates: diagnose's candidate entries (``kind``, ``key``, ``mechanism``,
@@ -55,30 +56,47 @@ def bubble_model_sensitivity(candidates: list, baseline_estimate: dict, tie_se: 
             continue
         est = c.get("estimate") or {}
         shared = [n for n in baseline_estimate if n in est]
-        shift = {n: est[n]["median"] / baseline_estimate[n]["median"] - 1.0 for n in shared
-                 if baseline_estimate[n]["median"]}
-        shift_sd = {n: (est[n]["median"] - baseline_estimate[n]["median"]) / baseline_estimate[n]["sd"]
-                    for n in shared if baseline_estimate[n].get("sd")}
+        shift = {
+            n: est[n]["median"] / baseline_estimate[n]["median"] - 1.0 for n in shared if baseline_estimate[n]["median"]
+        }
+        shift_sd = {
+            n: (est[n]["median"] - baseline_estimate[n]["median"]) / baseline_estimate[n]["sd"]
+            for n in shared
+            if baseline_estimate[n].get("sd")
+        }
         sep = _separation(c)
         same = sep is not None and sep < tie_se
         moves = [n for n in shift if abs(shift[n]) >= SHIFT_REL and abs(shift_sd.get(n, 0.0)) >= SHIFT_SD]
-        out.append({"key": c.get("key"), "mechanism": c.get("mechanism"),
-                    "bubble_options": dict((overrides or {}).get(c.get("key")) or {}),
-                    "estimate": {n: est[n]["median"] for n in shared},
-                    "baseline": {n: baseline_estimate[n]["median"] for n in shared},
-                    "shift": shift, "shift_sd": shift_sd, "separation_se": sep, "indistinguishable": same,
-                    "material_moves": moves})
-    return {"alternatives": out,
-            "material_depends_on_bubble_model": any(a["indistinguishable"] and a["material_moves"] for a in out),
-            "rule": f"a bubble-model alternative the held-out schemes do not separate from the baseline (< {tie_se:g} "
-                    f"paired SE) whose MAP moves a parameter by >= {SHIFT_REL:.0%} and >= {SHIFT_SD:g} baseline sd"}
+        out.append(
+            {
+                "key": c.get("key"),
+                "mechanism": c.get("mechanism"),
+                "bubble_options": dict((overrides or {}).get(c.get("key")) or {}),
+                "estimate": {n: est[n]["median"] for n in shared},
+                "baseline": {n: baseline_estimate[n]["median"] for n in shared},
+                "shift": shift,
+                "shift_sd": shift_sd,
+                "separation_se": sep,
+                "indistinguishable": same,
+                "material_moves": moves,
+            }
+        )
+    return {
+        "alternatives": out,
+        "material_depends_on_bubble_model": any(a["indistinguishable"] and a["material_moves"] for a in out),
+        "rule": f"a bubble-model alternative the held-out schemes do not separate from the baseline (< {tie_se:g} "
+        f"paired SE) whose MAP moves a parameter by >= {SHIFT_REL:.0%} and >= {SHIFT_SD:g} baseline sd",
+    }
 
 
 def flagged(sensitivity: dict | None) -> list:
     """The alternatives of a ``bubble_model_sensitivity`` result that the data cannot separate from
     the baseline and that move the material, largest move first."""
-    alts = [a for a in (sensitivity or {}).get("alternatives") or []
-            if a.get("indistinguishable") and a.get("material_moves")]
+    alts = [
+        a
+        for a in (sensitivity or {}).get("alternatives") or []
+        if a.get("indistinguishable") and a.get("material_moves")
+    ]
     return sorted(alts, key=lambda a: -max(abs(a["shift"][n]) for n in a["material_moves"]))
 
 

@@ -87,8 +87,14 @@ from imrbayes.ensemble import Observations, ParamSpace
 from imrbayes.ensemble.mienks import MIEnKSSettings, fit_mienks
 from imrbayes.errors import InputError
 
-__all__ = ["SignatureSettings", "observed_signature", "predicted_signature", "signature_score", "signature_tail",
-           "signature_result"]
+__all__ = [
+    "SignatureSettings",
+    "observed_signature",
+    "predicted_signature",
+    "signature_score",
+    "signature_tail",
+    "signature_result",
+]
 
 PARAMS = ("G", "mu")
 
@@ -117,8 +123,15 @@ class SignatureSettings:
 
     def mienks(self) -> MIEnKSSettings:
         """The :class:`MIEnKSSettings` (one posterior draw per window: the draws are not used)."""
-        return MIEnKSSettings(n_ens=self.n_ens, n_iter=self.n_iter, L=self.L, h=self.h, rtps=self.rtps,
-                              n_draws=1, likelihood=self.likelihood)
+        return MIEnKSSettings(
+            n_ens=self.n_ens,
+            n_iter=self.n_iter,
+            L=self.L,
+            h=self.h,
+            rtps=self.rtps,
+            n_draws=1,
+            likelihood=self.likelihood,
+        )
 
     def skip_reason(self, obs: Observations) -> str | None:
         """Why the signature cannot be computed on ``obs`` with these settings (e.g. the record is
@@ -136,8 +149,14 @@ def _settings(settings) -> SignatureSettings:
     if settings is None:
         return SignatureSettings()
     if isinstance(settings, MIEnKSSettings):
-        return SignatureSettings(n_ens=settings.n_ens, n_iter=settings.n_iter, L=settings.L, h=settings.h,
-                                 rtps=settings.rtps, likelihood=settings.likelihood)
+        return SignatureSettings(
+            n_ens=settings.n_ens,
+            n_iter=settings.n_iter,
+            L=settings.L,
+            h=settings.h,
+            rtps=settings.rtps,
+            likelihood=settings.likelihood,
+        )
     return settings
 
 
@@ -206,8 +225,9 @@ def _t_quantile(q: float, dof: int) -> float:
     return float(stats.t.ppf(q, dof))
 
 
-def predicted_signature(simulate, fm, settings=None, n_rep: int | None = None, seed: int = 0,
-                        space: ParamSpace | None = None) -> dict:
+def predicted_signature(
+    simulate, fm, settings=None, n_rep: int | None = None, seed: int = 0, space: ParamSpace | None = None
+) -> dict:
     """The signature distribution a fitted candidate predicts.
 
     ``simulate(rng) -> Observations``: one synthetic dataset of the data's design from the fitted
@@ -230,7 +250,7 @@ def predicted_signature(simulate, fm, settings=None, n_rep: int | None = None, s
     for r in range(n):
         try:
             ob = simulate(np.random.default_rng([int(seed), r]))
-        except Exception as exc:                      # noqa: BLE001 -- the caller's code: any failure is one replicate's
+        except Exception as exc:  # noqa: BLE001 -- the caller's code: any failure is one replicate's
             failures.append(f"replicate {r}: simulate failed ({type(exc).__name__}: {_first_line(exc)})")
             continue
         why = s.skip_reason(ob)
@@ -244,8 +264,9 @@ def predicted_signature(simulate, fm, settings=None, n_rep: int | None = None, s
             failures.append(f"replicate {r}: smoother failed ({type(exc).__name__}: {_first_line(exc)})")
             continue
         if tcs and (tc.shape != tcs[0].shape or not np.allclose(tc, tcs[0])):
-            raise InputError("signature", f"replicate {r} has other windows than replicate 0: simulate must "
-                                          "keep the data's design")
+            raise InputError(
+                "signature", f"replicate {r} has other windows than replicate 0: simulate must keep the data's design"
+            )
         tcs.append(tc)
         ms.append(m)
         vs.append(v)
@@ -254,11 +275,14 @@ def predicted_signature(simulate, fm, settings=None, n_rep: int | None = None, s
     if k == 0:
         out["t_star"] = np.array([])
         return out
-    M, V = np.stack(ms), np.stack(vs)                  # (k, nw, 2)
+    M, V = np.stack(ms), np.stack(vs)  # (k, nw, 2)
     mean = M.mean(axis=0)
     spread = M.std(axis=0, ddof=1) if k >= 2 else np.full(mean.shape, np.nan)
-    half = (_t_quantile(0.5 + 0.5 * s.band, k - 1) * spread * math.sqrt(1.0 + 1.0 / k) if k >= 2
-            else np.full(mean.shape, np.nan))
+    half = (
+        _t_quantile(0.5 + 0.5 * s.band, k - 1) * spread * math.sqrt(1.0 + 1.0 / k)
+        if k >= 2
+        else np.full(mean.shape, np.nan)
+    )
     out["t_star"] = tcs[0]
     for i, p in enumerate(PARAMS):
         out[f"log_{p}_reps"] = M[:, :, i]
@@ -293,8 +317,11 @@ def _arrays(observed, predicted):
     M = np.stack([np.asarray(predicted[f"log_{p}_reps"], dtype=float) for p in PARAMS], axis=-1)
     to, tp = np.asarray(observed["t_star"], dtype=float), np.asarray(predicted["t_star"], dtype=float)
     if to.shape != tp.shape or not np.allclose(to, tp):
-        raise InputError("signature", f"observed ({to.size}) and predicted ({tp.size}) signatures have other "
-                                      "windows: the replicates must keep the data's design and settings")
+        raise InputError(
+            "signature",
+            f"observed ({to.size}) and predicted ({tp.size}) signatures have other "
+            "windows: the replicates must keep the data's design and settings",
+        )
     return o, v, M
 
 
@@ -329,15 +356,17 @@ def _num(x):
     return x if math.isfinite(x) else None
 
 
-NOTE = ("MIEnKS-MDA signature: window estimates G(t*), mu(t*) of the constant-parameter NHKV smoother "
-        "(likelihood {lik}, {n_ens} members, {n_iter} iterations, windows L = {L}, h = {h}) on the data "
-        "(observed: median and sd of each window's log-normal) and on {n_rep} synthetic replicates of "
-        "the data's design from each fitted candidate (predicted: geometric mean and the {band:.0f} % "
-        "prediction interval of one more replicate). score: mean over windows and (log G, log mu) of "
-        "(observed - replicate mean)^2 / ((1 + 1/n) replicate variance + observed window variance); "
-        "lower is better: well below 1 when the candidate reproduces the signature, about 1 when the "
-        "observed curves lie one window posterior sd from the prediction. The windows overlap and are "
-        "chained, so it ranks candidates rather than testing them.")
+NOTE = (
+    "MIEnKS-MDA signature: window estimates G(t*), mu(t*) of the constant-parameter NHKV smoother "
+    "(likelihood {lik}, {n_ens} members, {n_iter} iterations, windows L = {L}, h = {h}) on the data "
+    "(observed: median and sd of each window's log-normal) and on {n_rep} synthetic replicates of "
+    "the data's design from each fitted candidate (predicted: geometric mean and the {band:.0f} % "
+    "prediction interval of one more replicate). score: mean over windows and (log G, log mu) of "
+    "(observed - replicate mean)^2 / ((1 + 1/n) replicate variance + observed window variance); "
+    "lower is better: well below 1 when the candidate reproduces the signature, about 1 when the "
+    "observed curves lie one window posterior sd from the prediction. The windows overlap and are "
+    "chained, so it ranks candidates rather than testing them."
+)
 
 
 def signature_result(observed: dict, predicted_by_key: dict, note: str | None = None) -> dict:
@@ -357,6 +386,13 @@ def signature_result(observed: dict, predicted_by_key: dict, note: str | None = 
         pred_out[key] = e
         score[key] = _num(signature_score(observed, pr))
     if note is None:
-        note = NOTE.format(lik=s.likelihood, n_ens=s.n_ens, n_iter=s.n_iter, L=s.L, h=s.h,
-                           n_rep="/".join(map(str, n_rep)), band=100 * s.band)
+        note = NOTE.format(
+            lik=s.likelihood,
+            n_ens=s.n_ens,
+            n_iter=s.n_iter,
+            L=s.L,
+            h=s.h,
+            n_rep="/".join(map(str, n_rep)),
+            band=100 * s.band,
+        )
     return {"observed": obs_out, "predicted": pred_out, "score": score, "note": note}

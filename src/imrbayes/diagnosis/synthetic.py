@@ -16,8 +16,8 @@ measured data.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
-from typing import Mapping
 
 import numpy as np
 
@@ -28,9 +28,22 @@ from imrbayes.diagnosis.models import make_candidate
 from imrbayes.diagnosis.phases import phases_of
 from imrbayes.ensemble import Observations
 
-__all__ = ["GENERATORS", "BASELINE_TRUTH", "synthetic_obs", "Design", "DESIGNS", "STRENGTH_DESIGNS", "design_of",
-           "BUBBLE_GENERATORS",
-           "camera_mechanisms", "camera_obs", "fine_options", "data_options", "clean_curves", "bubble_effect"]
+__all__ = [
+    "GENERATORS",
+    "BASELINE_TRUTH",
+    "synthetic_obs",
+    "Design",
+    "DESIGNS",
+    "STRENGTH_DESIGNS",
+    "design_of",
+    "BUBBLE_GENERATORS",
+    "camera_mechanisms",
+    "camera_obs",
+    "fine_options",
+    "data_options",
+    "clean_curves",
+    "bubble_effect",
+]
 
 #: True (G, mu) of every synthetic dataset [Pa, Pa s]; the mechanism's own come from its candidate.
 BASELINE_TRUTH = {"G": Range(3e3, 12e3, log=True), "mu": Range(0.04, 0.15, log=True)}
@@ -49,8 +62,15 @@ def _generators() -> dict:
 GENERATORS = _generators()
 
 
-def synthetic_obs(mechanism: str, seed: int, options, n_exp: int = 5, noise_scale: float = 1.0,
-                  n_steps: int = 120, dt_star: float = 0.025):
+def synthetic_obs(
+    mechanism: str,
+    seed: int,
+    options,
+    n_exp: int = 5,
+    noise_scale: float = 1.0,
+    n_steps: int = 120,
+    dt_star: float = 0.025,
+):
     """(Observations, truth dict) of ``n_exp`` noisy experiments with the hidden ``mechanism``."""
     rng = np.random.default_rng(seed)
     key = GENERATORS[mechanism]
@@ -63,7 +83,7 @@ def synthetic_obs(mechanism: str, seed: int, options, n_exp: int = 5, noise_scal
     z = cand.to_internal([theta[n] for n in cand.names])
     blank = Observations(t, np.ones((n_exp, t.size)), np.ones(t.size), rmax, req)
     minima = None
-    if cand.piecewise:   # breaks at the collapses of the baseline bubble's curve, then refined once
+    if cand.piecewise:  # breaks at the collapses of the baseline bubble's curve, then refined once
         base = make_candidate(BASELINE.key, options)
         R0 = predict(base, z[None, :2], blank, np.arange(n_exp), None, n_steps)[0]
         minima = phases_of(Observations(t, np.maximum(R0, 1e-3), np.ones(t.size), rmax, req)).minima
@@ -77,13 +97,21 @@ def synthetic_obs(mechanism: str, seed: int, options, n_exp: int = 5, noise_scal
     Y = np.maximum(Y, 1e-3)
     P, _ = noise_variance(t, Y)
     obs = Observations(t, Y, P, rmax, req, names=[f"exp_{i + 1:03d}" for i in range(n_exp)])
-    return obs, {"mechanism": mechanism, "model": key, "theta": theta, "rmax_m": rmax.tolist(),
-                 "req_m": req.tolist(), "noise_scale": noise_scale, "seed": seed}
+    return obs, {
+        "mechanism": mechanism,
+        "model": key,
+        "theta": theta,
+        "rmax_m": rmax.tolist(),
+        "req_m": req.tolist(),
+        "noise_scale": noise_scale,
+        "seed": seed,
+    }
 
 
 # ----------------------------------------------------------------------------------------------------
 # Camera-style datasets, processed as real data
 # ----------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Design:
@@ -134,10 +162,12 @@ DESIGNS = {
     # a coarse camera: ~8 frames per t* unit, records long enough for 20 tail frames after the collapses
     "270kfps-2um-3": Design("270kfps-2um-3", n_exp=3, frame_s=1 / 270e3, noise="2um", pre_max=2, t_end_star=8.0),
     "2Mfps-4um-8": Design("2Mfps-4um-8", n_exp=8, frame_s=0.5e-6, noise="4um", pre_max=10),
-    "1Mfps-1um-5-scatterG": Design("1Mfps-1um-5-scatterG", n_exp=5, frame_s=1e-6, noise="1um", pre_max=6,
-                                   scatter={"G": 0.1}),
-    "500kfps-3um-6-small": Design("500kfps-3um-6-small", n_exp=6, frame_s=2e-6, noise="3um", pre_max=4,
-                                  rmax_um=(220.0, 25.0), ratio=(6.5, 0.4)),
+    "1Mfps-1um-5-scatterG": Design(
+        "1Mfps-1um-5-scatterG", n_exp=5, frame_s=1e-6, noise="1um", pre_max=6, scatter={"G": 0.1}
+    ),
+    "500kfps-3um-6-small": Design(
+        "500kfps-3um-6-small", n_exp=6, frame_s=2e-6, noise="3um", pre_max=4, rmax_um=(220.0, 25.0), ratio=(6.5, 0.4)
+    ),
 }
 
 #: Designs where a mechanism that is at the noise level in :data:`DESIGNS` is strong enough to be
@@ -147,8 +177,9 @@ DESIGNS = {
 #: seeds 6000-6003: 5.6-8.1 µm RMS (max 39-52 µm) here against 0.4-2.9 µm (max 2-23 µm) on the
 #: default design (`bubble_effect`-style comparison).
 STRENGTH_DESIGNS = {
-    "1Mfps-1um-5-violent": Design("1Mfps-1um-5-violent", noise="1um", ratio=(9.5, 0.3),
-                                  material={"mu": Range(0.02, 0.05, log=True)}),
+    "1Mfps-1um-5-violent": Design(
+        "1Mfps-1um-5-violent", noise="1um", ratio=(9.5, 0.3), material={"mu": Range(0.02, 0.05, log=True)}
+    ),
 }
 
 
@@ -197,8 +228,10 @@ def _bubble_compressibility(options) -> dict:
 
 
 #: mechanism -> (material candidate key, fitted options -> forward-option overrides of the data).
-BUBBLE_GENERATORS = {"bubble-thermal": (BASELINE.key, _bubble_thermal),
-                     "bubble-compressibility": (BASELINE.key, _bubble_compressibility)}
+BUBBLE_GENERATORS = {
+    "bubble-thermal": (BASELINE.key, _bubble_thermal),
+    "bubble-compressibility": (BASELINE.key, _bubble_compressibility),
+}
 
 
 def camera_mechanisms() -> dict:
@@ -222,8 +255,13 @@ def fine_options(options):
     the bubble and in the medium and 10x tighter integrator tolerances, so a fit never sees data
     made by its own discretisation."""
     nt, mt = options.resolution
-    return replace(options, nt=int(math.ceil(1.5 * nt)), mt=int(math.ceil(1.5 * mt)),
-                   rtol=options.rtol / 10, atol=options.atol / 10)
+    return replace(
+        options,
+        nt=int(math.ceil(1.5 * nt)),
+        mt=int(math.ceil(1.5 * mt)),
+        rtol=options.rtol / 10,
+        atol=options.atol / 10,
+    )
 
 
 def data_options(options, mechanism: str, truth_options=None):
@@ -249,8 +287,14 @@ def _true_minima(fm, prm, rmax, req, t_end, breaks=None, dt=0.002):
     from scipy.signal import find_peaks
 
     t = np.arange(0.0, t_end + dt / 2, dt)
-    o = fm.simulate(prm, np.array([rmax]), np.array([req]), t, max_steps=MAX_STEPS,
-                    **({"breaks_star": np.asarray(breaks, float)[None]} if breaks is not None else {}))
+    o = fm.simulate(
+        prm,
+        np.array([rmax]),
+        np.array([req]),
+        t,
+        max_steps=MAX_STEPS,
+        **({"breaks_star": np.asarray(breaks, float)[None]} if breaks is not None else {}),
+    )
     if o.failed[0]:
         raise RuntimeError("forward solve failed while locating the true collapses")
     idx, _ = find_peaks(-o.R_star[0], prominence=0.01)
@@ -270,11 +314,12 @@ def _clean_record(cand, fm, theta: dict, rmax, req, ts, peer=None):
     breaks = None
     if cand.piecewise:
         t_end = float(t_abs[-1])
-        base = cand.forward_params(z, n_pieces=1)            # piece 0 everywhere: the undamaged bubble
+        base = cand.forward_params(z, n_pieces=1)  # piece 0 everywhere: the undamaged bubble
         br = _true_minima(fm, base, rmax, req, t_end)
-        for _ in range(2):                                   # the losses move the later collapses
-            br = _true_minima(fm, cand.forward_params(z, n_pieces=br.size + 1), rmax, req, t_end,
-                              breaks=br if br.size else None)
+        for _ in range(2):  # the losses move the later collapses
+            br = _true_minima(
+                fm, cand.forward_params(z, n_pieces=br.size + 1), rmax, req, t_end, breaks=br if br.size else None
+            )
         breaks = br
     prm = cand.forward_params(z, n_pieces=(breaks.size + 1) if breaks is not None else 1)
     kw = {"breaks_star": breaks[None]} if breaks is not None and breaks.size else {}
@@ -289,9 +334,19 @@ def _draw_clipped(rng, mean, sd, n, low=None):
     return x if low is None else np.maximum(x, low)
 
 
-def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, design=None,
-               truth_options=None, noise: str | None = None, frame_s: float | None = None,
-               scatter: Mapping | None = None, physics=None, generator: str = "imrbayes"):
+def camera_obs(
+    mechanism: str,
+    seed: int,
+    options,
+    n_exp: int | None = None,
+    design=None,
+    truth_options=None,
+    noise: str | None = None,
+    frame_s: float | None = None,
+    scatter: Mapping | None = None,
+    physics=None,
+    generator: str = "imrbayes",
+):
     """(Observations, truth dict): camera-style records with the hidden ``mechanism``, processed
     exactly as measured data.
 
@@ -331,8 +386,11 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
     from imrbayes.forward.constants import Physics
 
     d = design_of(design)
-    over = {k: v for k, v in {"n_exp": n_exp, "noise": noise, "frame_s": frame_s, "scatter": scatter}.items()
-            if v is not None}
+    over = {
+        k: v
+        for k, v in {"n_exp": n_exp, "noise": noise, "frame_s": frame_s, "scatter": scatter}.items()
+        if v is not None
+    }
     if over:
         d = replace(d, **over)
     classes = camera_mechanisms()
@@ -348,6 +406,7 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
     peer = None
     if generator == "pyimr":
         from imrbayes.forward.peers import PyIMRModel
+
         peer = PyIMRModel(fm)
     rng = np.random.default_rng(seed)
     theta = {n: r.draw(rng) for n, r in {**BASELINE_TRUTH, **d.material, **cand.spec.synthetic}.items()}
@@ -373,15 +432,32 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
             Rn, redrawn = syn.noisy(ts, Rs, noise_d, rng, rmax_m=rm)
             exps.append(Experiment(name, (ts - ts[0]) * tc, Rn * rm, source=f"synthetic:{mechanism}:{seed}:{name}"))
             sd = syn.noise_sd(ts, Rs, noise_d, rm)
-            truth_exp.append({"name": name, "rmax_m": rm, "req_m": rq, "rmax_over_req": float(ratio[j]),
-                              "t_max_s": float(-ts[0] * tc), "tc_s": tc, "phase_s": float(phases[i]),
-                              "n_frames": int(ts.size), "noise_sd_m": float(np.median(sd) * rm),
-                              "noise_sd_at_max_r_star": float(syn.noise_sd(np.zeros(1), np.ones(1), noise_d, rm)[0]),
-                              "n_redrawn_nonpositive": int(redrawn), "parameters": per_exp[i],
-                              "breaks_star": breaks})
+            truth_exp.append(
+                {
+                    "name": name,
+                    "rmax_m": rm,
+                    "req_m": rq,
+                    "rmax_over_req": float(ratio[j]),
+                    "t_max_s": float(-ts[0] * tc),
+                    "tc_s": tc,
+                    "phase_s": float(phases[i]),
+                    "n_frames": int(ts.size),
+                    "noise_sd_m": float(np.median(sd) * rm),
+                    "noise_sd_at_max_r_star": float(syn.noise_sd(np.zeros(1), np.ones(1), noise_d, rm)[0]),
+                    "n_redrawn_nonpositive": int(redrawn),
+                    "parameters": per_exp[i],
+                    "breaks_star": breaks,
+                }
+            )
         recorded += want
-        ds = Dataset(f"camera-{mechanism}-{seed}", "<synthetic>", "synthetic-camera", exps,
-                     material=f"synthetic ({mechanism})", physics=physics.to_dict())
+        ds = Dataset(
+            f"camera-{mechanism}-{seed}",
+            "<synthetic>",
+            "synthetic-camera",
+            exps,
+            material=f"synthetic ({mechanism})",
+            physics=physics.to_dict(),
+        )
         pre = preprocess_dataset(ds, dt_star=d.dt_star, n_steps=d.n_steps, skip_failed=True)
         if pre.skipped:
             bad = {s["name"] for s in pre.skipped}
@@ -391,20 +467,33 @@ def camera_obs(mechanism: str, seed: int, options, n_exp: int | None = None, des
             truth_exp = [e for e in truth_exp if e["name"] not in bad]
             want = n - len(exps)
             if recorded + want > n_max:
-                raise RuntimeError(f"{len(discarded)} of {len(exps) + len(discarded)} synthetic records refused by "
-                                   f"the preprocessing (design {d.name}); first: {discarded[0]['error']}")
+                raise RuntimeError(
+                    f"{len(discarded)} of {len(exps) + len(discarded)} synthetic records refused by "
+                    f"the preprocessing (design {d.name}); first: {discarded[0]['error']}"
+                )
             continue
         break
     obs = Observations.from_preprocessed(pre)
     kept = {e["name"]: e for e in truth_exp}
-    truth = {"mechanism": mechanism, "model": key, "theta": theta, "seed": seed, "design": d.to_dict(),
-             "noise": noise_d, "fitted_forward": options.to_dict(), "data_forward": dopts.to_dict(),
-             "forward_overrides": {k: v for k, v in dopts.to_dict().items() if options.to_dict().get(k) != v},
-             "generator": peer.describe() if peer is not None else {"code": "imrbayes"},
-             "experiments": truth_exp, "names": list(obs.names),
-             "rmax_m": [kept[nm]["rmax_m"] for nm in obs.names], "req_m": [kept[nm]["req_m"] for nm in obs.names],
-             "t_max_s": [kept[nm]["t_max_s"] for nm in obs.names],
-             "discarded": discarded, "warnings": pre.warnings}
+    truth = {
+        "mechanism": mechanism,
+        "model": key,
+        "theta": theta,
+        "seed": seed,
+        "design": d.to_dict(),
+        "noise": noise_d,
+        "fitted_forward": options.to_dict(),
+        "data_forward": dopts.to_dict(),
+        "forward_overrides": {k: v for k, v in dopts.to_dict().items() if options.to_dict().get(k) != v},
+        "generator": peer.describe() if peer is not None else {"code": "imrbayes"},
+        "experiments": truth_exp,
+        "names": list(obs.names),
+        "rmax_m": [kept[nm]["rmax_m"] for nm in obs.names],
+        "req_m": [kept[nm]["req_m"] for nm in obs.names],
+        "t_max_s": [kept[nm]["t_max_s"] for nm in obs.names],
+        "discarded": discarded,
+        "warnings": pre.warnings,
+    }
     return obs, truth
 
 
@@ -421,19 +510,29 @@ def clean_curves(mechanism: str, seed: int, options, t_star, design=None, truth_
     theta = {n: r.draw(rng) for n, r in {**BASELINE_TRUTH, **d.material, **cand.spec.synthetic}.items()}
     rmax = _draw_clipped(rng, d.rmax_um[0], d.rmax_um[1], d.n_exp) * 1e-6
     ratio = _draw_clipped(rng, d.ratio[0], d.ratio[1], d.n_exp, low=2.0)
-    return np.array([_clean_record(cand, cand.fm, theta, float(rmax[i]), float(rmax[i] / ratio[i]), t_star)[0]
-                     for i in range(min(n_exp, d.n_exp))]), rmax[:n_exp]
+    return np.array(
+        [
+            _clean_record(cand, cand.fm, theta, float(rmax[i]), float(rmax[i] / ratio[i]), t_star)[0]
+            for i in range(min(n_exp, d.n_exp))
+        ]
+    ), rmax[:n_exp]
 
 
-def bubble_effect(mechanism: str, seed: int, options, noise_um: float = 2.0, t_end: float = 3.0,
-                  truth_options=None, design=None) -> dict:
+def bubble_effect(
+    mechanism: str, seed: int, options, noise_um: float = 2.0, t_end: float = 3.0, truth_options=None, design=None
+) -> dict:
     """RMS over t* in [0, t_end] and bubbles of R*(data of ``mechanism``) - R*(data of ``none``), same
     material and geometry (``design``'s): in R*, in µm, and in units of a ``noise_um`` noise sd."""
     t = np.linspace(0.0, t_end, 601)
     Rb, rmax = clean_curves(mechanism, seed, options, t, design=design, truth_options=truth_options)
     R0, _ = clean_curves("none", seed, options, t, design=design, truth_options=truth_options)
     diff_um = (Rb - R0) * rmax[:, None] * 1e6
-    rms_um = float(np.sqrt(np.mean(diff_um ** 2)))
-    return {"mechanism": mechanism, "seed": seed, "rms_r_star": float(np.sqrt(np.mean((Rb - R0) ** 2))),
-            "rms_um": rms_um, "rms_over_noise": rms_um / noise_um,
-            "max_abs_um": float(np.max(np.abs(diff_um)))}
+    rms_um = float(np.sqrt(np.mean(diff_um**2)))
+    return {
+        "mechanism": mechanism,
+        "seed": seed,
+        "rms_r_star": float(np.sqrt(np.mean((Rb - R0) ** 2))),
+        "rms_um": rms_um,
+        "rms_over_noise": rms_um / noise_um,
+        "max_abs_um": float(np.max(np.abs(diff_um))),
+    }

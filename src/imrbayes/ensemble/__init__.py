@@ -23,6 +23,24 @@ from imrbayes.ensemble.result import FitResult, WindowPosterior
 #: name -> method (:class:`InferenceMethod` subclass), in the order the CLI lists them
 METHODS = {m.name: m for m in (IMR, PIMR, En4DVar, MIEnKS)}
 
-__all__ = ["METHODS", "InferenceMethod", "Observations", "ParamSpace", "PAPER_PRIOR", "FitResult", "WindowPosterior",
-           "fit_imr", "fit_pimr", "fit_en4dvar", "fit_mienks", "IMR", "PIMR", "En4DVar", "MIEnKS",
-           "IMRSettings", "PIMRSettings", "En4DVarSettings", "MIEnKSSettings"]
+__all__ = [
+    "METHODS",
+    "InferenceMethod",
+    "Observations",
+    "ParamSpace",
+    "PAPER_PRIOR",
+    "FitResult",
+    "WindowPosterior",
+    "fit_imr",
+    "fit_pimr",
+    "fit_en4dvar",
+    "fit_mienks",
+    "IMR",
+    "PIMR",
+    "En4DVar",
+    "MIEnKS",
+    "IMRSettings",
+    "PIMRSettings",
+    "En4DVarSettings",
+    "MIEnKSSettings",
+]

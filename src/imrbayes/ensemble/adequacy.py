@@ -59,20 +59,36 @@ def fit_check(res, obs, model: str = "nhkv", threshold: float = FIT_CHECK_THRESH
         noise = float(record_noise_sd(obs, n))
         rows.append({"name": obs.names[n], "residual_rms": rms, "noise_sd": noise, "ratio": rms / noise})
     if not rows:
-        return {"described": None, "residual_to_noise": None, "per_experiment": [], "threshold": threshold,
-                "p_value": None, "message": "no fitted curve to check"}
+        return {
+            "described": None,
+            "residual_to_noise": None,
+            "per_experiment": [],
+            "threshold": threshold,
+            "p_value": None,
+            "message": "no fitted curve to check",
+        }
     ratio = float(np.median([r["ratio"] for r in rows]))
     described = ratio <= threshold
     label = model.upper()
     if described:
-        msg = (f"{label} describes these records: the fitted curves miss them by {ratio:.1f}x their noise "
-               f"(a model that describes them stays below {threshold:g}x).")
+        msg = (
+            f"{label} describes these records: the fitted curves miss them by {ratio:.1f}x their noise "
+            f"(a model that describes them stays below {threshold:g}x)."
+        )
     else:
-        msg = (f"{label} does not describe these records: the residual is {ratio:.0f}x their noise; these "
-               f"numbers are the best {label} fit, not the material's properties -- `imrbayes diagnose` "
-               f"looks for the cause.")
-    return {"described": bool(described), "residual_to_noise": ratio, "per_experiment": rows,
-            "threshold": threshold, "p_value": None, "message": msg}
+        msg = (
+            f"{label} does not describe these records: the residual is {ratio:.0f}x their noise; these "
+            f"numbers are the best {label} fit, not the material's properties -- `imrbayes diagnose` "
+            f"looks for the cause."
+        )
+    return {
+        "described": bool(described),
+        "residual_to_noise": ratio,
+        "per_experiment": rows,
+        "threshold": threshold,
+        "p_value": None,
+        "message": msg,
+    }
 
 
 def annotate_estimate(estimate: dict, space, cov_internal=None, search=None) -> dict:
@@ -87,8 +103,11 @@ def annotate_estimate(estimate: dict, space, cov_internal=None, search=None) -> 
             if nm in out:
                 ok = bool(post_sd[i] < BOUND_RATIO * prior_sd[i])
                 out[nm]["bounded"] = {"lower": ok, "upper": ok}
-    zero = (search or {}).get("zero_modulus") if isinstance(search, dict) else \
-        (search.zero_modulus if search is not None else None)
+    zero = (
+        (search or {}).get("zero_modulus")
+        if isinstance(search, dict)
+        else (search.zero_modulus if search is not None else None)
+    )
     if zero is None and "G" in out and (out["G"].get("hdi95") or [1.0])[0] <= 0.0:
         # a grid method's interval that reaches G = 0 (IMR, pIMR: G = 0 is a grid point)
         zero = {"consistent_with_zero": True}

@@ -42,18 +42,39 @@ import numpy as np
 from imrbayes.ensemble.fusion import fuse, fuse_bubbles, fuse_likelihoods, marginal_under_reference
 from imrbayes.ensemble.gaussian import draw, rtps
 from imrbayes.ensemble.gn import gauss_newton
-from imrbayes.ensemble.likelihood import (check_choice, frame_operator, nuisance_prior_sd, nuisance_summary, observation_model,
-                                          predict, record_noise_sd)
+from imrbayes.ensemble.likelihood import (
+    check_choice,
+    frame_operator,
+    nuisance_prior_sd,
+    nuisance_summary,
+    observation_model,
+    predict,
+    record_noise_sd,
+)
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, ReqTailStart, model_tail_req, tail_req, with_req
-from imrbayes.ensemble.result import (FitResult, WindowPosterior, gaussian_estimate, loglik_pointwise, rmse,
-                                      si_covariance)
+from imrbayes.ensemble.result import (
+    FitResult,
+    WindowPosterior,
+    gaussian_estimate,
+    loglik_pointwise,
+    rmse,
+    si_covariance,
+)
 from imrbayes.errors import InputError
 from imrbayes.execution import Execution, Unit, unit_id
 from imrbayes.forward import Runner, fm_spec, register_runner, runner_for
 
-__all__ = ["En4DVar", "En4DVarSettings", "fit_en4dvar", "en4dvar_pass", "en4dvar_unit", "en4dvar_post_unit",
-           "run_cycles", "fitting_window_posterior"]
+__all__ = [
+    "En4DVar",
+    "En4DVarSettings",
+    "fit_en4dvar",
+    "en4dvar_pass",
+    "en4dvar_unit",
+    "en4dvar_post_unit",
+    "run_cycles",
+    "fitting_window_posterior",
+]
 
 
 #: members per experiment: the default likelihood's, and the paper's (``likelihood="paper"``)
@@ -99,16 +120,22 @@ class En4DVarSettings:
     req_conflict_stop: float | None = None
     """Skip an experiment's later cycles once its Req lies this many prior sd from its record's; None: never."""
 
-    def resolved(self) -> "En4DVarSettings":
+    def resolved(self) -> En4DVarSettings:
         """The settings with the likelihood's own choices filled in (``paper``: averaged cost and the
         prior-corrected fusion unless set) and the members per experiment (24; the paper's 48)."""
         if self.likelihood == "paper":
-            return replace(self, fusion=self.fusion or "prior", obs_weight=self.obs_weight or "mean",
-                           n_ens=PAPER_N_ENS if self.n_ens is None else self.n_ens,
-                           n_iter_later=self.n_iter if self.n_iter_later is None else self.n_iter_later)
-        return replace(self, n_ens=DEFAULT_N_ENS if self.n_ens is None else self.n_ens,
-                       n_iter_later=(min(DEFAULT_N_ITER_LATER, self.n_iter) if self.n_iter_later is None
-                                     else self.n_iter_later))
+            return replace(
+                self,
+                fusion=self.fusion or "prior",
+                obs_weight=self.obs_weight or "mean",
+                n_ens=PAPER_N_ENS if self.n_ens is None else self.n_ens,
+                n_iter_later=self.n_iter if self.n_iter_later is None else self.n_iter_later,
+            )
+        return replace(
+            self,
+            n_ens=DEFAULT_N_ENS if self.n_ens is None else self.n_ens,
+            n_iter_later=(min(DEFAULT_N_ITER_LATER, self.n_iter) if self.n_iter_later is None else self.n_iter_later),
+        )
 
     def check(self):
         """Raise :class:`~imrbayes.errors.InputError` naming the first setting out of range."""
@@ -136,8 +163,12 @@ class En4DVarSettings:
             raise InputError("req_tail", f"must be 'auto', 'mean' or 'inline', got {self.req_tail!r}")
         if self.req_tail == "inline" and s.likelihood != "default":
             raise InputError("req_tail", "'inline' needs the default likelihood (the paper's takes Req as known)")
-        if self.req_conflict_stop is not None and not (np.isfinite(self.req_conflict_stop) and self.req_conflict_stop > 0):
-            raise InputError("req_conflict_stop", f"must be a positive number of prior sd or None, got {self.req_conflict_stop!r}")
+        if self.req_conflict_stop is not None and not (
+            np.isfinite(self.req_conflict_stop) and self.req_conflict_stop > 0
+        ):
+            raise InputError(
+                "req_conflict_stop", f"must be a positive number of prior sd or None, got {self.req_conflict_stop!r}"
+            )
 
 
 def req_tail_mode(settings: En4DVarSettings, fm) -> str:
@@ -161,8 +192,8 @@ def fit_window(obs, K: int, obs_weight: str = "mean"):
     """Samples 1..K (inclusive) of the grid: observation vector (n_exp, K) and weights 1/(K P_k)
     (``obs_weight="mean"``, methods.md's averaged cost) or 1/P_k (``"sum"``, every sample a full
     independent observation)."""
-    y = obs.R_star[:, 1:K + 1]
-    weight = 1.0 / ((K if obs_weight == "mean" else 1.0) * obs.P[1:K + 1])
+    y = obs.R_star[:, 1 : K + 1]
+    weight = 1.0 / ((K if obs_weight == "mean" else 1.0) * obs.P[1 : K + 1])
     return y, weight
 
 
@@ -207,21 +238,29 @@ class _Bubble:
     def nuisances(self, Z):
         """(M, 3) nuisances (a, delta, rho) of members Z (M, d); 0 where not active."""
         nu = np.zeros((Z.shape[0], 3))
-        nu[:, self.active] = Z[:, self.n_p:]
+        nu[:, self.active] = Z[:, self.n_p :]
         return nu
 
     def predict(self, Z):
         """R* (M, K) and failed (M,) of members Z (M, d), through the default likelihood's
         observation model."""
-        return predict(self.runner, self.space.to_si(Z[:, :self.n_p]), self.rmax, self.req, self.t_eval[1:],
-                       self.nuisances(Z), self.frames)
+        return predict(
+            self.runner,
+            self.space.to_si(Z[:, : self.n_p]),
+            self.rmax,
+            self.req,
+            self.t_eval[1:],
+            self.nuisances(Z),
+            self.frames,
+        )
 
     def evaluate(self, groups, Z):
         """The Gauss–Newton forward map: R* at samples 1..K (M, K) and failed (M,)."""
         if self.default:
             return self.predict(Z)
-        out = self.runner.simulate(self.space.to_si(Z), np.full(len(Z), self.rmax), np.full(len(Z), self.req),
-                                   self.t_eval)
+        out = self.runner.simulate(
+            self.space.to_si(Z), np.full(len(Z), self.rmax), np.full(len(Z), self.req), self.t_eval
+        )
         return out.R_star[:, 1:], out.failed | ~np.all(np.isfinite(out.R_star), axis=1)
 
 
@@ -279,14 +318,26 @@ def run_cycles(bubble: _Bubble, d: dict, s: En4DVarSettings, rng) -> tuple:
             # this cycle's Req against the preprocessing's, in its prior sd (req_tail.req_shift_z's z)
             req_z = float((bubble.req * np.exp(mean[bubble.j_rho]) - d["req"]) / (d["req"] * bubble.nu_sd[2]))
         # a decided conflict ends the fit before Req's origin moves (the reported Req stays this cycle's)
-        stop = (s.req_conflict_stop is not None and req_z is not None and abs(req_z) > s.req_conflict_stop
-                and r < s.n_runs - 1)
+        stop = (
+            s.req_conflict_stop is not None
+            and req_z is not None
+            and abs(req_z) > s.req_conflict_stop
+            and r < s.n_runs - 1
+        )
         if r == 0 and not stop and d.get("req_tail_t") is not None and bubble.j_rho is not None and s.n_runs > 1:
             req_factor = _move_req_inline(bubble, d, mean, res.cov[0], req_factor)
         used = np.isfinite(res.cost[0])
-        cycles.append({"cycle": r + 1, "cost": res.cost[0][used], "n_failed": res.n_failed[0][used],
-                       "n_redrawn": int(res.n_redrawn[0]), "stopped": bool(res.stopped[0]), "req_z": req_z,
-                       **({"likelihood": {k_: v for k_, v in lik.items() if k_ != "W"}} if default else {})})
+        cycles.append(
+            {
+                "cycle": r + 1,
+                "cost": res.cost[0][used],
+                "n_failed": res.n_failed[0][used],
+                "n_redrawn": int(res.n_redrawn[0]),
+                "stopped": bool(res.stopped[0]),
+                "req_z": req_z,
+                **({"likelihood": {k_: v for k_, v in lik.items() if k_ != "W"}} if default else {}),
+            }
+        )
         if stop:
             break
     if default and s.screen:
@@ -300,17 +351,28 @@ def _cycle(rng, ev, y, weight, mean, cov, centre, s, n_iter, max_iter, screen_in
     one-group result (the start with the lower posterior cost; ``screen_info`` records which)."""
     if centre is mean:
         E0 = draw(rng, mean, cov, s.n_ens)[None]
-        return gauss_newton(E0, ev, y[None], weight[None], n_iter=n_iter, rng=rng, max_iter=max_iter,
-                            patience=s.n_iter)
+        return gauss_newton(E0, ev, y[None], weight[None], n_iter=n_iter, rng=rng, max_iter=max_iter, patience=s.n_iter)
     # both starts, one forward batch per iteration; the cycle goes on from the better end
     E0 = np.stack([draw(rng, c, cov, s.n_ens) for c in (mean, centre)])
-    both = gauss_newton(E0, ev, np.stack([y, y]), np.stack([weight, weight]), n_iter=n_iter, rng=rng,
-                        max_iter=max_iter, patience=s.n_iter)
+    both = gauss_newton(
+        E0,
+        ev,
+        np.stack([y, y]),
+        np.stack([weight, weight]),
+        n_iter=n_iter,
+        rng=rng,
+        max_iter=max_iter,
+        patience=s.n_iter,
+    )
     J = posterior_cost(ev, y, both.mean, mean, cov)
     g = int(np.argmin(J))
-    screen_info.update({"cost_end": [float(c) if np.isfinite(c) else None for c in J],
-                        "cost_paths": [[float(c) for c in row if np.isfinite(c)] for row in both.cost],
-                        "kept": ["prior mean", "screened"][g]})
+    screen_info.update(
+        {
+            "cost_end": [float(c) if np.isfinite(c) else None for c in J],
+            "cost_paths": [[float(c) for c in row if np.isfinite(c)] for row in both.cost],
+            "kept": ["prior mean", "screened"][g],
+        }
+    )
     return take_group(both, g)
 
 
@@ -321,11 +383,16 @@ def _move_req_inline(bubble: _Bubble, d: dict, mean, post_cov, req_factor: float
     Returns Req's factor c (``req_factor`` unchanged when the tail could not be computed)."""
     n_p, active = bubble.n_p, bubble.active
     a = mean[n_p + int(np.flatnonzero(active == 0)[0])] if 0 in active else 0.0
-    new_req, c = tail_req(bubble.runner, bubble.space.to_si(mean[None, :n_p]), np.array([bubble.rmax * (1.0 + a)]),
-                          np.array([bubble.req]), [np.asarray(d["req_tail_t"], dtype=np.float64)])
+    new_req, c = tail_req(
+        bubble.runner,
+        bubble.space.to_si(mean[None, :n_p]),
+        np.array([bubble.rmax * (1.0 + a)]),
+        np.array([bubble.req]),
+        [np.asarray(d["req_tail_t"], dtype=np.float64)],
+    )
     if c[0] == 1.0:
         return req_factor
-    shift = float(np.log(bubble.req / new_req[0]))        # rho' = rho + log(req / req')
+    shift = float(np.log(bubble.req / new_req[0]))  # rho' = rho + log(req / req')
     mean[bubble.j_rho] += shift
     mean -= post_cov[:, bubble.j_rho] * shift / bubble.nu_sd[2] ** 2
     bubble.req = float(new_req[0])
@@ -354,15 +421,32 @@ def _unit_likelihood(bubble: _Bubble, s: En4DVarSettings, res, cycles: list, lik
             integral_used = "cycle"
         if swap:
             lik_pm, lik_pc, lik_qm, lik_qc = marginal_under_reference(pm, pc, qm, qc, n_p, swap)
-    out = {"mean": lik_pm, "cov": lik_pc, "prior_mean": lik_qm, "prior_cov": lik_qc,
-           "stopped": bool(res.stopped[0]), "cycles": cycles, "req_m": float(bubble.req),
-           "req_factor": req_factor, "req_conflict": bool(conflict_kept), "nuisance_integral": integral_used}
+    out = {
+        "mean": lik_pm,
+        "cov": lik_pc,
+        "prior_mean": lik_qm,
+        "prior_cov": lik_qc,
+        "stopped": bool(res.stopped[0]),
+        "cycles": cycles,
+        "req_m": float(bubble.req),
+        "req_factor": req_factor,
+        "req_conflict": bool(conflict_kept),
+        "nuisance_integral": integral_used,
+    }
     if bubble.default:
         nu_mean, nu_sd_post = np.zeros(3), np.zeros(3)
         nu_mean[active] = pm[n_p:]
         nu_sd_post[active] = np.sqrt(np.diag(pc)[n_p:])
-        out.update({"whiten": lik["W"], "likelihood": {k_: v for k_, v in lik.items() if k_ != "W"},
-                    "var": lik["var"], "alpha": lik["alpha"], "nu_mean": nu_mean, "nu_sd": nu_sd_post})
+        out.update(
+            {
+                "whiten": lik["W"],
+                "likelihood": {k_: v for k_, v in lik.items() if k_ != "W"},
+                "var": lik["var"],
+                "alpha": lik["alpha"],
+                "nu_mean": nu_mean,
+                "nu_sd": nu_sd_post,
+            }
+        )
     return out
 
 
@@ -378,8 +462,9 @@ def posterior_cost(evaluate, y, Z, mean, cov):
 
 def take_group(res, g: int):
     """Group g of a :class:`~imrbayes.ensemble.gn.GNResult`, as a one-group result."""
-    return replace(res, **{f.name: getattr(res, f.name)[g:g + 1] for f in fields(res)
-                           if getattr(res, f.name) is not None})
+    return replace(
+        res, **{f.name: getattr(res, f.name)[g : g + 1] for f in fields(res) if getattr(res, f.name) is not None}
+    )
 
 
 def screened_start(rng, evaluate, y, mean, cov, n: int):
@@ -402,6 +487,7 @@ def _whitened(evaluate, W):
     def ev(groups, Z):
         Y, failed = evaluate(groups, Z)
         return Y @ W.T, failed
+
     return ev
 
 
@@ -427,9 +513,17 @@ def en4dvar_post_unit(unit: Unit, rng) -> dict:
     return {"R_star": R, **runner.counts_since(before)}
 
 
-def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: int = 0,
-                runner: Runner | None = None, progress=None, execution=None,
-                req_tail_start: ReqTailStart | None = None) -> FitResult:
+def fit_en4dvar(
+    fm,
+    obs,
+    space,
+    settings: En4DVarSettings | None = None,
+    seed: int = 0,
+    runner: Runner | None = None,
+    progress=None,
+    execution=None,
+    req_tail_start: ReqTailStart | None = None,
+) -> FitResult:
     """Fit constant parameters to every experiment and fuse (see module doc).
 
     fm : ForwardModel; obs : Observations; space : ParamSpace; seed: the run seed (each experiment
@@ -459,17 +553,24 @@ def fit_en4dvar(fm, obs, space, settings: En4DVarSettings | None = None, seed: i
     if mode == "inline" and tails:
         res = en4dvar_pass(fm, obs, space, s, seed, runner, progress, ex, tag={"req": "inline"}, inline=True)
         res.details["req_tail"] = {
-            "method": "inline", "setting": s.req_tail, "factor": res.details.pop("req_factor"),
-            "req_tail_mean_m": obs.req_m.tolist(), "req_prior_mean_m": res.details.pop("req_prior_mean_m"),
+            "method": "inline",
+            "setting": s.req_tail,
+            "factor": res.details.pop("req_factor"),
+            "req_tail_mean_m": obs.req_m.tolist(),
+            "req_prior_mean_m": res.details.pop("req_prior_mean_m"),
             "note": "each Req's origin moved after cycle 1 to where the model's mean over the frames the preprocessing "
-                    "averaged equals the data's (model at that bubble's cycle-1 posterior mean), that posterior "
-                    "shifted as a linear-Gaussian one would be; one pass"}
+            "averaged equals the data's (model at that bubble's cycle-1 posterior mean), that posterior "
+            "shifted as a linear-Gaussian one would be; one pass",
+        }
         return res
     if mode != "model" or not tails:
         res = en4dvar_pass(fm, obs, space, s, seed, runner, progress, ex)
-        note = ("each Req's prior centred on the preprocessing's value" if mode == "mean" else
-                "no experiment's Req came from its record's tail (given, or no tail measured): nothing to re-centre, "
-                "one pass")
+        note = (
+            "each Req's prior centred on the preprocessing's value"
+            if mode == "mean"
+            else "no experiment's Req came from its record's tail (given, or no tail measured): nothing to re-centre, "
+            "one pass"
+        )
         res.details["req_tail"] = {"method": mode, "setting": s.req_tail, "factor": [1.0] * obs.n_exp, "note": note}
         return res
     return _fit_with_model_tail(fm, obs, space, s, seed, runner, progress, ex, req_tail_start)
@@ -486,45 +587,76 @@ def _fit_with_model_tail(fm, obs, space, s, seed, runner, progress, ex, req_tail
         theta = np.asarray(req_tail_start.theta_si, dtype=np.float64)
         rmax = np.asarray(req_tail_start.rmax_m, dtype=np.float64)
         if theta.ndim not in (1, 2) or theta.shape[-1] != space.n or rmax.shape != (obs.n_exp,):
-            raise ValueError(f"req_tail_start: theta_si {theta.shape} / rmax_m {rmax.shape} do not match "
-                             f"{space.n} parameters and {obs.n_exp} experiments")
+            raise ValueError(
+                f"req_tail_start: theta_si {theta.shape} / rmax_m {rmax.shape} do not match "
+                f"{space.n} parameters and {obs.n_exp} experiments"
+            )
         where = f"the {req_tail_start.source}"
     else:
-        first = en4dvar_pass(fm, obs, space, replace(s, **REQ_TAIL_FIRST_PASS), seed, runner, progress, ex,
-                             tag={"req": "first"})
+        first = en4dvar_pass(
+            fm, obs, space, replace(s, **REQ_TAIL_FIRST_PASS), seed, runner, progress, ex, tag={"req": "first"}
+        )
         theta = np.array([first.estimate[nm]["mean"] for nm in space.names])
-        rmax = np.array([p["nuisance"]["rmax_m"]["mean"] if "nuisance" in p else r
-                         for p, r in zip(first.per_experiment, obs.rmax_m)])
+        rmax = np.array(
+            [
+                p["nuisance"]["rmax_m"]["mean"] if "nuisance" in p else r
+                for p, r in zip(first.per_experiment, obs.rmax_m)
+            ]
+        )
         where = "a quick first fit's estimate and Rmax: one cycle, no screening"
     obs2, factor = model_tail_req(runner, obs, theta, rmax)
-    if np.all(factor == 1.0):        # every correction failed: the tail means stand
+    if np.all(factor == 1.0):  # every correction failed: the tail means stand
         obs2, tag = obs, None
         note = "the model's tail could not be computed for any experiment: Req's prior is the tail mean"
     else:
         # one tag whatever placed the material: the same unit seeds, so a given start and the first
         # pass differ only by their factors
         tag = {"req": "model"}
-        note = ("each Req's prior centred where the model's mean over the frames the preprocessing averaged equals "
-                f"the data's (model at {where}); the estimate is the full fit after it")
+        note = (
+            "each Req's prior centred where the model's mean over the frames the preprocessing averaged equals "
+            f"the data's (model at {where}); the estimate is the full fit after it"
+        )
     res = en4dvar_pass(fm, obs2, space, s, seed, runner, progress, ex, tag=tag)
-    info = {"method": "model", "setting": s.req_tail, "factor": factor.tolist(), "req_tail_mean_m": obs.req_m.tolist(),
-            "req_prior_mean_m": obs2.req_m.tolist(), "note": note}
+    info = {
+        "method": "model",
+        "setting": s.req_tail,
+        "factor": factor.tolist(),
+        "req_tail_mean_m": obs.req_m.tolist(),
+        "req_prior_mean_m": obs2.req_m.tolist(),
+        "note": note,
+    }
     if first is None:
         info["start"] = {"source": req_tail_start.source, "theta_si": theta.tolist(), "rmax_m": rmax.tolist()}
     else:
-        info.update({"first_pass_estimate": {nm: first.estimate[nm]["mean"] for nm in space.names},
-                     "first_pass_rmax_m": rmax.tolist(), "first_pass_settings": dict(REQ_TAIL_FIRST_PASS)})
+        info.update(
+            {
+                "first_pass_estimate": {nm: first.estimate[nm]["mean"] for nm in space.names},
+                "first_pass_rmax_m": rmax.tolist(),
+                "first_pass_settings": dict(REQ_TAIL_FIRST_PASS),
+            }
+        )
         # the quick first pass, for the record (not the tail-mean fit of the same data: that has three cycles)
         res.details.setdefault("alternative_estimates", {})["req_tail_first_pass"] = {
-            nm: first.estimate[nm] for nm in space.names}
+            nm: first.estimate[nm] for nm in space.names
+        }
         res.details["member_runs"] += first.details["member_runs"]
     res.details["req_tail"] = info
     res.runtime_s = time.perf_counter() - t0
     return res
 
 
-def en4dvar_pass(fm, obs, space, s: En4DVarSettings, seed: int, runner: Runner, progress, ex: Execution,
-                 tag: dict | None = None, inline: bool = False) -> FitResult:
+def en4dvar_pass(
+    fm,
+    obs,
+    space,
+    s: En4DVarSettings,
+    seed: int,
+    runner: Runner,
+    progress,
+    ex: Execution,
+    tag: dict | None = None,
+    inline: bool = False,
+) -> FitResult:
     """One En4D-Var pass with Req's prior as ``obs`` has it: every experiment's cycles (units),
     the fusion, the fitted curves.
 
@@ -536,13 +668,14 @@ def en4dvar_pass(fm, obs, space, s: En4DVarSettings, seed: int, runner: Runner, 
     tag = tag or {}
     default = s.likelihood == "default"
     t0 = time.perf_counter()
-    rng = np.random.default_rng(seed)                   # the fused posterior's draws (units have their own)
+    rng = np.random.default_rng(seed)  # the fused posterior's draws (units have their own)
     K = last_index(obs, s.t_end)
     y, _ = fit_window(obs, K, s.obs_weight or "sum")
     n_exp = obs.n_exp
     spec, token = fm_spec(fm), register_runner(runner)
-    rep = ex.run(_experiment_units(obs, space, s, K, spec, token, tag, inline), en4dvar_unit, seed,
-                 desc="en4dvar experiments")
+    rep = ex.run(
+        _experiment_units(obs, space, s, K, spec, token, tag, inline), en4dvar_unit, seed, desc="en4dvar experiments"
+    )
     ok, R, failed_units, warnings = _collect_experiments(rep, obs, tag)
     req_factor = np.ones(n_exp)
     if inline:
@@ -572,48 +705,83 @@ def en4dvar_pass(fm, obs, space, s: En4DVarSettings, seed: int, runner: Runner, 
     warnings.extend(_nuisance_warnings(obs, ok, R, default))
     ll = _log_likelihood(curves["draws"], y, obs, ok, R, K, default) if want_ll else None
     fus = fused["pooled"]
-    details = {"settings": asdict(s), "n_fit_steps": K, "t_end_star": float(obs.t_star[K]),
-               "likelihood": _likelihood_record(s, ok, R, K, n_exp),
-               "cycles": cycles, "fusion": fus.to_dict(), "rmse": rmse(fitted, obs.R_star, mask),
-               "fused_mean_internal": fus.mean.tolist(), "fused_cov_internal": fus.cov.tolist(),
-               "fused_cov_si": si_covariance(space, fus.mean, fus.cov).tolist(),
-               "parameter_space": space.describe(),
-               "member_runs": member_runs, "failed_member_runs": failed_runs,
-               **({"req_factor": req_factor.tolist(), "req_prior_mean_m": obs.req_m.tolist()} if inline else {}),
-               "failed_units": failed_units, "experiments_used": [obs.names[n] for n in ok],
-               "gauss_newton": "normalised anomalies: H = I + (1/N_t) sum Y'^T P^-1 Y', grad = w - ...; identical "
-                               "iterates to the paper's (N_En - 1) form with unnormalised anomalies",
-               "fitted_curve": "forward run at the fused posterior median exp(mean of log parameters)"
-                               + (", each experiment at its inferred Rmax, time of the maximum and Req (posterior "
-                                  "mean) and through its camera frames" if default else "")}
+    details = {
+        "settings": asdict(s),
+        "n_fit_steps": K,
+        "t_end_star": float(obs.t_star[K]),
+        "likelihood": _likelihood_record(s, ok, R, K, n_exp),
+        "cycles": cycles,
+        "fusion": fus.to_dict(),
+        "rmse": rmse(fitted, obs.R_star, mask),
+        "fused_mean_internal": fus.mean.tolist(),
+        "fused_cov_internal": fus.cov.tolist(),
+        "fused_cov_si": si_covariance(space, fus.mean, fus.cov).tolist(),
+        "parameter_space": space.describe(),
+        "member_runs": member_runs,
+        "failed_member_runs": failed_runs,
+        **({"req_factor": req_factor.tolist(), "req_prior_mean_m": obs.req_m.tolist()} if inline else {}),
+        "failed_units": failed_units,
+        "experiments_used": [obs.names[n] for n in ok],
+        "gauss_newton": "normalised anomalies: H = I + (1/N_t) sum Y'^T P^-1 Y', grad = w - ...; identical "
+        "iterates to the paper's (N_En - 1) form with unnormalised anomalies",
+        "fitted_curve": "forward run at the fused posterior median exp(mean of log parameters)"
+        + (
+            ", each experiment at its inferred Rmax, time of the maximum and Req (posterior "
+            "mean) and through its camera frames"
+            if default
+            else ""
+        ),
+    }
     estimate = gaussian_estimate(space, est_mean, est_cov)
     if fused["bubbles"] is not None:
         estimate = _random_effects_details(fused["bubbles"], fus, details, warnings)
     whiten, offsets = _whitening(obs, ok, R, K, default)
     return FitResult(
-        method="en4dvar", model=fm.constitutive.name, param_names=tuple(space.names),
-        estimate=estimate, fitted=fitted, fit_mask=mask,
-        mean_internal=est_mean, cov_internal=est_cov, per_experiment=per, details=details,
-        posterior=post, log_likelihood=ll, posterior_dims={"R": ["experiment", "time"]},
-        coords={"experiment": list(obs.names), "time": obs.t_star[1:K + 1]},
-        runtime_s=time.perf_counter() - t0, warnings=warnings,
-        window_posteriors=[fitting_window_posterior(fm, obs, space, K, s.obs_weight or "sum", fus.mean, fus.cov,
-                                                    whiten, offsets)])
+        method="en4dvar",
+        model=fm.constitutive.name,
+        param_names=tuple(space.names),
+        estimate=estimate,
+        fitted=fitted,
+        fit_mask=mask,
+        mean_internal=est_mean,
+        cov_internal=est_cov,
+        per_experiment=per,
+        details=details,
+        posterior=post,
+        log_likelihood=ll,
+        posterior_dims={"R": ["experiment", "time"]},
+        coords={"experiment": list(obs.names), "time": obs.t_star[1 : K + 1]},
+        runtime_s=time.perf_counter() - t0,
+        warnings=warnings,
+        window_posteriors=[
+            fitting_window_posterior(fm, obs, space, K, s.obs_weight or "sum", fus.mean, fus.cov, whiten, offsets)
+        ],
+    )
 
 
 def _experiment_units(obs, space, s, K: int, spec, token, tag: dict, inline: bool) -> list:
     """The :func:`en4dvar_unit` of every experiment (its record, weights, noise, nuisance prior)."""
-    t_eval = obs.t_star[:K + 1]
+    t_eval = obs.t_star[: K + 1]
     y, weight = fit_window(obs, K, s.obs_weight or "sum")
     base = {"spec": spec, "runner": token, "space": space, "settings": s, "t_eval": t_eval}
     noise_var = [record_noise_sd(obs, n) ** 2 for n in range(obs.n_exp)]
-    return [Unit(unit_id(**tag, exp=n), {**base, "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
-                                         "y": y[n], "weight": weight, "noise_var": noise_var[n],
-                                         "nuisance_sd": nuisance_prior_sd(obs, n),
-                                         "req_tail_t": obs.req_tail_t[n] if inline and obs.req_tail_t else None,
-                                         "frames": None if obs.frame_t is None else
-                                         frame_operator(obs.frame_t[n], t_eval[1:])})
-            for n in range(obs.n_exp)]
+    return [
+        Unit(
+            unit_id(**tag, exp=n),
+            {
+                **base,
+                "rmax": float(obs.rmax_m[n]),
+                "req": float(obs.req_m[n]),
+                "y": y[n],
+                "weight": weight,
+                "noise_var": noise_var[n],
+                "nuisance_sd": nuisance_prior_sd(obs, n),
+                "req_tail_t": obs.req_tail_t[n] if inline and obs.req_tail_t else None,
+                "frames": None if obs.frame_t is None else frame_operator(obs.frame_t[n], t_eval[1:]),
+            },
+        )
+        for n in range(obs.n_exp)
+    ]
 
 
 def _collect_experiments(rep, obs, tag: dict) -> tuple:
@@ -642,12 +810,18 @@ def _cycles_record(R: list, ok: list, obs, s, progress) -> list:
         if not ran:
             break
         cyc = [x for _, x in ran]
-        cycles.append({"cycle": c + 1, "cost": [np.asarray(x["cost"]).tolist() for x in cyc],
-                       "n_failed": [np.asarray(x["n_failed"]).tolist() for x in cyc],
-                       "n_redrawn": [int(x["n_redrawn"]) for x in cyc], "stopped": [bool(x["stopped"]) for x in cyc],
-                       "req_z": [x.get("req_z") for x in cyc],
-                       "experiments": [obs.names[n] for n, _ in ran],
-                       **({"screen": [x["screen"] for x in cyc]} if all("screen" in x for x in cyc) else {})})
+        cycles.append(
+            {
+                "cycle": c + 1,
+                "cost": [np.asarray(x["cost"]).tolist() for x in cyc],
+                "n_failed": [np.asarray(x["n_failed"]).tolist() for x in cyc],
+                "n_redrawn": [int(x["n_redrawn"]) for x in cyc],
+                "stopped": [bool(x["stopped"]) for x in cyc],
+                "req_z": [x.get("req_z") for x in cyc],
+                "experiments": [obs.names[n] for n, _ in ran],
+                **({"screen": [x["screen"] for x in cyc]} if all("screen" in x for x in cyc) else {}),
+            }
+        )
         if progress is not None:
             progress(c + 1)
     return cycles
@@ -678,32 +852,56 @@ def _fuse_experiments(space, R: list, s) -> dict:
         warnings.append(f"{n_stopped} experiment(s) stopped early: too many failed members")
     # the reported estimate: the gel-level mean (default likelihood), else the fused Gaussian
     estimate = (bubbles.random.mean, bubbles.random.cov) if bubbles is not None else (pooled.mean, pooled.cov)
-    return {"pooled": pooled, "bubbles": bubbles, "post_mean": post_mean, "post_cov": post_cov,
-            "estimate": estimate, "warnings": warnings}
+    return {
+        "pooled": pooled,
+        "bubbles": bubbles,
+        "post_mean": post_mean,
+        "post_cov": post_cov,
+        "estimate": estimate,
+        "warnings": warnings,
+    }
 
 
-def _fitted_curves(ex, obs, space, s, K: int, spec, token, tag: dict, ok: list, R: list, fused: dict, Zd,
-                   seed: int) -> dict:
+def _fitted_curves(
+    ex, obs, space, s, K: int, spec, token, tag: dict, ok: list, R: list, fused: dict, Zd, seed: int
+) -> dict:
     """The :func:`en4dvar_post_unit` of every fused experiment: R* at the reported estimate, at its
     own posterior mean and (``Zd`` (n_draws, d), None: none) at every posterior draw. Returns
     {"fitted", "own" (n_exp, n_samples), "mask" (fitted samples), "draws" (n_draws, n_exp, K),
     "failed_units", "warnings", "member_runs", "failed_member_runs"}."""
     default = s.likelihood == "default"
-    t_eval = obs.t_star[:K + 1]
+    t_eval = obs.t_star[: K + 1]
     fused_si = space.to_si(fused["estimate"][0])[None, :]
     units = []
     for i, n in enumerate(ok):
         pts = [fused_si, space.to_si(fused["post_mean"][i])[None, :]] + ([space.to_si(Zd)] if Zd is not None else [])
-        units.append(Unit(unit_id(**tag, post="fit", exp=n), {"spec": spec, "runner": token, "t_eval": t_eval,
-                                                              "rmax": float(obs.rmax_m[n]), "req": float(obs.req_m[n]),
-                                                              "points": np.vstack(pts),
-                                                              "nu": R[i]["nu_mean"] if default else None,
-                                                              "frames": None if obs.frame_t is None or not default
-                                                              else frame_operator(obs.frame_t[n], t_eval[1:])}))
+        units.append(
+            Unit(
+                unit_id(**tag, post="fit", exp=n),
+                {
+                    "spec": spec,
+                    "runner": token,
+                    "t_eval": t_eval,
+                    "rmax": float(obs.rmax_m[n]),
+                    "req": float(obs.req_m[n]),
+                    "points": np.vstack(pts),
+                    "nu": R[i]["nu_mean"] if default else None,
+                    "frames": None
+                    if obs.frame_t is None or not default
+                    else frame_operator(obs.frame_t[n], t_eval[1:]),
+                },
+            )
+        )
     prep = ex.run(units, en4dvar_post_unit, seed, desc="en4dvar fitted curves")
-    out = {"fitted": np.full_like(obs.R_star, np.nan), "own": np.full_like(obs.R_star, np.nan),
-           "draws": np.full((s.n_draws, obs.n_exp, K), np.nan), "failed_units": [], "warnings": [],
-           "member_runs": 0, "failed_member_runs": 0}
+    out = {
+        "fitted": np.full_like(obs.R_star, np.nan),
+        "own": np.full_like(obs.R_star, np.nan),
+        "draws": np.full((s.n_draws, obs.n_exp, K), np.nan),
+        "failed_units": [],
+        "warnings": [],
+        "member_runs": 0,
+        "failed_member_runs": 0,
+    }
     for n in ok:
         uid = unit_id(**tag, post="fit", exp=n)
         if uid not in prep.results:
@@ -714,13 +912,13 @@ def _fitted_curves(ex, obs, space, s, K: int, spec, token, tag: dict, ok: list, 
         r = prep.results[uid]
         out["member_runs"] += int(r["member_runs"])
         out["failed_member_runs"] += int(r["failed_member_runs"])
-        out["fitted"][n, :K + 1] = r["R_star"][0]
-        out["own"][n, :K + 1] = r["R_star"][1]
+        out["fitted"][n, : K + 1] = r["R_star"][0]
+        out["own"][n, : K + 1] = r["R_star"][1]
         if Zd is not None:
             out["draws"][:, n] = r["R_star"][2:, 1:]
     mask = np.zeros(obs.R_star.shape, dtype=bool)
-    mask[:, 1:K + 1] = True
-    mask[[n for n in range(obs.n_exp) if not np.isfinite(out["fitted"][n, 1:K + 1]).any()]] = False
+    mask[:, 1 : K + 1] = True
+    mask[[n for n in range(obs.n_exp) if not np.isfinite(out["fitted"][n, 1 : K + 1]).any()]] = False
     out["mask"] = mask
     return out
 
@@ -731,21 +929,39 @@ def _per_experiment(obs, space, ok: list, R: list, fused: dict, own, mask, faile
     per = []
     for n in range(obs.n_exp):
         if n not in ok:
-            per.append({"name": obs.names[n], "failed": True,
-                        "error": next(f["error"] for f in failed_units if f["experiment"] == obs.names[n])})
+            per.append(
+                {
+                    "name": obs.names[n],
+                    "failed": True,
+                    "error": next(f["error"] for f in failed_units if f["experiment"] == obs.names[n]),
+                }
+            )
             continue
         i = ok.index(n)
         pm, pc = fused["post_mean"][i], fused["post_cov"][i]
-        entry = {"name": obs.names[n], "estimate": gaussian_estimate(space, pm, pc),
-                 "mean_internal": pm.tolist(), "cov_internal": pc.tolist(),
-                 "rmse_own": rmse(own[n], obs.R_star[n], mask[n]) if mask[n].any() else float("nan")}
+        entry = {
+            "name": obs.names[n],
+            "estimate": gaussian_estimate(space, pm, pc),
+            "mean_internal": pm.tolist(),
+            "cov_internal": pc.tolist(),
+            "rmse_own": rmse(own[n], obs.R_star[n], mask[n]) if mask[n].any() else float("nan"),
+        }
         if default:
             r = R[i]
-            entry["nuisance"] = nuisance_summary(r["nu_mean"], r["nu_sd"], nuisance_prior_sd(obs, n),
-                                                 float(obs.rmax_m[n]), float(obs.req_m[n]), float(obs.t0_s[n]),
-                                                 float(obs.tc_s[n]))
-            entry["likelihood"] = {**r["likelihood"], "nuisance_integral": r.get("nuisance_integral", "req"),
-                                   "req_conflict": bool(r.get("req_conflict", False))}
+            entry["nuisance"] = nuisance_summary(
+                r["nu_mean"],
+                r["nu_sd"],
+                nuisance_prior_sd(obs, n),
+                float(obs.rmax_m[n]),
+                float(obs.req_m[n]),
+                float(obs.t0_s[n]),
+                float(obs.tc_s[n]),
+            )
+            entry["likelihood"] = {
+                **r["likelihood"],
+                "nuisance_integral": r.get("nuisance_integral", "req"),
+                "req_conflict": bool(r.get("req_conflict", False)),
+            }
         per.append(entry)
     return per
 
@@ -756,11 +972,13 @@ def _nuisance_warnings(obs, ok: list, R: list, default: bool) -> list:
     warnings = []
     conflicted = [obs.names[n] for i, n in enumerate(ok) if R[i].get("req_conflict")]
     if conflicted:
-        warnings.append(f"{len(conflicted)} of {len(ok)} experiment(s) fit a Req more than {REQ_CONFLICT_Z:g} prior sd "
-                        f"from the record's: {', '.join(conflicted[:5])}{' ...' if len(conflicted) > 5 else ''}. Their "
-                        f"likelihood keeps the fit's Req (the last cycle's prior) instead of integrating Req against "
-                        f"the record's, which would extrapolate the material along the Req ridge "
-                        f"(per_experiment[].likelihood.nuisance_integral)")
+        warnings.append(
+            f"{len(conflicted)} of {len(ok)} experiment(s) fit a Req more than {REQ_CONFLICT_Z:g} prior sd "
+            f"from the record's: {', '.join(conflicted[:5])}{' ...' if len(conflicted) > 5 else ''}. Their "
+            f"likelihood keeps the fit's Req (the last cycle's prior) instead of integrating Req against "
+            f"the record's, which would extrapolate the material along the Req ridge "
+            f"(per_experiment[].likelihood.nuisance_integral)"
+        )
     if not default:
         return warnings
     far = []
@@ -771,10 +989,12 @@ def _nuisance_warnings(obs, ok: list, R: list, default: bool) -> list:
         if moved:
             far.append(f"{obs.names[n]} ({', '.join(moved)})")
     if far:
-        warnings.append(f"{len(far)} of {len(ok)} experiment(s) need nuisances more than 3 prior sd from what "
-                        f"preprocessing measured: {'; '.join(far[:5])}{' ...' if len(far) > 5 else ''}. The "
-                        f"model is absorbing misfit into the geometry; read the material estimate with care "
-                        f"(per_experiment[].nuisance)")
+        warnings.append(
+            f"{len(far)} of {len(ok)} experiment(s) need nuisances more than 3 prior sd from what "
+            f"preprocessing measured: {'; '.join(far[:5])}{' ...' if len(far) > 5 else ''}. The "
+            f"model is absorbing misfit into the geometry; read the material estimate with care "
+            f"(per_experiment[].nuisance)"
+        )
     return warnings
 
 
@@ -788,22 +1008,30 @@ def _log_likelihood(Yd, y, obs, ok: list, R: list, K: int, default: bool) -> dic
             var[n] = R[i]["var"] / R[i]["alpha"]
         lp = loglik_pointwise(Yd, y[None], var[None, :, None])
     else:
-        lp = loglik_pointwise(Yd, y[None], obs.P[1:K + 1])
+        lp = loglik_pointwise(Yd, y[None], obs.P[1 : K + 1])
     return {"R": np.where(np.isfinite(lp), lp, -1e300)[None]}
 
 
 def _likelihood_record(s, ok: list, R: list, K: int, n_exp: int) -> dict:
     """``details["likelihood"]``: which likelihood, its noise and fusion in words, the effective samples."""
     if s.likelihood != "default":
-        return {"name": "paper", "noise": "P_k of preprocessing (" + str(s.obs_weight) + " cost)",
-                "fusion": str(s.fusion), "effective_samples": None}
+        return {
+            "name": "paper",
+            "noise": "P_k of preprocessing (" + str(s.obs_weight) + " cost)",
+            "fusion": str(s.fusion),
+            "effective_samples": None,
+        }
     eff = [float(R[ok.index(n)]["likelihood"]["effective_samples"]) if n in ok else None for n in range(n_exp)]
-    return {"name": "default", "effective_samples": eff, "n_samples": K,
-            "noise": "each record's fourth-difference noise sd, raised to the RMS of its nuisance-corrected "
-                     "residual where the model does not reach the noise; each experiment tempered by "
-                     "n_eff/K (integrated autocorrelation time of the residual); Rmax, the time of the "
-                     "maximum and Req integrated out to first order",
-            "fusion": "random effects across experiments (gel-level mean, between-bubble sd, predictive)"}
+    return {
+        "name": "default",
+        "effective_samples": eff,
+        "n_samples": K,
+        "noise": "each record's fourth-difference noise sd, raised to the RMS of its nuisance-corrected "
+        "residual where the model does not reach the noise; each experiment tempered by "
+        "n_eff/K (integrated autocorrelation time of the residual); Rmax, the time of the "
+        "maximum and Req integrated out to first order",
+        "fusion": "random effects across experiments (gel-level mean, between-bubble sd, predictive)",
+    }
 
 
 def _random_effects_details(bubbles, fus, details: dict, warnings: list) -> dict:
@@ -812,17 +1040,25 @@ def _random_effects_details(bubbles, fus, details: dict, warnings: list) -> dict
     from scipy.stats import binomtest
 
     h = bubbles.summaries()
-    details.update({"between_experiments": h["between_experiments"], "predictive": h["predictive"],
-                    "random_effects": bubbles.random.to_dict(), "pooled_mean_internal": fus.mean.tolist(),
-                    "pooled_cov_internal": fus.cov.tolist()})
+    details.update(
+        {
+            "between_experiments": h["between_experiments"],
+            "predictive": h["predictive"],
+            "random_effects": bubbles.random.to_dict(),
+            "pooled_mean_internal": fus.mean.tolist(),
+            "pooled_cov_internal": fus.cov.tolist(),
+        }
+    )
     loo = bubbles.leave_one_out()
     if loo is not None:
         details["leave_one_bubble_out"] = loo
         for name, k in loo["n_inside"].items():
             if binomtest(k, loo["n"]).proportion_ci(method="wilson").high < loo["level"]:
-                warnings.append(f"{name}: leaving one bubble out, the others' {loo['level']:.0%} predictive "
-                                f"holds its own estimate in only {k} of {loo['n']} (the scatter model is too "
-                                "narrow for these bubbles; details['leave_one_bubble_out'])")
+                warnings.append(
+                    f"{name}: leaving one bubble out, the others' {loo['level']:.0%} predictive "
+                    f"holds its own estimate in only {k} of {loo['n']} (the scatter model is too "
+                    "narrow for these bubbles; details['leave_one_bubble_out'])"
+                )
     return h["estimate"]
 
 
@@ -839,30 +1075,55 @@ def _whitening(obs, ok: list, R: list, K: int, default: bool) -> tuple:
     return whiten, offsets
 
 
-def fitting_window_posterior(fm, obs, space, K: int, obs_weight: str, mean, cov, whiten=None,
-                             offsets=None) -> WindowPosterior:
+def fitting_window_posterior(
+    fm, obs, space, K: int, obs_weight: str, mean, cov, whiten=None, offsets=None
+) -> WindowPosterior:
     """The density the fused Gaussian approximates: every experiment from its maximum over samples
     1..K with the parameter prior and weight 1/K (``obs_weight="mean"``) or 1 (``"sum"``), or, with
     ``whiten`` (n_exp, K, K), the default likelihood's whitened residuals (no between-bubble
     scatter: the pooled, product-rule posterior, which ``mean``/``cov`` then are)."""
     c, rule = (1.0 / K, "1/N_t (En4D-Var averaging)") if obs_weight == "mean" else (1.0, "1 (plain likelihood)")
-    desc = {"kind": "fitting window from the maximum", "samples": [1, K], "weight_rule": rule,
-            "state": "maximum radius (exact)"}
+    desc = {
+        "kind": "fitting window from the maximum",
+        "samples": [1, K],
+        "weight_rule": rule,
+        "state": "maximum radius (exact)",
+    }
     if whiten is not None:
-        desc.update({"weight_rule": "default likelihood: ||W_n (y_n - R_n)||^2 per experiment (noise, nuisances, "
-                                    "tempering)", "gaussian": "pooled over experiments (no between-bubble scatter)"})
+        desc.update(
+            {
+                "weight_rule": "default likelihood: ||W_n (y_n - R_n)||^2 per experiment (noise, nuisances, tempering)",
+                "gaussian": "pooled over experiments (no between-bubble scatter)",
+            }
+        )
     return WindowPosterior(
-        index=0, start=0, samples=(1, K), mean=np.asarray(mean, float), cov=np.asarray(cov, float),
-        prior_mean=space.prior_mean, prior_cov=space.prior_cov, weight=np.full(K, c),
+        index=0,
+        start=0,
+        samples=(1, K),
+        mean=np.asarray(mean, float),
+        cov=np.asarray(cov, float),
+        prior_mean=space.prior_mean,
+        prior_cov=space.prior_cov,
+        weight=np.full(K, c),
         start_state=np.array(fm.initial_state(obs.rmax_m, obs.req_m).y, dtype=np.float64),
         # the Req each experiment's nuisance prior is centred on (req_tail moves it off the data's
         # tail mean): the MCMC target must run at the same one
         start_req_m=np.asarray(obs.req_m, dtype=np.float64).copy(),
-        description=desc, whiten=whiten, **({} if offsets is None else
-                                            {"nuisance_sd": offsets[0], "nuisance_mean": offsets[1],
-                                             "nuisance_post_sd": offsets[2],
-                                             "frames": None if obs.frame_t is None else
-                                             [frame_operator(f, obs.t_star[1:K + 1]) for f in obs.frame_t]}))
+        description=desc,
+        whiten=whiten,
+        **(
+            {}
+            if offsets is None
+            else {
+                "nuisance_sd": offsets[0],
+                "nuisance_mean": offsets[1],
+                "nuisance_post_sd": offsets[2],
+                "frames": None
+                if obs.frame_t is None
+                else [frame_operator(f, obs.t_star[1 : K + 1]) for f in obs.frame_t],
+            }
+        ),
+    )
 
 
 class En4DVar(InferenceMethod):
@@ -885,27 +1146,34 @@ class En4DVar(InferenceMethod):
 
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
-        s = settings.resolved()     # cycles x iterations x members, then the fitted curves and the draws
-        n = (s.n_iter + (s.n_runs - 1) * s.n_iter_later) * s.n_ens * n_exp + 2 * n_exp + (s.n_draws * n_exp if s.loglik else 0)
-        if s.likelihood == "default":       # the observation model: one run per cycle
+        s = settings.resolved()  # cycles x iterations x members, then the fitted curves and the draws
+        n = (
+            (s.n_iter + (s.n_runs - 1) * s.n_iter_later) * s.n_ens * n_exp
+            + 2 * n_exp
+            + (s.n_draws * n_exp if s.loglik else 0)
+        )
+        if s.likelihood == "default":  # the observation model: one run per cycle
             n += s.n_runs * n_exp
             # (iterations past n_iter up to max_iter are not counted: the bar is an estimate)
-            if s.screen:    # the screen, and at most one more start in cycle 1 (scored by one run per start)
+            if s.screen:  # the screen, and at most one more start in cycle 1 (scored by one run per start)
                 n += (s.screen + 1 + s.n_iter * s.n_ens + 2) * n_exp
             if s.req_tail in ("inline", "auto"):
-                n += 3 * n_exp      # the model's tail after cycle 1 (auto: thermal only)
+                n += 3 * n_exp  # the model's tail after cycle 1 (auto: thermal only)
         return n
 
     @staticmethod
     def n_units(settings, n_exp, n_steps, fm=None):
         # each experiment's cycles, then its fitted curves (fast)
         mode = req_tail_mode(settings, fm)
-        if mode == "model" or (mode == "inline" and settings.n_runs < 2):       # inline runs as model then
-            return 4 * n_exp, (f"a quick pass to place Req by the model's tail, then the fit: 2 x {n_exp} experiments "
-                               "and their fitted curves")
+        if mode == "model" or (mode == "inline" and settings.n_runs < 2):  # inline runs as model then
+            return 4 * n_exp, (
+                f"a quick pass to place Req by the model's tail, then the fit: 2 x {n_exp} experiments "
+                "and their fitted curves"
+            )
         return 2 * n_exp, f"{n_exp} experiments, then their fitted curves"
 
     @staticmethod
     def figures(obs, res, fdir):
         from imrbayes.ensemble.figures import experiments_figure
+
         return [experiments_figure(res, fdir / "experiments.png")]

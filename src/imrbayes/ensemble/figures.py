@@ -38,7 +38,7 @@ def fit_figure(obs, result, path, max_panels: int = 20):
     n = min(obs.n_exp, max_panels)
     ncol = min(4, n)
     nrow = math.ceil(n / ncol)
-    w = min(3.4, 10.0 / ncol)                 # at most ~10 in wide: fits a screen at the report's width
+    w = min(3.4, 10.0 / ncol)  # at most ~10 in wide: fits a screen at the report's width
     fig = figure(w * ncol, 2.4 * nrow + 1.0)
     axes = np.atleast_1d(fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False)).ravel()
     pimr = result.method == "pimr"
@@ -47,8 +47,14 @@ def fit_figure(obs, result, path, max_panels: int = 20):
     for e in range(n):
         ax = axes[e]
         ax.plot(obs.t_star, obs.R_star[e], ".", ms=3, color="0.3", label="measured")
-        ax.plot(obs.t_star, result.fitted[e], "-", lw=1.3, color="tab:red",
-                label="curve at the estimate (collapse time fitted)" if pimr else "fitted")
+        ax.plot(
+            obs.t_star,
+            result.fitted[e],
+            "-",
+            lw=1.3,
+            color="tab:red",
+            label="curve at the estimate (collapse time fitted)" if pimr else "fitted",
+        )
         m = result.fit_mask[e]
         if m.any():
             last = obs.t_star[np.flatnonzero(m)[-1]]
@@ -59,7 +65,9 @@ def fit_figure(obs, result, path, max_panels: int = 20):
             if np.isfinite(tm):
                 ax.axvline(tm, color="0.3", ls=":", lw=1, label="measured collapse time" if e == 0 else None)
             if e < len(fitted_tc) and fitted_tc[e] is not None and np.isfinite(fitted_tc[e]):
-                ax.axvline(fitted_tc[e], color="tab:red", ls="--", lw=1, label="fitted collapse time" if e == 0 else None)
+                ax.axvline(
+                    fitted_tc[e], color="tab:red", ls="--", lw=1, label="fitted collapse time" if e == 0 else None
+                )
         ax.set_title(obs.names[e], fontsize=8)
         ax.grid(alpha=0.3)
         if tc is not None and e < ncol:
@@ -69,16 +77,20 @@ def fit_figure(obs, result, path, max_panels: int = 20):
     for ax in axes[n:]:
         ax.set_visible(False)
     for k, ax in enumerate(axes[:n]):
-        if k >= n - ncol:                      # the bottom panel of each column
+        if k >= n - ncol:  # the bottom panel of each column
             ax.set_xlabel(label("t_star"), fontsize=9)
     handles, labels = axes[0].get_legend_handles_labels()
     wide = sum(len(x) for x in labels) > 60
-    fig.legend(handles, labels, loc="outside lower center", ncol=2 if wide else min(len(labels), 4), fontsize=8,
-               frameon=False)
+    fig.legend(
+        handles, labels, loc="outside lower center", ncol=2 if wide else min(len(labels), 4), fontsize=8, frameon=False
+    )
     fig.supylabel(label("R_star"), fontsize=9)
     extra = f" (first {n} of {obs.n_exp})" if obs.n_exp > n else ""
-    what = ("pIMR: collapse time only — the curve at the estimate, not a fit of R(t)" if pimr
-            else f"{result.method}: measured vs fitted")
+    what = (
+        "pIMR: collapse time only — the curve at the estimate, not a fit of R(t)"
+        if pimr
+        else f"{result.method}: measured vs fitted"
+    )
     fig.suptitle(f"{what}, rmse {result.rmse:.3g}{extra}", fontsize=10)
     return save(fig, path)
 
@@ -108,8 +120,15 @@ def landscape_figure(result, path):
         ax.plot([], [], "w-", label="95% region")
     for i, p in enumerate(result.per_experiment):
         if "optimum" in p:
-            ax.plot(p["optimum"]["G"] * scale("G"), p["optimum"]["mu"] * scale("mu"), "o", ms=4, mfc="none",
-                    mec="orange", label="per-experiment optima" if i == 0 else None)
+            ax.plot(
+                p["optimum"]["G"] * scale("G"),
+                p["optimum"]["mu"] * scale("mu"),
+                "o",
+                ms=4,
+                mfc="none",
+                mec="orange",
+                label="per-experiment optima" if i == 0 else None,
+            )
     opt = det["optimum"]
     ax.plot(opt["G"] * scale("G"), opt["mu"] * scale("mu"), "*", ms=12, color="red", mec="k", label="optimum")
     ax.set_xlabel(label("G"))
@@ -171,8 +190,13 @@ def time_resolved_figure(result, path, obs=None):
     tc = _time_scale(result, obs)
     fitted = np.asarray(result.fitted, dtype=float) if result.fitted is not None else None
     t_obs = getattr(obs, "t_star", None)
-    if t_obs is None and result.time_resolved and len(result.time_resolved) > 1 and fitted is not None \
-            and fitted.ndim == 2:     # the observation grid: the time-resolved points are its samples
+    if (
+        t_obs is None
+        and result.time_resolved
+        and len(result.time_resolved) > 1
+        and fitted is not None
+        and fitted.ndim == 2
+    ):  # the observation grid: the time-resolved points are its samples
         t0, t1 = result.time_resolved[0]["t_star"], result.time_resolved[1]["t_star"]
         t_obs = t0 + (t1 - t0) * np.arange(fitted.shape[1])
     show_rate = tc is not None and t_obs is not None and fitted is not None and fitted.ndim == 2
@@ -185,19 +209,28 @@ def time_resolved_figure(result, path, obs=None):
     windows = result.windows or []
     if windows and all("prior_dominated" in w for w in windows):
         from imrbayes.ensemble.windows import PRIOR_WEIGHT_LIMIT
+
         moved = [bool(w["prior_dominated"]) for w in windows]
         hatch_label = f"prior-dominated window (prior weight > {PRIOR_WEIGHT_LIMIT:.0%})"
-    else:                       # results written before windows reported their prior weight
+    else:  # results written before windows reported their prior weight
         moved, hatch_label = barely_moved(result, names), "data barely moved the prior"
     for ax, nm in zip(axes, names):
         sc, lab = scale(nm), label(nm)
         if nm in prior:
-            ax.axhspan(prior[nm][0] * sc, prior[nm][1] * sc, color="0.85", alpha=0.6, zorder=0, lw=0,
-                       label="prior 95%")
-        for k, (a, b) in enumerate(_merged_spans([w["t_star"] for w, little in zip(result.windows or [], moved)
-                                                   if little])):
-            ax.axvspan(a, b, facecolor="none", edgecolor="0.7", hatch="//", lw=0, zorder=0,
-                       label=hatch_label if k == 0 else None)
+            ax.axhspan(prior[nm][0] * sc, prior[nm][1] * sc, color="0.85", alpha=0.6, zorder=0, lw=0, label="prior 95%")
+        for k, (a, b) in enumerate(
+            _merged_spans([w["t_star"] for w, little in zip(result.windows or [], moved) if little])
+        ):
+            ax.axvspan(
+                a,
+                b,
+                facecolor="none",
+                edgecolor="0.7",
+                hatch="//",
+                lw=0,
+                zorder=0,
+                label=hatch_label if k == 0 else None,
+            )
         m = np.array([x[nm]["mean"] for x in tr]) * sc
         lo = np.array([x[nm]["hdi95"][0] for x in tr]) * sc
         hi = np.array([x[nm]["hdi95"][1] for x in tr]) * sc
@@ -205,10 +238,23 @@ def time_resolved_figure(result, path, obs=None):
         ax.plot(t, m, color="tab:blue", lw=1.5, label="time-resolved mean")
         for i, w in enumerate(result.windows):
             a, b = w["t_star"]
-            ax.plot([a, b], [w[nm]["mean"] * sc] * 2, color="tab:orange", lw=0.8, alpha=0.7,
-                    label="per-window mean ± 2 sd" if i == 0 else None)
-            ax.errorbar(0.5 * (a + b), w[nm]["mean"] * sc, yerr=2 * w[nm]["sd"] * sc, fmt="none",
-                        ecolor="tab:orange", alpha=0.5, lw=0.8)
+            ax.plot(
+                [a, b],
+                [w[nm]["mean"] * sc] * 2,
+                color="tab:orange",
+                lw=0.8,
+                alpha=0.7,
+                label="per-window mean ± 2 sd" if i == 0 else None,
+            )
+            ax.errorbar(
+                0.5 * (a + b),
+                w[nm]["mean"] * sc,
+                yerr=2 * w[nm]["sd"] * sc,
+                fmt="none",
+                ecolor="tab:orange",
+                alpha=0.5,
+                lw=0.8,
+            )
         ax.set_ylabel(lab)
         ax.grid(alpha=0.3)
     if tc is not None:

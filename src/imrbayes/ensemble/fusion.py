@@ -39,9 +39,19 @@ import numpy as np
 
 from imrbayes.ensemble.gaussian import is_pd, marginal_summary, sym
 
-__all__ = ["BubbleFusion", "fuse_bubbles", "Fusion", "fuse", "fuse_likelihoods", "likelihood_terms",
-           "RandomEffects", "random_effects", "leave_one_out", "integrate_out_trailing",
-           "marginal_under_reference"]
+__all__ = [
+    "BubbleFusion",
+    "fuse_bubbles",
+    "Fusion",
+    "fuse",
+    "fuse_likelihoods",
+    "likelihood_terms",
+    "RandomEffects",
+    "random_effects",
+    "leave_one_out",
+    "integrate_out_trailing",
+    "marginal_under_reference",
+]
 
 
 @dataclass
@@ -92,10 +102,13 @@ def fuse(means, covs, prior_mean, prior_cov, margin: float = 1e-6) -> Fusion:
     ok = is_pd(exact) and np.linalg.eigvalsh(exact).min() > margin * np.linalg.eigvalsh(exact).max()
     if N > 1 and not ok:
         from scipy.linalg import eigh
+
         lam = float(eigh(sym(B), A, eigvals_only=True).max())
         c = min(1.0, (1.0 - margin) / lam) if lam > 0 else 1.0
-        notes.append(f"the exact prior-corrected product was not positive definite (largest generalised "
-                     f"eigenvalue {lam:.4g}); prior correction scaled by c = {c:.4g}")
+        notes.append(
+            f"the exact prior-corrected product was not positive definite (largest generalised "
+            f"eigenvalue {lam:.4g}); prior correction scaled by c = {c:.4g}"
+        )
     Lam = sym(A - c * B)
     cov = sym(np.linalg.inv(Lam))
     mean = cov @ (b - c * b0)
@@ -157,8 +170,9 @@ def marginal_under_reference(post_m, post_c, prior_m, prior_c, n_keep: int, swap
     integrated out against N(0, sd^2), the others against the analysis prior's conditional.
     (The joint likelihood is posterior / prior, :func:`likelihood_terms`; exact for a
     linear-Gaussian model.)"""
-    Lj, ej, _, _ = likelihood_terms(np.asarray(post_m)[None], np.asarray(post_c)[None], np.asarray(prior_m)[None],
-                                    np.asarray(prior_c)[None])
+    Lj, ej, _, _ = likelihood_terms(
+        np.asarray(post_m)[None], np.asarray(post_c)[None], np.asarray(prior_m)[None], np.asarray(prior_c)[None]
+    )
     Rm, Rc = np.array(prior_m, dtype=np.float64), np.array(prior_c, dtype=np.float64)
     for i, sd in swap.items():
         Rc[i, :] = 0.0
@@ -197,7 +211,7 @@ def fuse_likelihoods(post_m, post_c, prior_m, prior_c, chain_m, chain_c) -> Fusi
 
 
 _CHI2_95 = 3.841458820694124
-_TAU_MAX = 3.0          # a between-bubble sd of e^3 (20x) on a log axis: beyond any gel
+_TAU_MAX = 3.0  # a between-bubble sd of e^3 (20x) on a log axis: beyond any gel
 
 
 @dataclass
@@ -230,28 +244,43 @@ class RandomEffects:
             est[name] = marginal_summary(self.mean[i], math.sqrt(max(self.cov[i, i], 0.0)), log)
             pred[name] = marginal_summary(self.mean[i], math.sqrt(max(self.predictive_cov[i, i], 0.0)), log)
             if self.n_exp < 2:
-                between[name] = {"sd": None, "hdi95": None, "note": "one experiment: bubble-to-bubble scatter "
-                                                                     "is unknown"}
+                between[name] = {
+                    "sd": None,
+                    "hdi95": None,
+                    "note": "one experiment: bubble-to-bubble scatter is unknown",
+                }
                 continue
             med = math.exp(self.mean[i]) if log else 1.0
 
             def to_sd(t):
                 # the sd of a bubble's parameter around the gel median (log-normal for a log axis)
                 return med * math.sqrt(math.expm1(t * t) * math.exp(t * t)) if log else float(t)
+
             lo, hi = self.tau_ci[i]
-            between[name] = {"sd": to_sd(self.tau[i]), "hdi95": [to_sd(lo), to_sd(hi)],
-                             "sd_log" if log else "sd_internal": float(self.tau[i]),
-                             "ci95_log" if log else "ci95_internal": [float(lo), float(hi)],
-                             "interval": "95 % profile-likelihood interval"}
+            between[name] = {
+                "sd": to_sd(self.tau[i]),
+                "hdi95": [to_sd(lo), to_sd(hi)],
+                "sd_log" if log else "sd_internal": float(self.tau[i]),
+                "ci95_log" if log else "ci95_internal": [float(lo), float(hi)],
+                "interval": "95 % profile-likelihood interval",
+            }
         return {"estimate": est, "between_experiments": between, "predictive": pred}
 
     def to_dict(self) -> dict:
-        return {"mean_internal": self.mean.tolist(), "cov_internal": self.cov.tolist(), "tau": self.tau.tolist(),
-                "tau_ci95": self.tau_ci.tolist(), "predictive_cov_internal": self.predictive_cov.tolist(),
-                "pooled_mean_internal": self.pooled_mean.tolist(), "pooled_cov_internal": self.pooled_cov.tolist(),
-                "loglik_gain_vs_no_scatter": self.loglik_gain, "n_experiments": self.n_exp, "notes": self.notes,
-                "model": "theta_n ~ N(mu, diag(tau^2)) on the internal axes, mu ~ the parameter prior; tau by type-II "
-                         "maximum likelihood, 95 % profile intervals"}
+        return {
+            "mean_internal": self.mean.tolist(),
+            "cov_internal": self.cov.tolist(),
+            "tau": self.tau.tolist(),
+            "tau_ci95": self.tau_ci.tolist(),
+            "predictive_cov_internal": self.predictive_cov.tolist(),
+            "pooled_mean_internal": self.pooled_mean.tolist(),
+            "pooled_cov_internal": self.pooled_cov.tolist(),
+            "loglik_gain_vs_no_scatter": self.loglik_gain,
+            "n_experiments": self.n_exp,
+            "notes": self.notes,
+            "model": "theta_n ~ N(mu, diag(tau^2)) on the internal axes, mu ~ the parameter prior; tau by type-II "
+            "maximum likelihood, 95 % profile intervals",
+        }
 
 
 def _conditional(Lam, m, T, m0, C0i):
@@ -260,8 +289,8 @@ def _conditional(Lam, m, T, m0, C0i):
     A = np.empty_like(Lam)
     logdet = 0.0
     for n in range(Lam.shape[0]):
-        M = np.eye(d) + T[:, None] * Lam[n]          # I + T Lambda_n (T diagonal)
-        A[n] = sym(np.linalg.solve(M.T, Lam[n].T).T)     # Lambda_n (I + T Lambda_n)^-1 = (Lambda_n^-1 + T)^-1
+        M = np.eye(d) + T[:, None] * Lam[n]  # I + T Lambda_n (T diagonal)
+        A[n] = sym(np.linalg.solve(M.T, Lam[n].T).T)  # Lambda_n (I + T Lambda_n)^-1 = (Lambda_n^-1 + T)^-1
         logdet += math.log(abs(np.linalg.det(M)))
     P = sym(C0i + A.sum(axis=0))
     b = C0i @ m0 + np.einsum("nij,nj->i", A, m)
@@ -308,9 +337,21 @@ def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None, interval
     C0i = np.linalg.inv(sym(prior_cov))
     mu0, cov0, ll0 = _conditional(Lam, m, np.zeros(d), m0, C0i)
     if N < 2:
-        return RandomEffects(mu0, cov0, np.full(d, np.nan), np.full((d, 2), np.nan), cov0, mu0, cov0, 0.0, N,
-                             ["one experiment: the between-bubble scatter cannot be estimated; the predictive "
-                              "for another bubble is this bubble's posterior (scatter unknown)"])
+        return RandomEffects(
+            mu0,
+            cov0,
+            np.full(d, np.nan),
+            np.full((d, 2), np.nan),
+            cov0,
+            mu0,
+            cov0,
+            0.0,
+            N,
+            [
+                "one experiment: the between-bubble scatter cannot be estimated; the predictive "
+                "for another bubble is this bubble's posterior (scatter unknown)"
+            ],
+        )
 
     def negll(logtau):
         return -_conditional(Lam, m, np.exp(2.0 * np.asarray(logtau)), m0, C0i)[2]
@@ -323,7 +364,7 @@ def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None, interval
             best = r
     tau = np.exp(best.x)
     tau[tau <= 1.5e-4] = 0.0
-    mu, cov, ll_hat = _conditional(Lam, m, tau ** 2, m0, C0i)
+    mu, cov, ll_hat = _conditional(Lam, m, tau**2, m0, C0i)
     ll_hat = max(ll_hat, ll0)
 
     def profile(i, t):
@@ -337,6 +378,7 @@ def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None, interval
             T[i] = t * t
             T[others] = np.exp(2.0 * np.asarray(x))
             return -_conditional(Lam, m, T, m0, C0i)[2]
+
         x0 = np.log(np.maximum(tau[others], 1e-3))
         return -optimize.minimize(f, x0, method="L-BFGS-B", bounds=[(lo, hi)] * len(others)).fun
 
@@ -346,13 +388,16 @@ def random_effects(Lam, eta, prior_mean, prior_cov, m=None, names=None, interval
         # the interval's ends: where the profile drops 3.84/2 below its maximum, each side of tau_hat
         def excess(t, i=i):
             return 2.0 * (ll_hat - profile(i, t)) - _CHI2_95
+
         inner = max(tau[i], 1e-6)
         lo_end = 0.0 if excess(0.0) <= 0 else _crossing(excess, 0.0, inner)
         if excess(_TAU_MAX) <= 0:
             hi_end = _TAU_MAX
             label = names[i] if names is not None else f"parameter {i}"
-            notes.append(f"{label}: the data do not bound the between-bubble sd from above (too few bubbles "
-                         f"or too little information per bubble)")
+            notes.append(
+                f"{label}: the data do not bound the between-bubble sd from above (too few bubbles "
+                f"or too little information per bubble)"
+            )
         else:
             hi_end = _crossing(excess, inner, _TAU_MAX)
         ci[i] = [lo_end, hi_end]
@@ -371,12 +416,14 @@ def _predictive_cov(Lam, m, tau, cov, m0, C0i, n_grid: int = 48, drop: float = 1
     matched Gaussian is within a few per cent of the mixture's); the off-diagonal entries are the
     plug-in ones (the diagonal only grows, so the matrix stays positive definite)."""
     d = tau.size
-    pred = sym(cov + np.diag(tau ** 2))
+    pred = sym(cov + np.diag(tau**2))
     for i in range(d):
+
         def cond(t, i=i):
-            T = tau ** 2
+            T = tau**2
             T[i] = t * t
             return _conditional(Lam, m, T, m0, C0i)
+
         ll_top = cond(tau[i])[2]
         hi = max(2.0 * tau[i], 0.02)
         while hi < _TAU_MAX and cond(hi)[2] > ll_top - drop:
@@ -387,7 +434,7 @@ def _predictive_cov(Lam, m, tau, cov, m0, C0i, n_grid: int = 48, drop: float = 1
             mu_t, cov_t, ll_t = cond(t)
             mus[k], variances[k], lls[k] = mu_t[i], cov_t[i, i] + t * t, ll_t
         w = np.exp(lls - lls.max())
-        w[[0, -1]] *= 0.5                         # trapezoid rule on the uniform grid
+        w[[0, -1]] *= 0.5  # trapezoid rule on the uniform grid
         w /= w.sum()
         mean_i = float(w @ mus)
         var_i = float(w @ variances + w @ (mus - mean_i) ** 2)
@@ -427,10 +474,16 @@ def leave_one_out(Lam, eta, prior_mean, prior_cov, names=None, prob: float = 0.9
     q = float(stats.norm.ppf(0.5 + prob / 2.0))
     inside = np.abs(z) <= q
     labels = list(names) if names is not None else [f"p{i}" for i in range(d)]
-    return {"n": int(N), "level": prob, "n_inside": dict(zip(labels, inside.sum(axis=0).astype(int).tolist())),
-            "inside": inside.tolist(), "z": z.tolist(), "parameters": labels,
-            "note": f"each experiment's own estimate (prior x its likelihood) against the central {prob:.0%} "
-                    "predictive interval of the random-effects fit of the others (internal axes)"}
+    return {
+        "n": int(N),
+        "level": prob,
+        "n_inside": dict(zip(labels, inside.sum(axis=0).astype(int).tolist())),
+        "inside": inside.tolist(),
+        "z": z.tolist(),
+        "parameters": labels,
+        "note": f"each experiment's own estimate (prior x its likelihood) against the central {prob:.0%} "
+        "predictive interval of the random-effects fit of the others (internal axes)",
+    }
 
 
 @dataclass
@@ -458,7 +511,7 @@ class BubbleFusion:
     random: RandomEffects
 
     @classmethod
-    def from_likelihoods(cls, space, lam, eta, prior=None, n_clipped: int = 0) -> "BubbleFusion":
+    def from_likelihoods(cls, space, lam, eta, prior=None, n_clipped: int = 0) -> BubbleFusion:
         """Random effects on given likelihoods ``lam`` (n_exp, d, d), ``eta`` (n_exp, d) with the
         gel mean's prior ``prior`` = (mean (d,), cov (d, d)) (None: the parameter prior)."""
         m0, c0 = (space.prior_mean, space.prior_cov) if prior is None else prior
@@ -476,7 +529,9 @@ class BubbleFusion:
     def pooled(self) -> Fusion:
         """The product rule (no between-bubble scatter) with the fusion's prior, as a :class:`Fusion`
         whose note counts the clipped eigenvalues."""
-        notes = [f"{self.n_clipped} negative eigenvalue(s) of window likelihoods clipped to 0"] if self.n_clipped else []
+        notes = (
+            [f"{self.n_clipped} negative eigenvalue(s) of window likelihoods clipped to 0"] if self.n_clipped else []
+        )
         return Fusion(self.random.pooled_mean, self.random.pooled_cov, 1.0, self.n_clipped == 0, notes)
 
     def summaries(self) -> dict:

@@ -93,8 +93,10 @@ def _hdi_lognormal(m, s, prob):
 
     def width(p):
         return math.exp(m + s * stats.norm.ppf(p + prob)) - math.exp(m + s * stats.norm.ppf(p))
-    res = optimize.minimize_scalar(width, bounds=(1e-12, 1.0 - prob - 1e-12), method="bounded",
-                                   options={"xatol": 1e-10})
+
+    res = optimize.minimize_scalar(
+        width, bounds=(1e-12, 1.0 - prob - 1e-12), method="bounded", options={"xatol": 1e-10}
+    )
     p = float(res.x)
     return [math.exp(m + s * stats.norm.ppf(p)), math.exp(m + s * stats.norm.ppf(p + prob))]
 

@@ -102,11 +102,24 @@ def _sqrt_inv(H):
     return Hi, Hs
 
 
-def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw: int = 5,
-                 min_valid: int | None = None, project: bool = True, transform: bool = True,
-                 backtrack: bool = True, max_iter: int | None = None, rtol: float = 0.01,
-                 patience: int | None = None, min_iter: int | None = None,
-                 step_tol: float | None = None) -> GNResult:
+def gauss_newton(
+    E0,
+    evaluate,
+    y,
+    weight,
+    n_iter: int = 5,
+    rng=None,
+    max_redraw: int = 5,
+    min_valid: int | None = None,
+    project: bool = True,
+    transform: bool = True,
+    backtrack: bool = True,
+    max_iter: int | None = None,
+    rtol: float = 0.01,
+    patience: int | None = None,
+    min_iter: int | None = None,
+    step_tol: float | None = None,
+) -> GNResult:
     """Run the ensemble Gauss–Newton analysis for G groups at once.
 
     Parameters
@@ -191,8 +204,8 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
         Yhat[gs, ii] = Yn
         failed[gs, ii] = fn
 
-    xbar = E0.mean(axis=1)                                  # (G, d)
-    A = (E0 - xbar[:, None, :]) / sq                        # (G, N, d)
+    xbar = E0.mean(axis=1)  # (G, d)
+    A = (E0 - xbar[:, None, :]) / sq  # (G, N, d)
     w = np.zeros((G, N))
     patience = n_iter if patience is None else int(patience)
     n_max = max(n_iter, patience) if max_iter is None else max(n_iter, patience, int(max_iter))
@@ -207,7 +220,7 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
     w_upd = np.zeros((G, N))
     n_back = np.zeros(G, dtype=int)
     n_accepted = np.zeros(G, dtype=int)
-    unrunnable = np.zeros(G, dtype=bool)       # the update from the best iterate failed to run
+    unrunnable = np.zeros(G, dtype=bool)  # the update from the best iterate failed to run
     ybar_last = np.full((G, m), np.nan)
     stop_from = n_iter if min_iter is None else min(int(min_iter), n_iter)
 
@@ -225,8 +238,8 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
             act = np.flatnonzero(active)
             if act.size == 0:
                 break
-            shift = np.einsum("gnd,gn->gd", A[act], w[act])     # A^T w
-            if transform:                                       # xbar + A^T w + sqrt(N-1) T A
+            shift = np.einsum("gnd,gn->gd", A[act], w[act])  # A^T w
+            if transform:  # xbar + A^T w + sqrt(N-1) T A
                 E = (xbar[act] + shift)[:, None, :] + sq * (T[act] @ A[act])
             else:
                 E = E0[act] + shift[:, None, :]
@@ -247,19 +260,19 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
                 stopped[g] = True
                 active[g] = False
                 continue
-            At = T[g] @ A[g] if transform else A[g]             # anomalies of the evaluated ensemble
+            At = T[g] @ A[g] if transform else A[g]  # anomalies of the evaluated ensemble
             if project:
                 ybar, Yp = linearise(At, Yhat[g], ok, sq, A_out=A[g])
             else:
                 ybar = Yhat[g, ok].mean(axis=0)
-                Yp = np.where(ok[:, None], Yhat[g] - ybar, 0.0) / sq   # (N, m)
+                Yp = np.where(ok[:, None], Yhat[g] - ybar, 0.0) / sq  # (N, m)
                 if transform:
                     Yp = np.linalg.solve(T[g], Yp)
             d_in = y[g] - ybar
             c = 0.5 * np.sum(Wt[g] * d_in**2) + 0.5 * w[g] @ w[g]
             cost[g, it] = c
             if backtrack and it > 0 and not c <= best[g] * (1.0 + 1e-9):
-                reject(g, it)                                   # the step increased the cost
+                reject(g, it)  # the step increased the cost
                 continue
 
             n_accepted[g] += 1
@@ -274,7 +287,7 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
             H[g] = Hg
             step = np.linalg.solve(Hg, grad)
             w[g] = w[g] - step
-            if step_tol is not None and it >= stop_from - 1 and not grad @ step > step_tol ** 2:
+            if step_tol is not None and it >= stop_from - 1 and not grad @ step > step_tol**2:
                 done = True
             w_upd[g] = w[g]
             if transform:
@@ -288,8 +301,21 @@ def gauss_newton(E0, evaluate, y, weight, n_iter: int = 5, rng=None, max_redraw:
     w = w_upd
     Hi, Hs = _sqrt_inv(H)
     mean = xbar + np.einsum("gnd,gn->gd", A, w)
-    anoms = Hs @ A                                          # (G, N, d)
+    anoms = Hs @ A  # (G, N, d)
     cov = np.einsum("gnd,gne->gde", A, Hi @ A)
     ens = mean[:, None, :] + sq * anoms
-    return GNResult(mean, anoms, 0.5 * (cov + np.swapaxes(cov, 1, 2)), ens, A, E0, w, cost, nfail,
-                    n_redrawn, stopped, ybar_last, n_back)
+    return GNResult(
+        mean,
+        anoms,
+        0.5 * (cov + np.swapaxes(cov, 1, 2)),
+        ens,
+        A,
+        E0,
+        w,
+        cost,
+        nfail,
+        n_redrawn,
+        stopped,
+        ybar_last,
+        n_back,
+    )

@@ -58,13 +58,13 @@ __all__ = ["IMR", "IMRSettings", "fit_imr", "imr_unit", "fit_indices", "collapse
 class IMRSettings:
     """Grid, window and cost weighting of standard IMR (see module doc). SI units."""
 
-    G_min: float = 0.0         #: lowest G [Pa] (0: a liquid)
-    G_max: float = 1e6         #: highest G [Pa]
-    mu_min: float = 1e-4       #: lowest mu [Pa s]
-    mu_max: float = 10.0       #: highest mu [Pa s]
-    n_G: int = 120             #: grid points in G
-    n_mu: int = 74             #: grid points in mu
-    spacing: str = "log"       #: log (from 1e-5 of the top where the bottom is 0, which is kept) | linear
+    G_min: float = 0.0  #: lowest G [Pa] (0: a liquid)
+    G_max: float = 1e6  #: highest G [Pa]
+    mu_min: float = 1e-4  #: lowest mu [Pa s]
+    mu_max: float = 10.0  #: highest mu [Pa s]
+    n_G: int = 120  #: grid points in G
+    n_mu: int = 74  #: grid points in mu
+    spacing: str = "log"  #: log (from 1e-5 of the top where the bottom is 0, which is kept) | linear
     window: str = "all"
     weighting: str = "none"
     level: float = 0.95
@@ -131,8 +131,9 @@ def fit_indices(obs, window: str, prominence: float = 0.05) -> np.ndarray:
         for e in range(obs.n_exp):
             idx = collapse_indices(obs.R_star[e], prominence)
             if idx.size < k:
-                raise InputError("window", f"experiment {obs.names[e]!r} shows {idx.size} collapse(s) on the "
-                                           f"grid, fewer than {k}")
+                raise InputError(
+                    "window", f"experiment {obs.names[e]!r} shows {idx.size} collapse(s) on the grid, fewer than {k}"
+                )
             out[e] = idx[k - 1]
         return out
     raise InputError("window", f"expected all, t:T or collapse:k, got {window!r}")
@@ -154,12 +155,16 @@ def grid_edge_warnings(side_G, side_mu, Gg, mg, label: str) -> list:
     out = []
     for side, val, name, unit, key in ((side_G, Gg, "G", "Pa", "G_max"), (side_mu, mg, "mu", "Pa s", "mu_max")):
         if side == "high":
-            out.append(f"{label} optimum: {name} at the grid's upper end ({val[-1]:.4g} {unit}): the estimate is a "
-                       f"lower bound; widen the grid (--set {key}=...)")
+            out.append(
+                f"{label} optimum: {name} at the grid's upper end ({val[-1]:.4g} {unit}): the estimate is a "
+                f"lower bound; widen the grid (--set {key}=...)"
+            )
         elif side == "low":
-            out.append(f"{label} optimum: {name} at the grid's lower end ({val[0]:.4g} {unit}): the data push it "
-                       f"there -- the model (or its bubble physics) may not describe them, or they do not "
-                       f"constrain {name}")
+            out.append(
+                f"{label} optimum: {name} at the grid's lower end ({val[0]:.4g} {unit}): the data push it "
+                f"there -- the model (or its bubble physics) may not describe them, or they do not "
+                f"constrain {name}"
+            )
     return out
 
 
@@ -171,8 +176,7 @@ def _edge_warnings(i, j, s, Gg, mg, per_index, names) -> list:
     """Standard IMR's grid-edge warnings: the pooled optimum's (:func:`grid_edge_warnings`) and the
     count of experiments whose own optimum lies on the edge."""
     out = grid_edge_warnings(_edge_side(i, s.n_G), _edge_side(j, s.n_mu), Gg, mg, "standard IMR")
-    on_edge = [nm for (ie, je), nm in zip(per_index, names)
-               if _edge_side(ie, s.n_G) or _edge_side(je, s.n_mu)]
+    on_edge = [nm for (ie, je), nm in zip(per_index, names) if _edge_side(ie, s.n_G) or _edge_side(je, s.n_mu)]
     if on_edge:
         shown = ", ".join(on_edge[:5]) + (", ..." if len(on_edge) > 5 else "")
         out.append(f"{len(on_edge)} of {len(names)} experiments have their own optimum on the grid's edge ({shown})")
@@ -183,7 +187,7 @@ def _quadratic_refine(J, Gg, mg, i, j):
     """Sub-grid minimum of a quadratic fitted to the 3 x 3 neighbourhood (None if not convex/interior)."""
     if not (0 < i < J.shape[0] - 1 and 0 < j < J.shape[1] - 1):
         return None
-    sub = J[i - 1:i + 2, j - 1:j + 2]
+    sub = J[i - 1 : i + 2, j - 1 : j + 2]
     if not np.all(np.isfinite(sub)):
         return None
     dG, dm = Gg[1] - Gg[0], mg[1] - mg[0]
@@ -215,9 +219,12 @@ def _grid_summary(J, Jmin, n, p, Gg, mg, opt):
         k = int(np.searchsorted(np.cumsum(marg[order]), 0.95)) + 1
         sel = grid[order[:k]]
         h = 0.5 * (grid[1] - grid[0])
-        out[name] = {"mean": float(opt[ax]), "sd": sd,
-                     "hdi95": [float(max(grid[0], sel.min() - h)), float(min(grid[-1], sel.max() + h))],
-                     "posterior_mean": mean}
+        out[name] = {
+            "mean": float(opt[ax]),
+            "sd": sd,
+            "hdi95": [float(max(grid[0], sel.min() - h)), float(min(grid[-1], sel.max() + h))],
+            "posterior_mean": mean,
+        }
     return out, w
 
 
@@ -230,14 +237,22 @@ def imr_unit(unit: Unit, rng) -> dict:
     n_pts = theta.shape[0]
     K = int(d["K"])
     out = runner.simulate(theta, np.full(n_pts, d["rmax"]), np.full(n_pts, d["req"]), d["t_eval"])
-    r = out.R_star[:, 1:K + 1] - d["y"][1:K + 1]
-    j = np.sum(d["cw"][1:K + 1] * r * r, axis=1)
+    r = out.R_star[:, 1 : K + 1] - d["y"][1 : K + 1]
+    j = np.sum(d["cw"][1 : K + 1] * r * r, axis=1)
     bad = out.failed | ~np.isfinite(j)
     return {"J": np.where(bad, np.inf, j), "n_failed": int(bad.sum()), **runner.counts_since(before)}
 
 
-def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, runner: Runner | None = None,
-            progress=None, execution=None) -> FitResult:
+def fit_imr(
+    fm,
+    obs,
+    space,
+    settings: IMRSettings | None = None,
+    seed: int = 0,
+    runner: Runner | None = None,
+    progress=None,
+    execution=None,
+) -> FitResult:
     """Grid search of (G, mu); see module doc. ``progress(n)`` is called after experiment n.
 
     Units (:func:`imr_unit`): one per experiment (``exp=003``: its cost on the whole grid);
@@ -255,7 +270,7 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
     spec, token = fm_spec(fm), register_runner(runner)
     Kn = fit_indices(obs, s.window, s.collapse_prominence)
     Kmax = int(Kn.max())
-    t_eval = obs.t_star[:Kmax + 1]
+    t_eval = obs.t_star[: Kmax + 1]
     Gg = grid_axis(s.G_min, s.G_max, s.n_G, s.spacing)
     mg = grid_axis(s.mu_min, s.mu_max, s.n_mu, s.spacing)
     GG, MM = np.meshgrid(Gg, mg, indexing="ij")
@@ -266,11 +281,25 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
         theta[:, i] = GG.ravel() if nm == "G" else (MM.ravel() if nm == "mu" else defaults[nm])
     mask = np.zeros((obs.n_exp, obs.n_samples), dtype=bool)
     for e, K in enumerate(Kn):
-        mask[e, 1:K + 1] = True
+        mask[e, 1 : K + 1] = True
     cw = np.ones(obs.n_samples) if s.weighting == "none" else 1.0 / obs.P
-    units = [Unit(unit_id(exp=e), {"spec": spec, "runner": token, "theta": theta, "rmax": float(obs.rmax_m[e]),
-                                   "req": float(obs.req_m[e]), "t_eval": t_eval, "K": int(Kn[e]), "y": obs.R_star[e],
-                                   "cw": cw}) for e in range(obs.n_exp)]
+    units = [
+        Unit(
+            unit_id(exp=e),
+            {
+                "spec": spec,
+                "runner": token,
+                "theta": theta,
+                "rmax": float(obs.rmax_m[e]),
+                "req": float(obs.req_m[e]),
+                "t_eval": t_eval,
+                "K": int(Kn[e]),
+                "y": obs.R_star[e],
+                "cw": cw,
+            },
+        )
+        for e in range(obs.n_exp)
+    ]
     rep = ex.run(units, imr_unit, seed, desc="imr experiments")
     Jn = np.full((obs.n_exp, n_pts), np.nan)
     n_failed, member_runs, warnings, failed_units = 0, 0, [], []
@@ -310,18 +339,31 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
     per = []
     for e in range(obs.n_exp):
         if e not in ok:
-            per.append({"name": obs.names[e], "failed": True,
-                        "error": next(f["error"] for f in failed_units if f["experiment"] == obs.names[e])})
+            per.append(
+                {
+                    "name": obs.names[e],
+                    "failed": True,
+                    "error": next(f["error"] for f in failed_units if f["experiment"] == obs.names[e]),
+                }
+            )
             mask[e] = False
             continue
         ie, je = np.unravel_index(np.argmin(Jn[e]), Jn[e].shape)
         r_e = _quadratic_refine(Jn[e], Gg, mg, ie, je) if s.refine else None
         o = r_e[0] if r_e is not None else np.array([Gg[ie], mg[je]])
-        per.append({"name": obs.names[e], "optimum": {"G": float(o[0]), "mu": float(o[1])},
-                    "grid_optimum": {"G": float(Gg[ie]), "mu": float(mg[je])}, "J_min": float(Jn[e, ie, je]),
-                    "last_sample": int(Kn[e]), "t_end_star": float(obs.t_star[Kn[e]])})
-    warnings += _edge_warnings(i, j, s, Gg, mg, [np.unravel_index(np.argmin(Jn[e]), Jn[e].shape) for e in ok],
-                               [obs.names[e] for e in ok])
+        per.append(
+            {
+                "name": obs.names[e],
+                "optimum": {"G": float(o[0]), "mu": float(o[1])},
+                "grid_optimum": {"G": float(Gg[ie]), "mu": float(mg[je])},
+                "J_min": float(Jn[e, ie, je]),
+                "last_sample": int(Kn[e]),
+                "t_end_star": float(obs.t_star[Kn[e]]),
+            }
+        )
+    warnings += _edge_warnings(
+        i, j, s, Gg, mg, [np.unravel_index(np.argmin(Jn[e]), Jn[e].shape) for e in ok], [obs.names[e] for e in ok]
+    )
     # fitted curves at the (refined) optimum
     th = np.tile(theta[i * s.n_mu + j], (obs.n_exp, 1))
     th[:, names.index("G")] = refined[0]
@@ -353,37 +395,64 @@ def fit_imr(fm, obs, space, settings: IMRSettings | None = None, seed: int = 0, 
                     thin.append(nm)
 
             if thin:
-                warnings.append(f"standard IMR: the pseudo-posterior of {' and '.join(thin)} lies inside one grid cell "
-                                f"and the optimum could not be refined (no local quadratic): its sd is the cell's "
-                                f"(spacing/sqrt 12); a finer grid (--set n_G=/n_mu= or the bounds) resolves it")
+                warnings.append(
+                    f"standard IMR: the pseudo-posterior of {' and '.join(thin)} lies inside one grid cell "
+                    f"and the optimum could not be refined (no local quadratic): its sd is the cell's "
+                    f"(spacing/sqrt 12); a finer grid (--set n_G=/n_mu= or the bounds) resolves it"
+                )
         idx = rng.choice(pmf.size, size=s.n_draws, p=pmf.ravel())
         ii, jj = np.unravel_index(idx, pmf.shape)
         dG_draw = np.clip(Gg[ii] + (rng.random(s.n_draws) - 0.5) * spacing[0], Gg[0], Gg[-1])
         dm_draw = np.clip(mg[jj] + (rng.random(s.n_draws) - 0.5) * spacing[1], mg[0], mg[-1])
     dG, dm = spacing
-    details = {"nuisances": "Rmax, Req and the time of the maximum fixed at preprocessing's estimates (not "
-                            "propagated); en4dvar's default likelihood includes them",
-               "settings": asdict(s), "grid": {"G": [float(Gg[0]), float(Gg[-1]), s.n_G, float(dG)],
-                                              "mu": [float(mg[0]), float(mg[-1]), s.n_mu, float(dm)]},
-               "grid_optimum": {"G": float(opt[0]), "mu": float(opt[1])},
-               "optimum": {"G": float(refined[0]), "mu": float(refined[1])}, "refined": ref is not None,
-               "J_min": Jmin, "confidence": {"level": s.level, "J_level": level_J, "n_residuals": n_res, "p": p,
-                                             "rule": "J <= J_min (1 + p/(n-p) F_{p,n-p}(level)) (Beale; residuals "
-                                                     "treated as independent, so optimistic)"},
-               "laplace": laplace, "uncertainty_from": "laplace" if use_laplace else "grid",
-               "n_grid_points": n_pts, "member_runs": member_runs + th.shape[0],
-               "failed_units": failed_units, "experiments_used": [obs.names[e] for e in ok],
-               "failed_grid_runs": n_failed, "window": s.window,
-               "fixed_parameters": {nm: defaults[nm] for nm in names if nm not in ("G", "mu")}, "last_sample": Kn.tolist(),
-               "rmse": rmse(fitted, obs.R_star, mask)}
+    details = {
+        "nuisances": "Rmax, Req and the time of the maximum fixed at preprocessing's estimates (not "
+        "propagated); en4dvar's default likelihood includes them",
+        "settings": asdict(s),
+        "grid": {
+            "G": [float(Gg[0]), float(Gg[-1]), s.n_G, float(dG)],
+            "mu": [float(mg[0]), float(mg[-1]), s.n_mu, float(dm)],
+        },
+        "grid_optimum": {"G": float(opt[0]), "mu": float(opt[1])},
+        "optimum": {"G": float(refined[0]), "mu": float(refined[1])},
+        "refined": ref is not None,
+        "J_min": Jmin,
+        "confidence": {
+            "level": s.level,
+            "J_level": level_J,
+            "n_residuals": n_res,
+            "p": p,
+            "rule": "J <= J_min (1 + p/(n-p) F_{p,n-p}(level)) (Beale; residuals "
+            "treated as independent, so optimistic)",
+        },
+        "laplace": laplace,
+        "uncertainty_from": "laplace" if use_laplace else "grid",
+        "n_grid_points": n_pts,
+        "member_runs": member_runs + th.shape[0],
+        "failed_units": failed_units,
+        "experiments_used": [obs.names[e] for e in ok],
+        "failed_grid_runs": n_failed,
+        "window": s.window,
+        "fixed_parameters": {nm: defaults[nm] for nm in names if nm not in ("G", "mu")},
+        "last_sample": Kn.tolist(),
+        "rmse": rmse(fitted, obs.R_star, mask),
+    }
     return FitResult(
-        method="imr", model=fm.constitutive.name, param_names=("G", "mu"), estimate=est, fitted=fitted, fit_mask=mask,
-        per_experiment=per, details=details,
+        method="imr",
+        model=fm.constitutive.name,
+        param_names=("G", "mu"),
+        estimate=est,
+        fitted=fitted,
+        fit_mask=mask,
+        per_experiment=per,
+        details=details,
         posterior={"G": dG_draw[None], "mu": dm_draw[None]},
         extra_groups={"landscape": {"J": J, "J_experiment": Jn}},
         extra_dims={"J": ["G_grid", "mu_grid"], "J_experiment": ["experiment", "G_grid", "mu_grid"]},
         coords={"G_grid": Gg, "mu_grid": mg, "experiment": list(obs.names)},
-        runtime_s=time.perf_counter() - t0, warnings=warnings)
+        runtime_s=time.perf_counter() - t0,
+        warnings=warnings,
+    )
 
 
 class IMR(InferenceMethod):
@@ -405,9 +474,10 @@ class IMR(InferenceMethod):
 
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
-        return settings.n_G * settings.n_mu * n_exp + n_exp      # the grid, then the fitted curves
+        return settings.n_G * settings.n_mu * n_exp + n_exp  # the grid, then the fitted curves
 
     @staticmethod
     def figures(obs, res, fdir):
         from imrbayes.ensemble.figures import landscape_figure
+
         return [landscape_figure(res, fdir / "landscape.png")]

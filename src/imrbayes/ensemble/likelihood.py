@@ -30,8 +30,20 @@ import math
 
 import numpy as np
 
-__all__ = ["LIKELIHOODS", "NUISANCES", "check_choice", "record_noise_sd", "simulate_shifted", "frame_operator", "predict", "whitening",
-           "effective_samples", "observation_model", "nuisance_summary", "nuisance_prior_sd"]
+__all__ = [
+    "LIKELIHOODS",
+    "NUISANCES",
+    "check_choice",
+    "record_noise_sd",
+    "simulate_shifted",
+    "frame_operator",
+    "predict",
+    "whitening",
+    "effective_samples",
+    "observation_model",
+    "nuisance_summary",
+    "nuisance_prior_sd",
+]
 
 #: ``default``: this module; ``paper``: the paper's averaged cost, sample-variance P_k, prior-corrected fusion.
 LIKELIHOODS = ("default", "paper")
@@ -43,11 +55,15 @@ def check_choice(likelihood: str, fusion, obs_weight) -> None:
     """The likelihood setting of a method, and that ``fusion``/``obs_weight`` (the paper's knobs)
     are only set with ``likelihood="paper"``."""
     from imrbayes.errors import InputError
+
     if likelihood not in LIKELIHOODS:
         raise InputError("likelihood", f"must be one of {', '.join(LIKELIHOODS)}, got {likelihood!r}")
     if likelihood == "default" and (fusion or obs_weight):
-        raise InputError("fusion/obs_weight", "apply to --likelihood paper only (the default likelihood counts "
-                                              "each sample once and fuses through a between-bubble layer)")
+        raise InputError(
+            "fusion/obs_weight",
+            "apply to --likelihood paper only (the default likelihood counts "
+            "each sample once and fuses through a between-bubble layer)",
+        )
 
 
 def nuisance_prior_sd(obs, n: int) -> np.ndarray:
@@ -63,6 +79,7 @@ def record_noise_sd(obs, n: int) -> float:
     if math.isfinite(s) and s > 0:
         return s
     from imrbayes.data.preprocess import estimate_noise_sd
+
     s = float(estimate_noise_sd(np.asarray(obs.R_star[n], dtype=np.float64)))
     return s if math.isfinite(s) and s > 0 else 1e-3
 
@@ -97,6 +114,7 @@ def effective_samples(resid) -> tuple:
     """(n_eff, tau) of a residual series (K,): tau its integrated autocorrelation time (emcee's
     estimator with Sokal's window; at least 1), n_eff = K / tau."""
     from emcee.autocorr import integrated_time
+
     r = np.asarray(resid, dtype=np.float64)
     r = r[np.isfinite(r)]
     if r.size < 8 or not np.any(r != r.mean()):
@@ -136,8 +154,14 @@ def predict(runner, theta, rmax_m: float, req_m: float, t_eval, nu, frames=None)
     # a member whose Req reaches its Rmax (a wide Req prior's tail) fails; it is not an input error
     bad |= ~(req < rmax_m * scale)
     req = np.where(bad, 0.5 * rmax_m * scale, req)
-    R, failed = simulate_shifted(runner, theta, rmax_m * scale, req,
-                                 np.asarray(t_eval, dtype=np.float64)[None, :] / scale[:, None], delta / scale)
+    R, failed = simulate_shifted(
+        runner,
+        theta,
+        rmax_m * scale,
+        req,
+        np.asarray(t_eval, dtype=np.float64)[None, :] / scale[:, None],
+        delta / scale,
+    )
     return R * scale[:, None], failed | bad
 
 
@@ -155,8 +179,16 @@ def observation_model(y, f, noise_var: float, adapt: bool = True) -> dict:
         var = max(var, rms * rms)
         n_eff, tau = effective_samples(r)
         alpha = min(1.0, n_eff / K)
-    return {"var": var, "alpha": alpha, "effective_samples": n_eff, "autocorrelation_time": tau, "resid_rms": rms,
-            "noise_sd": math.sqrt(noise_var), "sd_used": math.sqrt(var), "W": whitening(var, np.zeros((K, 0)), alpha)}
+    return {
+        "var": var,
+        "alpha": alpha,
+        "effective_samples": n_eff,
+        "autocorrelation_time": tau,
+        "resid_rms": rms,
+        "noise_sd": math.sqrt(noise_var),
+        "sd_used": math.sqrt(var),
+        "W": whitening(var, np.zeros((K, 0)), alpha),
+    }
 
 
 def nuisance_summary(mean, sd_post, sd_prior, rmax_m: float, req_m: float, t0_s: float, tc_s: float) -> dict:
@@ -165,10 +197,18 @@ def nuisance_summary(mean, sd_post, sd_prior, rmax_m: float, req_m: float, t0_s:
     Req [m]."""
     m, s, p = (np.asarray(x, dtype=np.float64) for x in (mean, sd_post, sd_prior))
     req = req_m * math.exp(m[2])
-    return {"rmax_m": {"prior_mean": rmax_m, "prior_sd": rmax_m * p[0], "mean": rmax_m * (1.0 + m[0]),
-                       "sd": rmax_m * s[0]},
-            "t0_s": {"prior_mean": t0_s, "prior_sd": tc_s * p[1], "mean": t0_s + tc_s * m[1], "sd": tc_s * s[1],
-                     "offset_star": float(m[1]), "offset_sd_star": float(s[1]), "prior_sd_star": float(p[1])},
-            "req_m": {"prior_mean": req_m, "prior_sd": req_m * p[2], "mean": req, "sd": req * s[2]},
-            "treatment": "inferred with the material parameters (augmented ensemble); a prior sd of 0 means the "
-                         "quantity was taken as known"}
+    return {
+        "rmax_m": {"prior_mean": rmax_m, "prior_sd": rmax_m * p[0], "mean": rmax_m * (1.0 + m[0]), "sd": rmax_m * s[0]},
+        "t0_s": {
+            "prior_mean": t0_s,
+            "prior_sd": tc_s * p[1],
+            "mean": t0_s + tc_s * m[1],
+            "sd": tc_s * s[1],
+            "offset_star": float(m[1]),
+            "offset_sd_star": float(s[1]),
+            "prior_sd_star": float(p[1]),
+        },
+        "req_m": {"prior_mean": req_m, "prior_sd": req_m * p[2], "mean": req, "sd": req * s[2]},
+        "treatment": "inferred with the material parameters (augmented ensemble); a prior sd of 0 means the "
+        "quantity was taken as known",
+    }

@@ -133,23 +133,52 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from imrbayes.ensemble.aggregate import chain_aggregate_cov
-from imrbayes.ensemble.fusion import (BubbleFusion, fuse, fuse_bubbles, fuse_likelihoods, integrate_out_trailing,
-                                      likelihood_terms)
+from imrbayes.ensemble.fusion import (
+    BubbleFusion,
+    fuse,
+    fuse_bubbles,
+    fuse_likelihoods,
+    integrate_out_trailing,
+    likelihood_terms,
+)
 from imrbayes.ensemble.gaussian import draw, marginal_summary, precision_weighted, rtps_factors
 from imrbayes.ensemble.gn import gauss_newton
-from imrbayes.ensemble.likelihood import (check_choice, effective_samples, nuisance_prior_sd, nuisance_summary, predict,
-                                          record_noise_sd)
+from imrbayes.ensemble.likelihood import (
+    check_choice,
+    effective_samples,
+    nuisance_prior_sd,
+    nuisance_summary,
+    predict,
+    record_noise_sd,
+)
 from imrbayes.ensemble.method import InferenceMethod
-from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
 from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, alignment_shift_z, req_shift_z
-from imrbayes.ensemble.windows import (PRIOR_WEIGHT_LIMIT, chained_prior_weight, mda_weights, n_windows,
-                                       prior_dominated_note, time_resolved, window_spans)
+from imrbayes.ensemble.result import FitResult, WindowPosterior, gaussian_estimate, rmse, si_covariance
+from imrbayes.ensemble.windows import (
+    PRIOR_WEIGHT_LIMIT,
+    chained_prior_weight,
+    mda_weights,
+    n_windows,
+    prior_dominated_note,
+    time_resolved,
+    window_spans,
+)
 from imrbayes.errors import InputError
 from imrbayes.execution import Execution, Unit, unit_id
 from imrbayes.forward import BatchState, Runner, fm_spec, register_runner, runner_for
 
-__all__ = ["MIEnKS", "MIEnKSSettings", "fit_mienks", "mienks_unit", "initial_members", "noise_pass", "fuse_windows",
-           "record_level", "req_prior_from_en4dvar", "rtps_cov"]
+__all__ = [
+    "MIEnKS",
+    "MIEnKSSettings",
+    "fit_mienks",
+    "mienks_unit",
+    "initial_members",
+    "noise_pass",
+    "fuse_windows",
+    "record_level",
+    "req_prior_from_en4dvar",
+    "rtps_cov",
+]
 
 
 #: the default likelihood's early stop of a window's Gauss-Newton iterations (MIEnKSSettings.resolved)
@@ -214,24 +243,32 @@ class MIEnKSSettings:
     prior_widen: float | str | None = None
     """Window 0's members drawn with the prior sd times K (a number, or ``NAME:K[,NAME:K]``); None: mu:3 (paper: 1)."""
 
-    def pilot(self) -> "MIEnKSSettings":
+    def pilot(self) -> MIEnKSSettings:
         """The pilot pass's settings: the reported pass's with at most ``pilot_n_ens`` members."""
         return replace(self, n_ens=min(self.pilot_n_ens or self.n_ens, self.n_ens))
 
-    def resolved(self) -> "MIEnKSSettings":
+    def resolved(self) -> MIEnKSSettings:
         """The settings with the likelihood's own choices filled in (``paper``: ``chain`` fusion and
         the ``mean`` weight unless set, every window ``n_iter`` iterations; ``default``: windows
         stop once settled, ``min_iter`` 2 and ``step_tol`` 0.1 unless set, ``prior_widen`` ``"mu:3"``
         unless set; paper: ``prior_widen`` 1)."""
         if self.likelihood == "paper":
-            return replace(self, fusion=self.fusion or "chain", obs_weight=self.obs_weight or "mean",
-                           prior_widen=self.prior_widen or 1.0, req_prior=self.req_prior or "preprocessing",
-                           aggregate_cov=self.aggregate_cov or "weighting")
-        return replace(self, aggregate_cov=self.aggregate_cov or DEFAULT_AGGREGATE_COV,
-                       min_iter=DEFAULT_MIN_ITER if self.min_iter is None else self.min_iter,
-                       step_tol=DEFAULT_STEP_TOL if self.step_tol is None else self.step_tol,
-                       prior_widen=DEFAULT_PRIOR_WIDEN if self.prior_widen is None else self.prior_widen,
-                       req_prior=self.req_prior or DEFAULT_REQ_PRIOR)
+            return replace(
+                self,
+                fusion=self.fusion or "chain",
+                obs_weight=self.obs_weight or "mean",
+                prior_widen=self.prior_widen or 1.0,
+                req_prior=self.req_prior or "preprocessing",
+                aggregate_cov=self.aggregate_cov or "weighting",
+            )
+        return replace(
+            self,
+            aggregate_cov=self.aggregate_cov or DEFAULT_AGGREGATE_COV,
+            min_iter=DEFAULT_MIN_ITER if self.min_iter is None else self.min_iter,
+            step_tol=DEFAULT_STEP_TOL if self.step_tol is None else self.step_tol,
+            prior_widen=DEFAULT_PRIOR_WIDEN if self.prior_widen is None else self.prior_widen,
+            req_prior=self.req_prior or DEFAULT_REQ_PRIOR,
+        )
 
     def check(self, n_steps: int):
         """Raise :class:`~imrbayes.errors.InputError` naming the first setting out of range for a
@@ -255,26 +292,39 @@ class MIEnKSSettings:
         if s.req_prior != "preprocessing" and s.likelihood != "default":
             raise InputError("req_prior", "applies to the default likelihood only (the paper's has no Req nuisance)")
         if self.h > self.L:
-            raise InputError("h", f"the shift h = {self.h} exceeds the window length L = {self.L}: samples would be skipped")
+            raise InputError(
+                "h", f"the shift h = {self.h} exceeds the window length L = {self.L}: samples would be skipped"
+            )
         v = self.pilot_n_ens
         if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 3):
             raise InputError("pilot_n_ens", f"must be an integer >= 3 or unset, got {v!r}")
-        if self.min_iter is not None and (isinstance(self.min_iter, bool) or not isinstance(self.min_iter, int)
-                                          or self.min_iter < 1):
-            raise InputError("min_iter", f"must be a positive integer (n_iter or more: never early) or unset, "
-                                         f"got {self.min_iter!r}")
-        if self.step_tol is not None and not (isinstance(self.step_tol, (int, float)) and not isinstance(self.step_tol, bool)
-                                              and math.isfinite(self.step_tol) and self.step_tol > 0):
+        if self.min_iter is not None and (
+            isinstance(self.min_iter, bool) or not isinstance(self.min_iter, int) or self.min_iter < 1
+        ):
+            raise InputError(
+                "min_iter", f"must be a positive integer (n_iter or more: never early) or unset, got {self.min_iter!r}"
+            )
+        if self.step_tol is not None and not (
+            isinstance(self.step_tol, (int, float))
+            and not isinstance(self.step_tol, bool)
+            and math.isfinite(self.step_tol)
+            and self.step_tol > 0
+        ):
             raise InputError("step_tol", f"must be a positive number of posterior sd or unset, got {self.step_tol!r}")
         widen_factors(self.prior_widen, None)
         if self.prior_widen not in (None, 1, 1.0) and s.likelihood != "default":
-            raise InputError("prior_widen", "applies to the default likelihood only (the paper's members start "
-                                            "from the parameter prior)")
+            raise InputError(
+                "prior_widen",
+                "applies to the default likelihood only (the paper's members start from the parameter prior)",
+            )
         if s.aggregate_cov not in AGGREGATE_COVS:
-            raise InputError("aggregate_cov", f"must be one of {', '.join(AGGREGATE_COVS)} or unset, "
-                                              f"got {self.aggregate_cov!r}")
+            raise InputError(
+                "aggregate_cov", f"must be one of {', '.join(AGGREGATE_COVS)} or unset, got {self.aggregate_cov!r}"
+            )
         if s.aggregate_cov == "chain" and s.likelihood != "default":
-            raise InputError("aggregate_cov", "'chain' needs the default likelihood (the paper's keeps methods.md §4's weighting)")
+            raise InputError(
+                "aggregate_cov", "'chain' needs the default likelihood (the paper's keeps methods.md §4's weighting)"
+            )
         n_windows(n_steps, self.L, self.h)
 
 
@@ -378,7 +428,7 @@ class _WindowRun:
             m = int(ok.sum())
             reqs = self.req * np.exp(Z[ok, ns + dp]) if self.carry else np.full(m, self.req)
             st = BatchState(Z[ok, :ns].copy(), t0, np.full(m, self.rmax), reqs)
-            out = runner.propagate(st, self.space.to_si(Z[ok, ns:ns + dp]), t1, t_ev)
+            out = runner.propagate(st, self.space.to_si(Z[ok, ns : ns + dp]), t1, t_ev)
             R[ok], Y[ok] = out.R_star, out.end.y
             failed[ok] = out.failed | ~np.all(np.isfinite(out.R_star), axis=1) | ~np.all(np.isfinite(out.end.y), axis=1)
         return R, Y, failed
@@ -395,14 +445,14 @@ class _WindowRun:
         Z = self.from_analysis(Z)
         M = Z.shape[0]
         k = ns + dp
-        nu = np.stack([Z[:, k + 1], Z[:, k + 2], Z[:, k]], axis=1)          # (a, delta, rho)
+        nu = np.stack([Z[:, k + 1], Z[:, k + 2], Z[:, k]], axis=1)  # (a, delta, rho)
         ok = np.all(np.isfinite(Z[:, ns:]), axis=1) & (1.0 + nu[:, 0] > 0.5)
         R = np.full((M, len(t_ev)), np.nan)
         Y = Z[:, :ns].copy()
         failed = ~ok
         if ok.any():
             idx = np.flatnonzero(ok)
-            th = self.space.to_si(Z[idx, ns:ns + dp])
+            th = self.space.to_si(Z[idx, ns : ns + dp])
             Rk, fk = predict(runner, th, rmax, req, t_ev, nu[idx])
             R[idx] = Rk
             failed[idx] = fk
@@ -416,8 +466,9 @@ class _WindowRun:
         rmax, req = self.rmax, self.req
         scale, req_m = 1.0 + nu[idx, 0], req * np.exp(nu[idx, 2])
         T = np.maximum((float(t_hand) - nu[idx, 1]) / scale, 0.0)
-        groups = [np.arange(idx.size)] if np.ptp(nu[idx], axis=0).max() == 0 else \
-            [np.array([i]) for i in range(idx.size)]      # one batch when the members share the geometry
+        groups = (
+            [np.arange(idx.size)] if np.ptp(nu[idx], axis=0).max() == 0 else [np.array([i]) for i in range(idx.size)]
+        )  # one batch when the members share the geometry
         for grp in groups:
             i0 = int(grp[0])
             if req_m[i0] >= rmax * scale[i0]:
@@ -443,7 +494,7 @@ def initial_members(runner, space, s, d: dict, rng, carry: bool) -> np.ndarray:
     E[:, :ns] = st0.y
     f = widen_factors(getattr(s, "prior_widen", None), space.names, strict=False)
     # around the global search's best point where ``fit`` made one, else the prior
-    E[:, ns:ns + dp] = draw(rng, space.start_mean, space.start_cov * np.outer(f, f), N)
+    E[:, ns : ns + dp] = draw(rng, space.start_mean, space.start_cov * np.outer(f, f), N)
     if carry:
         sd_a, sd_delta, sd_rho = np.asarray(d.get("nuis_sd", (0.0, 0.0, 0.0)), dtype=np.float64)
         E[:, ns + dp] = sd_rho * rng.standard_normal(N)
@@ -471,39 +522,50 @@ def mienks_unit(unit: Unit, rng) -> dict:
     t, a, b, a2, last = d["t"], int(d["a"]), int(d["b"]), int(d["a2"]), bool(d["last"])
     N, dp = int(s.n_ens), space.n
     carry = bool(d.get("carry_req", False))
-    n_carry = 1 if carry else 0                     # rho after the parameters (default likelihood)
+    n_carry = 1 if carry else 0  # rho after the parameters (default likelihood)
     E = d["E"]
-    n_aug = 0                                       # window 0 (default likelihood): a and delta after rho
+    n_aug = 0  # window 0 (default likelihood): a and delta after rho
     if E is None:
         E = initial_members(runner, space, s, d, rng, carry)
         n_aug = 2 if carry else 0
     E = np.array(E, dtype=np.float64)
     ns = E.shape[1] - dp - n_carry - n_aug
-    t_eval = t[a:b + 1]
+    t_eval = t[a : b + 1]
     run = _WindowRun(runner, space, float(d["rmax"]), float(d["req"]), ns, carry)
     E = run.to_analysis(E)
     if n_aug:
+
         def evaluate(groups, Z):
             R, _, failed = run.propagate_window0(np.asarray(Z, dtype=np.float64), t_eval)
             return R, failed
 
         def handoff(Z):
-            return run.propagate_window0(Z, t[a:a2 + 1], t[a2])
+            return run.propagate_window0(Z, t[a : a2 + 1], t[a2])
     else:
+
         def evaluate(groups, Z):
             R, _, failed = run.propagate(np.asarray(Z, dtype=np.float64), t[a], t[b], t_eval)
             return R, failed
 
         def handoff(Z):
-            return run.propagate(Z, t[a], t[a2], t[a:a2 + 1])
+            return run.propagate(Z, t[a], t[a2], t[a : a2 + 1])
 
-    res = gauss_newton(E[None], evaluate, d["y"][None], d["weight"][None], n_iter=s.n_iter, rng=rng,
-                       max_redraw=s.max_redraw, transform=s.transform, min_iter=s.min_iter,
-                       step_tol=s.step_tol)
+    res = gauss_newton(
+        E[None],
+        evaluate,
+        d["y"][None],
+        d["weight"][None],
+        n_iter=s.n_iter,
+        rng=rng,
+        max_redraw=s.max_redraw,
+        transform=s.transform,
+        min_iter=s.min_iter,
+        step_tol=s.step_tol,
+    )
     f = rtps_factors(res.prior_anoms, res.anoms, s.rtps)[0]
-    f[:ns] = 1.0                                    # RTPS on the parameters (and nuisances), not the state
+    f[:ns] = 1.0  # RTPS on the parameters (and nuisances), not the state
     Ea = res.mean[0][None, :] + np.sqrt(N - 1.0) * res.anoms[0] * f[None, :]
-    problems = runner.fm.state_problems(run.from_analysis(Ea)[:, :ns])     # analysed states that are not physical
+    problems = runner.fm.state_problems(run.from_analysis(Ea)[:, :ns])  # analysed states that are not physical
     n_invalid = int(np.any(np.stack(list(problems.values())), axis=0).sum())
     invalid_why = {k: int(v.sum()) for k, v in problems.items() if v.any()}
     Rseg, Ynew, failed = handoff(Ea)
@@ -515,22 +577,37 @@ def mienks_unit(unit: Unit, rng) -> dict:
         Ep = res.prior_ensemble[0]
         Rseg, Ynew, failed = handoff(Ep)
         if (~failed).sum() < 2:
-            raise RuntimeError(f"fewer than two ensemble members survived window t* {t[a]:.3g}-{t[b]:.3g}, "
-                               f"with and without the analysis")
+            raise RuntimeError(
+                f"fewer than two ensemble members survived window t* {t[a]:.3g}-{t[b]:.3g}, "
+                f"with and without the analysis"
+            )
         Ea = Ep.copy()
         rejected = True
     with np.errstate(invalid="ignore"):
         seg = np.nanmean(np.where(failed[:, None], np.nan, Rseg), axis=0)
-    E_next = run.to_analysis(np.concatenate([Ynew, Ea[:, ns:ns + dp + n_carry]], axis=1))   # a, delta are not handed on
+    E_next = run.to_analysis(
+        np.concatenate([Ynew, Ea[:, ns : ns + dp + n_carry]], axis=1)
+    )  # a, delta are not handed on
     n_fail = int(failed.sum())
     n_red = _redraw_failed(E_next[None], failed[None], rng) if (n_fail and not last) else 0
-    E_next = run.from_analysis(E_next)              # handed on as physical states
-    out = {"E": None if last else E_next, "seg": seg, "n_failed_iter": res.n_failed[0],
-           "n_redrawn_prior": int(res.n_redrawn[0]), "n_failed_handoff": n_fail,
-           "n_redrawn_handoff": int(n_red), "stopped": bool(res.stopped[0]), "rejected": rejected,
-           "n_invalid_analysed": n_invalid, "n_failed_analysed": n_failed_analysed, "invalid_why": invalid_why,
-           "cost": res.cost[0], "state_size": int(ns), **_window_moments(res, ns, dp, carry, n_aug, rejected),
-           **runner.counts_since(before)}
+    E_next = run.from_analysis(E_next)  # handed on as physical states
+    out = {
+        "E": None if last else E_next,
+        "seg": seg,
+        "n_failed_iter": res.n_failed[0],
+        "n_redrawn_prior": int(res.n_redrawn[0]),
+        "n_failed_handoff": n_fail,
+        "n_redrawn_handoff": int(n_red),
+        "stopped": bool(res.stopped[0]),
+        "rejected": rejected,
+        "n_invalid_analysed": n_invalid,
+        "n_failed_analysed": n_failed_analysed,
+        "invalid_why": invalid_why,
+        "cost": res.cost[0],
+        "state_size": int(ns),
+        **_window_moments(res, ns, dp, carry, n_aug, rejected),
+        **runner.counts_since(before),
+    }
     return out
 
 
@@ -540,7 +617,12 @@ def _window_moments(res, ns: int, dp: int, carry: bool, n_aug: int, rejected: bo
     (parameters, rho) (``joint``) and in window 0 those of a and delta (``rmax_rel``, ``offset``)."""
     P = slice(ns, ns + dp)
     qa = res.prior_anoms[0, :, P]
-    out = {"pm": res.mean[0, P], "pc": res.cov[0, P, P], "qm": res.prior_ensemble[0, :, P].mean(axis=0), "qc": qa.T @ qa}
+    out = {
+        "pm": res.mean[0, P],
+        "pc": res.cov[0, P, P],
+        "qm": res.prior_ensemble[0, :, P].mean(axis=0),
+        "qc": qa.T @ qa,
+    }
     if carry:
         k = ns + dp
         sd = np.sqrt(np.maximum(np.diag(res.cov[0]), 0.0))
@@ -548,8 +630,12 @@ def _window_moments(res, ns: int, dp: int, carry: bool, n_aug: int, rejected: bo
         # the parameters and rho together: the record-level estimate with Req shared by the windows
         J = slice(ns, ns + dp + 1)
         qj = res.prior_anoms[0, :, J]
-        out["joint"] = {"pm": res.mean[0, J], "pc": res.cov[0, J, J],
-                        "qm": res.prior_ensemble[0, :, J].mean(axis=0), "qc": qj.T @ qj}
+        out["joint"] = {
+            "pm": res.mean[0, J],
+            "pc": res.cov[0, J, J],
+            "qm": res.prior_ensemble[0, :, J].mean(axis=0),
+            "qc": qj.T @ qj,
+        }
         if n_aug:
             out["offset"] = {"mean": float(res.mean[0, k + 2]), "sd": float(sd[k + 2]), "rejected": rejected}
             out["rmax_rel"] = {"mean": float(res.mean[0, k + 1]), "sd": float(sd[k + 1]), "rejected": rejected}
@@ -568,12 +654,20 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw
     n_exp = obs.n_exp
     t = obs.t_star
     alive = list(range(n_exp))
-    handoff = {g: None for g in range(n_exp)}             # each experiment's ensemble entering the next window
+    handoff = {g: None for g in range(n_exp)}  # each experiment's ensemble entering the next window
     failed_units = []
     ns = None
     dp = base["space"].n
-    out = {"results": [], "ok": [], "lost": [], "start_means": [], "start_req": [], "warnings": [],
-           "failed_units": failed_units, "alive": alive}
+    out = {
+        "results": [],
+        "ok": [],
+        "lost": [],
+        "start_means": [],
+        "start_req": [],
+        "warnings": [],
+        "failed_units": failed_units,
+        "alive": alive,
+    }
     stag = tag if stream_tag is None else stream_tag
     for j, (a, b) in enumerate(spans):
         last = j == nw - 1
@@ -591,14 +685,31 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw
             out["start_means"].append(q)
             out["start_req"].append(rq)
         a2 = b if last else a + s.h
-        units = [Unit(unit_id(**tag, window=j, exp=g),
-                      {"spec": base["spec"], "runner": base["runner"], "space": base["space"], "settings": s, "t": t,
-                       "a": int(a), "b": int(b), "a2": int(a2), "last": last, "rmax": float(obs.rmax_m[g]),
-                       "req": float(obs.req_m[g]), "y": obs.R_star[g, a:b + 1], "weight": weight_for(j, g, a, b),
-                       "E": handoff[g], **({"carry_req": True} if nuis_sd is not None else {}),
-                       **({"nuis_sd": [float(x) for x in nuis_sd[g]]} if j == 0 and nuis_sd is not None else {})},
-                      stream=unit_id(**stag, window=j, exp=g))
-                 for g in alive]
+        units = [
+            Unit(
+                unit_id(**tag, window=j, exp=g),
+                {
+                    "spec": base["spec"],
+                    "runner": base["runner"],
+                    "space": base["space"],
+                    "settings": s,
+                    "t": t,
+                    "a": int(a),
+                    "b": int(b),
+                    "a2": int(a2),
+                    "last": last,
+                    "rmax": float(obs.rmax_m[g]),
+                    "req": float(obs.req_m[g]),
+                    "y": obs.R_star[g, a : b + 1],
+                    "weight": weight_for(j, g, a, b),
+                    "E": handoff[g],
+                    **({"carry_req": True} if nuis_sd is not None else {}),
+                    **({"nuis_sd": [float(x) for x in nuis_sd[g]]} if j == 0 and nuis_sd is not None else {}),
+                },
+                stream=unit_id(**stag, window=j, exp=g),
+            )
+            for g in alive
+        ]
         label = "".join(f" ({v})" for v in tag.values())
         desc = f"mienks window {j + 1}/{nw}{label}"
         rep = ex.run(units, mienks_unit, seed, desc=desc)
@@ -611,8 +722,9 @@ def _sweep(ex, base, obs, s, spans, seed, weight_for, nuis_sd, tag, progress, nw
                 err = rep.failures[uid].error
                 lost.append(obs.names[g])
                 failed_units.append({"unit": uid, "experiment": obs.names[g], "window": j, "error": err, **tag})
-                warn.append(f"window {j}{label}: experiment "
-                            f"{obs.names[g]!r} failed ({err}); left out from this window on")
+                warn.append(
+                    f"window {j}{label}: experiment {obs.names[g]!r} failed ({err}); left out from this window on"
+                )
         if not ok:
             raise RuntimeError(f"window {j}: every experiment failed (e.g. {failed_units[-1]['error']})")
         alive[:] = ok
@@ -636,7 +748,7 @@ def _fitted(obs, spans, sw, nw, h):
     for j, (a, b) in enumerate(spans):
         stop = b + 1 if j == nw - 1 else a + h
         for g, r in zip(sw["ok"][j], sw["results"][j]):
-            fitted[g, a:stop] = r["seg"][:stop - a]
+            fitted[g, a:stop] = r["seg"][: stop - a]
     return fitted
 
 
@@ -653,9 +765,18 @@ def _noise_model(obs, fitted, noise_var):
         if r.size < 8:
             var.append(nv)
             alpha.append(1.0)
-            info.append({"noise_sd": float(np.sqrt(nv)), "sd_used": float(np.sqrt(nv)), "alpha": 1.0,
-                         "effective_samples": None, "autocorrelation_time": None, "n_samples": int(r.size),
-                         "resid_rms": None, "note": "too few fitted samples in the pilot: record noise, no tempering"})
+            info.append(
+                {
+                    "noise_sd": float(np.sqrt(nv)),
+                    "sd_used": float(np.sqrt(nv)),
+                    "alpha": 1.0,
+                    "effective_samples": None,
+                    "autocorrelation_time": None,
+                    "n_samples": int(r.size),
+                    "resid_rms": None,
+                    "note": "too few fitted samples in the pilot: record noise, no tempering",
+                }
+            )
             continue
         rms = float(np.sqrt(np.mean(r * r)))
         v = max(nv, rms * rms)
@@ -663,9 +784,17 @@ def _noise_model(obs, fitted, noise_var):
         al = min(1.0, n_eff / r.size)
         var.append(v)
         alpha.append(al)
-        info.append({"noise_sd": float(np.sqrt(nv)), "sd_used": float(np.sqrt(v)), "alpha": al,
-                     "effective_samples": float(n_eff), "autocorrelation_time": float(tau), "n_samples": int(r.size),
-                     "resid_rms": rms})
+        info.append(
+            {
+                "noise_sd": float(np.sqrt(nv)),
+                "sd_used": float(np.sqrt(v)),
+                "alpha": al,
+                "effective_samples": float(n_eff),
+                "autocorrelation_time": float(tau),
+                "n_samples": int(r.size),
+                "resid_rms": rms,
+            }
+        )
     return np.array(var), np.array(alpha), info
 
 
@@ -690,10 +819,12 @@ def pilot_outliers(lik_info: list, names, factor: float = PILOT_OUTLIER_FACTOR) 
             lik_info[g]["pilot_outlier"] = True
             w = lik_info[g]["alpha"] / lik_info[g]["sd_used"] ** 2
             w_ref = np.nanmedian([x["alpha"] / x["sd_used"] ** 2 for i, x in enumerate(lik_info) if i != g])
-            out.append(f"experiment {names[g]!r}: the pilot pass's residual ({r:.3g} R*) is {r / ref:.1f}x the median of "
-                       f"the other experiments' ({ref:.3g}), so the reported pass would weight it {w / w_ref:.2g}x as much "
-                       f"as them; the smoother may have lost track of it (compare its fitted curve with the data; "
-                       f"summary.json likelihood)")
+            out.append(
+                f"experiment {names[g]!r}: the pilot pass's residual ({r:.3g} R*) is {r / ref:.1f}x the median of "
+                f"the other experiments' ({ref:.3g}), so the reported pass would weight it {w / w_ref:.2g}x as much "
+                f"as them; the smoother may have lost track of it (compare its fitted curve with the data; "
+                f"summary.json likelihood)"
+            )
     return out
 
 
@@ -714,11 +845,26 @@ def _retry_lost_pilots(ex, base, obs, s, sp, spans_p, seed, w_pilot, nuis_sd, no
         sub = obs.take([g])
         first = lik_info[g]["resid_rms"]
         try:
-            pr = _sweep(ex, base, sub, sr, spans_p, seed, lambda j, _, a, b, g=g: w_pilot(j, g, a, b),
-                        nuis_sd[[g]], {"pass": "pilot", "retry": g}, None, nw_p)
-        except RuntimeError as exc:        # the bubble failed in some window of the retry
-            lik_info[g]["pilot_retry"] = {"resid_rms_first": first, "resid_rms_retry": None, "kept": "first",
-                                          "error": str(exc)}
+            pr = _sweep(
+                ex,
+                base,
+                sub,
+                sr,
+                spans_p,
+                seed,
+                lambda j, _, a, b, g=g: w_pilot(j, g, a, b),
+                nuis_sd[[g]],
+                {"pass": "pilot", "retry": g},
+                None,
+                nw_p,
+            )
+        except RuntimeError as exc:  # the bubble failed in some window of the retry
+            lik_info[g]["pilot_retry"] = {
+                "resid_rms_first": first,
+                "resid_rms_retry": None,
+                "kept": "first",
+                "error": str(exc),
+            }
             notes.append(f"experiment {obs.names[g]!r}: a second pilot of it alone failed ({exc}); the first is kept")
             continue
         failed += pr["failed_units"]
@@ -730,16 +876,29 @@ def _retry_lost_pilots(ex, base, obs, s, sp, spans_p, seed, w_pilot, nuis_sd, no
         if keep:
             var[g], alpha[g] = v2[0], a2[0]
             lik_info[g] = {**i2[0], "pilot_outlier": True}
-        lik_info[g]["pilot_retry"] = {"resid_rms_first": first, "resid_rms_retry": second,
-                                      "kept": "retry" if keep else "first"}
+        lik_info[g]["pilot_retry"] = {
+            "resid_rms_first": first,
+            "resid_rms_retry": second,
+            "kept": "retry" if keep else "first",
+        }
         got = f"a residual of {second:.3g} R*" if second is not None else "no residual (too few fitted samples)"
-        notes.append(f"experiment {obs.names[g]!r}: a second pilot of it alone (other random draws) gave {got} "
-                     f"against {first:.3g}; " + ("the second is used" if keep else "the first is kept"))
+        notes.append(
+            f"experiment {obs.names[g]!r}: a second pilot of it alone (other random draws) gave {got} "
+            f"against {first:.3g}; " + ("the second is used" if keep else "the first is kept")
+        )
     return notes, sweeps, failed
 
 
-def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution,
-                           conflict_z: float = REQ_PRIOR_CONFLICT_Z, stop_z: float | None = REQ_PRIOR_STOP_Z):
+def req_prior_from_en4dvar(
+    fm,
+    obs,
+    space,
+    seed,
+    runner,
+    execution,
+    conflict_z: float = REQ_PRIOR_CONFLICT_Z,
+    stop_z: float | None = REQ_PRIOR_STOP_Z,
+):
     """(Observations with each estimated Req's prior replaced by its whole-record En4D-Var posterior
     [mean, sd], details). Why: the smoother's windows see Req only through the data before them and
     its prior, while the record's tail, where Req is decided, comes last (docs/results.md). The
@@ -751,8 +910,11 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution,
     experiment whose Req lies beyond it after a restart cycle skips its later cycles -- its
     conflict is decided, only the comparison is used (``details["req_prior"]["stopped_early"]``)."""
     from imrbayes.ensemble.en4dvar import En4DVarSettings, en4dvar_pass
-    stop = max(stop_z, conflict_z) if stop_z else None       # never below the conflict bound; inf: no stop
-    e4s = En4DVarSettings(n_draws=1, loglik=False, req_conflict_stop=stop if stop is not None and np.isfinite(stop) else None)
+
+    stop = max(stop_z, conflict_z) if stop_z else None  # never below the conflict bound; inf: no stop
+    e4s = En4DVarSettings(
+        n_draws=1, loglik=False, req_conflict_stop=stop if stop is not None and np.isfinite(stop) else None
+    )
     e4s.check()
     e4 = en4dvar_pass(fm, obs, space, e4s.resolved(), seed, runner, None, execution, tag={"req_prior": "en4dvar"})
     req = np.array(obs.req_m, dtype=np.float64).copy()
@@ -762,39 +924,68 @@ def req_prior_from_en4dvar(fm, obs, space, seed, runner, execution,
     for q in req_shift_z(obs, e4.per_experiment):
         g = names.index(q["experiment"])
         if abs(q["z"]) > conflict_z:
-            conflicts.append({"experiment": names[g], "z": q["z"], "en4dvar_req_m": q["fitted_req_m"],
-                              "en4dvar_req_sd_m": q["fitted_req_sd_m"], "preprocessing_req_m": float(req[g])})
+            conflicts.append(
+                {
+                    "experiment": names[g],
+                    "z": q["z"],
+                    "en4dvar_req_m": q["fitted_req_m"],
+                    "en4dvar_req_sd_m": q["fitted_req_sd_m"],
+                    "preprocessing_req_m": float(req[g]),
+                }
+            )
             continue
         req[g] = q["fitted_req_m"]
         sd[g, 2] = q["fitted_req_sd_m"]
         used.append(names[g])
     if conflicts:
-        each = ", ".join(f"{c['experiment']} {1e6 * c['en4dvar_req_m']:.1f} um against {1e6 * c['preprocessing_req_m']:.1f} "
-                         f"({c['z']:+.1f} sd)" for c in conflicts)
-        warns.append(f"{len(conflicts)} of {len(names)} experiments: the whole-record En4D-Var fit puts Req more than "
-                     f"{conflict_z:g} prior sd from the record's own ({each}); the model fits the collapses with a Req "
-                     f"the measured tail contradicts (model error absorbed by the geometry: see diagnose), so the "
-                     f"smoother keeps their Req prior from the record")
-    last = {}                                        # the last cycle each experiment ran
+        each = ", ".join(
+            f"{c['experiment']} {1e6 * c['en4dvar_req_m']:.1f} um against {1e6 * c['preprocessing_req_m']:.1f} "
+            f"({c['z']:+.1f} sd)"
+            for c in conflicts
+        )
+        warns.append(
+            f"{len(conflicts)} of {len(names)} experiments: the whole-record En4D-Var fit puts Req more than "
+            f"{conflict_z:g} prior sd from the record's own ({each}); the model fits the collapses with a Req "
+            f"the measured tail contradicts (model error absorbed by the geometry: see diagnose), so the "
+            f"smoother keeps their Req prior from the record"
+        )
+    last = {}  # the last cycle each experiment ran
     for c in e4.details.get("cycles", []):
         for nm in c["experiments"]:
             last[nm] = c["cycle"]
-    info = {"method": "en4dvar", "experiments": used, "conflicts": conflicts, "conflict_z": conflict_z,
-            "warnings": warns, "preprocessing_req_m": np.asarray(obs.req_m).tolist(),
-            "preprocessing_req_sd_m": np.asarray(obs.nuisance_sd)[:, 2].tolist(), "req_m": req.tolist(),
-            "req_sd_m": sd[:, 2].tolist(), "en4dvar_estimate": {nm: e4.estimate[nm]["mean"] for nm in space.names},
-            "en4dvar_member_runs": int(e4.details.get("member_runs", 0)),
-            "en4dvar_rmse_own": [p.get("rmse_own") for p in e4.per_experiment],
-            "en4dvar_alignment_z": alignment_shift_z(e4.per_experiment),
-            "stop_z": e4s.req_conflict_stop,
-            "stopped_early": [{"experiment": nm, "after_cycle": last[nm]} for nm in names
-                              if 0 < last.get(nm, 0) < e4s.n_runs],
-            "note": "each estimated Req's prior is its whole-record En4D-Var posterior (mean, sd), run first"}
+    info = {
+        "method": "en4dvar",
+        "experiments": used,
+        "conflicts": conflicts,
+        "conflict_z": conflict_z,
+        "warnings": warns,
+        "preprocessing_req_m": np.asarray(obs.req_m).tolist(),
+        "preprocessing_req_sd_m": np.asarray(obs.nuisance_sd)[:, 2].tolist(),
+        "req_m": req.tolist(),
+        "req_sd_m": sd[:, 2].tolist(),
+        "en4dvar_estimate": {nm: e4.estimate[nm]["mean"] for nm in space.names},
+        "en4dvar_member_runs": int(e4.details.get("member_runs", 0)),
+        "en4dvar_rmse_own": [p.get("rmse_own") for p in e4.per_experiment],
+        "en4dvar_alignment_z": alignment_shift_z(e4.per_experiment),
+        "stop_z": e4s.req_conflict_stop,
+        "stopped_early": [
+            {"experiment": nm, "after_cycle": last[nm]} for nm in names if 0 < last.get(nm, 0) < e4s.n_runs
+        ],
+        "note": "each estimated Req's prior is its whole-record En4D-Var posterior (mean, sd), run first",
+    }
     return replace(obs, req_m=req, nuisance_sd=sd), info
 
 
-def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int = 0,
-               runner: Runner | None = None, progress=None, execution=None) -> FitResult:
+def fit_mienks(
+    fm,
+    obs,
+    space,
+    settings: MIEnKSSettings | None = None,
+    seed: int = 0,
+    runner: Runner | None = None,
+    progress=None,
+    execution=None,
+) -> FitResult:
     """Run MIEnKS-MDA over every window (see module doc); ``progress(j)`` after window j (of each pass).
 
     Units (:func:`mienks_unit`): one per window and experiment (``window=004/exp=003``, its own
@@ -813,13 +1004,13 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     s = settings or MIEnKSSettings()
     n_steps = obs.n_samples - 1
     s.check(n_steps)
-    widen_factors(s.prior_widen, space.names)           # unknown parameter names refused before any run
+    widen_factors(s.prior_widen, space.names)  # unknown parameter names refused before any run
     s = s.resolved()
     default = s.likelihood == "default"
     t0c = time.perf_counter()
     ex = execution or Execution(progress=False)
     runner = runner or Runner(fm)
-    rng = np.random.default_rng(seed)                   # the posterior draws at the end (units have their own)
+    rng = np.random.default_rng(seed)  # the posterior draws at the end (units have their own)
     spans = window_spans(n_steps, s.L, s.h)
     beta = mda_weights(n_steps, s.L, s.h)
     nw = spans.shape[0]
@@ -830,24 +1021,30 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     warnings = list(req_info["warnings"]) if req_info else []
     if default:
         beta = beta.copy()
-        beta[:, 0] = 0.0                 # sample 0 is R* = 1 by construction (the maximum): no information
+        beta[:, 0] = 0.0  # sample 0 is R* = 1 by construction (the maximum): no information
         noise = noise_pass(ex, base, obs, s, n_steps, seed, progress)
         warnings.extend(noise["warnings"])
         var, alpha = noise["var"], noise["alpha"]
 
         def weight_for(j, g, a, b):
-            return beta[j, a:b + 1] * alpha[g] / var[g]
+            return beta[j, a : b + 1] * alpha[g] / var[g]
+
         # the reported pass's units depend on the pilot's outcome: their ids carry a digest of the
         # noise model, so a resume after the pilot changed (e.g. --retry-failed) recomputes them;
         # their random streams do not (window and experiment only), or a last-bit change of the
         # pilot's fit would redraw every ensemble
-        tag = {"noise": hashlib.sha1(np.concatenate([var, alpha]).astype("<f8").tobytes()).hexdigest()[:8]} if s.adapt else {}
+        tag = (
+            {"noise": hashlib.sha1(np.concatenate([var, alpha]).astype("<f8").tobytes()).hexdigest()[:8]}
+            if s.adapt
+            else {}
+        )
         sw = _sweep(ex, base, obs, s, spans, seed, weight_for, noise["nuis_sd"], tag, progress, nw, stream_tag={})
     else:
         noise = None
 
         def weight_for(j, g, a, b):
-            return beta[j, a:b + 1] / ((s.L if s.obs_weight == "mean" else 1.0) * obs.P[a:b + 1])
+            return beta[j, a : b + 1] / ((s.L if s.obs_weight == "mean" else 1.0) * obs.P[a : b + 1])
+
         sw = _sweep(ex, base, obs, s, spans, seed, weight_for, None, {}, progress, nw)
     fw = fuse_windows(obs, space, s, spans, sw, beta, noise)
     warnings.extend(fw["warnings"])
@@ -857,16 +1054,25 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
     if noise is not None:
         member_runs += noise["member_runs"]
         failed_runs += noise["failed_member_runs"]
-    details = {"settings": asdict(s), "n_windows": nw, "spans": spans.tolist(),
-               "prior_dominated_windows": [w["index"] for w in fw["windows"] if w["prior_dominated"]],
-               "member_runs": member_runs, "failed_member_runs": failed_runs,
-               "failed_units": (noise["failed_units"] if noise is not None else []) + sw["failed_units"],
-               "experiments_used": [obs.names[g] for g in sw["alive"]],
-               "failed_members": fw["total_fail"], "redrawn_members": fw["total_redraw"], "state_size": sw["state_size"],
-               "aggregate_mean_internal": agg["mean"].tolist(), "aggregate_cov_internal": agg["cov"].tolist(),
-               "parameter_space": space.describe(), "rmse": rmse(fitted, obs.R_star, agg["mask"](fitted)),
-               "mda": "beta_jk = 1/|I(k)|, window cost 1/(2L) sum_k beta_jk ||.||^2_{P_k}",
-               "fitted_curve": "ensemble-mean R* of the handed-off (RTPS-inflated) posterior ensembles"}
+    details = {
+        "settings": asdict(s),
+        "n_windows": nw,
+        "spans": spans.tolist(),
+        "prior_dominated_windows": [w["index"] for w in fw["windows"] if w["prior_dominated"]],
+        "member_runs": member_runs,
+        "failed_member_runs": failed_runs,
+        "failed_units": (noise["failed_units"] if noise is not None else []) + sw["failed_units"],
+        "experiments_used": [obs.names[g] for g in sw["alive"]],
+        "failed_members": fw["total_fail"],
+        "redrawn_members": fw["total_redraw"],
+        "state_size": sw["state_size"],
+        "aggregate_mean_internal": agg["mean"].tolist(),
+        "aggregate_cov_internal": agg["cov"].tolist(),
+        "parameter_space": space.describe(),
+        "rmse": rmse(fitted, obs.R_star, agg["mask"](fitted)),
+        "mda": "beta_jk = 1/|I(k)|, window cost 1/(2L) sum_k beta_jk ||.||^2_{P_k}",
+        "fitted_curve": "ensemble-mean R* of the handed-off (RTPS-inflated) posterior ensembles",
+    }
     if req_info is not None:
         details["req_prior"] = req_info
         details["member_runs"] += req_info["en4dvar_member_runs"]
@@ -876,21 +1082,44 @@ def fit_mienks(fm, obs, space, settings: MIEnKSSettings | None = None, seed: int
         details.update(_default_likelihood_record(s, noise["lik_info"]))
         agg_c, per = record_level(obs, space, s, sw, fw, noise, agg["mean"], agg["cov"], details)
     else:
-        details["likelihood"] = {"name": "paper", "noise": f"P_k of preprocessing (beta_jk / {fw['average']} cost)",
-                                 "fusion": str(s.fusion), "effective_samples": None}
+        details["likelihood"] = {
+            "name": "paper",
+            "noise": f"P_k of preprocessing (beta_jk / {fw['average']} cost)",
+            "fusion": str(s.fusion),
+            "effective_samples": None,
+        }
     t = obs.t_star
     return FitResult(
-        method="mienks", model=fm.constitutive.name, param_names=tuple(space.names),
-        estimate=gaussian_estimate(space, agg["mean"], agg_c), fitted=fitted, fit_mask=agg["mask"](fitted),
-        mean_internal=agg["mean"], cov_internal=agg_c, windows=fw["windows"], time_resolved=agg["time_resolved"],
-        details=details, per_experiment=per,
-        posterior=agg["posterior"], posterior_dims={nm: ["window"] for nm in space.names},
+        method="mienks",
+        model=fm.constitutive.name,
+        param_names=tuple(space.names),
+        estimate=gaussian_estimate(space, agg["mean"], agg_c),
+        fitted=fitted,
+        fit_mask=agg["mask"](fitted),
+        mean_internal=agg["mean"],
+        cov_internal=agg_c,
+        windows=fw["windows"],
+        time_resolved=agg["time_resolved"],
+        details=details,
+        per_experiment=per,
+        posterior=agg["posterior"],
+        posterior_dims={nm: ["window"] for nm in space.names},
         extra_groups={"time_resolved": agg["time_resolved_group"]},
-        extra_dims={**{f"{nm}_mean": ["time"] for nm in space.names}, **{f"{nm}_sd": ["time"] for nm in space.names},
-                    **{f"{nm}_hdi95": ["time", "bound"] for nm in space.names}},
-        coords={"window": np.arange(nw), "time": t[agg["covered"]], "bound": ["lower", "upper"],
-                "window_start": ("window", t[spans[:, 0]])},
-        runtime_s=time.perf_counter() - t0c, warnings=warnings, window_posteriors=fw["posteriors"])
+        extra_dims={
+            **{f"{nm}_mean": ["time"] for nm in space.names},
+            **{f"{nm}_sd": ["time"] for nm in space.names},
+            **{f"{nm}_hdi95": ["time", "bound"] for nm in space.names},
+        },
+        coords={
+            "window": np.arange(nw),
+            "time": t[agg["covered"]],
+            "bound": ["lower", "upper"],
+            "window_start": ("window", t[spans[:, 0]]),
+        },
+        runtime_s=time.perf_counter() - t0c,
+        warnings=warnings,
+        window_posteriors=fw["posteriors"],
+    )
 
 
 def noise_pass(ex, base, obs, s, n_steps: int, seed: int, progress) -> dict:
@@ -902,13 +1131,28 @@ def noise_pass(ex, base, obs, s, n_steps: int, seed: int, progress) -> dict:
     nuisances' prior sds, "failed_units", "warnings", "member_runs", "failed_member_runs"}."""
     n_exp = obs.n_exp
     noise_var = np.array([record_noise_sd(obs, g) ** 2 for g in range(n_exp)])
-    nuis_sd = np.stack([nuisance_prior_sd(obs, g) for g in range(n_exp)])      # (a, delta, rho)
-    out = {"var": noise_var.copy(), "alpha": np.ones(n_exp), "nuis_sd": nuis_sd, "failed_units": [], "warnings": [],
-           "member_runs": 0, "failed_member_runs": 0}
+    nuis_sd = np.stack([nuisance_prior_sd(obs, g) for g in range(n_exp)])  # (a, delta, rho)
+    out = {
+        "var": noise_var.copy(),
+        "alpha": np.ones(n_exp),
+        "nuis_sd": nuis_sd,
+        "failed_units": [],
+        "warnings": [],
+        "member_runs": 0,
+        "failed_member_runs": 0,
+    }
     if not s.adapt:
-        out["lik_info"] = [{"noise_sd": float(np.sqrt(v)), "sd_used": float(np.sqrt(v)), "alpha": 1.0,
-                            "effective_samples": None, "autocorrelation_time": None,
-                            "note": "adapt=False: the record's noise, no tempering"} for v in noise_var]
+        out["lik_info"] = [
+            {
+                "noise_sd": float(np.sqrt(v)),
+                "sd_used": float(np.sqrt(v)),
+                "alpha": 1.0,
+                "effective_samples": None,
+                "autocorrelation_time": None,
+                "note": "adapt=False: the record's noise, no tempering",
+            }
+            for v in noise_var
+        ]
         return out
     # pilot pass: the record's noise, no tempering; its fitted curve sets each experiment's
     # noise level and tempering for the pass that is reported (module doc)
@@ -919,7 +1163,8 @@ def noise_pass(ex, base, obs, s, n_steps: int, seed: int, progress) -> dict:
     beta_p[:, 0] = 0.0
 
     def w_pilot(j, g, a, b):
-        return beta_p[j, a:b + 1] / noise_var[g]
+        return beta_p[j, a : b + 1] / noise_var[g]
+
     pil = _sweep(ex, base, obs, sp, spans_p, seed, w_pilot, nuis_sd, {"pass": "pilot"}, progress, nw_p)
     for w in pil["warnings"]:
         out["warnings"].extend(w)
@@ -928,8 +1173,9 @@ def noise_pass(ex, base, obs, s, n_steps: int, seed: int, progress) -> dict:
     flagged = pilot_outliers(lik_info, obs.names)
     retry_sweeps = []
     if s.pilot_retry:
-        more, retry_sweeps, retry_failed = _retry_lost_pilots(ex, base, obs, s, sp, spans_p, seed, w_pilot, nuis_sd,
-                                                              noise_var, var, alpha, lik_info)
+        more, retry_sweeps, retry_failed = _retry_lost_pilots(
+            ex, base, obs, s, sp, spans_p, seed, w_pilot, nuis_sd, noise_var, var, alpha, lik_info
+        )
         flagged += more
         failed = failed + retry_failed
     out["warnings"].extend(flagged)
@@ -950,11 +1196,23 @@ def fuse_windows(obs, space, s, spans, sw: dict, beta, noise: dict | None) -> di
     rho)}], "chain" (F, D, L lists for :func:`~imrbayes.ensemble.aggregate.chain_aggregate_cov`),
     "average", "warnings", "member_runs", "failed_member_runs", "total_fail", "total_redraw"}."""
     default = noise is not None
-    out = {"windows": [], "posteriors": [], "mean": [], "cov": [], "lik_terms": {g: [] for g in range(obs.n_exp)},
-           "lik_joint": [], "chain": ([], [], []), "average": s.L if s.obs_weight == "mean" else 1,
-           "warnings": [], "member_runs": 0, "failed_member_runs": 0, "total_fail": 0, "total_redraw": 0}
+    out = {
+        "windows": [],
+        "posteriors": [],
+        "mean": [],
+        "cov": [],
+        "lik_terms": {g: [] for g in range(obs.n_exp)},
+        "lik_joint": [],
+        "chain": ([], [], []),
+        "average": s.L if s.obs_weight == "mean" else 1,
+        "warnings": [],
+        "member_runs": 0,
+        "failed_member_runs": 0,
+        "total_fail": 0,
+        "total_redraw": 0,
+    }
     chain = (space.prior_mean.copy(), space.prior_cov.copy())
-    influence = np.eye(len(space.names))              # the parameter prior mean's weight in the window means
+    influence = np.eye(len(space.names))  # the parameter prior mean's weight in the window means
     for j, (a, b) in enumerate(spans):
         ok, R = sw["ok"][j], sw["results"][j]
         out["warnings"].extend(sw["warnings"][j])
@@ -971,9 +1229,10 @@ def fuse_windows(obs, space, s, spans, sw: dict, beta, noise: dict | None) -> di
             m = b - a + 1
             whiten = np.full((obs.n_exp, m, m), np.nan)
             for g in ok:
-                whiten[g] = np.diag(np.sqrt(beta[j, a:b + 1] * noise["alpha"][g] / noise["var"][g]))
-        out["posteriors"].append(_window_posterior(j, a, b, sw, wf["fusion"], prior_m, prior_c, beta, whiten,
-                                                   out["average"], default))
+                whiten[g] = np.diag(np.sqrt(beta[j, a : b + 1] * noise["alpha"][g] / noise["var"][g]))
+        out["posteriors"].append(
+            _window_posterior(j, a, b, sw, wf["fusion"], prior_m, prior_c, beta, whiten, out["average"], default)
+        )
         out["windows"].append(_window_entry(obs, space, j, a, b, sw, wf, influence, out))
     note = prior_dominated_note(out["windows"], space.names)
     if note:
@@ -998,30 +1257,43 @@ def _window_fusion(space, s, R: list, ok: list, chain: tuple, noise: dict | None
         hier = bubbles.random
         for i, g in enumerate(ok):
             acc["lik_terms"][g].append((bubbles.lam[i], bubbles.eta[i]))
-        if all("joint" in r for r in R) and np.all(noise["nuis_sd"][np.asarray(ok), 2] > 0):     # rho analysed
+        if all("joint" in r for r in R) and np.all(noise["nuis_sd"][np.asarray(ok), 2] > 0):  # rho analysed
             Lj, ej, _, _ = likelihood_terms(*(np.stack([r["joint"][x] for r in R]) for x in ("pm", "pc", "qm", "qc")))
             acc["lik_joint"].append({g: (Lj[i], ej[i]) for i, g in enumerate(ok)})
         else:
             acc["lik_joint"].append({})
         h = bubbles.summaries()
-        out["extra"] = {"between_experiments": h["between_experiments"], "predictive": h["predictive"],
-                        "random_effects": hier.to_dict(), "pooled_mean_internal": hier.pooled_mean.tolist(),
-                        "pooled_cov_internal": hier.pooled_cov.tolist()}
+        out["extra"] = {
+            "between_experiments": h["between_experiments"],
+            "predictive": h["predictive"],
+            "random_effects": hier.to_dict(),
+            "pooled_mean_internal": hier.pooled_mean.tolist(),
+            "pooled_cov_internal": hier.pooled_cov.tolist(),
+        }
         out["notes"] = hier.notes
         # the window mean's linear weights (aggregate.chain_aggregate_cov)
         T_j = np.diag(np.where(np.isfinite(hier.tau), hier.tau, 0.0) ** 2)
         F, D, L = acc["chain"]
         F.append(hier.cov @ np.linalg.inv(chain_c))
-        D.append({g: hier.cov @ np.linalg.inv(np.eye(len(space.names)) + bubbles.lam[i] @ T_j) for i, g in enumerate(ok)})
+        D.append(
+            {g: hier.cov @ np.linalg.inv(np.eye(len(space.names)) + bubbles.lam[i] @ T_j) for i, g in enumerate(ok)}
+        )
         L.append({g: bubbles.lam[i] for i, g in enumerate(ok)})
-        out.update({"fusion": bubbles.pooled(), "estimate": (hier.mean, hier.cov),
-                    "chain": (hier.mean, rtps_cov(chain_c, hier.cov, s.rtps))})
+        out.update(
+            {
+                "fusion": bubbles.pooled(),
+                "estimate": (hier.mean, hier.cov),
+                "chain": (hier.mean, rtps_cov(chain_c, hier.cov, s.rtps)),
+            }
+        )
     elif s.fusion == "prior":
         fus = fuse(pm, pc, space.prior_mean, space.prior_cov)
         out.update({"fusion": fus, "estimate": (fus.mean, fus.cov), "chain": chain})
     else:
         fus = fuse_likelihoods(pm, pc, qm, qc, chain_m, chain_c)
-        out.update({"fusion": fus, "estimate": (fus.mean, fus.cov), "chain": (fus.mean, rtps_cov(chain_c, fus.cov, s.rtps))})
+        out.update(
+            {"fusion": fus, "estimate": (fus.mean, fus.cov), "chain": (fus.mean, rtps_cov(chain_c, fus.cov, s.rtps))}
+        )
     return out
 
 
@@ -1031,27 +1303,51 @@ def _window_posterior(j: int, a: int, b: int, sw: dict, fus, prior_m, prior_c, b
     start_j = sw["start_means"][j]
     entering = np.isfinite(start_j).all(axis=1)
     if default:
-        desc = {"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
-                "weight_rule": "default likelihood: ||W_n (y_n - R_n)||^2 with W_n = diag(sqrt(beta_jk alpha_n / "
-                               "sigma_n^2)) (the MDA weights are inside W_n; weight holds beta_jk)",
-                "gaussian": "pooled over experiments (no between-bubble scatter)", "L": 1,
-                "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}
+        desc = {
+            "kind": "MIEnKS-MDA window",
+            "state": "handed-off ensemble mean",
+            "weight_rule": "default likelihood: ||W_n (y_n - R_n)||^2 with W_n = diag(sqrt(beta_jk alpha_n / "
+            "sigma_n^2)) (the MDA weights are inside W_n; weight holds beta_jk)",
+            "gaussian": "pooled over experiments (no between-bubble scatter)",
+            "L": 1,
+            "R_spread_at_start": [0.0] * int(entering.sum()),
+            "index": j,
+        }
         if j == 0:
-            desc["nuisance"] = ("the ensemble also analysed each experiment's Rmax, Req and time of the maximum; "
-                                "this density fixes them at the preprocessing estimates")
+            desc["nuisance"] = (
+                "the ensemble also analysed each experiment's Rmax, Req and time of the maximum; "
+                "this density fixes them at the preprocessing estimates"
+            )
         else:
-            desc["nuisance"] = ("each experiment runs with its handed-off ensemble's mean Req (start_req_m); the "
-                                "ensemble kept analysing Req")
-        wpost = beta[j, a:b + 1]
+            desc["nuisance"] = (
+                "each experiment runs with its handed-off ensemble's mean Req (start_req_m); the "
+                "ensemble kept analysing Req"
+            )
+        wpost = beta[j, a : b + 1]
     else:
-        desc = {"kind": "MIEnKS-MDA window", "state": "handed-off ensemble mean",
-                "weight_rule": f"beta_jk / L, L = {average}", "L": average,
-                "R_spread_at_start": [0.0] * int(entering.sum()), "index": j}
-        wpost = beta[j, a:b + 1] / average
+        desc = {
+            "kind": "MIEnKS-MDA window",
+            "state": "handed-off ensemble mean",
+            "weight_rule": f"beta_jk / L, L = {average}",
+            "L": average,
+            "R_spread_at_start": [0.0] * int(entering.sum()),
+            "index": j,
+        }
+        wpost = beta[j, a : b + 1] / average
     return WindowPosterior(
-        index=j, start=int(a), samples=(int(a), int(b)), mean=fus.mean, cov=fus.cov, prior_mean=prior_m,
-        prior_cov=prior_c, weight=wpost, start_state=start_j, description=desc, whiten=whiten,
-        start_req_m=sw["start_req"][j] if default else None)
+        index=j,
+        start=int(a),
+        samples=(int(a), int(b)),
+        mean=fus.mean,
+        cov=fus.cov,
+        prior_mean=prior_m,
+        prior_cov=prior_c,
+        weight=wpost,
+        start_state=start_j,
+        description=desc,
+        whiten=whiten,
+        start_req_m=sw["start_req"][j] if default else None,
+    )
 
 
 def _window_entry(obs, space, j: int, a: int, b: int, sw: dict, wf: dict, influence, acc: dict) -> dict:
@@ -1070,8 +1366,10 @@ def _window_entry(obs, space, j: int, a: int, b: int, sw: dict, wf: dict, influe
         acc["member_runs"] += int(r["member_runs"])
         acc["failed_member_runs"] += int(r["failed_member_runs"])
     if rejected:
-        acc["warnings"].append(f"window {j}: analysis rejected for {', '.join(rejected)} (too few analysed members "
-                               f"survived the hand-off; the window's prior ensemble was handed on)")
+        acc["warnings"].append(
+            f"window {j}: analysis rejected for {', '.join(rejected)} (too few analysed members "
+            f"survived the hand-off; the window's prior ensemble was handed on)"
+        )
     n_failed_iter = np.sum([r["n_failed_iter"] for r in R], axis=0)
     n_fail = sum(int(r["n_failed_handoff"]) for r in R)
     n_red = sum(int(r["n_redrawn_handoff"]) for r in R)
@@ -1085,24 +1383,40 @@ def _window_entry(obs, space, j: int, a: int, b: int, sw: dict, wf: dict, influe
         cost = np.nanmean(np.stack([r["cost"] for r in R]), axis=0)
     weight = np.diag(influence)
     pm, pc = wf["pm"], wf["pc"]
-    return {"index": j, "t_star": [float(t[a]), float(t[b])], "samples": [int(a), int(b)],
-            **gaussian_estimate(space, est_m, est_c),
-            "prior_weight": {nm: float(x) for nm, x in zip(space.names, weight)},
-            "prior_dominated": bool(np.any(weight > PRIOR_WEIGHT_LIMIT)),
-            "cov": si_covariance(space, est_m, est_c).tolist(),
-            "mean_internal": est_m.tolist(), "cov_internal": est_c.tolist(), **wf["extra"],
-            "fusion": fus.to_dict(), "n_failed_iterations": n_failed_iter.tolist(),
-            "n_redrawn_prior": n_red_prior, "n_failed_handoff": n_fail,
-            "n_redrawn_handoff": n_red, "stopped_experiments": sum(bool(r["stopped"]) for r in R),
-            "handoff_failures": {obs.names[g]: {"analysed_invalid_state": int(r.get("n_invalid_analysed", 0)),
-                                                "analysed_failed": int(r.get("n_failed_analysed", 0)),
-                                                "invalid_why": dict(r.get("invalid_why", {}))}
-                                 for g, r in zip(ok, R) if r.get("n_failed_analysed", 0)},
-            "analysis_rejected": rejected, "failed_experiments": lost,
-            "cost": [float(x) if np.isfinite(x) else None for x in cost],  # None: every bubble stopped
-            "per_experiment": [{"name": obs.names[g], "mean_internal": pm[i].tolist(),
-                                "sd_internal": np.sqrt(np.diag(pc[i])).tolist()}
-                               for i, g in enumerate(ok)]}
+    return {
+        "index": j,
+        "t_star": [float(t[a]), float(t[b])],
+        "samples": [int(a), int(b)],
+        **gaussian_estimate(space, est_m, est_c),
+        "prior_weight": {nm: float(x) for nm, x in zip(space.names, weight)},
+        "prior_dominated": bool(np.any(weight > PRIOR_WEIGHT_LIMIT)),
+        "cov": si_covariance(space, est_m, est_c).tolist(),
+        "mean_internal": est_m.tolist(),
+        "cov_internal": est_c.tolist(),
+        **wf["extra"],
+        "fusion": fus.to_dict(),
+        "n_failed_iterations": n_failed_iter.tolist(),
+        "n_redrawn_prior": n_red_prior,
+        "n_failed_handoff": n_fail,
+        "n_redrawn_handoff": n_red,
+        "stopped_experiments": sum(bool(r["stopped"]) for r in R),
+        "handoff_failures": {
+            obs.names[g]: {
+                "analysed_invalid_state": int(r.get("n_invalid_analysed", 0)),
+                "analysed_failed": int(r.get("n_failed_analysed", 0)),
+                "invalid_why": dict(r.get("invalid_why", {})),
+            }
+            for g, r in zip(ok, R)
+            if r.get("n_failed_analysed", 0)
+        },
+        "analysis_rejected": rejected,
+        "failed_experiments": lost,
+        "cost": [float(x) if np.isfinite(x) else None for x in cost],  # None: every bubble stopped
+        "per_experiment": [
+            {"name": obs.names[g], "mean_internal": pm[i].tolist(), "sd_internal": np.sqrt(np.diag(pc[i])).tolist()}
+            for i, g in enumerate(ok)
+        ],
+    }
 
 
 def _aggregate(obs, space, s, fw: dict, n_steps: int, rng) -> dict:
@@ -1114,45 +1428,66 @@ def _aggregate(obs, space, s, fw: dict, n_steps: int, rng) -> dict:
     nw = win_mean.shape[0]
     t = obs.t_star
     tr_m, tr_c, covered = time_resolved(win_mean, win_cov, n_steps, s.L, s.h)
-    tr = [{"t_star": float(t[k]), "sample": int(k), **gaussian_estimate(space, tr_m[k], tr_c[k])}
-          for k in np.flatnonzero(covered)]
+    tr = [
+        {"t_star": float(t[k]), "sample": int(k), **gaussian_estimate(space, tr_m[k], tr_c[k])}
+        for k in np.flatnonzero(covered)
+    ]
     agg_m, agg_c = precision_weighted(win_mean, win_cov)
 
     def mask(fitted):
         m = np.isfinite(fitted)
         m[:, 0] = False
         return m
+
     # posterior.nc: draws of every window's fused Gaussian (1 chain), the time-resolved moments
-    draws = np.stack([space.to_si(draw(rng, win_mean[j], win_cov[j], s.n_draws, exact=False)) for j in range(nw)],
-                     axis=-1)                                   # (n_draws, d, nw)
+    draws = np.stack(
+        [space.to_si(draw(rng, win_mean[j], win_cov[j], s.n_draws, exact=False)) for j in range(nw)], axis=-1
+    )  # (n_draws, d, nw)
     tr_group = {}
     for nm in space.names:
         tr_group[f"{nm}_mean"] = np.array([x[nm]["mean"] for x in tr])
         tr_group[f"{nm}_sd"] = np.array([x[nm]["sd"] for x in tr])
         tr_group[f"{nm}_hdi95"] = np.array([x[nm]["hdi95"] for x in tr])
-    return {"mean": agg_m, "cov": agg_c, "time_resolved": tr, "covered": np.flatnonzero(covered), "mask": mask,
-            "posterior": {nm: draws[None, :, i, :] for i, nm in enumerate(space.names)},
-            "time_resolved_group": tr_group}
+    return {
+        "mean": agg_m,
+        "cov": agg_c,
+        "time_resolved": tr,
+        "covered": np.flatnonzero(covered),
+        "mask": mask,
+        "posterior": {nm: draws[None, :, i, :] for i, nm in enumerate(space.names)},
+        "time_resolved_group": tr_group,
+    }
 
 
 def _default_likelihood_record(s, lik_info: list) -> dict:
     """``details["mda"]`` and ``details["likelihood"]`` of the default likelihood, in words and numbers."""
-    return {"mda": ("beta_jk = 1/|I(k)| (sample 0, the maximum, excluded), window cost 1/2 sum_k beta_jk "
-                    "alpha_n ||.||^2 / sigma_n^2: every sample counts once over the windows, no 1/L"),
-            "likelihood": {
-                "name": "default", "effective_samples": [x["effective_samples"] for x in lik_info],
-                "autocorrelation_time": [x["autocorrelation_time"] for x in lik_info],
-                "noise_sd": [x["noise_sd"] for x in lik_info], "sd_used": [x["sd_used"] for x in lik_info],
-                "alpha": [x["alpha"] for x in lik_info], "n_samples": [x.get("n_samples") for x in lik_info],
-                "noise": ("each record's noise sd (preprocessing, else fourth differences), raised to the RMS of the "
-                          "pilot pass's residual where the model does not reach the noise; each experiment tempered "
-                          "by alpha = n_eff/K (integrated autocorrelation time of that residual)"
-                          if s.adapt else "each record's noise sd (preprocessing, else fourth differences); no tempering"),
-                "mda": "beta_jk = 1/|I(k)|: the weights of every sample over the windows holding it sum to one",
-                "nuisances": "Rmax and the time of the maximum analysed in window 0's augmented ensemble, log Req in "
-                             "every window's (prior sds from preprocessing)",
-                "fusion": "random effects across experiments in every window (gel-level mean, between-bubble sd, "
-                          "predictive); the gel mean's prior chained from the previous window (RTPS)"}}
+    return {
+        "mda": (
+            "beta_jk = 1/|I(k)| (sample 0, the maximum, excluded), window cost 1/2 sum_k beta_jk "
+            "alpha_n ||.||^2 / sigma_n^2: every sample counts once over the windows, no 1/L"
+        ),
+        "likelihood": {
+            "name": "default",
+            "effective_samples": [x["effective_samples"] for x in lik_info],
+            "autocorrelation_time": [x["autocorrelation_time"] for x in lik_info],
+            "noise_sd": [x["noise_sd"] for x in lik_info],
+            "sd_used": [x["sd_used"] for x in lik_info],
+            "alpha": [x["alpha"] for x in lik_info],
+            "n_samples": [x.get("n_samples") for x in lik_info],
+            "noise": (
+                "each record's noise sd (preprocessing, else fourth differences), raised to the RMS of the "
+                "pilot pass's residual where the model does not reach the noise; each experiment tempered "
+                "by alpha = n_eff/K (integrated autocorrelation time of that residual)"
+                if s.adapt
+                else "each record's noise sd (preprocessing, else fourth differences); no tempering"
+            ),
+            "mda": "beta_jk = 1/|I(k)|: the weights of every sample over the windows holding it sum to one",
+            "nuisances": "Rmax and the time of the maximum analysed in window 0's augmented ensemble, log Req in "
+            "every window's (prior sds from preprocessing)",
+            "fusion": "random effects across experiments in every window (gel-level mean, between-bubble sd, "
+            "predictive); the gel mean's prior chained from the previous window (RTPS)",
+        },
+    }
 
 
 def record_level(obs, space, s, sw: dict, fw: dict, noise: dict, agg_m, agg_c, details: dict) -> tuple:
@@ -1167,8 +1502,11 @@ def record_level(obs, space, s, sw: dict, fw: dict, noise: dict, agg_m, agg_c, d
     n_exp, nw = obs.n_exp, fw["mean"].shape[0]
     lik_terms = fw["lik_terms"]
     used = [g for g in range(n_exp) if lik_terms[g]]
-    rec = BubbleFusion.from_likelihoods(space, np.stack([sum(x[0] for x in lik_terms[g]) for g in used]),
-                                        np.stack([sum(x[1] for x in lik_terms[g]) for g in used]))
+    rec = BubbleFusion.from_likelihoods(
+        space,
+        np.stack([sum(x[0] for x in lik_terms[g]) for g in used]),
+        np.stack([sum(x[1] for x in lik_terms[g]) for g in used]),
+    )
     hr = rec.summaries()
     tau2 = np.diag(np.where(np.isfinite(rec.random.tau), rec.random.tau, 0.0) ** 2)
     # the aggregate's covariance propagated through the window chain (module doc, "Aggregate")
@@ -1180,34 +1518,56 @@ def record_level(obs, space, s, sw: dict, fw: dict, noise: dict, agg_m, agg_c, d
     agg_weighting = agg_c
     if s.aggregate_cov == "chain":
         agg_c = agg_chain
-        pred_var, pred_rule = between_var, ("the aggregate (covariance propagated through the window chain) "
-                                            "widened by the between-bubble variance with tau's uncertainty "
-                                            "integrated (record level)")
+        pred_var, pred_rule = (
+            between_var,
+            (
+                "the aggregate (covariance propagated through the window chain) "
+                "widened by the between-bubble variance with tau's uncertainty "
+                "integrated (record level)"
+            ),
+        )
     else:
         pred_var, pred_rule = np.diag(tau2), "the aggregate estimate widened by its between-bubble sd"
-    pred = {nm: marginal_summary(agg_m[i], float(np.sqrt(max(agg_c[i, i] + pred_var[i], 0.0))),
-                                 bool(space.positive[i])) for i, nm in enumerate(space.names)}
+    pred = {
+        nm: marginal_summary(agg_m[i], float(np.sqrt(max(agg_c[i, i] + pred_var[i], 0.0))), bool(space.positive[i]))
+        for i, nm in enumerate(space.names)
+    }
     alt = details.setdefault("alternative_estimates", {})
     other = "aggregate_precision_weighted" if s.aggregate_cov == "chain" else "aggregate_chain_cov"
     other_c = agg_weighting if s.aggregate_cov == "chain" else agg_chain
-    alt[other] = {**gaussian_estimate(space, agg_m, other_c), "cov_internal": other_c.tolist(),
-                  "note": ("the aggregate's mean with methods.md §4's normalised precision weighting's "
-                           "covariance (about one window's: the windows treated as one)"
-                           if s.aggregate_cov == "chain" else
-                           "the aggregate's mean with its covariance propagated through the window chain "
-                           "(imrbayes.ensemble.aggregate)")}
+    alt[other] = {
+        **gaussian_estimate(space, agg_m, other_c),
+        "cov_internal": other_c.tolist(),
+        "note": (
+            "the aggregate's mean with methods.md §4's normalised precision weighting's "
+            "covariance (about one window's: the windows treated as one)"
+            if s.aggregate_cov == "chain"
+            else "the aggregate's mean with its covariance propagated through the window chain "
+            "(imrbayes.ensemble.aggregate)"
+        ),
+    }
     if s.aggregate_cov != "chain":
         details.setdefault("alternative_predictives", {})["aggregate_chain_cov"] = {
-            nm: marginal_summary(agg_m[i], float(np.sqrt(max(agg_chain[i, i] + between_var[i], 0.0))),
-                                 bool(space.positive[i])) for i, nm in enumerate(space.names)}
+            nm: marginal_summary(
+                agg_m[i], float(np.sqrt(max(agg_chain[i, i] + between_var[i], 0.0))), bool(space.positive[i])
+            )
+            for i, nm in enumerate(space.names)
+        }
     details["aggregate_cov_rule"] = s.aggregate_cov
     details["aggregate_cov_internal"] = agg_c.tolist()
-    details.update({"between_experiments": hr["between_experiments"], "predictive": pred,
-                    "record_random_effects": {**rec.random.to_dict(), "estimate": hr["estimate"],
-                                              "note": "each experiment's window likelihoods summed over the "
-                                                      "record (constant parameters) with the parameter prior; "
-                                                      "top-level between_experiments is this; predictive is "
-                                                      + pred_rule}})
+    details.update(
+        {
+            "between_experiments": hr["between_experiments"],
+            "predictive": pred,
+            "record_random_effects": {
+                **rec.random.to_dict(),
+                "estimate": hr["estimate"],
+                "note": "each experiment's window likelihoods summed over the "
+                "record (constant parameters) with the parameter prior; "
+                "top-level between_experiments is this; predictive is " + pred_rule,
+            },
+        }
+    )
     joint = _record_with_shared_req(fw["lik_joint"], used, noise["nuis_sd"], space)
     if joint is not None:
         details.setdefault("alternative_estimates", {})["record_shared_req"] = joint
@@ -1230,9 +1590,14 @@ def _record_per_experiment(obs, space, sw: dict, rec: BubbleFusion, used: list, 
             i = used.index(g)
             C = np.linalg.inv(Pi0 + rec.lam[i])
             mg = C @ (Pi0 @ space.prior_mean + rec.eta[i])
-            entry.update({"estimate": gaussian_estimate(space, mg, C), "mean_internal": mg.tolist(),
-                          "cov_internal": C.tolist(), "estimate_rule": "parameter prior times the experiment's "
-                                                                        "window likelihoods over the record"})
+            entry.update(
+                {
+                    "estimate": gaussian_estimate(space, mg, C),
+                    "mean_internal": mg.tolist(),
+                    "cov_internal": C.tolist(),
+                    "estimate_rule": "parameter prior times the experiment's window likelihoods over the record",
+                }
+            )
         else:
             entry["failed"] = True
         entry["likelihood"] = lik_info[g]
@@ -1254,7 +1619,9 @@ def _record_with_shared_req(lik_joint, used, nuis_sd, space):
         return None
     Lz, ez = [], []
     for g in used:
-        L, e = integrate_out_last(sum(w[g][0] for w in lik_joint), sum(w[g][1] for w in lik_joint), float(nuis_sd[g][2]))
+        L, e = integrate_out_last(
+            sum(w[g][0] for w in lik_joint), sum(w[g][1] for w in lik_joint), float(nuis_sd[g][2])
+        )
         Lz.append(L)
         ez.append(e)
     return BubbleFusion.from_likelihoods(space, np.stack(Lz), np.stack(ez)).summaries()["estimate"]
@@ -1276,15 +1643,21 @@ def _nuisance(obs, g: int, rmax_rel, offset, log_req) -> dict:
     post = (rmax_rel, offset, log_req)
     mean = [0.0 if x is None else x["mean"] for x in post]
     sd = [p if x is None else x["sd"] for x, p in zip(post, prior)]
-    out = nuisance_summary(mean, sd, prior, float(obs.rmax_m[g]), float(obs.req_m[g]), float(obs.t0_s[g]),
-                           float(obs.tc_s[g]))
+    out = nuisance_summary(
+        mean, sd, prior, float(obs.rmax_m[g]), float(obs.req_m[g]), float(obs.t0_s[g]), float(obs.tc_s[g])
+    )
     del out["treatment"]
-    where = {"rmax_m": "analysed with the parameters in window 0's augmented ensemble",
-             "t0_s": "analysed with the parameters in window 0's augmented ensemble",
-             "req_m": "log Req analysed with the parameters in every window (the last one's posterior)"}
+    where = {
+        "rmax_m": "analysed with the parameters in window 0's augmented ensemble",
+        "t0_s": "analysed with the parameters in window 0's augmented ensemble",
+        "req_m": "log Req analysed with the parameters in every window (the last one's posterior)",
+    }
     for key, x in zip(("rmax_m", "t0_s", "req_m"), post):
-        out[key]["treatment"] = ("not analysed (window 0 failed): the preprocessing estimate" if x is None else
-                                 where[key] + (" (analysis rejected: the prior)" if x.get("rejected") else ""))
+        out[key]["treatment"] = (
+            "not analysed (window 0 failed): the preprocessing estimate"
+            if x is None
+            else where[key] + (" (analysis rejected: the prior)" if x.get("rejected") else "")
+        )
     return out
 
 
@@ -1295,10 +1668,12 @@ class MIEnKS(InferenceMethod):
     label = "MIEnKS-MDA (sliding-window smoother)"
     settings_class = MIEnKSSettings
     gaussian_posterior = True
-    estimate_note = ("Aggregate over the whole record: the windows' precision-weighted mean, its sd propagated "
-                     "through the window chain (each sample counted once, each bubble's deviation from the gel "
-                     "shared by its windows; details.aggregate_cov_rule 'chain'; with the paper's likelihood "
-                     "the weighting's own covariance, 'weighting').")
+    estimate_note = (
+        "Aggregate over the whole record: the windows' precision-weighted mean, its sd propagated "
+        "through the window chain (each sample counted once, each bubble's deviation from the gel "
+        "shared by its windows; details.aggregate_cov_rule 'chain'; with the paper's likelihood "
+        "the weighting's own covariance, 'weighting')."
+    )
     fit = staticmethod(fit_mienks)
 
     @staticmethod
@@ -1315,7 +1690,7 @@ class MIEnKS(InferenceMethod):
         # min_iter a window whose cost has settled stops early (stiff PA 1-5: ~75 % of this)
         s = settings
         n = n_windows(n_steps, s.L, s.h) * (s.n_iter + 1) * s.n_ens * n_exp
-        if s.likelihood == "default" and s.adapt:      # the default likelihood's pilot pass
+        if s.likelihood == "default" and s.adapt:  # the default likelihood's pilot pass
             p = s.pilot()
             n += n_windows(n_steps, p.L, p.h) * (p.n_iter + 1) * p.n_ens * n_exp
         return n
@@ -1335,4 +1710,5 @@ class MIEnKS(InferenceMethod):
     @staticmethod
     def figures(obs, res, fdir):
         from imrbayes.ensemble.figures import time_resolved_figure
+
         return [time_resolved_figure(res, fdir / "parameters.png")]

@@ -13,11 +13,21 @@ __all__ = ["summary_dict", "posterior_tree", "write_summary", "write_posterior"]
 
 def summary_dict(result, obs, *, seed: int, extra: dict | None = None) -> dict:
     """The summary.json object: the stable keys of interfaces.md §3 plus method details."""
-    out = {"method": result.method, "model": result.model, "parameters": list(result.param_names), "seed": int(seed),
-           "n_experiments": int(obs.n_exp), "runtime_s": float(result.runtime_s), "estimate": result.estimate,
-           "fit": {"rmse": result.rmse, "n_samples": result.n_fit_samples,
-                   "rmse_definition": "sqrt(mean((fitted R* - measured R*)^2)) over the fitted (experiment, sample) pairs"}}
-    for key in ("between_experiments", "predictive", "likelihood"):       # interfaces.md §4
+    out = {
+        "method": result.method,
+        "model": result.model,
+        "parameters": list(result.param_names),
+        "seed": int(seed),
+        "n_experiments": int(obs.n_exp),
+        "runtime_s": float(result.runtime_s),
+        "estimate": result.estimate,
+        "fit": {
+            "rmse": result.rmse,
+            "n_samples": result.n_fit_samples,
+            "rmse_definition": "sqrt(mean((fitted R* - measured R*)^2)) over the fitted (experiment, sample) pairs",
+        },
+    }
+    for key in ("between_experiments", "predictive", "likelihood"):  # interfaces.md §4
         if key in result.details:
             out[key] = result.details[key]
     if result.windows is not None:
@@ -56,11 +66,19 @@ def posterior_tree(result, obs):
     used = set()
     for v in dims.values():
         used.update(v)
-    dt = az.from_dict(data, dims=dims, coords={k: v for k, v in coords.items() if k in used},
-                      attrs={"/": {"method": result.method, "model": result.model, "inference_library": "imrbayes"}})
+    dt = az.from_dict(
+        data,
+        dims=dims,
+        coords={k: v for k, v in coords.items() if k in used},
+        attrs={"/": {"method": result.method, "model": result.model, "inference_library": "imrbayes"}},
+    )
     for group, variables in result.extra_groups.items():
-        ds = xr.Dataset({k: (result.extra_dims.get(k, [f"{k}_dim_{i}" for i in range(np.ndim(v))]), np.asarray(v))
-                         for k, v in variables.items()})
+        ds = xr.Dataset(
+            {
+                k: (result.extra_dims.get(k, [f"{k}_dim_{i}" for i in range(np.ndim(v))]), np.asarray(v))
+                for k, v in variables.items()
+            }
+        )
         for dim in ds.dims:
             if dim in result.coords and not isinstance(result.coords[dim], tuple):
                 ds = ds.assign_coords({dim: np.asarray(result.coords[dim])})
@@ -76,15 +94,22 @@ def _attach_tuple_coords(dt, coords: dict) -> None:
     non-index coordinates, so they round-trip."""
     import xarray as xr
 
-    tupled = {k: (((v[0],) if isinstance(v[0], str) else tuple(v[0])), np.asarray(v[1]))
-              for k, v in coords.items() if isinstance(v, tuple)}
+    tupled = {
+        k: (((v[0],) if isinstance(v[0], str) else tuple(v[0])), np.asarray(v[1]))
+        for k, v in coords.items()
+        if isinstance(v, tuple)
+    }
     for group in list(dt.children):
         ds = dt[group].to_dataset()
         add = {k: v for k, v in tupled.items() if v[0][0] in ds.dims}
         if not add:
             continue
-        others = {d: np.asarray(coords[d]) for dims, _ in add.values() for d in dims[1:]
-                  if d not in ds.coords and d in coords and not isinstance(coords[d], tuple)}
+        others = {
+            d: np.asarray(coords[d])
+            for dims, _ in add.values()
+            for d in dims[1:]
+            if d not in ds.coords and d in coords and not isinstance(coords[d], tuple)
+        }
         dt[group] = xr.DataTree(ds.assign_coords({**others, **add}))
 
 

@@ -35,10 +35,10 @@ from functools import lru_cache
 
 import numpy as np
 
+from imrbayes.ensemble.imr import grid_axis
 from imrbayes.ensemble.method import InferenceMethod
 from imrbayes.ensemble.result import FitResult, rmse
 from imrbayes.errors import InputError
-from imrbayes.ensemble.imr import grid_axis
 
 __all__ = ["PIMR", "T_RC", "contents_factor", "PIMRSettings", "collapse_terms", "collapse_time", "fit_pimr"]
 
@@ -78,13 +78,13 @@ class PIMRSettings:
     landscape and the starting point)."""
 
     kappa: float | None = None
-    G_min: float = 0.0         #: lowest G [Pa] (0: a liquid)
-    G_max: float = 1e6         #: highest G [Pa]
-    mu_min: float = 1e-4       #: lowest mu [Pa s]
-    mu_max: float = 10.0       #: highest mu [Pa s]
-    n_G: int = 120             #: grid points in G
-    n_mu: int = 74             #: grid points in mu
-    spacing: str = "log"       #: as IMR's (:func:`imrbayes.ensemble.imr.grid_axis`)
+    G_min: float = 0.0  #: lowest G [Pa] (0: a liquid)
+    G_max: float = 1e6  #: highest G [Pa]
+    mu_min: float = 1e-4  #: lowest mu [Pa s]
+    mu_max: float = 10.0  #: highest mu [Pa s]
+    n_G: int = 120  #: grid points in G
+    n_mu: int = 74  #: grid points in mu
+    spacing: str = "log"  #: as IMR's (:func:`imrbayes.ensemble.imr.grid_axis`)
     refine: bool = True
     level: float = 0.95
 
@@ -98,9 +98,17 @@ def _groups(fm, rmax_m, req_m, kappa=None) -> dict:
     r0 = np.asarray(g["req"], dtype=float)
     pv = float(g["pv"]) if np.ndim(g["pv"]) == 0 else np.asarray(g["pv"], dtype=float)
     inv_we = np.asarray(g["inv_we"], dtype=float)
-    return {"r0": r0, "pv": pv, "pgo": 1.0 + inv_we / r0 - pv, "inv_we": inv_we, "mc": 0.0 if fm.options.radial == "rp" else 1.0 / float(g["cstar"]),
-            "kappa": float(kappa), "B": contents_factor(float(kappa)), "p8": ph.p8,
-            "inv_re_per_mu": 1.0 / (ph.rho * ph.velocity_scale * np.asarray(rmax_m, dtype=float))}
+    return {
+        "r0": r0,
+        "pv": pv,
+        "pgo": 1.0 + inv_we / r0 - pv,
+        "inv_we": inv_we,
+        "mc": 0.0 if fm.options.radial == "rp" else 1.0 / float(g["cstar"]),
+        "kappa": float(kappa),
+        "B": contents_factor(float(kappa)),
+        "p8": ph.p8,
+        "inv_re_per_mu": 1.0 / (ph.rho * ph.velocity_scale * np.asarray(rmax_m, dtype=float)),
+    }
 
 
 def collapse_terms(G, mu, q: dict) -> dict:
@@ -118,9 +126,13 @@ def collapse_terms(G, mu, q: dict) -> dict:
         visc = np.where(np.isfinite(re_t), 4.0 * C / (2.0 * C + np.sqrt(re_t**2 + 4.0 * C**2)), 0.0)
     elastic = (G / q["p8"]) * (math.sqrt(2.0 / 3.0) * q["r0"] * math.pi / T_RC - 2.5)
     shape = np.broadcast_shapes(np.shape(bc), np.shape(visc), np.shape(elastic))
-    return {"contents": np.broadcast_to(bc, shape), "compressibility": np.broadcast_to(wc, shape),
-            "surface_tension": np.broadcast_to(we, shape), "viscous": np.broadcast_to(visc, shape),
-            "elastic": np.broadcast_to(elastic, shape)}
+    return {
+        "contents": np.broadcast_to(bc, shape),
+        "compressibility": np.broadcast_to(wc, shape),
+        "surface_tension": np.broadcast_to(we, shape),
+        "viscous": np.broadcast_to(visc, shape),
+        "elastic": np.broadcast_to(elastic, shape),
+    }
 
 
 def collapse_time(fm, G, mu, rmax_m, req_m, kappa=None):
@@ -137,8 +149,9 @@ def _cost(tc_meas, tc_pred):
     return np.mean(r * r, axis=-1)
 
 
-def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0, runner=None,
-             progress=None, execution=None) -> FitResult:
+def fit_pimr(
+    fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0, runner=None, progress=None, execution=None
+) -> FitResult:
     """Fit (G, mu) to the measured first-collapse times ``obs.t_collapse_star`` (n_exp,).
 
     Closed form on a grid, in this process: no units (``execution`` is accepted and unused; the run
@@ -149,8 +162,10 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
     t0 = time.perf_counter()
     names = space.names
     if tuple(names[:2]) != ("G", "mu") or len(names) != 2:
-        raise InputError("--method pimr", f"pIMR's closed form is for Kelvin–Voigt models with (G, mu); "
-                                          f"model parameters are {list(names)}")
+        raise InputError(
+            "--method pimr",
+            f"pIMR's closed form is for Kelvin–Voigt models with (G, mu); model parameters are {list(names)}",
+        )
     PIMR.check_settings(s, obs)
     tm = np.asarray(obs.t_collapse_star, dtype=float)
     q = _groups(fm, obs.rmax_m, obs.req_m, s.kappa)
@@ -161,7 +176,7 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
     fbar = sum(terms.values())
     with np.errstate(divide="ignore", invalid="ignore"):
         tc = np.where(fbar < 1.0, T_RC / np.sqrt(1.0 - fbar), np.inf)
-    J = _cost(tm, tc)                                     # (n_G, n_mu)
+    J = _cost(tm, tc)  # (n_G, n_mu)
     i, j = np.unravel_index(np.nanargmin(J), J.shape)
     best = np.array([Gg[i], mg[j]])
     logJ = np.log(np.maximum(J, 1e-300))
@@ -187,9 +202,15 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
     n, p = tm.size, 2
     est, contour_level = _grid_estimate(J, Jmin, n, p, Gg, mg, refined, s.level)
     terms_fit = collapse_terms(refined[0], refined[1], q)
-    per = [{"name": nm, "t_collapse_measured": float(a), "t_collapse_fitted": float(b),
-            "terms": {k: float(np.broadcast_to(v, tm.shape)[e]) for k, v in terms_fit.items()}}
-           for e, (nm, a, b) in enumerate(zip(obs.names, tm, tc_fit))]
+    per = [
+        {
+            "name": nm,
+            "t_collapse_measured": float(a),
+            "t_collapse_fitted": float(b),
+            "terms": {k: float(np.broadcast_to(v, tm.shape)[e]) for k, v in terms_fit.items()},
+        }
+        for e, (nm, a, b) in enumerate(zip(obs.names, tm, tc_fit))
+    ]
     # fitted R(t) at the optimum (for the figure), if a forward run is affordable
     fitted = np.full_like(obs.R_star, np.nan)
     mask = np.zeros(obs.R_star.shape, dtype=bool)
@@ -197,16 +218,23 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
         out = runner.simulate(np.repeat(refined[None, :], obs.n_exp, axis=0), obs.rmax_m, obs.req_m, obs.t_star)
         fitted = out.R_star
         mask[:, 1:] = True
-    details = {"settings": asdict(s), "kappa": q["kappa"], "B": q["B"], "grid_optimum": {"G": float(best[0]), "mu": float(best[1])},
-               "optimum": {"G": float(refined[0]), "mu": float(refined[1])}, "J_min": Jmin, "log_J_min": math.log(max(Jmin, 1e-300)),
-               "contour_level_J": contour_level,
-               "collapse_rmse": float(np.sqrt(np.mean((tc_fit - tm) ** 2))),
-               "rmse": rmse(fitted, obs.R_star, mask) if runner is not None else float("nan"),
-               "uncertainty": "pseudo-posterior on the grid, p ∝ exp(-(n-p)/2 J/J_min) with n = N_exp collapse "
-                              "times, p = 2 (F construction with the noise scale from the residuals); "
-                              "the 95% region is J <= J_min (1 + p/(n-p) F_{p,n-p}(0.95))",
-               "note": "one collapse time per experiment constrains a ridge in (G, mu); only the spread of "
-                       "Rmax and Req across experiments breaks the degeneracy"}
+    details = {
+        "settings": asdict(s),
+        "kappa": q["kappa"],
+        "B": q["B"],
+        "grid_optimum": {"G": float(best[0]), "mu": float(best[1])},
+        "optimum": {"G": float(refined[0]), "mu": float(refined[1])},
+        "J_min": Jmin,
+        "log_J_min": math.log(max(Jmin, 1e-300)),
+        "contour_level_J": contour_level,
+        "collapse_rmse": float(np.sqrt(np.mean((tc_fit - tm) ** 2))),
+        "rmse": rmse(fitted, obs.R_star, mask) if runner is not None else float("nan"),
+        "uncertainty": "pseudo-posterior on the grid, p ∝ exp(-(n-p)/2 J/J_min) with n = N_exp collapse "
+        "times, p = 2 (F construction with the noise scale from the residuals); "
+        "the 95% region is J <= J_min (1 + p/(n-p) F_{p,n-p}(0.95))",
+        "note": "one collapse time per experiment constrains a ridge in (G, mu); only the spread of "
+        "Rmax and Req across experiments breaks the degeneracy",
+    }
     from imrbayes.ensemble.imr import grid_edge_warnings
 
     # the refined optimum, not the grid's; Nelder-Mead works in log space, so "at 0" means within
@@ -214,6 +242,7 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
     def side(x, grid):
         half = 0.5 * (grid[1] - grid[0])
         return "low" if x <= grid[0] + half else "high" if x >= grid[-1] - half else None
+
     warnings = grid_edge_warnings(side(refined[0], Gg), side(refined[1], mg), Gg, mg, "pIMR")
     if n <= p:
         # one collapse time fixes a curve in (G, mu), two at most a point with no noise scale: no
@@ -224,25 +253,39 @@ def fit_pimr(fm, obs, space, settings: PIMRSettings | None = None, seed: int = 0
             vals = ridge[name]
             est[name]["ridge"] = [float(min(vals)), float(max(vals))] if vals else None
         if n == 1 and ridge["G"]:
-            warnings.append(f"one experiment: its collapse time fixes a ridge of (G, mu), not a point -- G "
-                            f"{min(ridge['G']) / 1e3:.3g}-{max(ridge['G']) / 1e3:.3g} kPa with mu "
-                            f"{min(ridge['mu']):.3g}-{max(ridge['mu']):.3g} Pa s along it reproduce it; the "
-                            f"estimate is one point on the ridge and has no interval (add experiments of "
-                            f"different Rmax/Req to break the degeneracy)")
+            warnings.append(
+                f"one experiment: its collapse time fixes a ridge of (G, mu), not a point -- G "
+                f"{min(ridge['G']) / 1e3:.3g}-{max(ridge['G']) / 1e3:.3g} kPa with mu "
+                f"{min(ridge['mu']):.3g}-{max(ridge['mu']):.3g} Pa s along it reproduce it; the "
+                f"estimate is one point on the ridge and has no interval (add experiments of "
+                f"different Rmax/Req to break the degeneracy)"
+            )
         else:
-            warnings.append(f"{n} experiments for 2 parameters: no noise scale, so no interval; the estimate is "
-                            f"the best fit only")
+            warnings.append(
+                f"{n} experiments for 2 parameters: no noise scale, so no interval; the estimate is the best fit only"
+            )
     rng = np.random.default_rng(seed)
     draws = _grid_draws(J, Jmin, n, p, Gg, mg, rng)
     return FitResult(
-        method="pimr", model=fm.constitutive.name, param_names=tuple(names), estimate=est, fitted=fitted,
-        fit_mask=mask, per_experiment=per, details=details,
+        method="pimr",
+        model=fm.constitutive.name,
+        param_names=tuple(names),
+        estimate=est,
+        fitted=fitted,
+        fit_mask=mask,
+        per_experiment=per,
+        details=details,
         posterior={"G": draws[None, :, 0], "mu": draws[None, :, 1]},
         extra_groups={"landscape": {"log_J": logJ, "t_collapse_measured": tm, "t_collapse_fitted": tc_fit}},
-        extra_dims={"log_J": ["G_grid", "mu_grid"], "t_collapse_measured": ["experiment"],
-                    "t_collapse_fitted": ["experiment"]},
+        extra_dims={
+            "log_J": ["G_grid", "mu_grid"],
+            "t_collapse_measured": ["experiment"],
+            "t_collapse_fitted": ["experiment"],
+        },
         coords={"G_grid": Gg, "mu_grid": mg, "experiment": list(obs.names)},
-        runtime_s=time.perf_counter() - t0, warnings=warnings)
+        runtime_s=time.perf_counter() - t0,
+        warnings=warnings,
+    )
 
 
 def collapse_time_from_q(G, mu, q):
@@ -264,8 +307,11 @@ def _ridge(tc, tm, Gg, mg) -> dict:
             f = row[j] / (row[j] - row[j + 1])
             G_out.append(float(G))
             mu_out.append(float(mg[j] + f * (mg[j + 1] - mg[j])))
-    return {"G": G_out, "mu": mu_out,
-            "note": "(G, mu) on the grid whose predicted first-collapse time equals the measured one"}
+    return {
+        "G": G_out,
+        "mu": mu_out,
+        "note": "(G, mu) on the grid whose predicted first-collapse time equals the measured one",
+    }
 
 
 def _pseudo_logpost(J, Jmin, n, p):
@@ -292,8 +338,7 @@ def _grid_estimate(J, Jmin, n, p, Gg, mg, opt, level):
         marg = marg / marg.sum()
         mean = float(np.sum(marg * grid))
         sd = float(np.sqrt(np.sum(marg * (grid - mean) ** 2)))
-        out[name] = {"mean": float(opt[ax]), "sd": sd, "hdi95": _hdi_grid(grid, marg, 0.95),
-                     "posterior_mean": mean}
+        out[name] = {"mean": float(opt[ax]), "sd": sd, "hdi95": _hdi_grid(grid, marg, 0.95), "posterior_mean": mean}
     return out, level_J
 
 
@@ -339,9 +384,10 @@ class PIMR(InferenceMethod):
 
     @staticmethod
     def n_forward_runs(settings, n_exp, n_steps):
-        return n_exp                       # closed form; one run per experiment for the fitted curves
+        return n_exp  # closed form; one run per experiment for the fitted curves
 
     @staticmethod
     def figures(obs, res, fdir):
         from imrbayes.ensemble.figures import landscape_figure
+
         return [landscape_figure(res, fdir / "landscape.png")]

@@ -38,7 +38,7 @@ PAPER_PRIOR = {"G": (6.0e3, 2.8e3), "mu": (0.209, 0.088)}
 def lognormal_moments(median: float, log_sd: float) -> tuple:
     """(mean, sd) in SI of the log-normal with this median and sd of the log: the form
     :meth:`ParamSpace.for_model` takes, which maps it back to exactly this median and log-sd."""
-    s2 = log_sd ** 2
+    s2 = log_sd**2
     mean = median * math.exp(0.5 * s2)
     return mean, mean * math.sqrt(math.expm1(s2))
 
@@ -108,13 +108,13 @@ class Observations:
         self.req_m = np.broadcast_to(np.asarray(self.req_m, dtype=np.float64), (n_exp,)).copy()
         if self.t_collapse_star is None:
             self.t_collapse_star = np.full(n_exp, np.nan)
-        self.t_collapse_star = np.broadcast_to(np.asarray(self.t_collapse_star, dtype=np.float64),
-                                               (n_exp,)).copy()
+        self.t_collapse_star = np.broadcast_to(np.asarray(self.t_collapse_star, dtype=np.float64), (n_exp,)).copy()
         if not self.names:
             self.names = [f"exp_{i + 1:03d}" for i in range(n_exp)]
 
         def per_exp(a, shape, fill):
             return np.full(shape, fill) if a is None else np.broadcast_to(np.asarray(a, np.float64), shape).copy()
+
         self.noise_sd = per_exp(self.noise_sd, (n_exp,), np.nan)
         self.nuisance_sd = per_exp(self.nuisance_sd, (n_exp, 3), 0.0)
         self.nuisance_sd = np.where(np.isfinite(self.nuisance_sd) & (self.nuisance_sd > 0), self.nuisance_sd, 0.0)
@@ -140,7 +140,7 @@ class Observations:
             raise InputError("observations", "need 0 < Req < Rmax for every experiment")
 
     @classmethod
-    def from_preprocessed(cls, pre) -> "Observations":
+    def from_preprocessed(cls, pre) -> Observations:
         """From :class:`imrbayes.data.Preprocessed`."""
         ex = list(getattr(pre, "experiments", []) or [])
         if not ex:
@@ -148,15 +148,27 @@ class Observations:
 
         def col(key):
             return np.array([float(getattr(e, key, np.nan)) for e in ex])
+
         rmax = np.asarray(pre.rmax_m, dtype=np.float64)
         noise_m, tc = col("noise_sd_m"), col("tc_s")
         # the maximum's radius: the local fit's standard error, else one noise sd (a max sample)
         rmax_se = np.where(np.isfinite(col("rmax_sd_m")), col("rmax_sd_m"), noise_m)
         nuis = np.stack([rmax_se / rmax, col("t0_sd_s") / tc, col("req_sd_m")], axis=1)
-        return cls(pre.t_star, pre.R_star, pre.P, rmax, pre.req_m, pre.t_collapse_star, list(pre.names),
-                   noise_sd=noise_m / rmax, nuisance_sd=nuis, t0_s=col("t0_s"), tc_s=tc,
-                   frame_t=list(getattr(pre, "frame_t_star", []) or []) or None,
-                   req_tail_t=[list(getattr(e, "req_tail_t_star", []) or []) for e in ex])
+        return cls(
+            pre.t_star,
+            pre.R_star,
+            pre.P,
+            rmax,
+            pre.req_m,
+            pre.t_collapse_star,
+            list(pre.names),
+            noise_sd=noise_m / rmax,
+            nuisance_sd=nuis,
+            t0_s=col("t0_s"),
+            tc_s=tc,
+            frame_t=list(getattr(pre, "frame_t_star", []) or []) or None,
+            req_tail_t=[list(getattr(e, "req_tail_t_star", []) or []) for e in ex],
+        )
 
     @property
     def n_exp(self) -> int:
@@ -170,14 +182,24 @@ class Observations:
     def dt_star(self) -> float:
         return float(self.t_star[1] - self.t_star[0])
 
-    def take(self, index) -> "Observations":
+    def take(self, index) -> Observations:
         """The experiments ``index`` (list/array of ints)."""
         idx = np.atleast_1d(np.asarray(index, dtype=int))
-        return Observations(self.t_star, self.R_star[idx], self.P, self.rmax_m[idx], self.req_m[idx],
-                            self.t_collapse_star[idx], [self.names[i] for i in idx], self.noise_sd[idx],
-                            self.nuisance_sd[idx], self.t0_s[idx], self.tc_s[idx],
-                            None if self.frame_t is None else [self.frame_t[i] for i in idx],
-                            None if self.req_tail_t is None else [self.req_tail_t[i] for i in idx])
+        return Observations(
+            self.t_star,
+            self.R_star[idx],
+            self.P,
+            self.rmax_m[idx],
+            self.req_m[idx],
+            self.t_collapse_star[idx],
+            [self.names[i] for i in idx],
+            self.noise_sd[idx],
+            self.nuisance_sd[idx],
+            self.t0_s[idx],
+            self.tc_s[idx],
+            None if self.frame_t is None else [self.frame_t[i] for i in idx],
+            None if self.req_tail_t is None else [self.req_tail_t[i] for i in idx],
+        )
 
 
 def _sym(a):
@@ -261,18 +283,25 @@ class ParamSpace:
             s = np.where(self.positive, np.sqrt(s2), s)
         self.lower = m - self.box_sd * s
         self.upper = m + self.box_sd * s
-        self.start_mean = self.prior_mean.copy() if self.start_mean is None else \
-            np.asarray(self.start_mean, dtype=np.float64).reshape(d)
-        self.start_cov = self.prior_cov.copy() if self.start_cov is None else \
-            _sym(np.asarray(self.start_cov, dtype=np.float64).reshape(d, d))
+        self.start_mean = (
+            self.prior_mean.copy()
+            if self.start_mean is None
+            else np.asarray(self.start_mean, dtype=np.float64).reshape(d)
+        )
+        self.start_cov = (
+            self.prior_cov.copy()
+            if self.start_cov is None
+            else _sym(np.asarray(self.start_cov, dtype=np.float64).reshape(d, d))
+        )
 
     @property
     def n(self) -> int:
         return len(self.names)
 
     @classmethod
-    def for_model(cls, constitutive, prior: dict | None = None, box_sd: float = 10.0,
-                  base: str = "paper") -> "ParamSpace":
+    def for_model(
+        cls, constitutive, prior: dict | None = None, box_sd: float = 10.0, base: str = "paper"
+    ) -> ParamSpace:
         """From a ``ConstitutiveModel``; ``prior`` maps name -> (mean, sd) in SI over the named
         ``base`` prior (:data:`PRIORS`: ``"paper"``, the default of the library's internal callers,
         or ``"wide"``, ``fit``'s default); other parameters get the model default with a 50 % sd, or
@@ -301,19 +330,31 @@ class ParamSpace:
             else:
                 means.append(mean)
                 sds.append(sd)
-        return cls(tuple(names), np.array(pos), np.array(means), np.diag(np.square(sds)), si, box_sd=box_sd,
-                   prior_name=name)
+        return cls(
+            tuple(names), np.array(pos), np.array(means), np.diag(np.square(sds)), si, box_sd=box_sd, prior_name=name
+        )
 
-    def with_prior(self, mean, cov, box_sd: float | None = None) -> "ParamSpace":
+    def with_prior(self, mean, cov, box_sd: float | None = None) -> ParamSpace:
         """The same parameters with the prior N(mean, cov) stated on z (e.g. a window's chained
         prior), and ``box_sd`` (default: this space's)."""
-        return ParamSpace(self.names, self.positive, mean, cov, {}, "internal",
-                          self.box_sd if box_sd is None else float(box_sd))
+        return ParamSpace(
+            self.names, self.positive, mean, cov, {}, "internal", self.box_sd if box_sd is None else float(box_sd)
+        )
 
-    def with_start(self, mean, cov) -> "ParamSpace":
+    def with_start(self, mean, cov) -> ParamSpace:
         """The same prior, with the methods' start N(mean, cov) on z (see ``start_mean``)."""
-        return ParamSpace(self.names, self.positive, self.prior_mean, self.prior_cov, dict(self.prior_si),
-                          self.scale, self.box_sd, self.prior_name, mean, cov)
+        return ParamSpace(
+            self.names,
+            self.positive,
+            self.prior_mean,
+            self.prior_cov,
+            dict(self.prior_si),
+            self.scale,
+            self.box_sd,
+            self.prior_name,
+            mean,
+            cov,
+        )
 
     def data_share(self, post_cov) -> dict:
         """How much of the posterior is the data's, per parameter: ``1 - var_post / var_prior`` of
@@ -347,29 +388,46 @@ class ParamSpace:
         r = x - self.prior_mean
         lp = -0.5 * np.einsum("ni,ij,nj->n", r, self._prec, r) - 0.5 * (d * np.log(2 * np.pi) + self._logdet)
         if self.scale == "natural":
-            lp = lp + np.sum(np.where(self.positive, z, 0.0), axis=1)          # Jacobian of theta = exp(z)
+            lp = lp + np.sum(np.where(self.positive, z, 0.0), axis=1)  # Jacobian of theta = exp(z)
         out[ok] = np.where(np.isfinite(lp), lp, -np.inf)
         return out
 
     def describe(self) -> dict:
         """The parameter space as the methods use it (``summary.json["prior"]``, the run config)."""
         sd = np.sqrt(np.diag(self.prior_cov))
-        return {"name": self.prior_name, "names": list(self.names),
-                "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)},
-                "prior_si": {k: {"mean": v[0], "sd": v[1]} for k, v in self.prior_si.items()},
-                "central_95_si": {n: self.to_si(np.array([self.prior_mean[i] - 1.96 * sd[i],
-                                                          self.prior_mean[i] + 1.96 * sd[i]])).tolist()
-                                  if self.positive[i] else [self.prior_mean[i] - 1.96 * sd[i], self.prior_mean[i] + 1.96 * sd[i]]
-                                  for i, n in enumerate(self.names)},
-                "start_internal_mean": self.start_mean.tolist(), "start_internal_cov": self.start_cov.tolist(),
-                "prior_internal_mean": self.prior_mean.tolist(), "prior_internal_cov": self.prior_cov.tolist(),
-                "prior_rule": "positive parameters: log-normal with the given SI mean and sd "
-                              "(s^2 = log(1 + (sd/mean)^2), m = log(mean) - s^2/2); others Gaussian"}
+        return {
+            "name": self.prior_name,
+            "names": list(self.names),
+            "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)},
+            "prior_si": {k: {"mean": v[0], "sd": v[1]} for k, v in self.prior_si.items()},
+            "central_95_si": {
+                n: self.to_si(np.array([self.prior_mean[i] - 1.96 * sd[i], self.prior_mean[i] + 1.96 * sd[i]])).tolist()
+                if self.positive[i]
+                else [self.prior_mean[i] - 1.96 * sd[i], self.prior_mean[i] + 1.96 * sd[i]]
+                for i, n in enumerate(self.names)
+            },
+            "start_internal_mean": self.start_mean.tolist(),
+            "start_internal_cov": self.start_cov.tolist(),
+            "prior_internal_mean": self.prior_mean.tolist(),
+            "prior_internal_cov": self.prior_cov.tolist(),
+            "prior_rule": "positive parameters: log-normal with the given SI mean and sd "
+            "(s^2 = log(1 + (sd/mean)^2), m = log(mean) - s^2/2); others Gaussian",
+        }
 
     def describe_density(self) -> dict:
         """The prior density as :meth:`log_prob` evaluates it (scale, box; an MCMC target's ``prior``)."""
-        return {"names": list(self.names), "mean": self.prior_mean.tolist(), "cov": self.prior_cov.tolist(),
-                "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)}, "scale": self.scale,
-                "box_sd": float(self.box_sd), "box_lower": self.lower.tolist(), "box_upper": self.upper.tolist(),
-                "rule": ("Gaussian on z (log for positive parameters); no Jacobian" if self.scale == "internal" else
-                         "Gaussian on theta [SI], sampled in z = log(theta) with the Jacobian sum(z_positive)")}
+        return {
+            "names": list(self.names),
+            "mean": self.prior_mean.tolist(),
+            "cov": self.prior_cov.tolist(),
+            "log_space": {n: bool(p) for n, p in zip(self.names, self.positive)},
+            "scale": self.scale,
+            "box_sd": float(self.box_sd),
+            "box_lower": self.lower.tolist(),
+            "box_upper": self.upper.tolist(),
+            "rule": (
+                "Gaussian on z (log for positive parameters); no Jacobian"
+                if self.scale == "internal"
+                else "Gaussian on theta [SI], sampled in z = log(theta) with the Jacobian sum(z_positive)"
+            ),
+        }

@@ -22,7 +22,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["ReqTailStart", "model_tail_req", "tail_req", "with_req", "req_shift_z", "alignment_shift_z", "REQ_CONFLICT_Z"]
+__all__ = [
+    "ReqTailStart",
+    "model_tail_req",
+    "tail_req",
+    "with_req",
+    "req_shift_z",
+    "alignment_shift_z",
+    "REQ_CONFLICT_Z",
+]
 
 #: |z| beyond which a fit's Req contradicts the record's own tail (:func:`req_shift_z`). On constant-NHKV
 #: camera records the largest |z| was 2.14 over 360 bubbles (``validation/req_conflict_probe.py``) and
@@ -52,7 +60,7 @@ def tail_req(runner, theta_si, rmax_m, req_hat_m, tails, iterations: int = 3) ->
         for _ in range(iterations):
             out = runner.simulate(theta[idx], rmax[idx], cur, T)
             R = np.asarray(out.R_star, dtype=np.float64)
-            mean = np.array([R[k, :n[k]].mean() for k in range(idx.size)]) * rmax[idx]
+            mean = np.array([R[k, : n[k]].mean() for k in range(idx.size)]) * rmax[idx]
             c = mean / cur
             ok &= ~np.asarray(out.failed, dtype=bool) & np.isfinite(c) & (c > 0.5) & (c < 2.0)
             cur = np.where(ok, req_hat[idx] / np.where(ok, c, 1.0), req_hat[idx])
@@ -71,6 +79,7 @@ class ReqTailStart:
     correction only needs a material and Rmax near the data's, not that pass's estimate
     (``diagnose`` has its baseline's least-squares fit of the same model and records).
     """
+
     theta_si: np.ndarray
     rmax_m: np.ndarray
     source: str
@@ -96,7 +105,7 @@ def model_tail_req(runner, obs, theta_si, rmax_m=None, iterations: int = 3) -> t
 def with_req(obs, req_m):
     """``obs`` with each Req's prior centred at ``req_m`` (E,) [m], keeping its relative sd."""
     sd = obs.nuisance_sd.copy()
-    sd[:, 2] *= req_m / obs.req_m           # the same relative uncertainty about the corrected value
+    sd[:, 2] *= req_m / obs.req_m  # the same relative uncertainty about the corrected value
     return replace(obs, req_m=np.asarray(req_m, dtype=np.float64), nuisance_sd=sd)
 
 
@@ -121,9 +130,16 @@ def req_shift_z(obs, per_experiment) -> list:
         g = names.index(e["name"]) if e.get("name") in names else None
         if g is None or q is None or not sd[g] > 0 or not (np.isfinite(q["mean"]) and q["sd"] > 0):
             continue
-        out.append({"experiment": names[g], "z": float((float(q["mean"]) - req[g]) / sd[g]),
-                    "fitted_req_m": float(q["mean"]), "fitted_req_sd_m": float(q["sd"]),
-                    "preprocessing_req_m": float(req[g]), "preprocessing_req_sd_m": float(sd[g])})
+        out.append(
+            {
+                "experiment": names[g],
+                "z": float((float(q["mean"]) - req[g]) / sd[g]),
+                "fitted_req_m": float(q["mean"]),
+                "fitted_req_sd_m": float(q["sd"]),
+                "preprocessing_req_m": float(req[g]),
+                "preprocessing_req_sd_m": float(sd[g]),
+            }
+        )
     return out
 
 
@@ -148,7 +164,10 @@ def alignment_shift_z(per_experiment) -> list:
         # in t*, where the offset lives: the file's clock (and so the shift in s) may be unknown
         ok = q.get("prior_sd_star", 0) > 0 and np.isfinite(q.get("offset_star", np.nan))
         row["z_t0"] = float(q["offset_star"] / q["prior_sd_star"]) if ok else None
-        row["t0_shift_s"] = (float(q["mean"] - q["prior_mean"]) if np.isfinite(q.get("mean", np.nan))
-                             and np.isfinite(q.get("prior_mean", np.nan)) else None)
+        row["t0_shift_s"] = (
+            float(q["mean"] - q["prior_mean"])
+            if np.isfinite(q.get("mean", np.nan)) and np.isfinite(q.get("prior_mean", np.nan))
+            else None
+        )
         out.append(row)
     return out

@@ -90,7 +90,7 @@ class WindowPosterior:
         d = m.size
         full = np.zeros((d + om.size, d + om.size))
         full[:d, :d] = C
-        full[d:, d:] = np.diag(osd ** 2)
+        full[d:, d:] = np.diag(osd**2)
         return np.concatenate([m, om]), full
 
 
@@ -173,7 +173,7 @@ def si_covariance(space, mean, cov) -> np.ndarray:
                 out[i, j] = E[i] * E[j] * math.expm1(cov[i, j])
             elif lg[i] or lg[j]:
                 k = i if lg[i] else j
-                out[i, j] = E[k] * cov[i, j]        # Cov(exp(a), b) = E[exp a] Cov(a, b) for a Gaussian pair
+                out[i, j] = E[k] * cov[i, j]  # Cov(exp(a), b) = E[exp a] Cov(a, b) for a Gaussian pair
             else:
                 out[i, j] = cov[i, j]
     return out

@@ -94,22 +94,28 @@ class SearchResult:
         if "G" in space.names:
             i = space.names.index("G")
             theta[i] = max(theta[i], float(self.G_pa[1]))
-        mean = np.where(np.isfinite(theta), space.to_internal(np.where(np.isfinite(theta), theta, 1.0)),
-                        space.prior_mean)
+        mean = np.where(
+            np.isfinite(theta), space.to_internal(np.where(np.isfinite(theta), theta, 1.0)), space.prior_mean
+        )
         sd = np.sqrt(np.diag(space.prior_cov)).copy()
         known = np.isfinite(theta) & np.asarray(space.positive)
         sd[known] = np.minimum(sd[known], sd_log)
-        return mean, np.diag(sd ** 2)
+        return mean, np.diag(sd**2)
 
     def describe(self) -> dict:
         """JSON-ready summary (``summary.json["search"]``; its wall time goes to the run's execution
         block, so that the same data give the same summary)."""
-        return {"grid": {"G_pa": self.G_pa.tolist(), "mu_pas": self.mu_pas.tolist()},
-                "best": self.best, "best_per_experiment": self.best_per_experiment, "basins": self.basins,
-                "zero_modulus": self.zero_modulus, "n_runs": int(self.n_runs),
-                "notes": list(self.notes),
-                "rule": "tempered chi-square of each record on a log grid of full forward runs at the "
-                        "preprocessing's geometry, summed over bubbles"}
+        return {
+            "grid": {"G_pa": self.G_pa.tolist(), "mu_pas": self.mu_pas.tolist()},
+            "best": self.best,
+            "best_per_experiment": self.best_per_experiment,
+            "basins": self.basins,
+            "zero_modulus": self.zero_modulus,
+            "n_runs": int(self.n_runs),
+            "notes": list(self.notes),
+            "rule": "tempered chi-square of each record on a log grid of full forward runs at the "
+            "preprocessing's geometry, summed over bubbles",
+        }
 
 
 def _autocorrelation_time(resid: np.ndarray) -> float:
@@ -140,7 +146,7 @@ def _local_minima(f: np.ndarray) -> list:
             v = f[i, j]
             if not math.isfinite(v):
                 continue
-            nb = f[max(0, i - 1):i + 2, max(0, j - 1):j + 2]
+            nb = f[max(0, i - 1) : i + 2, max(0, j - 1) : j + 2]
             if v <= np.min(nb):
                 out.append((i, j))
     return sorted(out, key=lambda ij: f[ij])
@@ -151,12 +157,11 @@ def _fused_at(runner, obs, theta_row, K, temper) -> float:
     from imrbayes.ensemble.likelihood import record_noise_sd, simulate_shifted
 
     n = obs.n_exp
-    R, failed = simulate_shifted(runner, np.tile(theta_row, (n, 1)), obs.rmax_m, obs.req_m, obs.t_star[:K],
-                                 np.zeros(n))
+    R, failed = simulate_shifted(runner, np.tile(theta_row, (n, 1)), obs.rmax_m, obs.req_m, obs.t_star[:K], np.zeros(n))
     if failed.any() or not np.all(np.isfinite(R)):
         return float("inf")
     sd = np.array([record_noise_sd(obs, i) for i in range(n)])
-    chi2 = np.sum((R[:, 1:] - obs.R_star[:, 1:K]) ** 2, axis=1) / sd ** 2
+    chi2 = np.sum((R[:, 1:] - obs.R_star[:, 1:K]) ** 2, axis=1) / sd**2
     return float(np.sum(chi2 / temper))
 
 
@@ -172,13 +177,20 @@ def _refine(runner, obs, K, temper, row, iG, imu, G0, mu0, liquid: bool) -> tupl
 
     if liquid:
         x0 = math.log(mu0)
-        r = optimize.minimize_scalar(lambda x: at(0.0, math.exp(x)), bounds=(x0 - 1.2, x0 + 1.2), method="bounded",
-                                     options={"xatol": 5e-3, "maxiter": 30})
+        r = optimize.minimize_scalar(
+            lambda x: at(0.0, math.exp(x)),
+            bounds=(x0 - 1.2, x0 + 1.2),
+            method="bounded",
+            options={"xatol": 5e-3, "maxiter": 30},
+        )
         return float(r.fun), 0.0, float(math.exp(r.x)), int(r.nfev)
     x0 = np.array([math.log(G0), math.log(mu0)])
-    r = optimize.minimize(lambda x: at(math.exp(x[0]), math.exp(x[1])), x0, method="Nelder-Mead",
-                          options={"initial_simplex": [x0, x0 + [0.6, 0.0], x0 + [0.0, 0.6]], "xatol": 5e-3,
-                                   "fatol": 0.05, "maxfev": 80})
+    r = optimize.minimize(
+        lambda x: at(math.exp(x[0]), math.exp(x[1])),
+        x0,
+        method="Nelder-Mead",
+        options={"initial_simplex": [x0, x0 + [0.6, 0.0], x0 + [0.0, 0.6]], "xatol": 5e-3, "fatol": 0.05, "maxfev": 80},
+    )
     return float(r.fun), float(math.exp(r.x[0])), float(math.exp(r.x[1])), int(r.nfev)
 
 
@@ -195,8 +207,10 @@ def _profile_upper_bound(runner, obs, K, temper, row, iG, imu, f_best, mu_start,
         def at(x):
             th[imu] = math.exp(x)
             return _fused_at(runner, obs, th, K, temper)
-        r = optimize.minimize_scalar(at, bounds=(x0 - 1.2, x0 + 1.2), method="bounded",
-                                     options={"xatol": 1e-2, "maxiter": 20})
+
+        r = optimize.minimize_scalar(
+            at, bounds=(x0 - 1.2, x0 + 1.2), method="bounded", options={"xatol": 1e-2, "maxiter": 20}
+        )
         return float(r.fun) - f_best - LR_ZERO_THRESHOLD
 
     lo = math.log(float(G_pa[1]) / 10.0)
@@ -219,18 +233,18 @@ def _grid_chi2(runner, obs, theta, K) -> tuple:
     chi2 = np.full((obs.n_exp, m), np.inf)
     best_resid = np.zeros((obs.n_exp, K - 1))
     for n in range(obs.n_exp):
-        R, failed = simulate_shifted(runner, theta, np.full(m, obs.rmax_m[n]), np.full(m, obs.req_m[n]),
-                                     obs.t_star[:K], np.zeros(m))
+        R, failed = simulate_shifted(
+            runner, theta, np.full(m, obs.rmax_m[n]), np.full(m, obs.req_m[n]), obs.t_star[:K], np.zeros(m)
+        )
         resid = R[:, 1:] - obs.R_star[n, 1:K]
-        c = np.sum(resid ** 2, axis=1) / record_noise_sd(obs, n) ** 2
+        c = np.sum(resid**2, axis=1) / record_noise_sd(obs, n) ** 2
         chi2[n] = np.where(failed | ~np.isfinite(c), np.inf, c)
         if np.isfinite(chi2[n]).any():
             best_resid[n] = resid[int(np.argmin(chi2[n]))]
     return chi2, best_resid
 
 
-def global_search(fm, obs, runner, n_samples: int | None = None, G_pa=None, mu_pas=None,
-                  progress=None) -> SearchResult:
+def global_search(fm, obs, runner, n_samples: int | None = None, G_pa=None, mu_pas=None, progress=None) -> SearchResult:
     """Run the grid for (up to six of) the bubbles and fuse.
 
     Parameters
@@ -278,34 +292,75 @@ def global_search(fm, obs, runner, n_samples: int | None = None, G_pa=None, mu_p
     # in for the viscosity between two grid values (a liquid at mu 0.05 Pa s reads G 300 Pa), and
     # precise records resolve mu far below any affordable grid step
     i_pos = int(np.argmin(fused[1:].min(axis=1))) + 1
-    c_zero, _, mu_zero, n_zero = _refine(runner, obs, K, temper, defaults, iG, imu, 0.0,
-                                         float(mu_pas[int(np.argmin(fused[0]))]), liquid=True)
-    c_pos, G_pos, mu_pos, n_pos = _refine(runner, obs, K, temper, defaults, iG, imu, float(G_pa[i_pos]),
-                                          float(mu_pas[int(np.argmin(fused[i_pos]))]), liquid=False)
+    c_zero, _, mu_zero, n_zero = _refine(
+        runner, obs, K, temper, defaults, iG, imu, 0.0, float(mu_pas[int(np.argmin(fused[0]))]), liquid=True
+    )
+    c_pos, G_pos, mu_pos, n_pos = _refine(
+        runner,
+        obs,
+        K,
+        temper,
+        defaults,
+        iG,
+        imu,
+        float(G_pa[i_pos]),
+        float(mu_pas[int(np.argmin(fused[i_pos]))]),
+        liquid=False,
+    )
     f_best = min(c_zero, c_pos)
     best = {"G": 0.0, "mu": mu_zero} if c_zero <= c_pos else {"G": G_pos, "mu": mu_pos}
     notes = []
-    basins = [{"G": float(G_pa[i]), "mu": float(mu_pas[j]), "delta_cost": float(fused[i, j] - fused[i0, j0])}
-              for i, j in minima if fused[i, j] - fused[i0, j0] <= BASIN_DELTA]
+    basins = [
+        {"G": float(G_pa[i]), "mu": float(mu_pas[j]), "delta_cost": float(fused[i, j] - fused[i0, j0])}
+        for i, j in minima
+        if fused[i, j] - fused[i0, j0] <= BASIN_DELTA
+    ]
     if len(basins) > 1:
-        notes.append(f"the cost has {len(basins)} separate basins within {BASIN_DELTA:g} of the best: "
-                     + "; ".join(f"G {b['G']:.3g} Pa, mu {b['mu']:.3g} Pa s" for b in basins))
+        notes.append(
+            f"the cost has {len(basins)} separate basins within {BASIN_DELTA:g} of the best: "
+            + "; ".join(f"G {b['G']:.3g} Pa, mu {b['mu']:.3g} Pa s" for b in basins)
+        )
     theta_best = np.argmin(cost.reshape(obs.n_exp, -1), axis=1)
-    best_each = [{"name": obs.names[n], "G": float(pairs[k][0]), "mu": float(pairs[k][1])}
-                 for n, k in enumerate(theta_best)]
+    best_each = [
+        {"name": obs.names[n], "G": float(pairs[k][0]), "mu": float(pairs[k][1])} for n, k in enumerate(theta_best)
+    ]
     lr = float(c_zero - f_best)
     consistent = lr <= LR_ZERO_THRESHOLD
-    upper = _profile_upper_bound(runner, obs, K, temper, defaults, iG, imu, f_best, mu_zero, G_pa, fused) \
-        if consistent else None
-    zero = {"lr": lr, "threshold": LR_ZERO_THRESHOLD, "consistent_with_zero": bool(consistent),
-            "upper95_pa": upper, "best_liquid": {"mu": mu_zero, "cost": c_zero},
-            "best_solid": {"G": G_pos, "mu": mu_pos, "cost": c_pos}}
-    for edge, where in ((best["G"] >= G_pa[-1], "G's largest grid value"), (best["mu"] <= mu_pas[0], "mu's smallest grid value"),
-                        (best["mu"] >= mu_pas[-1], "mu's largest grid value")):
+    upper = (
+        _profile_upper_bound(runner, obs, K, temper, defaults, iG, imu, f_best, mu_zero, G_pa, fused)
+        if consistent
+        else None
+    )
+    zero = {
+        "lr": lr,
+        "threshold": LR_ZERO_THRESHOLD,
+        "consistent_with_zero": bool(consistent),
+        "upper95_pa": upper,
+        "best_liquid": {"mu": mu_zero, "cost": c_zero},
+        "best_solid": {"G": G_pos, "mu": mu_pos, "cost": c_pos},
+    }
+    for edge, where in (
+        (best["G"] >= G_pa[-1], "G's largest grid value"),
+        (best["mu"] <= mu_pas[0], "mu's smallest grid value"),
+        (best["mu"] >= mu_pas[-1], "mu's largest grid value"),
+    ):
         if edge:
             notes.append(f"the best point sits on {where}: the material may lie outside the searched range")
     if progress is not None:
-        progress(f"global search: {len(pairs)} grid points x {obs.n_exp} bubbles; best G {best['G']:.3g} Pa, "
-                 f"mu {best['mu']:.3g} Pa s")
-    return SearchResult(G_pa, mu_pas, cost, fused, best, best_each, basins, zero,
-                        int(getattr(runner, "n_member_runs", 0)) - runs_before, time.perf_counter() - t_start, notes)
+        progress(
+            f"global search: {len(pairs)} grid points x {obs.n_exp} bubbles; best G {best['G']:.3g} Pa, "
+            f"mu {best['mu']:.3g} Pa s"
+        )
+    return SearchResult(
+        G_pa,
+        mu_pas,
+        cost,
+        fused,
+        best,
+        best_each,
+        basins,
+        zero,
+        int(getattr(runner, "n_member_runs", 0)) - runs_before,
+        time.perf_counter() - t_start,
+        notes,
+    )

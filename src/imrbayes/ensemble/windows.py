@@ -13,8 +13,16 @@ import numpy as np
 from imrbayes.ensemble.gaussian import precision_weighted
 from imrbayes.errors import InputError
 
-__all__ = ["n_windows", "window_spans", "coverage", "mda_weights", "time_resolved", "PRIOR_WEIGHT_LIMIT",
-           "chained_prior_weight", "prior_dominated_note"]
+__all__ = [
+    "n_windows",
+    "window_spans",
+    "coverage",
+    "mda_weights",
+    "time_resolved",
+    "PRIOR_WEIGHT_LIMIT",
+    "chained_prior_weight",
+    "prior_dominated_note",
+]
 
 #: The product's rule: a window is prior-dominated when the parameter prior's mean still carries
 #: more than this weight in the window's posterior mean -- through the chain of window priors, not
@@ -49,10 +57,12 @@ def prior_dominated_note(windows, names) -> str | None:
     by = {nm: [w["index"] for w in dom if w["prior_weight"][nm] > PRIOR_WEIGHT_LIMIT] for nm in names}
     which = "; ".join(f"{nm} in window(s) {_ranges(ix)}" for nm, ix in by.items() if ix)
     a, b = min(w["t_star"][0] for w in dom), max(w["t_star"][1] for w in dom)
-    return (f"{len(dom)} of {len(windows)} windows (t* {a:.2f}-{b:.2f}) are prior-dominated -- {which}: the "
-            f"parameter prior's mean carries more than {PRIOR_WEIGHT_LIMIT:.0%} of those window means (directly "
-            "or through the chain of window priors; linearised, so a lower bound), so read no trend into them "
-            "(summary.json windows[].prior_weight)")
+    return (
+        f"{len(dom)} of {len(windows)} windows (t* {a:.2f}-{b:.2f}) are prior-dominated -- {which}: the "
+        f"parameter prior's mean carries more than {PRIOR_WEIGHT_LIMIT:.0%} of those window means (directly "
+        "or through the chain of window priors; linearised, so a lower bound), so read no trend into them "
+        "(summary.json windows[].prior_weight)"
+    )
 
 
 def _ranges(ix) -> str:

@@ -13,15 +13,50 @@ whatever the backend, the worker count, or interruptions and resumes.
 ...     report = run_units(units, fn, seed=seed, store=store, executor=ex)
 """
 
-from imrbayes.execution.backends import (DaskExecutor, ExecutionError, Executor, InProcessExecutor, Outcome,
-                                         ProcessPoolExecutor, make_executor)
+from imrbayes.execution.backends import (
+    DaskExecutor,
+    ExecutionError,
+    Executor,
+    InProcessExecutor,
+    Outcome,
+    ProcessPoolExecutor,
+    make_executor,
+)
 from imrbayes.execution.driver import RunInterrupted, RunReport, UnitFailure, run_units
 from imrbayes.execution.run import Execution
 from imrbayes.execution.store import CorruptUnitError, RunStore, canonical_config, config_fingerprint
-from imrbayes.execution.units import Unit, normalize_units, safe_name, unit_id, unit_rng, unit_seed_sequence, unit_stream
+from imrbayes.execution.units import (
+    Unit,
+    normalize_units,
+    safe_name,
+    unit_id,
+    unit_rng,
+    unit_seed_sequence,
+    unit_stream,
+)
 
-__all__ = ["Executor", "InProcessExecutor", "ProcessPoolExecutor", "DaskExecutor", "make_executor", "Outcome",
-           "ExecutionError", "run_units", "RunReport", "UnitFailure", "RunInterrupted", "RunStore",
-           "CorruptUnitError", "canonical_config", "config_fingerprint",
-           "Execution", "Unit", "unit_id", "unit_rng", "unit_seed_sequence", "unit_stream", "normalize_units",
-           "safe_name"]
+__all__ = [
+    "Executor",
+    "InProcessExecutor",
+    "ProcessPoolExecutor",
+    "DaskExecutor",
+    "make_executor",
+    "Outcome",
+    "ExecutionError",
+    "run_units",
+    "RunReport",
+    "UnitFailure",
+    "RunInterrupted",
+    "RunStore",
+    "CorruptUnitError",
+    "canonical_config",
+    "config_fingerprint",
+    "Execution",
+    "Unit",
+    "unit_id",
+    "unit_rng",
+    "unit_seed_sequence",
+    "unit_stream",
+    "normalize_units",
+    "safe_name",
+]

@@ -32,15 +32,24 @@ import threading
 import time
 import traceback
 import uuid
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from itertools import islice
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 
 from imrbayes.errors import InputError
 from imrbayes.execution.units import normalize_units, unit_rng, unit_stream
 
-__all__ = ["Outcome", "Executor", "InProcessExecutor", "ProcessPoolExecutor", "DaskExecutor",
-           "ExecutionError", "make_executor", "run_one"]
+__all__ = [
+    "Outcome",
+    "Executor",
+    "InProcessExecutor",
+    "ProcessPoolExecutor",
+    "DaskExecutor",
+    "ExecutionError",
+    "make_executor",
+    "run_one",
+]
 
 
 class ExecutionError(RuntimeError):
@@ -95,9 +104,14 @@ def run_one(fn: Callable, unit, uid: str, seed: int) -> Outcome:
         if stop is not None:
             raise stop from exc
         msg = str(exc).strip().splitlines()
-        return Outcome(uid, False, error=f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__,
-                       traceback=traceback.format_exc(), seconds=time.perf_counter() - t0,
-                       worker=_worker_name())
+        return Outcome(
+            uid,
+            False,
+            error=f"{type(exc).__name__}: {msg[0]}" if msg else type(exc).__name__,
+            traceback=traceback.format_exc(),
+            seconds=time.perf_counter() - t0,
+            worker=_worker_name(),
+        )
     return Outcome(uid, True, value=value, seconds=time.perf_counter() - t0, worker=_worker_name())
 
 
@@ -142,6 +156,7 @@ class InProcessExecutor(Executor):
 
 
 # --------------------------------------------------------------------------------------- processes
+
 
 def _watch_parent(parent_pid: int) -> None:  # pragma: no cover - runs in worker processes
     while True:
@@ -190,8 +205,12 @@ class ProcessPoolExecutor(Executor):
 
     def _get_pool(self) -> cf.ProcessPoolExecutor:
         if self._pool is None:
-            self._pool = cf.ProcessPoolExecutor(self.workers, mp_context=mp.get_context(self.mp_context),
-                                                initializer=_worker_init, initargs=(os.getpid(),))
+            self._pool = cf.ProcessPoolExecutor(
+                self.workers,
+                mp_context=mp.get_context(self.mp_context),
+                initializer=_worker_init,
+                initargs=(os.getpid(),),
+            )
         return self._pool
 
     def map(self, fn, units, *, seed=0):
@@ -213,8 +232,9 @@ class ProcessPoolExecutor(Executor):
                     try:
                         out = fut.result()
                     except Exception as exc:  # BrokenProcessPool, unpicklable unit or result, ...
-                        raise ExecutionError(f"unit {uid!r} could not be run in a worker process: "
-                                             f"{type(exc).__name__}: {exc}") from exc
+                        raise ExecutionError(
+                            f"unit {uid!r} could not be run in a worker process: {type(exc).__name__}: {exc}"
+                        ) from exc
                     yield out
                 submit(self.max_in_flight - len(running))
             finished = True
@@ -246,10 +266,12 @@ class ProcessPoolExecutor(Executor):
 
 # -------------------------------------------------------------------------------------------- dask
 
+
 def _worker_versions() -> dict:  # pragma: no cover - runs on Dask workers
     try:
-        import imrbayes
         import numpy
+
+        import imrbayes
     except ImportError as exc:
         return {"error": str(exc)}
     return {"imrbayes": imrbayes.__version__, "numpy": numpy.__version__}
@@ -302,8 +324,15 @@ class DaskExecutor(Executor):
 
     name = "dask"
 
-    def __init__(self, scheduler: str = "local", n_workers: int | None = None, threads_per_worker: int = 1,
-                 client=None, max_in_flight: int | None = None, connect_timeout: float = 10.0):
+    def __init__(
+        self,
+        scheduler: str = "local",
+        n_workers: int | None = None,
+        threads_per_worker: int = 1,
+        client=None,
+        max_in_flight: int | None = None,
+        connect_timeout: float = 10.0,
+    ):
         import distributed
 
         self._cluster = None
@@ -313,9 +342,13 @@ class DaskExecutor(Executor):
             self._client = client
         elif scheduler == "local":
             n = n_workers or os.cpu_count() or 1
-            self._cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=threads_per_worker,
-                                                     processes=True, dashboard_address=None,
-                                                     silence_logs=logging.ERROR)
+            self._cluster = distributed.LocalCluster(
+                n_workers=n,
+                threads_per_worker=threads_per_worker,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
             try:
                 self._client = distributed.Client(self._cluster, set_as_default=False)
             except BaseException:
@@ -336,18 +369,26 @@ class DaskExecutor(Executor):
         self.max_in_flight = max_in_flight
 
     def _check_workers(self) -> None:
-        import imrbayes
         import numpy
+
+        import imrbayes
 
         versions = self._client.run(_worker_versions)
         for worker, ver in versions.items():
             if "error" in ver:
-                raise InputError("--scheduler", f"Dask worker {worker} cannot import imrbayes "
-                                                f"({ver['error']}); install it on every worker")
+                raise InputError(
+                    "--scheduler",
+                    f"Dask worker {worker} cannot import imrbayes ({ver['error']}); install it on every worker",
+                )
             if ver["imrbayes"] != imrbayes.__version__ or ver["numpy"] != numpy.__version__:
                 logging.getLogger(__name__).warning(
                     "Dask worker %s has imrbayes %s / numpy %s, this process %s / %s: results may differ",
-                    worker, ver["imrbayes"], ver["numpy"], imrbayes.__version__, numpy.__version__)
+                    worker,
+                    ver["imrbayes"],
+                    ver["numpy"],
+                    imrbayes.__version__,
+                    numpy.__version__,
+                )
 
     @property
     def client(self):
@@ -359,8 +400,13 @@ class DaskExecutor(Executor):
 
     def describe(self) -> dict:
         info = self._client.scheduler_info()
-        return {"backend": self.name, "scheduler": self.scheduler, "address": self._client.scheduler.address,
-                "workers": len(info.get("workers", {})), "threads": self.n_workers}
+        return {
+            "backend": self.name,
+            "scheduler": self.scheduler,
+            "address": self._client.scheduler.address,
+            "workers": len(info.get("workers", {})),
+            "threads": self.n_workers,
+        }
 
     def map(self, fn, units, *, seed=0):
         import distributed
@@ -373,8 +419,9 @@ class DaskExecutor(Executor):
 
         def submit(n):
             for uid, unit in islice(pending, n):
-                fut = self._client.submit(run_one, fn, unit, uid, seed, pure=False,
-                                          key=f"imrbayes-unit-{token}-{uuid.uuid4().hex[:12]}")
+                fut = self._client.submit(
+                    run_one, fn, unit, uid, seed, pure=False, key=f"imrbayes-unit-{token}-{uuid.uuid4().hex[:12]}"
+                )
                 running[fut.key] = (fut, uid)
                 ac.add(fut)
 
@@ -387,8 +434,9 @@ class DaskExecutor(Executor):
                 try:
                     out = fut.result()
                 except Exception as exc:  # KilledWorker, lost scheduler, unpicklable payload ...
-                    raise ExecutionError(f"unit {uid!r} could not be run on the Dask cluster: "
-                                         f"{type(exc).__name__}: {exc}") from exc
+                    raise ExecutionError(
+                        f"unit {uid!r} could not be run on the Dask cluster: {type(exc).__name__}: {exc}"
+                    ) from exc
                 finally:
                     fut.release()
                 yield out
@@ -410,8 +458,9 @@ class DaskExecutor(Executor):
             cluster.close()
 
 
-def make_executor(workers: int | None = None, scheduler: str | None = None, *, threads_per_worker: int = 1,
-                  mp_context: str = "spawn") -> Executor:
+def make_executor(
+    workers: int | None = None, scheduler: str | None = None, *, threads_per_worker: int = 1, mp_context: str = "spawn"
+) -> Executor:
     """The executor that ``--workers N`` / ``--scheduler ADDRESS|local`` ask for.
 
     * neither, or ``workers=1``: :class:`InProcessExecutor`;
@@ -428,8 +477,9 @@ def make_executor(workers: int | None = None, scheduler: str | None = None, *, t
         raise InputError("--workers", f"must be a positive integer, got {workers!r}")
     if scheduler is not None:
         if not isinstance(scheduler, str) or not scheduler.strip():
-            raise InputError("--scheduler", f"must be 'local' or a scheduler address such as "
-                                            f"tcp://host:8786, got {scheduler!r}")
+            raise InputError(
+                "--scheduler", f"must be 'local' or a scheduler address such as tcp://host:8786, got {scheduler!r}"
+            )
         scheduler = scheduler.strip()
         if scheduler == "local":
             return DaskExecutor("local", n_workers=workers, threads_per_worker=threads_per_worker)

@@ -18,8 +18,9 @@ import sys
 import threading
 import time
 import warnings
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable
+from typing import Any
 
 from imrbayes.execution.backends import Executor, InProcessExecutor
 from imrbayes.execution.store import CorruptUnitError, RunStore
@@ -140,9 +141,18 @@ def _isatty(stream) -> bool:
         return False
 
 
-def run_units(units: Iterable, fn: Callable, *, seed: int = 0, store: RunStore | None = None,
-              executor: Executor | None = None, retry_failed: bool = False, progress=None,
-              desc: str | None = None, handle_signals: bool = True) -> RunReport:
+def run_units(
+    units: Iterable,
+    fn: Callable,
+    *,
+    seed: int = 0,
+    store: RunStore | None = None,
+    executor: Executor | None = None,
+    retry_failed: bool = False,
+    progress=None,
+    desc: str | None = None,
+    handle_signals: bool = True,
+) -> RunReport:
     """Run ``fn(unit, rng)`` for every unit; checkpoint each result as it arrives.
 
     Parameters
@@ -206,12 +216,16 @@ def run_units(units: Iterable, fn: Callable, *, seed: int = 0, store: RunStore |
             else:
                 if INTERRUPT_MARK in (rec.get("traceback") or ""):
                     # written before interrupts inside compiled code were told apart from failures
-                    warnings.warn(f"unit {uid!r} was recorded as failed when an interrupt stopped it; rerunning it",
-                                  RuntimeWarning, stacklevel=2)
+                    warnings.warn(
+                        f"unit {uid!r} was recorded as failed when an interrupt stopped it; rerunning it",
+                        RuntimeWarning,
+                        stacklevel=2,
+                    )
                     todo.append((uid, unit))
                     continue
-                failures[uid] = UnitFailure(uid, rec.get("error", "?"), rec.get("traceback"), rec.get("worker"),
-                                            from_checkpoint=True)
+                failures[uid] = UnitFailure(
+                    uid, rec.get("error", "?"), rec.get("traceback"), rec.get("worker"), from_checkpoint=True
+                )
                 n_resumed += 1
                 continue
         todo.append((uid, unit))
@@ -234,14 +248,23 @@ def run_units(units: Iterable, fn: Callable, *, seed: int = 0, store: RunStore |
                         raise RuntimeError(f"executor returned an unknown unit {uid!r}")
                     seconds[uid] = out.seconds
                     if out.ok:
-                        results[uid] = (store.save(uid, out.value, seed=seed, seconds=out.seconds, worker=out.worker)
-                                        if store is not None else out.value)
+                        results[uid] = (
+                            store.save(uid, out.value, seed=seed, seconds=out.seconds, worker=out.worker)
+                            if store is not None
+                            else out.value
+                        )
                         failures.pop(uid, None)
                     else:
                         failures[uid] = UnitFailure(uid, out.error, out.traceback, out.worker)
                         if store is not None:
-                            store.save_failure(uid, seed=seed, error=out.error, traceback=out.traceback,
-                                               seconds=out.seconds, worker=out.worker)
+                            store.save_failure(
+                                uid,
+                                seed=seed,
+                                error=out.error,
+                                traceback=out.traceback,
+                                seconds=out.seconds,
+                                worker=out.worker,
+                            )
                     n_computed += 1
                     done += 1
                     if bar is not None:
@@ -260,15 +283,26 @@ def run_units(units: Iterable, fn: Callable, *, seed: int = 0, store: RunStore |
             executor.close()
         if store is not None:
             try:
-                store.write_status({"n_units": total, "n_done": sum(1 for uid, _ in items if uid in results),
-                                    "n_failed": len(failures), "failed": sorted(failures),
-                                    "complete": interrupted is None and done == total,
-                                    "interrupted": interrupted is not None})
+                store.write_status(
+                    {
+                        "n_units": total,
+                        "n_done": sum(1 for uid, _ in items if uid in results),
+                        "n_failed": len(failures),
+                        "failed": sorted(failures),
+                        "complete": interrupted is None and done == total,
+                        "interrupted": interrupted is not None,
+                    }
+                )
             except OSError:  # never mask the original problem
                 pass
 
     order = {uid: i for i, (uid, _) in enumerate(items)}
-    return RunReport(results={uid: results[uid] for uid, _ in items if uid in results},
-                     failures=dict(sorted(failures.items(), key=lambda kv: order[kv[0]])),
-                     n_units=total, n_computed=n_computed, n_resumed=n_resumed,
-                     wall_s=time.perf_counter() - t0, unit_seconds=seconds)
+    return RunReport(
+        results={uid: results[uid] for uid, _ in items if uid in results},
+        failures=dict(sorted(failures.items(), key=lambda kv: order[kv[0]])),
+        n_units=total,
+        n_computed=n_computed,
+        n_resumed=n_resumed,
+        wall_s=time.perf_counter() - t0,
+        unit_seconds=seconds,
+    )

@@ -42,18 +42,35 @@ def terminal_size(stream=None) -> tuple:
     return (cols if cols > 0 else fallback.columns or 80), (rows if rows > 0 else fallback.lines or 24)
 
 
-def progress_bar(total: int | None = None, desc: str = "", unit: str = "units", file=None, leave: bool = True,
-                 position: int | None = None):
+def progress_bar(
+    total: int | None = None,
+    desc: str = "",
+    unit: str = "units",
+    file=None,
+    leave: bool = True,
+    position: int | None = None,
+):
     """A tqdm bar on ``file`` (default stderr) that draws on every terminal, with the elapsed time,
     the ETA and the rate (:data:`BAR_FORMAT`). ``total`` None or 0: not known yet (:func:`plan`)."""
-    from tqdm import tqdm          # the plain bar: tqdm.auto picks a notebook widget inside Jupyter kernels
+    from tqdm import tqdm  # the plain bar: tqdm.auto picks a notebook widget inside Jupyter kernels
 
     file = file if file is not None else sys.stderr
     cols, rows = terminal_size(file)
     fmt = BAR_FORMAT if total else None
-    return tqdm(total=total or None, desc=desc, unit=unit, file=file, ncols=min(cols, 120), nrows=rows,
-                leave=leave, position=position, mininterval=0.5, smoothing=0.1, bar_format=fmt,
-                delay=0 if total else 0.5)    # no "0 units" line before the command plans the total
+    return tqdm(
+        total=total or None,
+        desc=desc,
+        unit=unit,
+        file=file,
+        ncols=min(cols, 120),
+        nrows=rows,
+        leave=leave,
+        position=position,
+        mininterval=0.5,
+        smoothing=0.1,
+        bar_format=fmt,
+        delay=0 if total else 0.5,
+    )  # no "0 units" line before the command plans the total
 
 
 def plan(bar, total: int, desc: str | None = None) -> None:
@@ -61,7 +78,7 @@ def plan(bar, total: int, desc: str | None = None) -> None:
     its clock so that the ETA counts from here."""
     if bar is None:
         return
-    bar.reset(total=max(int(total or 0), 0) or None)     # None: not known ahead (a method without units)
+    bar.reset(total=max(int(total or 0), 0) or None)  # None: not known ahead (a method without units)
     if total:
         bar.bar_format = BAR_FORMAT
     if desc is not None:

@@ -36,17 +36,26 @@ class Execution:
         :class:`~imrbayes.execution.RunReport` (also kept in ``reports``)."""
         units = list(units)
         progress = self.progress
-        if self.bar is not None:     # one bar over every batch (MIEnKS: a batch per window)
+        if self.bar is not None:  # one bar over every batch (MIEnKS: a batch per window)
             bar, last = self.bar, [None]
-            if not bar.total or bar.n + len(units) > bar.total:   # no plan, or the plan was short
+            if not bar.total or bar.n + len(units) > bar.total:  # no plan, or the plan was short
                 bar.total = bar.n + len(units)
             bar.set_postfix_str(desc, refresh=False)
 
             def progress(done, total):
                 bar.update(1 if last[0] is None else done - last[0])
                 last[0] = done
-        rep = run_units(units, fn, seed=seed, store=self.store, executor=self.executor,
-                        retry_failed=self.retry_failed, progress=progress, desc=desc)
+
+        rep = run_units(
+            units,
+            fn,
+            seed=seed,
+            store=self.store,
+            executor=self.executor,
+            retry_failed=self.retry_failed,
+            progress=progress,
+            desc=desc,
+        )
         if self.bar is not None:
             self.bar.update(rep.n_resumed)
         self.reports.append((desc, rep))

@@ -39,8 +39,16 @@ from imrbayes.errors import InputError
 from imrbayes.execution.units import SEEDING_SCHEME, safe_name
 from imrbayes.io import atomic_write, write_json
 
-__all__ = ["RunStore", "canonical_config", "config_fingerprint", "CorruptUnitError", "encode_value", "decode_value",
-           "read_status", "pid_alive"]
+__all__ = [
+    "RunStore",
+    "canonical_config",
+    "config_fingerprint",
+    "CorruptUnitError",
+    "encode_value",
+    "decode_value",
+    "read_status",
+    "pid_alive",
+]
 
 RUN_FORMAT = "imrbayes-run/1"
 UNIT_FORMAT = 1
@@ -51,10 +59,11 @@ class CorruptUnitError(RuntimeError):
 
 
 def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
 
 
 # -------------------------------------------------------------------------------- configurations
+
 
 def _plain(obj, where: str = "config"):
     if obj is None or type(obj) in (bool, int, float, str):
@@ -78,8 +87,9 @@ def _plain(obj, where: str = "config"):
         return [_plain(v, f"{where}[{i}]") for i, v in enumerate(obj)]
     if isinstance(obj, (bool, int, float, str)):  # subclasses (enums, ...)
         return _base_scalar(obj)
-    raise TypeError(f"{where}: {type(obj).__name__} cannot be recorded in run.json (use numbers, strings, "
-                    f"lists and dicts)")
+    raise TypeError(
+        f"{where}: {type(obj).__name__} cannot be recorded in run.json (use numbers, strings, lists and dicts)"
+    )
 
 
 def _base_scalar(obj):
@@ -172,8 +182,10 @@ def encode_value(value) -> tuple[Any, dict[str, np.ndarray]]:
                     raise TypeError(f"{where}: dict keys must be strings, got {key!r}")
             body = {k: enc(v, f"{where}.{k}") for k, v in obj.items()}
             return {"__dict__": body} if any(k in _RESERVED for k in obj) else body
-        raise TypeError(f"{where}: a unit result of type {type(obj).__name__} cannot be stored; return numpy "
-                        f"arrays/scalars, numbers, strings, None, or lists/tuples/dicts of these")
+        raise TypeError(
+            f"{where}: a unit result of type {type(obj).__name__} cannot be stored; return numpy "
+            f"arrays/scalars, numbers, strings, None, or lists/tuples/dicts of these"
+        )
 
     return enc(value, "result"), arrays
 
@@ -186,7 +198,7 @@ def decode_value(tree, arrays) -> Any:
             return [dec(v) for v in obj]
         if isinstance(obj, dict):
             if len(obj) == 1:
-                (key, val), = obj.items()
+                ((key, val),) = obj.items()
                 if key == "__nd__":
                     return np.array(arrays[val])
                 if key == "__np__":
@@ -202,6 +214,7 @@ def decode_value(tree, arrays) -> Any:
 
 
 # ------------------------------------------------------------------------------------------ store
+
 
 class RunStore:
     """A run directory (see the module docstring). Open it with :meth:`RunStore.open`.
@@ -230,7 +243,7 @@ class RunStore:
 
     # -- opening -----------------------------------------------------------------------------------
     @classmethod
-    def open(cls, out, config: dict, *, resume: bool = False, check_version: bool = True) -> "RunStore":
+    def open(cls, out, config: dict, *, resume: bool = False, check_version: bool = True) -> RunStore:
         """Create the run directory ``out`` for ``config``, or (``resume=True``) reopen it.
 
         ``config`` must hold everything that determines the results (data, model, method
@@ -256,34 +269,48 @@ class RunStore:
             session = {"started": _now(), "host": socket.gethostname(), "pid": os.getpid()}
             if run_json.exists():
                 if not resume:
-                    raise InputError(out, "already holds a run (run.json); pass --resume to continue it, "
-                                          "or choose a new --out")
+                    raise InputError(
+                        out, "already holds a run (run.json); pass --resume to continue it, or choose a new --out"
+                    )
                 info = cls._read_info(run_json)
                 if info.get("fingerprint") != fingerprint:
                     diff = config_differences(info.get("config", {}), conf)
                     listed = "; ".join(diff[:6]) + (f"; and {len(diff) - 6} more" if len(diff) > 6 else "")
-                    raise InputError(out, f"cannot resume: the configuration differs from the stored run "
-                                          f"({listed or 'fingerprint differs'}); use the same options or a new --out")
+                    raise InputError(
+                        out,
+                        f"cannot resume: the configuration differs from the stored run "
+                        f"({listed or 'fingerprint differs'}); use the same options or a new --out",
+                    )
                 import imrbayes
 
                 if check_version and info.get("imrbayes_version") != imrbayes.__version__:
-                    raise InputError(out, f"cannot resume: the run was started with imrbayes "
-                                          f"{info.get('imrbayes_version')}, this is {imrbayes.__version__}; "
-                                          f"results could differ; use a new --out")
+                    raise InputError(
+                        out,
+                        f"cannot resume: the run was started with imrbayes "
+                        f"{info.get('imrbayes_version')}, this is {imrbayes.__version__}; "
+                        f"results could differ; use a new --out",
+                    )
                 if info.get("seeding") != SEEDING_SCHEME:
                     raise InputError(out, "cannot resume: the run used another random-seeding scheme")
                 info.setdefault("sessions", []).append({**session, "resume": True})
                 store = cls(out, info, True, lock_fd)
                 store.previous_interrupted = _interrupted_status(out / "status.json")
-                if store.previous_interrupted is not None:       # this session takes the run over
-                    store._last_status = {k: v for k, v in store.previous_interrupted.items()
-                                          if k not in ("owner", "updated")} | {"interrupted": False, "complete": False}
+                if store.previous_interrupted is not None:  # this session takes the run over
+                    store._last_status = {
+                        k: v for k, v in store.previous_interrupted.items() if k not in ("owner", "updated")
+                    } | {"interrupted": False, "complete": False}
             else:
                 import imrbayes
 
-                info = {"format": RUN_FORMAT, "imrbayes_version": imrbayes.__version__, "fingerprint": fingerprint,
-                        "seeding": SEEDING_SCHEME, "started": session["started"], "config": conf,
-                        "sessions": [{**session, "resume": False}]}
+                info = {
+                    "format": RUN_FORMAT,
+                    "imrbayes_version": imrbayes.__version__,
+                    "fingerprint": fingerprint,
+                    "seeding": SEEDING_SCHEME,
+                    "started": session["started"],
+                    "config": conf,
+                    "sessions": [{**session, "resume": False}],
+                }
                 store = cls(out, info, False, lock_fd)
             store._write_info()
             store._clean_temporaries()
@@ -321,9 +348,17 @@ class RunStore:
             last = self._last_status
             done = bool(last.get("complete")) and not interrupted and not last.get("interrupted")
             try:
-                write_json(self.path / "status.json",
-                           {**last, "complete": done, "interrupted": bool(interrupted or last.get("interrupted")),
-                            "running": False, "updated": _now()}, indent=2)
+                write_json(
+                    self.path / "status.json",
+                    {
+                        **last,
+                        "complete": done,
+                        "interrupted": bool(interrupted or last.get("interrupted")),
+                        "running": False,
+                        "updated": _now(),
+                    },
+                    indent=2,
+                )
             except OSError:  # never mask the original problem
                 pass
         _unlock(fd)
@@ -376,8 +411,14 @@ class RunStore:
         """Write a finished unit atomically and return its value as it will read back (identical to
         what :meth:`load` gives after a resume). A failure record of the unit is removed."""
         tree, arrays = encode_value(value)
-        meta = {"unit_id": uid, "seed": int(seed), "fingerprint": self.fingerprint, "finished": _now(),
-                "seconds": seconds, "worker": worker}
+        meta = {
+            "unit_id": uid,
+            "seed": int(seed),
+            "fingerprint": self.fingerprint,
+            "finished": _now(),
+            "seconds": seconds,
+            "worker": worker,
+        }
         header = json.dumps({"format": UNIT_FORMAT, "meta": meta, "value": tree}, allow_nan=True)
         payload = {**arrays, "__json__": np.array(header)}
         atomic_write(self._unit_path(uid), lambda fh: np.savez(fh, **payload))
@@ -407,23 +448,46 @@ class RunStore:
         raises :class:`CorruptUnitError`."""
         meta, value = self._read_unit(uid)
         if meta.get("fingerprint") != self.fingerprint:
-            raise InputError(self._unit_path(uid), "was computed for another configuration "
-                                                   "(its fingerprint differs from run.json)")
+            raise InputError(
+                self._unit_path(uid), "was computed for another configuration (its fingerprint differs from run.json)"
+            )
         if seed is not None and meta.get("seed") != int(seed):
-            raise InputError(self._unit_path(uid), f"was computed with seed {meta.get('seed')}, this run uses "
-                                                   f"seed {int(seed)}; use the same --seed or a new --out")
+            raise InputError(
+                self._unit_path(uid),
+                f"was computed with seed {meta.get('seed')}, this run uses "
+                f"seed {int(seed)}; use the same --seed or a new --out",
+            )
         return value
 
     def load_meta(self, uid: str) -> dict:
         """The stored header of a finished unit (id, seed, fingerprint, finished, seconds, worker)."""
         return self._read_unit(uid)[0]
 
-    def save_failure(self, uid: str, *, seed: int, error: str, traceback: str | None = None,
-                     seconds: float | None = None, worker: str | None = None) -> None:
+    def save_failure(
+        self,
+        uid: str,
+        *,
+        seed: int,
+        error: str,
+        traceback: str | None = None,
+        seconds: float | None = None,
+        worker: str | None = None,
+    ) -> None:
         """Record a unit that raised (atomically)."""
-        write_json(self._failure_path(uid), {
-            "unit_id": uid, "seed": int(seed), "fingerprint": self.fingerprint, "finished": _now(),
-            "error": error, "traceback": traceback, "seconds": seconds, "worker": worker}, indent=2)
+        write_json(
+            self._failure_path(uid),
+            {
+                "unit_id": uid,
+                "seed": int(seed),
+                "fingerprint": self.fingerprint,
+                "finished": _now(),
+                "error": error,
+                "traceback": traceback,
+                "seconds": seconds,
+                "worker": worker,
+            },
+            indent=2,
+        )
 
     def load_failure(self, uid: str) -> dict:
         """The stored failure record of a unit (``error``, ``traceback``, ...)."""
@@ -439,8 +503,11 @@ class RunStore:
         ``running`` with this process's pid and never ``complete``: a process killed outright
         (SIGKILL) cannot mark its run, so only :meth:`close` writes ``complete``."""
         self._last_status = dict(status)
-        write_json(self.path / "status.json",
-                   {**status, "complete": False, "running": True, "owner": _owner(), "updated": _now()}, indent=2)
+        write_json(
+            self.path / "status.json",
+            {**status, "complete": False, "running": True, "owner": _owner(), "updated": _now()},
+            indent=2,
+        )
 
 
 # ------------------------------------------------------------------------------------------- lock
@@ -454,7 +521,7 @@ def pid_alive(pid) -> bool:
         os.kill(int(pid), 0)
     except ProcessLookupError:
         return False
-    except PermissionError:        # someone else's process: alive
+    except PermissionError:  # someone else's process: alive
         return True
     except (OSError, TypeError, ValueError, OverflowError):
         return False
@@ -505,8 +572,9 @@ def _lock(out: Path) -> int | None:
             other = os.pread(fd, 64, 0).decode(errors="replace").strip()
         finally:
             os.close(fd)
-        raise InputError(out, f"the run is open in another process ({other or 'unknown'}); wait for it "
-                              f"to finish or stop it first")
+        raise InputError(
+            out, f"the run is open in another process ({other or 'unknown'}); wait for it to finish or stop it first"
+        )
     os.ftruncate(fd, 0)
     os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()}".encode(), 0)
     return fd

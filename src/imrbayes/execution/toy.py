@@ -37,14 +37,14 @@ def toy_bubble(unit, rng) -> dict:
     if data.get("fail"):
         raise ValueError(f"toy failure in {uid}")
     steps = int(data.get("steps", 2000))
-    G = 1e-2 * math.exp(0.3 * rng.standard_normal())        # nondimensional stiffness
-    mu = 5e-3 * math.exp(0.3 * rng.standard_normal())       # nondimensional viscosity
+    G = 1e-2 * math.exp(0.3 * rng.standard_normal())  # nondimensional stiffness
+    mu = 5e-3 * math.exp(0.3 * rng.standard_normal())  # nondimensional viscosity
     pg0, kappa = 0.02, 1.4
 
     def rhs(R, V):
         R = max(R, 0.05)
         pg = pg0 * R ** (-3 * kappa)
-        acc = (pg - 1.0 - 4 * mu * V / R - G * (5 - 4 / R - 1 / R ** 4) / 2 - 1.5 * V * V) / R
+        acc = (pg - 1.0 - 4 * mu * V / R - G * (5 - 4 / R - 1 / R**4) / 2 - 1.5 * V * V) / R
         return V, acc
 
     R, V, h = 1.0, 0.0, 1e-3
@@ -61,8 +61,7 @@ def toy_bubble(unit, rng) -> dict:
         if i % 20 == 0 and k < out.size:
             out[k] = R
             k += 1
-    return {"params": np.array([G, mu]), "R": out[:k], "draws": rng.standard_normal(8), "n_steps": steps,
-            "label": uid}
+    return {"params": np.array([G, mu]), "R": out[:k], "draws": rng.standard_normal(8), "n_steps": steps, "label": uid}
 
 
 def toy_units(n: int, *, steps: int = 2000, sleep: float = 0.0, fail=(), windows: int = 1) -> list[Unit]:
@@ -98,21 +97,40 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     units = toy_units(args.units, steps=args.steps, sleep=args.sleep, fail=args.fail, windows=args.windows)
-    config = {"workload": "toy_bubble", "units": args.units, "windows": args.windows, "steps": args.steps,
-              "fail": sorted(args.fail), "seed": args.seed}
+    config = {
+        "workload": "toy_bubble",
+        "units": args.units,
+        "windows": args.windows,
+        "steps": args.steps,
+        "fail": sorted(args.fail),
+        "seed": args.seed,
+    }
     try:
-        with RunStore.open(args.out, config, resume=args.resume) as store, \
-                make_executor(args.workers, args.scheduler) as ex:
-            report = run_units(units, toy_bubble, seed=args.seed, store=store, executor=ex,
-                               retry_failed=args.retry_failed)
+        with (
+            RunStore.open(args.out, config, resume=args.resume) as store,
+            make_executor(args.workers, args.scheduler) as ex,
+        ):
+            report = run_units(
+                units, toy_bubble, seed=args.seed, store=store, executor=ex, retry_failed=args.retry_failed
+            )
     except RunInterrupted as exc:
         print(f"toy: {exc}", file=sys.stderr)
         return 128 + exc.signum
     except InputError as exc:
         print(f"toy: error: {exc}", file=sys.stderr)
         return 2
-    print(json.dumps({"n_units": report.n_units, "n_computed": report.n_computed, "n_resumed": report.n_resumed,
-                      "n_failed": report.n_failed, "failed": list(report.failures), "wall_s": report.wall_s}))
+    print(
+        json.dumps(
+            {
+                "n_units": report.n_units,
+                "n_computed": report.n_computed,
+                "n_resumed": report.n_resumed,
+                "n_failed": report.n_failed,
+                "failed": list(report.failures),
+                "wall_s": report.wall_s,
+            }
+        )
+    )
     return 0
 
 

@@ -16,13 +16,22 @@ whether the run was resumed.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
-__all__ = ["Unit", "unit_id", "unit_seed_sequence", "unit_rng", "unit_stream", "normalize_units", "safe_name",
-           "SEEDING_SCHEME"]
+__all__ = [
+    "Unit",
+    "unit_id",
+    "unit_seed_sequence",
+    "unit_rng",
+    "unit_stream",
+    "normalize_units",
+    "safe_name",
+    "SEEDING_SCHEME",
+]
 
 #: Recorded in ``run.json``; bump it if the derivation below ever changes (stored runs would no
 #: longer resume to the same numbers).
@@ -97,7 +106,7 @@ def normalize_units(units: Iterable) -> list[tuple[str, Any]]:
 
 def _hash_words(uid: str, n: int = 8) -> tuple[int, ...]:
     digest = hashlib.sha256(uid.encode("utf-8")).digest()
-    return tuple(int.from_bytes(digest[4 * i:4 * i + 4], "little") for i in range(n))
+    return tuple(int.from_bytes(digest[4 * i : 4 * i + 4], "little") for i in range(n))
 
 
 def _check_seed(seed) -> int:

@@ -10,10 +10,23 @@ from imrbayes.forward.constants import Physics, nondimensional_groups
 from imrbayes.forward.constitutive import available_models, get_model
 from imrbayes.forward.model import BatchState, ForwardModel, Propagation
 from imrbayes.forward.options import ForwardOptions
-from imrbayes.forward.runner import Runner, forward_model_from_spec, fm_spec, register_runner, runner_for
+from imrbayes.forward.runner import Runner, fm_spec, forward_model_from_spec, register_runner, runner_for
 
 RAYLEIGH_COLLAPSE_TIME = 0.9146813565  # sqrt(6 pi) Gamma(11/6) / (5 Gamma(4/3)), in Rmax/Uc
 
-__all__ = ["ForwardModel", "ForwardOptions", "BatchState", "Propagation", "Physics", "available_models",
-           "get_model", "nondimensional_groups", "RAYLEIGH_COLLAPSE_TIME", "Runner", "fm_spec",
-           "forward_model_from_spec", "register_runner", "runner_for"]
+__all__ = [
+    "ForwardModel",
+    "ForwardOptions",
+    "BatchState",
+    "Propagation",
+    "Physics",
+    "available_models",
+    "get_model",
+    "nondimensional_groups",
+    "RAYLEIGH_COLLAPSE_TIME",
+    "Runner",
+    "fm_spec",
+    "forward_model_from_spec",
+    "register_runner",
+    "runner_for",
+]

@@ -25,7 +25,22 @@ from imrbayes.mcmc.sampler import MCMCRun, MCMCSettings, run_mcmc
 from imrbayes.mcmc.target import WindowTarget, fitting_window_target, window_target_from_ensemble
 from imrbayes.mcmc.windows import compare_from_tree, mcmc_tree, sample_windows, window_specs, write_compare, write_mcmc
 
-__all__ = ["WindowTarget", "fitting_window_target", "window_target_from_ensemble",
-           "MCMCSettings", "MCMCRun", "run_mcmc", "THRESHOLDS", "compare_window", "compare_windows",
-           "gaussian_kl", "gaussian_w2", "window_specs", "sample_windows", "mcmc_tree", "write_mcmc",
-           "write_compare", "compare_from_tree"]
+__all__ = [
+    "WindowTarget",
+    "fitting_window_target",
+    "window_target_from_ensemble",
+    "MCMCSettings",
+    "MCMCRun",
+    "run_mcmc",
+    "THRESHOLDS",
+    "compare_window",
+    "compare_windows",
+    "gaussian_kl",
+    "gaussian_w2",
+    "window_specs",
+    "sample_windows",
+    "mcmc_tree",
+    "write_mcmc",
+    "write_compare",
+    "compare_from_tree",
+]

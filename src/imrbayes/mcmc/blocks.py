@@ -62,7 +62,7 @@ def _move_class():
             """Each block moves by gamma times a difference of two complementary walkers' residuals
             from the regression on the parameters (the conditional spread, not the marginal one)."""
             B = regression_on_params(c, self.n_params)
-            r = c[:, self.n_params:] - c[:, :self.n_params] @ B.T
+            r = c[:, self.n_params :] - c[:, : self.n_params] @ B.T
             q = s.copy()
             for cols in self.blocks:
                 if not cols.size:
@@ -83,7 +83,7 @@ def _move_class():
                 s1 = inds == split
                 s, c = state.coords[s1], state.coords[~s1]
                 q = self._proposal(s, c, model.random)
-                model.compute_log_prob_fn(q)                    # the forward batch (memo filled)
+                model.compute_log_prob_fn(q)  # the forward batch (memo filled)
                 z, lp, acc = self.target.accept_blocks(s, q, model.random)
                 accepted[s1] = acc.any(axis=1)
                 state = self.update(state, emcee.State(z, log_prob=lp), accepted, s1)
@@ -109,7 +109,7 @@ def _move_class():
     return _Blocks, _Ridge
 
 
-def BlockMove(target, gamma0=None):          # noqa: N802 - a class factory (emcee is imported lazily)
+def BlockMove(target, gamma0=None):  # noqa: N802 - a class factory (emcee is imported lazily)
     """Each experiment's nuisance block updated on its own, all blocks in one forward batch (module
     docstring). ``target``: a :class:`~imrbayes.mcmc.target.WindowTarget` with sampled nuisances;
     ``gamma0``: DE step factor per block (default 2.38 / sqrt(2 k), k the block's size). emcee's
@@ -117,7 +117,7 @@ def BlockMove(target, gamma0=None):          # noqa: N802 - a class factory (emc
     return _move_class()[0](target, gamma0)
 
 
-def RidgeMove(n_params: int, gamma0=None):      # noqa: N802
+def RidgeMove(n_params: int, gamma0=None):  # noqa: N802
     """DE in the first ``n_params`` coordinates (the parameters), the others carried along the
     complementary walkers' regression on them (module docstring). Without nuisances: DE in theta."""
     return _move_class()[1](n_params, gamma0)

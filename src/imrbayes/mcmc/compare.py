@@ -70,18 +70,43 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist, pdist
 from scipy.special import digamma, gammaln
 
-__all__ = ["THRESHOLDS", "AGREE_RULE", "gaussian_kl", "gaussian_w2", "whitener", "energy_distance",
-           "energy_shift_reference", "sample_w1", "knn_entropy", "negentropy", "mardia", "sample_check",
-           "mcmc_summary", "compare_window", "compare_windows", "lognormal_moments", "quadrature_block"]
+__all__ = [
+    "THRESHOLDS",
+    "AGREE_RULE",
+    "gaussian_kl",
+    "gaussian_w2",
+    "whitener",
+    "energy_distance",
+    "energy_shift_reference",
+    "sample_w1",
+    "knn_entropy",
+    "negentropy",
+    "mardia",
+    "sample_check",
+    "mcmc_summary",
+    "compare_window",
+    "compare_windows",
+    "lognormal_moments",
+    "quadrature_block",
+]
 
 #: Thresholds of the agreement rule (module docstring).
-THRESHOLDS = {"kl_sym": 0.1, "w2": 0.5, "kl_sample": 0.1, "rhat": 1.01, "ess_bulk": 400.0, "ess_tail": 400.0,
-              "tau_rule": 50.0}
+THRESHOLDS = {
+    "kl_sym": 0.1,
+    "w2": 0.5,
+    "kl_sample": 0.1,
+    "rhat": 1.01,
+    "ess_bulk": 400.0,
+    "ess_tail": 400.0,
+    "tau_rule": 50.0,
+}
 
-AGREE_RULE = ("agree = kl_sym <= {kl_sym} nats and w2 <= {w2} (MCMC-whitened sd units) and kl_sample <= {kl_sample} "
-              "nats (KL(MCMC || ensemble Gaussian) = Gaussian KL + bias-corrected kNN negentropy of the draws); "
-              "null (undecided) when max R-hat > {rhat}, min bulk ESS < {ess_bulk:g}, min tail ESS < {ess_tail:g}, "
-              "a chain is shorter than {tau_rule:g} tau, or the sampler stopped at its step cap unconverged")
+AGREE_RULE = (
+    "agree = kl_sym <= {kl_sym} nats and w2 <= {w2} (MCMC-whitened sd units) and kl_sample <= {kl_sample} "
+    "nats (KL(MCMC || ensemble Gaussian) = Gaussian KL + bias-corrected kNN negentropy of the draws); "
+    "null (undecided) when max R-hat > {rhat}, min bulk ESS < {ess_bulk:g}, min tail ESS < {ess_tail:g}, "
+    "a chain is shorter than {tau_rule:g} tau, or the sampler stopped at its step cap unconverged"
+)
 
 
 def _sym(a):
@@ -101,7 +126,7 @@ def gaussian_kl(m0, S0, m1, S1) -> float:
     S0, S1 = _sym(np.reshape(S0, (d, d))), _sym(np.reshape(S1, (d, d)))
     L1 = np.linalg.cholesky(S1)
     L0 = np.linalg.cholesky(S0)
-    A = np.linalg.solve(L1, L0)                    # L1^-1 L0: tr(S1^-1 S0) = ||A||_F^2
+    A = np.linalg.solve(L1, L0)  # L1^-1 L0: tr(S1^-1 S0) = ||A||_F^2
     r = np.linalg.solve(L1, m1 - m0)
     logdet = 2.0 * (np.sum(np.log(np.diag(L1))) - np.sum(np.log(np.diag(L0))))
     return float(0.5 * (np.sum(A * A) + r @ r - d + logdet))
@@ -193,8 +218,15 @@ def negentropy(X, k: int = 5, n_null: int = 100) -> dict:
     raw = _negentropy_raw(X, k)
     null = _negentropy_null(int(n), int(d), int(k), int(n_null))
     bias = float(np.median(null))
-    return {"raw": float(raw), "bias": bias, "estimate": float(max(raw - bias, 0.0)),
-            "null_sd": float(null.std()), "null_q99": float(np.quantile(null, 0.99)), "n": int(n), "k": int(k)}
+    return {
+        "raw": float(raw),
+        "bias": bias,
+        "estimate": float(max(raw - bias, 0.0)),
+        "null_sd": float(null.std()),
+        "null_q99": float(np.quantile(null, 0.99)),
+        "n": int(n),
+        "k": int(k),
+    }
 
 
 def mardia(X) -> dict:
@@ -206,16 +238,24 @@ def mardia(X) -> dict:
     X = np.atleast_2d(np.asarray(X, float))
     n, d = X.shape
     Xc = X - X.mean(axis=0)
-    Y = Xc @ whitener(Xc.T @ Xc / n).T                     # y_i . y_j = x_i^T S^-1 x_j (S with 1/n)
-    T = np.einsum("ia,ib,ic->abc", Y, Y, Y)                 # b1 = sum_ij (y_i . y_j)^3 / n^2 = |T|^2 / n^2
-    b1 = float(np.sum(T * T) / n ** 2)
+    Y = Xc @ whitener(Xc.T @ Xc / n).T  # y_i . y_j = x_i^T S^-1 x_j (S with 1/n)
+    T = np.einsum("ia,ib,ic->abc", Y, Y, Y)  # b1 = sum_ij (y_i . y_j)^3 / n^2 = |T|^2 / n^2
+    b1 = float(np.sum(T * T) / n**2)
     b2 = float(np.mean(np.sum(Y * Y, axis=1) ** 2))
     df = d * (d + 1) * (d + 2) / 6.0
     skew_stat = n * b1 / 6.0
     kz = (b2 - d * (d + 2)) / math.sqrt(8.0 * d * (d + 2) / n)
-    return {"n": int(n), "b1": b1, "b2": b2, "b2_gaussian": float(d * (d + 2)),
-            "skew_stat": float(skew_stat), "skew_df": float(df), "skew_p": float(stats.chi2.sf(skew_stat, df)),
-            "kurt_z": float(kz), "kurt_p": float(2.0 * stats.norm.sf(abs(kz)))}
+    return {
+        "n": int(n),
+        "b1": b1,
+        "b2": b2,
+        "b2_gaussian": float(d * (d + 2)),
+        "skew_stat": float(skew_stat),
+        "skew_df": float(df),
+        "skew_p": float(stats.chi2.sf(skew_stat, df)),
+        "kurt_z": float(kz),
+        "kurt_p": float(2.0 * stats.norm.sf(abs(kz))),
+    }
 
 
 def sample_check(X, ens_mean, ens_cov, ref_cov=None, rng=None, n_null: int = 100, n_w1: int = 300) -> dict:
@@ -238,12 +278,21 @@ def sample_check(X, ens_mean, ens_cov, ref_cov=None, rng=None, n_null: int = 100
     null = np.array([energy_distance(rng.standard_normal((n, d)), rng.standard_normal((n, d))) for _ in range(n_null)])
     k = min(n, int(n_w1))
     w1 = sample_w1(Xw[:k], Yw[:k])
-    w1_null = float(np.median([sample_w1(rng.standard_normal((k, d)), rng.standard_normal((k, d)))
-                               for _ in range(min(20, n_null))]))
-    return {"method": "energy distance, whitened by the MCMC covariance, vs draws of the ensemble Gaussian",
-            "n": int(n), "statistic": float(stat), "p_value": float((1 + np.sum(null >= stat)) / (1 + null.size)),
-            "null_median": float(np.median(null)), "null_q99": float(np.quantile(null, 0.99)),
-            "shift_reference": energy_shift_reference(d, 0.5), "w1": w1, "w1_n": int(k), "w1_null_median": w1_null}
+    w1_null = float(
+        np.median([sample_w1(rng.standard_normal((k, d)), rng.standard_normal((k, d))) for _ in range(min(20, n_null))])
+    )
+    return {
+        "method": "energy distance, whitened by the MCMC covariance, vs draws of the ensemble Gaussian",
+        "n": int(n),
+        "statistic": float(stat),
+        "p_value": float((1 + np.sum(null >= stat)) / (1 + null.size)),
+        "null_median": float(np.median(null)),
+        "null_q99": float(np.quantile(null, 0.99)),
+        "shift_reference": energy_shift_reference(d, 0.5),
+        "w1": w1,
+        "w1_n": int(k),
+        "w1_null_median": w1_null,
+    }
 
 
 def lognormal_moments(mean, cov, positive):
@@ -270,11 +319,15 @@ def _corr(S):
 
 def _moments_block(names, internal_names, m_int, S_int, m_si, S_si) -> dict:
     sd_si = np.sqrt(np.diag(S_si))
-    return {"mean": {n: float(v) for n, v in zip(names, m_si)}, "sd": {n: float(v) for n, v in zip(names, sd_si)},
-            "cov": S_si.tolist(), "corr": _corr(S_int).tolist(),
-            "mean_internal": {n: float(v) for n, v in zip(internal_names, m_int)},
-            "sd_internal": {n: float(v) for n, v in zip(internal_names, np.sqrt(np.diag(S_int)))},
-            "cov_internal": S_int.tolist()}
+    return {
+        "mean": {n: float(v) for n, v in zip(names, m_si)},
+        "sd": {n: float(v) for n, v in zip(names, sd_si)},
+        "cov": S_si.tolist(),
+        "corr": _corr(S_int).tolist(),
+        "mean_internal": {n: float(v) for n, v in zip(internal_names, m_int)},
+        "sd_internal": {n: float(v) for n, v in zip(internal_names, np.sqrt(np.diag(S_int)))},
+        "cov_internal": S_int.tolist(),
+    }
 
 
 def mcmc_summary(dt, var_names) -> dict:
@@ -310,14 +363,34 @@ def quadrature_block(quad: dict, x, mE, SE, mcse_mean=None, mcse_sd=None) -> dic
     SQ = _sym(np.asarray(quad["cov_internal"], float))
     W = whitener(SQ)
     kl_qe, kl_eq = gaussian_kl(mQ, SQ, mE, SE), gaussian_kl(mE, SE, mQ, SQ)
-    return {**quad, "vs_mcmc": compare_to_mcmc(quad, x, mcse_mean, mcse_sd),
-            "vs_ensemble": {"kl_gauss": kl_qe, "kl_gauss_reverse": kl_eq, "kl_sym": 0.5 * (kl_qe + kl_eq),
-                            "w2": gaussian_w2(W @ mE, W @ SE @ W.T, W @ mQ, np.eye(len(names)))}}
+    return {
+        **quad,
+        "vs_mcmc": compare_to_mcmc(quad, x, mcse_mean, mcse_sd),
+        "vs_ensemble": {
+            "kl_gauss": kl_qe,
+            "kl_gauss_reverse": kl_eq,
+            "kl_sym": 0.5 * (kl_qe + kl_eq),
+            "w2": gaussian_w2(W @ mE, W @ SE @ W.T, W @ mQ, np.eye(len(names))),
+        },
+    }
 
 
-def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, t_star=None, diagnostics=None,
-                   seed: int = 0, n_max: int = 2000, n_energy: int = 500, n_null: int = 100,
-                   quadrature: dict | None = None) -> dict:
+def compare_window(
+    ens_mean,
+    ens_cov,
+    mcmc,
+    names,
+    positive,
+    *,
+    index: int = 0,
+    t_star=None,
+    diagnostics=None,
+    seed: int = 0,
+    n_max: int = 2000,
+    n_energy: int = 500,
+    n_null: int = 100,
+    quadrature: dict | None = None,
+) -> dict:
     """One window's entry of ``compare.json`` (module docstring).
 
     Parameters
@@ -343,7 +416,7 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
     internal = [f"log_{n}" if p else n for n, p in zip(names, positive)]
     d = len(names)
     mE, SE = np.asarray(ens_mean, float).reshape(d), _sym(np.asarray(ens_cov, float).reshape(d, d))
-    x = _draws(mcmc, internal)                                           # (C, D, d)
+    x = _draws(mcmc, internal)  # (C, D, d)
     C, D, _ = x.shape
     flat = x.reshape(C * D, d)
     mM, SM = flat.mean(axis=0), np.cov(flat, rowvar=False).reshape(d, d)
@@ -354,16 +427,26 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
     # diagnostics (ArviZ: one chain per ensemble)
     if isinstance(mcmc, np.ndarray):
         import arviz as az
+
         dt = az.from_dict({"posterior": {v: x[:, :, i] for i, v in enumerate(internal)}})
     else:
         dt = mcmc
     diag = mcmc_summary(dt, internal) if C >= 2 else None
-    mcmc_block = _moments_block(names, internal, mM, SM, thetaM.mean(axis=0), np.cov(thetaM, rowvar=False).reshape(d, d))
+    mcmc_block = _moments_block(
+        names, internal, mM, SM, thetaM.mean(axis=0), np.cov(thetaM, rowvar=False).reshape(d, d)
+    )
     converged = True
     if diag is not None:
-        by_name = lambda col: {n: diag[col][v] for n, v in zip(names, internal)}   # noqa: E731
-        mcmc_block.update({"rhat": by_name("r_hat"), "ess_bulk": by_name("ess_bulk"), "ess_tail": by_name("ess_tail"),
-                           "mcse_mean": diag["mcse_mean"], "mcse_sd": diag["mcse_sd"]})
+        by_name = lambda col: {n: diag[col][v] for n, v in zip(names, internal)}  # noqa: E731
+        mcmc_block.update(
+            {
+                "rhat": by_name("r_hat"),
+                "ess_bulk": by_name("ess_bulk"),
+                "ess_tail": by_name("ess_tail"),
+                "mcse_mean": diag["mcse_mean"],
+                "mcse_sd": diag["mcse_sd"],
+            }
+        )
         rmax = max(diag["r_hat"].values())
         emin = min(diag["ess_bulk"].values())
         if not rmax <= THRESHOLDS["rhat"]:
@@ -385,16 +468,20 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
         mcmc_block["sampler"] = diagnostics
         if diagnostics.get("all_tau_ok") is False:
             converged = False
-            notes.append(f"chains shorter than {diagnostics.get('tau_rule', 50):g} tau "
-                         f"(n_steps/tau = {diagnostics.get('n_steps_over_tau', float('nan')):.1f})")
+            notes.append(
+                f"chains shorter than {diagnostics.get('tau_rule', 50):g} tau "
+                f"(n_steps/tau = {diagnostics.get('n_steps_over_tau', float('nan')):.1f})"
+            )
         if diagnostics.get("cap_hit"):
             converged = False
             notes.append(f"hard cap of {diagnostics.get('cap')} steps reached before the convergence check passed")
         failed = diagnostics.get("failed_chains") or {}
         if failed:
             first = next(iter(failed.items()))
-            notes.append(f"{len(failed)} emcee ensemble(s) failed and were left out (ensemble {first[0]}: "
-                         f"{first[1]}); the diagnostics use the other {C}")
+            notes.append(
+                f"{len(failed)} emcee ensemble(s) failed and were left out (ensemble {first[0]}: "
+                f"{first[1]}); the diagnostics use the other {C}"
+            )
     mcmc_block.update({"n_chains": int(C), "n_draws": int(C * D), "converged": bool(converged)})
 
     # Gaussian metrics
@@ -416,18 +503,25 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
     chk = sample_check(flat[e_pick], mE, SE, ref_cov=SM, rng=rng, n_null=n_null)
     mar = mardia(sub)
     if mar["skew_p"] < 1e-3 or mar["kurt_p"] < 1e-3 or neg["raw"] > neg["null_q99"]:
-        notes.append(f"MCMC posterior is non-Gaussian (negentropy {neg['estimate']:.3g} nats, Mardia skewness "
-                     f"p = {mar['skew_p']:.2g}, kurtosis z = {mar['kurt_z']:.2f})")
+        notes.append(
+            f"MCMC posterior is non-Gaussian (negentropy {neg['estimate']:.3g} nats, Mardia skewness "
+            f"p = {mar['skew_p']:.2g}, kurtosis z = {mar['kurt_z']:.2f})"
+        )
     if chk["p_value"] < 0.01:
         notes.append(f"energy test rejects equality with the ensemble Gaussian (p = {chk['p_value']:.2g})")
 
     kl_sym = 0.5 * (kl_me + kl_em)
-    crit = {"kl_sym": bool(kl_sym <= THRESHOLDS["kl_sym"]), "w2": bool(w2w <= THRESHOLDS["w2"]),
-            "kl_sample": bool(kl_sample <= THRESHOLDS["kl_sample"])}
-    why = {"kl_sym": f"Gaussian KL (symmetrised) {kl_sym:.3g} > {THRESHOLDS['kl_sym']} nats",
-           "w2": f"W2 {w2w:.3g} sd > {THRESHOLDS['w2']}",
-           "kl_sample": f"sample KL {kl_sample:.3g} > {THRESHOLDS['kl_sample']} nats "
-                        f"(Gaussian part {kl_me:.3g} + non-Gaussian part {neg['estimate']:.3g})"}
+    crit = {
+        "kl_sym": bool(kl_sym <= THRESHOLDS["kl_sym"]),
+        "w2": bool(w2w <= THRESHOLDS["w2"]),
+        "kl_sample": bool(kl_sample <= THRESHOLDS["kl_sample"]),
+    }
+    why = {
+        "kl_sym": f"Gaussian KL (symmetrised) {kl_sym:.3g} > {THRESHOLDS['kl_sym']} nats",
+        "w2": f"W2 {w2w:.3g} sd > {THRESHOLDS['w2']}",
+        "kl_sample": f"sample KL {kl_sample:.3g} > {THRESHOLDS['kl_sample']} nats "
+        f"(Gaussian part {kl_me:.3g} + non-Gaussian part {neg['estimate']:.3g})",
+    }
     notes.extend(why[k] for k, ok in crit.items() if not ok)
     agree = bool(all(crit.values())) if converged else None
     if agree:
@@ -436,29 +530,47 @@ def compare_window(ens_mean, ens_cov, mcmc, names, positive, *, index: int = 0, 
         notes.insert(0, "undecided: the MCMC run does not meet the convergence criteria")
     if quadrature is None and not isinstance(mcmc, np.ndarray):
         import json
+
         quadrature = json.loads((getattr(mcmc, "attrs", None) or {}).get("quadrature_json", "null"))
     quad = None
     if quadrature is not None and "mean_internal" in quadrature and d == 2:
-        mc = (np.array([diag["mcse_mean"][v] for v in internal]), np.array([diag["mcse_sd"][v] for v in internal])) \
-            if diag is not None else (None, None)
+        mc = (
+            (np.array([diag["mcse_mean"][v] for v in internal]), np.array([diag["mcse_sd"][v] for v in internal]))
+            if diag is not None
+            else (None, None)
+        )
         quad = quadrature_block(quadrature, x, mE, SE, *mc)
         if not quad["vs_mcmc"]["within_mc_error"] and converged:
-            notes.append("MCMC and the grid quadrature differ by more than their Monte-Carlo error (mean/sd z "
-                         f"{max(map(abs, quad['vs_mcmc']['mean_z'].values())):.1f}/"
-                         f"{max(map(abs, quad['vs_mcmc']['sd_z'].values())):.1f})")
+            notes.append(
+                "MCMC and the grid quadrature differ by more than their Monte-Carlo error (mean/sd z "
+                f"{max(map(abs, quad['vs_mcmc']['mean_z'].values())):.1f}/"
+                f"{max(map(abs, quad['vs_mcmc']['sd_z'].values())):.1f})"
+            )
     elif quadrature is not None and "error" in quadrature:
         quad = quadrature
         notes.append(f"grid quadrature failed: {quadrature['error']}")
-    entry = {"index": int(index), "t_star": None if t_star is None else [float(t) for t in t_star],
-             "parameters": names, "internal": internal,
-             "ensemble": _moments_block(names, internal, mE, SE, mE_si, SE_si),
-             "mcmc": mcmc_block,
-             "kl_gauss": kl_me, "kl_gauss_reverse": kl_em, "kl_sym": kl_sym,
-             "w2": w2w, "w2_log": w2l,
-             "mean_shift_sd": {n: float(v) for n, v in zip(names, (mE - mM) / sdM)},
-             "sd_ratio": {n: float(v) for n, v in zip(names, sdE / sdM)},
-             "kl_sample": kl_sample, "negentropy": neg, "sample_check": chk, "mardia": mar,
-             "criteria": crit, "agree": agree, "notes": "; ".join(notes)}
+    entry = {
+        "index": int(index),
+        "t_star": None if t_star is None else [float(t) for t in t_star],
+        "parameters": names,
+        "internal": internal,
+        "ensemble": _moments_block(names, internal, mE, SE, mE_si, SE_si),
+        "mcmc": mcmc_block,
+        "kl_gauss": kl_me,
+        "kl_gauss_reverse": kl_em,
+        "kl_sym": kl_sym,
+        "w2": w2w,
+        "w2_log": w2l,
+        "mean_shift_sd": {n: float(v) for n, v in zip(names, (mE - mM) / sdM)},
+        "sd_ratio": {n: float(v) for n, v in zip(names, sdE / sdM)},
+        "kl_sample": kl_sample,
+        "negentropy": neg,
+        "sample_check": chk,
+        "mardia": mar,
+        "criteria": crit,
+        "agree": agree,
+        "notes": "; ".join(notes),
+    }
     if quad is not None:
         entry["quadrature"] = quad
     return entry
@@ -472,13 +584,19 @@ def compare_windows(entries) -> dict:
     kls = [e["kl_sample"] for e in entries]
     agree = [e["agree"] for e in entries]
     worst = int(entries[int(np.argmax(kls))]["index"]) if entries else None
-    overall = {"n_windows": len(entries), "n_agree": sum(a is True for a in agree),
-               "n_disagree": sum(a is False for a in agree), "n_undecided": sum(a is None for a in agree),
-               "all_agree": bool(entries) and all(a is True for a in agree),
-               "all_converged": all(e["mcmc"]["converged"] for e in entries),
-               "max_kl_sym": max(kl) if kl else None, "max_w2": max(w2) if w2 else None,
-               "max_kl_sample": max(kls) if kls else None,
-               "worst_window": worst, "thresholds": dict(THRESHOLDS),
-               "agree_rule": AGREE_RULE.format(**THRESHOLDS),
-               "coordinates": "internal parameters: log for positive parameters (log G [Pa], log mu [Pa s])"}
+    overall = {
+        "n_windows": len(entries),
+        "n_agree": sum(a is True for a in agree),
+        "n_disagree": sum(a is False for a in agree),
+        "n_undecided": sum(a is None for a in agree),
+        "all_agree": bool(entries) and all(a is True for a in agree),
+        "all_converged": all(e["mcmc"]["converged"] for e in entries),
+        "max_kl_sym": max(kl) if kl else None,
+        "max_w2": max(w2) if w2 else None,
+        "max_kl_sample": max(kls) if kls else None,
+        "worst_window": worst,
+        "thresholds": dict(THRESHOLDS),
+        "agree_rule": AGREE_RULE.format(**THRESHOLDS),
+        "coordinates": "internal parameters: log for positive parameters (log G [Pa], log mu [Pa s])",
+    }
     return {"windows": entries, "overall": overall}

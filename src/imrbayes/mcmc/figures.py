@@ -69,14 +69,21 @@ def forest_figure(entries, path, tree=None, prob: float = 0.95):
                 lo, med, hi = np.quantile(x, [0.5 - prob / 2, 0.5, 0.5 + prob / 2])
             else:
                 m, s = e["mcmc"]["mean_internal"][iname], e["mcmc"]["sd_internal"][iname]
-                lo, med, hi = (np.exp([m - q * s, m, m + q * s]) if log else (m - q * s, m, m + q * s))
+                lo, med, hi = np.exp([m - q * s, m, m + q * s]) if log else (m - q * s, m, m + q * s)
             ax.plot([tc + dx] * 2, [lo * sc, hi * sc], color=_MC, lw=2, alpha=0.8)
             ax.plot(tc + dx, med * sc, "s", color=_MC, ms=4, label="MCMC" if k == 0 else None)
             qi = (e.get("quadrature") or {}).get("eti95", {}).get(name)
             if qi is not None and prob == 0.95:
-                ax.plot([tc] * 2, [qi[0] * sc, qi[1] * sc], color=_QD, lw=1.2, alpha=0.9,
-                        label="quadrature (exact)" if not any(
-                            (x.get("quadrature") or {}).get("eti95") for x in entries[:k]) else None)
+                ax.plot(
+                    [tc] * 2,
+                    [qi[0] * sc, qi[1] * sc],
+                    color=_QD,
+                    lw=1.2,
+                    alpha=0.9,
+                    label="quadrature (exact)"
+                    if not any((x.get("quadrature") or {}).get("eti95") for x in entries[:k])
+                    else None,
+                )
             ax.plot(ts, [med * sc] * 2, color=_MC, lw=0.6, alpha=0.4)
             if e.get("agree") is False:
                 ax.plot(tc, hi * sc, "v", color="k", ms=4)
@@ -86,8 +93,9 @@ def forest_figure(entries, path, tree=None, prob: float = 0.95):
             ax.set_yscale("log")
             plain_log_axis(ax, "y")
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8, title=f"median, {int(prob * 100)}% interval ($\\blacktriangledown$: disagree)",
-                   title_fontsize=7)
+    axes[0].legend(
+        fontsize=8, title=f"median, {int(prob * 100)}% interval ($\\blacktriangledown$: disagree)", title_fontsize=7
+    )
     return save(fig, path)
 
 
@@ -115,9 +123,11 @@ def divergence_figure(entries, path, t_star=None, R_star=None):
     axes[0].axhline(THRESHOLDS["kl_sym"], ls="--", color="k", lw=0.8)
     axes[0].set_ylabel("KL [nats]")
     axes[0].set_yscale("symlog", linthresh=1e-2)
-    top_kl = max([THRESHOLDS["kl_sym"]] + [float(e[k]) for e in entries for k in ("kl_sym", "kl_sample")
-                                           if e.get(k) is not None and np.isfinite(e[k])])
-    axes[0].set_ylim(0.0, 2.0 * top_kl)           # KL >= 0: no negative half of the symlog axis
+    top_kl = max(
+        [THRESHOLDS["kl_sym"]]
+        + [float(e[k]) for e in entries for k in ("kl_sym", "kl_sample") if e.get(k) is not None and np.isfinite(e[k])]
+    )
+    axes[0].set_ylim(0.0, 2.0 * top_kl)  # KL >= 0: no negative half of the symlog axis
     axes[0].legend(fontsize=8)
     w2 = [e["w2"] for e in entries]
     axes[1].plot(tc, w2, "o-", color="tab:green", ms=3.5, lw=1)
@@ -150,7 +160,7 @@ def pair_figure(entry, node, path, max_points: int = 3000):
     logs = [iv != pv for iv, pv in zip(names, params)]
     scs = [scale(pv) for pv in params]
 
-    def phys(k, v):            # internal coordinate k -> display unit
+    def phys(k, v):  # internal coordinate k -> display unit
         v = np.asarray(v, dtype=float)
         return (np.exp(v) if logs[k] else v) * scs[k]
 
@@ -161,8 +171,11 @@ def pair_figure(entry, node, path, max_points: int = 3000):
     SE = np.asarray(entry["ensemble"]["cov_internal"], float)
     mM = np.array([entry["mcmc"]["mean_internal"][v] for v in names])
     SM = np.asarray(entry["mcmc"]["cov_internal"], float)
-    quad = entry.get("quadrature") if isinstance(entry.get("quadrature"), dict) and \
-        "mean_internal" in entry.get("quadrature", {}) else None
+    quad = (
+        entry.get("quadrature")
+        if isinstance(entry.get("quadrature"), dict) and "mean_internal" in entry.get("quadrature", {})
+        else None
+    )
     fig = figure(2.7 * d + 0.6, 2.7 * d + 0.5)
     axes = fig.subplots(d, d, squeeze=False)
     for i in range(d):
@@ -174,8 +187,11 @@ def pair_figure(entry, node, path, max_points: int = 3000):
             if i == j:
                 dens, edges = np.histogram(x[:, i], bins=40, density=True)
                 ax.stairs(dens, phys(i, edges), fill=True, color=_MC, alpha=0.35)
-                g = np.linspace(min(x[:, i].min(), mE[i] - 3 * math.sqrt(SE[i, i])),
-                                max(x[:, i].max(), mE[i] + 3 * math.sqrt(SE[i, i])), 200)
+                g = np.linspace(
+                    min(x[:, i].min(), mE[i] - 3 * math.sqrt(SE[i, i])),
+                    max(x[:, i].max(), mE[i] + 3 * math.sqrt(SE[i, i])),
+                    200,
+                )
                 ax.plot(phys(i, g), stats.norm.pdf(g, mE[i], math.sqrt(SE[i, i])), color=_ENS, lw=1.5)
                 ax.plot(phys(i, g), stats.norm.pdf(g, mM[i], math.sqrt(SM[i, i])), color=_MC, lw=1, ls="--")
                 if quad is not None:
@@ -188,7 +204,10 @@ def pair_figure(entry, node, path, max_points: int = 3000):
             else:
                 ax.plot(phys(j, x[:, j]), phys(i, x[:, i]), ".", ms=1.2, color=_MC, alpha=0.25, rasterized=True)
                 for k in (1, 2):
-                    for m_, S_, kw in ((mE, SE, {"color": _ENS, "lw": 1.4}), (mM, SM, {"color": _MC, "lw": 1, "ls": "--"})):
+                    for m_, S_, kw in (
+                        (mE, SE, {"color": _ENS, "lw": 1.4}),
+                        (mM, SM, {"color": _MC, "lw": 1, "ls": "--"}),
+                    ):
                         pts = _ellipse_points(m_[[j, i]], S_[np.ix_([j, i], [j, i])], k)
                         ax.plot(phys(j, pts[0]), phys(i, pts[1]), **kw)
                 if quad is not None and d == 2:
@@ -209,10 +228,12 @@ def pair_figure(entry, node, path, max_points: int = 3000):
     ts = entry.get("t_star")
     span = f", t* {ts[0]:.3g}-{ts[1]:.3g}" if ts else ""
     verdict = {True: "agree", False: "disagree", None: "undecided"}[entry.get("agree")]
-    fig.suptitle(f"window {entry['index']}{span}: {verdict} (KL {entry['kl_sym']:.2g}, sample KL "
-                 f"{entry['kl_sample']:.2g}, W2 {entry['w2']:.2g} sd)\nblue: ensemble Gaussian; red: MCMC"
-                 + ("; green: quadrature 95 % region (exact)" if quad is not None else ""),
-                 fontsize=8)
+    fig.suptitle(
+        f"window {entry['index']}{span}: {verdict} (KL {entry['kl_sym']:.2g}, sample KL "
+        f"{entry['kl_sample']:.2g}, W2 {entry['w2']:.2g} sd)\nblue: ensemble Gaussian; red: MCMC"
+        + ("; green: quadrature 95 % region (exact)" if quad is not None else ""),
+        fontsize=8,
+    )
     return save(fig, path)
 
 
@@ -227,8 +248,10 @@ def comparison_figures(compare: dict, out_dir, tree=None, t_star=None, R_star=No
     (``pairs``: ``"worst"`` -- the window with the largest sample KL --, ``"all"`` or a list of indices)."""
     out_dir = Path(out_dir)
     entries = compare["windows"]
-    paths = [forest_figure(entries, out_dir / "mcmc_forest.png", tree),
-             divergence_figure(entries, out_dir / "mcmc_divergence.png", t_star, R_star)]
+    paths = [
+        forest_figure(entries, out_dir / "mcmc_forest.png", tree),
+        divergence_figure(entries, out_dir / "mcmc_divergence.png", t_star, R_star),
+    ]
     if tree is not None and entries:
         if pairs == "worst":
             pick = [max(entries, key=lambda e: e["kl_sample"])["index"]]

@@ -38,10 +38,18 @@ from imrbayes.errors import InputError
 from imrbayes.execution import Execution, Unit, unit_id
 from imrbayes.forward import BatchState, fm_spec, register_runner, runner_for
 from imrbayes.mcmc.compare import compare_window
-from imrbayes.mcmc.sampler import (LAPLACE_MAX_BLOCK, LAPLACE_MAX_RESIDUAL, PLACE_ROUNDS, MCMCSettings,
-                                   nuisances_per_experiment, parse_moves, resolve_moves, run_mcmc)
+from imrbayes.mcmc.sampler import (
+    LAPLACE_MAX_BLOCK,
+    LAPLACE_MAX_RESIDUAL,
+    PLACE_ROUNDS,
+    MCMCSettings,
+    nuisances_per_experiment,
+    parse_moves,
+    resolve_moves,
+    run_mcmc,
+)
 from imrbayes.mcmc.target import WindowTarget
-from imrbayes.mcmc.windows import WindowMCMC, mcmc_tree, window_seed, start_gaussian, window_specs, write_compare
+from imrbayes.mcmc.windows import WindowMCMC, mcmc_tree, start_gaussian, window_seed, window_specs, write_compare
 
 __all__ = ["fit_window_specs", "mcmc_window_unit", "run_fit_mcmc"]
 
@@ -56,31 +64,69 @@ def fit_window_specs(fm, obs, space, res, *, runner=None, windows=None, box_sd: 
     idx = list(range(n)) if windows is None else sorted(set(int(j) for j in windows))
     bad = [j for j in idx if not 0 <= j < n]
     if bad:
-        raise InputError("--mcmc-windows", f"window(s) {bad} do not exist; this fit has " +
-                         ("one window (0)" if n == 1 else f"windows 0-{n - 1}"))
+        raise InputError(
+            "--mcmc-windows",
+            f"window(s) {bad} do not exist; this fit has " + ("one window (0)" if n == 1 else f"windows 0-{n - 1}"),
+        )
     return window_specs(runner or fm, obs, space, res.window_posteriors, indices=idx, box_sd=box_sd)
 
 
 def _target_data(tg: WindowTarget) -> dict:
     """What a worker needs to rebuild ``tg`` on its own forward model (plain arrays)."""
     p = tg.prior
-    return {"y0": tg.start.y, "t0": tg.t0, "rmax": tg.start.rmax_m, "req": tg.start.req_m, "t_eval": tg.t_eval,
-            "y": tg.y, "P": tg.P, "weight": tg.weight, "names": list(tg.names), "whiten": tg.whiten,
-            "nuisance_sd": tg.nuisance_sd, "frames": tg.frames,
-            "description": {k: v for k, v in tg.description.items() if isinstance(v, (str, int, float, list))},
-            "prior": {"mean": p.prior_mean, "cov": p.prior_cov, "positive": np.asarray(p.positive, bool),
-                      "names": list(p.names), "scale": p.scale, "box_sd": float(p.box_sd)}}
+    return {
+        "y0": tg.start.y,
+        "t0": tg.t0,
+        "rmax": tg.start.rmax_m,
+        "req": tg.start.req_m,
+        "t_eval": tg.t_eval,
+        "y": tg.y,
+        "P": tg.P,
+        "weight": tg.weight,
+        "names": list(tg.names),
+        "whiten": tg.whiten,
+        "nuisance_sd": tg.nuisance_sd,
+        "frames": tg.frames,
+        "description": {k: v for k, v in tg.description.items() if isinstance(v, (str, int, float, list))},
+        "prior": {
+            "mean": p.prior_mean,
+            "cov": p.prior_cov,
+            "positive": np.asarray(p.positive, bool),
+            "names": list(p.names),
+            "scale": p.scale,
+            "box_sd": float(p.box_sd),
+        },
+    }
 
 
 def _rebuild_target(d: dict, model) -> WindowTarget:
     p = d["prior"]
-    prior = ParamSpace(tuple(p["names"]), np.asarray(p["positive"], bool), np.asarray(p["mean"]), np.asarray(p["cov"]),
-                       {}, p["scale"], float(p["box_sd"]))
-    start = BatchState(np.array(d["y0"], dtype=np.float64), float(d["t0"]), np.asarray(d["rmax"], float),
-                       np.asarray(d["req"], float))
-    return WindowTarget(model, start, d["t_eval"], d["y"], d["P"], prior, d["weight"], d["names"],
-                        description=d["description"], whiten=d.get("whiten"), nuisance_sd=d.get("nuisance_sd"),
-                        frames=d.get("frames"))
+    prior = ParamSpace(
+        tuple(p["names"]),
+        np.asarray(p["positive"], bool),
+        np.asarray(p["mean"]),
+        np.asarray(p["cov"]),
+        {},
+        p["scale"],
+        float(p["box_sd"]),
+    )
+    start = BatchState(
+        np.array(d["y0"], dtype=np.float64), float(d["t0"]), np.asarray(d["rmax"], float), np.asarray(d["req"], float)
+    )
+    return WindowTarget(
+        model,
+        start,
+        d["t_eval"],
+        d["y"],
+        d["P"],
+        prior,
+        d["weight"],
+        d["names"],
+        description=d["description"],
+        whiten=d.get("whiten"),
+        nuisance_sd=d.get("nuisance_sd"),
+        frames=d.get("frames"),
+    )
 
 
 def _atomic_netcdf(tree, path: Path) -> None:
@@ -98,19 +144,45 @@ def mcmc_window_unit(unit, rng) -> dict:
     settings = MCMCSettings(**d["settings"])
     j = int(d["index"])
     log = None
-    if d.get("log"):                     # no terminal for a bar: one line per convergence check
+    if d.get("log"):  # no terminal for a bar: one line per convergence check
+
         def log(line):
             print(f"imrbayes: emcee {line}", file=sys.stderr, flush=True)
-    run = run_mcmc(target, d["start_mean"], d["start_cov"], settings, seed=window_seed(int(d["seed"]), j),
-                   backend=d["backend"], name=f"window_{j:02d}", progress=d["progress"], log=log)
+
+    run = run_mcmc(
+        target,
+        d["start_mean"],
+        d["start_cov"],
+        settings,
+        seed=window_seed(int(d["seed"]), j),
+        backend=d["backend"],
+        name=f"window_{j:02d}",
+        progress=d["progress"],
+        log=log,
+    )
     tree = run.to_datatree(target, loglik=settings.loglik)
-    tree.attrs["ensemble_json"] = _json({"mean_internal": d["ens_mean"], "cov_internal": d["ens_cov"],
-                                         "t_star": list(d["t_star"]), "state_source": d["state_source"]})
+    tree.attrs["ensemble_json"] = _json(
+        {
+            "mean_internal": d["ens_mean"],
+            "cov_internal": d["ens_cov"],
+            "t_star": list(d["t_star"]),
+            "state_source": d["state_source"],
+        }
+    )
     target.forget()
     if settings.quadrature and target.ndim == 2:
         tree.attrs["quadrature_json"] = _json(_quadrature(target, d["ens_mean"], d["ens_cov"], run))
-    entry = compare_window(d["ens_mean"], d["ens_cov"], tree, list(target.prior.names), target.prior.positive,
-                           index=j, t_star=d["t_star"], diagnostics=run.diagnostics(), seed=j)
+    entry = compare_window(
+        d["ens_mean"],
+        d["ens_cov"],
+        tree,
+        list(target.prior.names),
+        target.prior.positive,
+        index=j,
+        t_star=d["t_star"],
+        diagnostics=run.diagnostics(),
+        seed=j,
+    )
     entry["state_source"] = d["state_source"]
     entry["runtime_s"] = float(run.runtime_s)
     entry["n_evals"] = int(run.n_evals)
@@ -175,6 +247,7 @@ def _json(obj) -> str:
     import json
 
     from imrbayes.io import jsonable
+
     return json.dumps(jsonable(obj))
 
 
@@ -183,6 +256,7 @@ def _plain(obj):
     import json
 
     from imrbayes.io import jsonable
+
     return json.loads(json.dumps(jsonable(obj)))
 
 
@@ -203,33 +277,57 @@ def cost_warnings(specs, s: MCMCSettings) -> list:
         if d < MANY_COORDINATES:
             continue
         structured = bool({n for n, _ in parse_moves(resolve_moves(s.moves, tg))} & {"blocks", "ridge"})
-        if (structured and s.moves.strip().lower() == "auto" and s.place in ("auto", "laplace")
-                and nuisances_per_experiment(tg) <= LAPLACE_MAX_BLOCK):
-            out.append(f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} "
-                       f"nuisances of {tg.n_exp} experiments: Rmax, time of the maximum, Req); its start is first "
-                       f"placed on the target by a quadratic fit ({3 * PLACE_ROUNDS * (d + 1) * (d + 2) // 2:,} "
-                       f"evaluations); if the fit is Gaussian to {LAPLACE_MAX_RESIDUAL:g} nat, {s.n_chains} x "
-                       f"{s.n_walkers} independent walkers sample it (measured on the 7-coordinate verification "
-                       f"window: tau ~3 steps, ~3 000 evaluations; docs/methods.md), else the block and ridge moves (tau 35-40 steps, about "
-                       f"2 000 steps of {s.n_chains} x {W} walkers); at most {s.n_chains * W * s.n_steps:,} "
-                       f"likelihood evaluations (the cap of {s.n_steps} steps)")
+        if (
+            structured
+            and s.moves.strip().lower() == "auto"
+            and s.place in ("auto", "laplace")
+            and nuisances_per_experiment(tg) <= LAPLACE_MAX_BLOCK
+        ):
+            out.append(
+                f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} "
+                f"nuisances of {tg.n_exp} experiments: Rmax, time of the maximum, Req); its start is first "
+                f"placed on the target by a quadratic fit ({3 * PLACE_ROUNDS * (d + 1) * (d + 2) // 2:,} "
+                f"evaluations); if the fit is Gaussian to {LAPLACE_MAX_RESIDUAL:g} nat, {s.n_chains} x "
+                f"{s.n_walkers} independent walkers sample it (measured on the 7-coordinate verification "
+                f"window: tau ~3 steps, ~3 000 evaluations; docs/methods.md), else the block and ridge moves (tau 35-40 steps, about "
+                f"2 000 steps of {s.n_chains} x {W} walkers); at most {s.n_chains * W * s.n_steps:,} "
+                f"likelihood evaluations (the cap of {s.n_steps} steps)"
+            )
             continue
         tau, steps = ("35-40", "about 2 000") if structured else ("150-360", "7 500-18 000")
-        head = (f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} nuisances "
-                f"of {tg.n_exp} experiments: Rmax, time of the maximum, Req); with these moves measured runs "
-                f"needed {tau} steps per autocorrelation time, so {steps} steps for 50 of them (docs/methods.md), "
-                f"each {s.n_chains} x {W} walkers")
+        head = (
+            f"MCMC window {sp.index} samples {d} coordinates ({n_par} parameters and {d - n_par} nuisances "
+            f"of {tg.n_exp} experiments: Rmax, time of the maximum, Req); with these moves measured runs "
+            f"needed {tau} steps per autocorrelation time, so {steps} steps for 50 of them (docs/methods.md), "
+            f"each {s.n_chains} x {W} walkers"
+        )
         n_cap = s.n_chains * W * s.n_steps
-        tail = (f": at the cap of {s.n_steps} steps expect agree = null, after {n_cap:,} likelihood evaluations"
-                if not structured and s.n_steps < 7500 else
-                f"; at most {n_cap:,} likelihood evaluations (the cap of {s.n_steps} steps)")
+        tail = (
+            f": at the cap of {s.n_steps} steps expect agree = null, after {n_cap:,} likelihood evaluations"
+            if not structured and s.n_steps < 7500
+            else f"; at most {n_cap:,} likelihood evaluations (the cap of {s.n_steps} steps)"
+        )
         out.append(head + tail)
     return out
 
 
-def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None, seed: int = 0, *, execution=None,
-                 runner=None, windows=None, start: str = "ensemble", progress=None, figures: bool = True,
-                 warn=None) -> dict:
+def run_fit_mcmc(
+    fm,
+    obs,
+    space,
+    res,
+    out,
+    settings: MCMCSettings | None = None,
+    seed: int = 0,
+    *,
+    execution=None,
+    runner=None,
+    windows=None,
+    start: str = "ensemble",
+    progress=None,
+    figures: bool = True,
+    warn=None,
+) -> dict:
     """Sample the windows of fit ``res`` and write ``out/mcmc.nc``, ``out/compare.json`` and the
     comparison figures (``out/figures/mcmc_*.png``). Returns the compare dict.
 
@@ -259,14 +357,29 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
     units = []
     for sp in specs:
         m, C = start_gaussian(sp, start)
-        units.append(Unit(unit_id(mcmc=sp.index), {
-            "spec": spec, "runner": token, "target": _target_data(sp.target), "settings": asdict(s),
-            "index": sp.index, "t_star": list(sp.t_star), "seed": int(seed), "start_mean": m, "start_cov": C,
-            "ens_mean": sp.ens_mean, "ens_cov": sp.ens_cov, "state_source": sp.state_source,
-            "backend": str(chains / f"window_{sp.index:03d}.h5"),
-            "node_path": str(chains / f"window_{sp.index:03d}.nc"),
-            "progress": progress if local else False,
-            "log": bool(local and progress is not True and not sys.stderr.isatty())}))
+        units.append(
+            Unit(
+                unit_id(mcmc=sp.index),
+                {
+                    "spec": spec,
+                    "runner": token,
+                    "target": _target_data(sp.target),
+                    "settings": asdict(s),
+                    "index": sp.index,
+                    "t_star": list(sp.t_star),
+                    "seed": int(seed),
+                    "start_mean": m,
+                    "start_cov": C,
+                    "ens_mean": sp.ens_mean,
+                    "ens_cov": sp.ens_cov,
+                    "state_source": sp.state_source,
+                    "backend": str(chains / f"window_{sp.index:03d}.h5"),
+                    "node_path": str(chains / f"window_{sp.index:03d}.nc"),
+                    "progress": progress if local else False,
+                    "log": bool(local and progress is not True and not sys.stderr.isatty()),
+                },
+            )
+        )
     rep = ex.run(units, mcmc_window_unit, seed, desc=f"mcmc of {len(units)} window(s)")
     results, failed = [], []
     for sp in specs:
@@ -274,7 +387,7 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
         if uid in rep.results:
             r = rep.results[uid]
             p = Path(r["node_path"])
-            if not p.is_file():              # a checkpoint from another machine's run directory
+            if not p.is_file():  # a checkpoint from another machine's run directory
                 p = chains / p.name
             with xr.open_datatree(p) as dt:
                 tree = dt.load()
@@ -283,18 +396,30 @@ def run_fit_mcmc(fm, obs, space, res, out, settings: MCMCSettings | None = None,
             failed.append({"window": sp.index, "t_star": list(sp.t_star), "error": rep.failures[uid].error})
     if not results:
         raise RuntimeError(f"MCMC failed in every window (e.g. window {failed[0]['window']}: {failed[0]['error']})")
-    write_mcmc_tree(out / "mcmc.nc", results, {"method": res.method, "model": res.model, "seed": int(seed),
-                                               "mcmc_settings_json": _json(asdict(s)), "start": start})
+    write_mcmc_tree(
+        out / "mcmc.nc",
+        results,
+        {
+            "method": res.method,
+            "model": res.model,
+            "seed": int(seed),
+            "mcmc_settings_json": _json(asdict(s)),
+            "start": start,
+        },
+    )
     compare = write_compare(out / "compare.json", results)
     if failed:
         compare["overall"]["failed_windows"] = failed
         from imrbayes.io import write_json
+
         write_json(out / "compare.json", compare)
     if figures:
         from imrbayes.mcmc.figures import comparison_figures
+
         with xr.open_datatree(out / "mcmc.nc") as tree:
-            compare["figures"] = comparison_figures(compare, out / "figures", tree, obs.t_star,
-                                                    np.nanmean(obs.R_star, axis=0))
+            compare["figures"] = comparison_figures(
+                compare, out / "figures", tree, obs.t_star, np.nanmean(obs.R_star, axis=0)
+            )
     return compare
 
 

@@ -15,8 +15,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def quadratic_placement(log_prob, mean, cov, *, rounds: int = 3, points_per_coefficient: float = 3.0,
-                        spread: float = 1.0, seed: int = 0):
+def quadratic_placement(
+    log_prob, mean, cov, *, rounds: int = 3, points_per_coefficient: float = 3.0, spread: float = 1.0, seed: int = 0
+):
     """Gaussian (mean (d,), cov (d, d)) of a quadratic fit to ``log_prob`` near N(mean, cov).
 
     log_prob : callable, (n, d) -> (n,) log-density (``-inf`` outside the support: left out of the fit).
@@ -44,26 +45,32 @@ def quadratic_placement(log_prob, mean, cov, *, rounds: int = 3, points_per_coef
         lp = np.asarray(log_prob(m + U @ L.T), dtype=np.float64)
         info["n_evals"] += n_pts
         ok = np.isfinite(lp)
-        if ok.sum() < n_coef + d:             # too little of the cloud inside the support to fit
+        if ok.sum() < n_coef + d:  # too little of the cloud inside the support to fit
             info["rounds"].append({"n_points": int(ok.sum()), "fitted": False})
             break
         U, lp = U[ok], lp[ok]
         F = np.hstack([np.ones((U.shape[0], 1)), U, (U[:, :, None] * U[:, None, :])[:, iu[0], iu[1]]])
         coef, *_ = np.linalg.lstsq(F, lp, rcond=None)
         Q = np.zeros((d, d))
-        Q[iu] = coef[1 + d:]
-        A = -(Q + Q.T)                         # log p ~ c + b.u - u^T A u / 2 in whitened coordinates
+        Q[iu] = coef[1 + d :]
+        A = -(Q + Q.T)  # log p ~ c + b.u - u^T A u / 2 in whitened coordinates
         w, V = np.linalg.eigh(A)
         bad = int(np.sum(w <= 1e-6))
-        w = np.where(w > 1e-6, w, 1.0)         # not concave along V[:, k]: keep the previous extent
+        w = np.where(w > 1e-6, w, 1.0)  # not concave along V[:, k]: keep the previous extent
         A_inv = (V / w) @ V.T
-        u_star = A_inv @ coef[1:1 + d]
+        u_star = A_inv @ coef[1 : 1 + d]
         step = float(np.linalg.norm(u_star))
-        if step > 3.0 * spread:                # an extrapolated optimum: move only to the cloud's edge
+        if step > 3.0 * spread:  # an extrapolated optimum: move only to the cloud's edge
             u_star *= 3.0 * spread / step
         m = m + L @ u_star
         C = L @ A_inv @ L.T
-        info["rounds"].append({"n_points": int(U.shape[0]), "fitted": True,
-                               "residual_sd_nats": float(np.std(lp - F @ coef)), "moved_sd": step,
-                               "non_concave_directions": bad})
+        info["rounds"].append(
+            {
+                "n_points": int(U.shape[0]),
+                "fitted": True,
+                "residual_sd_nats": float(np.std(lp - F @ coef)),
+                "moved_sd": step,
+                "non_concave_directions": bad,
+            }
+        )
     return m, 0.5 * (C + C.T), info

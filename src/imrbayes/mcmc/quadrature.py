@@ -57,20 +57,20 @@ class GridPosterior:
     names: tuple
     internal_names: list
     positive: np.ndarray
-    center: np.ndarray                 # frame: z = center + basis @ u
+    center: np.ndarray  # frame: z = center + basis @ u
     basis: np.ndarray
-    u: np.ndarray                      # (n,) grid of each frame axis
-    Z: np.ndarray                      # (n, n, 2) grid points (z)
-    log_prob: np.ndarray               # (n, n)
-    weight: np.ndarray                 # (n, n) normalised masses
+    u: np.ndarray  # (n,) grid of each frame axis
+    Z: np.ndarray  # (n, n, 2) grid points (z)
+    log_prob: np.ndarray  # (n, n)
+    weight: np.ndarray  # (n, n) normalised masses
     mean: np.ndarray
     cov: np.ndarray
     mean_si: np.ndarray
     cov_si: np.ndarray
-    eti95: np.ndarray                  # (2, 2) [lo, hi] per parameter, internal
-    hdr95_level: float                 # log-density (as the target returns it) bounding the 95 % HDR
-    hdr95_area: float                  # area of the HDR in z
-    hdr95_contour: list                # [(k, 2) polyline in z, ...]
+    eti95: np.ndarray  # (2, 2) [lo, hi] per parameter, internal
+    hdr95_level: float  # log-density (as the target returns it) bounding the 95 % HDR
+    hdr95_area: float  # area of the HDR in z
+    hdr95_contour: list  # [(k, 2) polyline in z, ...]
     edge_mass: float
     resolution_error: dict
     n_evals: int
@@ -86,21 +86,32 @@ class GridPosterior:
         """JSON-able summary (the ``quadrature`` block of a compare.json window)."""
         iv = {n: v for n, v in zip(self.internal_names, self.eti95.tolist())}
         si = {n: (np.exp(v) if p else v).tolist() for n, v, p in zip(self.names, self.eti95, self.positive)}
-        out = {"method": "grid quadrature of the window's target density (exact up to resolution_error)",
-               "mean_internal": dict(zip(self.internal_names, self.mean.tolist())),
-               "sd_internal": dict(zip(self.internal_names, self.sd.tolist())),
-               "cov_internal": self.cov.tolist(),
-               "mean": dict(zip(self.names, self.mean_si.tolist())),
-               "sd": dict(zip(self.names, np.sqrt(np.diag(self.cov_si)).tolist())),
-               "cov": self.cov_si.tolist(),
-               "corr_internal": float(self.cov[0, 1] / math.sqrt(self.cov[0, 0] * self.cov[1, 1])),
-               "eti95_internal": iv, "eti95": si,
-               "hdr95": {"level_log_prob": self.hdr95_level, "area_internal": self.hdr95_area},
-               "grid": {"n": int(self.u.size), "k_sd": float(self.u[-1]), "spacing_sd": float(self.u[1] - self.u[0]),
-                        "center": self.center.tolist(), "basis": self.basis.tolist()},
-               "edge_mass": self.edge_mass, "edge_ok": bool(self.edge_mass <= self.edge_tol),
-               "resolution_error": self.resolution_error,
-               "n_evals": self.n_evals, "n_failed": self.n_failed, "rounds": self.rounds}
+        out = {
+            "method": "grid quadrature of the window's target density (exact up to resolution_error)",
+            "mean_internal": dict(zip(self.internal_names, self.mean.tolist())),
+            "sd_internal": dict(zip(self.internal_names, self.sd.tolist())),
+            "cov_internal": self.cov.tolist(),
+            "mean": dict(zip(self.names, self.mean_si.tolist())),
+            "sd": dict(zip(self.names, np.sqrt(np.diag(self.cov_si)).tolist())),
+            "cov": self.cov_si.tolist(),
+            "corr_internal": float(self.cov[0, 1] / math.sqrt(self.cov[0, 0] * self.cov[1, 1])),
+            "eti95_internal": iv,
+            "eti95": si,
+            "hdr95": {"level_log_prob": self.hdr95_level, "area_internal": self.hdr95_area},
+            "grid": {
+                "n": int(self.u.size),
+                "k_sd": float(self.u[-1]),
+                "spacing_sd": float(self.u[1] - self.u[0]),
+                "center": self.center.tolist(),
+                "basis": self.basis.tolist(),
+            },
+            "edge_mass": self.edge_mass,
+            "edge_ok": bool(self.edge_mass <= self.edge_tol),
+            "resolution_error": self.resolution_error,
+            "n_evals": self.n_evals,
+            "n_failed": self.n_failed,
+            "rounds": self.rounds,
+        }
         if contour:
             out["hdr95"]["contour_internal"] = [np.round(c, 6).tolist() for c in self.hdr95_contour]
         return out
@@ -109,14 +120,14 @@ class GridPosterior:
 def _evaluate(target, Z, batch: int) -> np.ndarray:
     out = np.empty(Z.shape[0])
     for a in range(0, Z.shape[0], batch):
-        out[a:a + batch] = np.asarray(target.log_prob(Z[a:a + batch]), dtype=np.float64)
+        out[a : a + batch] = np.asarray(target.log_prob(Z[a : a + batch]), dtype=np.float64)
     out[~np.isfinite(out)] = -np.inf
     return out
 
 
 def _grid(center, basis, k, n):
     u = np.linspace(-k, k, n)
-    U = np.stack(np.meshgrid(u, u, indexing="ij"), axis=-1)              # (n, n, 2)
+    U = np.stack(np.meshgrid(u, u, indexing="ij"), axis=-1)  # (n, n, 2)
     return u, center + U @ basis.T
 
 
@@ -134,7 +145,7 @@ def _edge(w, frac: float = 0.1):
     n = w.shape[0]
     b = max(1, int(round(frac * (n - 1) / 2)))
     inner = np.zeros(w.shape, bool)
-    inner[b:n - b, b:n - b] = True
+    inner[b : n - b, b : n - b] = True
     return float(w[~inner].sum())
 
 
@@ -157,7 +168,7 @@ def _refined(u, lp, refine: int | None = None):
     top = float(np.max(lp))
     f = np.maximum(np.where(np.isfinite(lp), lp - top, -80.0), -80.0)
     spl = RectBivariateSpline(u, u, f, kx=3, ky=3)
-    refine = refine or max(4, math.ceil((u[1] - u[0]) / 0.06))        # fine cells of <= 0.06 frame sd
+    refine = refine or max(4, math.ceil((u[1] - u[0]) / 0.06))  # fine cells of <= 0.06 frame sd
     uf = np.linspace(u[0], u[-1], refine * (u.size - 1) + 1)
     ff = np.minimum(spl(uf, uf), 0.0)
     w = np.exp(ff)
@@ -172,7 +183,7 @@ def _marginal_intervals(uf, L, m, w, q=(0.025, 0.975)) -> np.ndarray:
     Zf = m + U @ L.T
     pf = w.reshape(-1)
     keep = pf > 1e-14
-    s = 0.6 * (uf[1] - uf[0]) * np.sqrt(np.sum(L ** 2, axis=1))
+    s = 0.6 * (uf[1] - uf[0]) * np.sqrt(np.sum(L**2, axis=1))
     return np.array([[_quantile(Zf[keep, i], pf[keep], qq, s[i]) for qq in q] for i in range(2)])
 
 
@@ -205,9 +216,20 @@ def _quantile(x, p, q, s):
     return float(np.interp(q, cdf, edges))
 
 
-def grid_posterior(target, center=None, cov=None, *, n: int = 33, k: float = 6.0, n_coarse: int = 13,
-                   k_coarse: float = 8.0, edge_tol: float = 1e-5, max_rounds: int = 6, batch: int = 512,
-                   locate: bool = True) -> GridPosterior:
+def grid_posterior(
+    target,
+    center=None,
+    cov=None,
+    *,
+    n: int = 33,
+    k: float = 6.0,
+    n_coarse: int = 13,
+    k_coarse: float = 8.0,
+    edge_tol: float = 1e-5,
+    max_rounds: int = 6,
+    batch: int = 512,
+    locate: bool = True,
+) -> GridPosterior:
     """The posterior of a two-parameter ``target`` on a grid (module docstring).
 
     center, cov : a Gaussian roughly where the posterior is (e.g. the ensemble's, in internal
@@ -249,9 +271,16 @@ def grid_posterior(target, center=None, cov=None, *, n: int = 33, k: float = 6.0
         Li = np.linalg.inv(L)
         s_min = math.sqrt(max(0.0, float(np.linalg.eigvalsh(Li @ Cc @ Li.T)[0])))
         edge = _edge(w)
-        rounds.append({"stage": "coarse", "k_sd": float(k_coarse), "n": int(n_coarse), "edge_mass": edge,
-                       "cells_per_sd": s_min / h})
-        if edge > 1e-3:                                 # locating only: the fine stage checks edge_tol
+        rounds.append(
+            {
+                "stage": "coarse",
+                "k_sd": float(k_coarse),
+                "n": int(n_coarse),
+                "edge_mass": edge,
+                "cells_per_sd": s_min / h,
+            }
+        )
+        if edge > 1e-3:  # locating only: the fine stage checks edge_tol
             m, C = mc, 4.0 * (Cc + (h * h / 12.0) * (L @ L.T))
             continue
         if s_min < 0.5 * h:
@@ -261,8 +290,10 @@ def grid_posterior(target, center=None, cov=None, *, n: int = 33, k: float = 6.0
         break
     else:
         if locate:
-            raise RuntimeError(f"quadrature: the coarse grid did not settle in {max_rounds} rounds "
-                               f"(edge mass {edge:.2g}, {s_min / h:.2f} cells per sd)")
+            raise RuntimeError(
+                f"quadrature: the coarse grid did not settle in {max_rounds} rounds "
+                f"(edge mass {edge:.2g}, {s_min / h:.2f} cells per sd)"
+            )
 
     # ---- fine stage in the frame of the coarse moments
     kk, nn = float(k), int(n)
@@ -282,8 +313,10 @@ def grid_posterior(target, center=None, cov=None, *, n: int = 33, k: float = 6.0
     w2 = _weights(lp[::2, ::2])
     m2, c2 = grid_moments(Z[::2, ::2], w2)
     sd = np.sqrt(np.diag(cov))
-    res_err = {"mean_sd": float(np.max(np.abs(m2 - mean) / sd)),
-               "sd_rel": float(np.max(np.abs(np.sqrt(np.diag(c2)) / sd - 1.0)))}
+    res_err = {
+        "mean_sd": float(np.max(np.abs(m2 - mean) / sd)),
+        "sd_rel": float(np.max(np.abs(np.sqrt(np.diag(c2)) / sd - 1.0))),
+    }
 
     # ---- SI moments, marginal intervals, 95 % HDR
     positive = np.asarray(prior.positive, bool)
@@ -295,11 +328,31 @@ def grid_posterior(target, center=None, cov=None, *, n: int = 33, k: float = 6.0
     level = float(np.max(lp) + level_f)
     names = tuple(prior.names)
     internal = list(getattr(target, "internal_names", [f"log_{a}" if p else a for a, p in zip(names, positive)]))
-    return GridPosterior(names=names, internal_names=internal, positive=positive, center=m, basis=L, u=u, Z=Z,
-                         log_prob=lp, weight=w, mean=mean, cov=cov, mean_si=mean_si, cov_si=cov_si, eti95=eti,
-                         hdr95_level=level, hdr95_area=area, hdr95_contour=contour,
-                         edge_mass=edge, resolution_error=res_err, n_evals=evals, n_failed=failed, rounds=rounds,
-                         edge_tol=float(edge_tol))
+    return GridPosterior(
+        names=names,
+        internal_names=internal,
+        positive=positive,
+        center=m,
+        basis=L,
+        u=u,
+        Z=Z,
+        log_prob=lp,
+        weight=w,
+        mean=mean,
+        cov=cov,
+        mean_si=mean_si,
+        cov_si=cov_si,
+        eti95=eti,
+        hdr95_level=level,
+        hdr95_area=area,
+        hdr95_contour=contour,
+        edge_mass=edge,
+        resolution_error=res_err,
+        n_evals=evals,
+        n_failed=failed,
+        rounds=rounds,
+        edge_tol=float(edge_tol),
+    )
 
 
 def _contour(u, L, m, f, level):
@@ -307,7 +360,7 @@ def _contour(u, L, m, f, level):
     dependency; the log-density interpolates far better than the density, being about quadratic)."""
     try:
         import contourpy
-    except ImportError:                                    # pragma: no cover
+    except ImportError:  # pragma: no cover
         return []
     U0, U1 = np.meshgrid(u, u, indexing="ij")
     gen = contourpy.contour_generator(U0, U1, f)
@@ -352,9 +405,15 @@ def compare_to_mcmc(grid, draws, mcse_mean=None, mcse_sd=None, z_max: float = 4.
     zm = (m - g_mean) / mcse_mean
     zs = (s - g_sd) / mcse_sd
     res_ok = res_err["mean_sd"] * float(np.max(g_sd / mcse_mean)) < 0.5
-    return {"mean_z": dict(zip(names, zm.tolist())), "sd_z": dict(zip(names, zs.tolist())),
-            "mean_diff_sd": dict(zip(names, ((m - g_mean) / g_sd).tolist())),
-            "sd_ratio": dict(zip(names, (s / g_sd).tolist())),
-            "mcse_mean": dict(zip(names, mcse_mean.tolist())), "mcse_sd": dict(zip(names, mcse_sd.tolist())),
-            "z_max": z_max, "grid_resolution_ok": bool(res_ok), "grid_resolution_error": res_err,
-            "within_mc_error": bool(np.all(np.abs(zm) <= z_max) and np.all(np.abs(zs) <= z_max) and res_ok)}
+    return {
+        "mean_z": dict(zip(names, zm.tolist())),
+        "sd_z": dict(zip(names, zs.tolist())),
+        "mean_diff_sd": dict(zip(names, ((m - g_mean) / g_sd).tolist())),
+        "sd_ratio": dict(zip(names, (s / g_sd).tolist())),
+        "mcse_mean": dict(zip(names, mcse_mean.tolist())),
+        "mcse_sd": dict(zip(names, mcse_sd.tolist())),
+        "z_max": z_max,
+        "grid_resolution_ok": bool(res_ok),
+        "grid_resolution_error": res_err,
+        "within_mc_error": bool(np.all(np.abs(zm) <= z_max) and np.all(np.abs(zs) <= z_max) and res_ok),
+    }

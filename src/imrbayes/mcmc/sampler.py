@@ -68,8 +68,20 @@ import numpy as np
 from imrbayes.errors import InputError
 from imrbayes.mcmc.laplace import quadratic_placement
 
-__all__ = ["MCMCSettings", "MCMCRun", "run_mcmc", "integrated_tau", "parse_moves", "emcee_moves", "snooker_move",
-           "convergence_check", "resolve_moves", "AUTO_MOVES", "MOVE_NAMES", "STOP_REASONS"]
+__all__ = [
+    "MCMCSettings",
+    "MCMCRun",
+    "run_mcmc",
+    "integrated_tau",
+    "parse_moves",
+    "emcee_moves",
+    "snooker_move",
+    "convergence_check",
+    "resolve_moves",
+    "AUTO_MOVES",
+    "MOVE_NAMES",
+    "STOP_REASONS",
+]
 
 _H5_LOCK = threading.RLock()
 
@@ -213,7 +225,7 @@ class _StudentTProposal:
         cov = np.asarray(cov, dtype=np.float64).reshape(self.m.size, self.m.size)
         self.L = self.scale * np.linalg.cholesky(0.5 * (cov + cov.T))
 
-    def log_q(self, x):                                 # up to a constant: the constant cancels
+    def log_q(self, x):  # up to a constant: the constant cancels
         u = np.linalg.solve(self.L, (np.atleast_2d(x) - self.m).T)
         return -0.5 * (self.nu + self.m.size) * np.log1p(np.sum(u * u, axis=0) / self.nu)
 
@@ -246,8 +258,9 @@ def independence_move(center, cov, scale: float = 1.5, dof: float = 4.0):
     return move
 
 
-def emcee_moves(spec: str, center=None, cov=None, indep_scale: float = 1.5, indep_dof: float = 4.0,
-                target=None) -> list:
+def emcee_moves(
+    spec: str, center=None, cov=None, indep_scale: float = 1.5, indep_dof: float = 4.0, target=None
+) -> list:
     """emcee move objects with weights for ``EnsembleSampler(moves=...)``; ``indep`` needs ``center``
     and ``cov`` (the start Gaussian, :func:`independence_move`), ``blocks`` and ``ridge`` the
     ``target`` (a :class:`~imrbayes.mcmc.target.WindowTarget`; ``blocks`` one with sampled nuisances)."""
@@ -259,15 +272,20 @@ def emcee_moves(spec: str, center=None, cov=None, indep_scale: float = 1.5, inde
         if target is None or not hasattr(target, "nuisance_blocks"):
             raise InputError("moves", f"the {name!r} move needs a window target with per-experiment nuisances")
         if name == "blocks" and not any(b.size for b in target.nuisance_blocks):
-            raise InputError("moves", "the 'blocks' move needs sampled nuisances; this window has none "
-                                      "(use e.g. 'indep:0.7,de:0.3')")
+            raise InputError(
+                "moves", "the 'blocks' move needs sampled nuisances; this window has none (use e.g. 'indep:0.7,de:0.3')"
+            )
         return target
 
-    make = {"stretch": emcee.moves.StretchMove, "de": emcee.moves.DEMove, "snooker": snooker_move,
-            "walk": emcee.moves.WalkMove,
-            "indep": lambda: independence_move(center, cov, indep_scale, indep_dof),
-            "blocks": lambda: BlockMove(need_target("blocks")),
-            "ridge": lambda: RidgeMove(need_target("ridge").prior.n)}
+    make = {
+        "stretch": emcee.moves.StretchMove,
+        "de": emcee.moves.DEMove,
+        "snooker": snooker_move,
+        "walk": emcee.moves.WalkMove,
+        "indep": lambda: independence_move(center, cov, indep_scale, indep_dof),
+        "blocks": lambda: BlockMove(need_target("blocks")),
+        "ridge": lambda: RidgeMove(need_target("ridge").prior.n),
+    }
     return [(make[n](), w) for n, w in parse_moves(spec)]
 
 
@@ -319,8 +337,12 @@ class MCMCSettings:
     def check(self, ndim: int):
         need = 2 if independent_walkers(self.moves) else 2 * ndim
         if self.n_walkers < need or self.n_walkers % 2:
-            raise InputError("n_walkers", f"needs an even number >= {need}" +
-                             ("" if need == 2 else f" (2 x {ndim} parameters)") + f", got {self.n_walkers}")
+            raise InputError(
+                "n_walkers",
+                f"needs an even number >= {need}"
+                + ("" if need == 2 else f" (2 x {ndim} parameters)")
+                + f", got {self.n_walkers}",
+            )
         if self.n_chains < 2:
             raise InputError("n_chains", f"R-hat needs at least 2 independent ensembles, got {self.n_chains}")
         if self.n_steps < 4:
@@ -347,11 +369,17 @@ class MCMCSettings:
             raise InputError("place", f"must be 'auto', 'start' or 'laplace', got {self.place!r}")
         if not (self.indep_adapt == 0 or self.indep_adapt >= 4):
             raise InputError("indep_adapt", f"must be 0 (never) or a step >= 4, got {self.indep_adapt}")
-        moves = [m for spec in (AUTO_MOVES.values() if self.moves.strip().lower() == "auto" else [self.moves])
-                 for m in parse_moves(spec)]
+        moves = [
+            m
+            for spec in (AUTO_MOVES.values() if self.moves.strip().lower() == "auto" else [self.moves])
+            for m in parse_moves(spec)
+        ]
         if any(n in ("de", "snooker") for n, _ in moves) and self.n_walkers < 6:
-            raise InputError("n_walkers", f"differential-evolution moves need >= 6 walkers (3 per half: "
-                                          f"more than one difference vector), got {self.n_walkers}")
+            raise InputError(
+                "n_walkers",
+                f"differential-evolution moves need >= 6 walkers (3 per half: "
+                f"more than one difference vector), got {self.n_walkers}",
+            )
 
 
 def integrated_tau(chain) -> np.ndarray:
@@ -361,29 +389,30 @@ def integrated_tau(chain) -> np.ndarray:
 
     with np.errstate(invalid="ignore", divide="ignore"):
         tau = np.asarray(emcee.autocorr.integrated_time(np.asarray(chain), tol=0, quiet=True), dtype=np.float64)
-    return np.where(np.isnan(tau), np.inf, tau)          # a coordinate that never moved: no finite tau
+    return np.where(np.isnan(tau), np.inf, tau)  # a coordinate that never moved: no finite tau
 
 
-def burn_thin(n: int, tau_max: float, s: "MCMCSettings", n_walkers: int) -> tuple:
+def burn_thin(n: int, tau_max: float, s: MCMCSettings, n_walkers: int) -> tuple:
     """(burn, thin) of a chain of n steps (module docstring; the same at every check and at the end;
     a chain without a finite tau keeps its second half, unthinned)."""
     finite = math.isfinite(tau_max)
-    burn = s.burn if s.burn is not None else (int(min(n // 2, max(n // 4, math.ceil(3 * tau_max)))) if finite
-                                              else n // 2)
+    burn = (
+        s.burn if s.burn is not None else (int(min(n // 2, max(n // 4, math.ceil(3 * tau_max)))) if finite else n // 2)
+    )
     burn = min(burn, n - 1)
     thin = s.thin if s.thin is not None else (max(1, int(tau_max // 2)) if finite else 1)
-    thin = max(thin, math.ceil((n - burn) / max(1, s.max_draws // n_walkers)))        # at most max_draws per chain
+    thin = max(thin, math.ceil((n - burn) / max(1, s.max_draws // n_walkers)))  # at most max_draws per chain
     return int(burn), int(thin)
 
 
 def walker_major(chain, burn: int, thin: int) -> np.ndarray:
     """(C, n, W, d) chain -> (C, W k, d) kept draws, walker by walker (draw = walker * k + kept step)."""
-    x = np.asarray(chain)[:, burn::thin]                                 # (C, k, W, d)
+    x = np.asarray(chain)[:, burn::thin]  # (C, k, W, d)
     C, k, W, d = x.shape
     return x.transpose(0, 2, 1, 3).reshape(C, W * k, d)
 
 
-def convergence_check(chain, s: "MCMCSettings") -> dict:
+def convergence_check(chain, s: MCMCSettings) -> dict:
     """Diagnose a (C, n, W, d) chain as the final run would be: tau per ensemble (last 3/4), burn-in
     and thinning, ArviZ R-hat and bulk/tail ESS of the walker-major kept draws (one chain per
     ensemble), the tau rule. ``ok`` when every criterion of :class:`MCMCSettings` holds."""
@@ -391,10 +420,16 @@ def convergence_check(chain, s: "MCMCSettings") -> dict:
 
     chain = np.asarray(chain)
     C, n, W, d = chain.shape
-    tau = np.stack([integrated_tau(chain[c, n // 4:]) for c in range(C)])          # (C, d)
+    tau = np.stack([integrated_tau(chain[c, n // 4 :]) for c in range(C)])  # (C, d)
     tau_max = float(np.max(tau)) if np.all(np.isfinite(tau)) else float("inf")
-    out = {"n": int(n), "tau_max": tau_max, "n_over_tau": float(n / tau_max) if tau_max > 0 else float("inf"),
-           "rhat_max": float("inf"), "ess_bulk_min": 0.0, "ess_tail_min": 0.0}
+    out = {
+        "n": int(n),
+        "tau_max": tau_max,
+        "n_over_tau": float(n / tau_max) if tau_max > 0 else float("inf"),
+        "rhat_max": float("inf"),
+        "ess_bulk_min": 0.0,
+        "ess_tail_min": 0.0,
+    }
     if math.isfinite(tau_max):
         burn, thin = burn_thin(n, tau_max, s, W)
         x = walker_major(chain, burn, thin)
@@ -405,32 +440,46 @@ def convergence_check(chain, s: "MCMCSettings") -> dict:
             dt = az.from_dict({"posterior": {v: x[:, :, i] for i, v in enumerate(names)}})
             with np.errstate(all="ignore"):
                 summ = mcmc_summary(dt, names)
-            vals = lambda col: [v if np.isfinite(v) else (np.inf if col == "r_hat" else 0.0)   # noqa: E731
-                                for v in summ[col].values()]
-            out.update({"burn": burn, "thin": thin, "rhat_max": float(max(vals("r_hat"))),
-                        "ess_bulk_min": float(min(vals("ess_bulk"))), "ess_tail_min": float(min(vals("ess_tail")))})
-    crit = {"rhat": out["rhat_max"] <= s.rhat_max, "ess_bulk": out["ess_bulk_min"] >= s.ess_min,
-            "ess_tail": out["ess_tail_min"] >= s.ess_min,
-            "tau_rule": bool(np.all(n >= s.tau_rule * tau.max(axis=1))) if math.isfinite(tau_max) else False}
+            vals = lambda col: [
+                v if np.isfinite(v) else (np.inf if col == "r_hat" else 0.0)  # noqa: E731
+                for v in summ[col].values()
+            ]
+            out.update(
+                {
+                    "burn": burn,
+                    "thin": thin,
+                    "rhat_max": float(max(vals("r_hat"))),
+                    "ess_bulk_min": float(min(vals("ess_bulk"))),
+                    "ess_tail_min": float(min(vals("ess_tail"))),
+                }
+            )
+    crit = {
+        "rhat": out["rhat_max"] <= s.rhat_max,
+        "ess_bulk": out["ess_bulk_min"] >= s.ess_min,
+        "ess_tail": out["ess_tail_min"] >= s.ess_min,
+        "tau_rule": bool(np.all(n >= s.tau_rule * tau.max(axis=1))) if math.isfinite(tau_max) else False,
+    }
     out["criteria"] = crit
     out["ok"] = bool(all(crit.values()))
     return out
 
 
-def check_line(chk: dict, s: "MCMCSettings", n_evals: int | None = None, resumed: bool = False) -> str:
+def check_line(chk: dict, s: MCMCSettings, n_evals: int | None = None, resumed: bool = False) -> str:
     """One line on a convergence check: where each criterion stands against its threshold
     (``n_evals``: evaluations made by this call, so only since the resume of a resumed run)."""
     miss = [k for k, v in chk["criteria"].items() if not v]
     evals = (f", {n_evals:,} evaluations" + (" since the resume" if resumed else "")) if n_evals is not None else ""
-    if not math.isfinite(chk["tau_max"]):       # too few steps for emcee's estimate: nothing else is either
+    if not math.isfinite(chk["tau_max"]):  # too few steps for emcee's estimate: nothing else is either
         return f"{chk['n']} steps{evals}: too short to estimate tau yet -- not yet: " + ", ".join(miss)
-    return (f"{chk['n']} steps{evals}: tau {chk['tau_max']:.1f} ({chk['n_over_tau']:.1f} tau, needs "
-            f"{s.tau_rule:g}), R-hat {chk['rhat_max']:.3f} (<= {s.rhat_max:g}), ESS bulk {chk['ess_bulk_min']:.0f} "
-            f"tail {chk['ess_tail_min']:.0f} (>= {s.ess_min:g}) -- "
-            + ("converged" if chk["ok"] else "not yet: " + ", ".join(miss)))
+    return (
+        f"{chk['n']} steps{evals}: tau {chk['tau_max']:.1f} ({chk['n_over_tau']:.1f} tau, needs "
+        f"{s.tau_rule:g}), R-hat {chk['rhat_max']:.3f} (<= {s.rhat_max:g}), ESS bulk {chk['ess_bulk_min']:.0f} "
+        f"tail {chk['ess_tail_min']:.0f} (>= {s.ess_min:g}) -- "
+        + ("converged" if chk["ok"] else "not yet: " + ", ".join(miss))
+    )
 
 
-def _next_check(n: int, chk: dict, s: "MCMCSettings") -> int:
+def _next_check(n: int, chk: dict, s: MCMCSettings) -> int:
     """The next check point after a failed check at n steps (module docstring), capped at n_steps."""
     tau = chk["tau_max"] if math.isfinite(chk["tau_max"]) else float(n)
     step = max(10, math.ceil(CHECK_EVERY_TAU * tau))
@@ -438,10 +487,10 @@ def _next_check(n: int, chk: dict, s: "MCMCSettings") -> int:
     if not chk["criteria"]["tau_rule"]:
         want = max(want, math.ceil(s.tau_rule * tau))
     ess = min(chk["ess_bulk_min"], chk["ess_tail_min"])
-    if 0 < ess < s.ess_min:                              # ESS grows about linearly with the kept length
+    if 0 < ess < s.ess_min:  # ESS grows about linearly with the kept length
         burn = chk.get("burn", n // 4)
         want = max(want, burn + math.ceil(1.1 * (n - burn) * s.ess_min / ess))
-    return int(min(s.n_steps, n + min(max(step, want - n), n)))        # at most double the length
+    return int(min(s.n_steps, n + min(max(step, want - n), n)))  # at most double the length
 
 
 class _Batcher:
@@ -469,7 +518,7 @@ class _Batcher:
         self._inbox.clear()
         try:
             lp = np.asarray(self.fn(X), dtype=np.float64)
-        except BaseException as exc:                    # noqa: BLE001 - re-raised in every party
+        except BaseException as exc:  # noqa: BLE001 - re-raised in every party
             self._error = exc
         else:
             for k, part in zip(keys, np.split(lp, np.cumsum(sizes)[:-1])):
@@ -578,7 +627,7 @@ class MCMCRun:
         walker (n_draws,), step (n_draws,))`` with draw index = walker * k + kept-step index."""
         steps = self.kept_steps()
         k = steps.size
-        x = self.chain[:, steps]                                    # (C, k, W, d)
+        x = self.chain[:, steps]  # (C, k, W, d)
         lp = self.log_prob[:, steps]
         C, W, d = self.n_chains, self.n_walkers, self.chain.shape[-1]
         samples = x.transpose(0, 2, 1, 3).reshape(C, W * k, d)
@@ -588,20 +637,36 @@ class MCMCRun:
     def diagnostics(self) -> dict:
         """JSON-able per-run diagnostics (tau, the 50-tau rule, acceptance, burn/thin)."""
         rule = float(self.settings.get("tau_rule", 50.0))
-        return {"n_chains": self.n_chains, "n_walkers": self.n_walkers, "n_steps": self.n_steps,
-                "burn": self.burn, "thin": self.thin, "draws_per_chain": int(self.kept_steps().size * self.n_walkers),
-                "tau": {n: self.tau[:, i].tolist() for i, n in enumerate(self.internal_names)},
-                "tau_max": self.tau_max, "n_steps_over_tau": float(self.n_steps / self.tau_max),
-                "tau_rule": rule, "tau_ok": [bool(v) for v in self.tau_ok], "all_tau_ok": bool(np.all(self.tau_ok)),
-                "acceptance": self.acceptance.tolist(), "seeds": list(self.seeds), "runtime_s": self.runtime_s,
-                "n_evals": self.n_evals, "steps_run": list(self.steps_run), "backend": self.backend,
-                "failed_chains": {str(k): v for k, v in self.failed_chains.items()},
-                "moves": self.settings.get("moves"), "stop_rule": self.stop.get("rule"),
-                "stop_reason": self.stop.get("reason"), "cap": self.stop.get("cap"),
-                "cap_hit": bool(self.stop.get("cap_hit", False)), "checks": list(self.stop.get("checks", [])),
-                "evals_per_chain": int(self.n_steps * self.n_walkers),
-                **({"placement": self.settings["placement"]} if "placement" in self.settings else {}),
-                "chain_definition": "one chain = one independent emcee ensemble; draws walker-major"}
+        return {
+            "n_chains": self.n_chains,
+            "n_walkers": self.n_walkers,
+            "n_steps": self.n_steps,
+            "burn": self.burn,
+            "thin": self.thin,
+            "draws_per_chain": int(self.kept_steps().size * self.n_walkers),
+            "tau": {n: self.tau[:, i].tolist() for i, n in enumerate(self.internal_names)},
+            "tau_max": self.tau_max,
+            "n_steps_over_tau": float(self.n_steps / self.tau_max),
+            "tau_rule": rule,
+            "tau_ok": [bool(v) for v in self.tau_ok],
+            "all_tau_ok": bool(np.all(self.tau_ok)),
+            "acceptance": self.acceptance.tolist(),
+            "seeds": list(self.seeds),
+            "runtime_s": self.runtime_s,
+            "n_evals": self.n_evals,
+            "steps_run": list(self.steps_run),
+            "backend": self.backend,
+            "failed_chains": {str(k): v for k, v in self.failed_chains.items()},
+            "moves": self.settings.get("moves"),
+            "stop_rule": self.stop.get("rule"),
+            "stop_reason": self.stop.get("reason"),
+            "cap": self.stop.get("cap"),
+            "cap_hit": bool(self.stop.get("cap_hit", False)),
+            "checks": list(self.stop.get("checks", [])),
+            "evals_per_chain": int(self.n_steps * self.n_walkers),
+            **({"placement": self.settings["placement"]} if "placement" in self.settings else {}),
+            "chain_definition": "one chain = one independent emcee ensemble; draws walker-major",
+        }
 
     def to_datatree(self, target=None, loglik: bool = True):
         """ArviZ DataTree with (chain, draw) arrays (``az.from_dict``).
@@ -622,11 +687,16 @@ class MCMCRun:
             post[n] = theta[:, :, i]
             if self.positive[i]:
                 post[self.internal_names[i]] = samples[:, :, i]
-        for i in range(len(self.names), d):          # nuisance coordinates of the default likelihood
+        for i in range(len(self.names), d):  # nuisance coordinates of the default likelihood
             post[self.internal_names[i]] = samples[:, :, i]
-        data = {"posterior": post,
-                "sample_stats": {"lp": lp, "walker": np.broadcast_to(walker, (C, D)).copy(),
-                                 "step": np.broadcast_to(step, (C, D)).copy()}}
+        data = {
+            "posterior": post,
+            "sample_stats": {
+                "lp": lp,
+                "walker": np.broadcast_to(walker, (C, D)).copy(),
+                "step": np.broadcast_to(step, (C, D)).copy(),
+            },
+        }
         dims, coords = {}, {}
         if target is not None:
             cols = target.use_time
@@ -637,9 +707,12 @@ class MCMCRun:
             if loglik:
                 ll = target.pointwise(samples.reshape(C * D, d))
                 data["log_likelihood"] = {"R": ll.reshape(C, D, *ll.shape[1:])}
-        attrs = {"inference_library": "emcee", "sampler": "imrbayes.mcmc",
-                 "diagnostics_json": json.dumps(self.diagnostics()),
-                 "settings_json": json.dumps(self.settings)}
+        attrs = {
+            "inference_library": "emcee",
+            "sampler": "imrbayes.mcmc",
+            "diagnostics_json": json.dumps(self.diagnostics()),
+            "settings_json": json.dumps(self.settings),
+        }
         if target is not None:
             attrs["target_json"] = json.dumps(target.describe(), default=float)
         return az.from_dict(data, dims=dims, coords=coords, attrs={"/": attrs})
@@ -652,39 +725,55 @@ def _progress_bar(progress, total):
         return None
     try:
         from tqdm.auto import tqdm
-    except ImportError:                                    # pragma: no cover
+    except ImportError:  # pragma: no cover
         return None
     return tqdm(total=total, desc="emcee", unit="step", leave=False)
 
 
-def _place_start(target, s: MCMCSettings, start_mean, start_cov, seed: int, auto: bool, nuisances: bool,
-                 name: str, log) -> tuple:
+def _place_start(
+    target, s: MCMCSettings, start_mean, start_cov, seed: int, auto: bool, nuisances: bool, name: str, log
+) -> tuple:
     """The start Gaussian moved onto the target by a quadratic fit (``place="laplace"``) and, on a
     window with sampled nuisances whose fit is Gaussian, the independent-walker settings; takes the
     given start mean (d,) and cov (d, d), returns (settings, mean, cov, placement or None)."""
     placement = None
-    if s.place == "laplace":          # its own seed stream: the chains' seeds are those of place="start"
+    if s.place == "laplace":  # its own seed stream: the chains' seeds are those of place="start"
         start_mean, start_cov, placement = quadratic_placement(
-            target.log_prob, start_mean, start_cov, rounds=PLACE_ROUNDS,
-            seed=int(np.random.SeedSequence([int(seed), 7919]).generate_state(1)[0]))
+            target.log_prob,
+            start_mean,
+            start_cov,
+            rounds=PLACE_ROUNDS,
+            seed=int(np.random.SeedSequence([int(seed), 7919]).generate_state(1)[0]),
+        )
         last = placement["rounds"][-1] if placement["rounds"] else {}
         per_exp = nuisances_per_experiment(target)
-        if (auto and nuisances and last.get("fitted") and last["residual_sd_nats"] <= LAPLACE_MAX_RESIDUAL
-                and per_exp <= LAPLACE_MAX_BLOCK):
+        if (
+            auto
+            and nuisances
+            and last.get("fitted")
+            and last["residual_sd_nats"] <= LAPLACE_MAX_RESIDUAL
+            and per_exp <= LAPLACE_MAX_BLOCK
+        ):
             # the window is Gaussian to within the bound over the placed cloud: independent walkers on
             # the placed proposal (docs/mcmc.md: 13-22x fewer evaluations on the verification window)
             s = replace(s, **LAPLACE_INDEP)
-            placement["moves_rule"] = (f"residual sd {last['residual_sd_nats']:.3g} <= {LAPLACE_MAX_RESIDUAL} nats: "
-                                       f"{LAPLACE_INDEP['moves']} on the placed Gaussian")
+            placement["moves_rule"] = (
+                f"residual sd {last['residual_sd_nats']:.3g} <= {LAPLACE_MAX_RESIDUAL} nats: "
+                f"{LAPLACE_INDEP['moves']} on the placed Gaussian"
+            )
         elif auto and nuisances:
-            placement["moves_rule"] = (f"residual sd {last.get('residual_sd_nats', float('nan')):.3g} nats (bound "
-                                       f"{LAPLACE_MAX_RESIDUAL}), {per_exp} nuisance(s) per experiment (bound "
-                                       f"{LAPLACE_MAX_BLOCK}): {s.moves} from the placed Gaussian")
+            placement["moves_rule"] = (
+                f"residual sd {last.get('residual_sd_nats', float('nan')):.3g} nats (bound "
+                f"{LAPLACE_MAX_RESIDUAL}), {per_exp} nuisance(s) per experiment (bound "
+                f"{LAPLACE_MAX_BLOCK}): {s.moves} from the placed Gaussian"
+            )
     if placement is not None and log is not None:
         fits = [r for r in placement["rounds"] if r.get("fitted")]
-        log(f"{name}: start placed on the target in {placement['n_evals']} evaluations (quadratic fit's residual sd "
-            f"{', '.join(f'{r['residual_sd_nats']:.2f}' for r in fits) or 'none'} nats by round)"
-            + (f"; {placement['moves_rule']}" if "moves_rule" in placement else ""))
+        log(
+            f"{name}: start placed on the target in {placement['n_evals']} evaluations (quadratic fit's residual sd "
+            f"{', '.join(f'{r["residual_sd_nats"]:.2f}' for r in fits) or 'none'} nats by round)"
+            + (f"; {placement['moves_rule']}" if "moves_rule" in placement else "")
+        )
     return s, start_mean, start_cov, placement
 
 
@@ -703,8 +792,11 @@ def _open_backends(backend, name: str, C: int, W: int, d: int, resume: bool, n_s
             if not resume or not be.initialized:
                 be.reset(W, d)
             elif be.shape != (W, d):
-                raise InputError(str(backend), f"group {name}/chain_{c} holds {be.shape} walkers x parameters, "
-                                               f"this run needs {(W, d)} (use resume=False or another name)")
+                raise InputError(
+                    str(backend),
+                    f"group {name}/chain_{c} holds {be.shape} walkers x parameters, "
+                    f"this run needs {(W, d)} (use resume=False or another name)",
+                )
         backends.append(be)
         done.append(int(be.iteration))
     if any(n > n_steps for n in done):
@@ -712,8 +804,9 @@ def _open_backends(backend, name: str, C: int, W: int, d: int, resume: bool, n_s
     return backends, done
 
 
-def _initial_states(target, fresh: list, children: list, seeds: list, start_mean, Lc, init_scale: float,
-                    W: int, d: int) -> dict:
+def _initial_states(
+    target, fresh: list, children: list, seeds: list, start_mean, Lc, init_scale: float, W: int, d: int
+) -> dict:
     """emcee states of the fresh ensembles ``fresh``: W starts each from N(start_mean, init_scale^2 Lc Lc^T)
     in one batched evaluation, starts with a -inf log-density redrawn; returns {c: emcee.State}."""
     import emcee
@@ -734,16 +827,16 @@ def _initial_states(target, fresh: list, children: list, seeds: list, start_mean
                 P0[c][i] = start_mean + init_scale * Lc @ rngs[c].standard_normal(d)
     else:
         raise RuntimeError("could not find starting points with a finite log-posterior in 100 rounds")
-    return {c: emcee.State(P0[c], log_prob=LP[c], random_state=np.random.RandomState(seeds[c]).get_state())
-            for c in fresh}
+    return {
+        c: emcee.State(P0[c], log_prob=LP[c], random_state=np.random.RandomState(seeds[c]).get_state()) for c in fresh
+    }
 
 
 class _Ensembles:
     """The C ensembles of one run as they advance: their backends, moves, samplers, lengths and the
     failed ones (index -> error); :meth:`advance` takes them to a step count."""
 
-    def __init__(self, target, s: MCMCSettings, backends: list, done: list, states: list, moves: list,
-                 start_cov, bar):
+    def __init__(self, target, s: MCMCSettings, backends: list, done: list, states: list, moves: list, start_cov, bar):
         self.target, self.s, self.backends, self.states, self.moves = target, s, backends, states, moves
         self.C, self.W, self.d = len(backends), s.n_walkers, int(target.ndim)
         self.start_cov, self.bar = start_cov, bar
@@ -752,7 +845,7 @@ class _Ensembles:
         self.solo = independent_walkers(s.moves)
         self.placed = [False] * self.C
         self.samplers = [None] * self.C
-        self.route = [None] * self.C       # the batcher each ensemble's log-prob calls go through (None: direct)
+        self.route = [None] * self.C  # the batcher each ensemble's log-prob calls go through (None: direct)
         self.lengths = list(done)
         self.failed = {}
         self.bar_lock = threading.Lock()
@@ -764,7 +857,7 @@ class _Ensembles:
         n_a, d = int(self.s.indep_adapt), self.d
         if not n_a or self.placed[c] or self.lengths[c] < n_a:
             return
-        x = np.asarray(self.backends[c].get_chain()[n_a // 2:n_a], dtype=np.float64).reshape(-1, d)
+        x = np.asarray(self.backends[c].get_chain()[n_a // 2 : n_a], dtype=np.float64).reshape(-1, d)
         cov = np.cov(x.T).reshape(d, d) + 1e-12 * np.diag(np.diag(self.start_cov))
         for mv, _ in self.moves[c]:
             if hasattr(mv, "proposal"):
@@ -782,16 +875,21 @@ class _Ensembles:
             if self.samplers[c] is None:
                 route, target = self.route, self.target
                 fn = lambda x, c=c: route[c].call(c, x) if route[c] is not None else target.log_prob(x)  # noqa: E731
-                self.samplers[c] = emcee.EnsembleSampler(self.W, self.d, fn, vectorize=True,
-                                                         backend=self.backends[c], moves=self.moves[c])
+                self.samplers[c] = emcee.EnsembleSampler(
+                    self.W, self.d, fn, vectorize=True, backend=self.backends[c], moves=self.moves[c]
+                )
                 if self.states[c] is None:
                     self.states[c] = self.samplers[c].get_last_sample()
             self.place_proposal(c)
             n_a = int(self.s.indep_adapt)
             stops = ([n_a] if self.lengths[c] < n_a < upto else []) + [upto]
             for stop in stops:
-                for st in self.samplers[c].sample(self.states[c], iterations=stop - self.lengths[c], store=True,
-                                                  skip_initial_state_check=self.lengths[c] > 0 or self.solo):
+                for st in self.samplers[c].sample(
+                    self.states[c],
+                    iterations=stop - self.lengths[c],
+                    store=True,
+                    skip_initial_state_check=self.lengths[c] > 0 or self.solo,
+                ):
                     self.states[c] = st
                     self.lengths[c] += 1
                     if self.bar is not None:
@@ -814,7 +912,7 @@ class _Ensembles:
             for c in todo:
                 try:
                     self.run_one(c, upto, None)
-                except Exception as exc:                        # noqa: BLE001
+                except Exception as exc:  # noqa: BLE001
                     failed[c] = f"{type(exc).__name__}: {exc}"
             return
         batcher = _Batcher(self.target.log_prob, len(todo))
@@ -823,9 +921,9 @@ class _Ensembles:
         def worker(c):
             try:
                 self.run_one(c, upto, batcher)
-            except Exception as exc:                            # noqa: BLE001
+            except Exception as exc:  # noqa: BLE001
                 failed[c] = f"{type(exc).__name__}: {exc}"
-            except BaseException as exc:                        # noqa: BLE001
+            except BaseException as exc:  # noqa: BLE001
                 errors.append(exc)
                 batcher.abort(exc)
 
@@ -836,7 +934,7 @@ class _Ensembles:
             for th in threads:
                 while th.is_alive():
                     th.join(0.2)
-        except BaseException as exc:                            # KeyboardInterrupt: stop the others
+        except BaseException as exc:  # KeyboardInterrupt: stop the others
             batcher.abort(exc)
             for th in threads:
                 th.join()
@@ -859,7 +957,7 @@ def _sample_to_stop(ens: _Ensembles, s: MCMCSettings, target, name: str, log, re
     checks, reason, n_chk = [], None, s.n_steps
     if s.stop == "converged":
         n_chk = min(s.min_steps, s.n_steps)
-        while n_chk <= min(ens.lengths):                          # replay (resume): no forward run
+        while n_chk <= min(ens.lengths):  # replay (resume): no forward run
             chk = convergence_check(ens.stacked(n_chk), s)
             checks.append(chk)
             if chk["ok"] or n_chk >= s.n_steps:
@@ -884,8 +982,10 @@ def _sample_to_stop(ens: _Ensembles, s: MCMCSettings, target, name: str, log, re
             elif n_chk >= s.n_steps:
                 reason = "cap"
                 if log is not None:
-                    log(f"{name}: stopped at the cap of {s.n_steps} steps, not converged (agree = null; "
-                        "raise it with --mcmc-set n_steps=N, a resumed run continues)")
+                    log(
+                        f"{name}: stopped at the cap of {s.n_steps} steps, not converged (agree = null; "
+                        "raise it with --mcmc-set n_steps=N, a resumed run continues)"
+                    )
             else:
                 n_chk = _next_check(n_chk, chk, s)
     finally:
@@ -894,8 +994,18 @@ def _sample_to_stop(ens: _Ensembles, s: MCMCSettings, target, name: str, log, re
     return checks, reason, n_chk
 
 
-def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | None = None, seed: int = 0,
-             backend=None, name: str = "mcmc", progress=None, resume: bool = True, log=None) -> MCMCRun:
+def run_mcmc(
+    target,
+    start_mean=None,
+    start_cov=None,
+    settings: MCMCSettings | None = None,
+    seed: int = 0,
+    backend=None,
+    name: str = "mcmc",
+    progress=None,
+    resume: bool = True,
+    log=None,
+) -> MCMCRun:
     """Sample ``target`` with ``n_chains`` independent emcee ensembles (module docstring).
 
     Parameters
@@ -928,8 +1038,9 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
     start_cov = np.asarray(start_cov, dtype=np.float64).reshape(d, d)
     given = (start_mean, start_cov)
     evals0 = int(getattr(target, "n_evals", 0))
-    s, start_mean, start_cov, placement = _place_start(target, s, start_mean, start_cov, seed, auto, nuisances,
-                                                       name, log)
+    s, start_mean, start_cov, placement = _place_start(
+        target, s, start_mean, start_cov, seed, auto, nuisances, name, log
+    )
     if s.n_walkers < 2 * d and not independent_walkers(s.moves):
         # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
         # (fewer with the block and ridge moves did not pay: docs/mcmc.md)
@@ -947,35 +1058,62 @@ def run_mcmc(target, start_mean=None, start_cov=None, settings: MCMCSettings | N
             states[c] = st
     # one move list per ensemble: an adapted independence proposal must see only its own ensemble
     moves = [emcee_moves(s.moves, start_mean, start_cov, s.indep_scale, s.indep_dof, target) for _ in range(C)]
-    ens = _Ensembles(target, s, backends, done, states, moves, start_cov,
-                     _progress_bar(progress, sum(max(0, s.n_steps - n) for n in done)))
+    ens = _Ensembles(
+        target,
+        s,
+        backends,
+        done,
+        states,
+        moves,
+        start_cov,
+        _progress_bar(progress, sum(max(0, s.n_steps - n) for n in done)),
+    )
     checks, reason, n_chk = _sample_to_stop(ens, s, target, name, log, any(done), evals0)
     # ----- collect, diagnose
     alive = ens.alive()
     if len(alive) < 2:
-        raise RuntimeError(f"emcee: {len(ens.failed)} of {C} ensembles failed, fewer than the 2 that R-hat needs; "
-                           f"first error: {next(iter(ens.failed.values()))}")
+        raise RuntimeError(
+            f"emcee: {len(ens.failed)} of {C} ensembles failed, fewer than the 2 that R-hat needs; "
+            f"first error: {next(iter(ens.failed.values()))}"
+        )
     backends = [backends[c] for c in alive]
     seeds = [seeds[c] for c in alive]
     steps_run = [max(0, n_chk - done[c]) for c in alive]
     C = len(alive)
-    chain = np.stack([be.get_chain()[:n_chk] for be in backends])          # (C, n, W, d)
-    logp = np.stack([be.get_log_prob()[:n_chk] for be in backends])        # (C, n, W)
+    chain = np.stack([be.get_chain()[:n_chk] for be in backends])  # (C, n, W, d)
+    logp = np.stack([be.get_log_prob()[:n_chk] for be in backends])  # (C, n, W)
     n = chain.shape[1]
     acc = np.array([float(np.mean(be.accepted)) / max(1, be.iteration) for be in backends])
-    tau = np.stack([integrated_tau(chain[c, n // 4:]) for c in range(C)])
+    tau = np.stack([integrated_tau(chain[c, n // 4 :]) for c in range(C)])
     burn, thin = burn_thin(n, float(np.max(tau)), s, W)
     prior = target.prior
-    stop = {"rule": s.stop, "reason": reason, "cap": int(s.n_steps), "cap_hit": reason == "cap",
-            "checks": checks}
-    return MCMCRun(names=tuple(prior.names), internal_names=list(getattr(target, "internal_names", prior.names)),
-                   positive=np.concatenate([np.asarray(prior.positive, dtype=bool), np.zeros(d - prior.n, dtype=bool)]),
-                   chain=chain, log_prob=logp, acceptance=acc,
-                   tau=tau, burn=burn, thin=thin, seeds=seeds, runtime_s=time.perf_counter() - t0,
-                   n_evals=int(getattr(target, "n_evals", 0)) - evals0, steps_run=steps_run,
-                   backend=None if backend is None else {"path": str(backend), "name": name},
-                   failed_chains=dict(sorted(ens.failed.items())), stop=stop,
-                   settings={**asdict(s), "seed": int(seed), "start_mean": start_mean.tolist(),
-                             "start_cov": start_cov.tolist(),
-                             **({} if placement is None else {"given_mean": given[0].tolist(),
-                                                              "given_cov": given[1].tolist(), "placement": placement})})
+    stop = {"rule": s.stop, "reason": reason, "cap": int(s.n_steps), "cap_hit": reason == "cap", "checks": checks}
+    return MCMCRun(
+        names=tuple(prior.names),
+        internal_names=list(getattr(target, "internal_names", prior.names)),
+        positive=np.concatenate([np.asarray(prior.positive, dtype=bool), np.zeros(d - prior.n, dtype=bool)]),
+        chain=chain,
+        log_prob=logp,
+        acceptance=acc,
+        tau=tau,
+        burn=burn,
+        thin=thin,
+        seeds=seeds,
+        runtime_s=time.perf_counter() - t0,
+        n_evals=int(getattr(target, "n_evals", 0)) - evals0,
+        steps_run=steps_run,
+        backend=None if backend is None else {"path": str(backend), "name": name},
+        failed_chains=dict(sorted(ens.failed.items())),
+        stop=stop,
+        settings={
+            **asdict(s),
+            "seed": int(seed),
+            "start_mean": start_mean.tolist(),
+            "start_cov": start_cov.tolist(),
+            **(
+                {}
+                if placement is None
+                else {"given_mean": given[0].tolist(), "given_cov": given[1].tolist(), "placement": placement}
+            ),
+        },
+    )

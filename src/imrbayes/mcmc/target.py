@@ -83,8 +83,21 @@ class WindowTarget:
         Experiment names (for the ``experiment`` coordinate).
     """
 
-    def __init__(self, model, start: BatchState, t_eval, y, P, prior: ParamSpace, weight=1.0,
-                 names=None, description: dict | None = None, whiten=None, nuisance_sd=None, frames=None):
+    def __init__(
+        self,
+        model,
+        start: BatchState,
+        t_eval,
+        y,
+        P,
+        prior: ParamSpace,
+        weight=1.0,
+        names=None,
+        description: dict | None = None,
+        whiten=None,
+        nuisance_sd=None,
+        frames=None,
+    ):
         self.model = model
         self.start = start.copy()
         self.t0 = float(start.t_star)
@@ -111,17 +124,20 @@ class WindowTarget:
             raise InputError("window", "no observation with a positive weight after the window start")
         if not np.all(np.isfinite(self.y[self.use])):
             raise InputError("window", "observations must be finite where they are used")
-        self.n_evals = 0          # parameter sets evaluated
-        self.n_failed = 0         # of which the forward solve failed
+        self.n_evals = 0  # parameter sets evaluated
+        self.n_failed = 0  # of which the forward solve failed
         # the default likelihood (imrbayes.ensemble.likelihood): whitened residuals, and each
         # experiment's nuisances (a, delta, rho) sampled with the parameters, prior N(0, sd^2)
         self.whiten = None if whiten is None else np.asarray(whiten, dtype=np.float64).reshape(n_exp, m, m)
         if self.whiten is not None and not np.all(np.isfinite(self.whiten)):
             raise InputError("window", "whitening matrices must be finite")
-        sd = np.zeros((n_exp, 3)) if nuisance_sd is None else np.broadcast_to(
-            np.asarray(nuisance_sd, np.float64), (n_exp, 3))
+        sd = (
+            np.zeros((n_exp, 3))
+            if nuisance_sd is None
+            else np.broadcast_to(np.asarray(nuisance_sd, np.float64), (n_exp, 3))
+        )
         self.nuisance_sd = np.where(np.isfinite(sd) & (sd > 0), sd, 0.0)
-        self.nuisance_used = self.nuisance_sd > 0           # (n_exp, 3), row-major order of the extra coordinates
+        self.nuisance_used = self.nuisance_sd > 0  # (n_exp, 3), row-major order of the extra coordinates
         # the grid values interpolate camera frames (imrbayes.ensemble.likelihood.frame_operator per experiment)
         self.frames = None if frames is None else list(frames)
         if self.frames is not None and len(self.frames) != n_exp:
@@ -130,7 +146,7 @@ class WindowTarget:
             raise InputError("window", "nuisances need a window that starts at the maximum (t* = 0)")
         # predictions kept for :meth:`pointwise`: emcee's kept draws are points it has evaluated,
         # so the log-likelihood group costs no forward solve (oldest entries dropped beyond the budget)
-        self.memo_bytes = 64 * 2 ** 20
+        self.memo_bytes = 64 * 2**20
         self._memo = OrderedDict()
 
     def __getstate__(self):
@@ -149,7 +165,7 @@ class WindowTarget:
             return
         for z, r, f in zip(Z, R, failed):
             self._memo[z.tobytes()] = (r.copy(), bool(f))
-        while len(self._memo) > cap:                 # O(1) per entry (a plain dict's front scan is not)
+        while len(self._memo) > cap:  # O(1) per entry (a plain dict's front scan is not)
             self._memo.popitem(last=False)
 
     # ------------------------------------------------------------------ description
@@ -168,9 +184,11 @@ class WindowTarget:
     @property
     def internal_names(self) -> list:
         """Names of the sampled coordinates: ``log_G`` for a positive ``G``, else the name."""
-        return ([f"log_{n}" if p else n for n, p in zip(self.prior.names, self.prior.positive)]
-                + [f"{q}_{self.names[e]}" for e, j in zip(*np.nonzero(self.nuisance_used))
-                   for q in [("rmax_rel", "t0_offset", "log_req")[j]]])
+        return [f"log_{n}" if p else n for n, p in zip(self.prior.names, self.prior.positive)] + [
+            f"{q}_{self.names[e]}"
+            for e, j in zip(*np.nonzero(self.nuisance_used))
+            for q in [("rmax_rel", "t0_offset", "log_req")[j]]
+        ]
 
     @property
     def t_used(self) -> np.ndarray:
@@ -178,14 +196,24 @@ class WindowTarget:
         return self.t_eval[self.use_time]
 
     def describe(self) -> dict:
-        return {"t0_star": self.t0, "t_star": [float(self.t_eval[0]), float(self.t_eval[-1])],
-                "n_samples": int(self.t_eval.size), "n_used": int(self.use.sum()), "n_experiments": self.n_exp,
-                "prior": self.prior.describe_density(), "internal_names": self.internal_names,
-                "density": ("-1/2 sum_n ||W_n (y_n - R_n(z, nu_n))||^2 + log p0(z) + sum_n log N(nu_n; 0, diag(sd_n^2))"
-                            if self.whiten is not None else "-1/2 sum_n sum_k c_nk (y_nk - R_nk(z))^2 / P_k + log p0(z)"),
-                "nuisances_sampled": self.internal_names[self.prior.n:],
-                "weight_min": float(self.weight[self.use].min()), "weight_max": float(self.weight[self.use].max()),
-                **self.description}
+        return {
+            "t0_star": self.t0,
+            "t_star": [float(self.t_eval[0]), float(self.t_eval[-1])],
+            "n_samples": int(self.t_eval.size),
+            "n_used": int(self.use.sum()),
+            "n_experiments": self.n_exp,
+            "prior": self.prior.describe_density(),
+            "internal_names": self.internal_names,
+            "density": (
+                "-1/2 sum_n ||W_n (y_n - R_n(z, nu_n))||^2 + log p0(z) + sum_n log N(nu_n; 0, diag(sd_n^2))"
+                if self.whiten is not None
+                else "-1/2 sum_n sum_k c_nk (y_nk - R_nk(z))^2 / P_k + log p0(z)"
+            ),
+            "nuisances_sampled": self.internal_names[self.prior.n :],
+            "weight_min": float(self.weight[self.use].min()),
+            "weight_max": float(self.weight[self.use].max()),
+            **self.description,
+        }
 
     @property
     def nuisance_blocks(self) -> list:
@@ -206,25 +234,33 @@ class WindowTarget:
         Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
         n, ne, m = Z.shape[0], self.n_exp, self.t_eval.size
         R = np.full((n, ne, m), np.nan)
-        theta = self.prior.to_si(Z[:, :self.prior.n])
+        theta = self.prior.to_si(Z[:, : self.prior.n])
         ok = np.all(np.isfinite(theta), axis=1) & np.all(np.isfinite(Z), axis=1)
         failed = ~ok
         idx = np.flatnonzero(ok)
         if idx.size:
             s = self.start
-            st = BatchState(np.tile(s.y, (idx.size, 1)), self.t0, np.tile(s.rmax_m, idx.size),
-                            np.tile(s.req_m, idx.size))
-            params = np.repeat(theta[idx], ne, axis=0)                     # member = i * N_exp + e
+            st = BatchState(
+                np.tile(s.y, (idx.size, 1)), self.t0, np.tile(s.rmax_m, idx.size), np.tile(s.req_m, idx.size)
+            )
+            params = np.repeat(theta[idx], ne, axis=0)  # member = i * N_exp + e
             if self.nuisance_used.any() or self.frames is not None:
                 from imrbayes.ensemble.likelihood import predict as predict_nuisance
+
                 nu = np.zeros((idx.size, ne, 3))
-                nu[:, self.nuisance_used] = Z[idx, self.prior.n:]
+                nu[:, self.nuisance_used] = Z[idx, self.prior.n :]
                 Rs = np.empty((idx.size, ne, m))
                 bad_nu = np.zeros((idx.size, ne), dtype=bool)
-                for e in range(ne):         # one batch per experiment: its own frame times
+                for e in range(ne):  # one batch per experiment: its own frame times
                     Rs[:, e], bad_nu[:, e] = predict_nuisance(
-                        self.model, theta[idx], float(s.rmax_m[e]), float(s.req_m[e]), self.t_eval, nu[:, e],
-                        None if self.frames is None else self.frames[e])
+                        self.model,
+                        theta[idx],
+                        float(s.rmax_m[e]),
+                        float(s.req_m[e]),
+                        self.t_eval,
+                        nu[:, e],
+                        None if self.frames is None else self.frames[e],
+                    )
                 Rs = np.where(bad_nu[:, :, None], np.nan, Rs).reshape(idx.size * ne, m)
                 bad_nu = bad_nu.ravel()
                 out = None
@@ -291,7 +327,7 @@ class WindowTarget:
         experiment its log-likelihood plus its nuisances' prior. Predictions come from the memo where
         the set was evaluated before (no forward solve)."""
         Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
-        lp0 = self.prior.log_prob(Z[:, :self.prior.n])
+        lp0 = self.prior.log_prob(Z[:, : self.prior.n])
         T = np.full((Z.shape[0], self.n_exp), -np.inf)
         R = np.full((Z.shape[0], self.n_exp, self.t_eval.size), np.nan)
         failed = np.ones(Z.shape[0], dtype=bool)
@@ -363,7 +399,7 @@ class WindowTarget:
         out = np.empty((Z.shape[0], self.n_exp, int(cols.sum())))
         per = max(1, chunk // self.n_exp)
         for a in range(0, Z.shape[0], per):
-            R, failed = self._predict_remembered(Z[a:a + per])
+            R, failed = self._predict_remembered(Z[a : a + per])
             w = self.weight[:, cols]
             with np.errstate(divide="ignore", invalid="ignore"):
                 if self.whiten is not None:
@@ -372,16 +408,15 @@ class WindowTarget:
                     r = np.where(self.use[None], self.y - R, 0.0)
                     wr = np.einsum("eij,nej->nei", self.whiten, r)[:, :, cols]
                     diag = np.abs(np.einsum("eii->ei", self.whiten))[:, cols]
-                    lp = -0.5 * (wr ** 2 + np.log(2.0 * np.pi)) + np.log(diag)[None]
+                    lp = -0.5 * (wr**2 + np.log(2.0 * np.pi)) + np.log(diag)[None]
                 else:
                     lp = loglik_pointwise(R[:, :, cols], self.y[:, cols], self.P[:, cols], w)
             lp = np.where((w > 0)[None] & ~failed[:, None, None] & np.isfinite(lp), lp, -1e300)
-            out[a:a + per] = lp
+            out[a : a + per] = lp
         return out
 
 
-def fitting_window_target(model, obs, prior: ParamSpace, t_end: float | None = None,
-                          weight="en4dvar") -> WindowTarget:
+def fitting_window_target(model, obs, prior: ParamSpace, t_end: float | None = None, weight="en4dvar") -> WindowTarget:
     """Constant parameters over [0, t_end] from the radius maximum (the En4D-Var / IMR window).
 
     Parameters
@@ -408,14 +443,33 @@ def fitting_window_target(model, obs, prior: ParamSpace, t_end: float | None = N
         c, rule = np.asarray(weight, dtype=np.float64), "given"
     start = fm.initial_state(obs.rmax_m, obs.req_m)
     names = list(getattr(obs, "names", []) or [])
-    return WindowTarget(model, start, t[1:K + 1], np.asarray(obs.R_star)[:, 1:K + 1], np.asarray(obs.P)[1:K + 1],
-                        prior, c, names or None,
-                        description={"kind": "fitting window from the maximum", "samples": [1, K], "weight_rule": rule})
+    return WindowTarget(
+        model,
+        start,
+        t[1 : K + 1],
+        np.asarray(obs.R_star)[:, 1 : K + 1],
+        np.asarray(obs.P)[1 : K + 1],
+        prior,
+        c,
+        names or None,
+        description={"kind": "fitting window from the maximum", "samples": [1, K], "weight_rule": rule},
+    )
 
 
-def window_target_from_ensemble(model, ensemble: BatchState, t_eval, y, P, prior: ParamSpace, mda_weight=1.0,
-                                L: int | None = None, n_exp: int | None = None, groups=None, names=None,
-                                index: int | None = None) -> WindowTarget:
+def window_target_from_ensemble(
+    model,
+    ensemble: BatchState,
+    t_eval,
+    y,
+    P,
+    prior: ParamSpace,
+    mda_weight=1.0,
+    L: int | None = None,
+    n_exp: int | None = None,
+    groups=None,
+    names=None,
+    index: int | None = None,
+) -> WindowTarget:
     """The density that the MIEnKS-MDA Gauss–Newton analysis of one window approximates.
 
     Window j starts at t0 = ``ensemble.t_star`` with the smoother's handed-off ensemble (the prior
@@ -469,8 +523,13 @@ def window_target_from_ensemble(model, ensemble: BatchState, t_eval, y, P, prior
             raise InputError("ensemble", f"experiment {g}: members disagree on Rmax/Req")
     start = BatchState(np.array(ys), float(ensemble.t_star), np.array(rmax), np.array(req))
     beta = np.broadcast_to(np.asarray(mda_weight, dtype=np.float64), t_eval.shape)
-    desc = {"kind": "MIEnKS-MDA window", "state": "mean of each experiment's handed-off ensemble",
-            "weight_rule": f"beta_jk / L, L = {L}", "L": L, "R_spread_at_start": spread}
+    desc = {
+        "kind": "MIEnKS-MDA window",
+        "state": "mean of each experiment's handed-off ensemble",
+        "weight_rule": f"beta_jk / L, L = {L}",
+        "L": L,
+        "R_spread_at_start": spread,
+    }
     if index is not None:
         desc["index"] = int(index)
     return WindowTarget(model, start, t_eval, y, P, prior, beta / L, names, description=desc)

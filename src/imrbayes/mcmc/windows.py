@@ -36,8 +36,18 @@ from imrbayes.mcmc.compare import compare_window, compare_windows
 from imrbayes.mcmc.sampler import MCMCRun, MCMCSettings, run_mcmc
 from imrbayes.mcmc.target import WindowTarget
 
-__all__ = ["start_gaussian", "WindowSpec", "WindowMCMC", "window_specs", "sample_windows", "mcmc_tree", "write_mcmc", "write_compare",
-           "compare_from_tree", "window_seed"]
+__all__ = [
+    "start_gaussian",
+    "WindowSpec",
+    "WindowMCMC",
+    "window_specs",
+    "sample_windows",
+    "mcmc_tree",
+    "write_mcmc",
+    "write_compare",
+    "compare_from_tree",
+    "window_seed",
+]
 
 
 @dataclass
@@ -52,8 +62,8 @@ class WindowSpec:
     prior_mean: np.ndarray
     prior_cov: np.ndarray
     state_source: str = ""
-    start: tuple | None = None          # (mean, cov) over all sampled coordinates (walker starts)
-    prior_start: tuple | None = None    # the same from the prior
+    start: tuple | None = None  # (mean, cov) over all sampled coordinates (walker starts)
+    prior_start: tuple | None = None  # the same from the prior
 
 
 def window_specs(model, obs, space, posteriors, *, indices=None, box_sd: float = 10.0) -> list:
@@ -66,12 +76,12 @@ def window_specs(model, obs, space, posteriors, *, indices=None, box_sd: float =
     """
     t = np.asarray(obs.t_star, dtype=np.float64)
     specs = []
-    for j in (range(len(posteriors)) if indices is None else indices):
+    for j in range(len(posteriors)) if indices is None else indices:
         w = posteriors[j]
         a, b = int(w.samples[0]), int(w.samples[1])
         q = np.asarray(w.start_state, dtype=np.float64)
         valid = np.all(np.isfinite(q), axis=1)
-        if w.whiten is not None:          # experiments without a whitening (failed in the fit) are left out
+        if w.whiten is not None:  # experiments without a whitening (failed in the fit) are left out
             valid &= np.all(np.isfinite(np.asarray(w.whiten)), axis=(1, 2))
         rows = np.flatnonzero(valid)
         if rows.size == 0:
@@ -80,19 +90,44 @@ def window_specs(model, obs, space, posteriors, *, indices=None, box_sd: float =
         start = BatchState(q[rows].copy(), float(t[w.start]), np.asarray(obs.rmax_m, float)[rows], req[rows])
         prior = space.with_prior(w.prior_mean, w.prior_cov, box_sd)
         nuisance_sd = None if w.nuisance_sd is None else np.asarray(w.nuisance_sd, float)[rows]
-        tg = WindowTarget(model, start, t[a:b + 1], np.asarray(obs.R_star)[rows, a:b + 1], np.asarray(obs.P)[a:b + 1],
-                          prior, w.weight, [obs.names[i] for i in rows], description=dict(w.description),
-                          whiten=None if w.whiten is None else np.asarray(w.whiten)[rows], nuisance_sd=nuisance_sd,
-                          frames=None if w.frames is None else [w.frames[i] for i in rows])
+        tg = WindowTarget(
+            model,
+            start,
+            t[a : b + 1],
+            np.asarray(obs.R_star)[rows, a : b + 1],
+            np.asarray(obs.P)[a : b + 1],
+            prior,
+            w.weight,
+            [obs.names[i] for i in rows],
+            description=dict(w.description),
+            whiten=None if w.whiten is None else np.asarray(w.whiten)[rows],
+            nuisance_sd=nuisance_sd,
+            frames=None if w.frames is None else [w.frames[i] for i in rows],
+        )
         sub = w
         if w.nuisance_sd is not None:
             from dataclasses import replace
-            sub = replace(w, nuisance_sd=nuisance_sd, nuisance_mean=np.asarray(w.nuisance_mean, float)[rows],
-                          nuisance_post_sd=np.asarray(w.nuisance_post_sd, float)[rows])
-        specs.append(WindowSpec(w.index, (float(t[w.start]), float(t[b])), tg, np.asarray(w.mean, float),
-                                np.asarray(w.cov, float), np.asarray(w.prior_mean, float),
-                                np.asarray(w.prior_cov, float), w.description.get("state", ""),
-                                sub.start_gaussian(), sub.start_gaussian(prior=True)))
+
+            sub = replace(
+                w,
+                nuisance_sd=nuisance_sd,
+                nuisance_mean=np.asarray(w.nuisance_mean, float)[rows],
+                nuisance_post_sd=np.asarray(w.nuisance_post_sd, float)[rows],
+            )
+        specs.append(
+            WindowSpec(
+                w.index,
+                (float(t[w.start]), float(t[b])),
+                tg,
+                np.asarray(w.mean, float),
+                np.asarray(w.cov, float),
+                np.asarray(w.prior_mean, float),
+                np.asarray(w.prior_cov, float),
+                w.description.get("state", ""),
+                sub.start_gaussian(),
+                sub.start_gaussian(prior=True),
+            )
+        )
     return specs
 
 
@@ -118,8 +153,16 @@ class WindowMCMC:
     entry: dict = field(default_factory=dict)
 
 
-def sample_windows(specs, settings: MCMCSettings | None = None, seed: int = 0, backend=None, progress=None,
-                   start: str = "ensemble", loglik: bool = True, callback=None) -> list:
+def sample_windows(
+    specs,
+    settings: MCMCSettings | None = None,
+    seed: int = 0,
+    backend=None,
+    progress=None,
+    start: str = "ensemble",
+    loglik: bool = True,
+    callback=None,
+) -> list:
     """MCMC of every window spec, then its comparison with the ensemble Gaussian.
 
     start : ``"ensemble"`` (walkers start from the window's fused Gaussian, the default) or
@@ -130,11 +173,28 @@ def sample_windows(specs, settings: MCMCSettings | None = None, seed: int = 0, b
     out = []
     for sp in specs:
         m, C = start_gaussian(sp, start)
-        run = run_mcmc(sp.target, m, C, settings, seed=window_seed(seed, sp.index), backend=backend,
-                       name=f"window_{sp.index:02d}", progress=progress)
+        run = run_mcmc(
+            sp.target,
+            m,
+            C,
+            settings,
+            seed=window_seed(seed, sp.index),
+            backend=backend,
+            name=f"window_{sp.index:02d}",
+            progress=progress,
+        )
         tree = run.to_datatree(sp.target, loglik=loglik)
-        entry = compare_window(sp.ens_mean, sp.ens_cov, tree, sp.target.param_names, sp.target.prior.positive,
-                               index=sp.index, t_star=sp.t_star, diagnostics=run.diagnostics(), seed=sp.index)
+        entry = compare_window(
+            sp.ens_mean,
+            sp.ens_cov,
+            tree,
+            sp.target.param_names,
+            sp.target.prior.positive,
+            index=sp.index,
+            t_star=sp.t_star,
+            diagnostics=run.diagnostics(),
+            seed=sp.index,
+        )
         entry["state_source"] = sp.state_source
         res = WindowMCMC(sp, run, tree, entry)
         out.append(res)
@@ -153,7 +213,7 @@ def mcmc_tree(results, attrs: dict | None = None):
     post, stats = [], []
     for r in results:
         name = f"window_{r.spec.index:02d}"
-        nodes[name] = xr.Dataset(attrs=dict(r.tree.attrs))              # diagnostics_json, target_json, ...
+        nodes[name] = xr.Dataset(attrs=dict(r.tree.attrs))  # diagnostics_json, target_json, ...
         for group in r.tree.children:
             nodes[f"{name}/{group}"] = r.tree[group].to_dataset()
         n = r.tree["posterior"].sizes["draw"]
@@ -169,11 +229,17 @@ def mcmc_tree(results, attrs: dict | None = None):
         nodes[key] = ds.transpose("chain", "draw", "window", ...)
     tree = xr.DataTree.from_dict(nodes)
     tree["posterior"].attrs["sample_dims"] = ["chain", "draw"]
-    tree.attrs.update({"inference_library": "emcee", "sampler": "imrbayes.mcmc", "n_windows": len(results),
-                       "layout": "window_XX/{posterior,sample_stats,log_likelihood,observed_data,constant_data} "
-                                 "per window; top-level posterior/sample_stats with a window dimension "
-                                 f"(every window thinned evenly to {D} draws)",
-                       **(attrs or {})})
+    tree.attrs.update(
+        {
+            "inference_library": "emcee",
+            "sampler": "imrbayes.mcmc",
+            "n_windows": len(results),
+            "layout": "window_XX/{posterior,sample_stats,log_likelihood,observed_data,constant_data} "
+            "per window; top-level posterior/sample_stats with a window dimension "
+            f"(every window thinned evenly to {D} draws)",
+            **(attrs or {}),
+        }
+    )
     return tree
 
 
@@ -218,8 +284,17 @@ def compare_from_tree(summary: dict, tree) -> dict:
         if ens is None:
             continue
         diag = json.loads(node.attrs.get("diagnostics_json", "null"))
-        e = compare_window(ens["mean_internal"], ens["cov_internal"], node, names, positive, index=j,
-                           t_star=ens.get("t_star"), diagnostics=diag, seed=j)
+        e = compare_window(
+            ens["mean_internal"],
+            ens["cov_internal"],
+            node,
+            names,
+            positive,
+            index=j,
+            t_star=ens.get("t_star"),
+            diagnostics=diag,
+            seed=j,
+        )
         if ens.get("state_source"):
             e["state_source"] = ens["state_source"]
         entries.append(e)

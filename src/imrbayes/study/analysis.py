@@ -22,14 +22,26 @@ def table_rows(results, label_keys) -> list:
     records (None: not checked), the diagnose verdict, the runs that failed."""
     rows = []
     for r in results:
-        row = {"condition": r.name, **{k: r.labels.get(k) for k in label_keys}, "method": r.method,
-               "n_bubbles": r.n_bubbles}
+        row = {
+            "condition": r.name,
+            **{k: r.labels.get(k) for k in label_keys},
+            "method": r.method,
+            "n_bubbles": r.n_bubbles,
+        }
         for p in _PARAMS:
             e, b = r.estimate.get(p) or {}, r.between.get(p) or {}
             lo, hi = e.get("hdi95") or (None, None)
             blo, bhi = b.get("hdi95") or (None, None)
-            row.update({f"{p}_mean": e.get("mean"), f"{p}_lo": lo, f"{p}_hi": hi,
-                        f"{p}_between_sd": b.get("sd"), f"{p}_between_lo": blo, f"{p}_between_hi": bhi})
+            row.update(
+                {
+                    f"{p}_mean": e.get("mean"),
+                    f"{p}_lo": lo,
+                    f"{p}_hi": hi,
+                    f"{p}_between_sd": b.get("sd"),
+                    f"{p}_between_lo": blo,
+                    f"{p}_between_hi": bhi,
+                }
+            )
         row["described"] = r.described
         row["diagnose_verdict"] = r.diagnose.get("verdict")
         row["diagnose_cause"] = r.diagnose.get("cause")
@@ -101,8 +113,10 @@ def conclusion(results, diffs, trend_list) -> list:
     lines = []
     wrong = [r.name for r in results if r.described is False]
     if wrong:
-        lines.append(f"The model does not describe the records of {', '.join(wrong)}: their numbers are the best "
-                     "fit of a wrong model, and differences involving them compare such fits.")
+        lines.append(
+            f"The model does not describe the records of {', '.join(wrong)}: their numbers are the best "
+            "fit of a wrong model, and differences involving them compare such fits."
+        )
     failed = [f"{r.name} ({', '.join(r.errors)})" for r in results if r.errors]
     if failed:
         lines.append(f"Runs failed for {'; '.join(failed)}; see the table.")
@@ -121,17 +135,26 @@ def conclusion(results, diffs, trend_list) -> list:
             if pair is None or p not in pair:
                 ratio = ""
             else:
-                r = pair[p] if pair["a"] == a else {"ratio": 1 / pair[p]["ratio"],
-                                                   "interval": [1 / pair[p]["interval"][1], 1 / pair[p]["interval"][0]]}
-                ratio = (f": {t['x'][hi_i]:g}{unit} / {t['x'][lo_i]:g}{unit} = {r['ratio']:.3g} "
-                         f"{_bounds(r['interval'])}")
+                r = (
+                    pair[p]
+                    if pair["a"] == a
+                    else {
+                        "ratio": 1 / pair[p]["ratio"],
+                        "interval": [1 / pair[p]["interval"][1], 1 / pair[p]["interval"][0]],
+                    }
+                )
+                ratio = f": {t['x'][hi_i]:g}{unit} / {t['x'][lo_i]:g}{unit} = {r['ratio']:.3g} {_bounds(r['interval'])}"
             if d is None:
-                parts.append(f"{name} does not differ detectably along {t['label']}{ratio} (slope of ln {name} "
-                             f"{t[p]['slope']:.3g} per{unit or ' unit'} {_bounds(t[p]['interval'])})")
+                parts.append(
+                    f"{name} does not differ detectably along {t['label']}{ratio} (slope of ln {name} "
+                    f"{t[p]['slope']:.3g} per{unit or ' unit'} {_bounds(t[p]['interval'])})"
+                )
             else:
-                parts.append(f"{name} {d} with {t['label']}{ratio} (slope of ln {name} {t[p]['slope']:.3g} per"
-                             f"{unit or ' unit'} {_bounds(t[p]['interval'])}, P(slope > 0) = "
-                             f"{t[p]['p_positive']:.3f})")
+                parts.append(
+                    f"{name} {d} with {t['label']}{ratio} (slope of ln {name} {t[p]['slope']:.3g} per"
+                    f"{unit or ' unit'} {_bounds(t[p]['interval'])}, P(slope > 0) = "
+                    f"{t[p]['p_positive']:.3f})"
+                )
         lines.append("; ".join(parts) + ".")
     if not trend_list:
         for d in diffs:
@@ -139,9 +162,13 @@ def conclusion(results, diffs, trend_list) -> list:
             for p in _PARAMS:
                 if p in d:
                     s = d[p]
-                    verb = "differs" if min(s["p_greater"], 1 - s["p_greater"]) <= 0.025 else "does not differ detectably"
-                    parts.append(f"{p} {verb}: {d['a']} / {d['b']} = {s['ratio']:.3g} {_bounds(s['interval'])}, "
-                                 f"P({d['a']} > {d['b']}) = {s['p_greater']:.3f}")
+                    verb = (
+                        "differs" if min(s["p_greater"], 1 - s["p_greater"]) <= 0.025 else "does not differ detectably"
+                    )
+                    parts.append(
+                        f"{p} {verb}: {d['a']} / {d['b']} = {s['ratio']:.3g} {_bounds(s['interval'])}, "
+                        f"P({d['a']} > {d['b']}) = {s['p_greater']:.3f}"
+                    )
             lines.append("; ".join(parts) + ".")
     if not lines:
         lines.append("No condition has a posterior to compare.")

@@ -92,18 +92,28 @@ def plan_jobs(spec, out: Path) -> list:
             jobs.append(Job(c.name, m, "fit", tuple(_fit_args(spec, c, m)[1:]), base / m, "summary.json"))
         for k in spec.collapses:
             args = _fit_args(spec, c, "imr", [f"window=collapse:{k}"])
-            jobs.append(Job(c.name, f"imr-collapse{k}", "fit", tuple(args[1:]), base / f"imr-collapse{k}",
-                            "summary.json"))
+            jobs.append(
+                Job(c.name, f"imr-collapse{k}", "fit", tuple(args[1:]), base / f"imr-collapse{k}", "summary.json")
+            )
         if spec.diagnose:
-            jobs.append(Job(c.name, "diagnose", "diagnose", tuple(_diagnose_args(spec, c)[1:]), base / "diagnose",
-                            "diagnosis.json"))
+            jobs.append(
+                Job(
+                    c.name,
+                    "diagnose",
+                    "diagnose",
+                    tuple(_diagnose_args(spec, c)[1:]),
+                    base / "diagnose",
+                    "diagnosis.json",
+                )
+            )
     return jobs
 
 
 def fingerprint(job: Job, digest: str) -> str:
     """What decides a run's numbers: the command, its arguments, the data's bytes, the imrbayes version."""
-    text = json.dumps({"command": job.command, "args": list(job.args), "data": digest, "version": __version__},
-                      sort_keys=True)
+    text = json.dumps(
+        {"command": job.command, "args": list(job.args), "data": digest, "version": __version__}, sort_keys=True
+    )
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -121,15 +131,22 @@ def run_job(unit, rng=None) -> dict:
         resume = (folder / "run.json").is_file()
     elif folder.is_dir() and any(folder.iterdir()):
         if not replace:
-            raise InputError(folder, "holds a run of another configuration (data, options or imrbayes version); "
-                                     "pass --force to replace it")
+            raise InputError(
+                folder,
+                "holds a run of another configuration (data, options or imrbayes version); pass --force to replace it",
+            )
         shutil.rmtree(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    write_json(folder / JOB_FILE, {"fingerprint": fp, "command": job.command, "args": list(job.args),
-                                   "imrbayes_version": __version__})
+    write_json(
+        folder / JOB_FILE,
+        {"fingerprint": fp, "command": job.command, "args": list(job.args), "imrbayes_version": __version__},
+    )
     command = _command(job.command)
-    command.main([*job.args, "--out", str(folder), "--quiet", "--resume" if resume else "--force"],
-                 prog_name=f"imrbayes {job.command}", standalone_mode=False)
+    command.main(
+        [*job.args, "--out", str(folder), "--quiet", "--resume" if resume else "--force"],
+        prog_name=f"imrbayes {job.command}",
+        standalone_mode=False,
+    )
     if not (folder / job.product).is_file():
         raise RuntimeError(f"{job.command} ended without writing {job.product}")
     return {"status": "resumed" if resume else "computed"}
@@ -138,8 +155,10 @@ def run_job(unit, rng=None) -> dict:
 def _command(name: str):
     if name == "fit":
         from imrbayes.cli.fit import fit_cmd
+
         return fit_cmd
     from imrbayes.cli.diagnose import diagnose_cmd
+
     return diagnose_cmd
 
 
@@ -154,8 +173,11 @@ def run_jobs(jobs, *, seed: int, workers=None, scheduler=None, replace: bool = F
         key = str(Path(job.args[0]).resolve())
         if key not in digests:
             digests[key] = data_digest(job.args[0])
-        units.append(Unit(job.unit_id, data={"job": job, "fingerprint": fingerprint(job, digests[key]),
-                                             "replace": bool(replace)}))
+        units.append(
+            Unit(
+                job.unit_id, data={"job": job, "fingerprint": fingerprint(job, digests[key]), "replace": bool(replace)}
+            )
+        )
     results = {}
     with make_executor(workers, scheduler) as ex:
         for outcome in ex.map(run_job, units, seed=seed):

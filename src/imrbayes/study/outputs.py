@@ -32,12 +32,17 @@ def write_tree(out: Path, results, draws: dict) -> Path:
 
     groups = {}
     for r in results:
-        attrs = {"labels": repr(r.labels), "method": r.method or "", **{f"label_{k}": str(v) for k, v in r.labels.items()}}
+        attrs = {
+            "labels": repr(r.labels),
+            "method": r.method or "",
+            **{f"label_{k}": str(v) for k, v in r.labels.items()},
+        }
         groups[f"/{r.name}"] = xr.Dataset(attrs=attrs)
         if r.name in draws:
-            groups[f"/{r.name}/gel"] = xr.Dataset({p: ("draw", np.exp(v)) for p, v in draws[r.name].items()},
-                                                  attrs={"units": "G [Pa], mu [Pa s]",
-                                                         "source": f"{r.method} gel-level posterior (log-space Gaussian)"})
+            groups[f"/{r.name}/gel"] = xr.Dataset(
+                {p: ("draw", np.exp(v)) for p, v in draws[r.name].items()},
+                attrs={"units": "G [Pa], mu [Pa s]", "source": f"{r.method} gel-level posterior (log-space Gaussian)"},
+            )
         for job, folder in r.folders.items():
             post = Path(folder) / "posterior.nc"
             if job != "diagnose" and post.is_file():
@@ -45,8 +50,11 @@ def write_tree(out: Path, results, draws: dict) -> Path:
                     groups[f"/{r.name}/{job}"] = tree["posterior"].to_dataset().load()
         if r.time_resolved:
             t = [e["t_star"] for e in r.time_resolved]
-            data = {f"{p}_{s}": ("t_star", [(e.get(p) or {}).get(s, np.nan) for e in r.time_resolved])
-                    for p in _PARAMS for s in ("mean", "sd")}
+            data = {
+                f"{p}_{s}": ("t_star", [(e.get(p) or {}).get(s, np.nan) for e in r.time_resolved])
+                for p in _PARAMS
+                for s in ("mean", "sd")
+            }
             groups[f"/{r.name}/time_resolved"] = xr.Dataset(data, coords={"t_star": t})
     path = out / "study.nc"
     xr.DataTree.from_dict(groups).to_netcdf(path)
@@ -73,7 +81,7 @@ def write_figures(out: Path, rows: list, results, numeric: dict) -> list:
     for key, unit in axes_x if have else ():
         fig = pl.figure(8.5, 3.4)
         axs = fig.subplots(1, 2)
-        x = (np.array([parse_label_value(r[key])[0] for r in have]) if key else np.arange(len(have)))
+        x = np.array([parse_label_value(r[key])[0] for r in have]) if key else np.arange(len(have))
         for ax, p in zip(axs, _PARAMS):
             s = pl.scale(p)
             m = np.array([r[f"{p}_mean"] for r in have], float) * s
@@ -104,7 +112,7 @@ def write_figures(out: Path, rows: list, results, numeric: dict) -> list:
                 est = [e.get(p) or {} for e in r.time_resolved]
                 m = np.array([x.get("mean", np.nan) for x in est], float) * s
                 band = np.array([x.get("hdi95") or [np.nan, np.nan] for x in est], float) * s
-                line, = ax.plot(t, m, label=r.name)
+                (line,) = ax.plot(t, m, label=r.name)
                 ax.fill_between(t, band[:, 0], band[:, 1], color=line.get_color(), alpha=0.2)
         for ax, p in zip(axs, _PARAMS):
             ax.set_xlabel(pl.label("t_star"))
@@ -128,46 +136,88 @@ def write_html(out: Path, rows: list, study: dict, figures: list, label_keys: li
     and trends, the runs."""
     from imrbayes.html import embed_png, esc, table, write_page
 
-    body = ["<h1>imrbayes study</h1>", "<div class='conclusion'><ul>"
-            + "".join(f"<li>{esc(s)}</li>" for s in study["conclusion"]) + "</ul></div>"]
+    body = [
+        "<h1>imrbayes study</h1>",
+        "<div class='conclusion'><ul>" + "".join(f"<li>{esc(s)}</li>" for s in study["conclusion"]) + "</ul></div>",
+    ]
     body += [embed_png(f, caption=esc(Path(f).stem.replace("_", " "))) for f in figures]
-    heads = ["condition", *label_keys, "method", "bubbles", "G [kPa] (95 %)", "mu [Pa s] (95 %)",
-             "between-bubble sd G [kPa]", "between-bubble sd mu [Pa s]", "described", "diagnose", "failed"]
+    heads = [
+        "condition",
+        *label_keys,
+        "method",
+        "bubbles",
+        "G [kPa] (95 %)",
+        "mu [Pa s] (95 %)",
+        "between-bubble sd G [kPa]",
+        "between-bubble sd mu [Pa s]",
+        "described",
+        "diagnose",
+        "failed",
+    ]
 
     def iv(r, p, s):
         if r.get(f"{p}_mean") is None:
             return "–"
         return f"{_cell(r[f'{p}_mean'] * s)} [{_cell(r[f'{p}_lo'] * s)}, {_cell(r[f'{p}_hi'] * s)}]"
 
-    trows = [[esc(r["condition"]), *[_cell(r[k]) for k in label_keys], _cell(r["method"]), _cell(r["n_bubbles"]),
-              iv(r, "G", 1e-3), iv(r, "mu", 1.0), _cell(None if r["G_between_sd"] is None else r["G_between_sd"] * 1e-3),
-              _cell(r["mu_between_sd"]), _cell(r["described"]),
-              _cell(" / ".join(str(v) for v in (r["diagnose_verdict"], r["diagnose_cause"]) if v) or None),
-              _cell(r["failed"])] for r in rows]
+    trows = [
+        [
+            esc(r["condition"]),
+            *[_cell(r[k]) for k in label_keys],
+            _cell(r["method"]),
+            _cell(r["n_bubbles"]),
+            iv(r, "G", 1e-3),
+            iv(r, "mu", 1.0),
+            _cell(None if r["G_between_sd"] is None else r["G_between_sd"] * 1e-3),
+            _cell(r["mu_between_sd"]),
+            _cell(r["described"]),
+            _cell(" / ".join(str(v) for v in (r["diagnose_verdict"], r["diagnose_cause"]) if v) or None),
+            _cell(r["failed"]),
+        ]
+        for r in rows
+    ]
     body += ["<h2>Conditions</h2>", table(heads, trows)]
     drows = []
     for d in study["differences"]:
         for p in ("G", "mu"):
             if p in d:
                 s = d[p]
-                drows.append([esc(f"{d['a']} / {d['b']}"), p, _cell(s["ratio"], ".3g"),
-                              f"[{_cell(s['interval'][0], '.3g')}, {_cell(s['interval'][1], '.3g')}]",
-                              _cell(s["p_greater"], ".3f")])
+                drows.append(
+                    [
+                        esc(f"{d['a']} / {d['b']}"),
+                        p,
+                        _cell(s["ratio"], ".3g"),
+                        f"[{_cell(s['interval'][0], '.3g')}, {_cell(s['interval'][1], '.3g')}]",
+                        _cell(s["p_greater"], ".3f"),
+                    ]
+                )
     if drows:
-        body += ["<h2>Differences</h2>", table(["pair a / b", "parameter", "ratio (median)", "95 % interval",
-                                               "P(a > b)"], drows)]
+        body += [
+            "<h2>Differences</h2>",
+            table(["pair a / b", "parameter", "ratio (median)", "95 % interval", "P(a > b)"], drows),
+        ]
     trs = []
     for t in study["trends"]:
         for p in ("G", "mu"):
             if p in t:
                 s = t[p]
-                trs.append([esc(t["label"]), p, _cell(s["slope"], ".3g") + esc(f" per {t['unit'] or 'unit'}"),
-                            f"[{_cell(s['interval'][0], '.3g')}, {_cell(s['interval'][1], '.3g')}]",
-                            _cell(s["p_positive"], ".3f"), _cell(s["factor_over_range"], ".3g")])
+                trs.append(
+                    [
+                        esc(t["label"]),
+                        p,
+                        _cell(s["slope"], ".3g") + esc(f" per {t['unit'] or 'unit'}"),
+                        f"[{_cell(s['interval'][0], '.3g')}, {_cell(s['interval'][1], '.3g')}]",
+                        _cell(s["p_positive"], ".3f"),
+                        _cell(s["factor_over_range"], ".3g"),
+                    ]
+                )
     if trs:
-        body += ["<h2>Trends</h2>", "<p class='note'>slope of the natural log of the parameter on the label, "
-                 "least squares over the conditions, draw by draw from their posteriors</p>",
-                 table(["label", "parameter", "slope", "95 % interval", "P(slope > 0)", "factor over the range"], trs)]
+        body += [
+            "<h2>Trends</h2>",
+            "<p class='note'>slope of the natural log of the parameter on the label, "
+            "least squares over the conditions, draw by draw from their posteriors</p>",
+            table(["label", "parameter", "slope", "95 % interval", "P(slope > 0)", "factor over the range"], trs),
+        ]
     runs = [[esc(k), esc(v.get("status")), esc(v.get("error") or "")] for k, v in study["runs"].items()]
     body += ["<h2>Runs</h2>", table(["run", "status", "error"], runs)]
     return write_page(out / "study.html", "imrbayes study", "\n".join(body))

@@ -55,7 +55,7 @@ def log_gaussian(summary: dict):
     mean, var = [], []
     for n in names:
         e = summary["estimate"].get(n) or {}
-        lo, hi = (e.get("hdi95") or [None, None])
+        lo, hi = e.get("hdi95") or [None, None]
         med = e.get("median", e.get("mean"))
         if not all(v is not None and math.isfinite(v) and v > 0 for v in (lo, hi, med)):
             return None
@@ -67,8 +67,9 @@ def log_gaussian(summary: dict):
 def read_condition(cond, folders: dict, errors: dict) -> ConditionResult:
     """A :class:`ConditionResult` from the condition's finished run folders ``{job name: folder}``;
     ``errors``: ``{job name: one-line error}`` of the runs that failed."""
-    res = ConditionResult(cond.name, dict(cond.labels), folders={k: str(v) for k, v in folders.items()},
-                          errors=dict(errors))
+    res = ConditionResult(
+        cond.name, dict(cond.labels), folders={k: str(v) for k, v in folders.items()}, errors=dict(errors)
+    )
     summaries = {k: read_json(Path(f) / "summary.json") for k, f in folders.items() if k != "diagnose"}
     for m in CONSTANT_METHODS:
         s = summaries.get(m)

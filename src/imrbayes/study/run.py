@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from imrbayes.study.analysis import condition_draws, conclusion, differences, table_rows, trends
+from imrbayes.study.analysis import conclusion, condition_draws, differences, table_rows, trends
 from imrbayes.study.jobs import plan_jobs, run_jobs
 from imrbayes.study.outputs import write_figures, write_html, write_table, write_tree
 from imrbayes.study.results import read_condition
@@ -38,11 +38,15 @@ def summarise_study(spec, out: Path, jobs, runs: dict) -> dict:
     draws = condition_draws(results, spec.seed)
     diffs = differences(results, draws)
     trend_list = trends(results, draws, numeric)
-    study = {"labels": {k: numeric.get(k) for k in keys}, "differences": diffs, "trends": trend_list,
-             "conclusion": conclusion(results, diffs, trend_list),
-             "method": "gel-level posteriors as Gaussians in log space; conditions independent; ratios and "
-                       "least-squares slopes of log G, log mu computed draw by draw (central 95 % intervals)",
-             "runs": runs}
+    study = {
+        "labels": {k: numeric.get(k) for k in keys},
+        "differences": diffs,
+        "trends": trend_list,
+        "conclusion": conclusion(results, diffs, trend_list),
+        "method": "gel-level posteriors as Gaussians in log space; conditions independent; ratios and "
+        "least-squares slopes of log G, log mu computed draw by draw (central 95 % intervals)",
+        "runs": runs,
+    }
     write_table(out, rows, study)
     write_tree(out, results, draws)
     figs = write_figures(out, rows, results, numeric)

@@ -32,13 +32,35 @@ from pathlib import Path
 
 from imrbayes.errors import InputError
 
-__all__ = ["Condition", "StudySpec", "read_study_file", "study_from_args", "check_study", "parse_label_value",
-           "numeric_labels", "diagnose_mode", "DEFAULT_METHODS"]
+__all__ = [
+    "Condition",
+    "StudySpec",
+    "read_study_file",
+    "study_from_args",
+    "check_study",
+    "parse_label_value",
+    "numeric_labels",
+    "diagnose_mode",
+    "DEFAULT_METHODS",
+]
 
 #: the constant estimate (En4D-Var) and the time-resolved G(t), mu(t) (MIEnKS-MDA)
 DEFAULT_METHODS = ("en4dvar", "mienks")
-_TOP_KEYS = {"methods", "collapses", "diagnose", "seed", "experiments", "model", "forward", "set", "dataset",
-             "dt_star", "n_steps", "camera", "likelihood"}
+_TOP_KEYS = {
+    "methods",
+    "collapses",
+    "diagnose",
+    "seed",
+    "experiments",
+    "model",
+    "forward",
+    "set",
+    "dataset",
+    "dt_star",
+    "n_steps",
+    "camera",
+    "likelihood",
+}
 _DATASET_KEYS = {"name", "data", "labels"}
 _NUMBER_UNIT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
 
@@ -113,7 +135,7 @@ def diagnose_mode(value, source) -> str | bool:
         return "full"
     if value is False or value == "quick":
         return value
-    raise InputError(source, f"diagnose must be true, false or \"quick\", got {value!r}")
+    raise InputError(source, f'diagnose must be true, false or "quick", got {value!r}')
 
 
 def _tuple_of(value, source, what, kind=str):
@@ -152,7 +174,7 @@ def read_study_file(path) -> StudySpec:
         if bad:
             raise InputError(path, f"dataset {i}: unknown key(s) {bad}; known: {sorted(_DATASET_KEYS)}")
         if not isinstance(row.get("data"), str):
-            raise InputError(path, f"dataset {i} has no data = \"PATH\"")
+            raise InputError(path, f'dataset {i} has no data = "PATH"')
         labels = row.get("labels", {})
         if not isinstance(labels, dict) or any(isinstance(v, (dict, list)) for v in labels.values()):
             raise InputError(path, f"dataset {i}: labels must be a table of numbers or strings")
@@ -209,8 +231,11 @@ def study_from_args(data_paths, labels, names=None, **options) -> StudySpec:
         if len(vals) == 1:
             vals = vals * len(data_paths)
         if len(vals) != len(data_paths) or any(not v for v in vals):
-            raise InputError("--label", f"{key} has {len(vals)} value(s) for {len(data_paths)} dataset(s); give one "
-                                        "per dataset, in the datasets' order")
+            raise InputError(
+                "--label",
+                f"{key} has {len(vals)} value(s) for {len(data_paths)} dataset(s); give one "
+                "per dataset, in the datasets' order",
+            )
         for lab, v in zip(conditions_labels, vals):
             lab[key] = v
     paths = [Path(p) for p in data_paths]
@@ -234,8 +259,9 @@ def check_study(spec: StudySpec) -> StudySpec:
         if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._+-]*", c.name):
             raise InputError(src, f"dataset name {c.name!r} must be letters, digits and . _ + - (it names a folder)")
         if c.name in seen:
-            raise InputError(src, f"two datasets are named {c.name!r} ({seen[c.name]} and {c.data}); give each a "
-                                  "distinct name")
+            raise InputError(
+                src, f"two datasets are named {c.name!r} ({seen[c.name]} and {c.data}); give each a distinct name"
+            )
         seen[c.name] = c.data
         if not c.data.exists():
             raise InputError(src, f"dataset {c.name!r}: {c.data} does not exist")
@@ -243,8 +269,9 @@ def check_study(spec: StudySpec) -> StudySpec:
     for key in keys:
         missing = [c.name for c in spec.conditions if key not in c.labels]
         if missing:
-            raise InputError(src, f"label {key!r} is missing on dataset(s) {', '.join(missing)}; give every "
-                                  "dataset every label")
+            raise InputError(
+                src, f"label {key!r} is missing on dataset(s) {', '.join(missing)}; give every dataset every label"
+            )
     if len({tuple(str(c.labels[k]) for k in keys) for c in spec.conditions}) < len(spec.conditions) and keys:
         raise InputError(src, "two datasets have the same labels; conditions must differ in at least one label")
     bad = [m for m in spec.methods if m not in METHODS]

@@ -8,7 +8,7 @@ neo-Hookean form (IMRv2 has no linear model to copy); it only matters with a war
 from numba import njit
 
 from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter
-from imrbayes.forward.constitutive.nhkv import MODEL as NHKV   # same parameters, same scaling
+from imrbayes.forward.constitutive.nhkv import MODEL as NHKV  # same parameters, same scaling
 
 N_AUX = 0
 
@@ -28,7 +28,14 @@ def dissipation_q(x, y, p):
 
 
 MODEL = ConstitutiveModel(
-    name="kv", description="linear (Hookean) Kelvin-Voigt solid (G, mu)",
-    parameters=(Parameter("G", "Pa", 7.29e3, description="shear modulus"),
-                Parameter("mu", "Pa s", 0.088, description="viscosity")),
-    n_aux=N_AUX, module=__name__, imrv2_stress=None, _nondim=NHKV.nondimensionalise)
+    name="kv",
+    description="linear (Hookean) Kelvin-Voigt solid (G, mu)",
+    parameters=(
+        Parameter("G", "Pa", 7.29e3, description="shear modulus"),
+        Parameter("mu", "Pa s", 0.088, description="viscosity"),
+    ),
+    n_aux=N_AUX,
+    module=__name__,
+    imrv2_stress=None,
+    _nondim=NHKV.nondimensionalise,
+)
