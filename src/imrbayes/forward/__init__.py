@@ -14,19 +14,6 @@ from imrbayes.forward.runner import Runner, fm_spec, forward_model_from_spec, re
 
 RAYLEIGH_COLLAPSE_TIME = 0.9146813565  # sqrt(6 pi) Gamma(11/6) / (5 Gamma(4/3)), in Rmax/Uc
 
-__all__ = [
-    "ForwardModel",
-    "ForwardOptions",
-    "BatchState",
-    "Propagation",
-    "Physics",
-    "available_models",
-    "get_model",
-    "nondimensional_groups",
-    "RAYLEIGH_COLLAPSE_TIME",
-    "Runner",
-    "fm_spec",
-    "forward_model_from_spec",
-    "register_runner",
-    "runner_for",
-]
+__all__ = ["ForwardModel", "ForwardOptions", "BatchState", "Propagation", "Physics", "available_models",
+           "get_model", "nondimensional_groups", "RAYLEIGH_COLLAPSE_TIME", "Runner", "fm_spec",
+           "forward_model_from_spec", "register_runner", "runner_for"]

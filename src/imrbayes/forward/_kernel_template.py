@@ -134,9 +134,8 @@ def _wall_residual(thw, p, th, kv, tm, g, grid, dxi, nt, mass, kv0):
     w0 = grid[GR_WALL, 0]
     w1 = grid[GR_WALL, 1]
     w2 = grid[GR_WALL, 2]
-    F = (2.0 * chi * g[G_IOTA] / dxi) * (-1.5 * Tw + 2.0 * tm[1] - 0.5 * tm[2]) + chi * (
-        w0 * thw + w1 * th[nt - 2] + w2 * th[nt - 3]
-    )
+    F = (2.0 * chi * g[G_IOTA] / dxi) * (-1.5 * Tw + 2.0 * tm[1] - 0.5 * tm[2]) \
+        + chi * (w0 * thw + w1 * th[nt - 2] + w2 * th[nt - 3])
     if mass:
         kvw = _kv_wall(p, Tw, g)
         dkv = w0 * kvw + w1 * kv[nt - 2] + w2 * kv[nt - 3]
@@ -245,7 +244,7 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
         pv = g[G_PV]
         pb = (g[G_PB0] - pv) * R ** (-3.0 * kappa) + pv
         if flags[F_PDOT] == 0:
-            pdot = -3.0 * kappa * pb * U / R  # IMRv2: total pressure, vapour included
+            pdot = -3.0 * kappa * pb * U / R       # IMRv2: total pressure, vapour included
         else:
             pdot = -3.0 * kappa * (pb - pv) * U / R  # exact rate of the algebraic pressure
     else:
@@ -259,21 +258,21 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
         bg = g[G_BETA_G]
         rv = g[G_RV]
         rg = g[G_RG]
-        th = work[1 : 1 + nt]
-        kv = work[1 + nt : 1 + 2 * nt]
-        T = work[1 + 2 * nt : 1 + 3 * nt]
+        th = work[1:1 + nt]
+        kv = work[1 + nt:1 + 2 * nt]
+        T = work[1 + 2 * nt:1 + 3 * nt]
         for i in range(nt):
             th[i] = y[i_th + i]
             kv[i] = y[i_kv + i] if mass else kv0
         if medium:
-            tm = work[1 + 4 * nt : 1 + 4 * nt + mt]
+            tm = work[1 + 4 * nt:1 + 4 * nt + mt]
             for j in range(mt):
                 tm[j] = y[i_tm + j]
             dxi = mgrid[0, 1] - mgrid[0, 0]
             thw = _wall_root(work[0], pb, th, kv, tm, g, grid, dxi, nt, mass, kv[nt - 1])
             work[0] = thw
             th[nt - 1] = thw
-        sq = work[1 + 3 * nt : 1 + 4 * nt]  # sqrt(1 + 2 alpha_m theta), reused below
+        sq = work[1 + 3 * nt:1 + 4 * nt]       # sqrt(1 + 2 alpha_m theta), reused below
         for i in range(nt):
             am = kv[i] * av + (1.0 - kv[i]) * ag
             sq[i] = math.sqrt(1.0 + 2.0 * am * th[i])
@@ -297,7 +296,7 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
         pdot = 3.0 * inv_r * bracket + work[work.shape[0] - 1]
         out[2] = pdot
         ckap = (kappa - 1.0) / kappa
-        c_u1 = chi * (kappa - 1.0) * inv_r / (kappa * pb)  # u = c_u1 * theta' - y * c_u2 (+ mass part)
+        c_u1 = chi * (kappa - 1.0) * inv_r / (kappa * pb)      # u = c_u1 * theta' - y * c_u2 (+ mass part)
         c_u2 = R * pdot / (3.0 * kappa * pb)
         c_fom = fom * inv_r2
         c_chi = chi * inv_r2
@@ -306,9 +305,9 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
         # alias checks and is vectorised; writing ``out`` and ``coef`` directly needs more checks
         # than LLVM allows and leaves the loop scalar (measured: 280 -> 120 ns per call, nt = 64).
         ob = 1 + 4 * nt + 2 * mt
-        oth = work[ob : ob + nt]
-        okv = work[ob + nt : ob + 2 * nt]
-        cth = work[ob + 2 * nt : ob + 3 * nt]
+        oth = work[ob:ob + nt]
+        okv = work[ob + nt:ob + 2 * nt]
+        cth = work[ob + 2 * nt:ob + 3 * nt]
         # Centre node (i = 0): the first derivatives vanish by symmetry.
         d2 = grid[GR_D2C, 0] * th[0] + grid[GR_D2U, 0] * th[1]
         K = kv[0] * (av * T[0] + bv) + (1.0 - kv[0]) * (ag * T[0] + bg)
@@ -355,13 +354,13 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
             out[i_th + i] = oth[i]
             coef[i] = cth[i]
     # Constitutive stress integral S, its rate without the Rddot part, and J.
-    S, Sdot, J = _stress(R, U, y[i_z : i_z + naux], p, g[G_REQ], out[i_z : i_z + naux])
+    S, Sdot, J = _stress(R, U, y[i_z:i_z + naux], p, g[G_REQ], out[i_z:i_z + naux])
     if medium:
         foh = g[G_FOH]
         lt = g[G_LT]
         br = g[G_BR]
         dxi = mgrid[0, 1] - mgrid[0, 0]
-        tm = work[1 + 4 * nt : 1 + 4 * nt + mt]
+        tm = work[1 + 4 * nt:1 + 4 * nt + mt]
         tm[0] = Tw_bubble
         rq3 = (g[G_REQ] / R) ** 3
         for j in range(1, mt - 1):
@@ -369,13 +368,13 @@ def rhs(t, y, g, p, flags, grid, mgrid, out, coef, work):
             yj = mgrid[1, j]
             dT = (tm[j + 1] - tm[j - 1]) / (2.0 * dxi)
             d2T = (tm[j + 1] - 2.0 * tm[j] + tm[j - 1]) / (dxi * dxi)
-            adv = U * (1.0 - yj**3) / (2.0 * yj * yj) + foh / R * ((1.0 + xi) / (2.0 * lt) - 1.0 / yj)
+            adv = U * (1.0 - yj ** 3) / (2.0 * yj * yj) + foh / R * ((1.0 + xi) / (2.0 * lt) - 1.0 / yj)
             cdm = foh / (R * R) * (1.0 + xi) ** 4 / (4.0 * lt * lt)
-            xj = (yj**3 - 1.0 + rq3) ** (1.0 / 3.0)
+            xj = (yj ** 3 - 1.0 + rq3) ** (1.0 / 3.0)
             ur = U / R
-            phi = 12.0 * br * p[1] * ur * ur * yj**-6 + 2.0 * br * p[0] * yj**-3 * ur * (
-                yj * yj / (xj * xj) - xj**4 / yj**4
-            ) * _dissipation_q(xj, yj, p)
+            phi = 12.0 * br * p[1] * ur * ur * yj ** -6 \
+                + 2.0 * br * p[0] * yj ** -3 * ur * (yj * yj / (xj * xj) - xj ** 4 / yj ** 4) \
+                * _dissipation_q(xj, yj, p)
             out[i_tm + j] = (1.0 + xi) ** 2 / (lt * R) * adv * dT + cdm * d2T + phi
             coef[2 * nt + j] = cdm
     out[1] = _rddot(R, U, pb, pdot, S, Sdot, J, g, flags[F_RADIAL])
@@ -389,11 +388,8 @@ def _rddot(R, U, pb, pdot, S, Sdot, J, g, radial):
         return (pb - 1.0 - W / R + S - 1.5 * U * U) / R
     if radial == 2:
         c = g[G_CSTAR]
-        num = (
-            (1.0 + U / c) * (pb - 1.0 - W / R + S)
-            + R / c * (pdot + W * U / (R * R) + Sdot)
+        num = (1.0 + U / c) * (pb - 1.0 - W / R + S) + R / c * (pdot + W * U / (R * R) + Sdot) \
             - 1.5 * (1.0 - U / (3.0 * c)) * U * U
-        )
         return num / ((1.0 - U / c) * R + J / c)
     n = g[G_TAIT_N]
     bt = g[G_TAIT_B]
@@ -406,7 +402,8 @@ def _rddot(R, U, pb, pdot, S, Sdot, J, g, radial):
         c = g[G_CSTAR]
     else:
         c = math.sqrt(n * pw / (pw / sig) ** (1.0 / n))
-    num = (1.0 + U / c) * hb + R / c * hh * (pdot + W * U / (R * R) + Sdot) - 1.5 * (1.0 - U / (3.0 * c)) * U * U
+    num = (1.0 + U / c) * hb + R / c * hh * (pdot + W * U / (R * R) + Sdot) \
+        - 1.5 * (1.0 - U / (3.0 * c)) * U * U
     return num / ((1.0 - U / c) * R + J * hh / c)
 
 
@@ -420,20 +417,19 @@ def _rhs_gas(y, g, p, flags, out):
     pv = g[G_PV]
     pb = (g[G_PB0] - pv) * R ** (-3.0 * kappa) + pv
     if flags[F_PDOT] == 0:
-        pdot = -3.0 * kappa * pb * U / R  # IMRv2: total pressure, vapour included
+        pdot = -3.0 * kappa * pb * U / R       # IMRv2: total pressure, vapour included
     else:
         pdot = -3.0 * kappa * (pb - pv) * U / R  # exact rate of the algebraic pressure
     naux = flags[F_NAUX]
-    S, Sdot, J = _stress(R, U, y[3 : 3 + naux], p, g[G_REQ], out[3 : 3 + naux])
+    S, Sdot, J = _stress(R, U, y[3:3 + naux], p, g[G_REQ], out[3:3 + naux])
     out[0] = U
     out[2] = 0.0
     out[1] = _rddot(R, U, pb, pdot, S, Sdot, J, g, flags[F_RADIAL])
 
 
 @njit(cache=True, error_model="numpy", fastmath=FASTMATH)
-def integrate_member_explicit(
-    y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, atol, h_init, max_steps, r_out, A, B, BH, C, order
-):
+def integrate_member_explicit(y, t0, t1, t_eval, g, ptab, breaks, flags, rtol, atol, h_init, max_steps, r_out,
+                              A, B, BH, C, order):
     """integrate_member() for the polytropic bubble with an explicit pair (AI = 0): same step
     control, dense output and status codes, without the implicit machinery, and with the last
     stage reused as the next step's first when the pair is FSAL (Dormand-Prince)."""
@@ -527,7 +523,8 @@ def integrate_member_explicit(
 
 
 @njit(cache=True, error_model="numpy", fastmath=FASTMATH)
-def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_tmp, blocks, di, lo, up, W):
+def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_tmp,
+              blocks, di, lo, up, W):
     """Finite-difference Jacobian columns of the coupling variables ``cols`` minus the frozen
     tridiagonal part: W[q] = J[:, cols[q]] - T[:, cols[q]].
 
@@ -561,31 +558,8 @@ def _coupling(t, y, f0, cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef
 
 
 @njit(cache=True, error_model="numpy", fastmath=FASTMATH)
-def integrate_member(
-    y,
-    t0,
-    t1,
-    t_eval,
-    g,
-    ptab,
-    breaks,
-    flags,
-    grid,
-    mgrid,
-    rtol,
-    atol,
-    h_init,
-    max_steps,
-    r_out,
-    AE,
-    AI,
-    B,
-    BH,
-    C,
-    gamma,
-    order,
-    cols,
-):
+def integrate_member(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid,
+                     rtol, atol, h_init, max_steps, r_out, AE, AI, B, BH, C, gamma, order, cols):
     """Advance one member's state ``y`` (in place) from t0 to t1; R at ``t_eval`` -> r_out.
 
     Returns (status, accepted steps, rejected steps). ``ptab`` (n_pieces, n_p): parameters per time
@@ -637,7 +611,7 @@ def integrate_member(
     nsteps = 0
     nrej = 0
     consecutive_rej = 0
-    cols_off = 0  # accepted steps left with the coupling columns switched off
+    cols_off = 0          # accepted steps left with the coupling columns switched off
     jac_age = -1
     status = OK
     while before_end(t, t1):
@@ -655,9 +629,8 @@ def integrate_member(
                 # The coupling columns are refreshed every few steps and after a rejection; any
                 # frozen operator keeps the scheme consistent, it only has to hold the stiffness.
                 if jac_age >= 8 or jac_age < 0:
-                    _coupling(
-                        t, y, F[0], cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_new, blocks, di, lo, up, Wc
-                    )
+                    _coupling(t, y, F[0], cols, g, pr, flags, grid, mgrid, work, scratch, fp, coef_new,
+                              blocks, di, lo, up, Wc)
                     jac_age = 0
                 thomas_solve_many(blocks, lo, hg, cp, dp, Wc, Z)
                 for q in range(r):
@@ -788,34 +761,21 @@ def integrate_member(
 # matrix over the bubble nodes (temperature, vapour) plus a few dense columns (R, Rdot, p_b, the
 # two field values next to the wall, stress states), so (a I - J) is solved by block Thomas
 # sweeps and the Woodbury identity, O(nt) per solve, in real and complex arithmetic.
-_S6 = 6.0**0.5
+_S6 = 6.0 ** 0.5
 RADAU_C = np.array([(4.0 - _S6) / 10.0, (4.0 + _S6) / 10.0, 1.0])
 RADAU_E = np.array([-13.0 - 7.0 * _S6, -13.0 + 7.0 * _S6, -1.0]) / 3.0
 RADAU_MU_REAL = 3.0 + 3.0 ** (2.0 / 3.0) - 3.0 ** (1.0 / 3.0)
-RADAU_MU_COMPLEX = complex(
-    3.0 + 0.5 * (3.0 ** (1.0 / 3.0) - 3.0 ** (2.0 / 3.0)), -0.5 * (3.0 ** (5.0 / 6.0) + 3.0 ** (7.0 / 6.0))
-)
-RADAU_T = np.array(
-    [
-        [0.09443876248897524, -0.14125529502095421, 0.03002919410514742],
-        [0.25021312296533332, 0.20412935229379994, -0.38294211275726192],
-        [1.0, 1.0, 0.0],
-    ]
-)
-RADAU_TI = np.array(
-    [
-        [4.17871859155190428, 0.32768282076106237, 0.52337644549944951],
-        [-4.17871859155190428, -0.32768282076106237, 0.47662355450055044],
-        [0.50287263494578682, -2.57192694985560522, 0.59603920482822492],
-    ]
-)
-RADAU_P = np.array(
-    [
-        [13.0 / 3.0 + 7.0 * _S6 / 3.0, -23.0 / 3.0 - 22.0 * _S6 / 3.0, 10.0 / 3.0 + 5.0 * _S6],
-        [13.0 / 3.0 - 7.0 * _S6 / 3.0, -23.0 / 3.0 + 22.0 * _S6 / 3.0, 10.0 / 3.0 - 5.0 * _S6],
-        [1.0 / 3.0, -8.0 / 3.0, 10.0 / 3.0],
-    ]
-)
+RADAU_MU_COMPLEX = complex(3.0 + 0.5 * (3.0 ** (1.0 / 3.0) - 3.0 ** (2.0 / 3.0)),
+                           -0.5 * (3.0 ** (5.0 / 6.0) + 3.0 ** (7.0 / 6.0)))
+RADAU_T = np.array([[0.09443876248897524, -0.14125529502095421, 0.03002919410514742],
+                    [0.25021312296533332, 0.20412935229379994, -0.38294211275726192],
+                    [1.0, 1.0, 0.0]])
+RADAU_TI = np.array([[4.17871859155190428, 0.32768282076106237, 0.52337644549944951],
+                     [-4.17871859155190428, -0.32768282076106237, 0.47662355450055044],
+                     [0.50287263494578682, -2.57192694985560522, 0.59603920482822492]])
+RADAU_P = np.array([[13.0 / 3.0 + 7.0 * _S6 / 3.0, -23.0 / 3.0 - 22.0 * _S6 / 3.0, 10.0 / 3.0 + 5.0 * _S6],
+                    [13.0 / 3.0 - 7.0 * _S6 / 3.0, -23.0 / 3.0 + 22.0 * _S6 / 3.0, 10.0 / 3.0 - 5.0 * _S6],
+                    [1.0 / 3.0, -8.0 / 3.0, 10.0 / 3.0]])
 _NEWTON_MAXITER = 6
 _THET = 1e-3
 _QUOT1 = 0.0
@@ -823,32 +783,8 @@ _QUOT2 = 1.2
 
 
 @njit(cache=True, error_model="numpy")
-def _radau_jacobian(
-    t,
-    y,
-    f0,
-    g,
-    pr,
-    flags,
-    grid,
-    mgrid,
-    cols,
-    in_cols,
-    o1,
-    bs,
-    m,
-    Jl,
-    Jd,
-    Ju,
-    U,
-    vidx,
-    vval,
-    vcnt,
-    ypert,
-    fp,
-    coef,
-    work,
-):
+def _radau_jacobian(t, y, f0, g, pr, flags, grid, mgrid, cols, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx, vval,
+                    vcnt, ypert, fp, coef, work):
     """Finite-difference Jacobian in the solver's structure, J = blocks + U V^T:
 
     * blocks: the 2x2-block tridiagonal part over the bubble nodes 0..m-1 (fields temperature,
@@ -978,9 +914,8 @@ def _radau_jacobian(
 
 
 @njit(cache=True, error_model="numpy", fastmath=FASTMATH)
-def integrate_member_radau(
-    y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid, rtol, atol, h_init, max_steps, r_out, dense
-):
+def integrate_member_radau(y, t0, t1, t_eval, g, ptab, breaks, flags, grid, mgrid, rtol, atol, h_init,
+                           max_steps, r_out, dense):
     """Advance one member's state ``y`` (in place) from t0 to t1 with Radau IIA (order 5); R at
     ``t_eval`` -> r_out. ``dense``: state indices whose Jacobian columns are kept whole (every
     other entry of the Jacobian lies in the 2x2-block tridiagonal pattern of the bubble fields).
@@ -1041,7 +976,7 @@ def integrate_member_radau(
     iscale = np.zeros(n)
     err = np.zeros(n)
     k_eval = outputs_at_start(t_eval, t0, y[0], r_out)
-    newton_tol = max(10.0 * 2.220446049250313e-16 / rtol, min(0.03, rtol**0.5))
+    newton_tol = max(10.0 * 2.220446049250313e-16 / rtol, min(0.03, rtol ** 0.5))
     t = t0
     piece = parameter_piece(t + T_BREAK_SLACK, breaks)
     pr = ptab[piece]
@@ -1052,32 +987,8 @@ def integrate_member_radau(
     have_sol = False
     t_old = t
     hsol = 1.0
-    nrank = _radau_jacobian(
-        t,
-        y,
-        f,
-        g,
-        pr,
-        flags,
-        grid,
-        mgrid,
-        dense,
-        in_cols,
-        o1,
-        bs,
-        m,
-        Jl,
-        Jd,
-        Ju,
-        U,
-        vidx,
-        vval,
-        vcnt,
-        ypert,
-        fp,
-        coef,
-        work,
-    )
+    nrank = _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx, vval, vcnt,
+                         ypert, fp, coef, work)
     current_jac = True
     lu_ok = False
     nsteps = 0
@@ -1117,35 +1028,8 @@ def integrate_member_radau(
             h_fail = 0.5
             while not converged:
                 if not lu_ok:
-                    lu_ok = radau_factor_pair(
-                        ar,
-                        ac,
-                        o1,
-                        bs,
-                        m,
-                        nrank,
-                        Jl,
-                        Jd,
-                        Ju,
-                        U,
-                        vidx,
-                        vval,
-                        vcnt,
-                        invD_r,
-                        Cu_r,
-                        Pl_r,
-                        Z_r,
-                        K_r,
-                        piv_r,
-                        invD_c,
-                        Cu_c,
-                        Pl_c,
-                        Z_c,
-                        K_c,
-                        piv_c,
-                        gm_r,
-                        gm_c,
-                    )
+                    lu_ok = radau_factor_pair(ar, ac, o1, bs, m, nrank, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r,
+                                               Pl_r, Z_r, K_r, piv_r, invD_c, Cu_c, Pl_c, Z_c, K_c, piv_c, gm_r, gm_c)
                     if not lu_ok:
                         break
                 # Simplified Newton on the transformed system (W = TI Z).
@@ -1169,47 +1053,13 @@ def integrate_member_radau(
                     if not finite:
                         break
                     for kk in range(n):
-                        fr[kk] = (
-                            RADAU_TI[0, 0] * F[0, kk]
-                            + RADAU_TI[0, 1] * F[1, kk]
-                            + RADAU_TI[0, 2] * F[2, kk]
-                            - ar * Wn[0, kk]
-                        )
-                        fc[kk] = complex(
-                            RADAU_TI[1, 0] * F[0, kk] + RADAU_TI[1, 1] * F[1, kk] + RADAU_TI[1, 2] * F[2, kk],
-                            RADAU_TI[2, 0] * F[0, kk] + RADAU_TI[2, 1] * F[1, kk] + RADAU_TI[2, 2] * F[2, kk],
-                        ) - ac * complex(Wn[1, kk], Wn[2, kk])
-                    radau_solve_pair(
-                        ar,
-                        ac,
-                        o1,
-                        bs,
-                        m,
-                        nrank,
-                        Pl_r,
-                        invD_r,
-                        Cu_r,
-                        Z_r,
-                        K_r,
-                        piv_r,
-                        Pl_c,
-                        invD_c,
-                        Cu_c,
-                        Z_c,
-                        K_c,
-                        piv_c,
-                        vidx,
-                        vval,
-                        vcnt,
-                        fr,
-                        fc,
-                        xr,
-                        xc,
-                        gv_r,
-                        gv_c,
-                        sv_r,
-                        sv_c,
-                    )
+                        fr[kk] = (RADAU_TI[0, 0] * F[0, kk] + RADAU_TI[0, 1] * F[1, kk] + RADAU_TI[0, 2] * F[2, kk]
+                                  - ar * Wn[0, kk])
+                        fc[kk] = complex(RADAU_TI[1, 0] * F[0, kk] + RADAU_TI[1, 1] * F[1, kk] + RADAU_TI[1, 2] * F[2, kk],
+                                         RADAU_TI[2, 0] * F[0, kk] + RADAU_TI[2, 1] * F[1, kk] + RADAU_TI[2, 2] * F[2, kk]) \
+                            - ac * complex(Wn[1, kk], Wn[2, kk])
+                    radau_solve_pair(ar, ac, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, Pl_c, invD_c, Cu_c,
+                                      Z_c, K_c, piv_c, vidx, vval, vcnt, fr, fc, xr, xc, gv_r, gv_c, sv_r, sv_c)
                     # W += dW and Z = T W before the convergence test on the norm of dW: a diverging
                     # iteration breaks out below and the retry starts again from Z0, so the update is
                     # harmless. Three simple loops rather than one: each passes LLVM's alias checks and
@@ -1251,32 +1101,8 @@ def integrate_member_radau(
                     break
                 if current_jac:
                     break
-                nrank = _radau_jacobian(
-                    t,
-                    y,
-                    f,
-                    g,
-                    pr,
-                    flags,
-                    grid,
-                    mgrid,
-                    dense,
-                    in_cols,
-                    o1,
-                    bs,
-                    m,
-                    Jl,
-                    Jd,
-                    Ju,
-                    U,
-                    vidx,
-                    vval,
-                    vcnt,
-                    ypert,
-                    fp,
-                    coef,
-                    work,
-                )
+                nrank = _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx,
+                                     vval, vcnt, ypert, fp, coef, work)
                 current_jac = True
                 lu_ok = False
             if not converged:
@@ -1294,9 +1120,7 @@ def integrate_member_radau(
                 continue
             for kk in range(n):
                 fr[kk] = f[kk] + (RADAU_E[0] * Zs[0, kk] + RADAU_E[1] * Zs[1, kk] + RADAU_E[2] * Zs[2, kk]) / h
-            radau_solve(
-                ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r
-            )
+            radau_solve(ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
             for kk in range(n):
                 scale[kk] = atol + max(abs(y[kk]), abs(ynew[kk])) * rtol
             err_norm = rms_norm(err, scale)
@@ -1307,9 +1131,7 @@ def integrate_member_radau(
                 rhs(t, ystage, g, pr, flags, grid, mgrid, fp, coef, work)
                 for kk in range(n):
                     fr[kk] = fp[kk] + (RADAU_E[0] * Zs[0, kk] + RADAU_E[1] * Zs[1, kk] + RADAU_E[2] * Zs[2, kk]) / h
-                radau_solve(
-                    ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r
-                )
+                radau_solve(ar, o1, bs, m, nrank, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, vidx, vval, vcnt, fr, err, gv_r, sv_r)
                 err_norm = rms_norm(err, scale)
             if not math.isfinite(err_norm):
                 h *= 0.25
@@ -1322,7 +1144,7 @@ def integrate_member_radau(
                     mult = 1.0
                 else:
                     mult = h / h_old * (err_old / err_norm) ** 0.25
-                fac = min(1.0, mult) * err_norm**-0.25
+                fac = min(1.0, mult) * err_norm ** -0.25
                 h *= max(0.2, safety * fac)
                 lu_ok = False
                 rejected = True
@@ -1339,9 +1161,9 @@ def integrate_member_radau(
                 mult = 1.0
             else:
                 mult = h / h_old * (err_old / err_norm) ** 0.25
-            fac = min(10.0, safety * min(1.0, mult) * err_norm**-0.25)
+            fac = min(10.0, safety * min(1.0, mult) * err_norm ** -0.25)
         if rejected:
-            fac = min(fac, 1.0)  # RADAU5: no growth right after a rejected attempt
+            fac = min(fac, 1.0)      # RADAU5: no growth right after a rejected attempt
         if not recompute_jac and _QUOT1 <= fac < _QUOT2:
             fac = 1.0
         else:
@@ -1377,32 +1199,8 @@ def integrate_member_radau(
             h_old = -1.0
             err_old = -1.0
         if recompute_jac:
-            nrank = _radau_jacobian(
-                t,
-                y,
-                f,
-                g,
-                pr,
-                flags,
-                grid,
-                mgrid,
-                dense,
-                in_cols,
-                o1,
-                bs,
-                m,
-                Jl,
-                Jd,
-                Ju,
-                U,
-                vidx,
-                vval,
-                vcnt,
-                ypert,
-                fp,
-                coef,
-                work,
-            )
+            nrank = _radau_jacobian(t, y, f, g, pr, flags, grid, mgrid, dense, in_cols, o1, bs, m, Jl, Jd, Ju, U, vidx,
+                                 vval, vcnt, ypert, fp, coef, work)
             current_jac = True
         else:
             current_jac = False
@@ -1410,36 +1208,8 @@ def integrate_member_radau(
 
 
 @njit(cache=True, error_model="numpy")
-def _integrate_into(
-    m,
-    Y,
-    R,
-    status,
-    nsteps,
-    nrej,
-    t0,
-    t1,
-    t_eval,
-    G,
-    P,
-    breaks,
-    flags,
-    grid,
-    mgrid,
-    rtol,
-    atol,
-    h_init,
-    max_steps,
-    AE,
-    AI,
-    B,
-    BH,
-    C,
-    gamma,
-    order,
-    cols,
-    radau,
-):
+def _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau):
     """Integrate member m of a batch in place (shared by the serial and threaded drivers)."""
     ym = Y[m]
     finite = True
@@ -1451,70 +1221,22 @@ def _integrate_into(
         return
     te = t_eval[m]
     if radau:
-        st, ns, nr = integrate_member_radau(
-            ym, t0, t1, te, G[m], P[m], breaks[m], flags, grid, mgrid, rtol, atol, h_init, max_steps, R[m], cols
-        )
+        st, ns, nr = integrate_member_radau(ym, t0, t1, te, G[m], P[m], breaks[m], flags, grid, mgrid, rtol,
+                                            atol, h_init, max_steps, R[m], cols)
     elif flags[F_THERMAL] == 0 and gamma == 0.0:
-        st, ns, nr = integrate_member_explicit(
-            ym, t0, t1, te, G[m], P[m], breaks[m], flags, rtol, atol, h_init, max_steps, R[m], AE, B, BH, C, order
-        )
+        st, ns, nr = integrate_member_explicit(ym, t0, t1, te, G[m], P[m], breaks[m], flags, rtol, atol,
+                                               h_init, max_steps, R[m], AE, B, BH, C, order)
     else:
-        st, ns, nr = integrate_member(
-            ym,
-            t0,
-            t1,
-            te,
-            G[m],
-            P[m],
-            breaks[m],
-            flags,
-            grid,
-            mgrid,
-            rtol,
-            atol,
-            h_init,
-            max_steps,
-            R[m],
-            AE,
-            AI,
-            B,
-            BH,
-            C,
-            gamma,
-            order,
-            cols,
-        )
+        st, ns, nr = integrate_member(ym, t0, t1, te, G[m], P[m], breaks[m], flags, grid, mgrid,
+                                      rtol, atol, h_init, max_steps, R[m], AE, AI, B, BH, C, gamma, order, cols)
     status[m] = st
     nsteps[m] = ns
     nrej[m] = nr
 
 
 @njit(cache=True, error_model="numpy")
-def integrate_batch(
-    Y0,
-    t0,
-    t1,
-    t_eval,
-    G,
-    P,
-    breaks,
-    flags,
-    grid,
-    mgrid,
-    rtol,
-    atol,
-    h_init,
-    max_steps,
-    AE,
-    AI,
-    B,
-    BH,
-    C,
-    gamma,
-    order,
-    cols,
-    radau,
-):
+def integrate_batch(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                    rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau):
     """Propagate N members. Y0 (N, n) is copied; returns (Y_end, R (N, m), status, nsteps, nrejected).
     ``t_eval`` (N, m): each member's own output times (rows may differ, e.g. per-member time offsets).
 
@@ -1524,97 +1246,19 @@ def integrate_batch(
     N = Y0.shape[0]
     Y, R, status, nsteps, nrej = batch_outputs(Y0, t_eval.shape[1])
     for m in range(N):
-        _integrate_into(
-            m,
-            Y,
-            R,
-            status,
-            nsteps,
-            nrej,
-            t0,
-            t1,
-            t_eval,
-            G,
-            P,
-            breaks,
-            flags,
-            grid,
-            mgrid,
-            rtol,
-            atol,
-            h_init,
-            max_steps,
-            AE,
-            AI,
-            B,
-            BH,
-            C,
-            gamma,
-            order,
-            cols,
-            radau,
-        )
+        _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                        rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau)
     return Y, R, status, nsteps, nrej
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def integrate_batch_parallel(
-    Y0,
-    t0,
-    t1,
-    t_eval,
-    G,
-    P,
-    breaks,
-    flags,
-    grid,
-    mgrid,
-    rtol,
-    atol,
-    h_init,
-    max_steps,
-    AE,
-    AI,
-    B,
-    BH,
-    C,
-    gamma,
-    order,
-    cols,
-    radau,
-):
+def integrate_batch_parallel(Y0, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                             rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols,
+                             radau):
     """As integrate_batch, with the members spread over numba threads (prange)."""
     N = Y0.shape[0]
     Y, R, status, nsteps, nrej = batch_outputs(Y0, t_eval.shape[1])
     for m in prange(N):
-        _integrate_into(
-            m,
-            Y,
-            R,
-            status,
-            nsteps,
-            nrej,
-            t0,
-            t1,
-            t_eval,
-            G,
-            P,
-            breaks,
-            flags,
-            grid,
-            mgrid,
-            rtol,
-            atol,
-            h_init,
-            max_steps,
-            AE,
-            AI,
-            B,
-            BH,
-            C,
-            gamma,
-            order,
-            cols,
-            radau,
-        )
+        _integrate_into(m, Y, R, status, nsteps, nrej, t0, t1, t_eval, G, P, breaks, flags, grid, mgrid,
+                        rtol, atol, h_init, max_steps, AE, AI, B, BH, C, gamma, order, cols, radau)
     return Y, R, status, nsteps, nrej

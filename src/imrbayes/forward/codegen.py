@@ -37,8 +37,7 @@ _LOADED: dict = {}
 def cache_dir() -> Path:
     """Where generated kernels live: ``$IMRBAYES_CACHE_DIR`` or ``~/.cache/imrbayes``."""
     root = os.environ.get("IMRBAYES_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(Path.home(), ".cache"), "imrbayes"
-    )
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(Path.home(), ".cache"), "imrbayes")
     return Path(root) / "kernels"
 
 
@@ -64,9 +63,8 @@ def _compile_in_child(module_name: str, marker: Path) -> None:
     if _is_compiled(marker):
         return
     code = f"import imrbayes.forward.codegen as c; c._warm_up({module_name!r})"
-    done = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, env={**os.environ, _CHILD_ENV: "1"}
-    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env={**os.environ, _CHILD_ENV: "1"})
     if done.returncode == 0:
         fd, tmp = tempfile.mkstemp(dir=marker.parent, suffix=".tmp")
         with os.fdopen(fd, "w") as fh:
@@ -76,12 +74,8 @@ def _compile_in_child(module_name: str, marker: Path) -> None:
         # Said aloud: this process then compiles for itself, and its in-memory code may differ in
         # the last bits from the cached code other processes load (a run and its resume on workers).
         tail = (done.stderr or "").strip().splitlines()[-1:] or ["no output"]
-        warnings.warn(
-            f"compiling {module_name}'s kernel in a child process failed (exit {done.returncode}: "
-            f"{tail[0]}); compiling in this process",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+        warnings.warn(f"compiling {module_name}'s kernel in a child process failed (exit {done.returncode}: "
+                      f"{tail[0]}); compiling in this process", RuntimeWarning, stacklevel=2)
 
 
 def _is_compiled(marker: Path) -> bool:
@@ -89,7 +83,7 @@ def _is_compiled(marker: Path) -> bool:
     return marker.exists() and marker.read_text() == os.environ.get("NUMBA_CACHE_DIR", "")
 
 
-_CHILD_ENV = "IMRBAYES_KERNEL_CHILD"  # set in the compiling child, which must not start another
+_CHILD_ENV = "IMRBAYES_KERNEL_CHILD"   # set in the compiling child, which must not start another
 
 
 def _kernel_source(module_name: str) -> tuple:
@@ -127,10 +121,10 @@ def write_once(path: Path, text: str) -> bool:
         with os.fdopen(fd, "w") as fh:
             fh.write(text)
         try:
-            os.link(tmp, path)  # fails if the file exists: concurrent writers cannot replace it
+            os.link(tmp, path)     # fails if the file exists: concurrent writers cannot replace it
         except FileExistsError:
             return False
-        except OSError:  # a file system without hard links: replace, as atomically as it allows
+        except OSError:            # a file system without hard links: replace, as atomically as it allows
             if path.exists():
                 return False
             os.replace(tmp, path)

@@ -55,19 +55,9 @@ class Physics:
     medium_stretch: float = 2.0
 
     # Accepted spellings in meta.json "physics" (interfaces.md §1) -> field name.
-    _ALIASES = {
-        "rho8": "rho",
-        "P8": "p8",
-        "C8": "c8",
-        "S": "surface_tension",
-        "t8": "T8",
-        "GAM": "tait_b",
-        "nstate": "tait_n",
-        "Km": "k_medium",
-        "Cp": "cp_medium",
-        "D0": "d_vapour",
-        "L_heat": "latent_heat",
-    }
+    _ALIASES = {"rho8": "rho", "P8": "p8", "C8": "c8", "S": "surface_tension", "t8": "T8",
+                "GAM": "tait_b", "nstate": "tait_n", "Km": "k_medium", "Cp": "cp_medium",
+                "D0": "d_vapour", "L_heat": "latent_heat"}
 
     # Constants that may be switched off (an ideal, tension-free interface).
     _MAY_BE_ZERO = ("surface_tension",)
@@ -110,30 +100,9 @@ def saturation_pressure_pa(T_k):
 
 # Order of the per-member group vector handed to the compiled kernel.
 GROUP_NAMES = (
-    "inv_we",
-    "cstar",
-    "tait_b",
-    "tait_n",
-    "kappa",
-    "chi",
-    "fom",
-    "foh",
-    "br",
-    "iota",
-    "alpha_g",
-    "beta_g",
-    "alpha_v",
-    "beta_v",
-    "rv",
-    "rg",
-    "lstar",
-    "req",
-    "pv",
-    "kv0",
-    "T8",
-    "p8",
-    "lt",
-    "pb0",
+    "inv_we", "cstar", "tait_b", "tait_n", "kappa", "chi", "fom", "foh", "br", "iota",
+    "alpha_g", "beta_g", "alpha_v", "beta_v", "rv", "rg", "lstar", "req", "pv", "kv0",
+    "T8", "p8", "lt", "pb0",
 )
 
 
@@ -198,5 +167,5 @@ def group_matrix(groups: dict, n: int) -> np.ndarray:
     """Stack ``groups`` into the kernel's ``(n, len(GROUP_NAMES))`` float64 array."""
     out = np.empty((n, len(GROUP_NAMES)))
     for j, name in enumerate(GROUP_NAMES):
-        out[:, j] = groups[name]  # scalar or (n,): plain assignment broadcasts
+        out[:, j] = groups[name]      # scalar or (n,): plain assignment broadcasts
     return out

@@ -83,14 +83,14 @@ def rejected_step_factor(ok, err, expo):
     """Factor on the step size after a rejected attempt: 1/4 when the attempt failed outright
     (``ok`` false: non-finite or R <= 0), else from the error norm ``err`` > 1 and the exponent
     ``expo`` = -1/order, no smaller than 1/5."""
-    return 0.25 if not ok else max(0.2, 0.9 * err**expo)
+    return 0.25 if not ok else max(0.2, 0.9 * err ** expo)
 
 
 @njit(cache=True, error_model="numpy", inline="always", fastmath=FASTMATH)
 def accepted_step_factor(err, expo):
     """Factor on the step size after an accepted step with error norm ``err`` <= 1 and exponent
     ``expo`` = -1/order: between 1/5 and 5."""
-    return 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err**expo))
+    return 5.0 if err == 0.0 else min(5.0, max(0.2, 0.9 * err ** expo))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -176,10 +176,5 @@ def batch_outputs(Y0, n_out):
     """What a batch driver fills: (Y, R, status, nsteps, nrejected) for the N members of ``Y0``
     (N, n): a copy of Y0 to advance in place, R* (N, n_out) all NaN, and zero counts (N,)."""
     n_members = Y0.shape[0]
-    return (
-        Y0.copy(),
-        np.full((n_members, n_out), np.nan),
-        np.zeros(n_members, dtype=np.int64),
-        np.zeros(n_members, dtype=np.int64),
-        np.zeros(n_members, dtype=np.int64),
-    )
+    return (Y0.copy(), np.full((n_members, n_out), np.nan), np.zeros(n_members, dtype=np.int64),
+            np.zeros(n_members, dtype=np.int64), np.zeros(n_members, dtype=np.int64))

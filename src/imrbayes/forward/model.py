@@ -106,17 +106,10 @@ class ForwardModel:
         ``NUMBA_NUM_THREADS`` caps the threads.
     """
 
-    def __init__(
-        self,
-        constitutive="nhkv",
-        options=None,
-        physics: Physics | None = None,
-        physics_overrides: dict | None = None,
-        parallel: bool = True,
-    ):
-        self.constitutive: ConstitutiveModel = (
-            constitutive if isinstance(constitutive, ConstitutiveModel) else get_model(constitutive)
-        )
+    def __init__(self, constitutive="nhkv", options=None, physics: Physics | None = None,
+                 physics_overrides: dict | None = None, parallel: bool = True):
+        self.constitutive: ConstitutiveModel = (constitutive if isinstance(constitutive, ConstitutiveModel)
+                                                else get_model(constitutive))
         if options is None:
             options = ForwardOptions()
         elif isinstance(options, dict):
@@ -130,31 +123,14 @@ class ForwardModel:
         thermal = o.thermal
         medium = o.medium == "warm"
         mass = o.mass_transfer
-        self._flags = np.array(
-            [
-                RADIAL[o.radial],
-                int(thermal),
-                int(medium),
-                int(o.vapor),
-                int(mass),
-                0 if o.pdot_mode == "imrv2" else 1,
-                self.nt,
-                self.mt,
-                self.constitutive.n_aux,
-            ],
-            dtype=np.int64,
-        )
+        self._flags = np.array([RADIAL[o.radial], int(thermal), int(medium), int(o.vapor), int(mass),
+                                0 if o.pdot_mode == "imrv2" else 1, self.nt, self.mt,
+                                self.constitutive.n_aux], dtype=np.int64)
         self._grid_y, self._grid = bubble_grid(self.nt, o.grid_stretch)
         self._mgrid = medium_grid(self.mt, physics.medium_stretch)
-        sizes = [
-            ("R", 1),
-            ("Rdot", 1),
-            ("pb", 1),
-            ("theta", self.nt if thermal else 0),
-            ("Tm", self.mt if medium else 0),
-            ("kv", self.nt if mass else 0),
-            ("stress", self.constitutive.n_aux),
-        ]
+        sizes = [("R", 1), ("Rdot", 1), ("pb", 1), ("theta", self.nt if thermal else 0),
+                 ("Tm", self.mt if medium else 0), ("kv", self.nt if mass else 0),
+                 ("stress", self.constitutive.n_aux)]
         self._slices, start = {}, 0
         for name, size in sizes:
             self._slices[name] = slice(start, start + size)
@@ -188,15 +164,8 @@ class ForwardModel:
         self._kernel = None
         self.parallel = bool(parallel)
         tab = TABLEAUX["ark548" if o.method == "radau5" else o.method]()  # radau5 ignores the tableau
-        self._tableau = (
-            tab["AE"],
-            tab["AI"],
-            tab["b"],
-            tab["bhat"],
-            tab["c"],
-            float(tab["gamma"]),
-            float(tab["order"]),
-        )
+        self._tableau = (tab["AE"], tab["AI"], tab["b"], tab["bhat"], tab["c"], float(tab["gamma"]),
+                         float(tab["order"]))
 
     # ------------------------------------------------------------------ description
     def __repr__(self):
@@ -230,12 +199,8 @@ class ForwardModel:
             out = {"non_finite": ~np.all(np.isfinite(y), axis=1), "radius": ~(y[:, 0] > 0)}
             if self.options.thermal:
                 out["pressure"] = ~(y[:, 2] > 0)
-                g = self.groups(1.0, 0.5)  # alpha_g, alpha_v do not depend on the bubble size
-                kv = (
-                    y[:, self._slices["kv"]]
-                    if self.options.mass_transfer
-                    else np.full((y.shape[0], 1), float(g["kv0"]))
-                )
+                g = self.groups(1.0, 0.5)          # alpha_g, alpha_v do not depend on the bubble size
+                kv = y[:, self._slices["kv"]] if self.options.mass_transfer else np.full((y.shape[0], 1), float(g["kv0"]))
                 out["vapour_fraction"] = ~np.all((kv >= 0) & (kv <= 1), axis=1)
                 am = kv * g["alpha_v"] + (1 - kv) * g["alpha_g"]
                 out["temperature"] = ~np.all(1 + 2 * am * y[:, self._slices["theta"]] > 0, axis=1)
@@ -245,13 +210,8 @@ class ForwardModel:
 
     def describe(self) -> dict:
         """JSON-able record of everything that defines this forward model."""
-        return {
-            "constitutive": self.constitutive.name,
-            "parameters": list(self.constitutive.param_names),
-            "options": self.options.to_dict(),
-            "physics": self.physics.to_dict(),
-            "n_state": self.n_state,
-        }
+        return {"constitutive": self.constitutive.name, "parameters": list(self.constitutive.param_names),
+                "options": self.options.to_dict(), "physics": self.physics.to_dict(), "n_state": self.n_state}
 
     @property
     def kernel(self):
@@ -262,9 +222,8 @@ class ForwardModel:
     # ------------------------------------------------------------------ set-up
     def groups(self, rmax_m, req_m) -> dict:
         """Dimensionless groups (constants.nondimensional_groups) for these bubbles."""
-        return nondimensional_groups(
-            self.physics, rmax_m, req_m, thermal=self.options.thermal, vapor=self.options.vapor
-        )
+        return nondimensional_groups(self.physics, rmax_m, req_m, thermal=self.options.thermal,
+                                     vapor=self.options.vapor)
 
     def initial_state(self, rmax_m, req_m, n: int | None = None) -> BatchState:
         """States at the maximum radius: R* = 1, at rest, equilibrium contents, zero extra stress.
@@ -303,26 +262,16 @@ class ForwardModel:
         if not np.all(np.isfinite(table)):
             raise InputError(source, "parameters must be finite")
         ph = self.physics
-        nd = self.constitutive.nondimensionalise(
-            table, rho=ph.rho, p8=ph.p8, uc=ph.velocity_scale, rmax_m=np.asarray(rmax_m)[:, None]
-        )
+        nd = self.constitutive.nondimensionalise(table, rho=ph.rho, p8=ph.p8, uc=ph.velocity_scale,
+                                                 rmax_m=np.asarray(rmax_m)[:, None])
         # The last entry of every kernel vector is the option flag the Zener family reads (base.py).
         # concatenate makes a new C-ordered float array: writable (see the note on ``te`` in propagate)
         flag = np.full(nd.shape[:-1] + (1,), 1.0 if self.options.j_mode == "consistent" else 0.0)
         return np.concatenate([np.asarray(nd, dtype=float), flag], axis=-1)
 
     # ------------------------------------------------------------------ propagation
-    def propagate(
-        self,
-        state: BatchState,
-        params,
-        t_end: float,
-        t_eval=None,
-        *,
-        breaks_star=None,
-        h_init: float = 0.0,
-        max_steps: int = 200_000,
-    ) -> Propagation:
+    def propagate(self, state: BatchState, params, t_end: float, t_eval=None, *, breaks_star=None,
+                  h_init: float = 0.0, max_steps: int = 200_000) -> Propagation:
         """Propagate N states with N parameter sets from ``state.t_star`` to ``t_end``.
 
         params : dict name -> scalar or (N,) array [SI], or an (N, n_params) array, or an
@@ -342,29 +291,23 @@ class ForwardModel:
         t_eval = np.atleast_1d(np.asarray([t_end] if t_eval is None else t_eval, dtype=float))
         if t_eval.ndim > 2 or (t_eval.ndim == 2 and t_eval.shape[0] != n):
             raise InputError("t_eval", f"expected (m,) or ({n}, m) output times, got shape {t_eval.shape}")
-        if t_eval.size and (
-            np.any(np.diff(t_eval, axis=-1) < 0)
-            or np.min(t_eval) < t0 - 1e-12
-            or np.max(t_eval) > t_end + 1e-12
-            or not np.all(np.isfinite(t_eval))
-        ):
+        if t_eval.size and (np.any(np.diff(t_eval, axis=-1) < 0) or np.min(t_eval) < t0 - 1e-12
+                            or np.max(t_eval) > t_end + 1e-12 or not np.all(np.isfinite(t_eval))):
             raise InputError("t_eval", "output times must be increasing and inside [t0, t_end]")
         # Always a writable C copy: a read-only broadcast view is another numba type, which would be
         # compiled in this process rather than loaded from the cache the child wrote (codegen.py).
         te = np.array(np.broadcast_to(t_eval, (n, t_eval.shape[-1])), dtype=float, order="C")
         breaks = np.atleast_1d(np.asarray([] if breaks_star is None else breaks_star, dtype=float))
         if breaks.ndim > 2 or (breaks.ndim == 2 and breaks.shape[0] != n):
-            raise InputError(
-                "breaks_star", f"expected (n_breaks,) or ({n}, n_breaks) break times, got shape {breaks.shape}"
-            )
+            raise InputError("breaks_star", f"expected (n_breaks,) or ({n}, n_breaks) break times, got shape "
+                             f"{breaks.shape}")
         breaks = np.array(np.broadcast_to(breaks, (n, breaks.shape[-1])), dtype=float, order="C")
         if not np.all(np.isfinite(breaks)) or np.any(np.diff(breaks, axis=1) <= 0):
             raise InputError("breaks_star", "break times must be finite and strictly increasing")
         P = self._parameter_table(params, n, state.rmax_m)
         if P.shape[1] != breaks.shape[1] + 1:
-            raise InputError(
-                "parameters", f"{P.shape[1]} parameter pieces need {P.shape[1] - 1} break times, got {breaks.shape[1]}"
-            )
+            raise InputError("parameters", f"{P.shape[1]} parameter pieces need {P.shape[1] - 1} break times, "
+                             f"got {breaks.shape[1]}")
         if state.y.shape[1] != self.n_state:
             raise ForwardModelError(f"state has {state.y.shape[1]} entries, this model needs {self.n_state}")
         G = group_matrix(self.groups(state.rmax_m, state.req_m), n)
@@ -380,24 +323,9 @@ class ForwardModel:
             numba.set_num_threads(1)
         try:
             Y, R, status, nsteps, nrej = self.kernel.integrate_batch_parallel(
-                np.array(state.y, dtype=float, order="C"),
-                t0,
-                t_end,
-                te,
-                G,
-                P,
-                breaks,
-                self._flags,
-                self._grid,
-                self._mgrid,
-                o.rtol,
-                o.atol,
-                float(h_init),
-                int(max_steps),
-                *self._tableau,
-                self._cols,
-                self._radau,
-            )
+                np.array(state.y, dtype=float, order="C"), t0, t_end, te, G, P, breaks, self._flags,
+                self._grid, self._mgrid, o.rtol, o.atol, float(h_init), int(max_steps), *self._tableau, self._cols,
+                self._radau)
         finally:
             if serial and threads > 1:
                 numba.set_num_threads(threads)
@@ -420,10 +348,8 @@ class ForwardModel:
         """R* on ``t_star`` for one bubble; raises ForwardModelError if the solve fails."""
         out = self.simulate(params, rmax_m, req_m, t_star)
         if out.failed[0]:
-            raise ForwardModelError(
-                f"forward solve failed: {out.status_text[int(out.status[0])]} "
-                f"(params {params}, Rmax {rmax_m} m, Req {req_m} m)"
-            )
+            raise ForwardModelError(f"forward solve failed: {out.status_text[int(out.status[0])]} "
+                                    f"(params {params}, Rmax {rmax_m} m, Req {req_m} m)")
         return out.R_star[0]
 
     def with_options(self, **changes) -> ForwardModel:

@@ -24,13 +24,8 @@ DEFAULT_STRETCH = 2.75
 # tight solve on the LIC benchmark batch (benchmarks/forward.py, row d) on the previous default grid
 # (stretch 1.5, nt 64). On the converged default grid (stretch 2.75, nt 96) Radau's 2e-5 gives
 # 1.1e-4 at the worst instant of that batch and 2.5e-6 relative L2 (the grid's error is ~5e-4).
-DEFAULT_TOLERANCES = {
-    "ark548": (3e-6, 3e-8),
-    "ark324": (1e-7, 1e-9),
-    "dopri5": (1e-7, 1e-9),
-    "dop853": (3e-6, 3e-8),
-    "radau5": (2e-5, 2e-7),
-}
+DEFAULT_TOLERANCES = {"ark548": (3e-6, 3e-8), "ark324": (1e-7, 1e-9), "dopri5": (1e-7, 1e-9),
+                      "dop853": (3e-6, 3e-8), "radau5": (2e-5, 2e-7)}
 # IMRv2's coarse uniform grid amplifies integration error through the collapses, so it gets
 # tighter tolerances (benchmark batch: ARK 3e-6 gave 9e-4 in R; Radau 3e-5 gave 6.6e-4, 3e-6 3.6e-5).
 IMRV2_FD_TOLERANCES = {"ark548": (2e-7, 2e-9), "radau5": (3e-6, 3e-8)}
@@ -106,17 +101,11 @@ class ForwardOptions:
         if self.integrator not in (None, *INTEGRATORS):
             raise InputError(src, f"integrator must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
         if self.integrator == "radau5" and not (self.thermal and self.medium == "cold"):
-            raise InputError(
-                src,
-                "integrator radau5 needs bubble=thermal with medium=cold "
-                "(use ark548 for the warm medium, dop853 for the polytropic bubble)",
-            )
+            raise InputError(src, "integrator radau5 needs bubble=thermal with medium=cold "
+                                  "(use ark548 for the warm medium, dop853 for the polytropic bubble)")
         if self.integrator in ("dopri5", "dop853") and self.thermal:
-            raise InputError(
-                src,
-                f"integrator {self.integrator} is explicit: it needs bubble=polytropic "
-                "(the thermal bubble's diffusion is stiff; use radau5, or ark548 with the warm medium)",
-            )
+            raise InputError(src, f"integrator {self.integrator} is explicit: it needs bubble=polytropic "
+                                  "(the thermal bubble's diffusion is stiff; use radau5, or ark548 with the warm medium)")
         tol = DEFAULT_TOLERANCES[self.method]
         if self.scheme == "imrv2-fd":
             tol = IMRV2_FD_TOLERANCES.get(self.method, tol)

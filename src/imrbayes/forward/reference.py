@@ -13,21 +13,9 @@ from imrbayes.forward.options import ForwardOptions
 
 _RADIAL = {1: "rp", 2: "km", 3: "km-enthalpy", 4: "gilmore"}
 # IMRv2 defaults for the inputs a case may leave out (forward-model.md §10).
-_DEFAULTS = {
-    "g": 1e3,
-    "mu": 8.3283e-4,
-    "lambda1": 1e-7,
-    "lambda2": 1e-8,
-    "alphax": 0.25,
-    "radial": 1,
-    "bubtherm": 0,
-    "medtherm": 0,
-    "vapor": 0,
-    "masstrans": 0,
-    "stress": 0,
-    "nt": 25,
-    "mt": 25,
-}
+_DEFAULTS = {"g": 1e3, "mu": 8.3283e-4, "lambda1": 1e-7, "lambda2": 1e-8, "alphax": 0.25,
+             "radial": 1, "bubtherm": 0, "medtherm": 0, "vapor": 0, "masstrans": 0, "stress": 0,
+             "nt": 25, "mt": 25}
 
 
 @dataclass
@@ -62,16 +50,10 @@ def constitutive_for(inputs: dict) -> tuple:
 def options_for(inputs: dict, **overrides) -> ForwardOptions:
     """ForwardOptions reproducing IMRv2's finite-difference solver with these inputs."""
     v = {**_DEFAULTS, **{k.lower(): val for k, val in inputs.items()}}
-    kw = dict(
-        scheme="imrv2-fd",
-        radial=_RADIAL[int(v["radial"])],
-        bubble="thermal" if v["bubtherm"] else "polytropic",
-        vapor=bool(v["vapor"]),
-        mass_transfer=bool(v["masstrans"]),
-        medium="warm" if v["medtherm"] else "cold",
-        nt=int(v["nt"]),
-        mt=int(v["mt"]),
-    )
+    kw = dict(scheme="imrv2-fd", radial=_RADIAL[int(v["radial"])],
+              bubble="thermal" if v["bubtherm"] else "polytropic", vapor=bool(v["vapor"]),
+              mass_transfer=bool(v["masstrans"]), medium="warm" if v["medtherm"] else "cold",
+              nt=int(v["nt"]), mt=int(v["mt"]))
     kw.update(overrides)
     return ForwardOptions(**kw)
 
@@ -85,16 +67,8 @@ def load_case(root, case_id: str, **option_overrides) -> ReferenceCase:
     name, params = constitutive_for(inputs)
     model = ForwardModel(name, options=options_for(inputs, **option_overrides))
     low = {k.lower(): v for k, v in inputs.items()}
-    return ReferenceCase(
-        case_id,
-        model,
-        params,
-        float(low["r0"]),
-        float(low["req"]),
-        np.asarray(data["t_star"]),
-        np.asarray(data["R_star"]),
-        record,
-    )
+    return ReferenceCase(case_id, model, params, float(low["r0"]), float(low["req"]),
+                         np.asarray(data["t_star"]), np.asarray(data["R_star"]), record)
 
 
 def relative_l2(a, b) -> float:

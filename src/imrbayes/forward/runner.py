@@ -25,9 +25,9 @@ from imrbayes.forward.model import BatchState, ForwardModel, Propagation
 
 __all__ = ["Runner", "fm_spec", "forward_model_from_spec", "register_runner", "runner_for"]
 
-_WORKER_FM: dict = {}  # spec -> serial ForwardModel, per process (Runner's worker processes)
-_FM: dict = {}  # spec -> ForwardModel for units (this process: the caller's own model)
-_RUNNERS: dict = {}  # token -> the caller's Runner (units running in this process)
+_WORKER_FM: dict = {}          # spec -> serial ForwardModel, per process (Runner's worker processes)
+_FM: dict = {}                 # spec -> ForwardModel for units (this process: the caller's own model)
+_RUNNERS: dict = {}            # token -> the caller's Runner (units running in this process)
 
 
 def fm_spec(fm) -> tuple:
@@ -123,10 +123,8 @@ class Runner:
     def counts_since(self, before: tuple) -> dict:
         """Member runs and failed member runs since ``before = (n_member_runs, n_failed)`` (what a
         unit reports)."""
-        return {
-            "member_runs": int(self.n_member_runs - before[0]),
-            "failed_member_runs": int(self.n_failed - before[1]),
-        }
+        return {"member_runs": int(self.n_member_runs - before[0]),
+                "failed_member_runs": int(self.n_failed - before[1])}
 
     def propagate(self, state: BatchState, params, t_end: float, t_eval=None) -> Propagation:
         """Like ``ForwardModel.propagate``; ``params`` an (N, n_params) SI array or a dict."""
@@ -139,7 +137,6 @@ class Runner:
 
         def rows(a, b):
             return t_eval[a:b] if per_member else t_eval
-
         if self.workers > 1 and n >= 2 * 32:
             size = self.chunk or max(32, -(-n // (4 * self.workers)))
         else:
@@ -159,20 +156,9 @@ class Runner:
         if self.workers > 1 and len(bounds) > 1:
             if self._pool is None:
                 self._pool = cf.ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
-            futs = {
-                self._pool.submit(
-                    _worker_propagate,
-                    self._spec(),
-                    state.y[a:b],
-                    state.t_star,
-                    state.rmax_m[a:b],
-                    state.req_m[a:b],
-                    params[a:b],
-                    t_end,
-                    rows(a, b),
-                ): (a, b)
-                for a, b in bounds
-            }
+            futs = {self._pool.submit(_worker_propagate, self._spec(), state.y[a:b], state.t_star,
+                                      state.rmax_m[a:b], state.req_m[a:b], params[a:b], t_end, rows(a, b)): (a, b)
+                    for a, b in bounds}
             for fut in cf.as_completed(futs):
                 a, b = futs[fut]
                 put(a, b, fut.result())

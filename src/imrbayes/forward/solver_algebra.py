@@ -41,14 +41,14 @@ def field_blocks(flags):
     out = np.zeros((3, 3), dtype=np.int64)
     if thermal:
         out[0, 0] = 3
-        out[0, 1] = nt - 1  # unknowns 0..nt-2 (the wall row is not evolved)
+        out[0, 1] = nt - 1          # unknowns 0..nt-2 (the wall row is not evolved)
         out[0, 2] = 0
     if mass:
         out[1, 0] = i_kv
         out[1, 1] = nt - 1
         out[1, 2] = nt
     if medium:
-        out[2, 0] = i_tm + 1  # interior nodes 1..mt-2
+        out[2, 0] = i_tm + 1        # interior nodes 1..mt-2
         out[2, 1] = mt - 2
         out[2, 2] = 2 * nt + 1
     return out
@@ -495,51 +495,21 @@ def bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r, invD_c, Cu_c, Pl_c
 
 
 @njit(cache=True, error_model="numpy")
-def radau_factor_pair(
-    ar,
-    ac,
-    o1,
-    bs,
-    m,
-    kk,
-    Jl,
-    Jd,
-    Ju,
-    U,
-    vidx,
-    vval,
-    vcnt,
-    invD_r,
-    Cu_r,
-    Pl_r,
-    Z_r,
-    K_r,
-    piv_r,
-    invD_c,
-    Cu_c,
-    Pl_c,
-    Z_c,
-    K_c,
-    piv_c,
-    gm_r,
-    gm_c,
-):
+def radau_factor_pair(ar, ac, o1, bs, m, kk, Jl, Jd, Ju, U, vidx, vval, vcnt, invD_r, Cu_r, Pl_r, Z_r, K_r,
+                       piv_r, invD_c, Cu_c, Pl_c, Z_c, K_c, piv_c, gm_r, gm_c):
     """Factor (a I - J) for the real (ar) and the complex (ac) system of a Radau step: block-Thomas
     pivots and forward multipliers, Z = M^-1 U and the LU of K = I - V^T Z (Woodbury)."""
     if bs == 2:
         if not bt_factor_pair(ar, ac, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r, invD_c, Cu_c, Pl_c):
             return False
     else:
-        if not (
-            bt_factor_scalar(ar, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r)
-            and bt_factor_scalar(ac, m, Jl, Jd, Ju, invD_c, Cu_c, Pl_c)
-        ):
+        if not (bt_factor_scalar(ar, m, Jl, Jd, Ju, invD_r, Cu_r, Pl_r)
+                and bt_factor_scalar(ac, m, Jl, Jd, Ju, invD_c, Cu_c, Pl_c)):
             return False
     bt_solve_many(ar, o1, bs, m, kk, Pl_r, invD_r, Cu_r, U, Z_r, gm_r)
     bt_solve_many(ac, o1, bs, m, kk, Pl_c, invD_c, Cu_c, U, Z_c, gm_c)
-    return woodbury_factor(ar, kk, vidx, vval, vcnt, Z_r, K_r, piv_r) and woodbury_factor(
-        ac, kk, vidx, vval, vcnt, Z_c, K_c, piv_c
-    )
+    return woodbury_factor(ar, kk, vidx, vval, vcnt, Z_r, K_r, piv_r) and \
+        woodbury_factor(ac, kk, vidx, vval, vcnt, Z_c, K_c, piv_c)
 
 
 @njit(cache=True, error_model="numpy", fastmath=FASTMATH)
@@ -594,37 +564,8 @@ def bt_solve_pair(ar, ac, o1, m, Pl_r, invD_r, Cu_r, Pl_c, invD_c, Cu_c, br, bc,
 
 
 @njit(cache=True, error_model="numpy", fastmath=FASTMATH)
-def radau_solve_pair(
-    ar,
-    ac,
-    o1,
-    bs,
-    m,
-    kk,
-    Pl_r,
-    invD_r,
-    Cu_r,
-    Z_r,
-    K_r,
-    piv_r,
-    Pl_c,
-    invD_c,
-    Cu_c,
-    Z_c,
-    K_c,
-    piv_c,
-    vidx,
-    vval,
-    vcnt,
-    br,
-    bc,
-    xr,
-    xc,
-    gv_r,
-    gv_c,
-    sv_r,
-    sv_c,
-):
+def radau_solve_pair(ar, ac, o1, bs, m, kk, Pl_r, invD_r, Cu_r, Z_r, K_r, piv_r, Pl_c, invD_c, Cu_c, Z_c, K_c,
+                      piv_c, vidx, vval, vcnt, br, bc, xr, xc, gv_r, gv_c, sv_r, sv_c):
     """xr = (ar I - J)^-1 br and xc = (ac I - J)^-1 bc, the two solves of a Newton iteration."""
     if bs == 2:
         bt_solve_pair(ar, ac, o1, m, Pl_r, invD_r, Cu_r, Pl_c, invD_c, Cu_c, br, bc, xr, xc, gv_r, gv_c)

@@ -86,11 +86,10 @@ class ConstitutiveModel:
         if isinstance(params, dict):
             unknown = set(params) - set(self.param_names)
             if unknown:
-                raise InputError(
-                    source,
-                    f"model {self.name!r} has no parameter(s) {sorted(unknown)}; it takes {list(self.param_names)}",
-                )
-            cols = [np.atleast_1d(np.asarray(params.get(p.name, p.default), dtype=float)) for p in self.parameters]
+                raise InputError(source, f"model {self.name!r} has no parameter(s) {sorted(unknown)}; "
+                                 f"it takes {list(self.param_names)}")
+            cols = [np.atleast_1d(np.asarray(params.get(p.name, p.default), dtype=float))
+                    for p in self.parameters]
             size = max([c.size for c in cols] + [n or 1])
             arr = np.column_stack([np.broadcast_to(c, (size,)) for c in cols]) if cols else np.zeros((size, 0))
         else:
@@ -98,24 +97,17 @@ class ConstitutiveModel:
             if arr.ndim == 1:
                 arr = arr[None, :]
             if arr.shape[-1] != len(self.parameters):
-                raise InputError(
-                    source,
-                    f"model {self.name!r} takes {len(self.parameters)} parameters "
-                    f"{list(self.param_names)}, got {arr.shape[-1]}",
-                )
+                raise InputError(source, f"model {self.name!r} takes {len(self.parameters)} parameters "
+                                 f"{list(self.param_names)}, got {arr.shape[-1]}")
         if n is not None and arr.shape[0] == 1 and n > 1:
             arr = np.repeat(arr, n, axis=0)
         return np.ascontiguousarray(arr, dtype=float)
 
-    def nondimensionalise(
-        self, params_si: np.ndarray, *, rho: float, p8: float, uc: float, rmax_m: np.ndarray
-    ) -> np.ndarray:
+    def nondimensionalise(self, params_si: np.ndarray, *, rho: float, p8: float, uc: float,
+                          rmax_m: np.ndarray) -> np.ndarray:
         """``(..., n_params)`` SI parameters -> ``(..., n_p)`` kernel vector (p[0]=1/Ca, p[1]=1/Re)."""
-        return np.ascontiguousarray(
-            self._nondim(
-                np.asarray(params_si, dtype=float), rho=rho, p8=p8, uc=uc, rmax_m=np.asarray(rmax_m, dtype=float)
-            )
-        )
+        return np.ascontiguousarray(self._nondim(np.asarray(params_si, dtype=float), rho=rho, p8=p8,
+                                                 uc=uc, rmax_m=np.asarray(rmax_m, dtype=float)))
 
 
 def canonical_name(name: str) -> str:

@@ -18,7 +18,7 @@ from imrbayes.forward.constitutive.base import ConstitutiveModel, Parameter, inv
 
 N_AUX = 0
 _X, _W = np.polynomial.legendre.leggauss(16)
-_U = 0.5 * (_X + 1.0)  # nodes on [0, 1]
+_U = 0.5 * (_X + 1.0)          # nodes on [0, 1]
 _WU = 0.5 * _W
 
 
@@ -61,30 +61,16 @@ def dissipation_q(x, y, p):
 
 
 def _nondim(theta, *, rho, p8, uc, rmax_m):
-    return np.stack(
-        [
-            theta[..., 0] / p8,
-            inv_re(theta[..., 1], rho=rho, uc=uc, rmax_m=rmax_m),
-            inv_re(theta[..., 2], rho=rho, uc=uc, rmax_m=rmax_m),
-            theta[..., 3] * uc / rmax_m,
-            theta[..., 4],
-        ],
-        axis=-1,
-    )
+    return np.stack([theta[..., 0] / p8, inv_re(theta[..., 1], rho=rho, uc=uc, rmax_m=rmax_m),
+                     inv_re(theta[..., 2], rho=rho, uc=uc, rmax_m=rmax_m), theta[..., 3] * uc / rmax_m,
+                     theta[..., 4]], axis=-1)
 
 
 MODEL = ConstitutiveModel(
-    name="carreau",
-    description="neo-Hookean solid with a shear-thinning Carreau viscosity (G, mu, mu_inf, lambda_c, n)",
-    parameters=(
-        Parameter("G", "Pa", 7.29e3, description="shear modulus"),
-        Parameter("mu", "Pa s", 0.088, description="zero-shear viscosity"),
-        Parameter("mu_inf", "Pa s", 0.0, positive=False, description="infinite-shear viscosity"),
-        Parameter("lambda_c", "s", 1e-6, description="Carreau time constant"),
-        Parameter("n", "-", 0.5, description="power-law index (< 1: shear thinning)"),
-    ),
-    n_aux=N_AUX,
-    module=__name__,
-    imrv2_stress=None,
-    _nondim=_nondim,
-)
+    name="carreau", description="neo-Hookean solid with a shear-thinning Carreau viscosity (G, mu, mu_inf, lambda_c, n)",
+    parameters=(Parameter("G", "Pa", 7.29e3, description="shear modulus"),
+                Parameter("mu", "Pa s", 0.088, description="zero-shear viscosity"),
+                Parameter("mu_inf", "Pa s", 0.0, positive=False, description="infinite-shear viscosity"),
+                Parameter("lambda_c", "s", 1e-6, description="Carreau time constant"),
+                Parameter("n", "-", 0.5, description="power-law index (< 1: shear thinning)")),
+    n_aux=N_AUX, module=__name__, imrv2_stress=None, _nondim=_nondim)

@@ -27,11 +27,11 @@ def stress(R, Rdot, z, p, req, zdot):
     acc = 0.0
     for k in range(_X.shape[0]):
         u = mid + half * _X[k]
-        acc += _W[k] * np.exp(a * (2.0 / (u * u) + u**4 - 3.0)) * (1.0 + u * u * u)
+        acc += _W[k] * np.exp(a * (2.0 / (u * u) + u ** 4 - 3.0)) * (1.0 + u * u * u)
     ur = Rdot / R
     S = -2.0 * p[0] * half * acc - 4.0 * p[1] * ur
-    i1w = 2.0 / (uw * uw) + uw**4
-    Sdot = -2.0 * p[0] * np.exp(a * (i1w - 3.0)) * (uw * uw + uw**5) * Rdot / req + 4.0 * p[1] * ur * ur
+    i1w = 2.0 / (uw * uw) + uw ** 4
+    Sdot = -2.0 * p[0] * np.exp(a * (i1w - 3.0)) * (uw * uw + uw ** 5) * Rdot / req + 4.0 * p[1] * ur * ur
     return S, Sdot, 4.0 * p[1]
 
 
@@ -41,15 +41,8 @@ def dissipation_q(x, y, p):
 
 
 MODEL = ConstitutiveModel(
-    name="fung",
-    description="Fung-type exponential strain-stiffening Kelvin-Voigt solid (G, mu, alpha)",
-    parameters=(
-        Parameter("G", "Pa", 7.29e3, description="small-strain shear modulus"),
-        Parameter("mu", "Pa s", 0.088, description="viscosity"),
-        Parameter("alpha", "-", 0.05, positive=False, description="exponential stiffening coefficient"),
-    ),
-    n_aux=N_AUX,
-    module=__name__,
-    imrv2_stress=None,
-    _nondim=QKV.nondimensionalise,
-)
+    name="fung", description="Fung-type exponential strain-stiffening Kelvin-Voigt solid (G, mu, alpha)",
+    parameters=(Parameter("G", "Pa", 7.29e3, description="small-strain shear modulus"),
+                Parameter("mu", "Pa s", 0.088, description="viscosity"),
+                Parameter("alpha", "-", 0.05, positive=False, description="exponential stiffening coefficient")),
+    n_aux=N_AUX, module=__name__, imrv2_stress=None, _nondim=QKV.nondimensionalise)

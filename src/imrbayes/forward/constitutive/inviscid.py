@@ -22,12 +22,5 @@ def _nondim(theta, *, rho, p8, uc, rmax_m):
     return np.zeros(theta.shape[:-1] + (2,))
 
 
-MODEL = ConstitutiveModel(
-    name="none",
-    description="inviscid liquid, no elasticity",
-    parameters=(),
-    n_aux=N_AUX,
-    module=__name__,
-    imrv2_stress=0,
-    _nondim=_nondim,
-)
+MODEL = ConstitutiveModel(name="none", description="inviscid liquid, no elasticity", parameters=(),
+                          n_aux=N_AUX, module=__name__, imrv2_stress=0, _nondim=_nondim)

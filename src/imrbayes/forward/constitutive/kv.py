@@ -28,14 +28,7 @@ def dissipation_q(x, y, p):
 
 
 MODEL = ConstitutiveModel(
-    name="kv",
-    description="linear (Hookean) Kelvin-Voigt solid (G, mu)",
-    parameters=(
-        Parameter("G", "Pa", 7.29e3, description="shear modulus"),
-        Parameter("mu", "Pa s", 0.088, description="viscosity"),
-    ),
-    n_aux=N_AUX,
-    module=__name__,
-    imrv2_stress=None,
-    _nondim=NHKV.nondimensionalise,
-)
+    name="kv", description="linear (Hookean) Kelvin-Voigt solid (G, mu)",
+    parameters=(Parameter("G", "Pa", 7.29e3, description="shear modulus"),
+                Parameter("mu", "Pa s", 0.088, description="viscosity")),
+    n_aux=N_AUX, module=__name__, imrv2_stress=None, _nondim=NHKV.nondimensionalise)

@@ -14,11 +14,6 @@ def _nondim(theta, *, rho, p8, uc, rmax_m):
 
 
 MODEL = ConstitutiveModel(
-    name="newtonian",
-    description="Newtonian liquid (viscosity mu)",
+    name="newtonian", description="Newtonian liquid (viscosity mu)",
     parameters=(Parameter("mu", "Pa s", 0.088, description="viscosity"),),
-    n_aux=N_AUX,
-    module=__name__,
-    imrv2_stress=1,
-    _nondim=_nondim,
-)
+    n_aux=N_AUX, module=__name__, imrv2_stress=1, _nondim=_nondim)

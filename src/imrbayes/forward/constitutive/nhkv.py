@@ -30,12 +30,6 @@ def _nondim(theta, *, rho, p8, uc, rmax_m):
 MODEL = ConstitutiveModel(
     name="nhkv",
     description="neo-Hookean Kelvin-Voigt solid (shear modulus G, viscosity mu)",
-    parameters=(
-        Parameter("G", "Pa", 7.29e3, description="shear modulus"),
-        Parameter("mu", "Pa s", 0.088, description="viscosity"),
-    ),
-    n_aux=N_AUX,
-    module=__name__,
-    imrv2_stress=1,
-    _nondim=_nondim,
-)
+    parameters=(Parameter("G", "Pa", 7.29e3, description="shear modulus"),
+                Parameter("mu", "Pa s", 0.088, description="viscosity")),
+    n_aux=N_AUX, module=__name__, imrv2_stress=1, _nondim=_nondim)

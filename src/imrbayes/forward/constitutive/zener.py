@@ -19,7 +19,7 @@ N_AUX = 1
 
 @njit(cache=True, error_model="numpy")
 def equilibrium_stress(R, rs, p):
-    return -(R**3) * 0.5 * p[0] * (5.0 - rs**4 - 4.0 * rs)
+    return -R ** 3 * 0.5 * p[0] * (5.0 - rs ** 4 - 4.0 * rs)
 
 
 @njit(cache=True, error_model="numpy")
@@ -30,8 +30,8 @@ def relax(R, Rdot, z, ze, p, zdot):
     lam = p[3]
     zdot[0] = -(z[0] - ze) / de + 4.0 * (lam - 1.0) * p[1] / de * R * R * Rdot
     ur = Rdot / R
-    S = z[0] / R**3 - 4.0 * lam * p[1] * ur
-    Sdot = zdot[0] / R**3 - 3.0 * Rdot / R**4 * z[0] + 4.0 * lam * p[1] * ur * ur
+    S = z[0] / R ** 3 - 4.0 * lam * p[1] * ur
+    Sdot = zdot[0] / R ** 3 - 3.0 * Rdot / R ** 4 * z[0] + 4.0 * lam * p[1] * ur * ur
     if p[p.shape[0] - 1] > 0.5:
         return S, Sdot, 4.0 * lam * p[1]
     return S, Sdot, 4.0 * p[1]
@@ -49,28 +49,15 @@ def dissipation_q(x, y, p):
 
 def _nondim(theta, *, rho, p8, uc, rmax_m):
     lam1 = theta[..., 2]
-    return np.stack(
-        [
-            theta[..., 0] / p8,
-            inv_re(theta[..., 1], rho=rho, uc=uc, rmax_m=rmax_m),
-            lam1 * uc / rmax_m,
-            theta[..., 3] / lam1,
-        ],
-        axis=-1,
-    )
+    return np.stack([theta[..., 0] / p8, inv_re(theta[..., 1], rho=rho, uc=uc, rmax_m=rmax_m),
+                     lam1 * uc / rmax_m, theta[..., 3] / lam1], axis=-1)
 
 
 MODEL = ConstitutiveModel(
-    name="zener",
-    description="Zener / standard linear solid with neo-Hookean spring (G, mu, lambda1, lambda2)",
-    parameters=(
-        Parameter("G", "Pa", 7.29e3, description="shear modulus"),
-        Parameter("mu", "Pa s", 0.088, description="viscosity"),
-        Parameter("lambda1", "s", 1e-6, description="relaxation time"),
-        Parameter("lambda2", "s", 0.0, positive=False, description="retardation time", prior_sd=5e-7),
-    ),
-    n_aux=N_AUX,
-    module=__name__,
-    imrv2_stress=3,
-    _nondim=_nondim,
-)
+    name="zener", description="Zener / standard linear solid with neo-Hookean spring (G, mu, lambda1, lambda2)",
+    parameters=(Parameter("G", "Pa", 7.29e3, description="shear modulus"),
+                Parameter("mu", "Pa s", 0.088, description="viscosity"),
+                Parameter("lambda1", "s", 1e-6, description="relaxation time"),
+                Parameter("lambda2", "s", 0.0, positive=False, description="retardation time",
+                          prior_sd=5e-7)),
+    n_aux=N_AUX, module=__name__, imrv2_stress=3, _nondim=_nondim)
