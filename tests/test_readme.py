@@ -126,6 +126,29 @@ def test_walkthrough_inspect_fit_report(tmp_path):
 
     run = imrbayes.load_run(out)
     assert run.estimates["mu"]["unit"] == "Pa s" and run.estimates["mu"]["mean"] > 0
+    _conclusion_reads_right(out / "report.html")
+
+
+def _conclusion_reads_right(report):
+    """The report of a real dataset in a headless browser (Chromium, where installed): every image
+    loads, the page opens with the conclusion, and the conclusion holds no JSON path and no number
+    for a range the data do not bound; without a browser, the same checks on the page's text."""
+    import html as html_lib
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("check_report_browser", ROOT / "scripts" / "check_report_browser.py")
+    chk = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(chk)
+    if chk.find_browser() is not None:
+        assert chk.main([str(report)]) == 0
+    page = report.read_text()
+    conclusion = page[page.index("Conclusion") : page.index("Estimate (SI units)")]
+    text = html_lib.unescape(re.sub(r"<[^>]+>", " ", conclusion))
+    assert "does not describe these records" in text
+    assert "G consistent with 0" in text
+    assert not re.search(r"\w+\[\]\.\w+|summary\.json\[", text), "a JSON path in the conclusion"
+    assert "not bounded by the data" in text or "consistent with 0" in text
+    assert not re.search(r"G sd [0-9.e+]+ kPa \(95 %", text), "a number for an unbounded between-bubble G"
 
 
 @pytest.mark.slow
