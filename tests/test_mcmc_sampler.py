@@ -1,16 +1,24 @@
-"""emcee runner: seeded independent ensembles, lockstep batching, HDF5 resume, DataTree output,
-and recovery of known parameters on a cheap polytropic window."""
+"""The MCMC sampler and its target: the emcee runner, the target density, the block moves and
+the Laplace placement."""
 
 import json
 
 import arviz as az
 import numpy as np
 import pytest
-from _mcmc_synth import TRUTH, GaussianTarget, Interrupted, model as model_poly, observations, paper_prior
+from _mcmc_synth import TRUTH, GaussianTarget, Interrupted, model, model as model_poly, observations, paper_prior
+from scipy import integrate
 
+from imrbayes.ensemble import ParamSpace
 from imrbayes.errors import InputError
-from imrbayes.mcmc.sampler import MCMCSettings, run_mcmc
-from imrbayes.mcmc.target import fitting_window_target
+from imrbayes.forward import BatchState, Propagation
+from imrbayes.mcmc.laplace import quadratic_placement
+from imrbayes.mcmc.sampler import MCMCSettings, emcee_moves, independent_walkers, run_mcmc
+from imrbayes.mcmc.target import WindowTarget, fitting_window_target, loglik_pointwise, window_target_from_ensemble
+
+# emcee runner: seeded independent ensembles, lockstep batching, HDF5 resume, DataTree output,
+# and recovery of known parameters on a cheap polytropic window.
+
 
 MEAN = np.array([1.0, -2.0])
 COV = np.array([[0.04, 0.018], [0.018, 0.09]])
@@ -504,3 +512,413 @@ def test_log_reports_every_check_and_the_cap():
     ok = []
     run = run_mcmc(GaussianTarget(MEAN, COV), MEAN, COV, MCMCSettings(n_walkers=8, n_steps=3000), seed=1, log=ok.append)
     assert run.stop["reason"] == "converged" and ok[-1].endswith("-- converged")
+
+
+# The MCMC target density: likelihood, weights, prior (with and without the Jacobian), failures,
+# the window target built from a handed-off ensemble.
+
+
+Z_TRUE = np.log([TRUTH["G"], TRUTH["mu"]])
+
+
+def test_truth_has_zero_misfit_on_noise_free_data():
+    fm, obs = observations(n_exp=2, n_steps=30)
+    prior = paper_prior()
+    tg = fitting_window_target(fm, obs, prior, weight="plain")
+    assert tg.t_eval.tolist() == obs.t_star[1:].tolist()  # sample 0 (R* = 1) is not fitted
+    Z = np.vstack([Z_TRUE, Z_TRUE + [0.3, 0.0], Z_TRUE])
+    lp = tg.log_prob(Z)
+    assert lp[0] == pytest.approx(prior.log_prob(Z_TRUE[None])[0], abs=1e-9)
+    assert lp[2] == lp[0] and lp[1] < lp[0] - 1.0
+    assert tg.log_likelihood(Z_TRUE[None])[0] == pytest.approx(0.0, abs=1e-9)
+    assert tg.n_evals == 4 and tg.n_failed == 0
+
+
+def test_likelihood_matches_direct_simulation_and_weights():
+    fm, obs = observations(n_exp=2, n_steps=30, noise=0.01, seed=3)
+    prior = paper_prior()
+    rng = np.random.default_rng(0)
+    Z = Z_TRUE + rng.normal(0, 0.1, (5, 2))
+    plain = fitting_window_target(fm, obs, prior, weight="plain")
+    avg = fitting_window_target(fm, obs, prior, weight="en4dvar")
+    K = obs.t_star.size - 1
+    expect = []
+    for z in Z:
+        th = np.exp(z)
+        R = fm.simulate({"G": np.full(2, th[0]), "mu": np.full(2, th[1])}, obs.rmax_m, obs.req_m, obs.t_star).R_star
+        expect.append(-0.5 * np.sum((obs.R_star[:, 1:] - R[:, 1:]) ** 2 / obs.P[1:]))
+    ll = plain.log_likelihood(Z)
+    np.testing.assert_allclose(ll, expect, rtol=1e-9)
+    np.testing.assert_allclose(avg.log_likelihood(Z), ll / K, rtol=1e-12)  # c_k = 1/N_t
+    np.testing.assert_allclose(plain.log_prob(Z), ll + prior.log_prob(Z), rtol=1e-12)
+    # pointwise: Gaussian with variance P/c; sums to the likelihood plus a constant
+    pw = avg.pointwise(Z)
+    assert pw.shape == (5, 2, K)
+    const = -0.5 * np.sum(np.log(2 * np.pi * obs.P[1:] * K)) * 2
+    np.testing.assert_allclose(pw.sum(axis=(1, 2)), ll / K + const, rtol=1e-10)
+    np.testing.assert_allclose(loglik_pointwise(1.0, 1.0, 2.0, 0.5), -0.5 * np.log(2 * np.pi * 4.0))
+
+
+class _FakeModel:
+    """Returns R* = theta_0 / 1e4 + t, fails members whose G > 9e3; records the batch."""
+
+    def propagate(self, state, params, t_end, t_eval):
+        self.last = (state, params)
+        n = state.n
+        R = params[:, :1] / 1e4 + np.asarray(t_eval)[None, :]
+        failed = params[:, 0] > 9e3
+        R[failed, 1:] = np.nan
+        end = BatchState(state.y.copy(), t_end, state.rmax_m, state.req_m)
+        return Propagation(np.asarray(t_eval), R, end, failed.astype(np.int64), np.zeros(n, int), np.zeros(n, int))
+
+
+def test_batching_order_and_failures_give_minus_inf():
+    fm = model()
+    start = fm.initial_state([263e-6, 250e-6, 240e-6], [35e-6, 34e-6, 33e-6])
+    t = np.array([0.1, 0.2, 0.3])
+    fake = _FakeModel()
+    tg = WindowTarget(fake, start, t, np.full((3, 3), 0.8) + t, 1e-2, paper_prior(), 1.0)
+    Z = np.log([[7e3, 0.1], [9.5e3, 0.1], [8e3, 0.09], [np.nan, 0.1], [7e3, 1e-12]])
+    lp = tg.log_prob(Z)
+    assert np.isfinite(lp[[0, 2]]).all() and np.isneginf(lp[[1, 3, 4]]).all()
+    assert not np.isnan(lp).any()
+    st, params = fake.last
+    # only the three in-support parameter sets were simulated, member = i * N_exp + e
+    assert st.n == 9 and params.shape == (9, 2)
+    np.testing.assert_allclose(params[:3, 0], 7e3) and np.testing.assert_allclose(params[3:6, 0], 9.5e3)
+    np.testing.assert_allclose(st.rmax_m, np.tile(start.rmax_m, 3))
+    assert tg.n_failed == 1 and tg.n_evals == 3  # non-finite / out-of-box never reach the model
+    # a pointwise array stays finite for failed draws
+    assert np.isfinite(tg.pointwise(Z[:3])).all()
+
+
+def test_prior_natural_scale_has_the_jacobian():
+    """A Gaussian stated on theta > 0 and sampled in z = log theta integrates to one over z."""
+    pr = ParamSpace(("a",), [True], [5.0], [[1.0]], scale="natural")
+    f = lambda z: np.exp(pr.log_prob(np.array([[z]]))[0])  # noqa: E731
+    total, _ = integrate.quad(f, pr.lower[0], pr.upper[0], limit=200)
+    from scipy import stats
+
+    inside = stats.norm(5, 1).cdf(np.exp(pr.upper[0])) - stats.norm(5, 1).cdf(np.exp(pr.lower[0]))
+    assert total == pytest.approx(inside, abs=1e-8) and inside > 1 - 1e-5  # the box cuts < 1e-5
+    zi = np.log(4.0)
+    assert pr.log_prob([[zi]])[0] == pytest.approx(stats.norm(5, 1).logpdf(4.0) + zi)
+    pi = ParamSpace(("a",), [True], [1.5], [[0.04]])  # internal: no Jacobian
+    total, _ = integrate.quad(lambda z: np.exp(pi.log_prob(np.array([[z]]))[0]), 0.0, 3.0)
+    assert total == pytest.approx(1.0, abs=1e-6)
+    assert np.isneginf(pi.log_prob([[1.5 + 11 * 0.2]])[0])  # outside the 10-sd box
+    with pytest.raises(InputError):
+        ParamSpace((), [True, True], [1.0, 2.0], [[1.0, 2.0], [2.0, 1.0]])
+
+
+def test_window_target_from_handed_off_ensemble():
+    fm, obs = observations(n_exp=2, n_steps=40)
+    N, a, b = 3, 10, 30
+    st0 = fm.initial_state(np.repeat(obs.rmax_m, N), np.repeat(obs.req_m, N))
+    th = np.tile([TRUTH["G"], TRUTH["mu"]], (2 * N, 1))
+    handed = fm.propagate(st0, th, obs.t_star[a]).end  # the state at window start
+    prior = paper_prior()
+    beta = np.linspace(0.2, 1.0, b - a + 1)
+    tg = window_target_from_ensemble(
+        fm, handed, obs.t_star[a : b + 1], obs.R_star[:, a : b + 1], 1e-6, prior, mda_weight=beta, L=b - a + 1, index=2
+    )
+    assert tg.t0 == pytest.approx(obs.t_star[a]) and tg.n_exp == 2
+    np.testing.assert_allclose(tg.weight[0], beta / (b - a + 1))
+    assert not tg.use_time[0] and tg.use_time[1:].all()  # R*(t0) is the given state
+    ll = tg.log_likelihood(np.vstack([Z_TRUE, Z_TRUE + [0.1, 0.0]]))
+    assert ll[0] > -1e-6 and ll[1] < -0.5
+    # members with different states: the target starts from each experiment's mean state
+    jit = handed.copy()
+    jit.y[:, 1] += np.array([-1, 0, 1, -2, 0, 2]) * 1e-3
+    tg2 = window_target_from_ensemble(fm, jit, obs.t_star[a : b + 1], obs.R_star[:, a : b + 1], obs.P[a : b + 1], prior)
+    np.testing.assert_allclose(tg2.start.y, handed.y[[0, 3]], atol=1e-15)
+    np.testing.assert_allclose(tg2.description["R_spread_at_start"], 0.0, atol=1e-12)
+    with pytest.raises(InputError):
+        window_target_from_ensemble(
+            fm, handed.take(np.arange(5)), obs.t_star[a : b + 1], obs.R_star[:, a : b + 1], obs.P[a : b + 1], prior
+        )
+
+
+# The nuisance-block and ridge moves (imrbayes.mcmc.blocks) sample the exact posterior.
+#
+# The target is a WindowTarget whose forward prediction is linear in (theta, nu): the posterior is an
+# exact Gaussian, with the nuisances correlated with the parameters as the alignment is with G on
+# camera data. Independent truth: the closed-form mean and covariance.
+
+
+N_EXP, M = 3, 12
+
+
+class LinearWindow(WindowTarget):
+    """R_e(z) = theta_0 f + theta_1 g + nu_e0 (f + h) + nu_e1 g' + nu_e2 h, one design per experiment."""
+
+    def __init__(self, seed=0, nuisance_sd=(0.3, 0.2, 0.25)):
+        rng = np.random.default_rng(seed)
+        t = np.linspace(0.1, 1.0, M)
+        self.basis = np.stack([np.sin(3 * t), t**2, np.cos(2 * t), t, np.exp(-t)])  # (5, M)
+        self.scale = 1.0 + 0.3 * rng.random(N_EXP)
+        prior = ParamSpace(("a", "b"), [False, False], np.array([0.5, -0.2]), np.diag([0.5, 0.4]) ** 2)
+        sd = np.tile(nuisance_sd, (N_EXP, 1)).astype(float)
+        sd[1, 1] = 0.0  # one experiment with a nuisance fixed (not sampled)
+        self.truth = np.array([0.8, -0.1])
+        P = np.full(M, 0.05**2)
+        nu_true = rng.normal(0.0, 1.0, (N_EXP, 3)) * sd
+        y = self._R(self.truth[None], nu_true[None])[0] + rng.normal(0.0, 0.05, (N_EXP, M))
+        start = BatchState(np.zeros((N_EXP, 3)), 0.0, np.full(N_EXP, 1e-4), np.full(N_EXP, 1e-5))
+        super().__init__(None, start, t, y, P, prior, 1.0, nuisance_sd=sd)
+
+    def _R(self, theta, nu):
+        f, g, h, g2, k = self.basis
+        R = (
+            theta[:, None, 0, None] * f
+            + theta[:, None, 1, None] * g
+            + nu[:, :, 0, None] * (f + h)
+            + nu[:, :, 1, None] * g2
+            + nu[:, :, 2, None] * k
+        )
+        return R * self.scale[None, :, None]
+
+    def predict(self, Z):
+        Z = np.atleast_2d(np.asarray(Z, dtype=np.float64))
+        nu = np.zeros((Z.shape[0], N_EXP, 3))
+        nu[:, self.nuisance_used] = Z[:, 2:]
+        R = self._R(Z[:, :2], nu)
+        failed = np.zeros(Z.shape[0], dtype=bool)
+        self.n_evals += Z.shape[0]
+        self._remember(Z, R, failed)
+        return R, failed
+
+    def exact(self):
+        """Closed-form posterior mean and covariance of z = (theta, sampled nu)."""
+        d = self.ndim
+        A = np.empty((N_EXP * M, d))
+        base = self.predict(np.zeros((1, d)))[0].ravel()
+        for i in range(d):
+            e = np.zeros((1, d))
+            e[0, i] = 1.0
+            A[:, i] = self.predict(e)[0].ravel() - base
+        prec0 = np.zeros((d, d))
+        prec0[:2, :2] = np.linalg.inv(self.prior.prior_cov)
+        sd = self.nuisance_sd[self.nuisance_used]
+        prec0[2:, 2:] = np.diag(1.0 / sd**2)
+        m0 = np.concatenate([self.prior.prior_mean, np.zeros(d - 2)])
+        prec = A.T @ A / self.P[0, 0] + prec0
+        cov = np.linalg.inv(prec)
+        mean = cov @ (A.T @ (self.y.ravel() - base) / self.P[0, 0] + prec0 @ m0)
+        return mean, cov
+
+
+def test_blocks_split_the_log_posterior_by_experiment():
+    tg = LinearWindow()
+    assert [b.tolist() for b in tg.nuisance_blocks] == [[2, 3, 4], [5, 6], [7, 8, 9]]
+    Z = tg.exact()[0] + 0.1 * np.random.default_rng(1).standard_normal((5, tg.ndim))
+    lp0, T, R, failed = tg.block_terms(Z)
+    np.testing.assert_allclose(lp0 + T.sum(axis=1), tg.log_prob(Z), rtol=1e-12, atol=1e-9)
+    assert not failed.any() and T.shape == (5, N_EXP)
+
+
+def test_accepted_blocks_carry_their_exact_log_density():
+    """Mixed sets (some blocks from X, some from Q) get the log-density the target itself gives."""
+    tg = LinearWindow()
+    rng = np.random.default_rng(2)
+    X = tg.exact()[0] + 0.05 * rng.standard_normal((40, tg.ndim))
+    Q = X.copy()
+    Q[:, 2:] += 0.2 * rng.standard_normal((40, tg.ndim - 2))
+    tg.log_prob(Q)
+    n0 = tg.n_evals
+    Z, lp, acc = tg.accept_blocks(X, Q, np.random.RandomState(3))
+    assert tg.n_evals - n0 == 40  # X from the memo would be free; X was never evaluated here
+    assert acc.any() and not acc.all()  # a mixture of accepted and rejected blocks
+    np.testing.assert_allclose(lp, tg.log_prob(Z), rtol=1e-12, atol=1e-9)
+    n1 = tg.n_evals
+    tg.block_terms(Z)  # the mixed sets are remembered: no new solve
+    assert tg.n_evals == n1
+    with pytest.raises(ValueError, match="same parameters"):
+        Q2 = Q.copy()
+        Q2[:, 0] += 1.0
+        tg.accept_blocks(X, Q2, np.random.RandomState(0))
+
+
+@pytest.mark.parametrize(
+    "moves", [pytest.param("ridge:0.5,blocks:0.5", marks=pytest.mark.slow), "ridge:0.3,blocks:0.4,de:0.3"]
+)
+def test_block_and_ridge_moves_sample_the_exact_posterior(moves):
+    tg = LinearWindow()
+    mean, cov = tg.exact()
+    sd = np.sqrt(np.diag(cov))
+    corr = cov[0, 2:] / (sd[0] * sd[2:])
+    assert np.max(np.abs(corr)) > 0.5  # the nuisances really are tied to the parameters
+    s = MCMCSettings(n_walkers=2 * tg.ndim, n_steps=2500, n_chains=2, stop="fixed", moves=moves, init_scale=1.0)
+    run = run_mcmc(tg, mean, cov, s, seed=4)
+    x = run.chain[:, 500:].reshape(-1, tg.ndim)
+    np.testing.assert_allclose((x.mean(axis=0) - mean) / sd, 0.0, atol=0.12)
+    np.testing.assert_allclose(x.std(axis=0) / sd, 1.0, atol=0.07)
+    np.testing.assert_allclose(np.corrcoef(x[:, [0, 2]].T)[0, 1], cov[0, 2] / (sd[0] * sd[2]), atol=0.05)
+    lp_again = tg.log_prob(run.chain[:, -1].reshape(-1, tg.ndim))
+    np.testing.assert_allclose(run.log_prob[:, -1].ravel(), lp_again, rtol=1e-10, atol=1e-8)
+
+
+def test_block_moves_need_nuisances():
+    tg = LinearWindow(nuisance_sd=(0.0, 0.0, 0.0))
+    with pytest.raises(InputError, match="needs sampled nuisances"):
+        emcee_moves("blocks", target=tg)
+    with pytest.raises(InputError, match="needs a window target"):
+        emcee_moves("ridge")
+    assert len(emcee_moves("ridge", target=tg)) == 1
+
+
+def test_auto_moves_follow_the_window():
+    from _mcmc_synth import GaussianTarget
+
+    from imrbayes.mcmc.sampler import AUTO_MOVES, resolve_moves
+
+    assert resolve_moves("auto", LinearWindow()) == AUTO_MOVES["nuisances"] == "ridge:0.5,blocks:0.5"
+    assert resolve_moves("auto", LinearWindow(nuisance_sd=(0.0, 0.0, 0.0))) == AUTO_MOVES["plain"]
+    assert resolve_moves("auto", GaussianTarget([0.0, 1.0], np.eye(2))) == "indep:0.7,de:0.3"
+    assert resolve_moves("de", LinearWindow()) == "de"
+    # a window with one nuisance per experiment (Rmax alone): placed on the target first; this one is
+    # linear-Gaussian, so the quadratic fit is exact and independent walkers sample it (8, fewer than 2 d)
+    tg = LinearWindow(nuisance_sd=(0.3, 0.0, 0.0))
+    run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed"), seed=0)
+    assert run.settings["place"] == "laplace" and run.settings["moves"] == "indep" and run.n_walkers == 8 < 2 * tg.ndim
+    assert run.settings["placement"]["rounds"][-1]["residual_sd_nats"] < 1e-6
+    # the start as given: the block and ridge moves with 2 walkers per coordinate
+    run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed", place="start"), seed=0)
+    assert run.settings["moves"] == "ridge:0.5,blocks:0.5" and run.n_walkers == 2 * tg.ndim
+    # three nuisances per experiment (camera records: Rmax, alignment, Req): placed, then the block moves
+    tg = LinearWindow()
+    run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed"), seed=0)
+    assert run.settings["place"] == "laplace" and run.settings["moves"] == "ridge:0.5,blocks:0.5"
+    assert run.n_walkers == 2 * tg.ndim and "3 nuisance(s) per experiment" in run.settings["placement"]["moves_rule"]
+
+
+def test_auto_moves_fall_back_to_blocks_when_the_placed_fit_is_not_gaussian(monkeypatch):
+    import imrbayes.mcmc.sampler as sampler
+
+    monkeypatch.setattr(sampler, "LAPLACE_MAX_RESIDUAL", -1.0)  # any fit counts as not Gaussian
+    tg = LinearWindow(nuisance_sd=(0.3, 0.0, 0.0))
+    run = run_mcmc(tg, *tg.exact(), MCMCSettings(n_steps=20, stop="fixed"), seed=0)
+    assert run.settings["place"] == "laplace" and run.settings["moves"] == "ridge:0.5,blocks:0.5"
+    assert run.n_walkers == 2 * tg.ndim and "ridge" in run.settings["placement"]["moves_rule"]
+
+
+# The Laplace placement (``MCMCSettings.place = "laplace"``): a quadratic fit of the target's own
+# log-density moves the start Gaussian and the independence proposal before the first step.
+
+
+# a correlated 5-D Gaussian (d > the 4 walkers used below, so the >= 2 d rule must not apply)
+_A = np.array(
+    [
+        [1.0, 0.6, 0.0, 0.2, 0.0],
+        [0.0, 1.0, -0.4, 0.0, 0.1],
+        [0.0, 0.0, 1.0, 0.5, 0.0],
+        [0.0, 0.0, 0.0, 1.0, -0.3],
+        [0.0, 0.0, 0.0, 0.0, 1.0],
+    ]
+)
+LAPLACE_COV = 0.01 * _A @ _A.T
+LAPLACE_MEAN = np.array([0.5, -1.0, 2.0, 0.0, 0.3])
+SD = np.sqrt(np.diag(LAPLACE_COV))
+
+
+def _wrong_start():
+    """2 sd off in every coordinate, 3x too wide in some and 0.4x in others, no correlation."""
+    return LAPLACE_MEAN + 2.0 * SD, np.diag((SD * np.array([3.0, 0.4, 1.0, 2.0, 0.5])) ** 2)
+
+
+def test_a_quadratic_log_density_is_placed_exactly():
+    """The first round's optimum lies 6.9 start sd away, beyond the 3-spread cap: it moves to the cap,
+    and the second round (a quadratic is fitted exactly wherever the cloud is) lands on the target."""
+    m0, c0 = _wrong_start()
+    m, c, info = quadratic_placement(GaussianTarget(LAPLACE_MEAN, LAPLACE_COV).log_prob, m0, c0, rounds=2)
+    np.testing.assert_allclose(m, LAPLACE_MEAN, atol=1e-9)
+    np.testing.assert_allclose(c, LAPLACE_COV, rtol=1e-7, atol=1e-12)
+    first, second = info["rounds"]
+    assert first["moved_sd"] > 6.0 and second["moved_sd"] < 3.0
+    assert all(
+        r["fitted"] and r["residual_sd_nats"] < 1e-9 and r["non_concave_directions"] == 0 for r in (first, second)
+    )
+    assert info["n_evals"] == 2 * int(np.ceil(3 * 21))  # 3 points per coefficient, (d + 1)(d + 2)/2 = 21
+
+
+def test_a_flat_direction_keeps_the_previous_extent():
+    """Where the density is flat (no curvature to fit) the Gaussian keeps the start's extent there
+    rather than an infinite or negative variance."""
+    prec = np.diag([100.0, 0.0])
+
+    def logp(Z):
+        r = np.atleast_2d(Z) - np.array([1.0, 0.0])
+        return -0.5 * np.einsum("ni,ij,nj->n", r, prec, r)
+
+    m, c, info = quadratic_placement(logp, np.array([1.2, 5.0]), np.diag([0.04, 9.0]), rounds=2)
+    assert abs(m[0] - 1.0) < 1e-9 and c[0, 0] == pytest.approx(0.01, rel=1e-6)
+    assert c[1, 1] == pytest.approx(9.0, rel=1e-6) and info["rounds"][0]["non_concave_directions"] == 1
+
+
+def test_points_outside_the_support_are_left_out():
+    tg = GaussianTarget(LAPLACE_MEAN, LAPLACE_COV)
+
+    def logp(Z):
+        v = tg.log_prob(Z)
+        return np.where(np.atleast_2d(Z)[:, 0] > LAPLACE_MEAN[0] + 3 * SD[0], -np.inf, v)
+
+    m, c, _ = quadratic_placement(logp, *_wrong_start(), rounds=2)
+    np.testing.assert_allclose(m, LAPLACE_MEAN, atol=1e-8)
+
+
+def _laplace(**kw):
+    return MCMCSettings(
+        **{
+            "moves": "indep",
+            "place": "laplace",
+            "indep_dof": 20.0,
+            "indep_scale": 1.1,
+            "indep_adapt": 0,
+            "n_walkers": 4,
+            **kw,
+        }
+    )
+
+
+def test_independence_sampler_on_the_placed_gaussian_converges_fast_and_samples_the_target():
+    """From the wrong start, the placed proposal is accepted most of the time (tau of a step or two),
+    the run stops at its first check, and a long run's draws are the exact Gaussian (mean within
+    0.05 sd, sds within 3 %, correlations within 0.03) -- with 4 walkers for 5 coordinates."""
+    m0, c0 = _wrong_start()
+    run = run_mcmc(GaussianTarget(LAPLACE_MEAN, LAPLACE_COV), m0, c0, _laplace(), seed=2)
+    assert run.stop["reason"] == "converged" and run.n_steps <= 150, run.n_steps
+    assert np.all(run.acceptance > 0.7) and run.tau_max < 2.5
+    assert run.settings["placement"]["rounds"][0]["fitted"]
+    np.testing.assert_allclose(run.settings["given_mean"], m0)
+    np.testing.assert_allclose(run.settings["start_mean"], LAPLACE_MEAN, atol=1e-8)
+    long = run_mcmc(
+        GaussianTarget(LAPLACE_MEAN, LAPLACE_COV), m0, c0, _laplace(n_steps=1500, stop="fixed", n_walkers=8), seed=3
+    )
+    x = long.chain[:, 100:].reshape(-1, LAPLACE_MEAN.size)
+    np.testing.assert_allclose((x.mean(axis=0) - LAPLACE_MEAN) / SD, 0.0, atol=0.05)
+    np.testing.assert_allclose(x.std(axis=0) / SD, 1.0, atol=0.03)
+    np.testing.assert_allclose(np.corrcoef(x.T), LAPLACE_COV / np.outer(SD, SD), atol=0.03)
+
+
+def test_placement_is_seeded_so_a_resumed_run_gives_the_same_chains(tmp_path):
+    m0, c0 = _wrong_start()
+    ref = run_mcmc(
+        GaussianTarget(LAPLACE_MEAN, LAPLACE_COV), m0, c0, _laplace(), seed=4, backend=tmp_path / "ref.h5", name="w"
+    )
+    path = tmp_path / "cut.h5"
+    with pytest.raises(Interrupted):
+        run_mcmc(
+            GaussianTarget(LAPLACE_MEAN, LAPLACE_COV, fail_after=10), m0, c0, _laplace(), seed=4, backend=path, name="w"
+        )
+    res = run_mcmc(GaussianTarget(LAPLACE_MEAN, LAPLACE_COV), m0, c0, _laplace(), seed=4, backend=path, name="w")
+    np.testing.assert_array_equal(res.chain, ref.chain)
+
+
+def test_the_walker_rule_depends_on_the_moves():
+    assert independent_walkers("indep") and not independent_walkers("indep:0.7,de:0.3")
+    assert not independent_walkers("auto")
+    MCMCSettings(moves="indep", n_walkers=2).check(7)
+    with pytest.raises(InputError, match="2 x 7"):
+        MCMCSettings(moves="indep:0.7,de:0.3", n_walkers=8).check(7)
+    with pytest.raises(InputError, match="place"):
+        MCMCSettings(place="mode").check(2)

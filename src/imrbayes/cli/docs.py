@@ -2,7 +2,7 @@
 ``--set`` key of every method and every ``--mcmc-set`` key (from the settings dataclasses: field,
 type, default and the meaning their docstrings give), and the keys of meta.json.
 
-``python -m imrbayes.cli.docs > docs/cli.md`` writes it; ``tests/test_cli_docs.py`` fails when the
+``python -m imrbayes.cli.docs > docs/cli.md`` writes it; ``tests/test_cli_options.py`` fails when the
 file differs from what this module generates, so the reference never drifts from the code.
 """
 

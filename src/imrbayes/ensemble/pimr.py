@@ -19,7 +19,7 @@ positive terms slow the collapse):
 
 Which kappa: the polytropic bubble uses the forward model's kappa (its gas starts at
 p_go* R0*^(3 kappa)); the thermal bubble starts isothermal (p_go* R0*^3) and we use kappa = 1
-(override with ``kappa``). tests/test_ensemble_pimr.py compares the formula with simulated
+(override with ``kappa``). tests/test_ensemble_methods.py compares the formula with simulated
 first-collapse times across the prior range.
 
 Inference: ``J(theta) = (1/N_exp) sum_n [(t_c,meas^(n) / t_c(theta))^2 - 1]^2``, minimised in log J on
