@@ -308,7 +308,9 @@ def fit_cmd(
         resume=bool(resume),
     )
     run_config = _run_config(opts, s, space, fm, obs, pre, mcmc_s)
-    res, adequacy, compare, exec_summary = _execute(opts, out, run_config, s, fm, obs, space, pre, mcmc_s, t_start)
+    res, space, adequacy, compare, exec_summary = _execute(
+        opts, out, run_config, s, fm, obs, space, pre, mcmc_s, t_start
+    )
     written = _write_fit(out, res, obs, pre, fm, space, opts, exec_summary, t_start, compare=compare, adequacy=adequacy)
     if not opts.quiet:
         _echo_result(opts, out, res, obs, pre, fm, ds, compare, written)
@@ -641,8 +643,9 @@ def _execute(opts: FitOptions, out: Path, run_config: dict, s, fm, obs, space, p
     Returns
     -------
     tuple
-        ``(res, adequacy, compare, exec_summary)``: the method's result, :func:`_adequacy`'s dict,
-        the MCMC comparison (None without ``--mcmc``) and the execution summary.
+        ``(res, space, adequacy, compare, exec_summary)``: the method's result, the parameter space
+        (with the global search's start where one ran), :func:`_adequacy`'s dict, the MCMC comparison
+        (None without ``--mcmc``) and the execution summary.
     """
     from imrbayes.forward import Runner
 
@@ -677,7 +680,7 @@ def _execute(opts: FitOptions, out: Path, run_config: dict, s, fm, obs, space, p
                 click.echo(f"{opts.method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
             compare = _sample_windows(opts, out, res, fm, obs, space, mcmc_s, execution, runner)
         exec_summary = execution.summary()
-    return res, adequacy, compare, exec_summary
+    return res, space, adequacy, compare, exec_summary
 
 
 def _sample_windows(opts: FitOptions, out: Path, res, fm, obs, space, mcmc_s, execution, runner) -> dict:
