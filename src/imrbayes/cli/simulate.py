@@ -189,18 +189,10 @@ def simulate_cmd(
     }
     files = [f"exp_{i:03d}.csv" for i in range(1, n_exp + 1)]
     options = fm.options.to_dict()
-    meta = {
-        "material": material or f"synthetic ({model})",
-        "description": f"imrbayes simulate: {model} {pvals}, noise {noise_d['kind']}, seed {seed}"
-        + ("" if generator == "imrbayes" else f", curves by {generator}"),
-        "synthetic": True,
-        "truth": "truth.json",
-        "physics": ph,
-        "forward": options,
-        "experiments": (
-            {f: {"Req_m": float(q), "Rmax_m": float(r)} for f, q, r in zip(files, req_m, rmax_m)} if req_in_meta else {}
-        ),
-    }
+    description = f"imrbayes simulate: {model} {pvals}, noise {noise_d['kind']}, seed {seed}" + (
+        "" if generator == "imrbayes" else f", curves by {generator}"
+    )
+    meta = _meta(material or f"synthetic ({model})", description, ph, options, files, req_m, rmax_m, req_in_meta)
     sampling = (
         {"dt_star": dt_star}
         if frame_s is None
@@ -234,6 +226,39 @@ def simulate_cmd(
     syn.write_dataset(out, records, meta, truth)
     if not quiet:
         click.echo(f"wrote {n_exp} experiment(s), meta.json and truth.json to {out}")
+
+
+def _meta(material: str, description: str, physics: dict, options: dict, files, req_m, rmax_m, req_in_meta: bool):
+    """The dataset's meta.json.
+
+    Parameters
+    ----------
+    material, description : str
+        meta.json's ``material`` and ``description`` texts.
+    physics, options : dict
+        The physical constants (SI) and forward-model options the curves were made with.
+    files : list of str
+        The CSV file names, length n_exp.
+    req_m, rmax_m : ndarray, shape (n_exp,)
+        Each experiment's true Req and Rmax [m].
+    req_in_meta : bool
+        Write them per experiment (else Req must be estimated from each record's tail).
+
+    Returns
+    -------
+    dict
+    """
+    return {
+        "material": material,
+        "description": description,
+        "synthetic": True,
+        "truth": "truth.json",
+        "physics": physics,
+        "forward": options,
+        "experiments": (
+            {f: {"Req_m": float(q), "Rmax_m": float(r)} for f, q, r in zip(files, req_m, rmax_m)} if req_in_meta else {}
+        ),
+    }
 
 
 def _curve_maker(fm, generator: str, quiet: bool):
