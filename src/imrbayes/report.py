@@ -795,6 +795,40 @@ def _section_conclusion(run) -> str:
     constrain, and the caveats. Every number comes from summary.json (and compare.json)."""
     s = run["summary"]
     units = _units(s)
+    head = _conclusion_head(s, units)
+    items = _conclusion_scatter(s, units)
+    items.append(_mcmc_words(run))
+    prior_words = prior_sentence(s, units)
+    if prior_words:
+        items.append(esc(prior_words))
+    items += _conclusion_constraints(s)
+    items += _conclusion_nuisances(s)
+    items += _conclusion_caveats(s, units)
+    return (
+        "<h2 id='conclusion'>Conclusion</h2><div class='conclusion'>"
+        + head
+        + "<ul>"
+        + "".join(f"<li>{i}</li>" for i in items)
+        + "</ul></div>"
+    )
+
+
+def _conclusion_head(s: dict, units) -> str:
+    """The conclusion's opening: the gel-level estimate of each parameter (with the truth where known)
+    and the fit check, the check first where the model does not describe the records.
+
+    Parameters
+    ----------
+    s : dict
+        summary.json's content.
+    units
+        The display units of the parameters (:func:`_units`).
+
+    Returns
+    -------
+    str
+        HTML paragraphs.
+    """
     params = s.get("parameters", [])
     est = s["estimate"]
     meth = _method(s)
@@ -819,6 +853,26 @@ def _section_conclusion(run) -> str:
         head = f"<p><b>Gel-level estimate</b> {what}: <b>{'</b>; <b>'.join(phrases)}</b>.</p>"
         if check:
             head += f"<p>{esc(check)}</p>"
+    return head
+
+
+def _conclusion_scatter(s: dict, units) -> list:
+    """The conclusion's items on the bubble-to-bubble spread and a new bubble's predictive range.
+
+    Parameters
+    ----------
+    s : dict
+        summary.json's content.
+    units
+        The display units of the parameters (:func:`_units`).
+
+    Returns
+    -------
+    list of str
+        HTML list items.
+    """
+    params = s.get("parameters", [])
+    n_exp = s.get("n_experiments")
     items = []
     # bubble-to-bubble spread and a new bubble
     be, pred = s.get("between_experiments"), s.get("predictive")
@@ -864,10 +918,26 @@ def _section_conclusion(run) -> str:
             else:
                 bits.append(f"{esc(p)} {_qrange(hd[0], hd[1], p, units)}" if len(hd) == 2 else f"{esc(p)} –")
         items.append("A new bubble of this gel (95 % predictive range): " + "; ".join(bits) + ".")
-    items.append(_mcmc_words(run))
-    prior_words = prior_sentence(s, units)
-    if prior_words:
-        items.append(esc(prior_words))
+    return items
+
+
+def _conclusion_constraints(s: dict) -> list:
+    """The conclusion's items on what the data did not constrain: ridges, each parameter's posterior
+    width against the prior's, windows the data barely moved and prior-dominated windows.
+
+    Parameters
+    ----------
+    s : dict
+        summary.json's content.
+
+    Returns
+    -------
+    list of str
+        HTML list items.
+    """
+    params = s.get("parameters", [])
+    est = s["estimate"]
+    items = []
     # what the data did not constrain
     ratios = constraint_ratios(s)
     ridge = [p for p in params if p not in ratios and (est.get(p) or {}).get("ridge")]
@@ -908,6 +978,25 @@ def _section_conclusion(run) -> str:
             "through the chain of window priors; a linearised lower bound), so a trend that starts in them "
             "is not evidence of time-dependent material (hatched in the parameters figure).</span>"
         )
+    return items
+
+
+def _conclusion_nuisances(s: dict) -> list:
+    """The conclusion's items on Rmax, Req and the time origin estimated per experiment: how Req's
+    prior was centred and where that biases the windows.
+
+    Parameters
+    ----------
+    s : dict
+        summary.json's content.
+
+    Returns
+    -------
+    list of str
+        HTML list items (none without nuisance parameters).
+    """
+    wins = s.get("windows") or []
+    items = []
     per = s.get("per_experiment") or []
     if any(isinstance(x, dict) and x.get("nuisance") for x in per):
         items.append(
@@ -973,6 +1062,29 @@ def _section_conclusion(run) -> str:
                 "flat, both within 5 %). A decline of mu(t) of that size is not evidence of time-dependent "
                 "material; where Req was measured, give it in meta.json (Req_m, Req_sd_m).</span>"
             )
+    return items
+
+
+def _conclusion_caveats(s: dict, units) -> list:
+    """The conclusion's closing items: the caveats (warnings, failures, a gel-level estimate no
+    experiment supports, pIMR's limits) and the fit's RMSE.
+
+    Parameters
+    ----------
+    s : dict
+        summary.json's content.
+    units
+        The display units of the parameters (:func:`_units`).
+
+    Returns
+    -------
+    list of str
+        HTML list items.
+    """
+    params = s.get("parameters", [])
+    est = s["estimate"]
+    meth = _method(s)
+    items = []
     # caveats
     warn = grouped_warnings(_warnings_list(s), params)
     fail = s.get("failures") or {}
@@ -1006,13 +1118,7 @@ def _section_conclusion(run) -> str:
             f"Fit: RMSE {num(fit.get('rmse'), '.3g')} R* [-] (R* = R/Rmax){_rmse_um(s, fit.get('rmse'))} over "
             f"{esc(fit.get('n_samples', '–'))} samples."
         )
-    return (
-        "<h2 id='conclusion'>Conclusion</h2><div class='conclusion'>"
-        + head
-        + "<ul>"
-        + "".join(f"<li>{i}</li>" for i in items)
-        + "</ul></div>"
-    )
+    return items
 
 
 def _no_paths(text: str) -> str:

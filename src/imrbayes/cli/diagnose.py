@@ -142,19 +142,92 @@ def diagnose_cmd(
     helps only where cores are idle: the forward model already spreads its batches over the cores).
     Writes diagnosis.json, report.html and figures."""
     t_start = time.perf_counter()
-    from imrbayes.data import load_dataset, preprocess_dataset
-    from imrbayes.diagnosis import DiagnoseSettings, diagnose
-    from imrbayes.diagnosis.check import min_replicates
-    from imrbayes.diagnosis.figures import write_figures
-    from imrbayes.diagnosis.report import write_report
-    from imrbayes.ensemble import Observations
-    from imrbayes.forward import ForwardOptions
-    from imrbayes.forward.constants import Physics
-    from imrbayes.io import write_json
-
     check_options(workers, scheduler, resume, retry_failed)
     if seed < 0:
         raise InputError("--seed", f"must be a non-negative integer, got {seed}")
+    s = _diagnose_settings(
+        quick=quick,
+        n_bootstrap=n_bootstrap,
+        candidates=candidates,
+        no_loeo=no_loeo,
+        loeo_all=loeo_all,
+        mienks_drift=mienks_drift,
+        stop_when_adequate=stop_when_adequate,
+    )
+    ds, pre, obs, options, physics = _load_inputs(data, camera, experiments, dt_star, n_steps, forward)
+    out = prepare_out(
+        Path(out) if out is not None else None,
+        "diagnose",
+        ds.name,
+        protect=Path(data),
+        force=bool(force),
+        resume=bool(resume),
+    )
+    if options.bubble == "thermal" and not quiet:
+        click.echo(
+            f"imrbayes: note: thermal bubble, scheme={options.scheme}; a diagnosis needs "
+            "O(1e5) solves (tens of minutes for 5 experiments on 2 cores). For exploration use --quick, --forward "
+            "bubble=polytropic, --experiments and --no-loeo.",
+            err=True,
+        )
+    from dataclasses import asdict
+
+    run_config = {
+        "command": "diagnose",
+        "seed": seed,
+        "settings": {**asdict(s), "candidates": list(s.candidates)},
+        "forward": options.to_dict(),
+        "physics": physics.to_dict(),
+        "preprocessing": {"dt_star": dt_star, "n_steps": n_steps, "camera": camera, "experiments": experiments},
+        "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, names=obs.names),
+    }
+    execution_kw = {"workers": workers, "scheduler": scheduler, "resume": resume, "retry_failed": retry_failed}
+    d, exec_summary = _run_diagnosis(out, run_config, execution_kw, s, obs, options, physics, seed, quiet)
+    exec_summary["skipped_experiments"] = list(pre.skipped)
+    res = d.result
+    res["data"] = str(data)
+    res["experiments"] = list(obs.names)
+    res["forward"] = options.to_dict()
+    res["preprocessing"] = pre.to_dict(arrays=False)
+    res["command"] = {"name": "diagnose", "seed": seed, "quick": bool(quick), "imrbayes_version": __version__}
+    res["execution"] = exec_summary
+    res["failures"] = {"skipped_experiments": list(pre.skipped), "failed_units": res.get("failed_units", [])}
+    res["total_runtime_s"] = time.perf_counter() - t_start
+    _write_outputs(d, res, out, ds.name)
+    if not quiet:
+        _echo_result(res, out)
+    echo_execution(exec_summary, quiet)
+    for w in res.get("warnings", []):  # what the diagnosis left out (also in diagnosis.json)
+        click.echo(f"imrbayes: warning: {w}", err=True)
+    if pre.skipped:
+        click.echo(
+            f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
+            + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped),
+            err=True,
+        )
+
+
+def _diagnose_settings(*, quick, n_bootstrap, candidates, no_loeo, loeo_all, mienks_drift, stop_when_adequate):
+    """The diagnosis settings from the command's options (checked).
+
+    Parameters
+    ----------
+    quick : bool
+        ``--quick``: the exploration settings.
+    n_bootstrap : int or None
+        Bootstrap replicates [-] (None: the default).
+    candidates : str or None
+        Comma-separated candidate keys (None: the default candidates).
+    no_loeo, loeo_all, mienks_drift, stop_when_adequate : bool
+        The flags of the same names.
+
+    Returns
+    -------
+    imrbayes.diagnosis.DiagnoseSettings
+        The settings; raises :class:`~imrbayes.errors.InputError` on a bad option.
+    """
+    from imrbayes.diagnosis import DiagnoseSettings
+
     kw = {}
     if n_bootstrap is not None:
         if n_bootstrap < 1:
@@ -178,7 +251,37 @@ def diagnose_cmd(
         kw["mienks_drift"] = True
     if stop_when_adequate:
         kw["compare_when_adequate"] = False
-    s = DiagnoseSettings.quick(**kw) if quick else DiagnoseSettings(**kw)
+    return DiagnoseSettings.quick(**kw) if quick else DiagnoseSettings(**kw)
+
+
+def _load_inputs(data, camera, experiments, dt_star: float, n_steps: int, forward) -> tuple:
+    """Load and preprocess the dataset; the forward options and physical constants of the diagnosis.
+
+    Parameters
+    ----------
+    data : Path
+        The dataset (folder, .csv or .mat).
+    camera, experiments : str or None
+        Camera view selection; 1-based experiment positions.
+    dt_star : float
+        Grid step in t* [-].
+    n_steps : int
+        Grid steps [-].
+    forward : tuple of str
+        ``--forward``'s ``KEY=VALUE`` items (over meta.json's forward block).
+
+    Returns
+    -------
+    tuple
+        ``(ds, pre, obs, options, physics)``: the dataset, its preprocessing, the
+        :class:`~imrbayes.ensemble.Observations`, the :class:`~imrbayes.forward.ForwardOptions` and
+        the :class:`~imrbayes.forward.constants.Physics`.
+    """
+    from imrbayes.data import load_dataset, preprocess_dataset
+    from imrbayes.ensemble import Observations
+    from imrbayes.forward import ForwardOptions
+    from imrbayes.forward.constants import Physics
+
     ds = select_experiments(load_dataset(data, camera=camera), experiments)
     pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, skip_failed=True)
     obs = Observations.from_preprocessed(pre)
@@ -188,21 +291,39 @@ def diagnose_cmd(
     fopts = {**(ds.forward or {}), **key_values(forward, "--forward")}
     options = ForwardOptions.from_dict(fopts, source="forward options")
     physics = Physics.from_overrides(ds.physics or None)
-    out = prepare_out(
-        Path(out) if out is not None else None,
-        "diagnose",
-        ds.name,
-        protect=Path(data),
-        force=bool(force),
-        resume=bool(resume),
-    )
-    if options.bubble == "thermal" and not quiet:
-        click.echo(
-            f"imrbayes: note: thermal bubble, scheme={options.scheme}; a diagnosis needs "
-            "O(1e5) solves (tens of minutes for 5 experiments on 2 cores). For exploration use --quick, --forward "
-            "bubble=polytropic, --experiments and --no-loeo.",
-            err=True,
-        )
+    return ds, pre, obs, options, physics
+
+
+def _run_diagnosis(out: Path, run_config: dict, execution_kw: dict, s, obs, options, physics, seed: int, quiet: bool):
+    """Run the diagnosis under one execution, with a progress bar on a terminal and one line per stage
+    elsewhere.
+
+    Parameters
+    ----------
+    out : Path
+        The output folder (prepared).
+    run_config : dict
+        Everything that determines the numbers (a resumed run must match it).
+    execution_kw : dict
+        ``workers``, ``scheduler``, ``resume``, ``retry_failed`` for :func:`open_execution`.
+    s : imrbayes.diagnosis.DiagnoseSettings
+        The settings.
+    obs, options, physics
+        Observations, forward options and physical constants.
+    seed : int
+        Seed of the bootstrap and every draw.
+    quiet : bool
+        Print nothing but errors.
+
+    Returns
+    -------
+    tuple
+        ``(d, exec_summary)``: the diagnosis (:func:`imrbayes.diagnosis.diagnose`) and the execution
+        summary.
+    """
+    from imrbayes.diagnosis import diagnose
+    from imrbayes.diagnosis.check import min_replicates
+
     show = (not quiet) and sys.stderr.isatty()
     bar = None
     if show:
@@ -211,21 +332,8 @@ def diagnose_cmd(
         bar = progress_bar(
             total=1 + s.n_bootstrap + 2 * len(s.candidates) + 1, unit="steps", desc="diagnose", file=sys.stderr
         )
-    from dataclasses import asdict
-
-    run_config = {
-        "command": "diagnose",
-        "seed": seed,
-        "settings": {**asdict(s), "candidates": list(s.candidates)},
-        "forward": options.to_dict(),
-        "physics": physics.to_dict(),
-        "preprocessing": {"dt_star": dt_star, "n_steps": n_steps, "camera": camera, "experiments": experiments},
-        "data": data_fingerprint(obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, names=obs.names),
-    }
     try:
-        with open_execution(
-            out, run_config, workers=workers, scheduler=scheduler, resume=resume, retry_failed=retry_failed, quiet=True
-        ) as execution:
+        with open_execution(out, run_config, **execution_kw, quiet=True) as execution:
             t_stage = time.perf_counter()
             if s.n_bootstrap < min_replicates(s.alpha) and not quiet:  # again among the run's warnings
                 click.echo(
@@ -253,65 +361,78 @@ def diagnose_cmd(
     finally:
         if bar is not None:
             bar.close()
-    exec_summary["skipped_experiments"] = list(pre.skipped)
-    res = d.result
-    res["data"] = str(data)
-    res["experiments"] = list(obs.names)
-    res["forward"] = options.to_dict()
-    res["preprocessing"] = pre.to_dict(arrays=False)
-    res["command"] = {"name": "diagnose", "seed": seed, "quick": bool(quick), "imrbayes_version": __version__}
-    res["execution"] = exec_summary
-    res["failures"] = {"skipped_experiments": list(pre.skipped), "failed_units": res.get("failed_units", [])}
-    res["total_runtime_s"] = time.perf_counter() - t_start
+    return d, exec_summary
+
+
+def _write_outputs(d, res: dict, out: Path, name: str) -> None:
+    """Write the figures, diagnosis.json and report.html.
+
+    Parameters
+    ----------
+    d
+        The diagnosis (:func:`imrbayes.diagnosis.diagnose`; its figures' data).
+    res : dict
+        diagnosis.json's content.
+    out : Path
+        The output folder.
+    name : str
+        The dataset's name (the report's title).
+    """
+    from imrbayes.diagnosis.figures import write_figures
+    from imrbayes.diagnosis.report import write_report
+    from imrbayes.io import write_json
+
     figs = write_figures(d, out / "figures")
     write_json(out / "diagnosis.json", res)
-    write_report(res, figs, out / "report.html", title=f"imrbayes diagnose: {ds.name}")
-    if not quiet:
-        from imrbayes.diagnosis.check import p_value_text
+    write_report(res, figs, out / "report.html", title=f"imrbayes diagnose: {name}")
 
-        chk = res["constant_parameter_check"]
-        g = res.get("gain") or {}
-        click.echo(
-            f"constant-parameter check: {chk['verdict']} ({p_value_text(chk['evidence'])}); "
-            f"cause: {res['cause']}; extended model: {res['extended_model']}"
-        )
-        if res.get("cause_note"):
-            click.echo(f"cause: {res['cause_note']}")
-        if g:
-            click.echo(
-                f"held-out RMSE ({g.get('candidate')}, {g.get('heldout_scheme')}): baseline "
-                f"{g['heldout_rmse_baseline']:.4g} -> {g['heldout_rmse_extended']:.4g}; ELPD diff "
-                f"{g['elpd_diff']:.1f} ± {g['elpd_se']:.1f}"
-            )
-        from imrbayes.diagnosis.sensitivity import flagged, options_text
 
-        for a in flagged(res.get("bubble_model_sensitivity")):
-            moved = ", ".join(f"{n} {a['shift'][n]:+.0%}" for n in a["material_moves"])
-            click.echo(
-                f"bubble-model sensitivity: with {options_text(a)} (not separated by the held-out data, "
-                f"{a['separation_se']:.1f} SE) the material estimate moves: {moved}"
-            )
-        rc = (res.get("baseline") or {}).get("req_consistency") or {}
-        if rc.get("flagged"):
-            click.echo(
-                f"Req conflict: in {rc['n_conflict']} of {rc['n_estimated']} experiments the baseline's Req lies "
-                f"more than {rc['bound']:g} tail sd from the record's own (median |z| {rc['median_abs_z']:.3g}): "
-                "the model fits the collapses with another bubble than the one filmed"
-            )
-        ac = (res.get("baseline") or {}).get("alignment_consistency") or {}
-        if ac.get("flagged"):
-            click.echo(
-                f"alignment conflict: in {ac['n_conflict']} of {ac['n_estimated']} experiments the baseline's Rmax or "
-                f"time of the maximum lies more than {ac['bound']:g} sd from the local fit of the maximum (median |z| "
-                f"{ac['median_abs_z_rmax']:.3g} / {ac['median_abs_z_t0']:.3g}): model error absorbed by the alignment"
-            )
-        click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")
-    echo_execution(exec_summary, quiet)
-    for w in res.get("warnings", []):  # what the diagnosis left out (also in diagnosis.json)
-        click.echo(f"imrbayes: warning: {w}", err=True)
-    if pre.skipped:
+def _echo_result(res: dict, out: Path) -> None:
+    """Print the check's verdict, the cause, the held-out gain, the sensitivity and consistency flags
+    and the files written.
+
+    Parameters
+    ----------
+    res : dict
+        diagnosis.json's content.
+    out : Path
+        The output folder.
+    """
+    from imrbayes.diagnosis.check import p_value_text
+    from imrbayes.diagnosis.sensitivity import flagged, options_text
+
+    chk = res["constant_parameter_check"]
+    g = res.get("gain") or {}
+    click.echo(
+        f"constant-parameter check: {chk['verdict']} ({p_value_text(chk['evidence'])}); "
+        f"cause: {res['cause']}; extended model: {res['extended_model']}"
+    )
+    if res.get("cause_note"):
+        click.echo(f"cause: {res['cause_note']}")
+    if g:
         click.echo(
-            f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
-            + "; ".join(f"{x['name']}: {x['error']}" for x in pre.skipped),
-            err=True,
+            f"held-out RMSE ({g.get('candidate')}, {g.get('heldout_scheme')}): baseline "
+            f"{g['heldout_rmse_baseline']:.4g} -> {g['heldout_rmse_extended']:.4g}; ELPD diff "
+            f"{g['elpd_diff']:.1f} ± {g['elpd_se']:.1f}"
         )
+    for a in flagged(res.get("bubble_model_sensitivity")):
+        moved = ", ".join(f"{n} {a['shift'][n]:+.0%}" for n in a["material_moves"])
+        click.echo(
+            f"bubble-model sensitivity: with {options_text(a)} (not separated by the held-out data, "
+            f"{a['separation_se']:.1f} SE) the material estimate moves: {moved}"
+        )
+    rc = (res.get("baseline") or {}).get("req_consistency") or {}
+    if rc.get("flagged"):
+        click.echo(
+            f"Req conflict: in {rc['n_conflict']} of {rc['n_estimated']} experiments the baseline's Req lies "
+            f"more than {rc['bound']:g} tail sd from the record's own (median |z| {rc['median_abs_z']:.3g}): "
+            "the model fits the collapses with another bubble than the one filmed"
+        )
+    ac = (res.get("baseline") or {}).get("alignment_consistency") or {}
+    if ac.get("flagged"):
+        click.echo(
+            f"alignment conflict: in {ac['n_conflict']} of {ac['n_estimated']} experiments the baseline's Rmax or "
+            f"time of the maximum lies more than {ac['bound']:g} sd from the local fit of the maximum (median |z| "
+            f"{ac['median_abs_z_rmax']:.3g} / {ac['median_abs_z_t0']:.3g}): model error absorbed by the alignment"
+        )
+    click.echo(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'} ({res['total_runtime_s']:.0f} s)")

@@ -263,239 +263,60 @@ def fit_cmd(
     --forward bubble=polytropic the fast one); --mcmc adds minutes to hours (see --mcmc).
     """
     t_start = time.perf_counter()
-    argv = command_line(click.get_current_context())
     cfg = _load_config(config)
-
-    def pick(name, value, default):
-        return value if value is not None else cfg.get(name, default)
-
-    method = pick("method", method, None)
-    if method is None:
-        raise InputError("--method", f"choose one of {', '.join(METHOD_NAMES)}")
-    if method not in METHOD_NAMES:
-        raise InputError("--method", f"unknown method {method!r}; choose one of {', '.join(METHOD_NAMES)}")
-    model = pick("model", model, "nhkv")
-    seed = pick("seed", seed, 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise InputError("--seed", f"must be a non-negative integer, got {seed!r}")
-    workers = pick("workers", workers, 1)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InputError("--workers", f"must be a positive integer, got {workers!r}")
-    scheduler = pick("scheduler", scheduler, None)
-    check_options(workers, scheduler, resume, retry_failed)
-    quiet = bool(pick("quiet", quiet, False))
-    camera = pick("camera", camera, None)
-    experiments = pick("experiments", experiments, None)
-    dt_star = float(pick("dt_star", dt_star, 0.025))
-    n_steps = int(pick("n_steps", n_steps, 120))
-    noise = pick("noise", noise, "auto")
-    out = pick("out", out, None)
-    mcmc = bool(pick("mcmc", mcmc, False))
-    mcmc_cfg = dict(cfg.get("mcmc_table") or {})
-    mcmc_windows = _window_list(pick("mcmc_windows", mcmc_windows, mcmc_cfg.pop("windows", None)))
-    if (mcmc_settings or mcmc_windows is not None) and not mcmc:
-        raise InputError("--mcmc-set" if mcmc_settings else "--mcmc-windows", "needs --mcmc")
-    meth = METHODS[method]
-    if mcmc and not meth.gaussian_posterior:
-        checkable = " or ".join(m.name for m in METHODS.values() if m.gaussian_posterior)
-        raise InputError("--mcmc", f"needs --method {checkable} (a Gaussian posterior to check), got {method}")
-
-    from imrbayes.data import load_dataset, preprocess_dataset
-    from imrbayes.ensemble import Observations, ParamSpace
-    from imrbayes.forward import ForwardModel, ForwardOptions, Runner
-
-    s = method_settings(
-        meth.settings_class,
-        cfg.get(method, {}),
-        {**key_values(cfg.get("set", []), "--config set"), **key_values(settings, "--set")},
-    )
-    likelihood = pick("likelihood", likelihood, None)
-    if likelihood is not None:
-        if not any(f.name == "likelihood" for f in dataclasses.fields(s)):
-            if likelihood != "default":
-                raise InputError(
-                    "--likelihood", f"applies to methods with a likelihood choice; {method} has one observation model"
-                )
-        else:
-            s = dataclasses.replace(s, likelihood=likelihood)
-    prior_base, priors = prior_base_name(priors, cfg.get("prior_name"), likelihood)
+    given = {
+        "method": method,
+        "model": model,
+        "seed": seed,
+        "workers": workers,
+        "scheduler": scheduler,
+        "quiet": quiet,
+        "camera": camera,
+        "experiments": experiments,
+        "dt_star": dt_star,
+        "n_steps": n_steps,
+        "noise": noise,
+        "out": out,
+        "mcmc": mcmc,
+        "mcmc_windows": mcmc_windows,
+        "likelihood": likelihood,
+    }
+    invocation = {
+        "data": data,
+        "config": config,
+        "resume": resume,
+        "retry_failed": retry_failed,
+        "force": force,
+        "argv": command_line(click.get_current_context()),
+    }
+    opts = _resolve_options(cfg, given, invocation, mcmc_settings)
+    meth = METHODS[opts.method]
+    s = _fit_settings(opts, cfg, settings)
+    prior_base, priors = prior_base_name(priors, cfg.get("prior_name"), opts.likelihood)
     prior = prior_overrides(cfg.get("prior", {}), key_values(priors, "--prior"))
-    mcmc_s = None
-    if mcmc:
-        from imrbayes.mcmc import MCMCSettings
-
-        mcmc_s = method_settings(
-            MCMCSettings,
-            mcmc_cfg,
-            {**key_values(cfg.get("mcmc_set", []), "--config mcmc_set"), **key_values(mcmc_settings, "--mcmc-set")},
-            "--mcmc-set",
-        )
-    ds = select_experiments(load_dataset(data, camera=camera), experiments)
-    pre = preprocess_dataset(ds, dt_star=dt_star, n_steps=n_steps, noise=noise, skip_failed=True)
-    fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **key_values(forward, "--forward")}
-    fm = ForwardModel(
-        model, options=ForwardOptions.from_dict(fopts, source="forward options"), physics_overrides=ds.physics or None
-    )
-    obs = Observations.from_preprocessed(pre)
-    space = ParamSpace.for_model(fm.constitutive, prior, base=prior_base)
+    mcmc_s = _mcmc_settings(opts, cfg, mcmc_settings)
+    ds, pre, fm, obs, space = _load_inputs(opts, cfg, forward, prior, prior_base)
     meth.check_settings(s, obs)  # before any output: a refused --set leaves no folder behind
     if mcmc_s is not None:
         mcmc_s.check(space.n)  # before the fit: a bad walker count must not cost a fit
     out = prepare_out(
-        Path(out) if out is not None else None,
-        f"fit-{method}",
+        Path(opts.out) if opts.out is not None else None,
+        f"fit-{opts.method}",
         ds.name,
         protect=Path(data),
         force=bool(force),
         resume=bool(resume),
     )
-    # everything that determines the numbers (and nothing that does not: workers, scheduler, --out, --quiet)
-    run_config = {
-        "command": "fit",
-        "method": method,
-        "model": model,
-        "seed": seed,
-        "settings": dataclasses.asdict(s),
-        "prior": space.describe(),
-        "forward": fm.describe(),
-        "preprocessing": {
-            "dt_star": dt_star,
-            "n_steps": n_steps,
-            "noise": noise,
-            "camera": camera,
-            **({"experiments": experiments} if experiments else {}),
-        },
-        "data": data_fingerprint(
-            obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, obs.t_collapse_star, names=obs.names
-        ),
-        "skipped_experiments": [x["name"] for x in pre.skipped],
-    }
-    if mcmc:
-        run_config["mcmc"] = {"settings": dataclasses.asdict(mcmc_s), "windows": mcmc_windows}
-    runner = Runner(fm)
-    compare = None
-    with open_execution(
-        out,
-        run_config,
-        workers=workers,
-        scheduler=scheduler,
-        resume=resume,
-        retry_failed=retry_failed,
-        quiet=quiet,
-        desc=method,
-    ) as execution:
-        n_units, what = planned_units(meth, s, obs.n_exp, obs.n_samples - 1, fm)
-        if what and execution.bar is not None:
-            execution.bar.write(f"imrbayes: {method}: {n_units} units ({what})", file=sys.stderr)
-        search = None
-        if meth.global_start(s, space):
-            search = global_search(fm, obs, runner, progress=None if quiet else _stage_line)
-            space = space.with_start(*search.start(space))
-        plan(execution.bar, n_units, method)
-        res = meth.fit(fm, obs, space, s, seed=seed, runner=runner, execution=execution)
-        finish(execution.bar)
-        adequacy = _adequacy(res, obs, space, model, search)
-        if mcmc:
-            # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
-            _write_fit(
-                out,
-                res,
-                obs,
-                pre,
-                fm,
-                space,
-                seed,
-                method,
-                model,
-                workers,
-                scheduler,
-                resume,
-                config,
-                data,
-                execution.summary(),
-                t_start,
-                quiet=True,
-                argv=argv,
-                adequacy=adequacy,
-            )
-            if not quiet:
-                click.echo(f"{method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
-            from imrbayes.mcmc.fit import run_fit_mcmc
-
-            n_win = len(getattr(res, "window_posteriors", None) or []) or 1
-            n_win = n_win if mcmc_windows is None else len([w for w in mcmc_windows if w < n_win]) or 1
-            plan(execution.bar, n_win, "emcee windows")
-            compare = run_fit_mcmc(
-                fm,
-                obs,
-                space,
-                res,
-                out,
-                mcmc_s,
-                seed,
-                execution=execution,
-                runner=runner,
-                windows=mcmc_windows,
-                warn=None if quiet else (lambda w: click.echo(f"imrbayes: warning: {w}", err=True)),
-            )
-        exec_summary = execution.summary()
-    written = _write_fit(
-        out,
-        res,
-        obs,
-        pre,
-        fm,
-        space,
-        seed,
-        method,
-        model,
-        workers,
-        scheduler,
-        resume,
-        config,
-        data,
-        exec_summary,
-        t_start,
-        quiet=quiet,
-        compare=compare,
-        argv=argv,
-        adequacy=adequacy,
+    run_config = _run_config(opts, s, space, fm, obs, pre, mcmc_s)
+    res, space, adequacy, compare, exec_summary = _execute(
+        opts, out, run_config, s, fm, obs, space, pre, mcmc_s, t_start
     )
-    if not quiet:
-        from imrbayes.io import read_json
-        from imrbayes.report import fit_check_sentence, grouped_warnings
-
-        summary = read_json(out / "summary.json", required=True)  # what the lead's checks added to it
-        for w in grouped_warnings(list(pre.warnings) + list(res.warnings), res.param_names):
-            click.echo(f"imrbayes: warning: {w}", err=True)  # warnings first: they qualify the result
-        check = fit_check_sentence(summary)
-        if check and (summary.get("fit_check") or {}).get("described") is False:
-            click.echo(check)
-        click.echo(
-            f"{method} ({model}, {obs.n_exp} experiment(s)): {estimate_text(summary['estimate'], summary)}; "
-            f"rmse {res.rmse:.3g} R* [-] ({res.rmse * _mean_rmax_um(obs):.3g} µm); {res.runtime_s:.1f} s"
-        )
-        if check and (summary.get("fit_check") or {}).get("described") is not False:
-            click.echo(check)
-        click.echo(constants_line(fm.physics, ds.physics or {}))
-        extra = ", mcmc.nc, compare.json" if compare is not None else ""
-        tables = ", time_resolved.csv" if (out / "time_resolved.csv").exists() else ""
-        click.echo(
-            f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}, estimate.csv{tables}{extra} and "
-            f"{len(written)} figure(s)"
-        )
-        if compare is not None:
-            click.echo(compare_line(compare))
+    written = _write_fit(out, res, obs, pre, fm, space, opts, exec_summary, t_start, compare=compare, adequacy=adequacy)
+    if not opts.quiet:
+        _echo_result(opts, out, res, obs, pre, fm, ds, compare, written)
     if compare is not None:
-        for f in compare["overall"].get("failed_windows", []):
-            click.echo(f"imrbayes: warning: MCMC of window {f['window']} failed: {f['error']}", err=True)
-        for e in compare["windows"]:
-            for c, err in ((e.get("mcmc") or {}).get("sampler") or {}).get("failed_chains", {}).items():
-                click.echo(
-                    f"imrbayes: warning: MCMC window {e['index']}: emcee ensemble {c} failed and was left out: {err}",
-                    err=True,
-                )
-    echo_execution(exec_summary, quiet)
+        _echo_mcmc_failures(compare)
+    echo_execution(exec_summary, opts.quiet)
     if pre.skipped:
         click.echo(
             f"imrbayes: warning: {len(pre.skipped)} experiment(s) left out (preprocessing failed): "
@@ -505,6 +326,464 @@ def fit_cmd(
 
 
 next(p for p in fit_cmd.params if p.name == "settings").help = set_help()
+
+
+@dataclasses.dataclass(frozen=True)
+class FitOptions:
+    """``fit``'s options once resolved: the command line wins over ``--config``, which wins over the
+    default; plus how the command was invoked (what summary.json records of it).
+
+    Attributes
+    ----------
+    method, model : str
+        Inference method and constitutive model names.
+    seed, workers : int
+        Seed of every random draw; worker processes.
+    scheduler : str or None
+        Execution scheduler.
+    quiet : bool
+        Print nothing but errors.
+    camera, experiments : str or None
+        Camera view selection; 1-based experiment positions.
+    dt_star : float
+        Grid step in t* [-].
+    n_steps : int
+        Grid steps [-].
+    noise : str
+        Observation-noise choice of the paper likelihood.
+    out : str, Path or None
+        Output folder as given (None: a new one).
+    mcmc : bool
+        Also sample the window posteriors with emcee.
+    mcmc_table : dict
+        ``[fit.mcmc]``'s MCMC settings, its ``windows`` key removed.
+    mcmc_windows : list of int or None
+        Windows to sample (None: all).
+    likelihood : str or None
+        ``default`` or ``paper`` (None: the method's own).
+    data : Path
+        The dataset (folder, .csv or .mat).
+    config : Path or None
+        The ``--config`` file.
+    resume, retry_failed, force : bool
+        Execution and output-folder flags.
+    argv : list of str
+        The command line as typed.
+    """
+
+    method: str
+    model: str
+    seed: int
+    workers: int
+    scheduler: str | None
+    quiet: bool
+    camera: str | None
+    experiments: str | None
+    dt_star: float
+    n_steps: int
+    noise: str
+    out: object
+    mcmc: bool
+    mcmc_table: dict
+    mcmc_windows: list | None
+    likelihood: str | None
+    data: Path
+    config: Path | None
+    resume: bool
+    retry_failed: bool
+    force: bool
+    argv: list
+
+
+def _resolve_options(cfg: dict, given: dict, invocation: dict, mcmc_settings) -> FitOptions:
+    """Resolve ``fit``'s options: the command line's value, else ``--config``'s, else the default; check them.
+
+    Parameters
+    ----------
+    cfg : dict
+        ``--config``'s ``[fit]`` table as :func:`_load_config` reads it.
+    given : dict
+        The command line's option values by name (None: not given).
+    invocation : dict
+        ``data``, ``config``, ``resume``, ``retry_failed``, ``force`` and ``argv`` as given.
+    mcmc_settings : tuple of str
+        ``--mcmc-set``'s ``KEY=VALUE`` items (they need ``--mcmc``).
+
+    Returns
+    -------
+    FitOptions
+        The resolved options; raises :class:`~imrbayes.errors.InputError` on a bad one.
+    """
+
+    def pick(name, default):
+        value = given.get(name)
+        return value if value is not None else cfg.get(name, default)
+
+    method = pick("method", None)
+    if method is None:
+        raise InputError("--method", f"choose one of {', '.join(METHOD_NAMES)}")
+    if method not in METHOD_NAMES:
+        raise InputError("--method", f"unknown method {method!r}; choose one of {', '.join(METHOD_NAMES)}")
+    model = pick("model", "nhkv")
+    seed = pick("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise InputError("--seed", f"must be a non-negative integer, got {seed!r}")
+    workers = pick("workers", 1)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InputError("--workers", f"must be a positive integer, got {workers!r}")
+    scheduler = pick("scheduler", None)
+    check_options(workers, scheduler, invocation["resume"], invocation["retry_failed"])
+    quiet = bool(pick("quiet", False))
+    camera = pick("camera", None)
+    experiments = pick("experiments", None)
+    dt_star = float(pick("dt_star", 0.025))
+    n_steps = int(pick("n_steps", 120))
+    noise = pick("noise", "auto")
+    out = pick("out", None)
+    mcmc = bool(pick("mcmc", False))
+    mcmc_table = dict(cfg.get("mcmc_table") or {})
+    mcmc_windows = _window_list(pick("mcmc_windows", mcmc_table.pop("windows", None)))
+    if (mcmc_settings or mcmc_windows is not None) and not mcmc:
+        raise InputError("--mcmc-set" if mcmc_settings else "--mcmc-windows", "needs --mcmc")
+    if mcmc and not METHODS[method].gaussian_posterior:
+        checkable = " or ".join(m.name for m in METHODS.values() if m.gaussian_posterior)
+        raise InputError("--mcmc", f"needs --method {checkable} (a Gaussian posterior to check), got {method}")
+    return FitOptions(
+        method=method,
+        model=model,
+        seed=seed,
+        workers=workers,
+        scheduler=scheduler,
+        quiet=quiet,
+        camera=camera,
+        experiments=experiments,
+        dt_star=dt_star,
+        n_steps=n_steps,
+        noise=noise,
+        out=out,
+        mcmc=mcmc,
+        mcmc_table=mcmc_table,
+        mcmc_windows=mcmc_windows,
+        likelihood=pick("likelihood", None),
+        **invocation,
+    )
+
+
+def _fit_settings(opts: FitOptions, cfg: dict, settings):
+    """The method's settings from ``[fit.<method>]``, ``[fit] set`` and ``--set`` (in rising precedence),
+    with ``--likelihood`` applied.
+
+    Parameters
+    ----------
+    opts : FitOptions
+        The resolved options (method, likelihood).
+    cfg : dict
+        ``--config``'s ``[fit]`` table.
+    settings : tuple of str
+        ``--set``'s ``KEY=VALUE`` items.
+
+    Returns
+    -------
+    dataclass
+        An instance of the method's settings class.
+    """
+    meth = METHODS[opts.method]
+    s = method_settings(
+        meth.settings_class,
+        cfg.get(opts.method, {}),
+        {**key_values(cfg.get("set", []), "--config set"), **key_values(settings, "--set")},
+    )
+    if opts.likelihood is not None:
+        if not any(f.name == "likelihood" for f in dataclasses.fields(s)):
+            if opts.likelihood != "default":
+                raise InputError(
+                    "--likelihood",
+                    f"applies to methods with a likelihood choice; {opts.method} has one observation model",
+                )
+        else:
+            s = dataclasses.replace(s, likelihood=opts.likelihood)
+    return s
+
+
+def _mcmc_settings(opts: FitOptions, cfg: dict, mcmc_settings):
+    """The emcee settings of ``--mcmc`` from ``[fit.mcmc]``, ``[fit] mcmc_set`` and ``--mcmc-set``.
+
+    Parameters
+    ----------
+    opts : FitOptions
+        The resolved options (mcmc, mcmc_table).
+    cfg : dict
+        ``--config``'s ``[fit]`` table.
+    mcmc_settings : tuple of str
+        ``--mcmc-set``'s ``KEY=VALUE`` items.
+
+    Returns
+    -------
+    imrbayes.mcmc.MCMCSettings or None
+        None without ``--mcmc``.
+    """
+    if not opts.mcmc:
+        return None
+    from imrbayes.mcmc import MCMCSettings
+
+    return method_settings(
+        MCMCSettings,
+        opts.mcmc_table,
+        {**key_values(cfg.get("mcmc_set", []), "--config mcmc_set"), **key_values(mcmc_settings, "--mcmc-set")},
+        "--mcmc-set",
+    )
+
+
+def _load_inputs(opts: FitOptions, cfg: dict, forward, prior: dict, prior_base: str) -> tuple:
+    """Load and preprocess the dataset and build the forward model, observations and parameter space.
+
+    Parameters
+    ----------
+    opts : FitOptions
+        The resolved options (data, camera, experiments, dt_star, n_steps, noise, model).
+    cfg : dict
+        ``--config``'s ``[fit]`` table (its ``forward`` table).
+    forward : tuple of str
+        ``--forward``'s ``KEY=VALUE`` items (over meta.json's and the config's forward options).
+    prior : dict
+        Prior overrides ``{name: (mean, sd)}`` in SI units.
+    prior_base : str
+        The named base prior (``wide``, ``paper``).
+
+    Returns
+    -------
+    tuple
+        ``(ds, pre, fm, obs, space)``: the dataset, its preprocessing, the
+        :class:`~imrbayes.forward.ForwardModel`, the :class:`~imrbayes.ensemble.Observations` and the
+        :class:`~imrbayes.ensemble.ParamSpace`.
+    """
+    from imrbayes.data import load_dataset, preprocess_dataset
+    from imrbayes.ensemble import Observations, ParamSpace
+    from imrbayes.forward import ForwardModel, ForwardOptions
+
+    ds = select_experiments(load_dataset(opts.data, camera=opts.camera), opts.experiments)
+    pre = preprocess_dataset(ds, dt_star=opts.dt_star, n_steps=opts.n_steps, noise=opts.noise, skip_failed=True)
+    fopts = {**(ds.forward or {}), **(cfg.get("forward") or {}), **key_values(forward, "--forward")}
+    fm = ForwardModel(
+        opts.model,
+        options=ForwardOptions.from_dict(fopts, source="forward options"),
+        physics_overrides=ds.physics or None,
+    )
+    obs = Observations.from_preprocessed(pre)
+    space = ParamSpace.for_model(fm.constitutive, prior, base=prior_base)
+    return ds, pre, fm, obs, space
+
+
+def _run_config(opts: FitOptions, s, space, fm, obs, pre, mcmc_s) -> dict:
+    """The run's configuration: everything that determines the numbers (and nothing that does not:
+    workers, scheduler, --out, --quiet), which a resumed run must match.
+
+    Parameters
+    ----------
+    opts : FitOptions
+        The resolved options.
+    s : dataclass
+        The method's settings.
+    space, fm, obs, pre
+        Parameter space, forward model, observations and preprocessing of the run.
+    mcmc_s : imrbayes.mcmc.MCMCSettings or None
+        The emcee settings (None without ``--mcmc``).
+
+    Returns
+    -------
+    dict
+        JSON-ready configuration.
+    """
+    run_config = {
+        "command": "fit",
+        "method": opts.method,
+        "model": opts.model,
+        "seed": opts.seed,
+        "settings": dataclasses.asdict(s),
+        "prior": space.describe(),
+        "forward": fm.describe(),
+        "preprocessing": {
+            "dt_star": opts.dt_star,
+            "n_steps": opts.n_steps,
+            "noise": opts.noise,
+            "camera": opts.camera,
+            **({"experiments": opts.experiments} if opts.experiments else {}),
+        },
+        "data": data_fingerprint(
+            obs.t_star, obs.R_star, obs.P, obs.rmax_m, obs.req_m, obs.t_collapse_star, names=obs.names
+        ),
+        "skipped_experiments": [x["name"] for x in pre.skipped],
+    }
+    if opts.mcmc:
+        run_config["mcmc"] = {"settings": dataclasses.asdict(mcmc_s), "windows": opts.mcmc_windows}
+    return run_config
+
+
+def _execute(opts: FitOptions, out: Path, run_config: dict, s, fm, obs, space, pre, mcmc_s, t_start: float) -> tuple:
+    """Run the fit (after the global search where the method asks for one) and, with ``--mcmc``, the
+    emcee sampling of its windows, under one execution (resumable units, progress bar).
+
+    Parameters
+    ----------
+    opts : FitOptions
+        The resolved options.
+    out : Path
+        The output folder (prepared).
+    run_config : dict
+        The run's configuration (:func:`_run_config`).
+    s : dataclass
+        The method's settings.
+    fm, obs, space, pre
+        Forward model, observations, parameter space and preprocessing.
+    mcmc_s : imrbayes.mcmc.MCMCSettings or None
+        The emcee settings (None without ``--mcmc``).
+    t_start : float
+        ``time.perf_counter()`` at the command's start [s].
+
+    Returns
+    -------
+    tuple
+        ``(res, space, adequacy, compare, exec_summary)``: the method's result, the parameter space
+        (with the global search's start where one ran), :func:`_adequacy`'s dict, the MCMC comparison
+        (None without ``--mcmc``) and the execution summary.
+    """
+    from imrbayes.forward import Runner
+
+    meth = METHODS[opts.method]
+    runner = Runner(fm)
+    compare = None
+    with open_execution(
+        out,
+        run_config,
+        workers=opts.workers,
+        scheduler=opts.scheduler,
+        resume=opts.resume,
+        retry_failed=opts.retry_failed,
+        quiet=opts.quiet,
+        desc=opts.method,
+    ) as execution:
+        n_units, what = planned_units(meth, s, obs.n_exp, obs.n_samples - 1, fm)
+        if what and execution.bar is not None:
+            execution.bar.write(f"imrbayes: {opts.method}: {n_units} units ({what})", file=sys.stderr)
+        search = None
+        if meth.global_start(s, space):
+            search = global_search(fm, obs, runner, progress=None if opts.quiet else _stage_line)
+            space = space.with_start(*search.start(space))
+        plan(execution.bar, n_units, opts.method)
+        res = meth.fit(fm, obs, space, s, seed=opts.seed, runner=runner, execution=execution)
+        finish(execution.bar)
+        adequacy = _adequacy(res, obs, space, opts.model, search)
+        if opts.mcmc:
+            # the fit's own files first: an interrupted or failed MCMC phase leaves a complete fit behind
+            _write_fit(out, res, obs, pre, fm, space, opts, execution.summary(), t_start, adequacy=adequacy)
+            if not opts.quiet:
+                click.echo(f"{opts.method} done in {res.runtime_s:.1f} s; sampling the window posteriors with emcee")
+            compare = _sample_windows(opts, out, res, fm, obs, space, mcmc_s, execution, runner)
+        exec_summary = execution.summary()
+    return res, space, adequacy, compare, exec_summary
+
+
+def _sample_windows(opts: FitOptions, out: Path, res, fm, obs, space, mcmc_s, execution, runner) -> dict:
+    """``--mcmc``: sample every chosen window's posterior with emcee and compare it with the fit's Gaussian.
+
+    Parameters
+    ----------
+    opts : FitOptions
+        The resolved options (mcmc_windows, seed, quiet).
+    out : Path
+        The output folder (mcmc.nc, compare.json, figures).
+    res
+        The method's result (its window posteriors).
+    fm, obs, space
+        Forward model, observations and parameter space of the fit.
+    mcmc_s : imrbayes.mcmc.MCMCSettings
+        The emcee settings.
+    execution, runner
+        The open execution and the forward runner of the fit.
+
+    Returns
+    -------
+    dict
+        The comparison (``compare.json``'s content, plus its figures' paths).
+    """
+    from imrbayes.mcmc.fit import run_fit_mcmc
+
+    n_win = len(getattr(res, "window_posteriors", None) or []) or 1
+    n_win = n_win if opts.mcmc_windows is None else len([w for w in opts.mcmc_windows if w < n_win]) or 1
+    plan(execution.bar, n_win, "emcee windows")
+    return run_fit_mcmc(
+        fm,
+        obs,
+        space,
+        res,
+        out,
+        mcmc_s,
+        opts.seed,
+        execution=execution,
+        runner=runner,
+        windows=opts.mcmc_windows,
+        warn=None if opts.quiet else (lambda w: click.echo(f"imrbayes: warning: {w}", err=True)),
+    )
+
+
+def _echo_result(opts: FitOptions, out: Path, res, obs, pre, fm, ds, compare, written: list) -> None:
+    """Print the fit's warnings, its estimate and check, the constants it rests on and the files written.
+
+    Parameters
+    ----------
+    opts : FitOptions
+        The resolved options (method, model).
+    out : Path
+        The output folder (its summary.json is read back: the checks added to it).
+    res, obs, pre, fm, ds
+        The method's result, observations, preprocessing, forward model and dataset.
+    compare : dict or None
+        The MCMC comparison (None without ``--mcmc``).
+    written : list of Path
+        The figures written.
+    """
+    from imrbayes.io import read_json
+    from imrbayes.report import fit_check_sentence, grouped_warnings
+
+    summary = read_json(out / "summary.json", required=True)  # what the lead's checks added to it
+    for w in grouped_warnings(list(pre.warnings) + list(res.warnings), res.param_names):
+        click.echo(f"imrbayes: warning: {w}", err=True)  # warnings first: they qualify the result
+    check = fit_check_sentence(summary)
+    if check and (summary.get("fit_check") or {}).get("described") is False:
+        click.echo(check)
+    click.echo(
+        f"{opts.method} ({opts.model}, {obs.n_exp} experiment(s)): {estimate_text(summary['estimate'], summary)}; "
+        f"rmse {res.rmse:.3g} R* [-] ({res.rmse * _mean_rmax_um(obs):.3g} µm); {res.runtime_s:.1f} s"
+    )
+    if check and (summary.get("fit_check") or {}).get("described") is not False:
+        click.echo(check)
+    click.echo(constants_line(fm.physics, ds.physics or {}))
+    extra = ", mcmc.nc, compare.json" if compare is not None else ""
+    tables = ", time_resolved.csv" if (out / "time_resolved.csv").exists() else ""
+    click.echo(
+        f"wrote {out / 'summary.json'}, {out / 'posterior.nc'}, estimate.csv{tables}{extra} and "
+        f"{len(written)} figure(s)"
+    )
+    if compare is not None:
+        click.echo(compare_line(compare))
+
+
+def _echo_mcmc_failures(compare: dict) -> None:
+    """Warn of every MCMC window that failed and every emcee ensemble left out.
+
+    Parameters
+    ----------
+    compare : dict
+        The MCMC comparison (``compare.json``'s content).
+    """
+    for f in compare["overall"].get("failed_windows", []):
+        click.echo(f"imrbayes: warning: MCMC of window {f['window']} failed: {f['error']}", err=True)
+    for e in compare["windows"]:
+        for c, err in ((e.get("mcmc") or {}).get("sampler") or {}).get("failed_chains", {}).items():
+            click.echo(
+                f"imrbayes: warning: MCMC window {e['index']}: emcee ensemble {c} failed and was left out: {err}",
+                err=True,
+            )
 
 
 def _mean_rmax_um(obs) -> float:
@@ -548,26 +827,7 @@ def _adequacy(res, obs, space, model, search) -> dict:
 
 
 def _write_fit(
-    out,
-    res,
-    obs,
-    pre,
-    fm,
-    space,
-    seed,
-    method,
-    model,
-    workers,
-    scheduler,
-    resume,
-    config,
-    data,
-    exec_summary,
-    t_start,
-    quiet,
-    compare=None,
-    argv=None,
-    adequacy=None,
+    out, res, obs, pre, fm, space, opts: FitOptions, exec_summary, t_start, compare=None, adequacy=None
 ) -> list:
     """summary.json, posterior.nc, estimate.csv (and time_resolved.csv where the method resolves
     time) and the method's figures; returns the figure paths."""
@@ -592,25 +852,25 @@ def _write_fit(
     summary = summary_dict(
         res,
         obs,
-        seed=seed,
+        seed=opts.seed,
         extra={
             **checks,
             "forward": fm.describe(),
             "prior": prior,
             "preprocessing": pre.to_dict(arrays=False),
-            "data": str(data),
+            "data": str(opts.data),
             "warnings_preprocessing": list(pre.warnings),
             "command": {
                 "name": "fit",
-                "method": method,
-                "model": model,
-                "seed": seed,
-                "workers": workers,
-                "scheduler": scheduler,
-                "resume": bool(resume),
-                "config": str(config) if config else None,
+                "method": opts.method,
+                "model": opts.model,
+                "seed": opts.seed,
+                "workers": opts.workers,
+                "scheduler": opts.scheduler,
+                "resume": bool(opts.resume),
+                "config": str(opts.config) if opts.config else None,
                 "imrbayes_version": __version__,
-                **({"argv": list(argv), "line": shlex.join(argv), "cwd": os.getcwd()} if argv else {}),
+                **({"argv": list(opts.argv), "line": shlex.join(opts.argv), "cwd": os.getcwd()} if opts.argv else {}),
             },
             "execution": exec_summary,
             "failures": {
@@ -635,7 +895,7 @@ def _write_fit(
     }
     if all(tcs.get(n) for n in obs.names):
         res.time_scale_s = [float(tcs[n]) for n in obs.names]
-    written = [figs.fit_figure(obs, res, fdir / "fit.png")] + list(METHODS[method].figures(obs, res, fdir))
+    written = [figs.fit_figure(obs, res, fdir / "fit.png")] + list(METHODS[opts.method].figures(obs, res, fdir))
     if compare is not None:
         written += list(compare.get("figures", []))
     return written
