@@ -56,6 +56,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path
 
 from imrbayes.ensemble import ParamSpace
 from imrbayes.ensemble.windows import mda_weights, window_spans
@@ -63,9 +64,6 @@ from imrbayes.forward import ForwardModel
 from imrbayes.io import jsonable
 from imrbayes.mcmc import MCMCSettings, WindowTarget, run_mcmc
 from imrbayes.validation.suite import TRUTH, verification_data
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
 
 FORWARD = {"converged": {}, "imrv2-fd": {"scheme": "imrv2-fd"}, "polytropic": {"bubble": "polytropic"}}
 DEFAULT_RUNS = 32 * 2000 * 4 * 5  # member-runs of the default benchmark (5 experiments)

@@ -35,8 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
+from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path
 
 TARGET_GB = 4.0
 
