@@ -40,11 +40,9 @@ import tempfile
 import time
 
 import numpy as np
+from _machine import add_yardstick_ratios, cpu_label, host_yardstick, machine_info, results_path
 
 from imrbayes.forward import ForwardModel, ForwardOptions
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import add_yardstick_ratios, cpu_label, host_yardstick, machine_info, results_path  # noqa: E402
 
 RMAX, RATIO = 263e-6, 7.58
 T_STAR = np.arange(121) * 0.025

@@ -56,6 +56,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path
 
 from imrbayes.ensemble import ParamSpace
 from imrbayes.ensemble.windows import mda_weights, window_spans
@@ -63,9 +64,6 @@ from imrbayes.forward import ForwardModel
 from imrbayes.io import jsonable
 from imrbayes.mcmc import MCMCSettings, WindowTarget, run_mcmc
 from imrbayes.validation.suite import TRUTH, verification_data
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
 
 FORWARD = {"converged": {}, "imrv2-fd": {"scheme": "imrv2-fd"}, "polytropic": {"bubble": "polytropic"}}
 DEFAULT_RUNS = 32 * 2000 * 4 * 5  # member-runs of the default benchmark (5 experiments)
@@ -430,7 +428,8 @@ def collect_units(out) -> dict:
     return res
 
 
-def main():
+def _parse_args():
+    """The command line (module docstring); ``args.json`` defaults to the mode's results file."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--forward", nargs="+", default=["converged", "imrv2-fd"], choices=list(FORWARD))
     ap.add_argument("--walkers", type=int, default=32)
@@ -509,92 +508,169 @@ def main():
             else "window"
         )
         args.json = results_path(f"mcmc_{mode}")
-    if args.cpu_costs is not None:
-        fm = ForwardModel("nhkv", options=FORWARD[args.forward[0]])
-        rows = cpu_costs(fm, args.cpu_costs, args.fit_cache, seed=args.seed)
-        yard = host_yardstick()
-        for r in rows:
-            add_yardstick_ratios(r, yard, ms_keys=("cpu_ms_per_eval", "wall_ms_per_eval"))
-            print(
-                f"window {r['window']:>3}: CPU per evaluation {r['cpu_ms_per_eval_per_yardstick']:.3g} x yard, "
-                f"wall {r['wall_ms_per_eval_per_yardstick']:.3g} x yard"
-            )
-        if args.json:
-            with open(args.json, "w") as fh:
-                json.dump(
-                    jsonable({"meta": {"cpu": machine_info(), "host_yardstick": yard}, "cpu_costs": rows}), fh, indent=1
-                )
-        return
-    if args.collect is not None:
-        row = {"run": args.collect, **collect_units(args.collect), "cpu": machine_info()}
+    return args
+
+
+def _run_cpu_costs(args) -> None:
+    """``--cpu-costs RUN_DIR``: CPU and wall time per evaluation in every window of a finished run."""
+    fm = ForwardModel("nhkv", options=FORWARD[args.forward[0]])
+    rows = cpu_costs(fm, args.cpu_costs, args.fit_cache, seed=args.seed)
+    yard = host_yardstick()
+    for r in rows:
+        add_yardstick_ratios(r, yard, ms_keys=("cpu_ms_per_eval", "wall_ms_per_eval"))
         print(
-            f"fit {row.get('fit_runtime_s') or float('nan'):.0f} s; {len(row['windows'])} windows finished, "
-            f"{row['mcmc_unit_s_total']:.0f} s of MCMC"
+            f"window {r['window']:>3}: CPU per evaluation {r['cpu_ms_per_eval_per_yardstick']:.3g} x yard, "
+            f"wall {r['wall_ms_per_eval_per_yardstick']:.3g} x yard"
         )
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(
+                jsonable({"meta": {"cpu": machine_info(), "host_yardstick": yard}, "cpu_costs": rows}), fh, indent=1
+            )
+
+
+def _run_collect(args) -> None:
+    """``--collect RUN_DIR``: the windows a fit --mcmc run finished, from its units."""
+    row = {"run": args.collect, **collect_units(args.collect), "cpu": machine_info()}
+    print(
+        f"fit {row.get('fit_runtime_s') or float('nan'):.0f} s; {len(row['windows'])} windows finished, "
+        f"{row['mcmc_unit_s_total']:.0f} s of MCMC"
+    )
+    print(
+        f"{'window':>6} {'t*':>13} {'s':>6} {'evals':>6} {'steps':>5} {'tau':>5} {'R-hat':>6} {'ESS':>5} "
+        f"{'agree':>6} {'KL':>6} {'W2':>5}"
+    )
+    for w in row["windows"]:
         print(
-            f"{'window':>6} {'t*':>13} {'s':>6} {'evals':>6} {'steps':>5} {'tau':>5} {'R-hat':>6} {'ESS':>5} "
-            f"{'agree':>6} {'KL':>6} {'W2':>5}"
+            f"{w['window']:>6} {w['t_star'][0]:>6.3f}-{w['t_star'][1]:<6.3f} {w['unit_s']:>6.0f} {w['n_evals']:>6} "
+            f"{w['n_steps']:>5} {w['tau_max']:>5.1f} {w['rhat_max']:>6.3f} "
+            f"{min(w['ess_bulk_min'], w['ess_tail_min']):>5.0f} {str(w['agree']):>6} {w['kl_sym']:>6.2f} "
+            f"{w['w2']:>5.2f}"
         )
-        for w in row["windows"]:
-            print(
-                f"{w['window']:>6} {w['t_star'][0]:>6.3f}-{w['t_star'][1]:<6.3f} {w['unit_s']:>6.0f} {w['n_evals']:>6} "
-                f"{w['n_steps']:>5} {w['tau_max']:>5.1f} {w['rhat_max']:>6.3f} "
-                f"{min(w['ess_bulk_min'], w['ess_tail_min']):>5.0f} {str(w['agree']):>6} {w['kl_sym']:>6.2f} "
-                f"{w['w2']:>5.2f}"
-            )
-        if args.json:
-            with open(args.json, "w") as fh:
-                json.dump(jsonable({"meta": {"cpu": machine_info()}, "collected_run": row}), fh, indent=1)
-        return
-    if args.whole_run is not None:
-        row = whole_run(args.whole_run[0], args.whole_run[1], args.method, args.fit_args)
-        yard = host_yardstick()
-        add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "cpu_s", "fit_runtime_s", "total_runtime_s"))
-        row["host_yardstick"] = yard
-        print(json.dumps({k: v for k, v in row.items() if k not in ("windows", "cpu")}, indent=1, default=str))
-        for w in row.get("windows", []):
-            print(w)
-        if args.json:
-            with open(args.json, "w") as fh:
-                json.dump(jsonable({"meta": {"cpu": machine_info()}, "whole_run": row}), fh, indent=1)
-        return
-    if args.sweep is not None:
-        fkey = args.forward[0]
-        fm = ForwardModel("nhkv", options=FORWARD[fkey])
-        configs = [(c.rsplit("@", 1)[0], int(c.rsplit("@", 1)[1])) for c in args.sweep]
-        rows = sweep(
-            fm,
-            args.sweep_windows,
-            configs,
-            seed=args.seed,
-            cap=args.cap,
-            fit_cache=args.fit_cache,
-            n_chains=args.chains,
-            init_scale=args.init_scale,
-            quadrature=args.sweep_quadrature,
-            settings=_setting_values(args.sweep_set),
-        )
-        yard = host_yardstick()
-        for r in rows:
-            add_yardstick_ratios(r, yard, seconds_keys=("wall_s",), ms_keys=("ms_per_member_run",))
-            print(
-                f"w{r['window']:02d} {r['moves']:<22} W={r['walkers']:<3} wall {r['wall_s_per_yardstick']:.3g} x yard"
-            )
-        if args.json:
-            meta = {
-                "cpu": machine_info(),
-                "host_yardstick": yard,
-                "forward": fkey,
-                "options": fm.options.to_dict(),
-                "seed": args.seed,
-                "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "
-                "window targets as imrbayes fit --mcmc builds them, start = ensemble Gaussian x init_scale",
-                "init_scale": args.init_scale,
-                "cap": args.cap,
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(jsonable({"meta": {"cpu": machine_info()}, "collected_run": row}), fh, indent=1)
+
+
+def _run_whole(args) -> None:
+    """``--whole-run DATA OUT``: time one whole ``imrbayes fit --mcmc`` (the headline row)."""
+    row = whole_run(args.whole_run[0], args.whole_run[1], args.method, args.fit_args)
+    yard = host_yardstick()
+    add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "cpu_s", "fit_runtime_s", "total_runtime_s"))
+    row["host_yardstick"] = yard
+    print(json.dumps({k: v for k, v in row.items() if k not in ("windows", "cpu")}, indent=1, default=str))
+    for w in row.get("windows", []):
+        print(w)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(jsonable({"meta": {"cpu": machine_info()}, "whole_run": row}), fh, indent=1)
+
+
+def _run_sweep(args) -> None:
+    """``--sweep``: move mixtures x walker counts to convergence on the fit's windows."""
+    fkey = args.forward[0]
+    fm = ForwardModel("nhkv", options=FORWARD[fkey])
+    configs = [(c.rsplit("@", 1)[0], int(c.rsplit("@", 1)[1])) for c in args.sweep]
+    rows = sweep(
+        fm,
+        args.sweep_windows,
+        configs,
+        seed=args.seed,
+        cap=args.cap,
+        fit_cache=args.fit_cache,
+        n_chains=args.chains,
+        init_scale=args.init_scale,
+        quadrature=args.sweep_quadrature,
+        settings=_setting_values(args.sweep_set),
+    )
+    yard = host_yardstick()
+    for r in rows:
+        add_yardstick_ratios(r, yard, seconds_keys=("wall_s",), ms_keys=("ms_per_member_run",))
+        print(f"w{r['window']:02d} {r['moves']:<22} W={r['walkers']:<3} wall {r['wall_s_per_yardstick']:.3g} x yard")
+    if args.json:
+        meta = {
+            "cpu": machine_info(),
+            "host_yardstick": yard,
+            "forward": fkey,
+            "options": fm.options.to_dict(),
+            "seed": args.seed,
+            "case": "methods.md §5 verification, 5 experiments; MIEnKS-MDA default fit (n_draws=1), "
+            "window targets as imrbayes fit --mcmc builds them, start = ensemble Gaussian x init_scale",
+            "init_scale": args.init_scale,
+            "cap": args.cap,
+        }
+        with open(args.json, "w") as fh:
+            json.dump(jsonable({"meta": meta, "sweep": rows}), fh, indent=1)
+
+
+def _sampled_window_row(args, fkey: str, fm, tg, span, run, wall: float, ll_wall: float, summ) -> dict:
+    """The row of one sampled window: settings, times [s], per-member-run cost [ms], convergence
+    (tau, R-hat, ESS) and the posterior from the ArviZ summary ``summ``, with the default run's
+    projected hours."""
+    runs = run.n_evals * tg.n_exp
+    ms = 1e3 * wall / max(1, runs)
+    ess = float(summ.loc[["log_G", "log_mu"], "ess_bulk"].min())
+    inside = {n: bool(summ.loc[n, "eti95_lb"] <= TRUTH[n] <= summ.loc[n, "eti95_ub"]) for n in TRUTH}
+    return {
+        "forward": fkey,
+        "options": fm.options.to_dict(),
+        "window": args.window,
+        "t_star": span,
+        "walkers": args.walkers,
+        "steps": args.steps,
+        "chains": args.chains,
+        "n_experiments": tg.n_exp,
+        "wall_s": wall,
+        "loglik_recompute_s": ll_wall,
+        "evals": run.n_evals,
+        "member_runs": runs,
+        "failed_evals": tg.n_failed,
+        "ms_per_member_run": ms,
+        "steps_per_s": args.steps * args.chains / wall,
+        "tau_max": run.tau_max,
+        "n_steps_over_tau": args.steps / run.tau_max,
+        "tau_ok": bool(np.all(run.tau_ok)),
+        "rhat_max": float(summ.loc[["log_G", "log_mu"], "r_hat"].max()),
+        "ess_bulk_min": ess,
+        "ess_tail_min": float(summ.loc[["log_G", "log_mu"], "ess_tail"].min()),
+        "ess_per_s": ess / wall,
+        "acceptance": float(run.acceptance.mean()),
+        "burn": run.burn,
+        "thin": run.thin,
+        "posterior": {
+            n: {
+                "mean": float(summ.loc[n, "mean"]),
+                "sd": float(summ.loc[n, "sd"]),
+                "eti95": [float(summ.loc[n, "eti95_lb"]), float(summ.loc[n, "eti95_ub"])],
             }
-            with open(args.json, "w") as fh:
-                json.dump(jsonable({"meta": meta, "sweep": rows}), fh, indent=1)
-        return
+            for n in TRUTH
+        },
+        "truth_inside_eti95": inside,
+        "projected_default_h": DEFAULT_RUNS * ms / 3.6e6,
+        "one_ensemble_s": ENSEMBLE_RUNS * ms / 1e3,
+    }
+
+
+def _print_projections(rows: list[dict]) -> None:
+    """Add each row's projection over every window (``--window-costs``) and print it."""
+    for row in rows:
+        if "window_costs" in row:
+            # emcee's own cost and the log-likelihood recompute are per evaluation, not per integrator
+            # step: carried over from the sampled window as a fixed overhead per member-run.
+            wc = row["window_costs"]
+            overhead = max(0.0, row["ms_per_member_run"] - wc[row["window"]]["ms_per_member_run"])
+            row["overhead_ms_per_member_run"] = overhead
+            row["projected_all_windows_h"] = sum(DEFAULT_RUNS * (w["ms_per_member_run"] + overhead) / 3.6e6 for w in wc)
+            print(f"\n{row['forward']}: log-prob batch per window [ms per member-run]")
+            print("  ".join(f"{w['window']}:{w['ms_per_member_run']:.2f}" for w in wc))
+            print(
+                f"all {len(wc)} windows, 32 x 2000 x 4 each: {row['projected_all_windows_h']:.2f} h (plus "
+                f"{overhead:.3f} ms per member-run of sampling overhead measured on window {row['window']})"
+            )
+
+
+def _run_window(args) -> None:
+    """The default mode: sample one window with each ``--forward`` and time it."""
     import arviz as az
 
     rows = []
@@ -622,48 +698,8 @@ def main():
         dt = run.to_datatree(tg)
         ll_wall = time.perf_counter() - t1
         summ = az.summary(dt, var_names=["log_G", "log_mu", "G", "mu"], ci_prob=0.95, round_to="none")
-        runs = run.n_evals * tg.n_exp
-        ms = 1e3 * wall / max(1, runs)
-        ess = float(summ.loc[["log_G", "log_mu"], "ess_bulk"].min())
-        inside = {n: bool(summ.loc[n, "eti95_lb"] <= TRUTH[n] <= summ.loc[n, "eti95_ub"]) for n in TRUTH}
-        row = {
-            "forward": fkey,
-            "options": fm.options.to_dict(),
-            "window": args.window,
-            "t_star": span,
-            "walkers": args.walkers,
-            "steps": args.steps,
-            "chains": args.chains,
-            "n_experiments": tg.n_exp,
-            "wall_s": wall,
-            "loglik_recompute_s": ll_wall,
-            "evals": run.n_evals,
-            "member_runs": runs,
-            "failed_evals": tg.n_failed,
-            "ms_per_member_run": ms,
-            "steps_per_s": args.steps * args.chains / wall,
-            "tau_max": run.tau_max,
-            "n_steps_over_tau": args.steps / run.tau_max,
-            "tau_ok": bool(np.all(run.tau_ok)),
-            "rhat_max": float(summ.loc[["log_G", "log_mu"], "r_hat"].max()),
-            "ess_bulk_min": ess,
-            "ess_tail_min": float(summ.loc[["log_G", "log_mu"], "ess_tail"].min()),
-            "ess_per_s": ess / wall,
-            "acceptance": float(run.acceptance.mean()),
-            "burn": run.burn,
-            "thin": run.thin,
-            "posterior": {
-                n: {
-                    "mean": float(summ.loc[n, "mean"]),
-                    "sd": float(summ.loc[n, "sd"]),
-                    "eti95": [float(summ.loc[n, "eti95_lb"]), float(summ.loc[n, "eti95_ub"])],
-                }
-                for n in TRUTH
-            },
-            "truth_inside_eti95": inside,
-            "projected_default_h": DEFAULT_RUNS * ms / 3.6e6,
-            "one_ensemble_s": ENSEMBLE_RUNS * ms / 1e3,
-        }
+        row = _sampled_window_row(args, fkey, fm, tg, span, run, wall, ll_wall, summ)
+        ess = row["ess_bulk_min"]
         add_yardstick_ratios(
             row, yard, seconds_keys=("wall_s", "loglik_recompute_s", "one_ensemble_s"), ms_keys=("ms_per_member_run",)
         )
@@ -679,20 +715,7 @@ def main():
             f"{p['mu']['mean']:8.4f}±{p['mu']['sd']:7.4f} {row['projected_default_h']:14.2f} {row['one_ensemble_s']:9.1f}",
             flush=True,
         )
-    for row in rows:
-        if "window_costs" in row:
-            # emcee's own cost and the log-likelihood recompute are per evaluation, not per integrator
-            # step: carried over from the sampled window as a fixed overhead per member-run.
-            wc = row["window_costs"]
-            overhead = max(0.0, row["ms_per_member_run"] - wc[row["window"]]["ms_per_member_run"])
-            row["overhead_ms_per_member_run"] = overhead
-            row["projected_all_windows_h"] = sum(DEFAULT_RUNS * (w["ms_per_member_run"] + overhead) / 3.6e6 for w in wc)
-            print(f"\n{row['forward']}: log-prob batch per window [ms per member-run]")
-            print("  ".join(f"{w['window']}:{w['ms_per_member_run']:.2f}" for w in wc))
-            print(
-                f"all {len(wc)} windows, 32 x 2000 x 4 each: {row['projected_all_windows_h']:.2f} h (plus "
-                f"{overhead:.3f} ms per member-run of sampling overhead measured on window {row['window']})"
-            )
+    _print_projections(rows)
     meta = {
         "machine": platform.platform(),
         "cpus": os.cpu_count(),
@@ -708,6 +731,20 @@ def main():
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(jsonable({"meta": meta, "rows": rows}), fh, indent=1)
+
+
+def main():
+    args = _parse_args()
+    if args.cpu_costs is not None:
+        _run_cpu_costs(args)
+    elif args.collect is not None:
+        _run_collect(args)
+    elif args.whole_run is not None:
+        _run_whole(args)
+    elif args.sweep is not None:
+        _run_sweep(args)
+    else:
+        _run_window(args)
 
 
 if __name__ == "__main__":

@@ -15,18 +15,15 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 
 import numpy as np
+from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path
 
 from imrbayes.ensemble import METHODS, IMRSettings, ParamSpace
 from imrbayes.forward import ForwardModel, Runner
 from imrbayes.io import jsonable
 from imrbayes.validation.suite import TRUTH, verification_data
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
 
 FORWARD = {"polytropic": {"bubble": "polytropic"}, "imrv2-fd": {"scheme": "imrv2-fd"}, "converged": {}}
 

@@ -34,8 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import add_yardstick_ratios, cpu_label, host_yardstick, machine_info, results_path  # noqa: E402
+from _machine import add_yardstick_ratios, cpu_label, host_yardstick, machine_info, results_path
 
 ROOT = Path(__file__).resolve().parents[1]
 LIC = ROOT.parent / "shared" / "data" / "lic"

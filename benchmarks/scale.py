@@ -34,12 +34,10 @@ import tempfile
 import time
 
 import numpy as np
+from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path
 
 from imrbayes.execution import DaskExecutor, InProcessExecutor, ProcessPoolExecutor, RunStore, run_units
 from imrbayes.execution.toy import toy_bubble, toy_units
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
 
 
 def _identical(a: dict, b: dict) -> bool:

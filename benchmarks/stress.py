@@ -35,8 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path  # noqa: E402
+from _machine import add_yardstick_ratios, host_yardstick, machine_info, results_path
 
 TARGET_GB = 4.0
 
@@ -45,7 +44,8 @@ def _cli() -> list[str]:
     return [sys.executable, "-c", "import sys; from imrbayes.cli import main; sys.exit(main())"]
 
 
-def main(argv=None) -> int:
+def _parse_args(argv):
+    """The command line (see the module docstring) as an ``argparse.Namespace``."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n-exp", type=int, default=60)
     ap.add_argument("--n-ens", type=int, default=16)
@@ -56,18 +56,12 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", default=None, help="keep the dataset and the run directory here")
     ap.add_argument("--json", default=results_path("stress"))
     args = ap.parse_args(argv)
+    return args
 
-    tmp = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="imrbayes-stress-"))
-    tmp.mkdir(parents=True, exist_ok=True)
-    data, out = tmp / "data", tmp / "fit"
-    for p in (data, out):
-        if p.exists():
-            shutil.rmtree(p)
-    fwd = {
-        "polytropic": ["--forward", "bubble=polytropic"],
-        "imrv2-fd": ["--forward", "scheme=imrv2-fd"],
-        "thermal": [],
-    }[args.bubble]
+
+def _simulate(args, data: Path, fwd: list[str]) -> float | None:
+    """Write the synthetic dataset to ``data`` with ``imrbayes simulate``; its wall time [s], or None
+    (stderr printed) when it fails."""
     t0 = time.perf_counter()
     sim = subprocess.run(
         _cli()
@@ -99,9 +93,16 @@ def main(argv=None) -> int:
     )
     if sim.returncode != 0:
         print(sim.stderr, file=sys.stderr)
-        return 1
+        return None
     t_sim = time.perf_counter() - t0
+    return t_sim
 
+
+def _fit(args, data: Path, out: Path, tmp: Path, fwd: list[str]):
+    """Run the MIEnKS-MDA fit as a child process (log in ``tmp/fit.log``).
+
+    Returns ``(exit status, wall time [s], the child's rusage)``.
+    """
     fit_args = [
         "fit",
         str(data),
@@ -127,17 +128,17 @@ def main(argv=None) -> int:
         _, status, ru = os.wait4(proc.pid, 0)
         proc.returncode = os.waitstatus_to_exitcode(status)
     wall = time.perf_counter() - t0
-    err = (tmp / "fit.log").read_text()
-    rc = proc.returncode
-    if rc != 0:
-        print(err, file=sys.stderr)
-        return 1
+    return proc.returncode, wall, ru
+
+
+def _row(args, out: Path, wall: float, t_sim: float, ru) -> dict:
+    """The result row: settings, counts, times [s], peak memory [MiB] and the estimate from ``out``."""
     scale = 1024.0 if sys.platform != "darwin" else 1024.0 * 1024.0  # ru_maxrss: KiB (Linux), bytes (macOS)
     peak_mib = ru.ru_maxrss / scale
     s = json.loads((out / "summary.json").read_text())
     d, ex = s["details"], s["execution"]
     units_bytes = sum(p.stat().st_size for p in (out / "units").iterdir())
-    row = {
+    return {
         "n_experiments": s["n_experiments"],
         "bubble": args.bubble,
         "n_ens": args.n_ens,
@@ -162,9 +163,10 @@ def main(argv=None) -> int:
         "estimate": {k: {"mean": v["mean"], "sd": v["sd"]} for k, v in s["estimate"].items()},
         "rmse": s["fit"]["rmse"],
     }
-    yard = host_yardstick()
-    add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "simulate_s", "cpu_user_s"))
-    load = os.getloadavg() if hasattr(os, "getloadavg") else None
+
+
+def _print_row(row: dict, args, load) -> None:
+    """Print the row as a short table (times as multiples of the host yardstick) and the estimate."""
     print(
         f"MIEnKS-MDA stress: {row['n_experiments']} experiments, {args.bubble} bubble, N_En = {args.n_ens}, "
         f"{row['n_iter']} iterations, L = {row['L']}, h = {row['h']}; {os.cpu_count()} CPUs"
@@ -189,17 +191,48 @@ def main(argv=None) -> int:
         f"(truth 7290, 0.088); rmse {row['rmse']:.4g}; failed units {row['units_failed']}; "
         f"peak memory {'within' if row['within_target'] else 'ABOVE'} the {TARGET_GB:g} GB target"
     )
+
+
+def _meta(yard: dict, load) -> dict:
+    """The JSON's ``meta``: the host, its yardstick and load, and how the peak memory is measured."""
+    return {
+        "cpus": os.cpu_count(),
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+        "machine": machine_info(),
+        "host_yardstick": yard,
+        "load_average_1_5_15": list(load) if load else None,
+        "peak_rss": "wait4 ru_maxrss of the fit process (max over it and its waited-for descendants)",
+    }
+
+
+def main(argv=None) -> int:
+    args = _parse_args(argv)
+    tmp = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="imrbayes-stress-"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    data, out = tmp / "data", tmp / "fit"
+    for p in (data, out):
+        if p.exists():
+            shutil.rmtree(p)
+    fwd = {
+        "polytropic": ["--forward", "bubble=polytropic"],
+        "imrv2-fd": ["--forward", "scheme=imrv2-fd"],
+        "thermal": [],
+    }[args.bubble]
+    t_sim = _simulate(args, data, fwd)
+    if t_sim is None:
+        return 1
+    rc, wall, ru = _fit(args, data, out, tmp, fwd)
+    if rc != 0:
+        print((tmp / "fit.log").read_text(), file=sys.stderr)
+        return 1
+    row = _row(args, out, wall, t_sim, ru)
+    yard = host_yardstick()
+    add_yardstick_ratios(row, yard, seconds_keys=("wall_s", "simulate_s", "cpu_user_s"))
+    load = os.getloadavg() if hasattr(os, "getloadavg") else None
+    _print_row(row, args, load)
     if args.json:
-        meta = {
-            "cpus": os.cpu_count(),
-            "python": sys.version.split()[0],
-            "platform": platform.platform(),
-            "machine": machine_info(),
-            "host_yardstick": yard,
-            "load_average_1_5_15": list(load) if load else None,
-            "peak_rss": "wait4 ru_maxrss of the fit process (max over it and its waited-for descendants)",
-        }
-        Path(args.json).write_text(json.dumps({"meta": meta, "rows": [row]}, indent=2) + "\n")
+        Path(args.json).write_text(json.dumps({"meta": _meta(yard, load), "rows": [row]}, indent=2) + "\n")
     if not args.keep:
         shutil.rmtree(tmp, ignore_errors=True)
     return 0 if row["within_target"] and row["units_failed"] == 0 else 1

@@ -175,6 +175,126 @@ def summarise(experiments) -> dict:
     return out
 
 
+def _check_settings(dataset, dt_star, n_steps, noise) -> None:
+    """Raise :class:`InputError` for an empty dataset or a bad grid step, step count or noise choice."""
+    if not dataset.experiments:
+        raise InputError(dataset.path, "holds no experiments")
+    if not (dt_star > 0 and math.isfinite(dt_star)):
+        raise InputError("--dt-star", f"must be a positive number, got {dt_star}")
+    if int(n_steps) < 1:
+        raise InputError("--n-steps", f"must be at least 1, got {n_steps}")
+    if noise not in ("auto", "sample", "pooled", "paper"):
+        raise InputError("noise", f"must be auto, sample, pooled or paper, got {noise!r}")
+
+
+def _preprocess_each(
+    dataset, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star, skip_failed, warnings
+):
+    """Align and nondimensionalise each experiment (see :func:`preprocess_dataset` for the settings).
+
+    Returns ``(summaries, records [(t*, R*) per experiment], skipped)``; ``warnings`` gets each
+    experiment's warnings and, with ``skip_failed``, one line per experiment left out.
+    """
+    summaries, records = [], []
+    skipped = []
+    for exp in dataset.experiments:
+        try:
+            s, (ts, Rs) = _one(
+                exp,
+                rho,
+                p8,
+                rmax_method,
+                collapse_method,
+                n_tail,
+                rebound_frac,
+                dt_star,
+                synthetic=dataset.meta.get("synthetic") is True,
+            )
+            if skip_failed and s.n_steps_available < 1:
+                raise InputError(
+                    exp.source,
+                    f"experiment {exp.name!r} ends at t* = {s.t_last_star:.3g}, before one grid step dt* = {dt_star}",
+                )
+        except Exception as exc:
+            if not skip_failed:
+                raise
+            msg = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+            skipped.append({"name": exp.name, "source": str(exp.source), "error": msg.splitlines()[0] if msg else ""})
+            warnings.append(f"experiment {exp.name!r} left out: preprocessing failed ({skipped[-1]['error']})")
+            continue
+        summaries.append(s)
+        records.append((ts, Rs))
+        warnings.extend(f"{exp.name}: {w}" for w in s.warnings)
+    if not summaries:
+        raise InputError(
+            dataset.path, f"preprocessing failed for every experiment ({len(skipped)}; first: {skipped[0]['error']})"
+        )
+    return summaries, records, skipped
+
+
+def _grid_length(summaries, n_steps, dt_star, warnings) -> int:
+    """Grid steps every experiment reaches, at most ``n_steps``; ``warnings`` says when it is fewer."""
+    n_avail = [s.n_steps_available for s in summaries]
+    n_use = min(int(n_steps), min(n_avail))
+    if n_use < 1:
+        worst = summaries[int(np.argmin(n_avail))]
+        raise InputError(
+            worst.source,
+            f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.3g}, before one grid step dt* = {dt_star}",
+        )
+    if n_use < int(n_steps):
+        worst = summaries[int(np.argmin(n_avail))]
+        warnings.append(
+            f"grid truncated to {n_use} steps (t* <= {n_use * dt_star:.4g}) instead of {n_steps}: "
+            f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.4g}"
+        )
+    return n_use
+
+
+def _resample_all(records, dt_star, n_use, interp):
+    """R* on the grid t* = 0, dt*, ..., n_use dt* per record: ``(R_star (n_exp, n_use + 1), frames)``,
+    frames the frame times each grid value interpolates (linear interpolation only, else empty)."""
+    R_star = np.empty((len(records), n_use + 1))
+    frames = []
+    for i, (ts, Rs) in enumerate(records):
+        grid, values, _ = pp.resample(ts, Rs, dt_star, n_use, method=interp)
+        R_star[i] = values
+        if interp == "linear":
+            # the frame times the grid values interpolate (the anchor at the maximum first): a method can
+            # interpolate its prediction the same way instead of comparing point values with chords
+            tf = np.concatenate(([0.0], np.asarray(ts, float)[np.asarray(ts) > 0.0]))
+            last = int(np.searchsorted(tf, n_use * dt_star, side="left"))
+            frames.append(tf[: min(tf.size, last + 1)])
+    return R_star, frames
+
+
+def _choices(rho, p8, dt_star, n_steps, n_use, rmax_method, collapse_method, rebound_frac, n_tail, interp, pinfo):
+    """The ``choices`` record of :class:`Preprocessed`: the settings used and how each quantity was estimated."""
+    return {
+        "rho_kg_m3": rho,
+        "p8_Pa": p8,
+        "time_scale": "t_c = Rmax / sqrt(p8/rho) per experiment",
+        "dt_star": float(dt_star),
+        "n_steps_requested": int(n_steps),
+        "n_steps": n_use,
+        "rmax_method": rmax_method,
+        "collapse_method": collapse_method,
+        "rebound_frac": rebound_frac,
+        "record_noise": "sd from the median absolute fourth difference of each record (noise_sd_m)",
+        "collapse_search": "rebound > max(rebound_frac Rmax, min(4 noise sd, 0.08 Rmax)) -- 2 noise sd from a "
+        "minimum below 0.5 Rmax --, no earlier than t* = 0.6 after the maximum; with the noise "
+        "bar, two frames in a row",
+        "req": f"meta.json/file value when given, else mean of the last {n_tail} samples after the first "
+        f"collapse (uncertainty: the tail's spread beyond the noise, plus noise/sqrt(n)); a tail whose spread "
+        f"beyond the noise exceeds 10 % of its mean has not settled: Req at the log-midpoint of its lowest "
+        f"point (raised by the expected least of n noise draws) and its mean, each one sd away",
+        "n_tail": int(n_tail),
+        "interpolation": interp,
+        "resample_anchor": "the point (t*=0, R*=1) at the refined maximum plus the samples at t* > 0",
+        "noise": pinfo,
+    }
+
+
 def preprocess_dataset(
     dataset: Dataset,
     dt_star: float = 0.025,
@@ -228,76 +348,15 @@ def preprocess_dataset(
     InputError
         A record too short to reach its first collapse, an empty dataset, bad settings.
     """
-    if not dataset.experiments:
-        raise InputError(dataset.path, "holds no experiments")
-    if not (dt_star > 0 and math.isfinite(dt_star)):
-        raise InputError("--dt-star", f"must be a positive number, got {dt_star}")
-    if int(n_steps) < 1:
-        raise InputError("--n-steps", f"must be at least 1, got {n_steps}")
-    if noise not in ("auto", "sample", "pooled", "paper"):
-        raise InputError("noise", f"must be auto, sample, pooled or paper, got {noise!r}")
+    _check_settings(dataset, dt_star, n_steps, noise)
     rho = dataset.rho if rho is None else float(rho)
     p8 = dataset.p8 if p8 is None else float(p8)
-    summaries, records = [], []
     warnings = list(dataset.warnings)
-    skipped = []
-    for exp in dataset.experiments:
-        try:
-            s, (ts, Rs) = _one(
-                exp,
-                rho,
-                p8,
-                rmax_method,
-                collapse_method,
-                n_tail,
-                rebound_frac,
-                dt_star,
-                synthetic=dataset.meta.get("synthetic") is True,
-            )
-            if skip_failed and s.n_steps_available < 1:
-                raise InputError(
-                    exp.source,
-                    f"experiment {exp.name!r} ends at t* = {s.t_last_star:.3g}, before one grid step dt* = {dt_star}",
-                )
-        except Exception as exc:
-            if not skip_failed:
-                raise
-            msg = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
-            skipped.append({"name": exp.name, "source": str(exp.source), "error": msg.splitlines()[0] if msg else ""})
-            warnings.append(f"experiment {exp.name!r} left out: preprocessing failed ({skipped[-1]['error']})")
-            continue
-        summaries.append(s)
-        records.append((ts, Rs))
-        warnings.extend(f"{exp.name}: {w}" for w in s.warnings)
-    if not summaries:
-        raise InputError(
-            dataset.path, f"preprocessing failed for every experiment ({len(skipped)}; first: {skipped[0]['error']})"
-        )
-    n_avail = [s.n_steps_available for s in summaries]
-    n_use = min(int(n_steps), min(n_avail))
-    if n_use < 1:
-        worst = summaries[int(np.argmin(n_avail))]
-        raise InputError(
-            worst.source,
-            f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.3g}, before one grid step dt* = {dt_star}",
-        )
-    if n_use < int(n_steps):
-        worst = summaries[int(np.argmin(n_avail))]
-        warnings.append(
-            f"grid truncated to {n_use} steps (t* <= {n_use * dt_star:.4g}) instead of {n_steps}: "
-            f"experiment {worst.name!r} ends at t* = {worst.t_last_star:.4g}"
-        )
-    R_star = np.empty((len(records), n_use + 1))
-    frames = []
-    for i, (ts, Rs) in enumerate(records):
-        grid, values, _ = pp.resample(ts, Rs, dt_star, n_use, method=interp)
-        R_star[i] = values
-        if interp == "linear":
-            # the frame times the grid values interpolate (the anchor at the maximum first): a method can
-            # interpolate its prediction the same way instead of comparing point values with chords
-            tf = np.concatenate(([0.0], np.asarray(ts, float)[np.asarray(ts) > 0.0]))
-            last = int(np.searchsorted(tf, n_use * dt_star, side="left"))
-            frames.append(tf[: min(tf.size, last + 1)])
+    summaries, records, skipped = _preprocess_each(
+        dataset, rho, p8, rmax_method, collapse_method, n_tail, rebound_frac, dt_star, skip_failed, warnings
+    )
+    n_use = _grid_length(summaries, n_steps, dt_star, warnings)
+    R_star, frames = _resample_all(records, dt_star, n_use, interp)
     t_star = np.arange(n_use + 1) * dt_star
     if noise in ("sample", "pooled") and len(records) < 2:
         raise InputError(dataset.path, f"noise={noise!r} needs at least two experiments")
@@ -310,29 +369,9 @@ def preprocess_dataset(
         )
     elif len(records) == 2 and noise != "paper":
         warnings.append("P_k from only two experiments is a very rough estimate")
-    choices = {
-        "rho_kg_m3": rho,
-        "p8_Pa": p8,
-        "time_scale": "t_c = Rmax / sqrt(p8/rho) per experiment",
-        "dt_star": float(dt_star),
-        "n_steps_requested": int(n_steps),
-        "n_steps": n_use,
-        "rmax_method": rmax_method,
-        "collapse_method": collapse_method,
-        "rebound_frac": rebound_frac,
-        "record_noise": "sd from the median absolute fourth difference of each record (noise_sd_m)",
-        "collapse_search": "rebound > max(rebound_frac Rmax, min(4 noise sd, 0.08 Rmax)) -- 2 noise sd from a "
-        "minimum below 0.5 Rmax --, no earlier than t* = 0.6 after the maximum; with the noise "
-        "bar, two frames in a row",
-        "req": f"meta.json/file value when given, else mean of the last {n_tail} samples after the first "
-        f"collapse (uncertainty: the tail's spread beyond the noise, plus noise/sqrt(n)); a tail whose spread "
-        f"beyond the noise exceeds 10 % of its mean has not settled: Req at the log-midpoint of its lowest "
-        f"point (raised by the expected least of n noise draws) and its mean, each one sd away",
-        "n_tail": int(n_tail),
-        "interpolation": interp,
-        "resample_anchor": "the point (t*=0, R*=1) at the refined maximum plus the samples at t* > 0",
-        "noise": pinfo,
-    }
+    choices = _choices(
+        rho, p8, dt_star, n_steps, n_use, rmax_method, collapse_method, rebound_frac, n_tail, interp, pinfo
+    )
     return Preprocessed(
         frame_t_star=frames,
         t_star=t_star,

@@ -334,6 +334,65 @@ def _draw_clipped(rng, mean, sd, n, low=None):
     return x if low is None else np.maximum(x, low)
 
 
+def _camera_record(i, rm, ratio, d, cand, fm, parameters, phase, noise_d, uc, rng, peer, source):
+    """Record bubble ``i`` (0-based) of a camera dataset: frames of the clean curve plus noise.
+
+    rm [m] Rmax, ratio Rmax/Req, d the :class:`Design`, parameters the bubble's material, phase [s]
+    its sub-frame phase, noise_d the parsed noise model, uc [m/s] the velocity scale, ``rng`` the
+    noise stream, ``peer`` another forward code (or None). Returns ``(Experiment, truth entry)``.
+    """
+    from imrbayes.data import synthetic as syn
+    from imrbayes.data.records import Experiment
+
+    rq, tc = float(rm / ratio), float(rm / uc)
+    name = f"exp_{i + 1:03d}"
+    ts = syn.camera_times(tc, d.frame_s, d.t_end_star, d.pre_max * d.frame_s, phase)
+    Rs, breaks = _clean_record(cand, fm, parameters, rm, rq, ts, peer=peer)
+    Rn, redrawn = syn.noisy(ts, Rs, noise_d, rng, rmax_m=rm)
+    exp = Experiment(name, (ts - ts[0]) * tc, Rn * rm, source=f"{source}:{name}")
+    sd = syn.noise_sd(ts, Rs, noise_d, rm)
+    entry = {
+        "name": name,
+        "rmax_m": rm,
+        "req_m": rq,
+        "rmax_over_req": float(ratio),
+        "t_max_s": float(-ts[0] * tc),
+        "tc_s": tc,
+        "phase_s": phase,
+        "n_frames": int(ts.size),
+        "noise_sd_m": float(np.median(sd) * rm),
+        "noise_sd_at_max_r_star": float(syn.noise_sd(np.zeros(1), np.ones(1), noise_d, rm)[0]),
+        "n_redrawn_nonpositive": int(redrawn),
+        "parameters": parameters,
+        "breaks_star": breaks,
+    }
+    return exp, entry
+
+
+def _camera_truth(mechanism, key, theta, seed, d, noise_d, options, dopts, peer, truth_exp, obs, discarded, pre):
+    """The truth dict of :func:`camera_obs` (see there) for the kept records of ``obs``."""
+    kept = {e["name"]: e for e in truth_exp}
+    return {
+        "mechanism": mechanism,
+        "model": key,
+        "theta": theta,
+        "seed": seed,
+        "design": d.to_dict(),
+        "noise": noise_d,
+        "fitted_forward": options.to_dict(),
+        "data_forward": dopts.to_dict(),
+        "forward_overrides": {k: v for k, v in dopts.to_dict().items() if options.to_dict().get(k) != v},
+        "generator": peer.describe() if peer is not None else {"code": "imrbayes"},
+        "experiments": truth_exp,
+        "names": list(obs.names),
+        "rmax_m": [kept[nm]["rmax_m"] for nm in obs.names],
+        "req_m": [kept[nm]["req_m"] for nm in obs.names],
+        "t_max_s": [kept[nm]["t_max_s"] for nm in obs.names],
+        "discarded": discarded,
+        "warnings": pre.warnings,
+    }
+
+
 def camera_obs(
     mechanism: str,
     seed: int,
@@ -382,7 +441,7 @@ def camera_obs(
     """
     from imrbayes.data import synthetic as syn
     from imrbayes.data.pipeline import preprocess_dataset
-    from imrbayes.data.records import Dataset, Experiment
+    from imrbayes.data.records import Dataset
     from imrbayes.forward.constants import Physics
 
     d = design_of(design)
@@ -425,30 +484,23 @@ def camera_obs(
         ratio = _draw_clipped(rng, d.ratio[0], d.ratio[1], want, low=2.0)
         for j in range(want):
             i = recorded + j
-            rm, rq, tc = float(rmax[j]), float(rmax[j] / ratio[j]), float(rmax[j] / uc)
-            name = f"exp_{i + 1:03d}"
-            ts = syn.camera_times(tc, d.frame_s, d.t_end_star, d.pre_max * d.frame_s, float(phases[i]))
-            Rs, breaks = _clean_record(cand, fm, per_exp[i], rm, rq, ts, peer=peer)
-            Rn, redrawn = syn.noisy(ts, Rs, noise_d, rng, rmax_m=rm)
-            exps.append(Experiment(name, (ts - ts[0]) * tc, Rn * rm, source=f"synthetic:{mechanism}:{seed}:{name}"))
-            sd = syn.noise_sd(ts, Rs, noise_d, rm)
-            truth_exp.append(
-                {
-                    "name": name,
-                    "rmax_m": rm,
-                    "req_m": rq,
-                    "rmax_over_req": float(ratio[j]),
-                    "t_max_s": float(-ts[0] * tc),
-                    "tc_s": tc,
-                    "phase_s": float(phases[i]),
-                    "n_frames": int(ts.size),
-                    "noise_sd_m": float(np.median(sd) * rm),
-                    "noise_sd_at_max_r_star": float(syn.noise_sd(np.zeros(1), np.ones(1), noise_d, rm)[0]),
-                    "n_redrawn_nonpositive": int(redrawn),
-                    "parameters": per_exp[i],
-                    "breaks_star": breaks,
-                }
+            exp, entry = _camera_record(
+                i,
+                float(rmax[j]),
+                float(ratio[j]),
+                d,
+                cand,
+                fm,
+                per_exp[i],
+                float(phases[i]),
+                noise_d,
+                uc,
+                rng,
+                peer,
+                f"synthetic:{mechanism}:{seed}",
             )
+            exps.append(exp)
+            truth_exp.append(entry)
         recorded += want
         ds = Dataset(
             f"camera-{mechanism}-{seed}",
@@ -474,26 +526,7 @@ def camera_obs(
             continue
         break
     obs = Observations.from_preprocessed(pre)
-    kept = {e["name"]: e for e in truth_exp}
-    truth = {
-        "mechanism": mechanism,
-        "model": key,
-        "theta": theta,
-        "seed": seed,
-        "design": d.to_dict(),
-        "noise": noise_d,
-        "fitted_forward": options.to_dict(),
-        "data_forward": dopts.to_dict(),
-        "forward_overrides": {k: v for k, v in dopts.to_dict().items() if options.to_dict().get(k) != v},
-        "generator": peer.describe() if peer is not None else {"code": "imrbayes"},
-        "experiments": truth_exp,
-        "names": list(obs.names),
-        "rmax_m": [kept[nm]["rmax_m"] for nm in obs.names],
-        "req_m": [kept[nm]["req_m"] for nm in obs.names],
-        "t_max_s": [kept[nm]["t_max_s"] for nm in obs.names],
-        "discarded": discarded,
-        "warnings": pre.warnings,
-    }
+    truth = _camera_truth(mechanism, key, theta, seed, d, noise_d, options, dopts, peer, truth_exp, obs, discarded, pre)
     return obs, truth
 
 

@@ -175,10 +175,107 @@ def gauss_newton(
     rng = np.random.default_rng(0) if rng is None else rng
     min_valid = min_valid or max(2, N // 2)
     sq = np.sqrt(N - 1.0)
-    gidx = np.repeat(np.arange(G), N)
 
-    # --- iteration 0 on the prior ensemble, with redraws of failed members
-    Yhat, failed = evaluate(gidx, E0.reshape(G * N, d))
+    Yhat, failed, n_redrawn = _run_prior(E0, evaluate, rng, max_redraw, m)
+    xbar = E0.mean(axis=1)  # (G, d)
+    A = (E0 - xbar[:, None, :]) / sq  # (G, N, d)
+    patience = n_iter if patience is None else int(patience)
+    n_max = max(n_iter, patience) if max_iter is None else max(n_iter, patience, int(max_iter))
+    st = _GNState.start(G, N, m, n_max)
+    stop_from = n_iter if min_iter is None else min(int(min_iter), n_iter)
+    opts = _GNOptions(n_iter, min_valid, project, transform, backtrack, rtol, patience, stop_from, step_tol)
+
+    for it in range(n_max):
+        if it > 0:
+            act = np.flatnonzero(st.active)
+            if act.size == 0:
+                break
+            shift = np.einsum("gnd,gn->gd", A[act], st.w[act])  # A^T w
+            if transform:  # xbar + A^T w + sqrt(N-1) T A
+                E = (xbar[act] + shift)[:, None, :] + sq * (st.T[act] @ A[act])
+            else:
+                E = E0[act] + shift[:, None, :]
+            Yn, fn = evaluate(np.repeat(act, N), E.reshape(act.size * N, d))
+            Yhat[act] = Yn.reshape(act.size, N, m)
+            failed[act] = fn.reshape(act.size, N)
+        for g in np.flatnonzero(st.active):
+            _update_group(st, opts, g, it, A[g], Yhat[g], failed[g], y[g], Wt[g], sq)
+    return _posterior(st, xbar, A, E0, sq, n_redrawn)
+
+
+@dataclass
+class _GNOptions:
+    """The iteration controls of :func:`gauss_newton` (see its parameters); ``stop_from`` is the
+    evaluation count from which a group may stop early."""
+
+    n_iter: int
+    min_valid: int
+    project: bool
+    transform: bool
+    backtrack: bool
+    rtol: float
+    patience: int
+    stop_from: int
+    step_tol: float | None
+
+
+@dataclass
+class _GNState:
+    """Per-group iteration state of :func:`gauss_newton` (G groups, N members, m observations).
+
+    w (G, N) the control variable to evaluate next; H, T (G, N, N) the Hessian and its inverse
+    square root at the last accepted iterate; best (G,) the lowest cost so far and w_best (G, N)
+    its iterate; w_upd (G, N) the Gauss-Newton update from the best iterate; n_back, n_accepted
+    (G,) rejected and accepted iterates; unrunnable (G,) True where the update from the best
+    iterate failed to run; ybar_last (G, m) the output mean at the best iterate; cost, nfail
+    (G, n_max) per evaluation; stopped, active (G,) flags.
+    """
+
+    w: np.ndarray
+    H: np.ndarray
+    T: np.ndarray
+    best: np.ndarray
+    w_best: np.ndarray
+    w_upd: np.ndarray
+    n_back: np.ndarray
+    n_accepted: np.ndarray
+    unrunnable: np.ndarray
+    ybar_last: np.ndarray
+    cost: np.ndarray
+    nfail: np.ndarray
+    stopped: np.ndarray
+    active: np.ndarray
+
+    @classmethod
+    def start(cls, G, N, m, n_max):
+        """The state before the first evaluation: w = 0, H = T = I, nothing accepted."""
+        H = np.broadcast_to(np.eye(N), (G, N, N)).copy()
+        return cls(
+            w=np.zeros((G, N)),
+            H=H,
+            T=H.copy(),
+            best=np.full(G, np.inf),
+            w_best=np.zeros((G, N)),
+            w_upd=np.zeros((G, N)),
+            n_back=np.zeros(G, dtype=int),
+            n_accepted=np.zeros(G, dtype=int),
+            unrunnable=np.zeros(G, dtype=bool),
+            ybar_last=np.full((G, m), np.nan),
+            cost=np.full((G, n_max), np.nan),
+            nfail=np.zeros((G, n_max), dtype=int),
+            stopped=np.zeros(G, dtype=bool),
+            active=np.ones(G, dtype=bool),
+        )
+
+
+def _run_prior(E0, evaluate, rng, max_redraw, m):
+    """Evaluate the prior ensemble, redrawing failed members from the Gaussian of the valid ones.
+
+    E0 (G, N, d) is updated in place with the redrawn members. Returns ``(Yhat (G, N, m),
+    failed (G, N) bool, n_redrawn (G,) int)``.
+    """
+    G, N, d = E0.shape
+    Yhat, failed = evaluate(np.repeat(np.arange(G), N), E0.reshape(G * N, d))
     Yhat = Yhat.reshape(G, N, m).copy()
     failed = failed.reshape(G, N).copy()
     n_redrawn = np.zeros(G, dtype=int)
@@ -203,103 +300,88 @@ def gauss_newton(
         Yn, fn = evaluate(gs, E0[gs, ii])
         Yhat[gs, ii] = Yn
         failed[gs, ii] = fn
+    return Yhat, failed, n_redrawn
 
-    xbar = E0.mean(axis=1)  # (G, d)
-    A = (E0 - xbar[:, None, :]) / sq  # (G, N, d)
-    w = np.zeros((G, N))
-    patience = n_iter if patience is None else int(patience)
-    n_max = max(n_iter, patience) if max_iter is None else max(n_iter, patience, int(max_iter))
-    cost = np.full((G, n_max), np.nan)
-    nfail = np.zeros((G, n_max), dtype=int)
-    stopped = np.zeros(G, dtype=bool)
-    active = np.ones(G, dtype=bool)
-    H = np.broadcast_to(np.eye(N), (G, N, N)).copy()
-    T = H.copy()
-    best = np.full(G, np.inf)
-    w_best = np.zeros((G, N))
-    w_upd = np.zeros((G, N))
-    n_back = np.zeros(G, dtype=int)
-    n_accepted = np.zeros(G, dtype=int)
-    unrunnable = np.zeros(G, dtype=bool)  # the update from the best iterate failed to run
-    ybar_last = np.full((G, m), np.nan)
-    stop_from = n_iter if min_iter is None else min(int(min_iter), n_iter)
 
-    def reject(g, it):
-        # go back halfway towards the best iterate; past n_iter a rejected step ends the group's
-        # iterations -- once one has succeeded (not from min_iter on: a later halved step may
-        # still be accepted and move the answer, by 100 sd on the nonlinear test problem)
-        w[g] = w_best[g] + 0.5 * (w[g] - w_best[g])
-        n_back[g] += 1
-        if it >= n_iter - 1 and (n_accepted[g] > 1 or it >= patience - 1):
-            active[g] = False
+def _reject(st, opts, g, it):
+    """Send group g halfway back towards its best iterate; past ``n_iter`` a rejected step ends its
+    iterations once one has succeeded (not from ``min_iter`` on: a later halved step may still be
+    accepted and move the answer, by 100 sd on the nonlinear test problem)."""
+    st.w[g] = st.w_best[g] + 0.5 * (st.w[g] - st.w_best[g])
+    st.n_back[g] += 1
+    if it >= opts.n_iter - 1 and (st.n_accepted[g] > 1 or it >= opts.patience - 1):
+        st.active[g] = False
 
-    for it in range(n_max):
-        if it > 0:
-            act = np.flatnonzero(active)
-            if act.size == 0:
-                break
-            shift = np.einsum("gnd,gn->gd", A[act], w[act])  # A^T w
-            if transform:  # xbar + A^T w + sqrt(N-1) T A
-                E = (xbar[act] + shift)[:, None, :] + sq * (T[act] @ A[act])
-            else:
-                E = E0[act] + shift[:, None, :]
-            Yn, fn = evaluate(np.repeat(act, N), E.reshape(act.size * N, d))
-            Yhat[act] = Yn.reshape(act.size, N, m)
-            failed[act] = fn.reshape(act.size, N)
-        for g in np.flatnonzero(active):
-            ok = ~failed[g] & np.all(np.isfinite(Yhat[g]), axis=1)
-            nfail[g, it] = N - ok.sum()
-            if ok.sum() < min_valid:
-                if backtrack and it > 0 and n_accepted[g] > 0:
-                    # a step into parameters the model cannot run is a rejected step, not the end
-                    # (stiff PA, qkv: a full step to alpha < 0 made the deep collapse singular, and
-                    # 12 of 20 bubbles stopped with the prior as their answer)
-                    reject(g, it)
-                    unrunnable[g] = True
-                    continue
-                stopped[g] = True
-                active[g] = False
-                continue
-            At = T[g] @ A[g] if transform else A[g]  # anomalies of the evaluated ensemble
-            if project:
-                ybar, Yp = linearise(At, Yhat[g], ok, sq, A_out=A[g])
-            else:
-                ybar = Yhat[g, ok].mean(axis=0)
-                Yp = np.where(ok[:, None], Yhat[g] - ybar, 0.0) / sq  # (N, m)
-                if transform:
-                    Yp = np.linalg.solve(T[g], Yp)
-            d_in = y[g] - ybar
-            c = 0.5 * np.sum(Wt[g] * d_in**2) + 0.5 * w[g] @ w[g]
-            cost[g, it] = c
-            if backtrack and it > 0 and not c <= best[g] * (1.0 + 1e-9):
-                reject(g, it)  # the step increased the cost
-                continue
 
-            n_accepted[g] += 1
-            unrunnable[g] = False
-            prev = best[g]
-            best[g] = c
-            w_best[g] = w[g]
-            # past n_iter (min_iter), a group stops once its accepted cost no longer falls by rtol
-            done = it >= stop_from - 1 and not (prev - c) > rtol * abs(c)
-            grad = w[g] - Yp @ (Wt[g] * d_in)
-            Hg = np.eye(N) + (Yp * Wt[g]) @ Yp.T
-            H[g] = Hg
-            step = np.linalg.solve(Hg, grad)
-            w[g] = w[g] - step
-            if step_tol is not None and it >= stop_from - 1 and not grad @ step > step_tol**2:
-                done = True
-            w_upd[g] = w[g]
-            if transform:
-                T[g] = _sqrt_inv(Hg)[1]
-            ybar_last[g] = ybar
-            if done:
-                active[g] = False
+def _update_group(st, opts, g, it, A, Yhat, failed, y, Wt, sq):
+    """Judge group g's evaluation ``it`` and, when accepted, take the Gauss-Newton step from it.
+
+    A (N, d) prior anomalies, Yhat (N, m) outputs, failed (N,) bool, y (m,) observations, Wt (m,)
+    weights of group g; ``st`` is updated in place (cost, acceptance, next w, H, T, flags).
+    """
+    N = A.shape[0]
+    ok = ~failed & np.all(np.isfinite(Yhat), axis=1)
+    st.nfail[g, it] = N - ok.sum()
+    if ok.sum() < opts.min_valid:
+        if opts.backtrack and it > 0 and st.n_accepted[g] > 0:
+            # a step into parameters the model cannot run is a rejected step, not the end
+            # (stiff PA, qkv: a full step to alpha < 0 made the deep collapse singular, and
+            # 12 of 20 bubbles stopped with the prior as their answer)
+            _reject(st, opts, g, it)
+            st.unrunnable[g] = True
+            return
+        st.stopped[g] = True
+        st.active[g] = False
+        return
+    At = st.T[g] @ A if opts.transform else A  # anomalies of the evaluated ensemble
+    if opts.project:
+        ybar, Yp = linearise(At, Yhat, ok, sq, A_out=A)
+    else:
+        ybar = Yhat[ok].mean(axis=0)
+        Yp = np.where(ok[:, None], Yhat - ybar, 0.0) / sq  # (N, m)
+        if opts.transform:
+            Yp = np.linalg.solve(st.T[g], Yp)
+    d_in = y - ybar
+    c = 0.5 * np.sum(Wt * d_in**2) + 0.5 * st.w[g] @ st.w[g]
+    st.cost[g, it] = c
+    if opts.backtrack and it > 0 and not c <= st.best[g] * (1.0 + 1e-9):
+        _reject(st, opts, g, it)  # the step increased the cost
+        return
+
+    st.n_accepted[g] += 1
+    st.unrunnable[g] = False
+    prev = st.best[g]
+    st.best[g] = c
+    st.w_best[g] = st.w[g]
+    # past n_iter (min_iter), a group stops once its accepted cost no longer falls by rtol
+    done = it >= opts.stop_from - 1 and not (prev - c) > opts.rtol * abs(c)
+    grad = st.w[g] - Yp @ (Wt * d_in)
+    Hg = np.eye(N) + (Yp * Wt) @ Yp.T
+    st.H[g] = Hg
+    step = np.linalg.solve(Hg, grad)
+    st.w[g] = st.w[g] - step
+    if opts.step_tol is not None and it >= opts.stop_from - 1 and not grad @ step > opts.step_tol**2:
+        done = True
+    st.w_upd[g] = st.w[g]
+    if opts.transform:
+        st.T[g] = _sqrt_inv(Hg)[1]
+    st.ybar_last[g] = ybar
+    if done:
+        st.active[g] = False
+
+
+def _posterior(st, xbar, A, E0, sq, n_redrawn):
+    """The :class:`GNResult` of the final state: mean, anomalies, covariance and ensemble of
+    N(xbar + A^T w, A^T H^-1 A) with w the update from each group's best iterate.
+
+    xbar (G, d), A (G, N, d) the prior mean and normalised anomalies, E0 (G, N, d) the prior
+    ensemble after redraws, sq = sqrt(N - 1), n_redrawn (G,).
+    """
     # a group whose last steps from its best iterate could not be run ends at that iterate, not at
     # the update its members failed on (the next cycle would start where nothing runs)
-    w_upd[unrunnable] = w_best[unrunnable]
-    w = w_upd
-    Hi, Hs = _sqrt_inv(H)
+    st.w_upd[st.unrunnable] = st.w_best[st.unrunnable]
+    w = st.w_upd
+    Hi, Hs = _sqrt_inv(st.H)
     mean = xbar + np.einsum("gnd,gn->gd", A, w)
     anoms = Hs @ A  # (G, N, d)
     cov = np.einsum("gnd,gne->gde", A, Hi @ A)
@@ -312,10 +394,10 @@ def gauss_newton(
         A,
         E0,
         w,
-        cost,
-        nfail,
+        st.cost,
+        st.nfail,
         n_redrawn,
-        stopped,
-        ybar_last,
-        n_back,
+        st.stopped,
+        st.ybar_last,
+        st.n_back,
     )

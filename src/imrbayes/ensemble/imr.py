@@ -243,6 +243,147 @@ def imr_unit(unit: Unit, rng) -> dict:
     return {"J": np.where(bad, np.inf, j), "n_failed": int(bad.sum()), **runner.counts_since(before)}
 
 
+def _grid_theta(Gg, mg, names, defaults) -> np.ndarray:
+    """Parameter vectors of every grid point, (n_G * n_mu, n_params), G-major; parameters other than G
+    and mu at their model defaults."""
+    GG, MM = np.meshgrid(Gg, mg, indexing="ij")
+    theta = np.empty((GG.size, len(names)))
+    for i, nm in enumerate(names):
+        theta[:, i] = GG.ravel() if nm == "G" else (MM.ravel() if nm == "mu" else defaults[nm])
+    return theta
+
+
+def _collect_costs(rep, obs, n_pts, progress):
+    """Per-experiment grid costs from the units' report.
+
+    Returns ``(Jn (n_exp, n_pts) NaN for failed experiments, failed grid runs, member runs,
+    warnings, failed_units)``; ``progress(n)`` is called after each experiment that ran.
+    """
+    Jn = np.full((obs.n_exp, n_pts), np.nan)
+    n_failed, member_runs, warnings, failed_units = 0, 0, [], []
+    for e in range(obs.n_exp):
+        uid = unit_id(exp=e)
+        if uid not in rep.results:
+            err = rep.failures[uid].error
+            failed_units.append({"unit": uid, "experiment": obs.names[e], "error": err})
+            warnings.append(f"experiment {obs.names[e]!r} failed ({err}); left out of the cost")
+            continue
+        r = rep.results[uid]
+        Jn[e] = r["J"]
+        n_failed += int(r["n_failed"])
+        member_runs += int(r["member_runs"])
+        if progress is not None:
+            progress(e + 1)
+    return Jn, n_failed, member_runs, warnings, failed_units
+
+
+def _per_experiment(obs, Jn, ok, failed_units, mask, Gg, mg, Kn, refine: bool) -> list:
+    """Each experiment's own optimum on the grid (Jn (n_exp, n_G, n_mu)) as a list of dicts; a failed
+    experiment gets its error and its row of ``mask`` (n_exp, n_samples) is cleared in place."""
+    per = []
+    for e in range(obs.n_exp):
+        if e not in ok:
+            per.append(
+                {
+                    "name": obs.names[e],
+                    "failed": True,
+                    "error": next(f["error"] for f in failed_units if f["experiment"] == obs.names[e]),
+                }
+            )
+            mask[e] = False
+            continue
+        ie, je = np.unravel_index(np.argmin(Jn[e]), Jn[e].shape)
+        r_e = _quadratic_refine(Jn[e], Gg, mg, ie, je) if refine else None
+        o = r_e[0] if r_e is not None else np.array([Gg[ie], mg[je]])
+        per.append(
+            {
+                "name": obs.names[e],
+                "optimum": {"G": float(o[0]), "mu": float(o[1])},
+                "grid_optimum": {"G": float(Gg[ie]), "mu": float(mg[je])},
+                "J_min": float(Jn[e, ie, je]),
+                "last_sample": int(Kn[e]),
+                "t_end_star": float(obs.t_star[Kn[e]]),
+            }
+        )
+    return per
+
+
+def _uncertainty_and_draws(est, laplace, pmf, refined, Gg, mg, n_draws: int, rng, warnings):
+    """Posterior sd, interval and draws of (G, mu): the Laplace quadratic where the pseudo-posterior is
+    narrower than a grid cell, else the grid's pmf (n_G, n_mu) with uniform jitter inside a cell.
+
+    ``est`` and ``warnings`` are updated in place. Returns ``(G draws (n_draws,), mu draws (n_draws,),
+    whether the Laplace approximation was used)``.
+    """
+    spacing = np.array([Gg[1] - Gg[0], mg[1] - mg[0]])
+    resolved = all(est[nm]["sd"] >= spacing[a] for a, nm in enumerate(("G", "mu")))
+    use_laplace = laplace is not None and not resolved
+    if use_laplace:
+        # the pseudo-posterior is narrower than a grid cell: use the local quadratic (Laplace)
+        sd = laplace["sd"]
+        for a, nm in enumerate(("G", "mu")):
+            est[nm]["sd_grid"], est[nm]["hdi95_grid"] = est[nm]["sd"], est[nm]["hdi95"]
+            est[nm]["sd"] = float(sd[a])
+            est[nm]["hdi95"] = [float(refined[a] - 1.959964 * sd[a]), float(refined[a] + 1.959964 * sd[a])]
+        dr = rng.multivariate_normal(refined, np.array(laplace["cov"]), size=n_draws)
+        dG_draw, dm_draw = dr[:, 0], dr[:, 1]
+    else:
+        if not resolved:
+            # narrower than a cell and no quadratic to refine it (the optimum next to the grid's edge):
+            # the grid cannot say more than "inside this cell", so no sd below a uniform cell's
+            thin = []
+            for a, nm in enumerate(("G", "mu")):
+                if est[nm]["sd"] < spacing[a] / np.sqrt(12.0):
+                    est[nm]["sd_grid"], est[nm]["sd"] = est[nm]["sd"], float(spacing[a] / np.sqrt(12.0))
+                    thin.append(nm)
+
+            if thin:
+                warnings.append(
+                    f"standard IMR: the pseudo-posterior of {' and '.join(thin)} lies inside one grid cell "
+                    f"and the optimum could not be refined (no local quadratic): its sd is the cell's "
+                    f"(spacing/sqrt 12); a finer grid (--set n_G=/n_mu= or the bounds) resolves it"
+                )
+        idx = rng.choice(pmf.size, size=n_draws, p=pmf.ravel())
+        ii, jj = np.unravel_index(idx, pmf.shape)
+        dG_draw = np.clip(Gg[ii] + (rng.random(n_draws) - 0.5) * spacing[0], Gg[0], Gg[-1])
+        dm_draw = np.clip(mg[jj] + (rng.random(n_draws) - 0.5) * spacing[1], mg[0], mg[-1])
+    return dG_draw, dm_draw, use_laplace
+
+
+def _experiment_units(obs, spec, token, theta, t_eval, Kn, cw) -> list:
+    """One :class:`Unit` per experiment: the whole grid ``theta`` (n_pts, n_params) scored on samples
+    1..Kn[e] with weights ``cw`` (n_samples,)."""
+    return [
+        Unit(
+            unit_id(exp=e),
+            {
+                "spec": spec,
+                "runner": token,
+                "theta": theta,
+                "rmax": float(obs.rmax_m[e]),
+                "req": float(obs.req_m[e]),
+                "t_eval": t_eval,
+                "K": int(Kn[e]),
+                "y": obs.R_star[e],
+                "cw": cw,
+            },
+        )
+        for e in range(obs.n_exp)
+    ]
+
+
+def _fitted_curves(runner, obs, theta_opt, names, refined, mask) -> np.ndarray:
+    """Fitted R* (n_exp, n_samples) at the refined optimum (G, mu) with the other parameters of
+    ``theta_opt`` (n_params,); NaN outside ``mask`` except the first sample."""
+    th = np.tile(theta_opt, (obs.n_exp, 1))
+    th[:, names.index("G")] = refined[0]
+    th[:, names.index("mu")] = refined[1]
+    fo = runner.simulate(th, obs.rmax_m, obs.req_m, obs.t_star)
+    fitted = np.where(mask, fo.R_star, np.nan)
+    fitted[:, 0] = fo.R_star[:, 0]
+    return fitted
+
+
 def fit_imr(
     fm,
     obs,
@@ -273,49 +414,16 @@ def fit_imr(
     t_eval = obs.t_star[: Kmax + 1]
     Gg = grid_axis(s.G_min, s.G_max, s.n_G, s.spacing)
     mg = grid_axis(s.mu_min, s.mu_max, s.n_mu, s.spacing)
-    GG, MM = np.meshgrid(Gg, mg, indexing="ij")
-    n_pts = GG.size
     defaults = fm.constitutive.defaults
-    theta = np.empty((n_pts, len(names)))
-    for i, nm in enumerate(names):
-        theta[:, i] = GG.ravel() if nm == "G" else (MM.ravel() if nm == "mu" else defaults[nm])
+    theta = _grid_theta(Gg, mg, names, defaults)
+    n_pts = theta.shape[0]
     mask = np.zeros((obs.n_exp, obs.n_samples), dtype=bool)
     for e, K in enumerate(Kn):
         mask[e, 1 : K + 1] = True
     cw = np.ones(obs.n_samples) if s.weighting == "none" else 1.0 / obs.P
-    units = [
-        Unit(
-            unit_id(exp=e),
-            {
-                "spec": spec,
-                "runner": token,
-                "theta": theta,
-                "rmax": float(obs.rmax_m[e]),
-                "req": float(obs.req_m[e]),
-                "t_eval": t_eval,
-                "K": int(Kn[e]),
-                "y": obs.R_star[e],
-                "cw": cw,
-            },
-        )
-        for e in range(obs.n_exp)
-    ]
+    units = _experiment_units(obs, spec, token, theta, t_eval, Kn, cw)
     rep = ex.run(units, imr_unit, seed, desc="imr experiments")
-    Jn = np.full((obs.n_exp, n_pts), np.nan)
-    n_failed, member_runs, warnings, failed_units = 0, 0, [], []
-    for e in range(obs.n_exp):
-        uid = unit_id(exp=e)
-        if uid not in rep.results:
-            err = rep.failures[uid].error
-            failed_units.append({"unit": uid, "experiment": obs.names[e], "error": err})
-            warnings.append(f"experiment {obs.names[e]!r} failed ({err}); left out of the cost")
-            continue
-        r = rep.results[uid]
-        Jn[e] = r["J"]
-        n_failed += int(r["n_failed"])
-        member_runs += int(r["member_runs"])
-        if progress is not None:
-            progress(e + 1)
+    Jn, n_failed, member_runs, warnings, failed_units = _collect_costs(rep, obs, n_pts, progress)
     ok = [e for e in range(obs.n_exp) if unit_id(exp=e) in rep.results]
     if not ok:
         raise RuntimeError(f"every experiment failed (e.g. {failed_units[0]['error']})")
@@ -336,74 +444,15 @@ def fit_imr(
         # -log p = (n - p) J / (2 Jmin)  ->  precision = (n - p) Hess(J) / (2 Jmin)
         cov = np.linalg.inv((n_res - p) * ref[2] / (2.0 * Jmin))
         laplace = {"cov": cov.tolist(), "sd": np.sqrt(np.diag(cov)).tolist()}
-    per = []
-    for e in range(obs.n_exp):
-        if e not in ok:
-            per.append(
-                {
-                    "name": obs.names[e],
-                    "failed": True,
-                    "error": next(f["error"] for f in failed_units if f["experiment"] == obs.names[e]),
-                }
-            )
-            mask[e] = False
-            continue
-        ie, je = np.unravel_index(np.argmin(Jn[e]), Jn[e].shape)
-        r_e = _quadratic_refine(Jn[e], Gg, mg, ie, je) if s.refine else None
-        o = r_e[0] if r_e is not None else np.array([Gg[ie], mg[je]])
-        per.append(
-            {
-                "name": obs.names[e],
-                "optimum": {"G": float(o[0]), "mu": float(o[1])},
-                "grid_optimum": {"G": float(Gg[ie]), "mu": float(mg[je])},
-                "J_min": float(Jn[e, ie, je]),
-                "last_sample": int(Kn[e]),
-                "t_end_star": float(obs.t_star[Kn[e]]),
-            }
-        )
+    per = _per_experiment(obs, Jn, ok, failed_units, mask, Gg, mg, Kn, s.refine)
     warnings += _edge_warnings(
         i, j, s, Gg, mg, [np.unravel_index(np.argmin(Jn[e]), Jn[e].shape) for e in ok], [obs.names[e] for e in ok]
     )
-    # fitted curves at the (refined) optimum
-    th = np.tile(theta[i * s.n_mu + j], (obs.n_exp, 1))
-    th[:, names.index("G")] = refined[0]
-    th[:, names.index("mu")] = refined[1]
-    fo = runner.simulate(th, obs.rmax_m, obs.req_m, obs.t_star)
-    fitted = np.where(mask, fo.R_star, np.nan)
-    fitted[:, 0] = fo.R_star[:, 0]
-    rng = np.random.default_rng(seed)
+    fitted = _fitted_curves(runner, obs, theta[i * s.n_mu + j], names, refined, mask)
     spacing = np.array([Gg[1] - Gg[0], mg[1] - mg[0]])
-    resolved = all(est[nm]["sd"] >= spacing[a] for a, nm in enumerate(("G", "mu")))
-    use_laplace = laplace is not None and not resolved
-    if use_laplace:
-        # the pseudo-posterior is narrower than a grid cell: use the local quadratic (Laplace)
-        sd = laplace["sd"]
-        for a, nm in enumerate(("G", "mu")):
-            est[nm]["sd_grid"], est[nm]["hdi95_grid"] = est[nm]["sd"], est[nm]["hdi95"]
-            est[nm]["sd"] = float(sd[a])
-            est[nm]["hdi95"] = [float(refined[a] - 1.959964 * sd[a]), float(refined[a] + 1.959964 * sd[a])]
-        dr = rng.multivariate_normal(refined, np.array(laplace["cov"]), size=s.n_draws)
-        dG_draw, dm_draw = dr[:, 0], dr[:, 1]
-    else:
-        if not resolved:
-            # narrower than a cell and no quadratic to refine it (the optimum next to the grid's edge):
-            # the grid cannot say more than "inside this cell", so no sd below a uniform cell's
-            thin = []
-            for a, nm in enumerate(("G", "mu")):
-                if est[nm]["sd"] < spacing[a] / np.sqrt(12.0):
-                    est[nm]["sd_grid"], est[nm]["sd"] = est[nm]["sd"], float(spacing[a] / np.sqrt(12.0))
-                    thin.append(nm)
-
-            if thin:
-                warnings.append(
-                    f"standard IMR: the pseudo-posterior of {' and '.join(thin)} lies inside one grid cell "
-                    f"and the optimum could not be refined (no local quadratic): its sd is the cell's "
-                    f"(spacing/sqrt 12); a finer grid (--set n_G=/n_mu= or the bounds) resolves it"
-                )
-        idx = rng.choice(pmf.size, size=s.n_draws, p=pmf.ravel())
-        ii, jj = np.unravel_index(idx, pmf.shape)
-        dG_draw = np.clip(Gg[ii] + (rng.random(s.n_draws) - 0.5) * spacing[0], Gg[0], Gg[-1])
-        dm_draw = np.clip(mg[jj] + (rng.random(s.n_draws) - 0.5) * spacing[1], mg[0], mg[-1])
+    dG_draw, dm_draw, use_laplace = _uncertainty_and_draws(
+        est, laplace, pmf, refined, Gg, mg, s.n_draws, np.random.default_rng(seed), warnings
+    )
     dG, dm = spacing
     details = {
         "nuisances": "Rmax, Req and the time of the maximum fixed at preprocessing's estimates (not "
@@ -428,7 +477,7 @@ def fit_imr(
         "laplace": laplace,
         "uncertainty_from": "laplace" if use_laplace else "grid",
         "n_grid_points": n_pts,
-        "member_runs": member_runs + th.shape[0],
+        "member_runs": member_runs + obs.n_exp,
         "failed_units": failed_units,
         "experiments_used": [obs.names[e] for e in ok],
         "failed_grid_runs": n_failed,

@@ -141,6 +141,87 @@ def _isatty(stream) -> bool:
         return False
 
 
+def _resume(items, store, seed: int, retry_failed: bool, results: dict, failures: dict):
+    """Read back the units ``store`` already holds (None: nothing to resume).
+
+    items [(unit_id, unit)]; ``results`` and ``failures`` get the stored values and failures.
+    Returns ``(todo [(unit_id, unit)] still to run, number read back)``.
+    """
+    todo = []
+    n_resumed = 0
+    for uid, unit in items:
+        state = store.status(uid) if store is not None else None
+        if state == "done":
+            try:
+                results[uid] = store.load(uid, seed=seed)
+                n_resumed += 1
+                continue
+            except CorruptUnitError as exc:
+                warnings.warn(f"{exc}; recomputing unit {uid!r}", RuntimeWarning, stacklevel=3)
+        elif state == "failed" and not retry_failed:
+            try:
+                rec = store.load_failure(uid)
+            except CorruptUnitError as exc:
+                warnings.warn(f"{exc}; rerunning unit {uid!r}", RuntimeWarning, stacklevel=3)
+            else:
+                if INTERRUPT_MARK in (rec.get("traceback") or ""):
+                    # written before interrupts inside compiled code were told apart from failures
+                    warnings.warn(
+                        f"unit {uid!r} was recorded as failed when an interrupt stopped it; rerunning it",
+                        RuntimeWarning,
+                        stacklevel=3,
+                    )
+                    todo.append((uid, unit))
+                    continue
+                failures[uid] = UnitFailure(
+                    uid, rec.get("error", "?"), rec.get("traceback"), rec.get("worker"), from_checkpoint=True
+                )
+                n_resumed += 1
+                continue
+        todo.append((uid, unit))
+    return todo, n_resumed
+
+
+def _record_outcome(out, store, seed: int, results: dict, failures: dict) -> None:
+    """Put one executor outcome into ``results`` or ``failures`` and checkpoint it in ``store``."""
+    uid = out.unit_id
+    if out.ok:
+        results[uid] = (
+            store.save(uid, out.value, seed=seed, seconds=out.seconds, worker=out.worker)
+            if store is not None
+            else out.value
+        )
+        failures.pop(uid, None)
+    else:
+        failures[uid] = UnitFailure(uid, out.error, out.traceback, out.worker)
+        if store is not None:
+            store.save_failure(
+                uid,
+                seed=seed,
+                error=out.error,
+                traceback=out.traceback,
+                seconds=out.seconds,
+                worker=out.worker,
+            )
+
+
+def _write_status(store, items, results: dict, failures: dict, complete: bool, interrupted: bool) -> None:
+    """Write the run's ``status.json`` (counts, failed ids, complete/interrupted flags) to ``store``."""
+    try:
+        store.write_status(
+            {
+                "n_units": len(items),
+                "n_done": sum(1 for uid, _ in items if uid in results),
+                "n_failed": len(failures),
+                "failed": sorted(failures),
+                "complete": complete,
+                "interrupted": interrupted,
+            }
+        )
+    except OSError:  # never mask the original problem
+        pass
+
+
 def run_units(
     units: Iterable,
     fn: Callable,
@@ -197,38 +278,7 @@ def run_units(
     results: dict[str, Any] = {}
     failures: dict[str, UnitFailure] = {}
     seconds: dict[str, float] = {}
-    todo = []
-    n_resumed = 0
-    for uid, unit in items:
-        state = store.status(uid) if store is not None else None
-        if state == "done":
-            try:
-                results[uid] = store.load(uid, seed=seed)
-                n_resumed += 1
-                continue
-            except CorruptUnitError as exc:
-                warnings.warn(f"{exc}; recomputing unit {uid!r}", RuntimeWarning, stacklevel=2)
-        elif state == "failed" and not retry_failed:
-            try:
-                rec = store.load_failure(uid)
-            except CorruptUnitError as exc:
-                warnings.warn(f"{exc}; rerunning unit {uid!r}", RuntimeWarning, stacklevel=2)
-            else:
-                if INTERRUPT_MARK in (rec.get("traceback") or ""):
-                    # written before interrupts inside compiled code were told apart from failures
-                    warnings.warn(
-                        f"unit {uid!r} was recorded as failed when an interrupt stopped it; rerunning it",
-                        RuntimeWarning,
-                        stacklevel=2,
-                    )
-                    todo.append((uid, unit))
-                    continue
-                failures[uid] = UnitFailure(
-                    uid, rec.get("error", "?"), rec.get("traceback"), rec.get("worker"), from_checkpoint=True
-                )
-                n_resumed += 1
-                continue
-        todo.append((uid, unit))
+    todo, n_resumed = _resume(items, store, seed, retry_failed, results, failures)
 
     own = executor is None
     executor = InProcessExecutor() if own else executor
@@ -247,24 +297,7 @@ def run_units(
                     if uid not in units_by_id:  # pragma: no cover - defensive
                         raise RuntimeError(f"executor returned an unknown unit {uid!r}")
                     seconds[uid] = out.seconds
-                    if out.ok:
-                        results[uid] = (
-                            store.save(uid, out.value, seed=seed, seconds=out.seconds, worker=out.worker)
-                            if store is not None
-                            else out.value
-                        )
-                        failures.pop(uid, None)
-                    else:
-                        failures[uid] = UnitFailure(uid, out.error, out.traceback, out.worker)
-                        if store is not None:
-                            store.save_failure(
-                                uid,
-                                seed=seed,
-                                error=out.error,
-                                traceback=out.traceback,
-                                seconds=out.seconds,
-                                worker=out.worker,
-                            )
+                    _record_outcome(out, store, seed, results, failures)
                     n_computed += 1
                     done += 1
                     if bar is not None:
@@ -282,19 +315,9 @@ def run_units(
         if own:
             executor.close()
         if store is not None:
-            try:
-                store.write_status(
-                    {
-                        "n_units": total,
-                        "n_done": sum(1 for uid, _ in items if uid in results),
-                        "n_failed": len(failures),
-                        "failed": sorted(failures),
-                        "complete": interrupted is None and done == total,
-                        "interrupted": interrupted is not None,
-                    }
-                )
-            except OSError:  # never mask the original problem
-                pass
+            _write_status(
+                store, items, results, failures, interrupted is None and done == total, interrupted is not None
+            )
 
     order = {uid: i for i, (uid, _) in enumerate(items)}
     return RunReport(

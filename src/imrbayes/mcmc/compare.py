@@ -375,55 +375,14 @@ def quadrature_block(quad: dict, x, mE, SE, mcse_mean=None, mcse_sd=None) -> dic
     }
 
 
-def compare_window(
-    ens_mean,
-    ens_cov,
-    mcmc,
-    names,
-    positive,
-    *,
-    index: int = 0,
-    t_star=None,
-    diagnostics=None,
-    seed: int = 0,
-    n_max: int = 2000,
-    n_energy: int = 500,
-    n_null: int = 100,
-    quadrature: dict | None = None,
-) -> dict:
-    """One window's entry of ``compare.json`` (module docstring).
+def _mcmc_block(mcmc, x, names, internal, positive, diagnostics, notes):
+    """The ``entry["mcmc"]`` block: moments, R-hat/ESS/MCSE (two or more chains) and the sampler's
+    diagnostics, with the convergence verdict.
 
-    Parameters
-    ----------
-    ens_mean, ens_cov : (d,), (d, d)
-        The ensemble method's Gaussian in internal coordinates (``mean_internal``/``cov_internal``
-        of a ``summary.json`` window).
-    mcmc : xarray.DataTree with a ``posterior`` holding the internal variables (``log_G``; as
-        :meth:`MCMCRun.to_datatree` writes), or an array (chain, draw, d) of internal draws.
-    names : parameter names (SI); positive : (d,) bool, log-transformed parameters.
-    index, t_star : window index and [start, end] t*.
-    diagnostics : optional :meth:`MCMCRun.diagnostics` dict (tau rule, acceptance) to include.
-    seed : for the sample check's Gaussian draws and null replicates.
-    n_max : most MCMC draws used for the negentropy and Mardia's statistics (fewer when the bulk ESS
-        is lower: the draws are thinned to about the ESS); n_energy : most draws in the energy test.
-    n_null : bootstrap replicates of the null distributions.
-    quadrature : the window's grid posterior (``GridPosterior.to_dict()``; default: the tree's
-        ``quadrature_json`` attribute, which ``fit --mcmc`` writes for 2-parameter windows): added
-        as ``entry["quadrature"]`` (:func:`quadrature_block`); it does not enter ``agree``.
+    x (C, D, d) internal draws of ``mcmc`` (a DataTree or that array), positive (d,) bool; ``notes`` gets the reasons a
+    run is not converged. Returns ``(block, ArviZ summary or None, converged, least bulk ESS)``.
     """
-    names = list(names)
-    positive = np.asarray(positive, bool)
-    internal = [f"log_{n}" if p else n for n, p in zip(names, positive)]
-    d = len(names)
-    mE, SE = np.asarray(ens_mean, float).reshape(d), _sym(np.asarray(ens_cov, float).reshape(d, d))
-    x = _draws(mcmc, internal)  # (C, D, d)
-    C, D, _ = x.shape
-    flat = x.reshape(C * D, d)
-    mM, SM = flat.mean(axis=0), np.cov(flat, rowvar=False).reshape(d, d)
-    thetaM = np.where(positive, np.exp(np.where(positive, flat, 0.0)), flat)
-    mE_si, SE_si = lognormal_moments(mE, SE, positive)
-    notes = []
-
+    C, D, d = x.shape
     # diagnostics (ArviZ: one chain per ensemble)
     if isinstance(mcmc, np.ndarray):
         import arviz as az
@@ -432,8 +391,15 @@ def compare_window(
     else:
         dt = mcmc
     diag = mcmc_summary(dt, internal) if C >= 2 else None
+    flat = x.reshape(C * D, d)
+    thetaM = np.where(positive, np.exp(np.where(positive, flat, 0.0)), flat)
     mcmc_block = _moments_block(
-        names, internal, mM, SM, thetaM.mean(axis=0), np.cov(thetaM, rowvar=False).reshape(d, d)
+        names,
+        internal,
+        flat.mean(axis=0),
+        np.cov(flat, rowvar=False).reshape(d, d),
+        thetaM.mean(axis=0),
+        np.cov(thetaM, rowvar=False).reshape(d, d),
     )
     converged = True
     if diag is not None:
@@ -483,22 +449,22 @@ def compare_window(
                 f"{first[1]}); the diagnostics use the other {C}"
             )
     mcmc_block.update({"n_chains": int(C), "n_draws": int(C * D), "converged": bool(converged)})
+    return mcmc_block, diag, converged, ess_min
 
-    # Gaussian metrics
-    kl_me = gaussian_kl(mM, SM, mE, SE)
-    kl_em = gaussian_kl(mE, SE, mM, SM)
-    W = whitener(SM)
-    w2w = gaussian_w2(W @ mE, W @ SE @ W.T, W @ mM, np.eye(d))
-    w2l = gaussian_w2(mE, SE, mM, SM)
-    sdM, sdE = np.sqrt(np.diag(SM)), np.sqrt(np.diag(SE))
 
+def _sample_metrics(flat, ess_min, mE, SE, SM, seed, n_max, n_energy, n_null, notes):
+    """Sample-based checks of the draws flat (n, d) against the ensemble Gaussian (mE (d,), SE (d, d)).
+
+    The draws are thinned to about the ESS; ``notes`` gets non-Gaussianity and energy-test rejections.
+    Returns ``(negentropy dict, sample_check dict, mardia dict)``.
+    """
+    n_draws = flat.shape[0]
     # sample-based: thin to about the ESS (near-independent draws)
     rng = np.random.default_rng(seed)
-    n_use = int(max(50, min(n_max, ess_min, C * D)))
-    pick = np.unique(np.linspace(0, C * D - 1, n_use).round().astype(int))
+    n_use = int(max(50, min(n_max, ess_min, n_draws)))
+    pick = np.unique(np.linspace(0, n_draws - 1, n_use).round().astype(int))
     sub = flat[pick]
     neg = negentropy(sub, n_null=n_null)
-    kl_sample = kl_me + neg["estimate"]
     e_pick = pick[np.unique(np.linspace(0, pick.size - 1, min(pick.size, n_energy)).round().astype(int))]
     chk = sample_check(flat[e_pick], mE, SE, ref_cov=SM, rng=rng, n_null=n_null)
     mar = mardia(sub)
@@ -509,25 +475,13 @@ def compare_window(
         )
     if chk["p_value"] < 0.01:
         notes.append(f"energy test rejects equality with the ensemble Gaussian (p = {chk['p_value']:.2g})")
+    return neg, chk, mar
 
-    kl_sym = 0.5 * (kl_me + kl_em)
-    crit = {
-        "kl_sym": bool(kl_sym <= THRESHOLDS["kl_sym"]),
-        "w2": bool(w2w <= THRESHOLDS["w2"]),
-        "kl_sample": bool(kl_sample <= THRESHOLDS["kl_sample"]),
-    }
-    why = {
-        "kl_sym": f"Gaussian KL (symmetrised) {kl_sym:.3g} > {THRESHOLDS['kl_sym']} nats",
-        "w2": f"W2 {w2w:.3g} sd > {THRESHOLDS['w2']}",
-        "kl_sample": f"sample KL {kl_sample:.3g} > {THRESHOLDS['kl_sample']} nats "
-        f"(Gaussian part {kl_me:.3g} + non-Gaussian part {neg['estimate']:.3g})",
-    }
-    notes.extend(why[k] for k, ok in crit.items() if not ok)
-    agree = bool(all(crit.values())) if converged else None
-    if agree:
-        notes.insert(0, "ensemble Gaussian agrees with MCMC")
-    elif agree is None:
-        notes.insert(0, "undecided: the MCMC run does not meet the convergence criteria")
+
+def _quadrature_entry(quadrature, mcmc, x, mE, SE, diag, internal, converged, notes):
+    """``entry["quadrature"]`` (or None): the grid posterior (default: ``mcmc``'s ``quadrature_json``
+    attribute) compared with the ensemble and the draws x (C, D, 2); ``notes`` gets disagreements."""
+    d = len(internal)
     if quadrature is None and not isinstance(mcmc, np.ndarray):
         import json
 
@@ -549,6 +503,96 @@ def compare_window(
     elif quadrature is not None and "error" in quadrature:
         quad = quadrature
         notes.append(f"grid quadrature failed: {quadrature['error']}")
+    return quad
+
+
+def _agreement(kl_sym, w2w, kl_sample, kl_me, neg, converged, notes):
+    """The criteria (``{name: passed}``) and the verdict: True/False, None when the MCMC run is not
+    converged. ``notes`` gets each failed criterion and the verdict first (KL in nats, W2 in sd)."""
+    crit = {
+        "kl_sym": bool(kl_sym <= THRESHOLDS["kl_sym"]),
+        "w2": bool(w2w <= THRESHOLDS["w2"]),
+        "kl_sample": bool(kl_sample <= THRESHOLDS["kl_sample"]),
+    }
+    why = {
+        "kl_sym": f"Gaussian KL (symmetrised) {kl_sym:.3g} > {THRESHOLDS['kl_sym']} nats",
+        "w2": f"W2 {w2w:.3g} sd > {THRESHOLDS['w2']}",
+        "kl_sample": f"sample KL {kl_sample:.3g} > {THRESHOLDS['kl_sample']} nats "
+        f"(Gaussian part {kl_me:.3g} + non-Gaussian part {neg['estimate']:.3g})",
+    }
+    notes.extend(why[k] for k, ok in crit.items() if not ok)
+    agree = bool(all(crit.values())) if converged else None
+    if agree:
+        notes.insert(0, "ensemble Gaussian agrees with MCMC")
+    elif agree is None:
+        notes.insert(0, "undecided: the MCMC run does not meet the convergence criteria")
+    return crit, agree
+
+
+def compare_window(
+    ens_mean,
+    ens_cov,
+    mcmc,
+    names,
+    positive,
+    *,
+    index: int = 0,
+    t_star=None,
+    diagnostics=None,
+    seed: int = 0,
+    n_max: int = 2000,
+    n_energy: int = 500,
+    n_null: int = 100,
+    quadrature: dict | None = None,
+) -> dict:
+    """One window's entry of ``compare.json`` (module docstring).
+
+    Parameters
+    ----------
+    ens_mean, ens_cov : (d,), (d, d)
+        The ensemble method's Gaussian in internal coordinates (``mean_internal``/``cov_internal``
+        of a ``summary.json`` window).
+    mcmc : xarray.DataTree with a ``posterior`` holding the internal variables (``log_G``; as
+        :meth:`MCMCRun.to_datatree` writes), or an array (chain, draw, d) of internal draws.
+    names : parameter names (SI); positive : (d,) bool, log-transformed parameters.
+    index, t_star : window index and [start, end] t*.
+    diagnostics : optional :meth:`MCMCRun.diagnostics` dict (tau rule, acceptance) to include.
+    seed : for the sample check's Gaussian draws and null replicates.
+    n_max : most MCMC draws used for the negentropy and Mardia's statistics (fewer when the bulk ESS
+        is lower: the draws are thinned to about the ESS); n_energy : most draws in the energy test.
+    n_null : bootstrap replicates of the null distributions.
+    quadrature : the window's grid posterior (``GridPosterior.to_dict()``; default: the tree's
+        ``quadrature_json`` attribute, which ``fit --mcmc`` writes for 2-parameter windows): added
+        as ``entry["quadrature"]`` (:func:`quadrature_block`); it does not enter ``agree``.
+    """
+    names = list(names)
+    positive = np.asarray(positive, bool)
+    internal = [f"log_{n}" if p else n for n, p in zip(names, positive)]
+    d = len(names)
+    mE, SE = np.asarray(ens_mean, float).reshape(d), _sym(np.asarray(ens_cov, float).reshape(d, d))
+    x = _draws(mcmc, internal)  # (C, D, d)
+    C, D, _ = x.shape
+    flat = x.reshape(C * D, d)
+    mM, SM = flat.mean(axis=0), np.cov(flat, rowvar=False).reshape(d, d)
+    mE_si, SE_si = lognormal_moments(mE, SE, positive)
+    notes = []
+
+    mcmc_block, diag, converged, ess_min = _mcmc_block(mcmc, x, names, internal, positive, diagnostics, notes)
+
+    # Gaussian metrics
+    kl_me = gaussian_kl(mM, SM, mE, SE)
+    kl_em = gaussian_kl(mE, SE, mM, SM)
+    W = whitener(SM)
+    w2w = gaussian_w2(W @ mE, W @ SE @ W.T, W @ mM, np.eye(d))
+    w2l = gaussian_w2(mE, SE, mM, SM)
+    sdM, sdE = np.sqrt(np.diag(SM)), np.sqrt(np.diag(SE))
+
+    neg, chk, mar = _sample_metrics(flat, ess_min, mE, SE, SM, seed, n_max, n_energy, n_null, notes)
+    kl_sample = kl_me + neg["estimate"]
+
+    kl_sym = 0.5 * (kl_me + kl_em)
+    crit, agree = _agreement(kl_sym, w2w, kl_sample, kl_me, neg, converged, notes)
+    quad = _quadrature_entry(quadrature, mcmc, x, mE, SE, diag, internal, converged, notes)
     entry = {
         "index": int(index),
         "t_star": None if t_star is None else [float(t) for t in t_star],
