@@ -80,6 +80,10 @@ def table_row(row: dict) -> dict:
         if est.get("consistent_with_zero"):
             up = est.get("upper95")
             out[name] = "consistent with 0" + (f" (< {up:.3g})" if up is not None else "")
+        elif est.get("mean") is None:
+            out[name] = "no estimate"
+        elif None in (est.get("hdi95") or [None]):
+            out[name] = f"{est['mean']:.4g} (no interval)"
         else:
             out[name] = f"{est['mean']:.4g} [{est['hdi95'][0]:.4g}, {est['hdi95'][1]:.4g}]"
     if row.get("residual_to_noise") is not None:
@@ -114,7 +118,9 @@ def physics_checks(rows: list[dict]) -> list[dict]:
     for method in dict.fromkeys(r["method"] for r in rows if r["method"] != "diagnose"):
         by = {r["dataset"]: r["estimate"] for r in rows if r["method"] == method and r.get("estimate")}
         for name, series, par, separated in ORDERINGS:
-            est = [by[d][par] for d in series if d in by and par in by[d]]
+            est = [
+                by[d][par] for d in series if d in by and None not in ((by[d].get(par) or {}).get("hdi95") or [None])
+            ]
             if len(est) < 2:
                 continue
             holds = all(b["mean"] > a["mean"] for a, b in zip(est, est[1:]))
@@ -136,7 +142,12 @@ def physics_checks(rows: list[dict]) -> list[dict]:
                         "check": f"{d}: G consistent with 0",
                         "method": method,
                         "holds": bool(g.get("consistent_with_zero")),
-                        "evidence": f"G {g['mean']:.3g} [{g['hdi95'][0]:.3g}, {g['hdi95'][1]:.3g}] Pa",
+                        "evidence": (
+                            f"95 % upper bound {g['upper95']:.3g} Pa"
+                            if g.get("consistent_with_zero") and g.get("upper95")
+                            else f"G {g['mean']:.3g} [{(g.get('hdi95') or [0, 0])[0]:.3g}, "
+                            f"{(g.get('hdi95') or [0, 0])[1]:.3g}] Pa"
+                        ),
                     }
                 )
     return out
