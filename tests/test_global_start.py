@@ -1,6 +1,7 @@
 """The wide prior, the global search and the fit check: a start where the data are, G = 0 reachable,
 and a headline that never outruns the fit (docs/methods.md, "Priors", "Global start", "Fit check")."""
 
+import json
 import math
 
 import numpy as np
@@ -117,3 +118,25 @@ def test_log_grid_keeps_zero_and_spans_the_range():
     m = grid_axis(1e-4, 10.0, 11)
     assert m[0] == pytest.approx(1e-4) and m[-1] == pytest.approx(10.0)
     np.testing.assert_allclose(grid_axis(0.0, 25e3, 5, "linear"), np.linspace(0, 25e3, 5))
+
+
+def test_the_papers_likelihood_brings_the_papers_prior(tmp_path):
+    """However the paper's likelihood is chosen, the default prior is the paper's and no global
+    search runs (the paper's method, reproducible); the default likelihood gets the wide prior."""
+    from click.testing import CliRunner
+
+    from imrbayes.cli import main
+
+    ds = tmp_path / "ds"
+    sim = ["simulate", "--model", "nhkv", "--param", "G=7.29e3", "--param", "mu=0.088", "--n-exp", "2"]
+    sim += ["--forward", "bubble=polytropic", "--t-end", "1.0", "--seed", "0", "--out", str(ds), "--quiet"]
+    assert CliRunner().invoke(main, sim).exit_code == 0
+    tiny = ["--forward", "bubble=polytropic", "--set", "n_ens=8", "--set", "n_runs=1", "--n-steps", "40", "--quiet"]
+    names = {}
+    for tag, extra in (("set", ["--set", "likelihood=paper"]), ("option", ["--likelihood", "paper"]), ("default", [])):
+        out = tmp_path / tag
+        res = CliRunner().invoke(main, ["fit", str(ds), "--method", "en4dvar", *tiny, *extra, "--out", str(out)])
+        assert res.exit_code == 0, res.output
+        summary = json.loads((out / "summary.json").read_text())
+        names[tag] = (summary["prior"]["name"], "search" in summary)
+    assert names == {"set": ("paper", False), "option": ("paper", False), "default": ("wide", True)}

@@ -292,7 +292,9 @@ def fit_cmd(
     opts = _resolve_options(cfg, given, invocation, mcmc_settings)
     meth = METHODS[opts.method]
     s = _fit_settings(opts, cfg, settings)
-    prior_base, priors = prior_base_name(priors, cfg.get("prior_name"), opts.likelihood)
+    # the paper's likelihood, however it was chosen (--likelihood or --set likelihood=paper), brings
+    # the paper's prior unless another is named
+    prior_base, priors = prior_base_name(priors, cfg.get("prior_name"), getattr(s, "likelihood", opts.likelihood))
     prior = prior_overrides(cfg.get("prior", {}), key_values(priors, "--prior"))
     mcmc_s = _mcmc_settings(opts, cfg, mcmc_settings)
     ds, pre, fm, obs, space = _load_inputs(opts, cfg, forward, prior, prior_base)

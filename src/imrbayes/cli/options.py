@@ -306,8 +306,8 @@ def method_settings(cls, table: dict, cli: dict, option: str = "--set"):
 
 def prior_base_name(priors, config_name, likelihood) -> tuple:
     """(the named base prior, the remaining ``NAME=MEAN:SD`` items) from ``--prior`` values: a value
-    without ``=`` names the base (``wide``, ``paper``); the default is ``wide``, and ``paper`` with
-    ``--likelihood paper`` (the paper's settings together)."""
+    without ``=`` names the base (``wide``, ``paper``); the default is ``wide``, and ``paper`` with the
+    paper's likelihood (the paper's settings together)."""
     from imrbayes.ensemble.problem import PRIORS
 
     named = [p for p in priors if "=" not in str(p)]
