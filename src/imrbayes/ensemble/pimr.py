@@ -338,7 +338,11 @@ def _grid_estimate(J, Jmin, n, p, Gg, mg, opt, level):
         marg = marg / marg.sum()
         mean = float(np.sum(marg * grid))
         sd = float(np.sqrt(np.sum(marg * (grid - mean) ** 2)))
-        out[name] = {"mean": float(opt[ax]), "sd": sd, "hdi95": _hdi_grid(grid, marg, 0.95), "posterior_mean": mean}
+        hdi = _hdi_grid(grid, marg, 0.95)
+        # on a log grid one cell at G = 0 carries little mass: an interval that leaves out the optimum
+        # itself is widened to hold it (a ridge of equal cost, not a located parameter)
+        hdi = [min(hdi[0], float(opt[ax])), max(hdi[1], float(opt[ax]))]
+        out[name] = {"mean": float(opt[ax]), "sd": sd, "hdi95": hdi, "posterior_mean": mean}
     return out, level_J
 
 
