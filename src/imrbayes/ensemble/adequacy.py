@@ -25,6 +25,8 @@ __all__ = ["FIT_CHECK_THRESHOLD", "BOUND_RATIO", "fit_check", "annotate_estimate
 #: The largest median (residual RMS / record noise) of a model that describes its records: the
 #: 95th percentile of the ratio on camera-style synthetic nulls is below it (docs/validation.md).
 FIT_CHECK_THRESHOLD = 3.0
+#: A modulus below this [Pa] moves no bubble (1/Ca = G/p_inf < 1e-5): an interval reaching it reaches 0.
+NEGLIGIBLE_G_PA = 1.0
 #: A parameter is bounded by the data when its posterior sd is below this fraction of the prior's
 #: (internal coordinate, i.e. log scale for G and mu).
 BOUND_RATIO = 0.5
@@ -108,7 +110,8 @@ def annotate_estimate(estimate: dict, space, cov_internal=None, search=None) -> 
         if isinstance(search, dict)
         else (search.zero_modulus if search is not None else None)
     )
-    if zero is None and "G" in out and (out["G"].get("hdi95") or [1.0])[0] <= 0.0:
+    lo = (out.get("G", {}).get("hdi95") or [None])[0]
+    if zero is None and lo is not None and lo < NEGLIGIBLE_G_PA:
         # a grid method's interval that reaches G = 0 (IMR, pIMR: G = 0 is a grid point)
         zero = {"consistent_with_zero": True}
     if zero and "G" in out:
