@@ -60,7 +60,7 @@ def cpu_label(info: dict | None = None) -> str:
 # The speed targets' reference: the previous default forward row (a) -- 48 members of the LIC case,
 # thermal bubble, stretch 1.5, nt 64, t* in [0, 3] -- took 113 ms on the host the speed targets
 # were set on. Timing the same row beside a benchmark says how fast *this* host is, so that
-# a target missed here can be told apart from a target missed by the code (docs/open-work.md).
+# a target missed here can be told apart from a target missed by the code.
 YARDSTICK_REFERENCE_MS = 113.0
 
 

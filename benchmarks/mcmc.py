@@ -11,7 +11,7 @@ checkpointed units, with each unit's wall time).
 **Sweep** (``--sweep MOVES@WALKERS ... --sweep-windows 0 6 12 --fit-cache fit.pkl``): each move
 mixture x walker count sampled to convergence on the targets ``fit --mcmc`` builds from a MIEnKS-MDA
 fit of the verification case; evaluations (forward solves of all experiments) to convergence,
-tau, ESS per evaluation (docs/mcmc.md).
+tau, ESS per evaluation (docs/methods.md).
 
 **One window** (the default mode, below):
 

@@ -574,7 +574,7 @@ def test_report_flags_a_gel_level_estimate_outside_the_experiments(runs, tmp_pat
 
 
 def test_report_warns_that_an_inferred_req_can_make_mu_windows_decline(runs, tmp_path):
-    """MIEnKS-MDA with Req inferred from the tail (docs/results.md: the mu windows of a constant gel fall
+    """MIEnKS-MDA with Req inferred from the tail (docs/validation.md: the mu windows of a constant gel fall
     and the aggregate is ~10 % high): the conclusion says so; with Req given (prior sd 0), or for a
     method with one window, it does not."""
     key = "Req was estimated from each record's tail and inferred window by window"

@@ -91,7 +91,7 @@ def test_zener_j_option_defaults_follow_the_scheme():
 
 def test_zener_j_is_irrelevant_at_lambda2_equal_lambda1_and_moves_the_curve_at_lambda2_zero():
     """Lambda = 1 makes both coefficients 4/Re (identical curves); at Lambda = 0 the compressible
-    term differs, a change in R* of order 1e-2 (docs/forward-model.md: 2.7e-2 against PyIMR)."""
+    term differs, a change in R* of order 1e-2 (docs/methods.md: 2.7e-2 against PyIMR)."""
     t = np.linspace(0.0, 3.0, 61)
     out = {}
     for lam2 in (1e-6, 0.0):

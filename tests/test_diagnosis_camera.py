@@ -148,7 +148,7 @@ def test_strength_design_draws_violent_bubbles_and_leaves_the_others_alone():
 # fitted one. The material and the hidden mechanism's parameters are drawn inside (seeded) from the
 # realistic ranges of :mod:`imrbayes.diagnosis.candidates`. Quick settings (19 bootstrap replicates,
 # no LOEO, no MIEnKS drift). The full classes x seeds confusion matrix and the 20-dataset false-alarm
-# rate are ``python -m validation confusion`` (docs/diagnosis.md).
+# rate are ``python -m validation confusion`` (docs/methods.md).
 
 
 # Each test is a full diagnose run (minutes): the default tier's diagnose is test_diagnosis_cli.py.
@@ -209,7 +209,7 @@ def test_stop_when_adequate_keeps_the_verdict(tmp_path):
     assert "the candidates were not compared" in page
 
 
-# each hidden cause against the alternatives it is most often taken for (docs/diagnosis.md: damage and
+# each hidden cause against the alternatives it is most often taken for (docs/methods.md: damage and
 # zener tie with stiffening; zener with lambda1 -> 0 and Gilmore stand in for missing bubble physics);
 # every candidate against every class is the confusion matrix's job (validation/confusion.py)
 RIVALS = {

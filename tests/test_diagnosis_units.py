@@ -448,7 +448,7 @@ def test_candidate_fit_leaves_the_baseline_basin_on_camera_stiffening_data(seed)
 #
 # A candidate's extension is fitted inside +-EXTENSION_BOX_SD prior sd of its prior mean.
 #
-# Why (docs/diagnosis.md, Runtime): on a record the model misses by far, the first fit's likelihood
+# Why (docs/methods.md, Runtime): on a record the model misses by far, the first fit's likelihood
 # swamps the prior, and zener's lambda1 crawled towards its NHKV limit (lambda1 ~ 1e-14 s on UMich
 # PA10), where the thermal solves need up to 7x the steps for no change in R*. The fit's optimiser is
 # checked here on an exactly quadratic problem (a linear stand-in for the forward model) whose

@@ -138,7 +138,7 @@ def test_a_misgiven_maximum_is_read_as_an_alignment_conflict():
     its stated sd of ~0.3 % kept): the fit moves that bubble's Rmax back by most of the 3 % and
     :func:`alignment_shift_z` says so in the preprocessing's units, while the other bubbles' Rmax
     and time of the maximum stay within 3 sd of their local fits (constant-NHKV camera records, the
-    model's own physics: docs/diagnosis.md, "The alignment conflict")."""
+    model's own physics: docs/methods.md, "The alignment conflict")."""
     import dataclasses
 
     from imrbayes.ensemble.req_tail import alignment_shift_z

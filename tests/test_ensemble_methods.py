@@ -581,7 +581,7 @@ def test_validate_quick_suite(tmp_path):
 def test_validate_second_truth_case(tmp_path):
     """G 2 kPa, mu 0.05 Pa s, Rmax/Req 9 (far in the paper prior's tail), default likelihood: both
     methods' gel-level estimates within 10 % with the truth inside their 95 % intervals, and
-    MIEnKS-MDA's data-decided windows hold it (docs/results.md, 'Second case'; about 2 minutes)."""
+    MIEnKS-MDA's data-decided windows hold it (docs/validation.md, 'Second case'; about 2 minutes)."""
     out = tmp_path / "val"
     res = CliRunner().invoke(main, ["validate", "--suite", "quick", "--case", "second-truth", "--out", str(out)])
     assert res.exit_code == 0, res.output
@@ -622,7 +622,7 @@ def test_validate_mcmc_agreement_case(tmp_path):
 
 
 def test_fit_names_the_constants_and_where_they_came_from(dataset, tmp_path):
-    """G rests on the gel's density (docs/results.md 2a''): the run says which constants it used."""
+    """G rests on the gel's density (docs/validation.md 2a''): the run says which constants it used."""
     args = ["--method", "imr", "--model", "nhkv", "--set", "n_G=11", "--set", "n_mu=9"]
     res = _fit([dataset, *args, "--out", tmp_path / "a"])
     assert "rho 1064 kg/m^3 (default)" in res.output and "kappa 1.47 (default)" in res.output

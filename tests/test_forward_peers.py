@@ -62,7 +62,7 @@ def test_polytropic_bubble_agrees_with_pyimr_to_the_tolerances(model, params):
 def test_zener_agrees_with_pyimr_with_the_consistent_coefficient(lambda2):
     """Zener (IMRv2's stress 3) at Lambda < 1: PyIMR's Keller-Miksis coefficient of Rddot is the
     stress's instantaneous viscosity 4 Lambda/Re, ours too by default (``zener_j=consistent``);
-    IMRv2's 4/Re (``zener_j=imrv2``) is 2.7e-2 away at Lambda = 0 (docs/forward-model.md)."""
+    IMRv2's 4/Re (``zener_j=imrv2``) is 2.7e-2 away at Lambda = 0 (docs/methods.md)."""
     pytest.importorskip("pyimr")
     from imrbayes.forward.peers import PyIMRModel
 

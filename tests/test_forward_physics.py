@@ -299,8 +299,7 @@ def test_serial_and_threaded_batches_agree_bitwise_in_any_process():
     default, one process) give the same bits, whichever the process ran first. The serial and the
     threaded compilations of the member loop differed by ~1e-10 relative through a collapse, a
     process used whichever it loaded first, and (through MIEnKS-MDA's digest-seeded units, since
-    fixed) that became 11 % of one bubble's G between --workers 1 and 2 (docs/open-work.md,
-    sessions 57-58)."""
+    fixed) that became 11 % of one bubble's G between --workers 1 and 2."""
     import subprocess
     import sys
 

@@ -259,7 +259,7 @@ def test_a_flagged_bubbles_pilot_is_run_again_and_the_closer_fit_kept(monkeypatc
 def test_a_cheaper_pilots_retry_runs_at_the_reported_pass_size(monkeypatch):
     """With ``pilot_n_ens`` set, a flagged bubble's second pilot runs with the reported pass's
     members: on stiff PA seed 1 a retry at the cheap pilot's own size lost the same bubble again
-    (docs/results.md)."""
+    (docs/validation.md)."""
     fm = observations()[0]
     obs = noisy(fm, n_exp=3, n_steps=40, sd=0.01, seed=2)
     flag_second_as_lost(monkeypatch)

@@ -1052,7 +1052,7 @@ def _conclusion_nuisances(s: dict) -> list:
                     "size to fit the collapses); those experiments kept the record's Req prior.</span>"
                 )
         elif len(wins) > 1 and req_inferred:
-            # measured on camera-style synthetic records of a constant gel (docs/results.md, "Where the
+            # measured on camera-style synthetic records of a constant gel (docs/validation.md, "Where the
             # decline of the decided windows comes from", 20 seeds): with Req inferred the mu windows fell
             # and the aggregate was G +17 %, mu +12 %; with the true Req given, flat and G +4 %, mu +1 %
             items.append(

@@ -67,7 +67,7 @@ def planned_units(meth, settings, n_exp: int, n_steps: int, fm=None) -> tuple:
     """(units the fit will run, what they are in words) for the progress bar's total, so that it counts
     the whole run from the start (``mienks: 18 windows x 5 experiments``); ``(None, "")`` when not
     known (the bar then grows batch by batch). Each method declares it
-    (:meth:`~imrbayes.ensemble.InferenceMethod.n_units`; docs/scaling.md)."""
+    (:meth:`~imrbayes.ensemble.InferenceMethod.n_units`; docs/guide.md)."""
     n, what = meth.n_units(settings, n_exp, n_steps, fm)
     return (None, "") if n is None else (int(n), what)
 
@@ -905,7 +905,7 @@ def _write_fit(
 
 def constants_line(physics, given: dict) -> str:
     """One line naming the constants an estimate of G rests on and where each came from: on the
-    stiff-PA data, rho 998.2 instead of 1064 kg/m^3 alone lowers G by 30 % (docs/results.md 2a'')."""
+    stiff-PA data, rho 998.2 instead of 1064 kg/m^3 alone lowers G by 30 % (docs/validation.md 2a'')."""
     parts = []
     for key, label, unit in (
         ("rho", "rho", "kg/m^3"),

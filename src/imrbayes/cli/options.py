@@ -1,5 +1,5 @@
 """Shared command-line helpers: option parsing, run folders (:func:`new_run_dir`, :func:`prepare_out`,
-from :mod:`imrbayes.io`), and the plumbing of the execution layer (docs/scaling.md): ``--workers``,
+from :mod:`imrbayes.io`), and the plumbing of the execution layer (docs/guide.md): ``--workers``,
 ``--scheduler``, ``--resume``, ``--retry-failed`` for ``fit``, ``diagnose`` and ``validate``.
 
 The run directory is ``--out``: ``run.json`` (the exact configuration, its fingerprint, the

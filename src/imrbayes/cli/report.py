@@ -1,6 +1,6 @@
 """``imrbayes report RUN_DIR`` (interfaces.md §2): one self-contained ``report.html`` of a run
 directory written by ``imrbayes fit`` (any method, with or without ``--mcmc``); see
-:mod:`imrbayes.report` and ``docs/report.md``."""
+:mod:`imrbayes.report` and ``docs/guide.md``."""
 
 from __future__ import annotations
 

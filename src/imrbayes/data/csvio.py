@@ -88,7 +88,7 @@ def _header_problem(found: tuple, expected_sets: tuple) -> str:
         return (
             f"holds per-bubble collapse-time summaries ({','.join(found)}), not R(t) curves: fit, "
             f"diagnose and inspect need t_s,R_m records; pIMR on such a file: python "
-            f"validation/pimr_summaries.py (docs/datasets.md)"
+            f"validation/pimr_summaries.py (docs/guide.md)"
         )
     for name in found:
         parts = name.lower().replace("[", "_").replace("]", "").replace("(", "_").replace(")", "").split("_")

@@ -15,7 +15,7 @@ used as is, those steps would get (near-)infinite weight. A floor keeps every we
 ``pooled`` (an option, not methods.md's rule): the same sample variance averaged over a centred
 window of ``POOL_SAMPLES`` = 11 neighbouring steps before the floors. With N_exp = 5 the per-step
 variance has 4 degrees of freedom and E[1/var_k] = 2/sigma^2: every step is over-weighted twofold
-on average, some far more, and the posteriors come out too narrow (docs/results.md, calibration).
+on average, some far more, and the posteriors come out too narrow (docs/validation.md, calibration).
 Pooling gives ~4 x 11 degrees of freedom where the noise level varies slowly in time.
 
 With a single experiment there is no spread to measure; P_k then falls back to the verification

@@ -23,7 +23,7 @@ Choices and why (written to every run's output by :func:`imrbayes.data.pipeline.
   inflates the across-experiment variance P_k where R* changes fastest. Near a maximum R(t) is
   smooth and close to symmetric (R' = 0), which a parabola captures: on forward-model curves the
   refined maximum is within 1e-4 in t* of the truth. On the 20 stiff-PA records it halves the spread
-  of t_c* across bubbles (docs/datasets.md). ``"sample"`` (the discrete argmax, which the shared
+  of t_c* across bubbles (docs/guide.md). ``"sample"`` (the discrete argmax, which the shared
   CSVs use for their t = 0) is available. The parabola falls back to it when the maximum is the
   first or last sample.
 * **First collapse** (:func:`first_collapse`): the smallest radius between the maximum and the first
@@ -35,14 +35,14 @@ Choices and why (written to every run's output by :func:`imrbayes.data.pipeline.
   parabola through the minimum sample and its neighbours. A record with no rebound after its
   minimum is too short and is refused. On Keller-Miksis curves the parabola has the lower rms
   error of the two estimators at every frame rate tried. Both are biased late, because the collapse
-  is steeper than the rebound: by about 0.2 frame intervals (docs/datasets.md).
+  is steeper than the rebound: by about 0.2 frame intervals (docs/guide.md).
 * **Req** (:func:`estimate_req`): the mean of the last ``n_tail`` = 20 samples after the first
   collapse (the peer codes' choice). Its uncertainty: the part of the tail's spread that is not
   measurement noise (the late radius still oscillates, and where its centre lies is not averaged
   away) in full, plus the noise divided by the samples averaged; with no noise estimate, the
   tail's sample sd. The standard error of the mean is reported as well. A tail that has not
   settled (its spread beyond the noise over 10 % of its mean) is a nonlinear oscillation whose
-  mean lies above Req (up to 2.8x on camera-style records to t* = 4, docs/diagnosis.md) and whose
+  mean lies above Req (up to 2.8x on camera-style records to t* = 4, docs/methods.md) and whose
   lowest point lies at or below it: Req is then taken at the log-midpoint of the two, each end one
   sd away (the data of the fitted window decide where in between).
 * **Resampling** (:func:`resample`): linear interpolation (no overshoot near the collapse, where a
@@ -390,7 +390,7 @@ def estimate_req(R_m, i_collapse: int, n_tail: int = 20, noise_sd_m: float | Non
     above its equilibrium (the bubble lingers near its maxima) -- on camera-style relaxation
     records 1.3-2.2x the true Req, far outside the tail-spread sd -- while its lowest point lies
     at or below it; between the two the estimate was within 0.33 in log of the truth on every
-    such record of the diagnosis matrix (docs/diagnosis.md).
+    such record of the diagnosis matrix (docs/methods.md).
     """
     R = np.asarray(R_m, dtype=float)
     start = max(R.size - int(n_tail), i_collapse + 1)

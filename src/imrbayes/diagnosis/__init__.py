@@ -7,7 +7,7 @@ Modules: :mod:`candidates` (the candidate mechanisms: one declaration each, one 
 :mod:`phases` (collapses from the measured minima), :mod:`models` (a candidate on a forward model),
 :mod:`lsq` (joint MAP + Laplace fits), :mod:`check` (bootstrap-calibrated check), :mod:`heldout`
 (forecast, leave-one-experiment-out, ELPD), :mod:`run` (the decision), :mod:`synthetic` (data with
-a hidden mechanism), :mod:`figures`, :mod:`report`. Decisions and evidence: docs/diagnosis.md.
+a hidden mechanism), :mod:`figures`, :mod:`report`. Decisions and evidence: docs/methods.md.
 """
 
 from imrbayes.diagnosis.candidates import BASELINE, CANDIDATES, DEFAULT_CANDIDATES, MECHANISMS, CandidateSpec

@@ -8,7 +8,7 @@ extension points the way of that mechanism, and how synthetic data with the mech
 drawn. Everything else in :mod:`imrbayes.diagnosis` (the fits, the ranking, the synthetic data,
 figure and report labels, the command line's ``--candidates``) reads :data:`CANDIDATES`.
 
-Adding one: write a :class:`CandidateSpec` below and add it to :data:`CANDIDATES` (docs/diagnosis.md).
+Adding one: write a :class:`CandidateSpec` below and add it to :data:`CANDIDATES` (docs/methods.md).
 
 This module is light (numpy only): the command line imports it to list the candidates.
 """
@@ -220,7 +220,7 @@ def _thermal_alternative(o):
     thermal bubble (heat conduction in the gas, vapour); a thermal bubble -> the same with vapour
     mass transfer switched (on <-> off). The warm medium (the gel's temperature field) would be the
     natural alternative to a cold one, but our solver does not finish it on the default grid (too
-    many steps at every tried grid; docs/diagnosis.md), so it is not offered."""
+    many steps at every tried grid; docs/methods.md), so it is not offered."""
     if o.bubble == "polytropic":  # the polytropic options drop mass transfer; the thermal bubble keeps it
         return {"bubble": "thermal", "integrator": None, "mass_transfer": bool(o.vapor)}
     if o.vapor:

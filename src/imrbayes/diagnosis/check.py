@@ -32,7 +32,7 @@ at any B. (A first version calibrated the smallest p-value against leave-one-out
 replicates, whose denominator B made the data's p = 1/(B+1) beat every replicate's 1/B: the data
 extreme on *any one* statistic was then rejected, ~3 alpha with three statistics -- 4 false
 alarms in 20 camera-style nulls, measured. With the pool the same 20 nulls give none, and the
-mechanisms' detections are kept: docs/diagnosis.md.)
+mechanisms' detections are kept: docs/methods.md.)
 
 The replicates run in batches (:func:`bootstrap_check`; default after 5, after 10, then all 19):
 after each, the check stops ``adequate`` when replicates at or above the data on every statistic
@@ -74,13 +74,13 @@ DECIDE_STATS = ("misfit", "phase_misfit")
 #: Cantelli's one-sided inequality bounds a replicate's chance to lie that far out by 1/(1 + Z^2) =
 #: 0.25 % whatever the distribution (at the true moments); 20 leaves room for ten replicates'
 #: sample sd (below half the true sd with probability ~1 % for chi-square-like statistics).
-#: Thermal fits of real records lie 400-32 000 sd out (docs/diagnosis.md, Runtime).
+#: Thermal fits of real records lie 400-32 000 sd out (docs/methods.md, Runtime).
 Z_DECIDED = 20.0
 #: the same after only 5 replicates: their sd (4 degrees of freedom) is below a quarter of the true
 #: sd with probability ~0.75 % (chi-square-like statistics), as 10 replicates' is below half with
 #: ~1.3 %, so both thresholds leave the data >= 10 true sd out (Cantelli: <= 1 %) at like odds.
 #: Every stored thermal row decided this early was decided inadequate after 10 as well, and the 20
-#: nulls lie <= 3.2 sd out after 5 (docs/diagnosis.md, Runtime).
+#: nulls lie <= 3.2 sd out after 5 (docs/methods.md, Runtime).
 Z_DECIDED_FIRST = 40.0
 
 

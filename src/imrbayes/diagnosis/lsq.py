@@ -45,14 +45,14 @@ MAX_STEPS = 20_000  # a member needing more integrator steps counts as failed (s
 NU_STEP = 0.05  # nuisance finite-difference step [prior sd]
 #: longest trial step of the material coordinates [prior sd]: a coordinate the data barely see (a
 #: relaxation time near the NHKV limit) has Marquardt damping ~ its prior precision only, and steps of
-#: 2-7 prior sd there sent the trial solves to far-off, slow parameter sets (docs/diagnosis.md, Runtime)
+#: 2-7 prior sd there sent the trial solves to far-off, slow parameter sets (docs/methods.md, Runtime)
 TRUST_SD = 2.0
 #: the MAP of a candidate's extension (its parameters beyond G and mu) is searched within this many
 #: prior sd of the prior mean (the prior density there is < 4e-6 of its peak). Why: a first fit on
 #: the records' noise swamps the prior, and where the data prefer the NHKV limit of a nested model
 #: (zener's lambda1 -> 0) the fit crawled to lambda1 ~ 1e-14 s: R* within 3e-5 of lambda1 = 1 ns,
 #: but up to 7x the Radau steps per solve (at 1e-14 s) and 40 iterations unconverged -- UMich
-#: PA10's zener fit took 892 s (docs/diagnosis.md, Runtime). No stored final fit of a candidate
+#: PA10's zener fit took 892 s (docs/methods.md, Runtime). No stored final fit of a candidate
 #: lies beyond 4 prior sd.
 EXTENSION_BOX_SD = 5.0
 #: stop when the Gauss-Newton model predicts less than this decrease of the cost (log-density
@@ -63,7 +63,7 @@ NEWTON_DECREMENT = 1e-3
 #: times chi-square/n (~150 on stiff PA), so 1e-4 of it is ~0.01-0.03 nats of the tempered fit
 #: that follows, and its last iterations (a fifth of them) polished a point that fit moves away
 #: from anyway. Not the baseline's: its tempering is every later fit's, and with 1e-4 its
-#: tempered fit on stiff PA 1-5 ended at chi-square/n 115.4 against 107.0 (docs/diagnosis.md, Runtime)
+#: tempered fit on stiff PA 1-5 ended at chi-square/n 115.4 against 107.0 (docs/methods.md, Runtime)
 CANDIDATE_FIRST_TOL = 1e-4
 #: the race's runner-up also goes on to convergence when it is at most this fraction behind the
 #: leader and in another basin of the candidate's extension (its parameters beyond G and mu more
@@ -71,7 +71,7 @@ CANDIDATE_FIRST_TOL = 1e-4
 #: cost 105 after the race and ended at 94.9 (lambda1 1.5 us) while the runner-up (119, lambda1
 #: 2.8 us) ends at 87.7 (3.4 us; truth 3.9 us); a trace found a runner-up 18 % behind that
 #: ended 3.6 % lower. Any basin (G and mu too) cost stiff PA 1-5 50 s for no change of any fit
-#: (docs/diagnosis.md, Runtime)
+#: (docs/methods.md, Runtime)
 RUNNER_UP_BEHIND = 0.25
 RUNNER_UP_APART = 0.3
 #: prior sd of each bubble's log G and log mu offset from the gel's: a fixed prior for the
@@ -390,7 +390,7 @@ def nuisance_restarts(cand, obs, idx, K, minima, om: ObsModel, z, nu, levels=(-2
     Why: each bubble's (Rmax, t0, Req, log G and log mu offsets) objective is multimodal -- an offset
     of the bubble's material can stand in for a misalignment -- and a joint fit started at 0 ends
     in such a basin for one bubble in five on the stiff-PA design (its chi-square 10-20x that of
-    the fit started at the truth: docs/diagnosis.md)."""
+    the fit started at the truth: docs/methods.md)."""
     idx = np.atleast_1d(np.asarray(idx, dtype=int))
     E, q = idx.size, om.nu_sd.shape[1]
     s_nu = om.nu_sd[idx]
@@ -665,7 +665,7 @@ def _start_pairs(p: _LMProblem, om, starts, nu0, o: MapOptions) -> tuple:
         nu_alt, u_alt = _nuisance_units(o.alt_nu0, p.idx, p.active, p.s_nu)
         if not np.array_equal(u_alt, u_start):  # the same nuisances would repeat every start's fit
             # screened again at these nuisances: the first set's material starts raced from them
-            # miss better basins (docs/diagnosis.md, Runtime)
+            # miss better basins (docs/methods.md, Runtime)
             alt = grid_starts(p.cand, p.obs, p.idx, p.K, p.minima, om, nu_alt, o.extra_starts)
             pairs += [(np.asarray(z0, dtype=float), u_alt) for z0 in alt]
     return starts, pairs

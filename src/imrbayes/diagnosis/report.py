@@ -381,7 +381,7 @@ def _other_scheme_lead(g: dict, shown: str | None) -> str:
     when it is significant (>= 2 SE): the check decides the verdict, but a user should see that a
     candidate predicts left-out bubbles better (thermal relaxation seed 2001: forecast 1.6 SE shown,
     LOEO 15 % at 4.2 SE unseen). Worded as a lead, not a finding: on a constant-parameter control a
-    candidate's LOEO reached 3.3 SE (docs/diagnosis.md)."""
+    candidate's LOEO reached 3.3 SE (docs/methods.md)."""
     for k, v in (g.get("by_scheme") or {}).items():
         pd = v.get("paired_vs_baseline") or {}
         rr = v.get("relative_reduction")

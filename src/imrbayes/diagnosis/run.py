@@ -1,7 +1,7 @@
 """``diagnose``: baseline fit and phase misfit, calibrated constant-parameter check, candidate
 mechanisms ranked by held-out prediction, and the gain of the extended model (interfaces.md §3).
 
-Decision rule (documented in docs/diagnosis.md):
+Decision rule (documented in docs/methods.md):
 * the verdict comes from the bootstrap check alone (:mod:`imrbayes.diagnosis.check`);
 * every candidate gets a held-out score = mean over the held-out schemes run (forecast of the 3rd
   collapse from a fit to the 2nd; leave-one-experiment-out) of the relative RMSE reduction against
@@ -153,7 +153,7 @@ def req_consistency(obs, per_experiment, bound: float | None = None) -> dict:
     (``validation/req_conflict_classes.py``) none of 40 constant-NHKV datasets is flagged (2 of 178
     bubbles beyond 3), viscoelastic relaxation on 270 kfps records to t* = 8 is in 4 of 5, damage
     in 1 of 5, every other class in none; the 20 stiff-PA bubbles are (18 of 20 beyond 3,
-    docs/diagnosis.md, "The Req conflict"). Evidence that the model needs another bubble than the
+    docs/methods.md, "The Req conflict"). Evidence that the model needs another bubble than the
     one filmed -- reported, not a statistic of the check, which decides the verdict."""
     from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, req_shift_z
 
@@ -182,7 +182,7 @@ def alignment_consistency(per_experiment, bound: float | None = None) -> dict:
     (default :data:`~imrbayes.ensemble.req_tail.REQ_CONFLICT_Z`) on either, the median |z| of each,
     and ``flagged`` when more than half of them do. Why: the local fit sees a few frames around the
     maximum; the fit moves them to where the model's collapse and rebounds need them, so a large
-    shift is model error absorbed by the alignment (docs/diagnosis.md, "The alignment conflict",
+    shift is model error absorbed by the alignment (docs/methods.md, "The alignment conflict",
     where its rate on constant-NHKV camera datasets and on the classes is measured). Reported as
     evidence, like the Req conflict; the check decides the verdict."""
     from imrbayes.ensemble.req_tail import REQ_CONFLICT_Z, alignment_shift_z

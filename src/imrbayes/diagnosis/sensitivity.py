@@ -3,7 +3,7 @@
 A bubble-model candidate (``kind == "bubble"``: the baseline material with another bubble model,
 :mod:`imrbayes.diagnosis.candidates`) that the data cannot tell from the baseline but that puts the
 material elsewhere is a systematic uncertainty of the estimate, whatever the check says. Measured on
-camera-style data (docs/diagnosis.md, thermal matrix, bubble-thermal seed 5000): records made with
+camera-style data (docs/methods.md, thermal matrix, bubble-thermal seed 5000): records made with
 vapour mass transfer switched off differ from the fitted model's by 36-41 noise sd before a refit,
 yet the NHKV refit absorbs them to the noise level (check p = 0.91) by moving G +70 % and mu -19 %
 off the truth, while the right bubble model fits no better on held-out data. The check cannot see

@@ -15,7 +15,7 @@ prior draws are run once (:func:`screened_start`); when a draw has a lower poste
 runs from both and goes on from the end with the lower posterior cost under the original prior
 (:func:`posterior_cost`). Iterations to convergence (``max_iter``, default likelihood only): every
 cycle iterates past its ``n_iter`` while the Gauss-Newton cost still falls by 1 % per iteration.
-The cycles after the first run at least ``n_iter_later`` iterations (evidence: docs/results.md).
+The cycles after the first run at least ``n_iter_later`` iterations (evidence: docs/validation.md).
 
 Fusion of the experiments (:mod:`imrbayes.ensemble.fusion`). Default likelihood: each
 experiment's likelihood (last posterior / the prior its last cycle started from, log Req
@@ -80,7 +80,7 @@ __all__ = [
 #: members per experiment: the default likelihood's, and the paper's (``likelihood="paper"``)
 DEFAULT_N_ENS, PAPER_N_ENS = 24, 48
 #: Gauss-Newton iterations (at least) of the cycles after the first with the default likelihood:
-#: they start near the optimum (docs/results.md, "Fewer iterations after the first cycle")
+#: they start near the optimum (docs/validation.md, "Fewer iterations after the first cycle")
 DEFAULT_N_ITER_LATER = 3
 REQ_TAILS = ("auto", "mean", "inline")
 
@@ -174,7 +174,7 @@ class En4DVarSettings:
 def req_tail_mode(settings: En4DVarSettings, fm) -> str:
     """``mean`` or ``inline``: what ``settings.req_tail`` means for forward model ``fm``. ``auto`` is
     ``inline`` with the thermal bubble and the default likelihood (its record's tail mean is high,
-    docs/results.md), ``mean`` otherwise. (:func:`fit_en4dvar` runs ``inline`` as the two-pass
+    docs/validation.md), ``mean`` otherwise. (:func:`fit_en4dvar` runs ``inline`` as the two-pass
     ``model`` when given a start or one cycle.)"""
     s = settings.resolved()
     if s.req_tail != "auto":
@@ -184,7 +184,7 @@ def req_tail_mode(settings: En4DVarSettings, fm) -> str:
 
 
 #: the first pass that places the material for the model's tail when ``inline`` cannot run in one
-#: pass (one cycle, no start given): one cycle from the prior mean (docs/results.md)
+#: pass (one cycle, no start given): one cycle from the prior mean (docs/validation.md)
 REQ_TAIL_FIRST_PASS = {"n_runs": 1, "screen": 0, "n_draws": 1, "loglik": False}
 
 
@@ -404,7 +404,7 @@ def _unit_likelihood(bubble: _Bubble, s: En4DVarSettings, res, cycles: list, lik
     by -- with the default likelihood log Req integrated against its preprocessing prior, unless
     the fitted Req conflicts with its record (beyond REQ_CONFLICT_Z prior sd: the Gaussian algebra
     would then move the material along the Req ridge far from any point the fit visited,
-    docs/results.md, "A Req in conflict is not extrapolated") -- and the nuisances' posterior."""
+    docs/validation.md, "A Req in conflict is not extrapolated") -- and the nuisances' posterior."""
     n_p, active = bubble.n_p, bubble.active
     qa = res.prior_anoms[0]
     pm, pc, qm, qc = res.mean[0], res.cov[0], res.prior_ensemble[0].mean(axis=0), qa.T @ qa
@@ -472,7 +472,7 @@ def screened_start(rng, evaluate, y, mean, cov, n: int):
     nuisances together) by the posterior cost 1/2 ||y - h(z)||^2 + 1/2 (z - m)^T C^-1 (z - m)
     (``y`` and ``evaluate`` whitened). Why: the Gauss-Newton iterate stays in the basin its
     starting centre lies in, and on measured records the objective is multimodal along the G-mu
-    ridge jointly with the alignment (docs/results.md 2a'). The cycle's prior is then N(best, C):
+    ridge jointly with the alignment (docs/validation.md 2a'). The cycle's prior is then N(best, C):
     its likelihood is still recovered exactly (posterior / cycle prior) and fused with the
     original prior. Returns (centre (d,) -- ``mean`` itself when it is the best, {"n",
     "cost_prior_mean", "cost_best", "moved"})."""

@@ -410,7 +410,7 @@ def _predictive_cov(Lam, m, tau, cov, m0, C0i, n_grid: int = 48, drop: float = 1
     prior on [0, _TAU_MAX], the other tau at their estimates), not plugged in at tau_hat.
 
     With 5-20 bubbles tau_hat is uncertain and biased low, and N(mu_hat, cov + tau_hat^2) held
-    only 0.86-0.88 of synthetic bubbles' mu (docs/results.md, "The predictive with the scatter's
+    only 0.86-0.88 of synthetic bubbles' mu (docs/validation.md, "The predictive with the scatter's
     uncertainty"). Per parameter: the variance of the mixture over tau_i of N(mu_i(tau), cov_ii(tau)
     + tau_i^2) (moment-matched: for the t-like tails of such a mixture the 95 % interval of the
     matched Gaussian is within a few per cent of the mixture's); the off-diagonal entries are the

@@ -157,7 +157,7 @@ def gauss_newton(
         posterior, as after the last iteration. Rejected steps do not stop it before ``n_iter``
         (a later halved step may be accepted). Why: in a sliding-window smoother many windows
         start next to their optimum (their prior is the previous window's posterior and 30 of 35
-        samples are shared) and repeat the same cost to 1 % (docs/results.md). Default None:
+        samples are shared) and repeat the same cost to 1 % (docs/validation.md). Default None:
         never before ``n_iter``.
     step_tol : from evaluation ``min_iter`` (else ``n_iter``) on, a group also stops at an accepted
         iterate whose next step is shorter than ``step_tol`` posterior sd: sqrt(g^T H^-1 g), the

@@ -40,7 +40,7 @@ Likelihood ``default`` (methods.md §7)
   *independent* observation counts once. The reported pass uses these (``adapt=False``: no pilot,
   the record noise and alpha = 1). One noise level and one tempering per experiment over the whole
   record (a window of 35 correlated samples is too short to estimate an autocorrelation time).
-  The pilot runs with half the members (``pilot_n_ens`` 24: docs/results.md, "A cheaper
+  The pilot runs with half the members (``pilot_n_ens`` 24: docs/validation.md, "A cheaper
   pilot"), so it costs about half the reported pass. An experiment
   whose pilot residual stands out from the others' (:func:`pilot_outliers`) is named in the
   warnings: the smoother may have lost track of it, and the reported pass would then weight it
@@ -65,7 +65,7 @@ Likelihood ``default`` (methods.md §7)
   Req's prior (the record's tail mean) is replaced by its whole-record En4D-Var posterior, fitted
   first (:func:`req_prior_from_en4dvar`; no fit when every Req is given): the windows see the tail,
   where Req is decided, only at the end, and an uncertain Req lets the early windows' mu slide along
-  the Req-mu ridge. Measured (docs/results.md, 20 camera seeds each): the aggregate's bias G +13.9 ->
+  the Req-mu ridge. Measured (docs/validation.md, 20 camera seeds each): the aggregate's bias G +13.9 ->
   +4.7 %, mu +9.7 -> +4.0 % (thermal), G +9.9 -> +3.6 %, mu +7.5 -> +2.2 % (polytropic); the price is
   an En4D-Var fit and Req's information used twice (``preprocessing``: the method before).
 * **Across bubbles** (§7.4), in every window: each experiment's window likelihood (its posterior
@@ -82,7 +82,7 @@ Likelihood ``default`` (methods.md §7)
   experiment's log Req shared by its windows (every window's likelihood of (parameters, rho)
   summed, rho integrated out once against its preprocessing prior) rather than integrated out per
   window against that window's chained prior; on the camera family (20 seeds) mu's bias +10.7 ->
-  +8.3 %, coverage 0.45 -> 0.70 (docs/results.md, "Req shared by the windows"): reported beside
+  +8.3 %, coverage 0.45 -> 0.70 (docs/validation.md, "Req shared by the windows"): reported beside
   the default, not in its place.
 * ``FitResult.window_posteriors`` (what ``--mcmc`` samples): the window's density with no
   between-bubble scatter (the pooled, product-rule Gaussian ``pooled_mean_internal``): the chained
@@ -184,18 +184,18 @@ __all__ = [
 #: the default likelihood's early stop of a window's Gauss-Newton iterations (MIEnKSSettings.resolved)
 DEFAULT_MIN_ITER = 2
 DEFAULT_STEP_TOL = 0.1
-#: the default likelihood's start of window 0's members: mu's prior sd x 3 (docs/results.md)
+#: the default likelihood's start of window 0's members: mu's prior sd x 3 (docs/validation.md)
 DEFAULT_PRIOR_WIDEN = "mu:3"
 #: where each estimated Req's prior comes from (``req_prior``); ``en4dvar`` fits En4D-Var first
 REQ_PRIORS = ("preprocessing", "en4dvar")
-#: the default likelihood's ``req_prior`` (docs/results.md, "Req's prior from a whole-record fit: the default")
+#: the default likelihood's ``req_prior`` (docs/validation.md, "Req's prior from a whole-record fit: the default")
 DEFAULT_REQ_PRIOR = "en4dvar"
 #: a whole-record Req further than this many preprocessing prior sd from the record's own Req is a
 #: conflict between the model and the measured tail: that experiment keeps the preprocessing prior
 REQ_PRIOR_CONFLICT_Z = REQ_CONFLICT_Z
 #: the Req-prior fit skips an experiment's later cycles once a cycle leaves its Req this many
 #: preprocessing sd from the record's (En4DVarSettings.req_conflict_stop): a conflict the later
-#: cycles do not undo (docs/results.md, "The Req-prior fit stops on a decided conflict")
+#: cycles do not undo (docs/validation.md, "The Req-prior fit stops on a decided conflict")
 REQ_PRIOR_STOP_Z = 6.0
 
 
@@ -901,7 +901,7 @@ def req_prior_from_en4dvar(
 ):
     """(Observations with each estimated Req's prior replaced by its whole-record En4D-Var posterior
     [mean, sd], details). Why: the smoother's windows see Req only through the data before them and
-    its prior, while the record's tail, where Req is decided, comes last (docs/results.md). The
+    its prior, while the record's tail, where Req is decided, comes last (docs/validation.md). The
     data inform Req twice (the En4D-Var fit, then the windows): an empirical-Bayes approximation,
     measured rather than exact. A Req given in meta.json (prior sd 0) is kept. An experiment whose
     En4D-Var Req lies more than ``conflict_z`` preprocessing sd from its preprocessing Req keeps the

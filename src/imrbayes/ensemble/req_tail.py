@@ -3,7 +3,7 @@
 Preprocessing estimates Req as the mean of a record's last frames. A bubble whose contents are
 still cooling (the thermal model) oscillates about a mean that lies *above* Req there and settles
 from above, so that estimate is biased high (camera records to t* = 3.6: +2.3 % on average,
-docs/results.md), and along the (G, Req) ridge of the likelihood a few per cent of Req are
+docs/validation.md), and along the (G, Req) ridge of the likelihood a few per cent of Req are
 ~9 times as many per cent of G and ~1x of mu. The forward model knows how far above Req its tail
 lies: with a material estimate theta and each experiment's Rmax,
 
@@ -35,7 +35,7 @@ __all__ = [
 #: |z| beyond which a fit's Req contradicts the record's own tail (:func:`req_shift_z`). On constant-NHKV
 #: camera records the largest |z| was 2.14 over 360 bubbles (``validation/req_conflict_probe.py``) and
 #: 3.6 over the 178 bubbles of 40 constant-NHKV datasets of diagnose's designs, 2 of them beyond 3
-#: (``validation/req_conflict_classes.py``, docs/diagnosis.md "The Req conflict").
+#: (``validation/req_conflict_classes.py``, docs/methods.md "The Req conflict").
 REQ_CONFLICT_Z = 3.0
 
 
@@ -119,7 +119,7 @@ def req_shift_z(obs, per_experiment) -> list:
     z = (fitted mean - tail Req) / tail sd, fitted_req_m, fitted_req_sd_m, preprocessing_req_m,
     preprocessing_req_sd_m. Why it matters: the fits see t* <= 3 (the analysis grid), the tail
     Req of a long record comes from frames after it, so a large |z| means the model reproduces
-    the collapses only with a bubble size its own later record contradicts (docs/diagnosis.md,
+    the collapses only with a bubble size its own later record contradicts (docs/methods.md,
     "The Req conflict")."""
     names = list(obs.names)
     req = np.asarray(obs.req_m, dtype=np.float64)
@@ -151,7 +151,7 @@ def alignment_shift_z(per_experiment) -> list:
     and ``nuisance.t0_s`` = {prior_mean, prior_sd, mean}, SI, as En4D-Var writes them). Why: the
     local fit sees only the frames around the maximum, the fit the whole collapse and rebounds; a
     model whose collapse needs another maximum than the filmed one moves them by many sd
-    (docs/diagnosis.md, "The alignment conflict")."""
+    (docs/methods.md, "The alignment conflict")."""
     out = []
     for e in per_experiment:
         nu = e.get("nuisance") or {}

@@ -27,7 +27,7 @@ __all__ = [
 #: The product's rule: a window is prior-dominated when the parameter prior's mean still carries
 #: more than this weight in the window's posterior mean -- through the chain of window priors, not
 #: only through its own width (:func:`chained_prior_weight`). A run of such windows followed by
-#: decided ones looks like a trend on constant-parameter data (docs/results.md, "Spurious trends
+#: decided ones looks like a trend on constant-parameter data (docs/validation.md, "Spurious trends
 #: from the prior"). 5 %, not the 25 % one Gaussian update would suggest: the linearised weight
 #: understated the pull of windows 1-2 by 3-8x on the camera calibration (20 seeds); at 5 %
 #: windows 0-1 are flagged on every seed there and window 2 on 12 of 20.

@@ -1,5 +1,5 @@
 """The shared forward model: Keller-Miksis bubble dynamics, IMR bubble contents, constitutive
-models. Physics: shared/docs/forward-model.md. Public API:
+models. Physics: shared/docs/methods.md. Public API:
 
 >>> fm = ForwardModel("nhkv")                      # KM, thermal bubble, vapour, mass transfer
 >>> R = fm.simulate_radius({"G": 7.29e3, "mu": 0.088}, rmax_m=263e-6, req_m=263e-6 / 7.58,

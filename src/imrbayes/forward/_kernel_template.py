@@ -8,7 +8,7 @@
 # what the loops share (dense output, parameter pieces, step control, final status) in integration_common.py,
 # both compiled once for all models; codegen hashes them into this copy's name.
 #
-# Physics: shared/docs/forward-model.md (IMRv2, in our words). Everything here is dimensionless.
+# Physics: shared/docs/methods.md (IMRv2, in our words). Everything here is dimensionless.
 # Time stepping, three loops: (1) Radau IIA order 5 (integrate_member_radau; default for the
 # thermal bubble in a cold medium) with a finite-difference Jacobian in the problem's structure,
 # 2x2-block tridiagonal over the bubble nodes plus a few low-rank columns, solved by block Thomas

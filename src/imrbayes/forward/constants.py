@@ -3,7 +3,7 @@
 One place holds every constant: :class:`Physics` (defaults = IMRv2's ``default_case``) and
 :func:`nondimensional_groups`, which forms the groups exactly as IMRv2 does (lengths scaled by
 Rmax, velocities by ``Uc = sqrt(p8/rho)``, pressures by ``p8``, temperature by ``T8``).
-See ``shared/docs/forward-model.md`` §1, §2 and §10.
+See ``shared/docs/methods.md`` §1, §2 and §10.
 """
 
 from __future__ import annotations

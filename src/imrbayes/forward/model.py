@@ -315,8 +315,8 @@ class ForwardModel:
         # One compiled entry point for every batch, serial or threaded: the serial and the threaded
         # compilations of the member loop differ in their last bits (1e-10 relative through a
         # collapse), and a process used whichever it loaded first -- so a run's numbers depended on
-        # --workers (through MIEnKS-MDA's seeding, since fixed, that became 11 % of one bubble's G;
-        # docs/open-work.md, sessions 57-58). Serial means one thread for this call.
+        # --workers (through MIEnKS-MDA's seeding, since fixed, that became 11 % of one bubble's G).
+        # Serial means one thread for this call.
         threads = numba.get_num_threads()
         serial = not self.parallel or n < 2
         if serial and threads > 1:

@@ -16,7 +16,7 @@ SCHEMES = ("converged", "imrv2-fd")
 # (see bubble_grid). Its grid is the cheapest wall-clustered grid within 1.5e-3 (relative L2 in R*,
 # t* <= 3) of the grid limit on the refinement study's cases (LIC, a stiff and a soft gel, the LIC
 # batch; with and without mass transfer) and on held-out bubbles over the range of the real gels
-# (benchmarks/grid_refinement.py, docs/forward-model.md "Default resolution"). mt (medium points)
+# (benchmarks/grid_refinement.py, docs/methods.md "Default resolution"). mt (medium points)
 # matters only with the warm medium, which the study did not cover: it stays at 64.
 DEFAULT_RESOLUTION = {"imrv2-fd": (25, 25), "converged": (96, 64)}
 DEFAULT_STRETCH = 2.75

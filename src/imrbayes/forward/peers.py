@@ -11,8 +11,8 @@ polytropic exponent is 1.4 against IMRv2's 1.47); the forward options map one to
 model, thermal or polytropic bubble, vapour, mass transfer, cold or warm medium). Materials:
 ``nhkv``, ``qkv``, ``zener`` (IMRv2's stress models 1, 2 and the Zener family in both codes; the
 Zener with ``zener_j=consistent``, our default, which is PyIMR's).
-Measured agreement at both codes' grid limits: ``docs/forward-model.md`` (peer row) and
-``docs/results.md`` ("Data from another code").
+Measured agreement at both codes' grid limits: ``docs/methods.md`` (peer row) and
+``docs/validation.md`` ("Data from another code").
 """
 
 from __future__ import annotations

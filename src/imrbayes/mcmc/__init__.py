@@ -11,7 +11,7 @@
 * :mod:`~imrbayes.mcmc.fit` -- ``imrbayes fit --mcmc``: every window as an execution unit;
 * :mod:`~imrbayes.mcmc.figures` -- forest, KL/W2 against t*, pair plots.
 
-Design, agreement rule and numbers: ``docs/mcmc.md``.
+Design, agreement rule and numbers: ``docs/methods.md``.
 
 >>> space = ParamSpace.for_model(fm.constitutive)                 # names, log transform, prior (box_sd=10)
 >>> target = fitting_window_target(fm, obs, space, weight="en4dvar")

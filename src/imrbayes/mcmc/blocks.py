@@ -3,7 +3,7 @@
 With the default likelihood each experiment carries its own nuisances nu_e (Rmax error, time of the
 maximum, Req error: :mod:`imrbayes.ensemble.likelihood`), so En4D-Var's window on six camera records
 has d = 2 + 18 coordinates. Moves over all d coordinates at once (DE, stretch) take steps that shrink
-like 1/sqrt(d) and need tau of 150-360 steps there (docs/mcmc.md). The structure helps twice:
+like 1/sqrt(d) and need tau of 150-360 steps there (docs/methods.md). The structure helps twice:
 
 * given the parameters theta, the target factorises over experiments, so **every experiment's block
   can be updated on its own, all in one forward batch**: :class:`BlockMove` proposes a new nu_e for

@@ -2,7 +2,7 @@
 
 The ensemble smoother's Gaussian is where the walkers start and where the ``indep`` proposal sits.
 On En4D-Var's window with nuisances it is 0.5-2 sd off in places and its nuisance sds are 1.3-1.9x
-the exact ones (docs/mcmc.md), so an independence proposal on it is accepted ~15 % of the time.
+the exact ones (docs/methods.md), so an independence proposal on it is accepted ~15 % of the time.
 :func:`quadratic_placement` instead evaluates the exact log-density on a cloud of points around the
 current Gaussian, fits a full quadratic by least squares, and moves the Gaussian to that quadratic's
 maximum and curvature; a few rounds converge on the target's local Gaussian (its Laplace

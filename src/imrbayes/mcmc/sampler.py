@@ -39,7 +39,7 @@ proposal re-placed once on its own draws; before it
 placed on the target (``place``, :mod:`imrbayes.mcmc.laplace`), and a window with one nuisance per
 experiment whose placed fit is Gaussian (:data:`LAPLACE_MAX_RESIDUAL`) is sampled by independent
 walkers on it instead (:data:`LAPLACE_INDEP`). The
-choice is measured by evaluations to convergence and ESS per forward solve (docs/mcmc.md).
+choice is measured by evaluations to convergence and ESS per forward solve (docs/methods.md).
 
 Sampling is seeded: ensemble c uses ``emcee.State(p0_c, random_state=RandomState(seed_c).get_state())``
 with seeds spawned from ``seed`` by ``numpy.random.SeedSequence``. With an HDF5 file every step of
@@ -104,13 +104,13 @@ def _hdf_backend(path, name, read_only=False):
 
 
 #: emcee moves by name (``MCMCSettings.moves``). ``snooker`` is :func:`snooker_move` (the corrected
-#: DE snooker), not emcee 3.1.6's ``DESnookerMove``, which does not sample the target (docs/mcmc.md).
+#: DE snooker), not emcee 3.1.6's ``DESnookerMove``, which does not sample the target (docs/methods.md).
 #: ``blocks`` and ``ridge`` (:mod:`imrbayes.mcmc.blocks`) use the target's per-experiment nuisance structure.
 MOVE_NAMES = ("stretch", "de", "snooker", "walk", "indep", "blocks", "ridge")
 
 #: ``moves="auto"`` (the default): the mixture for windows without sampled nuisances, and for those
 #: with them (per-experiment Rmax / time of the maximum / Req: 5.7x fewer evaluations to convergence
-#: on a 20-coordinate camera window, docs/mcmc.md)
+#: on a 20-coordinate camera window, docs/methods.md)
 AUTO_MOVES = {"plain": "indep:0.7,de:0.3", "nuisances": "ridge:0.5,blocks:0.5"}
 #: On a window with sampled nuisances ``moves="auto"`` first places the start Gaussian on the target
 #: (``place="auto"`` -> ``"laplace"``); when the quadratic fit of its last round leaves a residual sd of
@@ -245,7 +245,7 @@ def independence_move(center, cov, scale: float = 1.5, dof: float = 4.0):
     The proposal does not depend on the chain, so the move leaves any target invariant whatever
     ``center`` and ``cov`` are; they decide only its efficiency. Placed on the ensemble smoother's
     Gaussian (the start), a window that is close to Gaussian is sampled with an autocorrelation time
-    of a few steps, where differential evolution needs 7-10 (docs/mcmc.md); the t's tails keep the
+    of a few steps, where differential evolution needs 7-10 (docs/methods.md); the t's tails keep the
     ratio p/q bounded when the Gaussian is too narrow or off-centre, and the DE moves mixed with it
     still explore what the proposal covers poorly. ``move.proposal.place(center, cov)`` re-places it
     between steps (``MCMCSettings.indep_adapt``).
@@ -755,7 +755,7 @@ def _place_start(
             and per_exp <= LAPLACE_MAX_BLOCK
         ):
             # the window is Gaussian to within the bound over the placed cloud: independent walkers on
-            # the placed proposal (docs/mcmc.md: 13-22x fewer evaluations on the verification window)
+            # the placed proposal (docs/methods.md: 13-22x fewer evaluations on the verification window)
             s = replace(s, **LAPLACE_INDEP)
             placement["moves_rule"] = (
                 f"residual sd {last['residual_sd_nats']:.3g} <= {LAPLACE_MAX_RESIDUAL} nats: "
@@ -1043,7 +1043,7 @@ def run_mcmc(
     )
     if s.n_walkers < 2 * d and not independent_walkers(s.moves):
         # the default likelihood samples each experiment's nuisances too: at least 2 walkers per coordinate
-        # (fewer with the block and ridge moves did not pay: docs/mcmc.md)
+        # (fewer with the block and ridge moves did not pay: docs/methods.md)
         s = replace(s, n_walkers=2 * d)
     s.check(d)
     Lc = np.linalg.cholesky(0.5 * (start_cov + start_cov.T))

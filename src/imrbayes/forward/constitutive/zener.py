@@ -6,7 +6,7 @@ t = 0 (IMRv2), so the elastic stress relaxes towards its neo-Hookean value over 
 J, the Keller-Miksis coefficient of Rddot, is the stress's instantaneous viscosity 4 Lambda/Re
 (option ``zener_j=consistent``, the default) or IMRv2's 4/Re for every Lambda (``zener_j=imrv2``,
 the default of the ``imrv2-fd`` scheme, for conformance; Oldroyd-B, IMRv2's stress 5, uses 4 Lambda/Re
-in both codes). At Lambda = 0 the two differ by 2.7e-2 relative L2 in R* (docs/forward-model.md).
+in both codes). At Lambda = 0 the two differ by 2.7e-2 relative L2 in R* (docs/methods.md).
 """
 
 import numpy as np
