@@ -38,6 +38,21 @@ def parser(name: str, doc: str) -> argparse.ArgumentParser:
     return ap
 
 
+def add_bubble_option(ap: argparse.ArgumentParser) -> None:
+    """``--bubble``: the bubble model of a claim's data and fits (thermal; polytropic with ``--quick``)."""
+    ap.add_argument(
+        "--bubble",
+        choices=["polytropic", "thermal"],
+        default=None,
+        help="bubble model of data and fit [default: thermal; --quick: polytropic]",
+    )
+
+
+def bubble_of(args: argparse.Namespace) -> str:
+    """The bubble model :func:`add_bubble_option` chose."""
+    return args.bubble or ("polytropic" if args.quick else "thermal")
+
+
 def imrbayes(*args: str) -> None:
     """Run one ``imrbayes`` command in this process (compiled kernels stay loaded between cases).
 

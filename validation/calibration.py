@@ -21,6 +21,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from validation._common import (
+    add_bubble_option,
+    bubble_of,
     coverage_figure,
     coverage_rows,
     estimate_of,
@@ -126,19 +128,14 @@ def main(argv=None) -> None:
     ap.add_argument("--families", default=",".join(FAMILIES), help="comma-separated families [default: all]")
     ap.add_argument("--methods", default="en4dvar", help="comma-separated fit methods [default: en4dvar]")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per family [default: 40; --quick: 2]")
-    ap.add_argument(
-        "--bubble",
-        choices=["polytropic", "thermal"],
-        default=None,
-        help="bubble model of data and fit [default: thermal; --quick: polytropic]",
-    )
+    add_bubble_option(ap)
     a = ap.parse_args(argv)
     families = [f for f in a.families.split(",") if f]
     unknown = sorted(set(families) - set(FAMILIES))
     if unknown:
         ap.error(f"--families: unknown {unknown}; known: {list(FAMILIES)}")
     n_seeds = a.seeds or (2 if a.quick else 40)
-    bubble = a.bubble or ("polytropic" if a.quick else "thermal")
+    bubble = bubble_of(a)
     methods = [m for m in a.methods.split(",") if m]
     cases = [
         (f"{fam}_{m}_{bubble}_seed{s}", fit_case(fam, m, s, bubble))

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from validation._common import failures, imrbayes, parser, run_cases, wilson, write_table
+from validation._common import add_bubble_option, bubble_of, failures, imrbayes, parser, run_cases, wilson, write_table
 
 NAME = "mcmc"
 TRUTH = {"G": 7.29e3, "mu": 0.088}
@@ -78,16 +78,11 @@ def main(argv=None) -> None:
     ap.add_argument("--methods", default=None, help="comma-separated [default: en4dvar,mienks; --quick: en4dvar]")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per method [default: 5; --quick: 1]")
     ap.add_argument("--windows", default="all", help="windows to sample (fit --mcmc-windows) [default: all]")
-    ap.add_argument(
-        "--bubble",
-        choices=["polytropic", "thermal"],
-        default=None,
-        help="bubble model [default: thermal; --quick: polytropic]",
-    )
+    add_bubble_option(ap)
     a = ap.parse_args(argv)
     methods = (a.methods or ("en4dvar" if a.quick else "en4dvar,mienks")).split(",")
     n_seeds = a.seeds or (1 if a.quick else 5)
-    bubble = a.bubble or ("polytropic" if a.quick else "thermal")
+    bubble = bubble_of(a)
     cases = [(f"{m}_{bubble}_seed{s}", mcmc_case(m, s, bubble, a.windows)) for m in methods for s in range(n_seeds)]
     rows = run_cases(
         a.out,

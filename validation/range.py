@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from validation._common import (
+    add_bubble_option,
+    bubble_of,
     coverage_figure,
     coverage_rows,
     estimate_of,
@@ -137,19 +139,14 @@ def main(argv=None) -> None:
     ap = parser(NAME, __doc__)
     ap.add_argument("--seeds", type=int, default=None, help="seeds per cell [default: 20; --quick: 1]")
     ap.add_argument("--labs", default=",".join(LABS), help="comma-separated labs [default: all]")
-    ap.add_argument(
-        "--bubble",
-        choices=["polytropic", "thermal"],
-        default=None,
-        help="bubble model of data and fit [default: thermal; --quick: polytropic]",
-    )
+    add_bubble_option(ap)
     a = ap.parse_args(argv)
     labs = [x for x in a.labs.split(",") if x]
     unknown = sorted(set(labs) - set(LABS))
     if unknown:
         ap.error(f"--labs: unknown {unknown}; known: {list(LABS)}")
     n_seeds = a.seeds or (1 if a.quick else 20)
-    bubble = a.bubble or ("polytropic" if a.quick else "thermal")
+    bubble = bubble_of(a)
     grid = [(G, mu) for G in ((0.0, 3e3) if a.quick else G_VALUES) for mu in ((0.05,) if a.quick else MU_VALUES)]
     cases = [
         (f"{lab}_G{G:g}_mu{mu:g}_{bubble}_seed{s}", range_case(lab, G, mu, s, bubble))
